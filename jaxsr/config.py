@@ -1,0 +1,196 @@
+"""Frozen configuration dataclasses shared by every stage of the pipeline.
+
+`SensorConfig` is a pytree: the fields that define array shapes (frame size, scale, bin count) are static
+metadata, the physical numbers are leaves, so a sweep can `jax.vmap` or `jax.grad` over them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import jax
+import jax.numpy as jnp
+
+# Mean signal photons per LR pixel with a return (PHYSICS.md section 2). Chosen by the calibration
+# experiment so that bicubic upsampling of centre-of-mass depth lands near the paper's bicubic row;
+# see experiments/results/calibration.md.
+DEFAULT_MEAN_SIGNAL = 4.0
+
+
+@dataclasses.dataclass(frozen=True)
+class SensorConfig:
+    """A SPAD direct time-of-flight sensor and its optics (PHYSICS.md sections 1-2).
+
+    Static (shape-defining): `hr_shape` (rows, cols of the HR frame), `scale` (HR pixels per LR pixel along
+    each axis) and `bins` (histogram bins K). Leaves (physical, differentiable): `d_max` (m, the range gate and
+    the depth normalisation), `fov_deg` (horizontal field of view, degrees), `irf_sigma` (Gaussian IRF width,
+    bins), `r_min` (m, floor of the inverse-square law) and `ambient_floor` (a0, ambient added to every
+    pixel's reflectivity: dark targets, dark counts).
+    """
+
+    hr_shape: tuple[int, int] = dataclasses.field(default=(128, 256), metadata=dict(static=True))
+    scale: int = dataclasses.field(default=4, metadata=dict(static=True))
+    bins: int = dataclasses.field(default=16, metadata=dict(static=True))
+    d_max: float = 35.0
+    fov_deg: float = 30.0
+    irf_sigma: float = 0.4
+    r_min: float = 0.5
+    ambient_floor: float = 0.05
+
+    def __post_init__(self):
+        h, w = self.hr_shape
+        if self.scale < 1 or h % self.scale or w % self.scale:
+            raise ValueError(
+                f"SensorConfig: HR shape {self.hr_shape} must be divisible by scale {self.scale}"
+            )
+        if self.bins < 2:
+            raise ValueError(f"SensorConfig: bins must be >= 2, got {self.bins}")
+
+    @property
+    def lr_shape(self) -> tuple[int, int]:
+        """(rows, cols) of the SPAD (LR) frame."""
+        return (self.hr_shape[0] // self.scale, self.hr_shape[1] // self.scale)
+
+    @property
+    def bin_width(self):
+        """Metres of radial range per histogram bin."""
+        return self.d_max / self.bins
+
+    @property
+    def focal_px(self):
+        """Focal length in HR pixels: (W/2) / tan(fov/2), square pixels."""
+        return (self.hr_shape[1] / 2) / jnp.tan(jnp.deg2rad(self.fov_deg) / 2)
+
+
+jax.tree_util.register_dataclass(
+    SensorConfig,
+    data_fields=["d_max", "fov_deg", "irf_sigma", "r_min", "ambient_floor"],
+    meta_fields=["hr_shape", "scale", "bins"],
+)
+
+
+@dataclasses.dataclass(frozen=True)
+class ModelConfig:
+    """The 3+TR-block dynamic-upsampling-filter network (DESIGN.md "The network"). All fields are static.
+
+    `tr` is the temporal radius: the network sees 2*tr+1 LR frames and has 3 + tr blocks. `scale` is the
+    upsampling factor r (4, or 8 as in the paper's supplement). `base` (stem channels, 64), `growth` (channels
+    added per block, 32), `head` (256), `filter_hidden` (512) and `filter_size` (5: 5x5 dynamic filters) are
+    the paper's widths. `same_blocks` is the number of temporally padded blocks (3). BN uses the Keras
+    defaults `bn_momentum` 0.99, `bn_eps` 1e-3. `filter_padding` is how the 5x5 neighbourhood of a border LR
+    pixel is completed: "edge" (replicate; the default, a deviation from DUF's zero padding, because a zero
+    means "depth 0", the nearest possible return) or "zero" (DUF). `conv3d_impl` is "auto" (the faster one
+    on the current backend), "native" (one 3D convolution) or "taps" (a sum of 2D convolutions over the
+    temporal taps).
+    """
+
+    tr: int = 0
+    scale: int = 4
+    base: int = 64
+    growth: int = 32
+    head: int = 256
+    filter_hidden: int = 512
+    filter_size: int = 5
+    same_blocks: int = 3
+    bn_momentum: float = 0.99
+    bn_eps: float = 1e-3
+    filter_padding: str = "edge"
+    conv3d_impl: str = "auto"
+
+    def __post_init__(self):
+        if self.tr < 0:
+            raise ValueError(f"ModelConfig: tr must be >= 0, got {self.tr}")
+        if self.scale < 1:
+            raise ValueError(f"ModelConfig: scale must be >= 1, got {self.scale}")
+        if self.filter_size < 1 or self.filter_size % 2 == 0:
+            raise ValueError(f"ModelConfig: filter_size must be odd and >= 1, got {self.filter_size}")
+        if self.filter_padding not in ("edge", "zero"):
+            raise ValueError(f"ModelConfig: filter_padding must be 'edge' or 'zero', got {self.filter_padding!r}")
+        if self.conv3d_impl not in ("auto", "native", "taps"):
+            raise ValueError(
+                f"ModelConfig: conv3d_impl must be 'auto', 'native' or 'taps', got {self.conv3d_impl!r}"
+            )
+
+    @property
+    def frames(self) -> int:
+        """Input window length 2*tr + 1."""
+        return 2 * self.tr + 1
+
+    @property
+    def features(self) -> int:
+        """Channels entering the head: base + growth * (same_blocks + tr)."""
+        return self.base + self.growth * (self.same_blocks + self.tr)
+
+
+jax.tree_util.register_dataclass(ModelConfig, data_fields=[], meta_fields=[f.name for f in dataclasses.fields(ModelConfig)])
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainConfig:
+    """Everything that affects a training run's result (DESIGN.md "Training"); it goes into the checkpoint.
+
+    Optimisation: Huber loss with `huber_delta`; hand-written Adam (`lr`, `adam_b1`, `adam_b2`, `adam_eps`,
+    Keras's epsilon placement and default 1e-7); step decay of the rate by `lr_decay` every `decay_epochs`
+    epochs, exactly at epoch boundaries. `batch_size` examples per step, `examples_per_epoch` examples per
+    epoch (steps per epoch = examples_per_epoch // batch_size), at most `epochs` epochs, early stopping after
+    `patience` epochs without a lower validation loss (the best weights are kept).
+    Data: frame SNR log-uniform in `snr_range`; mean signal photons per LR pixel log-uniform in
+    `mean_signal_range` (both ends `DEFAULT_MEAN_SIGNAL` by default, the calibrated level); scene motion is
+    that of `jaxsr.scenes.training_clip` (0.2-5 LR px/frame). `patch` = (rows, cols) of a random LR crop to
+    train on (None: whole frames; the network is fully convolutional, crops only cut compute).
+    Validation: the first `val_frames` frames of each sequence in `val_sequences` of
+    `jaxsr.scenes.test_sequences` (empty tuple: all), at each sequence's own SNR, with `val_mean_signal`.
+    `seed` fixes everything random (data, initial weights, validation noise).
+    """
+
+    batch_size: int = 4
+    examples_per_epoch: int = 15500
+    epochs: int = 100
+    patience: int = 5
+    lr: float = 1e-3
+    lr_decay: float = 0.1
+    decay_epochs: int = 10
+    huber_delta: float = 0.01
+    adam_b1: float = 0.9
+    adam_b2: float = 0.999
+    adam_eps: float = 1e-7
+    snr_range: tuple[float, float] = (0.5, 8.0)
+    mean_signal_range: tuple[float, float] = (DEFAULT_MEAN_SIGNAL, DEFAULT_MEAN_SIGNAL)
+    patch: tuple[int, int] | None = None
+    val_frames: int = 500
+    val_sequences: tuple[str, ...] = ()
+    val_mean_signal: float = DEFAULT_MEAN_SIGNAL
+    seed: int = 0
+
+    def __post_init__(self):
+        if self.batch_size < 1 or self.examples_per_epoch < self.batch_size:
+            raise ValueError(
+                f"TrainConfig: need batch_size >= 1 and examples_per_epoch >= batch_size, got "
+                f"{self.batch_size} and {self.examples_per_epoch}"
+            )
+        if self.epochs < 1 or self.patience < 1 or self.decay_epochs < 1:
+            raise ValueError("TrainConfig: epochs, patience and decay_epochs must be >= 1")
+        if not (0 < self.snr_range[0] <= self.snr_range[1]):
+            raise ValueError(f"TrainConfig: snr_range must be 0 < lo <= hi, got {self.snr_range}")
+        if not (0 < self.mean_signal_range[0] <= self.mean_signal_range[1]):
+            raise ValueError(f"TrainConfig: mean_signal_range must be 0 < lo <= hi, got {self.mean_signal_range}")
+
+    @property
+    def steps_per_epoch(self) -> int:
+        """Optimiser steps per epoch."""
+        return self.examples_per_epoch // self.batch_size
+
+
+# Training presets. `paper`: the paper's schedule (15500 examples/epoch, batch 4, 100 epochs, patience 5,
+# validation on 3 x 500 frames). `cpu`: sized so that TR0-TR4 all train in about 45 min on 2 CPU cores
+# (measured step times in benchmarks/bench_train.py); the decay and the patience are scaled with the epochs.
+PRESETS = {
+    "paper": TrainConfig(),
+    "cpu": TrainConfig(
+        examples_per_epoch=160,
+        epochs=6,
+        patience=3,
+        decay_epochs=4,
+        patch=(16, 32),
+        val_frames=8,
+    ),
+}

@@ -1,0 +1,163 @@
+"""The 3+TR-block dynamic-upsampling-filter network (VSR-DUF adapted; DESIGN.md "The network").
+
+`init_model(key, cfg) -> (params, state)` and `apply_model(params, state, windows, cfg)` are pure functions
+of nested dicts/lists of arrays (pytree key paths such as `blocks/0/conv2/w` name every array). `Model`
+bundles params, state and config as one pytree; `super_resolve` runs a model over a whole LR sequence.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+
+from .config import ModelConfig
+from .layers import batch_norm, conv3d, depth_to_space, dynamic_upsample, init_batch_norm, init_conv
+
+__all__ = ["Model", "init_model", "apply_model", "count_params", "temporal_windows", "super_resolve"]
+
+
+def init_model(key, cfg: ModelConfig) -> tuple[dict, dict]:
+    """Initial parameters and batch-norm state of the network described by `cfg`.
+
+    Convolutions: Glorot-uniform kernels, zero biases (Keras defaults); BN: scale 1, shift 0, running mean 0,
+    running variance 1. Returns (params, state), nested dicts/lists of float32 arrays:
+    params = {stem, blocks: [{bn1, conv1, bn2, conv2}] * (3 + tr), head: {bn, conv}, residual: {conv1, conv2},
+    filter: {conv1, conv2}}; state = {blocks: [{bn1, bn2}], head: {bn}} with {mean, var} per BN.
+    """
+    r2 = cfg.scale * cfg.scale
+    taps = cfg.filter_size * cfg.filter_size
+    n_blocks = cfg.same_blocks + cfg.tr
+    keys = iter(jax.random.split(key, 2 * n_blocks + 6))
+    params = {"stem": init_conv(next(keys), (1, 3, 3), 1, cfg.base), "blocks": []}
+    state = {"blocks": []}
+    f = cfg.base
+    for _ in range(n_blocks):
+        bn1, s1 = init_batch_norm(f)
+        bn2, s2 = init_batch_norm(f)
+        params["blocks"].append(
+            {
+                "bn1": bn1,
+                "conv1": init_conv(next(keys), (1, 1, 1), f, f),
+                "bn2": bn2,
+                "conv2": init_conv(next(keys), (3, 3, 3), f, cfg.growth),
+            }
+        )
+        state["blocks"].append({"bn1": s1, "bn2": s2})
+        f += cfg.growth
+    bn, s = init_batch_norm(f)
+    params["head"] = {"bn": bn, "conv": init_conv(next(keys), (1, 3, 3), f, cfg.head)}
+    state["head"] = {"bn": s}
+    params["residual"] = {
+        "conv1": init_conv(next(keys), (1, 1, 1), cfg.head, cfg.head),
+        "conv2": init_conv(next(keys), (1, 1, 1), cfg.head, r2),
+    }
+    params["filter"] = {
+        "conv1": init_conv(next(keys), (1, 1, 1), cfg.head, cfg.filter_hidden),
+        "conv2": init_conv(next(keys), (1, 1, 1), cfg.filter_hidden, taps * r2),
+    }
+    return params, state
+
+
+def count_params(params) -> int:
+    """Number of scalars in a params pytree (weights, biases, BN scale and shift)."""
+    return sum(math.prod(x.shape) for x in jax.tree_util.tree_leaves(params))
+
+
+def _check_windows(windows, cfg: ModelConfig):
+    if windows.ndim != 4 or windows.shape[1] != cfg.frames:
+        raise ValueError(
+            f"apply_model: expected windows (B, {cfg.frames}, H, W) for tr={cfg.tr}, got shape {windows.shape}"
+        )
+
+
+def apply_model(params, state, windows, cfg: ModelConfig, *, train: bool = False):
+    """Super-resolve the centre frame of each window.
+
+    windows: (B, 2*tr+1, H, W) LR normalised depth (0..1, 1 = no return), the centre frame at index tr.
+    Returns hr (B, H*r, W*r) normalised depth, neither clipped nor passed through an activation; with
+    `train=True` batch norm uses batch statistics and the result is (hr, new_state).
+    """
+    _check_windows(windows, cfg)
+    bn = dict(train=train, momentum=cfg.bn_momentum, eps=cfg.bn_eps)
+    impl = cfg.conv3d_impl
+    x = windows[..., None]  # (B, T, H, W, 1)
+    x = conv3d(x, params["stem"]["w"], params["stem"]["b"], padding="same", impl=impl)
+    new_state = {"blocks": []}
+    for i, (p, s) in enumerate(zip(params["blocks"], state["blocks"])):
+        valid = i >= cfg.same_blocks  # temporally unpadded: T drops by 2
+        y, s1 = batch_norm(p["bn1"], s["bn1"], x, **bn)
+        y = conv3d(jax.nn.relu(y), p["conv1"]["w"], p["conv1"]["b"])
+        y, s2 = batch_norm(p["bn2"], s["bn2"], y, **bn)
+        pad = ((0, 0) if valid else (1, 1), (1, 1), (1, 1))
+        y = conv3d(jax.nn.relu(y), p["conv2"]["w"], p["conv2"]["b"], padding=pad, impl=impl)
+        if valid:
+            x = x[:, 1:-1]
+        x = jnp.concatenate([x, y], axis=-1)
+        new_state["blocks"].append({"bn1": s1, "bn2": s2})
+    h, sh = batch_norm(params["head"]["bn"], state["head"]["bn"], x, **bn)
+    new_state["head"] = {"bn": sh}
+    h = jax.nn.relu(conv3d(jax.nn.relu(h), params["head"]["conv"]["w"], params["head"]["conv"]["b"], impl=impl))
+    h = h[:, 0]  # T = 1 after tr valid blocks: (B, H, W, head)
+
+    def dense(p, z):
+        return z @ p["w"][0, 0, 0] + p["b"]
+
+    residual = dense(params["residual"]["conv2"], jax.nn.relu(dense(params["residual"]["conv1"], h)))
+    logits = dense(params["filter"]["conv2"], jax.nn.relu(dense(params["filter"]["conv1"], h)))
+    r2 = cfg.scale * cfg.scale
+    filters = jax.nn.softmax(logits.reshape(*logits.shape[:-1], cfg.filter_size**2, r2), axis=-2)
+    centre = windows[:, cfg.tr]
+    sub = dynamic_upsample(centre, filters, padding=cfg.filter_padding) + residual  # (B, H, W, r^2)
+    hr = depth_to_space(sub, cfg.scale)[..., 0]
+    return (hr, new_state) if train else hr
+
+
+@dataclasses.dataclass(frozen=True)
+class Model:
+    """A trained network: `params` and `state` (pytrees of arrays, the leaves) and its `config` (static)."""
+
+    params: dict
+    state: dict
+    config: ModelConfig
+
+    def __call__(self, windows):
+        """Inference: (B, 2*tr+1, H, W) LR windows -> (B, H*r, W*r) HR normalised depth."""
+        return apply_model(self.params, self.state, windows, self.config)
+
+
+jax.tree_util.register_dataclass(Model, data_fields=["params", "state"], meta_fields=["config"])
+
+
+def temporal_windows(seq, tr: int):
+    """Sliding windows of 2*tr+1 frames centred on every frame, the ends edge-replicated.
+
+    seq: (T, H, W) -> (T, 2*tr+1, H, W); window t holds frames clip(t - tr .. t + tr, 0, T-1).
+    """
+    t = seq.shape[0]
+    idx = jnp.clip(jnp.arange(t)[:, None] + jnp.arange(-tr, tr + 1)[None, :], 0, t - 1)
+    return seq[idx]
+
+
+@jax.jit
+def _infer(model: Model, windows):
+    return model(windows)
+
+
+def super_resolve(model: Model, lr_seq, *, batch_size: int = 8):
+    """Super-resolve a whole LR depth sequence: (T, H, W) -> (T, H*r, W*r), normalised depth.
+
+    Each frame is the centre of an edge-replicated window of 2*tr+1 frames (`temporal_windows`); the frames
+    are processed `batch_size` at a time by one jitted function (the last batch is padded, then cropped).
+    """
+    lr_seq = jnp.asarray(lr_seq, jnp.float32)
+    if lr_seq.ndim != 3:
+        raise ValueError(f"super_resolve: expected an LR sequence (T, H, W), got shape {lr_seq.shape}")
+    windows = temporal_windows(lr_seq, model.config.tr)
+    t = windows.shape[0]
+    pad = (-t) % batch_size
+    windows = jnp.concatenate([windows, jnp.repeat(windows[-1:], pad, axis=0)]) if pad else windows
+    out = [_infer(model, windows[i : i + batch_size]) for i in range(0, windows.shape[0], batch_size)]
+    return jnp.concatenate(out)[:t]

@@ -1,0 +1,118 @@
+"""Depth extraction from photon histograms: centre of mass, and a Poisson maximum-likelihood fit.
+
+Implements PHYSICS.md section 3. Both work per LR pixel on the last (bins) axis and accept any leading
+axes. Depth is returned normalised (tau / K in [0, 1], bin-centre convention); pixels without a usable
+return are 1.0 ("no return", the same value the ground truth uses for sky).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+
+from ._checks import is_concrete, require_bins
+from .config import SensorConfig
+
+NO_RETURN = 1.0
+
+
+def _check_counts(name, counts, sensor):
+    counts = require_bins(name, counts, sensor)
+    if is_concrete(counts):
+        values = np.asarray(counts)
+        if values.size and not (np.all(np.isfinite(values)) and values.min() >= 0):
+            raise ValueError(f"{name}: counts must be finite and >= 0 photons, got min {values.min()}")
+    return jnp.asarray(counts, dtype=jnp.result_type(counts.dtype, float))
+
+
+def default_window(sensor: SensorConfig):
+    """Half-width w of the centre-of-mass window in bins: 1 if irf_sigma <= 0.5 bins, else 2."""
+    return jnp.where(sensor.irf_sigma <= 0.5, 1, 2)
+
+
+def centre_of_mass(counts, sensor: SensorConfig = SensorConfig(), *, window=None, z=0.0, return_mask=False):
+    """Background-subtracted centre of mass around the histogram peak.
+
+    b = median over bins (robust background per bin), k* = first argmax, window W = k* +- w clipped to
+    the gate, x_k = max(n_k - b, 0) on W, tau = sum (k + 0.5) x_k / sum x_k. A pixel is invalid (-> 1.0) if
+    sum x_k = 0 or n[k*] < b + z sqrt(max(b, 1)). Non-finite counts (possible only under jit, where values
+    are not checked) also give an invalid pixel.
+
+    Args:
+      counts: (..., K) photon counts, K = `sensor.bins`.
+      window: half-width w in bins (default: `default_window(sensor)`).
+      z: peak-significance threshold in standard deviations of the background (0 keeps every peak).
+      return_mask: also return the boolean validity mask.
+    Returns:
+      (...) normalised depth in [0, 1]; with `return_mask`, (depth, valid).
+    """
+    n = _check_counts("centre_of_mass", counts, sensor)
+    finite = jnp.all(jnp.isfinite(n), axis=-1)
+    n = jnp.where(finite[..., None], n, 0.0)
+    k = jnp.arange(sensor.bins)
+    w = default_window(sensor) if window is None else window
+    background = jnp.median(n, axis=-1)
+    k_peak = jnp.argmax(n, axis=-1)
+    in_window = jnp.abs(k - k_peak[..., None]) <= w
+    excess = jnp.where(in_window, jnp.maximum(n - background[..., None], 0.0), 0.0)
+    mass = jnp.sum(excess, axis=-1)
+    peak = jnp.max(n, axis=-1)
+    valid = finite & (mass > 0) & (peak >= background + z * jnp.sqrt(jnp.maximum(background, 1.0)))
+    tau = jnp.sum((k + 0.5) * excess, axis=-1) / jnp.where(valid, mass, 1.0)
+    depth = jnp.where(valid, tau / sensor.bins, NO_RETURN)
+    return (depth, valid) if return_mask else depth
+
+
+def _bin_model(theta, sensor):
+    """Expected counts for one pixel, theta = (tau in bins, log signal, log background)."""
+    tau, log_s, log_b = theta
+    edges = jnp.arange(sensor.bins + 1, dtype=theta.dtype)
+    cdf = 0.5 + 0.5 * jax.lax.erf((edges - tau) / (sensor.irf_sigma * jnp.sqrt(2.0)))
+    return jnp.exp(log_s) * (cdf[1:] - cdf[:-1]) + jnp.exp(log_b) / sensor.bins
+
+
+def _poisson_nll(theta, args):
+    n, sensor = args
+    lam = _bin_model(theta, sensor)
+    return jnp.sum(lam - n * jnp.log(lam))
+
+
+def maximum_likelihood_depth(
+    counts, sensor: SensorConfig = SensorConfig(), *, max_steps: int = 64, rtol=1e-5, atol=1e-5, return_mask=False
+):
+    """Per-pixel Poisson maximum-likelihood fit of (tau, signal, background) under the sensor's IRF.
+
+    Minimises sum_k lambda_k - n_k log lambda_k with lambda_k = S h_k(tau) + B / K (the forward model of
+    one LR pixel with a single surface) by BFGS (optimistix), vmapped over pixels and started from the
+    centre of mass (tau), the windowed excess (S) and the median (B). Better than the centre of mass where
+    photons are plentiful; no better in the photon-starved regime (experiments/results/extraction.md).
+
+    Args:
+      counts: (..., K) photon counts.
+      max_steps: BFGS iterations per pixel; rtol, atol: its tolerances.
+      return_mask: also return (valid, converged) masks: a pixel is valid if the centre of mass was.
+    Returns:
+      (...) normalised depth in [0, 1] (invalid pixels 1.0); with `return_mask`, (depth, valid, converged).
+    """
+    n = _check_counts("maximum_likelihood_depth", counts, sensor)
+    com, valid = centre_of_mass(n, sensor, return_mask=True)
+    batch_shape = n.shape[:-1]
+    n_flat = n.reshape(-1, sensor.bins)
+    background = jnp.median(n_flat, axis=-1)
+    signal = jnp.maximum(jnp.sum(n_flat, axis=-1) - background * sensor.bins, 1.0)
+    theta0 = jnp.stack(
+        [com.reshape(-1) * sensor.bins, jnp.log(signal), jnp.log(jnp.maximum(background * sensor.bins, 0.5))], -1
+    )
+    solver = optx.BFGS(rtol=rtol, atol=atol)
+
+    def fit_one(theta, counts_1):
+        sol = optx.minimise(_poisson_nll, solver, theta, args=(counts_1, sensor), max_steps=max_steps, throw=False)
+        return sol.value[0], sol.result == optx.RESULTS.successful
+
+    tau, converged = jax.vmap(fit_one)(theta0, n_flat)
+    tau = jnp.where(jnp.isfinite(tau), tau, theta0[:, 0]).reshape(batch_shape)
+    depth = jnp.where(valid, jnp.clip(tau / sensor.bins, 0.0, 1.0), NO_RETURN)
+    converged = converged.reshape(batch_shape)
+    return (depth, valid, converged) if return_mask else depth

@@ -1,0 +1,167 @@
+"""Centre of mass and maximum-likelihood depth extraction (PHYSICS.md section 3)."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jax.test_util import check_grads
+from scipy.special import ndtr
+
+import jaxsr
+from jaxsr.peaks import default_window
+
+CFG = jaxsr.SensorConfig()
+K = CFG.bins
+
+
+def irf_histogram(tau, sigma=0.4, signal=1.0, background=0.0):
+    """Closed-form expected histogram of one return at tau (bins) plus a flat background (NumPy, float64)."""
+    edges = np.arange(K + 1)
+    cdf = ndtr((edges[None, :] - np.asarray(tau)[:, None]) / sigma)
+    return signal * (cdf[:, 1:] - cdf[:, :-1]) + background / K
+
+
+def reference_com(n, w=1):
+    """PHYSICS.md section 3, one pixel at a time."""
+    out = []
+    for h in np.asarray(n, np.float64):
+        b = np.median(h)
+        kp = int(np.argmax(h))
+        ks = np.arange(max(0, kp - w), min(K - 1, kp + w) + 1)
+        x = np.maximum(h[ks] - b, 0)
+        out.append(1.0 if x.sum() == 0 else float(((ks + 0.5) * x).sum() / x.sum() / K))
+    return np.array(out)
+
+
+def test_noise_free_bias_under_002_bins():
+    rng = np.random.default_rng(0)
+    tau = rng.uniform(1.5, K - 1.5, 2000)  # random sub-bin positions away from the gate edges
+    est = np.asarray(jaxsr.centre_of_mass(irf_histogram(tau), CFG)) * K
+    err = est - tau
+    assert abs(err.mean()) < 0.02
+    assert np.sqrt(np.mean(err**2)) < 0.02  # PHYSICS.md: about 0.01 bins RMS
+
+
+def test_background_subtraction_removes_shrink_to_mid_range():
+    tau = np.array([2.15, 13.85])  # near bin edges, far from the window's centre
+    hist = irf_histogram(tau, signal=100.0, background=400.0)  # SNR 0.25
+    est = np.asarray(jaxsr.centre_of_mass(hist, CFG)) * K
+    np.testing.assert_allclose(est, tau, atol=0.03)
+    # Without subtraction the background's mass pulls each estimate towards the window's centre.
+    k = np.arange(K)
+    naive = []
+    for h in hist:
+        win = np.abs(k - int(np.argmax(h))) <= 1
+        naive.append(((k + 0.5) * h * win).sum() / (h * win).sum())
+    naive_err = np.abs(np.array(naive) - tau)
+    assert np.all(naive_err > 0.1) and np.all(naive_err > 5 * np.abs(est - tau))
+
+
+def test_matches_reference_on_noisy_histograms():
+    rng = np.random.default_rng(1)
+    lam = irf_histogram(rng.uniform(0, K, 500), signal=rng.uniform(0, 30, 500)[:, None], background=20.0)
+    counts = rng.poisson(lam).astype(np.float32)
+    np.testing.assert_allclose(jaxsr.centre_of_mass(counts, CFG), reference_com(counts), atol=1e-6)
+
+
+def test_empty_and_flat_histograms_are_no_return():
+    counts = np.zeros((3, K), np.float32)
+    counts[1] = 5.0  # flat: nothing above the median
+    depth, valid = jaxsr.centre_of_mass(counts, CFG, return_mask=True)
+    np.testing.assert_array_equal(depth, [1.0, 1.0, 1.0])
+    assert not np.any(valid)
+
+
+def test_window_edges_and_ties():
+    counts = np.zeros((2, K), np.float32)
+    counts[0, 0] = 10.0  # peak at the first bin: window clipped to bins 0..1
+    counts[1, [4, 9]] = 7.0  # tie: the first maximum wins
+    depth = np.asarray(jaxsr.centre_of_mass(counts, CFG))
+    np.testing.assert_allclose(depth * K, [0.5, 4.5], atol=1e-6)
+
+
+def test_window_default_follows_irf_width():
+    assert int(default_window(CFG)) == 1
+    assert int(default_window(jaxsr.SensorConfig(irf_sigma=0.6))) == 2
+    hist = irf_histogram(np.array([7.3]), sigma=0.9, signal=100.0)
+    wide = float(jaxsr.centre_of_mass(hist, jaxsr.SensorConfig(irf_sigma=0.9))[0]) * K
+    narrow = float(jaxsr.centre_of_mass(hist, CFG, window=1)[0]) * K
+    assert abs(wide - 7.3) < abs(narrow - 7.3)
+
+
+def test_significance_threshold_rejects_weak_peaks():
+    rng = np.random.default_rng(2)
+    counts = rng.poisson(10.0, size=(400, K)).astype(np.float32)  # background only
+    _, valid0 = jaxsr.centre_of_mass(counts, CFG, return_mask=True)
+    _, valid3 = jaxsr.centre_of_mass(counts, CFG, z=3.0, return_mask=True)
+    assert valid0.mean() > 0.99 and valid3.mean() < 0.5
+
+
+def test_huge_counts_and_nan_under_jit():
+    counts = irf_histogram(np.array([5.25]), signal=1e9, background=1e8).astype(np.float32)
+    depth = float(jaxsr.centre_of_mass(counts, CFG)[0]) * K
+    assert abs(depth - 5.25) < 0.02
+    bad = jnp.array([[jnp.nan] + [1.0] * (K - 1), [jnp.inf] * K])
+    out = jax.jit(lambda c: jaxsr.centre_of_mass(c, CFG))(bad)
+    np.testing.assert_array_equal(out, [1.0, 1.0])
+
+
+def test_gradient_finite_and_matches_finite_differences():
+    # distinct bin values: the median is not differentiable at ties
+    jitter = np.random.default_rng(5).uniform(0, 1, (2, K))
+    hist = irf_histogram(np.array([6.3, 0.2]), signal=50.0, background=10.0) + jitter
+    with jax.enable_x64(True):
+        h64 = jnp.asarray(hist, jnp.float64)
+        check_grads(lambda c: jaxsr.centre_of_mass(c, CFG), (h64,), order=1, modes=["rev"], eps=1e-5)
+    grad = jax.grad(lambda c: jnp.sum(jaxsr.centre_of_mass(c, CFG)))(jnp.zeros((2, K)))
+    assert np.all(np.isfinite(grad))
+
+
+def test_vmap_equals_loop_and_jit_equals_eager():
+    rng = np.random.default_rng(3)
+    counts = rng.poisson(irf_histogram(rng.uniform(0, K, 12), signal=15.0, background=15.0)).reshape(3, 4, K)
+    counts = jnp.asarray(counts, jnp.float32)
+    f = lambda c: jaxsr.centre_of_mass(c, CFG)  # noqa: E731
+    np.testing.assert_array_equal(jax.vmap(f)(counts), jnp.stack([f(c) for c in counts]))
+    np.testing.assert_array_equal(jax.jit(f)(counts), f(counts))
+
+
+@pytest.mark.parametrize(
+    "counts,match",
+    [(np.zeros((4, 15)), r"\(\.\.\., 16\)"), (-np.ones((4, 16)), ">= 0"), (np.full((2, 16), np.nan), "finite")],
+)
+def test_bad_counts_raise(counts, match):
+    with pytest.raises(ValueError, match=match):
+        jaxsr.centre_of_mass(counts, CFG)
+
+
+# --- maximum likelihood --------------------------------------------------------------------------------------
+
+
+def test_maximum_likelihood_recovers_tau_on_expected_histograms():
+    tau = np.array([3.3, 7.77, 11.5])
+    hist = irf_histogram(tau, signal=200.0, background=50.0)
+    depth, valid, converged = jaxsr.maximum_likelihood_depth(hist, CFG, return_mask=True)
+    assert np.all(valid) and np.all(converged)
+    np.testing.assert_allclose(np.asarray(depth) * K, tau, atol=5e-3)  # the COM alone is off by ~0.01
+
+
+def test_maximum_likelihood_beats_centre_of_mass_with_plentiful_photons():
+    rng = np.random.default_rng(4)
+    tau = rng.uniform(2, K - 2, 400)
+    counts = rng.poisson(irf_histogram(tau, signal=300.0, background=300.0)).astype(np.float32)
+    com = np.asarray(jaxsr.centre_of_mass(counts, CFG)) * K
+    ml, valid, converged = jaxsr.maximum_likelihood_depth(counts, CFG, return_mask=True)
+    ml = np.asarray(ml) * K
+    rmse = lambda e: np.sqrt(np.mean(e**2))  # noqa: E731
+    assert converged.mean() > 0.95
+    assert rmse(ml - tau) < 0.95 * rmse(com - tau)
+
+
+def test_maximum_likelihood_handles_empty_pixels_and_vmap():
+    counts = jnp.zeros((2, 3, K))
+    depth, valid, converged = jax.jit(
+        lambda c: jaxsr.maximum_likelihood_depth(c, CFG, return_mask=True)
+    )(counts)
+    np.testing.assert_array_equal(depth, np.ones((2, 3)))
+    assert depth.shape == valid.shape == converged.shape == (2, 3)

@@ -1,0 +1,270 @@
+"""Conformance of the sensor model with PHYSICS.md sections 1-2, against a slow float64 NumPy reference."""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jax.test_util import check_grads
+
+import jaxsr
+from jaxsr import sensor as sensor_mod
+
+SMALL = jaxsr.SensorConfig(hr_shape=(16, 24), scale=4)
+
+
+def reference_rates(depth, intensity, cfg, snr, mean_signal):
+    """PHYSICS.md section 2 written out pixel by pixel, float64, no vectorisation tricks."""
+    K, s = cfg.bins, cfg.scale
+    H, W = depth.shape[-2:]
+    lead = depth.shape[:-2]
+    depth = depth.reshape((-1, H, W))
+    intensity = intensity.reshape((-1, H, W))
+    n = depth.shape[0]
+    sig = np.zeros((n, H // s, W // s, K))
+    s_sum = np.zeros((n, H // s, W // s))
+    a_sum = np.zeros((n, H // s, W // s))
+    phi = lambda x: 0.5 * (1 + math.erf(x / math.sqrt(2)))  # noqa: E731
+    for f in range(n):
+        for y in range(H):
+            for x in range(W):
+                r, rho = float(depth[f, y, x]), float(intensity[f, y, x])
+                p = (f, y // s, x // s)
+                a_sum[p] += rho + cfg.ambient_floor
+                if not (math.isfinite(r) and 0 <= r <= cfg.d_max):
+                    continue
+                si = rho / max(r, cfg.r_min) ** 2
+                s_sum[p] += si
+                tau = K * r / cfg.d_max
+                for k in range(K):
+                    sig[p + (k,)] += si * (phi((k + 1 - tau) / cfg.irf_sigma) - phi((k - tau) / cfg.irf_sigma))
+    valid = s_sum > 0
+    if valid.any():
+        alpha = mean_signal / s_sum[valid].mean()
+        beta = alpha * (s_sum[valid] / a_sum[valid]).mean() / snr
+    else:
+        alpha, beta = 0.0, mean_signal / (snr * a_sum.mean())
+    rates = alpha * sig + beta / K * a_sum[..., None]
+    return rates.reshape(lead + rates.shape[1:])
+
+
+def random_scene(rng, shape, sky_fraction=0.1):
+    depth = rng.uniform(0.0, 40.0, shape)
+    depth[rng.uniform(size=shape) < sky_fraction] = np.inf
+    depth[rng.uniform(size=shape) < 0.02] = np.nan
+    near = rng.uniform(size=shape) < 0.02  # inside r_min, where the inverse-square law is floored
+    depth[near] = rng.uniform(0.0, 0.6, near.sum())
+    intensity = rng.uniform(0.0, 1.0, shape)
+    return depth, intensity
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_rates_match_float64_reference(seed):
+    rng = np.random.default_rng(seed)
+    depth, intensity = random_scene(rng, (2,) + SMALL.hr_shape)
+    snr, mean_signal = rng.uniform(0.3, 10), rng.uniform(0.5, 50)
+    want = reference_rates(depth, intensity, SMALL, snr, mean_signal)
+    with jax.enable_x64(True):
+        got = np.asarray(jaxsr.expected_histograms(depth, intensity, SMALL, snr=snr, mean_signal=mean_signal))
+    assert got.dtype == np.float64
+    np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-12 * want.max())
+
+
+def test_rates_float32_close_to_reference():
+    rng = np.random.default_rng(3)
+    depth, intensity = random_scene(rng, SMALL.hr_shape)
+    want = reference_rates(depth, intensity, SMALL, 1.3, 4.0)
+    got = np.asarray(jaxsr.expected_histograms(depth, intensity, SMALL, snr=1.3, mean_signal=4.0))
+    np.testing.assert_allclose(got, want, rtol=2e-4, atol=1e-6 * want.max())
+
+
+@pytest.mark.parametrize("snr,mean_signal", [(1.3, 4.0), (0.5, 2.0), (8.0, 100.0)])
+def test_calibration_hits_frame_snr_and_signal(snr, mean_signal):
+    rng = np.random.default_rng(4)
+    # Returns well inside the gate so IRF truncation is negligible; a sky band tests the valid-pixel set V.
+    depth = rng.uniform(3.0, 30.0, (3,) + SMALL.hr_shape)
+    depth[:, :4] = np.inf
+    intensity = rng.uniform(0.05, 1.0, depth.shape)
+    alpha, beta = jaxsr.calibrate(depth, intensity, SMALL, snr=snr, mean_signal=mean_signal)
+    rates = np.asarray(jaxsr.expected_histograms(depth, intensity, SMALL, snr=snr, mean_signal=mean_signal))
+    _, s_sum, a_sum = sensor_mod._photon_terms(jnp.asarray(depth), jnp.asarray(intensity), SMALL)
+    signal = float(alpha) * np.asarray(s_sum)
+    background = float(beta) * np.asarray(a_sum)
+    valid = signal > 0
+    assert abs(signal[valid].mean() / mean_signal - 1) < 5e-3
+    assert abs((signal[valid] / background[valid]).mean() / snr - 1) < 5e-3
+    # The rates themselves carry that many photons: total = signal + background.
+    np.testing.assert_allclose(rates.sum(-1), signal + background, rtol=5e-3)
+
+
+def test_all_sky_calibration():
+    depth = np.full(SMALL.hr_shape, np.inf)
+    intensity = np.full(SMALL.hr_shape, 0.7)
+    alpha, beta = jaxsr.calibrate(depth, intensity, SMALL, snr=2.0, mean_signal=6.0)
+    assert float(alpha) == 0.0
+    a_mean = 16 * (0.7 + SMALL.ambient_floor)
+    assert float(beta) == pytest.approx(6.0 / (2.0 * a_mean), rel=1e-6)
+
+
+def test_poisson_mean_and_variance_over_keys():
+    rng = np.random.default_rng(5)
+    depth, intensity = random_scene(rng, SMALL.hr_shape)
+    rates = np.asarray(jaxsr.expected_histograms(depth, intensity, SMALL, snr=1.0, mean_signal=20.0))
+    keys = jax.random.split(jax.random.key(0), 4000)
+    draw = jax.jit(jax.vmap(lambda k: jaxsr.simulate_histograms(k, depth, intensity, SMALL, snr=1.0, mean_signal=20.0)))
+    counts = np.asarray(draw(keys), np.float64)
+    assert np.all(counts == np.round(counts)) and counts.min() >= 0
+    n = counts.shape[0]
+    se = np.sqrt(rates / n) + 1e-9
+    z_mean = (counts.mean(0) - rates) / se
+    assert np.abs(z_mean).max() < 5.5 and abs(z_mean.mean()) < 0.1
+    var = counts.var(0, ddof=1)
+    big = rates > 2
+    np.testing.assert_allclose(var[big].mean() / rates[big].mean(), 1.0, atol=0.02)
+
+
+def test_planar_to_radial_closed_form():
+    cfg = jaxsr.SensorConfig()
+    z = np.full(cfg.hr_shape, 10.0)
+    r = np.asarray(jaxsr.planar_to_radial(z, cfg))
+    f = (cfg.hr_shape[1] / 2) / math.tan(math.radians(15))
+    assert f == pytest.approx(477.7, abs=0.05)
+    # corner pixel centre (0.5, 0.5): offsets (0.5 - 128, 0.5 - 64)
+    want = 10 * math.sqrt(1 + ((0.5 - 128) / f) ** 2 + ((0.5 - 64) / f) ** 2)
+    assert r[0, 0] == pytest.approx(want, rel=1e-6)
+    assert r.min() > 10.0 and r.min() == pytest.approx(10 * math.sqrt(1 + 2 * (0.5 / f) ** 2), rel=1e-6)
+    # vertical FoV 15.25 deg: the ray through the top edge
+    assert math.degrees(2 * math.atan(64 / f)) == pytest.approx(15.25, abs=0.02)  # PHYSICS.md rounds 15.26
+
+
+def test_normalise_depth_conventions():
+    cfg = jaxsr.SensorConfig()
+    d = jnp.array([0.0, 17.5, 35.0, 35.01, jnp.inf, jnp.nan, -1.0, 1e6])
+    np.testing.assert_allclose(jaxsr.normalise_depth(d, cfg), [0, 0.5, 1, 1, 1, 1, 1, 1])
+
+
+def test_sum_over_blocks_is_the_block_sum():
+    rng = np.random.default_rng(6)
+    x = rng.normal(size=(2, 8, 12))
+    got = sensor_mod._sum_over_blocks(lambda v: v, 4, jnp.asarray(x))
+    np.testing.assert_allclose(got, x.reshape(2, 2, 4, 3, 4).sum((2, 4)), rtol=1e-6)
+
+
+# --- transformations -------------------------------------------------------------------------------------
+
+
+def test_jit_equals_eager_and_vmap_equals_loop():
+    rng = np.random.default_rng(7)
+    depth, intensity = random_scene(rng, (3,) + SMALL.hr_shape)
+    depth, intensity = jnp.asarray(depth, jnp.float32), jnp.asarray(intensity, jnp.float32)
+    f = lambda d, i: jaxsr.expected_histograms(d, i, SMALL, snr=1.3, mean_signal=5.0)  # noqa: E731
+    np.testing.assert_allclose(jax.jit(f)(depth, intensity), f(depth, intensity), rtol=1e-6)
+    # vmap calibrates each sequence on its own, exactly like a loop
+    batched = jax.vmap(f)(depth[:, None], intensity[:, None])
+    looped = jnp.stack([f(depth[i : i + 1], intensity[i : i + 1]) for i in range(3)])
+    np.testing.assert_allclose(batched, looped, rtol=1e-6)
+    key = jax.random.key(3)
+    sim = lambda k, d, i: jaxsr.simulate_histograms(k, d, i, SMALL, snr=1.3, mean_signal=5.0)  # noqa: E731
+    np.testing.assert_array_equal(jax.jit(sim)(key, depth, intensity), sim(key, depth, intensity))
+
+
+def test_sensor_config_is_a_pytree_with_static_shapes():
+    cfg = jaxsr.SensorConfig()
+    leaves, treedef = jax.tree_util.tree_flatten(cfg)
+    assert len(leaves) == 5
+    assert jax.tree_util.tree_unflatten(treedef, leaves) == cfg
+    # vmap over a physical parameter: the IRF width
+    rng = np.random.default_rng(8)
+    depth, intensity = random_scene(rng, SMALL.hr_shape)
+    sigmas = jnp.array([0.3, 0.4, 0.6])
+
+    def rates(sigma):
+        cfg_s = jaxsr.SensorConfig(hr_shape=SMALL.hr_shape, scale=4, irf_sigma=sigma)
+        return jaxsr.expected_histograms(depth, intensity, cfg_s, snr=1.3, mean_signal=5.0)
+
+    got = jax.vmap(rates)(sigmas)
+    np.testing.assert_allclose(got[1], rates(0.4), rtol=1e-5)
+
+
+def test_gradients_match_finite_differences_float64():
+    rng = np.random.default_rng(9)
+    depth = rng.uniform(2.0, 30.0, SMALL.hr_shape)
+    intensity = rng.uniform(0.1, 1.0, SMALL.hr_shape)
+    weights = rng.normal(size=(4, 6, 16))
+    with jax.enable_x64(True):
+        cfg = jaxsr.SensorConfig(hr_shape=SMALL.hr_shape, scale=4, irf_sigma=jnp.float64(0.4))
+
+        def loss(d, i, snr, sigma):
+            c = jaxsr.SensorConfig(hr_shape=SMALL.hr_shape, scale=4, irf_sigma=sigma)
+            return jnp.sum(weights * jaxsr.expected_histograms(d, i, c, snr=snr, mean_signal=5.0))
+
+        args = (jnp.asarray(depth), jnp.asarray(intensity), jnp.float64(1.3), cfg.irf_sigma)
+        check_grads(loss, args, order=1, modes=["rev"], eps=1e-6, atol=1e-6, rtol=1e-5)
+
+
+# --- extremes ----------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("snr", [1e-3, 1.3, 1e4])
+@pytest.mark.parametrize("mean_signal", [0.0, 4.0, 1e7])
+def test_extremes_are_finite(snr, mean_signal):
+    rng = np.random.default_rng(10)
+    depth, intensity = random_scene(rng, SMALL.hr_shape)
+    depth[0, :3] = [0.0, 1e6, -5.0]
+    intensity[1] = 0.0  # black row
+    rates = jaxsr.expected_histograms(depth, intensity, SMALL, snr=snr, mean_signal=mean_signal)
+    assert np.all(np.isfinite(rates)) and float(rates.min()) >= 0
+    counts = jaxsr.simulate_histograms(jax.random.key(0), depth, intensity, SMALL, snr=snr, mean_signal=mean_signal)
+    assert np.all(np.isfinite(counts)) and float(counts.min()) >= 0
+    com = jaxsr.centre_of_mass(counts, SMALL)
+    assert np.all((com >= 0) & (com <= 1))
+
+    def loss(d, i):
+        return jnp.sum(jnp.log1p(jaxsr.expected_histograms(d, i, SMALL, snr=snr, mean_signal=mean_signal)))
+
+    grads = jax.grad(loss, argnums=(0, 1))(jnp.asarray(depth, jnp.float32), jnp.asarray(intensity, jnp.float32))
+    assert all(np.all(np.isfinite(g)) for g in grads)
+
+
+def test_black_scene_and_zero_ambient():
+    depth = np.full(SMALL.hr_shape, 10.0)
+    intensity = np.zeros(SMALL.hr_shape)
+    cfg = jaxsr.SensorConfig(hr_shape=SMALL.hr_shape, scale=4, ambient_floor=0.0)
+    rates = jaxsr.expected_histograms(depth, intensity, cfg, snr=1.0, mean_signal=4.0)
+    assert np.all(np.isfinite(rates))
+
+
+# --- bad input ---------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "depth_shape,intensity_shape,match",
+    [
+        ((16, 25), (16, 25), "depth must have shape"),
+        ((16,), (16,), "depth must have shape"),
+        ((16, 24), (16, 20), "intensity shape"),
+    ],
+)
+def test_bad_shapes_raise(depth_shape, intensity_shape, match):
+    with pytest.raises(ValueError, match=match):
+        jaxsr.expected_histograms(np.ones(depth_shape), np.ones(intensity_shape), SMALL, snr=1.0)
+
+
+def test_hr_not_divisible_by_scale_raises():
+    with pytest.raises(ValueError, match="divisible by scale"):
+        jaxsr.SensorConfig(hr_shape=(18, 24), scale=4)
+
+
+@pytest.mark.parametrize("bad", [-0.1, 1.5, np.nan])
+def test_intensity_out_of_range_raises(bad):
+    intensity = np.full(SMALL.hr_shape, 0.5)
+    intensity[2, 3] = bad
+    with pytest.raises(ValueError, match=r"intensity must be finite and in \[0, 1\]"):
+        jaxsr.simulate_histograms(jax.random.key(0), np.ones(SMALL.hr_shape), intensity, SMALL, snr=1.0)
+
+
+@pytest.mark.parametrize("kwargs,match", [(dict(snr=0.0), "snr must be > 0"), (dict(snr=1.0, mean_signal=-1.0), "mean_signal")])
+def test_bad_photon_levels_raise(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        jaxsr.calibrate(np.ones(SMALL.hr_shape), np.ones(SMALL.hr_shape), SMALL, **kwargs)
