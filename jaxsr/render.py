@@ -487,7 +487,8 @@ def render(scene: Scene, t, *, sensor: SensorConfig = SensorConfig(), tiles=DEFA
             t_min, i_min = _cast_full(kind, group, dx, dy)
         else:
             t_min, i_min = _cast_tiled(kind, group, dx, dy, sensor, tiles, k)
-        hits.append((t_min, i_min + offset))
+        # Materialise: otherwise XLA fuses (recomputes) the whole cast into each consumer.
+        hits.append(jax.lax.optimization_barrier((t_min, i_min + offset)))
         offset += n
     cam_h = scene.camera.position[1]
     t_gnd = jnp.where(dy < 0, -cam_h / jnp.where(dy < 0, dy, -1.0), _INF)[:, None] * jnp.ones((1, w))

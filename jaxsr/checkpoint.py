@@ -1,0 +1,205 @@
+"""Safe checkpoints: `.npz` files keyed by pytree key paths plus JSON metadata.
+
+A file holds one array per leaf, named by its key path (`params/blocks/0/conv2/w`), and a `__metadata__`
+entry with a JSON string (format version, jaxsr version, configs, training card). Writes go to a temporary
+file in the same folder and are renamed over the target (`os.replace`), so a crash never leaves a
+half-written checkpoint. Reads check every key, shape and dtype against a template (from `jax.eval_shape`)
+and raise `ValueError` saying what is wrong.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import tempfile
+import zipfile
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from .config import ModelConfig, TrainConfig
+from .model import Model, init_model
+
+__all__ = [
+    "FORMAT_VERSION",
+    "flatten_tree",
+    "save_tree",
+    "load_tree",
+    "read_metadata",
+    "save_model",
+    "load_model",
+    "config_to_dict",
+    "config_from_dict",
+]
+
+FORMAT_VERSION = 1
+_META = "__metadata__"
+
+
+def _version() -> str:
+    import jaxsr  # late: jaxsr/__init__ imports this module
+
+    return getattr(jaxsr, "__version__", "unknown")
+
+
+def flatten_tree(tree) -> dict:
+    """{key path "a/0/b": leaf} for every leaf of `tree` (dict keys, sequence indices, attribute names)."""
+    leaves, _ = jax.tree_util.tree_flatten_with_path(tree)
+    return {jax.tree_util.keystr(path, simple=True, separator="/"): leaf for path, leaf in leaves}
+
+
+def save_tree(path, tree, metadata: dict) -> Path:
+    """Write the leaves of `tree` and the JSON-serialisable `metadata` to `path` (.npz) atomically."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    arrays = {k: np.asarray(v) for k, v in flatten_tree(tree).items()}
+    if _META in arrays:
+        raise ValueError(f"save_tree: key {_META!r} is reserved")
+    meta = dict(metadata, format_version=FORMAT_VERSION, jaxsr_version=_version())
+    arrays[_META] = np.array(json.dumps(meta, sort_keys=True))
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            np.savez(f, **arrays)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path
+
+
+def _open(path):
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"checkpoint {str(path)!r} does not exist")
+    try:
+        return np.load(path, allow_pickle=False)
+    except (zipfile.BadZipFile, EOFError, OSError, ValueError) as e:
+        raise ValueError(f"checkpoint {str(path)!r} is not a readable .npz file (truncated or corrupt?): {e}") from e
+
+
+def _read_meta(data, path) -> dict:
+    if _META not in data.files:
+        raise ValueError(f"checkpoint {str(path)!r} has no {_META!r} entry: not a jaxsr checkpoint")
+    try:
+        meta = json.loads(str(data[_META]))
+    except (zipfile.BadZipFile, EOFError, OSError, ValueError) as e:
+        raise ValueError(f"checkpoint {str(path)!r}: unreadable metadata (truncated or corrupt?): {e}") from e
+    fv = meta.get("format_version")
+    if fv != FORMAT_VERSION:
+        raise ValueError(
+            f"checkpoint {str(path)!r} has format version {fv} (written by jaxsr {meta.get('jaxsr_version')}); "
+            f"this jaxsr ({_version()}) reads format version {FORMAT_VERSION}"
+        )
+    return meta
+
+
+def read_metadata(path) -> dict:
+    """The JSON metadata of a checkpoint (format and jaxsr versions, configs, training card)."""
+    with _open(path) as data:
+        return _read_meta(data, path)
+
+
+def load_tree(path, template, *, prefix: str = "", strict: bool = True):
+    """Read a checkpoint into the structure of `template` (a pytree of arrays or `jax.ShapeDtypeStruct`s).
+
+    Every leaf of the template must be present under `prefix + key path` with the same shape and dtype;
+    with `strict`, no other arrays may be in the file. Returns (tree of numpy arrays, metadata dict).
+    Raises `FileNotFoundError` for a missing file and `ValueError` for anything else wrong.
+    """
+    with _open(path) as data:
+        meta = _read_meta(data, path)
+        expected = {prefix + k: v for k, v in flatten_tree(template).items()}
+        stored = set(data.files) - {_META}
+        missing = sorted(set(expected) - stored)
+        if missing:
+            raise ValueError(f"checkpoint {str(path)!r} is missing {len(missing)} array(s), e.g. {missing[:3]}")
+        if strict:
+            extra = sorted(k for k in stored - set(expected) if k.startswith(prefix))
+            if extra:
+                raise ValueError(f"checkpoint {str(path)!r} has unexpected array(s) {extra[:3]} for this config")
+        leaves = []
+        for key, tmpl in expected.items():
+            try:
+                arr = data[key]
+            except (zipfile.BadZipFile, EOFError, OSError, ValueError) as e:
+                raise ValueError(f"checkpoint {str(path)!r}: array {key!r} is unreadable (truncated or corrupt?): {e}") from e
+            if arr.shape != tuple(tmpl.shape):
+                raise ValueError(
+                    f"checkpoint {str(path)!r}: array {key!r} has shape {arr.shape}, expected {tuple(tmpl.shape)}"
+                )
+            if arr.dtype != np.dtype(tmpl.dtype):
+                raise ValueError(f"checkpoint {str(path)!r}: array {key!r} has dtype {arr.dtype}, expected {tmpl.dtype}")
+            leaves.append(arr)
+    treedef = jax.tree_util.tree_structure(template)
+    return jax.tree_util.tree_unflatten(treedef, leaves), meta
+
+
+def config_to_dict(cfg) -> dict:
+    """A frozen config dataclass as a JSON-ready dict."""
+    return dataclasses.asdict(cfg)
+
+
+def config_from_dict(cls, d: dict):
+    """Rebuild a config dataclass from `config_to_dict`'s output (JSON lists become tuples)."""
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(d) - names)
+    if unknown:
+        raise ValueError(f"{cls.__name__}: unknown field(s) {unknown} in checkpoint metadata")
+    return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
+
+
+def model_template(cfg: ModelConfig):
+    """Shapes and dtypes of (params, state) for `cfg`, without computing anything."""
+    return jax.eval_shape(lambda k: init_model(k, cfg), jax.random.key(0))
+
+
+def save_model(path, model: Model, *, card: dict | None = None) -> Path:
+    """Save a `Model` to `path` (.npz): arrays `params/...`, `state/...`, metadata {kind, config, card}.
+
+    `card` is the training card (JSON-ready dict: data, steps, wall time, hardware, validation PSNR, ...).
+    """
+    meta = {"kind": "model", "config": config_to_dict(model.config), "card": card or {}}
+    return save_tree(path, {"params": model.params, "state": model.state}, meta)
+
+
+def _resolve(path) -> Path:
+    p = Path(path)
+    if p.is_file():
+        return p
+    if p.suffix != ".npz" and p.with_name(p.name + ".npz").is_file():
+        return p.with_name(p.name + ".npz")
+    bundled = Path(__file__).parent / "weights" / f"{p.name}.npz"
+    if len(p.parts) == 1 and bundled.is_file():
+        return bundled
+    raise FileNotFoundError(f"no checkpoint at {str(path)!r} (nor {str(path)!r}.npz, nor bundled weights {p.name!r})")
+
+
+def load_model(path) -> Model:
+    """Load a `Model` saved by `save_model` (or the model inside a training checkpoint of `jaxsr.train`).
+
+    `path` is a file, a file without its `.npz`, or the name of bundled weights ("tr4"). Every array is
+    checked against the shapes `init_model` gives for the stored config; raises `ValueError` for a truncated
+    file, a missing or unexpected key, a wrong shape or dtype, or an unsupported format version.
+    """
+    path = _resolve(path)
+    meta = read_metadata(path)
+    if meta.get("kind") not in ("model", "train_state") or "config" not in meta:
+        raise ValueError(f"checkpoint {str(path)!r} does not hold a jaxsr model (kind {meta.get('kind')!r})")
+    cfg = config_from_dict(ModelConfig, meta["config"])
+    params_t, state_t = model_template(cfg)
+    strict = meta["kind"] == "model"
+    tree, _ = load_tree(path, {"params": params_t, "state": state_t}, strict=strict)
+    tree = jax.tree_util.tree_map(jax.numpy.asarray, tree)
+    return Model(tree["params"], tree["state"], cfg)
+
+
+def train_config_from_metadata(meta: dict) -> TrainConfig | None:
+    """The `TrainConfig` recorded in a checkpoint's metadata, or None."""
+    d = meta.get("train_config")
+    return None if d is None else config_from_dict(TrainConfig, d)
