@@ -59,7 +59,7 @@ def _upsample(lr, scale: int, kernel: str, name: str):
     return jnp.einsum("Hh,...hw,Ww->...HW", rows, lr.astype(dtype), cols)
 
 
-def bicubic(lr, scale: int = 4):
+def bicubic(lr, *, scale: int = 4):
     """Bicubic (Keys, a = -0.5) upsampling with edge replication.
 
     Args:
@@ -71,7 +71,7 @@ def bicubic(lr, scale: int = 4):
     return _upsample(lr, scale, "bicubic", "bicubic")
 
 
-def lanczos(lr, scale: int = 4):
+def lanczos(lr, *, scale: int = 4):
     """Lanczos-3 upsampling with edge replication and normalised taps.
 
     Args:

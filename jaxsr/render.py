@@ -255,12 +255,13 @@ def _pose_ellipsoids(e: Ellipsoids, cam_pos, psi, t):
 
 
 # ---------------------------------------------------------------------------------------------------------
-# Intersections of ONE primitive with the rays (dx (W,), dy (H,)): planar depth (H, W), inf where missed.
-# The work factorises into per-column and per-row terms; only a few operations are per pixel.
+# Intersections. The work factorises into per-column terms (P, n, W), per-row terms (P, n, H) and per-primitive
+# constants, computed once for all primitives; per pixel only a few operations remain (`_pixel_*`), which
+# return the planar depth (H, W) of one primitive, inf where missed.
 
 
-def _hit_box(p, dx, dy):
-    cx, cz, c, s, h1, h2, y0, y1 = (p[i] for i in range(8))
+def _terms_box(params, dx, dy):
+    cx, cz, c, s, h1, h2, y0, y1 = (params[:, i, None] for i in range(8))
     lo, hi = -_INF, _INF
     for ax, az, h in ((c, s, h1), (-s, c, h2)):
         d = ax * dx + az  # ray slope along the box axis, per column
@@ -269,48 +270,64 @@ def _hit_box(p, dx, dy):
         t1, t2 = (-h - o) / d, (h - o) / d
         lo = jnp.maximum(lo, jnp.minimum(t1, t2))
         hi = jnp.minimum(hi, jnp.maximum(t1, t2))
-    a, b = y0 / dy, y1 / dy  # dy is never 0 at pixel centres
-    t = jnp.maximum(lo[None, :], jnp.minimum(a, b)[:, None])
-    ok = (t <= jnp.minimum(hi[None, :], jnp.maximum(a, b)[:, None])) & (t > _NEAR)
+    ya, yb = y0 / dy, y1 / dy  # dy is never 0 at pixel centres
+    col = jnp.stack([lo, hi], 1)
+    row = jnp.stack([jnp.minimum(ya, yb), jnp.maximum(ya, yb)], 1)
+    return col, row, jnp.zeros((params.shape[0], 1))
+
+
+def _pixel_box(col, row, const):
+    t = jnp.maximum(col[0][None, :], row[0][:, None])
+    ok = (t <= jnp.minimum(col[1][None, :], row[1][:, None])) & (t > _NEAR)
     return jnp.where(ok, t, _INF)
 
 
-def _hit_cylinder(p, dx, dy):
-    qx, qz, c, s, ira, irb, ex, ez, y0, y1 = (p[i] for i in range(10))
-    col1, col2 = (c * dx + s) * ira, (-s * dx + c) * irb
-    row1, row2 = (c * ex + s * ez) * ira * dy, (-s * ex + c * ez) * irb * dy
+def _terms_cylinder(params, dx, dy):
+    qx, qz, c, s, ira, irb, ex, ez, y0, y1 = (params[:, i, None] for i in range(10))
+    col = jnp.stack([(c * dx + s) * ira, (-s * dx + c) * irb], 1)
+    ya, yb = y0 / dy, y1 / dy
+    row = jnp.stack([(c * ex + s * ez) * ira * dy, (-s * ex + c * ez) * irb * dy,
+                     jnp.minimum(ya, yb), jnp.maximum(ya, yb)], 1)
     q1, q2 = (c * qx + s * qz) * ira, (-s * qx + c * qz) * irb
-    g1 = col1[None, :] + row1[:, None]
-    g2 = col2[None, :] + row2[:, None]
+    return col, row, jnp.concatenate([q1, q2, q1 * q1 + q2 * q2 - 1.0], 1)
+
+
+def _pixel_cylinder(col, row, const):
+    q1, q2, cc = const[0], const[1], const[2]
+    g1 = col[0][None, :] + row[0][:, None]
+    g2 = col[1][None, :] + row[1][:, None]
     a = g1 * g1 + g2 * g2
     b = g1 * q1 + g2 * q2
-    cc = q1 * q1 + q2 * q2 - 1.0
     disc = b * b - a * cc
-    sq = jnp.sqrt(jnp.maximum(disc, 0.0))
-    near = cc / jnp.maximum(b + sq, 1e-30)  # the smaller root, written to avoid cancellation
-    far = (b + sq) / a
-    ya, yb = y0 / dy, y1 / dy
-    t = jnp.maximum(near, jnp.minimum(ya, yb)[:, None])
-    ok = (disc > 0) & (t <= jnp.minimum(far, jnp.maximum(ya, yb)[:, None])) & (t > _NEAR)
+    root = b + jnp.sqrt(jnp.maximum(disc, 0.0))
+    near = cc / jnp.maximum(root, 1e-30)  # the smaller root, written to avoid cancellation
+    t = jnp.maximum(near, row[2][:, None])
+    ok = (disc > 0) & (t * a <= root) & (t <= row[3][:, None]) & (t > _NEAR)  # t * a <= root: t <= far root
     return jnp.where(ok, t, _INF)
 
 
-def _hit_ellipsoid(p, dx, dy):
-    cx, cy, cz, c, s, i1, i2, i3 = (p[i] for i in range(8))
+def _terms_ellipsoid(params, dx, dy):
+    cx, cy, cz, c, s, i1, i2, i3 = (params[:, i, None] for i in range(8))
     col1, col3 = (c * dx + s) * i1, (-s * dx + c) * i3
     row2 = dy * i2
     q1, q2, q3 = (c * cx + s * cz) * i1, cy * i2, (-s * cx + c * cz) * i3
-    a = (col1 * col1 + col3 * col3)[None, :] + (row2 * row2)[:, None]
-    b = (col1 * q1 + col3 * q3)[None, :] + (row2 * q2)[:, None]
-    cc = q1 * q1 + q2 * q2 + q3 * q3 - 1.0
+    col = jnp.stack([col1 * col1 + col3 * col3, col1 * q1 + col3 * q3], 1)
+    row = jnp.stack([row2 * row2, row2 * q2], 1)
+    return col, row, q1 * q1 + q2 * q2 + q3 * q3 - 1.0
+
+
+def _pixel_ellipsoid(col, row, const):
+    a = col[0][None, :] + row[0][:, None]
+    b = col[1][None, :] + row[1][:, None]
+    cc = const[0]
     disc = b * b - a * cc
-    sq = jnp.sqrt(jnp.maximum(disc, 0.0))
-    near = cc / jnp.maximum(b + sq, 1e-30)
+    near = cc / jnp.maximum(b + jnp.sqrt(jnp.maximum(disc, 0.0)), 1e-30)
     ok = (disc > 0) & (near > _NEAR) & (b > 0)
     return jnp.where(ok, near, _INF)
 
 
-_HIT = {_BOX: _hit_box, _CYL: _hit_cylinder, _ELL: _hit_ellipsoid}
+_TERMS = {_BOX: _terms_box, _CYL: _terms_cylinder, _ELL: _terms_ellipsoid}
+_PIXEL = {_BOX: _pixel_box, _CYL: _pixel_cylinder, _ELL: _pixel_ellipsoid}
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -318,7 +335,7 @@ _HIT = {_BOX: _hit_box, _CYL: _hit_cylinder, _ELL: _hit_ellipsoid}
 # per tile over the `k_max` nearest primitives whose projected bounding box touches the tile.
 
 
-def _project_bounds(aabb, dx, dy, sensor):
+def _project_bounds(aabb, sensor):
     """Conservative pixel bounds (P, 4): col_min, col_max, row_min, row_max (continuous pixel coordinates)."""
     h, w = sensor.hr_shape
     f = sensor.focal_px
@@ -332,15 +349,39 @@ def _project_bounds(aabb, dx, dy, sensor):
     return jnp.stack([col0, col1, row0, row1], -1), visible
 
 
+def _tile_touches(group: _Group, sensor, tiles):
+    """(tiles, P) bool: which active primitives' projected bounding boxes touch each tile (row-major tiles)."""
+    h, w = sensor.hr_shape
+    n_r, n_c = tiles
+    th, tw = h // n_r, w // n_c
+    bounds, visible = _project_bounds(group.aabb, sensor)
+    r0 = jnp.repeat(jnp.arange(n_r) * th, n_c)[:, None]
+    c0 = jnp.tile(jnp.arange(n_c) * tw, n_r)[:, None]
+    return (
+        (bounds[None, :, 1] >= c0 - 1) & (bounds[None, :, 0] <= c0 + tw + 1)
+        & (bounds[None, :, 3] >= r0 - 1) & (bounds[None, :, 2] <= r0 + th + 1)
+        & (visible & group.active)[None, :]
+    )
+
+
+def _running_min(carry, t, idx):
+    t_min, i_min = carry
+    closer = t < t_min
+    return jnp.where(closer, t, t_min), jnp.where(closer, idx, i_min)
+
+
 def _cast_full(kind, group: _Group, dx, dy):
-    hit = _HIT[kind]
-    t_min = jnp.full((dy.shape[0], dx.shape[0]), _INF)
-    i_min = jnp.zeros((dy.shape[0], dx.shape[0]), jnp.int32)
-    for p in range(group.params.shape[0]):  # unrolled: XLA fuses the running minimum into one loop
-        t = jnp.where(group.active[p], hit(group.params[p], dx, dy), _INF)
-        closer = t < t_min
-        t_min = jnp.where(closer, t, t_min)
-        i_min = jnp.where(closer, p, i_min)
+    col, row, const = jax.lax.optimization_barrier(_TERMS[kind](group.params, dx, dy))
+    pixel = _PIXEL[kind]
+
+    def body(carry, xs):  # a scan keeps each step one fused, vectorised loop over the pixels
+        c, r, k, active, idx = xs
+        return _running_min(carry, jnp.where(active, pixel(c, r, k), _INF), idx), None
+
+    shape = (dy.shape[0], dx.shape[0])
+    init = (jnp.full(shape, _INF), jnp.zeros(shape, jnp.int32))
+    n = group.params.shape[0]
+    (t_min, i_min), _ = jax.lax.scan(body, init, (col, row, const, group.active, jnp.arange(n)))
     return t_min, i_min
 
 
@@ -348,28 +389,28 @@ def _cast_tiled(kind, group: _Group, dx, dy, sensor, tiles, k_max):
     h, w = sensor.hr_shape
     n_r, n_c = tiles
     th, tw = h // n_r, w // n_c
-    bounds, visible = _project_bounds(group.aabb, dx, dy, sensor)
-    r0 = jnp.repeat(jnp.arange(n_r) * th, n_c)[:, None]
-    c0 = jnp.tile(jnp.arange(n_c) * tw, n_r)[:, None]
-    touches = (
-        (bounds[None, :, 1] >= c0 - 1) & (bounds[None, :, 0] <= c0 + tw + 1)
-        & (bounds[None, :, 3] >= r0 - 1) & (bounds[None, :, 2] <= r0 + th + 1)
-        & (visible & group.active)[None, :]
-    )  # (tiles, P)
-    key = jnp.where(touches, group.aabb[None, :, 4], _INF)
-    neg, order = jax.lax.top_k(-key, k_max)  # nearest first
+    n_t = n_r * n_c
+    col, row, const = jax.lax.optimization_barrier(_TERMS[kind](group.params, dx, dy))
+    key = jnp.where(_tile_touches(group, sensor, tiles), group.aabb[None, :, 4], _INF)
+    neg, order = jax.lax.top_k(-key, k_max)  # (tiles, k_max), nearest first
     valid = jnp.isfinite(neg)
-    dx_t = dx.reshape(n_c, tw)[jnp.tile(jnp.arange(n_c), n_r)]  # (tiles, tw)
-    dy_t = dy.reshape(n_r, th)[jnp.repeat(jnp.arange(n_r), n_c)]  # (tiles, th)
-    hit = jax.vmap(_HIT[kind])
-    t_min = jnp.full((n_r * n_c, th, tw), _INF)
-    i_min = jnp.zeros((n_r * n_c, th, tw), jnp.int32)
-    for k in range(k_max):
-        idx = order[:, k]
-        t = jnp.where(valid[:, k, None, None], hit(group.params[idx], dx_t, dy_t), _INF)
-        closer = t < t_min
-        t_min = jnp.where(closer, t, t_min)
-        i_min = jnp.where(closer, idx[:, None, None], i_min)
+    tile_c = jnp.tile(jnp.arange(n_c), n_r)
+    tile_r = jnp.repeat(jnp.arange(n_r), n_c)
+    # Per tile and slot, the primitive's column terms over the tile's columns and row terms over its rows.
+    col_t = col.reshape(col.shape[:2] + (n_c, tw))[order, :, tile_c[:, None]]  # (tiles, k, n, tw)
+    row_t = row.reshape(row.shape[:2] + (n_r, th))[order, :, tile_r[:, None]]
+    const_t = const[order]
+    pixel = jax.vmap(_PIXEL[kind])
+
+    def body(carry, xs):
+        c, r, k, ok, idx = xs
+        return _running_min(carry, jnp.where(ok[:, None, None], pixel(c, r, k), _INF), idx[:, None, None]), None
+
+    init = (jnp.full((n_t, th, tw), _INF), jnp.zeros((n_t, th, tw), jnp.int32))
+    slot_first = lambda a: jnp.moveaxis(a, 1, 0)
+    (t_min, i_min), _ = jax.lax.scan(
+        body, init, (slot_first(col_t), slot_first(row_t), slot_first(const_t), slot_first(valid), slot_first(order))
+    )
     untile = lambda a: a.reshape(n_r, n_c, th, tw).transpose(0, 2, 1, 3).reshape(h, w)
     return untile(t_min), untile(i_min)
 
@@ -379,20 +420,10 @@ def tile_overflow(scene: Scene, t, *, sensor: SensorConfig = SensorConfig(), til
     `k_max` (> 0 means the tiled renderer dropped the farthest ones somewhere). Returns a dict of ints."""
     tiles = DEFAULT_TILES if tiles is None else tiles
     k_max = DEFAULT_K_MAX if k_max is None else k_max
-    dx, dy, _ = pixel_rays(sensor)
     groups, _, _ = _pose_all(scene, jnp.asarray(t, jnp.float32))
-    h, w = sensor.hr_shape
     out = {}
-    for (name, kind), group, k in zip((("boxes", _BOX), ("cylinders", _CYL), ("ellipsoids", _ELL)), groups, k_max):
-        bounds, visible = _project_bounds(group.aabb, dx, dy, sensor)
-        n_r, n_c = tiles
-        th, tw = h // n_r, w // n_c
-        r0 = jnp.repeat(jnp.arange(n_r) * th, n_c)[:, None]
-        c0 = jnp.tile(jnp.arange(n_c) * tw, n_r)[:, None]
-        touches = ((bounds[None, :, 1] >= c0 - 1) & (bounds[None, :, 0] <= c0 + tw + 1)
-                   & (bounds[None, :, 3] >= r0 - 1) & (bounds[None, :, 2] <= r0 + th + 1)
-                   & (visible & group.active)[None, :])
-        out[name] = int(touches.sum(-1).max()) - min(k, group.params.shape[0])
+    for name, group, k in zip(("boxes", "cylinders", "ellipsoids"), groups, k_max):
+        out[name] = int(_tile_touches(group, sensor, tiles).sum(-1).max()) - min(k, group.params.shape[0])
     return out
 
 
@@ -477,6 +508,8 @@ def render(scene: Scene, t, *, sensor: SensorConfig = SensorConfig(), tiles=DEFA
     h, w = sensor.hr_shape
     dx, dy, norm = pixel_rays(sensor)
     groups, cam_pos, psi = _pose_all(scene, jnp.asarray(t, jnp.float32))
+    # Materialise the per-primitive parameters: otherwise XLA recomputes their sin/cos in every pixel.
+    groups = jax.lax.optimization_barrier(groups)
     g = scene.ground
 
     hits = []

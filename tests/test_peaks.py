@@ -165,3 +165,16 @@ def test_maximum_likelihood_handles_empty_pixels_and_vmap():
     )(counts)
     np.testing.assert_array_equal(depth, np.ones((2, 3)))
     assert depth.shape == valid.shape == converged.shape == (2, 3)
+
+
+@pytest.mark.parametrize("k", [16, 15, 8])
+def test_median_of_bins_equals_numpy_median_with_ties(k):
+    from jaxsr.peaks import median_of_bins
+
+    rng = np.random.default_rng(6)
+    x = rng.integers(0, 4, (500, k)).astype(np.float32)  # many ties
+    np.testing.assert_array_equal(median_of_bins(jnp.asarray(x)), np.median(x, axis=-1))
+    y = rng.normal(size=(50, k))
+    g = jax.grad(lambda v: jnp.sum(median_of_bins(v)))(jnp.asarray(y))
+    g_ref = jax.grad(lambda v: jnp.sum(jnp.median(v, axis=-1)))(jnp.asarray(y))
+    np.testing.assert_allclose(g, g_ref)

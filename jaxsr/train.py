@@ -1,0 +1,499 @@
+"""Training: Huber loss, the jitted train step (data simulated inside it), validation, and `fit`.
+
+The data source is a pure function `make_batch(key) -> (windows (B, 2tr+1, h, w), hr_gt (B, h*r, w*r))`:
+`scene_batches` renders random scenes and simulates the sensor (the default), `sequence_batches` draws
+windows from HR depth/intensity arrays read from files (e.g. AirSim recordings); both run inside the jitted
+step. `fit` runs epochs of `TrainConfig.steps_per_epoch` steps with step decay, validates with BN in
+inference mode, logs to `metrics.jsonl`, writes `best.npz` (a `Model`) and `last.npz` (everything needed to
+resume) after every epoch, and stops early. Data parallelism: pass a `jax.sharding.Mesh` with a "data"
+axis (default: all devices); the batch is split over it and the parameters are replicated.
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import json
+import math
+import os
+import platform
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
+
+from .checkpoint import (
+    config_from_dict,
+    config_to_dict,
+    load_tree,
+    model_template,
+    read_metadata,
+    save_model,
+    save_tree,
+)
+from .config import PRESETS, ModelConfig, SensorConfig, TrainConfig
+from .model import Model, apply_model, init_model, temporal_windows
+from .optim import AdamState, adam_init, adam_update, step_decay
+
+__all__ = [
+    "huber_loss",
+    "log_uniform",
+    "random_crop",
+    "scene_batches",
+    "sequence_batches",
+    "validation_set",
+    "make_train_step",
+    "evaluate",
+    "data_mesh",
+    "fit",
+    "add_train_parser",
+    "train_command",
+]
+
+
+def huber_loss(pred, gt, *, delta: float = 0.01):
+    """Mean Huber loss (the paper's Eq. 3, Keras's `Huber`): per pixel e = pred - gt,
+    0.5 e^2 if |e| <= delta else delta (|e| - delta / 2); averaged over every pixel. Returns a scalar."""
+    e = jnp.abs(pred - gt)
+    quad = jnp.minimum(e, delta)
+    return jnp.mean(0.5 * quad**2 + delta * (e - quad))
+
+
+def _psnr(pred, gt):
+    from .metrics import psnr
+
+    return psnr(pred, gt)
+
+
+def log_uniform(key, lo: float, hi: float, shape=()):
+    """Samples log-uniform in [lo, hi] (lo == hi gives the constant)."""
+    u = jax.random.uniform(key, shape)
+    return jnp.exp(jnp.log(lo) + u * (jnp.log(hi) - jnp.log(lo)))
+
+
+def random_crop(key, windows, gt, patch: tuple[int, int] | None, scale: int):
+    """A random LR crop of one example: windows (T, h, w) -> (T, ph, pw) and gt (h*r, w*r) -> (ph*r, pw*r),
+    aligned (LR pixel (y, x) covers HR pixels r*y .. r*y + r - 1). `patch` None returns the inputs."""
+    if patch is None:
+        return windows, gt
+    ph, pw = patch
+    t, h, w = windows.shape
+    if ph > h or pw > w:
+        raise ValueError(f"random_crop: patch {patch} is larger than the LR frame {(h, w)}")
+    ky, kx = jax.random.split(key)
+    y0 = jax.random.randint(ky, (), 0, h - ph + 1)
+    x0 = jax.random.randint(kx, (), 0, w - pw + 1)
+    windows = jax.lax.dynamic_slice(windows, (0, y0, x0), (t, ph, pw))
+    gt = jax.lax.dynamic_slice(gt, (y0 * scale, x0 * scale), (ph * scale, pw * scale))
+    return windows, gt
+
+
+def _simulate_example(key, depth, intensity, tr: int, train_cfg: TrainConfig, sensor: SensorConfig):
+    """(2tr+1, H, W) HR radial depth + intensity -> (LR window (2tr+1, h, w), GT of the centre (H, W))."""
+    from .peaks import centre_of_mass
+    from .sensor import normalise_depth, simulate_histograms
+
+    k_snr, k_sig, k_noise, k_crop = jax.random.split(key, 4)
+    snr = log_uniform(k_snr, *train_cfg.snr_range)
+    mean_signal = log_uniform(k_sig, *train_cfg.mean_signal_range)
+    # Calibration over the whole clip: the laser and the sun do not change from frame to frame.
+    counts = simulate_histograms(k_noise, depth, intensity, sensor, snr=snr, mean_signal=mean_signal)
+    window = centre_of_mass(counts, sensor)
+    gt = normalise_depth(depth[tr], sensor)
+    return random_crop(k_crop, window, gt, train_cfg.patch, sensor.scale)
+
+
+def scene_batches(tr: int, train_cfg: TrainConfig, *, sensor: SensorConfig = SensorConfig()):
+    """The default data source: `make_batch(key)` rendering `batch_size` random scenes.
+
+    Per example: `jaxsr.scenes.training_clip` (2tr+1 frames, motion 0.2-5 LR px/frame) -> frame SNR and
+    mean signal log-uniform in the config's ranges -> `simulate_histograms` -> `centre_of_mass` -> the
+    LR window; GT = `normalise_depth` of the centre frame; then an optional random crop (`patch`).
+    Returns make_batch: key -> (windows (B, 2tr+1, h, w), gt (B, h*r, w*r)).
+    """
+    from .scenes import training_clip
+
+    def example(key):
+        k_scene, k_rest = jax.random.split(key)
+        depth, intensity = training_clip(k_scene, 2 * tr + 1, sensor)
+        return _simulate_example(k_rest, depth, intensity, tr, train_cfg, sensor)
+
+    def make_batch(key):
+        return jax.vmap(example)(jax.random.split(key, train_cfg.batch_size))
+
+    make_batch.description = "jaxsr.scenes.training_clip -> simulate_histograms -> centre_of_mass"
+    return make_batch
+
+
+def sequence_batches(depth, intensity, tr: int, train_cfg: TrainConfig, *, sensor: SensorConfig = SensorConfig()):
+    """A data source drawing windows from HR sequences held in memory (e.g. AirSim recordings read from files).
+
+    depth: (N, T, H, W) or (T, H, W) radial metres (inf/NaN/beyond d_max = no return); intensity: the same
+    shape in [0, 1]; (H, W) = sensor.hr_shape and T >= 2tr+1. Per example: a random sequence and start
+    frame, then the same simulation as `scene_batches`. Returns make_batch: key -> (windows, gt).
+    """
+    depth = jnp.asarray(depth, jnp.float32)
+    intensity = jnp.asarray(intensity, jnp.float32)
+    if depth.ndim == 3:
+        depth, intensity = depth[None], intensity[None]
+    if depth.ndim != 4 or depth.shape != intensity.shape or depth.shape[-2:] != tuple(sensor.hr_shape):
+        raise ValueError(
+            f"sequence_batches: expected depth and intensity of equal shape (N, T, {sensor.hr_shape[0]}, "
+            f"{sensor.hr_shape[1]}), got {depth.shape} and {intensity.shape}"
+        )
+    n, t = depth.shape[:2]
+    frames = 2 * tr + 1
+    if t < frames:
+        raise ValueError(f"sequence_batches: sequences have {t} frames, fewer than the window 2*tr+1 = {frames}")
+
+    def example(key):
+        k_seq, k_start, k_rest = jax.random.split(key, 3)
+        i = jax.random.randint(k_seq, (), 0, n)
+        s = jax.random.randint(k_start, (), 0, t - frames + 1)
+        d = jax.lax.dynamic_slice(depth[i], (s, 0, 0), (frames, *depth.shape[2:]))
+        a = jax.lax.dynamic_slice(intensity[i], (s, 0, 0), (frames, *depth.shape[2:]))
+        return _simulate_example(k_rest, d, a, tr, train_cfg, sensor)
+
+    def make_batch(key):
+        return jax.vmap(example)(jax.random.split(key, train_cfg.batch_size))
+
+    make_batch.description = f"{n} HR sequence(s) of {t} frames -> simulate_histograms -> centre_of_mass"
+    return make_batch
+
+
+def _field(seq, name):
+    return seq[name] if isinstance(seq, dict) else getattr(seq, name)
+
+
+def validation_set(key, tr: int, train_cfg: TrainConfig, *, sensor: SensorConfig = SensorConfig(), sequences=None):
+    """Fixed validation windows: the first `val_frames` frames of each named sequence at its own SNR.
+
+    sequences: {name: seq with fields depth, intensity (T, H, W) and snr}; default
+    `jaxsr.scenes.test_sequences(n_frames=train_cfg.val_frames)` restricted to `train_cfg.val_sequences`.
+    Returns {"windows": (N, 2tr+1, h, w), "gt": (N, H, W), "lr": (N, h, w) centre frames, "names": [...]}.
+    """
+    from .peaks import centre_of_mass
+    from .sensor import normalise_depth, simulate_histograms
+
+    if sequences is None:
+        from .scenes import test_sequences
+
+        sequences = test_sequences(n_frames=train_cfg.val_frames)
+    names = list(train_cfg.val_sequences) or sorted(sequences)
+    windows, gts, lrs = [], [], []
+    for i, name in enumerate(names):
+        seq = sequences[name]
+        depth = jnp.asarray(_field(seq, "depth"))[: train_cfg.val_frames]
+        intensity = jnp.asarray(_field(seq, "intensity"))[: train_cfg.val_frames]
+        counts = simulate_histograms(
+            jax.random.fold_in(key, i), depth, intensity, sensor,
+            snr=float(_field(seq, "snr")), mean_signal=train_cfg.val_mean_signal,
+        )
+        lr = centre_of_mass(counts, sensor)
+        windows.append(temporal_windows(lr, tr))
+        gts.append(normalise_depth(depth, sensor))
+        lrs.append(lr)
+    return {"windows": jnp.concatenate(windows), "gt": jnp.concatenate(gts), "lr": jnp.concatenate(lrs), "names": names}
+
+
+def data_mesh(devices=None) -> Mesh:
+    """A 1-D mesh with axis "data" over `devices` (default: all devices of all processes)."""
+    devices = jax.devices() if devices is None else devices
+    return Mesh(np.asarray(devices), ("data",))
+
+
+def make_train_step(model_cfg: ModelConfig, train_cfg: TrainConfig, make_batch, *, mesh: Mesh | None = None):
+    """The jitted train step: step(params, state, opt_state, key, step) -> (params, state, opt_state, metrics).
+
+    Inside one jit: make_batch(key) -> network with BN in training mode -> Huber loss -> gradients -> Adam
+    with lr = lr0 * decay ** (step // (decay_epochs * steps_per_epoch)). metrics: {"loss", "psnr" (mean over
+    the batch, prediction clipped), "lr"}. With a `mesh`, the batch is sharded over its "data" axis and
+    params/state/optimiser state are replicated (batch statistics and gradients are reduced over the mesh).
+    """
+    schedule = step_decay(
+        train_cfg.lr, factor=train_cfg.lr_decay, every=train_cfg.decay_epochs * train_cfg.steps_per_epoch
+    )
+    if mesh is not None and train_cfg.batch_size % mesh.size:
+        raise ValueError(f"make_train_step: batch size {train_cfg.batch_size} not divisible by {mesh.size} devices")
+
+    def constrain(tree, spec):
+        if mesh is None:
+            return tree
+        return jax.lax.with_sharding_constraint(tree, NamedSharding(mesh, spec))
+
+    def step_fn(params, state, opt_state, key, step):
+        windows, gt = constrain(make_batch(key), P("data"))
+
+        def loss_fn(p):
+            hr, new_state = apply_model(p, state, windows, model_cfg, train=True)
+            return huber_loss(hr, gt, delta=train_cfg.huber_delta), (new_state, hr)
+
+        (loss, (new_state, hr)), grads = jax.value_and_grad(loss_fn, has_aux=True)(params)
+        lr = schedule(step)
+        params, opt_state = adam_update(
+            grads, opt_state, params, lr=lr, b1=train_cfg.adam_b1, b2=train_cfg.adam_b2, eps=train_cfg.adam_eps
+        )
+        params, new_state, opt_state = constrain((params, new_state, opt_state), P())
+        metrics = {"loss": loss, "psnr": jnp.mean(_psnr(hr, gt)), "lr": lr}
+        return params, new_state, opt_state, metrics
+
+    donate = (0, 1, 2) if jax.default_backend() != "cpu" else ()
+    return jax.jit(step_fn, donate_argnums=donate)
+
+
+@functools.partial(jax.jit, static_argnames=("cfg", "delta"))
+def _eval_chunk(params, state, windows, gt, cfg, delta):
+    hr = apply_model(params, state, windows, cfg)
+    e = jnp.abs(hr - gt)
+    quad = jnp.minimum(e, delta)
+    loss = jnp.mean(0.5 * quad**2 + delta * (e - quad), axis=(-2, -1))
+    return loss, _psnr(hr, gt)
+
+
+def evaluate(params, state, windows, gt, cfg: ModelConfig, *, delta: float = 0.01, batch_size: int = 8) -> dict:
+    """Validation with BN in inference mode: {"loss": mean Huber, "psnr": mean per-frame PSNR (dB)}.
+
+    windows: (N, 2tr+1, h, w); gt: (N, h*r, w*r). Runs in chunks of `batch_size` frames (the last padded).
+    """
+    n = windows.shape[0]
+    pad = (-n) % batch_size
+    if pad:
+        windows = jnp.concatenate([windows, jnp.repeat(windows[-1:], pad, 0)])
+        gt = jnp.concatenate([gt, jnp.repeat(gt[-1:], pad, 0)])
+    losses, psnrs = [], []
+    for i in range(0, n + pad, batch_size):
+        l, p = _eval_chunk(params, state, windows[i : i + batch_size], gt[i : i + batch_size], cfg, delta)
+        losses.append(l)
+        psnrs.append(p)
+    return {"loss": float(jnp.concatenate(losses)[:n].mean()), "psnr": float(jnp.concatenate(psnrs)[:n].mean())}
+
+
+def _write_text(path: Path, text: str):
+    """Atomic text write (the log always matches the history stored in last.npz)."""
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def _hardware() -> dict:
+    devs = jax.devices()
+    return {
+        "backend": jax.default_backend(),
+        "devices": len(devs),
+        "device_kind": devs[0].device_kind,
+        "processes": jax.process_count(),
+        "host": platform.platform(),
+        "jax": jax.__version__,
+    }
+
+
+def _train_state_template(model_cfg: ModelConfig):
+    params_t, state_t = model_template(model_cfg)
+    return {
+        "params": params_t,
+        "state": state_t,
+        "opt": jax.eval_shape(adam_init, params_t),
+        "best": {"params": params_t, "state": state_t},
+        "key": jax.eval_shape(lambda: jax.random.key_data(jax.random.key(0))),
+    }
+
+
+def fit(
+    model_cfg: ModelConfig,
+    train_cfg: TrainConfig,
+    *,
+    out,
+    make_batch=None,
+    validation: dict | None = None,
+    sensor: SensorConfig = SensorConfig(),
+    resume: bool = False,
+    mesh: Mesh | None | str = "auto",
+    progress: bool = True,
+    callback=None,
+    data_description: str | None = None,
+):
+    """Train a network; returns (best `Model`, history: list of per-epoch records).
+
+    out: folder for `metrics.jsonl` (one JSON record per epoch), `best.npz` (the best model so far, with its
+    training card; `jaxsr.load_model` reads it) and `last.npz` (params, BN state, Adam state, RNG key, step,
+    epoch, best-so-far weights and early-stopping counters), all written every epoch. `resume=True` continues
+    from `last.npz` and gives the same result as an uninterrupted run (bit-identical on the same machine).
+    make_batch: the data source (default `scene_batches`); validation: a dict from `validation_set`
+    (default: built from `jaxsr.scenes.test_sequences`). mesh: "auto" (all devices when there are more than
+    one), None (no sharding) or a `Mesh` with a "data" axis. callback(record) is called after each epoch's
+    checkpoint is written. Everything random follows `train_cfg.seed`.
+    """
+    if model_cfg.scale != sensor.scale:
+        raise ValueError(f"fit: model scale {model_cfg.scale} differs from sensor scale {sensor.scale}")
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    if mesh == "auto":
+        mesh = data_mesh() if jax.device_count() > 1 and train_cfg.batch_size % jax.device_count() == 0 else None
+    root = jax.random.key(train_cfg.seed)
+    k_init, k_data, k_val = (jax.random.fold_in(root, i) for i in range(3))
+    if make_batch is None:
+        make_batch = scene_batches(model_cfg.tr, train_cfg, sensor=sensor)
+    if data_description is None:
+        data_description = getattr(make_batch, "description", "user-supplied make_batch")
+    if validation is None:
+        validation = validation_set(k_val, model_cfg.tr, train_cfg, sensor=sensor)
+    val_bicubic = None
+    if "lr" in validation:
+        from .baselines import bicubic
+
+        val_bicubic = float(jnp.mean(_psnr(bicubic(validation["lr"], scale=model_cfg.scale), validation["gt"])))
+
+    spe = train_cfg.steps_per_epoch
+    last_path, best_path = out / "last.npz", out / "best.npz"
+    # JSON round trip: tuples become lists, as they are when read back from a checkpoint
+    meta_common = json.loads(json.dumps({"config": config_to_dict(model_cfg), "train_config": config_to_dict(train_cfg)}))
+    if resume and last_path.is_file():
+        meta = read_metadata(last_path)
+        if meta["config"] != meta_common["config"] or meta["train_config"] != meta_common["train_config"]:
+            raise ValueError(
+                f"fit: cannot resume {str(last_path)!r}: it was trained with other settings "
+                f"({meta['config']}, {meta['train_config']})"
+            )
+        tree, meta = load_tree(last_path, _train_state_template(model_cfg))
+        tree = jax.tree_util.tree_map(jnp.asarray, tree)
+        params, state = tree["params"], tree["state"]
+        opt_state = AdamState(*tree["opt"])
+        best = tree["best"]
+        k_data = jax.random.wrap_key_data(tree["key"])
+        run = meta["run"]
+        history = run["history"]
+    else:
+        params, state = init_model(k_init, model_cfg)
+        opt_state = adam_init(params)
+        best = jax.device_get({"params": params, "state": state})
+        run = {"epoch": 0, "step": 0, "best_loss": math.inf, "best_epoch": -1, "bad_epochs": 0,
+               "wall_time_s": 0.0, "finished": False, "history": []}
+        history = run["history"]
+
+    step_fn = make_train_step(model_cfg, train_cfg, make_batch, mesh=mesh)
+    if mesh is not None:
+        params, state, opt_state = jax.device_put((params, state, opt_state), NamedSharding(mesh, P()))
+
+    def card():
+        return {
+            "data": data_description,
+            "sensor": jax.tree_util.tree_map(lambda v: v.tolist() if hasattr(v, "tolist") else v,
+                                             config_to_dict(sensor)),
+            "steps": run["step"],
+            "epochs": run["epoch"],
+            "examples": run["step"] * train_cfg.batch_size,
+            "best_epoch": run["best_epoch"],
+            "wall_time_s": run["wall_time_s"],
+            "hardware": _hardware(),
+            "validation": {
+                "sequences": list(validation.get("names", [])),
+                "frames": int(validation["windows"].shape[0]),
+                "loss": run["best_loss"],
+                "psnr": history[run["best_epoch"]]["val_psnr"] if run["best_epoch"] >= 0 else None,
+                "bicubic_psnr": val_bicubic,
+            },
+            "train_config": meta_common["train_config"],
+            "seed": train_cfg.seed,
+        }
+
+    try:
+        from tqdm.auto import tqdm
+    except ImportError:  # pragma: no cover
+        progress = False
+
+    while not run["finished"] and run["epoch"] < train_cfg.epochs:
+        epoch = run["epoch"]
+        t0 = time.perf_counter()
+        sums = {"loss": 0.0, "psnr": 0.0}
+        bar = tqdm(total=spe, desc=f"epoch {epoch + 1}/{train_cfg.epochs}", disable=not progress, leave=False)
+        lr = None
+        for i in range(spe):
+            step = epoch * spe + i
+            ts = time.perf_counter()
+            params, state, opt_state, m = step_fn(params, state, opt_state, jax.random.fold_in(k_data, step), step)
+            m = {k: float(v) for k, v in jax.device_get(m).items()}
+            sums["loss"] += m["loss"]
+            sums["psnr"] += m["psnr"]
+            lr = m["lr"]
+            bar.set_postfix(loss=f"{m['loss']:.2e}", psnr=f"{m['psnr']:.2f}", lr=f"{lr:.0e}",
+                            ex_s=f"{train_cfg.batch_size / (time.perf_counter() - ts):.1f}")
+            bar.update()
+        bar.close()
+        train_time = time.perf_counter() - t0
+        val = evaluate(params, state, validation["windows"], validation["gt"], model_cfg, delta=train_cfg.huber_delta)
+        run["step"] = (epoch + 1) * spe
+        run["epoch"] = epoch + 1
+        record = {
+            "epoch": epoch + 1, "step": run["step"], "lr": lr,
+            "train_loss": sums["loss"] / spe, "train_psnr": sums["psnr"] / spe,
+            "val_loss": val["loss"], "val_psnr": val["psnr"], "val_bicubic_psnr": val_bicubic,
+            "examples_per_s": spe * train_cfg.batch_size / train_time,
+            "epoch_time_s": time.perf_counter() - t0,
+        }
+        if val["loss"] < run["best_loss"]:
+            run.update(best_loss=val["loss"], best_epoch=epoch, bad_epochs=0)
+            best = jax.device_get({"params": params, "state": state})
+        else:
+            run["bad_epochs"] += 1
+        run["finished"] = run["bad_epochs"] >= train_cfg.patience or run["epoch"] >= train_cfg.epochs
+        run["wall_time_s"] += time.perf_counter() - t0
+        record["wall_time_s"] = run["wall_time_s"]
+        history.append(record)
+        if progress:
+            print(json.dumps(record))
+        # best first, then last: a kill between the two resumes from the previous epoch and rewrites both.
+        if run["best_epoch"] == epoch:
+            save_model(best_path, Model(best["params"], best["state"], model_cfg), card=card())
+        tree = {"params": params, "state": state, "opt": opt_state, "best": best,
+                "key": jax.random.key_data(k_data)}
+        save_tree(last_path, tree, dict(meta_common, kind="train_state", run=run, card=card()))
+        _write_text(out / "metrics.jsonl", "".join(json.dumps(r) + "\n" for r in history))
+        if callback is not None:
+            callback(record)
+    model = Model(jax.tree_util.tree_map(jnp.asarray, best["params"]),
+                  jax.tree_util.tree_map(jnp.asarray, best["state"]), model_cfg)
+    return model, history
+
+
+def add_train_parser(subparsers) -> argparse.ArgumentParser:
+    """Register `train` on an argparse subparsers object: `jaxsr train --tr 4 --preset cpu --out runs/tr4
+    [--resume] [--seed N] [--epochs N] [--data FILE.npz] [--no-progress]`; sets `func=train_command`."""
+    p = subparsers.add_parser("train", help="train a super-resolution network (3 + TR blocks)")
+    p.add_argument("--tr", type=int, default=4, help="temporal radius TR (window of 2TR+1 frames)")
+    p.add_argument("--scale", type=int, default=4, help="upsampling factor (4, or 8)")
+    p.add_argument("--preset", choices=sorted(PRESETS), default="cpu", help="training preset (see jaxsr.config.PRESETS)")
+    p.add_argument("--out", required=True, help="output folder (metrics.jsonl, best.npz, last.npz)")
+    p.add_argument("--resume", action="store_true", help="continue from OUT/last.npz")
+    p.add_argument("--seed", type=int, default=None, help="override the preset's seed")
+    p.add_argument("--epochs", type=int, default=None, help="override the preset's number of epochs")
+    p.add_argument("--data", default=None,
+                   help="train on HR sequences from an .npz with arrays depth (radial m) and intensity, (N, T, H, W)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=train_command)
+    return p
+
+
+def train_command(args) -> int:
+    """Run `jaxsr train` from parsed arguments (see `add_train_parser`); returns the exit code."""
+    import dataclasses
+
+    cfg = PRESETS[args.preset]
+    changes = {k: v for k, v in (("seed", args.seed), ("epochs", args.epochs)) if v is not None}
+    cfg = dataclasses.replace(cfg, **changes)
+    sensor = SensorConfig() if args.scale == 4 else SensorConfig(scale=args.scale)
+    model_cfg = ModelConfig(tr=args.tr, scale=args.scale)
+    make_batch = None
+    if args.data:
+        with np.load(args.data) as d:
+            make_batch = sequence_batches(d["depth"], d["intensity"], args.tr, cfg, sensor=sensor)
+        make_batch.description = f"{args.data}: " + make_batch.description
+    model, history = fit(model_cfg, cfg, out=args.out, make_batch=make_batch, sensor=sensor,
+                         resume=args.resume, progress=not args.no_progress)
+    best = min(history, key=lambda r: r["val_loss"]) if history else None
+    if best:
+        print(f"best epoch {best['epoch']}: val loss {best['val_loss']:.3e}, val PSNR {best['val_psnr']:.2f} dB "
+              f"-> {Path(args.out) / 'best.npz'}")
+    return 0

@@ -1,0 +1,125 @@
+"""The network: parameter counts of DESIGN.md, shapes for TR0-4 and scale 8, BN modes, hand-set weights."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxsr.config import ModelConfig
+from jaxsr.model import Model, apply_model, count_params, init_model, super_resolve, temporal_windows
+
+TINY = dict(base=8, growth=4, head=16, filter_hidden=16)
+PAPER_COUNTS = {0: 1_056_608, 1: 1_295_072, 2: 1_572_608, 3: 1_891_264, 4: 2_253_088}
+
+
+def _shapes(cfg):
+    return jax.eval_shape(lambda k: init_model(k, cfg), jax.random.key(0))
+
+
+@pytest.mark.parametrize("tr", sorted(PAPER_COUNTS))
+def test_parameter_counts(tr):
+    params, _ = _shapes(ModelConfig(tr=tr))
+    assert count_params(params) == PAPER_COUNTS[tr]
+
+
+def test_key_paths_and_state():
+    params, state = _shapes(ModelConfig(tr=2))
+    assert len(params["blocks"]) == 5 and params["blocks"][0]["conv2"]["w"].shape == (3, 3, 3, 64, 32)
+    assert params["blocks"][4]["conv2"]["w"].shape == (3, 3, 3, 192, 32)
+    assert params["head"]["conv"]["w"].shape == (1, 3, 3, 224, 256)
+    assert params["filter"]["conv2"]["w"].shape == (1, 1, 1, 512, 25 * 16)
+    assert state["blocks"][4]["bn2"]["var"].shape == (192,)
+
+
+@pytest.mark.parametrize("tr,scale", [(0, 4), (1, 4), (2, 4), (3, 4), (4, 4), (2, 8)])
+def test_shapes_full_size(tr, scale):
+    cfg = ModelConfig(tr=tr, scale=scale)
+    params, state = _shapes(cfg)
+    lr = (128 // scale, 256 // scale)
+    win = jax.ShapeDtypeStruct((2, 2 * tr + 1, *lr), jnp.float32)
+    out = jax.eval_shape(lambda p, s, w: apply_model(p, s, w, cfg), params, state, win)
+    assert out.shape == (2, 128, 256)
+    hr, new_state = jax.eval_shape(lambda p, s, w: apply_model(p, s, w, cfg, train=True), params, state, win)
+    assert hr.shape == (2, 128, 256)
+    assert jax.tree_util.tree_structure(new_state) == jax.tree_util.tree_structure(state)
+
+
+@pytest.mark.parametrize("tr,scale", [(0, 4), (2, 4), (1, 8)])
+def test_tiny_forward_runs(tr, scale):
+    cfg = ModelConfig(tr=tr, scale=scale, **TINY)
+    params, state = init_model(jax.random.key(0), cfg)
+    win = jax.random.uniform(jax.random.key(1), (2, cfg.frames, 4, 6))
+    hr = apply_model(params, state, win, cfg)
+    assert hr.shape == (2, 4 * scale, 6 * scale) and bool(jnp.all(jnp.isfinite(hr)))
+    hr_t, new_state = apply_model(params, state, win, cfg, train=True)
+    # training mode uses batch statistics (differs from the running ones) and moves the running mean
+    assert not np.allclose(hr_t, hr)
+    assert not np.allclose(new_state["blocks"][1]["bn1"]["mean"], state["blocks"][1]["bn1"]["mean"])
+    # inference is deterministic and leaves no state behind
+    np.testing.assert_array_equal(apply_model(params, state, win, cfg), hr)
+
+
+def test_conv3d_impls_give_same_network():
+    cfg = ModelConfig(tr=1, **TINY)
+    params, state = init_model(jax.random.key(0), cfg)
+    win = jax.random.uniform(jax.random.key(1), (2, 3, 4, 6))
+    a = apply_model(params, state, win, dataclasses.replace(cfg, conv3d_impl="native"))
+    b = apply_model(params, state, win, dataclasses.replace(cfg, conv3d_impl="taps"))
+    np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5)
+
+
+def test_hand_set_head_gives_nearest_upsampling_of_centre_frame():
+    """Zero residual and a filter branch saturated on the centre tap: the output is the centre input frame,
+    nearest-upsampled (the other frames of the window do not leak into the filtered path)."""
+    cfg = ModelConfig(tr=2, **TINY)
+    params, state = init_model(jax.random.key(0), cfg)
+    r2 = cfg.scale**2
+    params["residual"]["conv2"] = {"w": jnp.zeros_like(params["residual"]["conv2"]["w"]), "b": jnp.zeros(r2)}
+    logits = jnp.full((25, r2), -1e4).at[12].set(0.0).reshape(-1)
+    params["filter"]["conv2"] = {"w": jnp.zeros_like(params["filter"]["conv2"]["w"]), "b": logits}
+    win = jax.random.uniform(jax.random.key(1), (2, 5, 3, 4))
+    hr = apply_model(params, state, win, cfg)
+    expect = jnp.repeat(jnp.repeat(win[:, 2], 4, axis=1), 4, axis=2)
+    np.testing.assert_allclose(hr, expect, rtol=1e-6)
+    # a constant residual is added unclipped, without activation
+    params["residual"]["conv2"]["b"] = jnp.full(r2, -2.0)
+    np.testing.assert_allclose(apply_model(params, state, win, cfg), expect - 2.0, rtol=1e-6)
+
+
+def test_bad_window_shape_raises():
+    cfg = ModelConfig(tr=1, **TINY)
+    params, state = init_model(jax.random.key(0), cfg)
+    with pytest.raises(ValueError, match=r"\(B, 3, H, W\)"):
+        apply_model(params, state, jnp.zeros((2, 5, 4, 4)), cfg)
+    with pytest.raises(ValueError):
+        apply_model(params, state, jnp.zeros((3, 4, 4)), cfg)
+
+
+def test_config_validation():
+    with pytest.raises(ValueError):
+        ModelConfig(tr=-1)
+    with pytest.raises(ValueError):
+        ModelConfig(filter_size=4)
+    with pytest.raises(ValueError):
+        ModelConfig(filter_padding="reflect")
+    assert ModelConfig(tr=3).features == 64 + 32 * 6
+
+
+def test_temporal_windows_edge_replicated():
+    seq = jnp.arange(4.0)[:, None, None] * jnp.ones((4, 2, 3))
+    w = temporal_windows(seq, 2)
+    assert w.shape == (4, 5, 2, 3)
+    np.testing.assert_array_equal(w[:, :, 0, 0], [[0, 0, 0, 1, 2], [0, 0, 1, 2, 3], [0, 1, 2, 3, 3], [1, 2, 3, 3, 3]])
+
+
+def test_model_pytree_and_super_resolve():
+    cfg = ModelConfig(tr=1, **TINY)
+    model = Model(*init_model(jax.random.key(0), cfg), cfg)
+    leaves, treedef = jax.tree_util.tree_flatten(model)
+    assert len(leaves) == len(jax.tree_util.tree_leaves((model.params, model.state)))
+    seq = jax.random.uniform(jax.random.key(2), (5, 4, 6))
+    out = super_resolve(model, seq, batch_size=2)
+    assert out.shape == (5, 16, 24)
+    np.testing.assert_allclose(out, model(temporal_windows(seq, 1)), rtol=1e-5, atol=1e-6)
