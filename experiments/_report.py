@@ -1,0 +1,56 @@
+"""Shared header and writing helpers for the experiment scripts' result files."""
+
+from __future__ import annotations
+
+import datetime
+import os
+import platform
+import sys
+import tempfile
+import time
+
+import jax
+
+
+def machine() -> str:
+    """A one-line description of where the experiment ran."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as f:
+            cpu = next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
+    except (OSError, StopIteration):
+        pass
+    return f"{cpu}, {os.cpu_count()} cores, JAX {jax.__version__} on {jax.default_backend()} ({jax.devices()[0]})"
+
+
+def header(title: str, started: float) -> str:
+    """Markdown header: title, the exact command, machine, date and wall time."""
+    command = "python " + " ".join([os.path.relpath(sys.argv[0])] + sys.argv[1:])
+    return (
+        f"# {title}\n\n"
+        f"- command: `{command}`\n"
+        f"- machine: {machine()}\n"
+        f"- date: {datetime.date.today().isoformat()}\n"
+        f"- wall time: {time.time() - started:.0f} s\n\n"
+    )
+
+
+def write_atomic(path: str, text: str) -> None:
+    """Write text to path via a temporary file in the same folder and os.replace."""
+    folder = os.path.dirname(os.path.abspath(path))
+    os.makedirs(folder, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=folder, prefix=".tmp-")
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        os.unlink(tmp)
+        raise
+
+
+def markdown_table(columns, rows) -> str:
+    """A GitHub markdown table from column names and rows of already formatted cells."""
+    lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
+    lines += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
+    return "\n".join(lines) + "\n"
