@@ -134,11 +134,11 @@ class TrainConfig:
     epoch (steps per epoch = examples_per_epoch // batch_size), at most `epochs` epochs, early stopping after
     `patience` epochs without a lower validation loss (the best weights are kept).
     Data: frame SNR log-uniform in `snr_range`; mean signal photons per LR pixel log-uniform in
-    `mean_signal_range` (both ends `DEFAULT_MEAN_SIGNAL` by default, the calibrated level); scene motion is
-    that of `jaxsr.scenes.training_clip` (0.2-5 LR px/frame). `patch` = (rows, cols) of a random LR crop to
+    `mean_signal_range` (both ends `DEFAULT_MEAN_SIGNAL` by default, the calibrated level); mean scene motion
+    log-uniform in `motion_range` LR pixels per frame (`jaxsr.scenes.training_clip`). `patch` = (rows, cols) of a random LR crop to
     train on (None: whole frames; the network is fully convolutional, crops only cut compute).
     Validation: the first `val_frames` frames of each sequence in `val_sequences` of
-    `jaxsr.scenes.test_sequences` (empty tuple: all), at each sequence's own SNR, with `val_mean_signal`.
+    `jaxsr.scenes.test_sequences` (the three validation sequences, distinct from the test scenes), at each sequence's own SNR, with `val_mean_signal`.
     `seed` fixes everything random (data, initial weights, validation noise).
     """
 
@@ -155,9 +155,10 @@ class TrainConfig:
     adam_eps: float = 1e-7
     snr_range: tuple[float, float] = (0.5, 8.0)
     mean_signal_range: tuple[float, float] = (DEFAULT_MEAN_SIGNAL, DEFAULT_MEAN_SIGNAL)
+    motion_range: tuple[float, float] = (0.2, 5.0)
     patch: tuple[int, int] | None = None
     val_frames: int = 500
-    val_sequences: tuple[str, ...] = ()
+    val_sequences: tuple[str, ...] = ("val1_street", "val2_road", "val3_courtyard")
     val_mean_signal: float = DEFAULT_MEAN_SIGNAL
     seed: int = 0
 
@@ -181,13 +182,17 @@ class TrainConfig:
 
 
 # Training presets. `paper`: the paper's schedule (15500 examples/epoch, batch 4, 100 epochs, patience 5,
-# validation on 3 x 500 frames). `cpu`: sized so that TR0-TR4 all train in about 45 min on 2 CPU cores
-# (measured step times in benchmarks/bench_train.py); the decay and the patience are scaled with the epochs.
+# validation on 3 x 500 frames). `cpu`: sized so that TR0-TR4 all train in about 45 min on 2 CPU cores.
+# Measured on 2 shared XLA:CPU cores (benchmarks/bench_train.py, 16 x 32 LR patches, sensor simulation
+# included, rendering not): TR0 0.22 s/step (18 examples/s), TR4 2.2 s/step (1.9 examples/s); TR0-TR4 together
+# about 5.5 s per step each, so 5 epochs x 64 steps = 320 steps per TR is about 30 min plus rendering,
+# validation (3 x 8 full frames per epoch) and compilation. The decay (epoch 4) and the patience (3) are
+# scaled down with the epochs.
 PRESETS = {
     "paper": TrainConfig(),
     "cpu": TrainConfig(
-        examples_per_epoch=160,
-        epochs=6,
+        examples_per_epoch=256,
+        epochs=5,
         patience=3,
         decay_epochs=4,
         patch=(16, 32),

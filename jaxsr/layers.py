@@ -18,6 +18,7 @@ __all__ = [
     "conv3d_taps",
     "default_conv3d_impl",
     "init_conv",
+    "glorot_limit",
     "init_batch_norm",
     "batch_norm",
     "neighbourhoods",
@@ -31,10 +32,16 @@ def init_conv(key, kernel: tuple[int, int, int], cin: int, cout: int, *, dtype=j
 
     Returns {"w": (kt, kh, kw, cin, cout), "b": (cout,)}.
     """
+    shape = (*kernel, cin, cout)
+    # a flat draw, then reshape: compiles far faster on XLA:CPU than a 5-D draw, same distribution
+    u = jax.random.uniform(key, (math.prod(shape),), dtype, -1.0, 1.0).reshape(shape)
+    return {"w": glorot_limit(kernel, cin, cout) * u, "b": jnp.zeros((cout,), dtype)}
+
+
+def glorot_limit(kernel: tuple[int, int, int], cin: int, cout: int) -> float:
+    """Glorot-uniform bound sqrt(6 / (fan_in + fan_out)), fans counted over the receptive field (Keras)."""
     receptive = math.prod(kernel)
-    limit = math.sqrt(6.0 / (receptive * (cin + cout)))
-    w = jax.random.uniform(key, (*kernel, cin, cout), dtype, -limit, limit)
-    return {"w": w, "b": jnp.zeros((cout,), dtype)}
+    return math.sqrt(6.0 / (receptive * (cin + cout)))
 
 
 def _pads(padding, kernel) -> tuple[tuple[int, int], ...]:

@@ -8,13 +8,14 @@ bundles params, state and config as one pytree; `super_resolve` runs a model ove
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 import jax
 import jax.numpy as jnp
 
 from .config import ModelConfig
-from .layers import batch_norm, conv3d, depth_to_space, dynamic_upsample, init_batch_norm, init_conv
+from .layers import batch_norm, conv3d, depth_to_space, dynamic_upsample, glorot_limit, init_batch_norm
 
 __all__ = ["Model", "init_model", "apply_model", "count_params", "temporal_windows", "super_resolve"]
 
@@ -26,38 +27,55 @@ def init_model(key, cfg: ModelConfig) -> tuple[dict, dict]:
     running variance 1. Returns (params, state), nested dicts/lists of float32 arrays:
     params = {stem, blocks: [{bn1, conv1, bn2, conv2}] * (3 + tr), head: {bn, conv}, residual: {conv1, conv2},
     filter: {conv1, conv2}}; state = {blocks: [{bn1, bn2}], head: {bn}} with {mean, var} per BN.
+    Jitted (one compilation per config instead of one per layer shape).
     """
+    return _init_model(key, cfg)
+
+
+def _conv_shapes(cfg: ModelConfig) -> dict:
+    """{(group, index or None, name): (kernel, cin, cout)} of every convolution, in a fixed order."""
     r2 = cfg.scale * cfg.scale
-    taps = cfg.filter_size * cfg.filter_size
-    n_blocks = cfg.same_blocks + cfg.tr
-    keys = iter(jax.random.split(key, 2 * n_blocks + 6))
-    params = {"stem": init_conv(next(keys), (1, 3, 3), 1, cfg.base), "blocks": []}
+    shapes = {("stem", None, None): ((1, 3, 3), 1, cfg.base)}
+    f = cfg.base
+    for i in range(cfg.same_blocks + cfg.tr):
+        shapes[("blocks", i, "conv1")] = ((1, 1, 1), f, f)
+        shapes[("blocks", i, "conv2")] = ((3, 3, 3), f, cfg.growth)
+        f += cfg.growth
+    shapes[("head", None, "conv")] = ((1, 3, 3), f, cfg.head)
+    shapes[("residual", None, "conv1")] = ((1, 1, 1), cfg.head, cfg.head)
+    shapes[("residual", None, "conv2")] = ((1, 1, 1), cfg.head, r2)
+    shapes[("filter", None, "conv1")] = ((1, 1, 1), cfg.head, cfg.filter_hidden)
+    shapes[("filter", None, "conv2")] = ((1, 1, 1), cfg.filter_hidden, cfg.filter_size**2 * r2)
+    return shapes
+
+
+@functools.partial(jax.jit, static_argnums=1)
+def _init_model(key, cfg: ModelConfig) -> tuple[dict, dict]:
+    shapes = _conv_shapes(cfg)
+    sizes = [math.prod(k) * cin * cout for k, cin, cout in shapes.values()]
+    # one flat uniform draw sliced per layer (one random kernel to compile instead of one per shape)
+    u = jax.random.uniform(key, (sum(sizes),), jnp.float32, -1.0, 1.0)
+    convs, offset = {}, 0
+    for (name, (kernel, cin, cout)), n in zip(shapes.items(), sizes):
+        w = glorot_limit(kernel, cin, cout) * u[offset : offset + n].reshape(*kernel, cin, cout)
+        convs[name] = {"w": w, "b": jnp.zeros((cout,), jnp.float32)}
+        offset += n
+    params = {"stem": convs[("stem", None, None)], "blocks": []}
     state = {"blocks": []}
     f = cfg.base
-    for _ in range(n_blocks):
+    for i in range(cfg.same_blocks + cfg.tr):
         bn1, s1 = init_batch_norm(f)
         bn2, s2 = init_batch_norm(f)
         params["blocks"].append(
-            {
-                "bn1": bn1,
-                "conv1": init_conv(next(keys), (1, 1, 1), f, f),
-                "bn2": bn2,
-                "conv2": init_conv(next(keys), (3, 3, 3), f, cfg.growth),
-            }
+            {"bn1": bn1, "conv1": convs[("blocks", i, "conv1")], "bn2": bn2, "conv2": convs[("blocks", i, "conv2")]}
         )
         state["blocks"].append({"bn1": s1, "bn2": s2})
         f += cfg.growth
     bn, s = init_batch_norm(f)
-    params["head"] = {"bn": bn, "conv": init_conv(next(keys), (1, 3, 3), f, cfg.head)}
+    params["head"] = {"bn": bn, "conv": convs[("head", None, "conv")]}
     state["head"] = {"bn": s}
-    params["residual"] = {
-        "conv1": init_conv(next(keys), (1, 1, 1), cfg.head, cfg.head),
-        "conv2": init_conv(next(keys), (1, 1, 1), cfg.head, r2),
-    }
-    params["filter"] = {
-        "conv1": init_conv(next(keys), (1, 1, 1), cfg.head, cfg.filter_hidden),
-        "conv2": init_conv(next(keys), (1, 1, 1), cfg.filter_hidden, taps * r2),
-    }
+    params["residual"] = {"conv1": convs[("residual", None, "conv1")], "conv2": convs[("residual", None, "conv2")]}
+    params["filter"] = {"conv1": convs[("filter", None, "conv1")], "conv2": convs[("filter", None, "conv2")]}
     return params, state
 
 

@@ -8,9 +8,11 @@ Coordinates (metres, right-handed with Y up):
   the world's vertical), yaw `psi` about Y (positive turns the view towards +X). Camera-frame coordinates are
   x right, y up (height relative to the camera), z forward (planar depth);
 - pixels: HR pixel (row, col) has centre (col + 0.5, row + 0.5); its ray direction in the camera frame is
-  D = ((col + 0.5 - W/2) / f, -(row + 0.5 - H/2) / f, 1) with f = `sensor.focal_px`, so the ray parameter
-  along D is the planar depth z, and the radial depth is r = z |D|, the same relation as
-  `jaxsr.sensor.planar_to_radial`.
+  D = ((col + 0.5 - W/2) / f, -(row + 0.5 - H/2) / f - tilt, 1) with f = `sensor.focal_px`, so the ray
+  parameter along D is the planar depth z, and the radial depth is r = z |D|; with tilt = 0 this is the relation
+  of `jaxsr.sensor.planar_to_radial`. A camera 1.7 m up looking level sees the ground only beyond 13 m (the
+  vertical field of view is 15.25 deg), so scenes use a small tilt (a lens shift, not a rotation, so that the
+  image's vertical stays the world's vertical and the ray casting stays separable).
 
 A `Scene` is a pytree of fixed-size arrays (a fixed number of primitives per type, each with an `active`
 mask), so scenes sampled under `jax.vmap` share one shape and `render(scene, t)` is pure and jittable.
@@ -55,12 +57,15 @@ TEX_PARAMS = 4
 
 class Camera(NamedTuple):
     """Camera pose and motion. position (3,) m at t = 0 (Y is the height above the ground), velocity (3,) m/s,
-    yaw (rad, positive towards +X) and yaw_rate (rad/s)."""
+    yaw (rad, positive towards +X), yaw_rate (rad/s), and tilt: a downward view emulated by a vertical lens shift
+    (the ray of a pixel has dy reduced by `tilt`, so the horizon sits tilt * focal_px pixels above the centre;
+    verticals stay vertical). tilt = 0 is the centred pinhole of PHYSICS.md."""
 
     position: jax.Array
     velocity: jax.Array
     yaw: jax.Array
     yaw_rate: jax.Array
+    tilt: jax.Array = 0.0
 
 
 class Motion(NamedTuple):
@@ -335,7 +340,7 @@ _PIXEL = {_BOX: _pixel_box, _CYL: _pixel_cylinder, _ELL: _pixel_ellipsoid}
 # per tile over the `k_max` nearest primitives whose projected bounding box touches the tile.
 
 
-def _project_bounds(aabb, sensor):
+def _project_bounds(aabb, sensor, tilt):
     """Conservative pixel bounds (P, 4): col_min, col_max, row_min, row_max (continuous pixel coordinates)."""
     h, w = sensor.hr_shape
     f = sensor.focal_px
@@ -345,16 +350,16 @@ def _project_bounds(aabb, sensor):
     ys = jnp.stack([aabb[:, 2] / z0, aabb[:, 2] / z1, aabb[:, 3] / z0, aabb[:, 3] / z1], -1)
     visible = aabb[:, 5] > _NEAR
     col0, col1 = f * xs.min(-1) + w / 2, f * xs.max(-1) + w / 2
-    row0, row1 = -f * ys.max(-1) + h / 2, -f * ys.min(-1) + h / 2
+    row0, row1 = -f * (ys.max(-1) + tilt) + h / 2, -f * (ys.min(-1) + tilt) + h / 2
     return jnp.stack([col0, col1, row0, row1], -1), visible
 
 
-def _tile_touches(group: _Group, sensor, tiles):
+def _tile_touches(group: _Group, sensor, tiles, tilt):
     """(tiles, P) bool: which active primitives' projected bounding boxes touch each tile (row-major tiles)."""
     h, w = sensor.hr_shape
     n_r, n_c = tiles
     th, tw = h // n_r, w // n_c
-    bounds, visible = _project_bounds(group.aabb, sensor)
+    bounds, visible = _project_bounds(group.aabb, sensor, tilt)
     r0 = jnp.repeat(jnp.arange(n_r) * th, n_c)[:, None]
     c0 = jnp.tile(jnp.arange(n_c) * tw, n_r)[:, None]
     return (
@@ -385,13 +390,13 @@ def _cast_full(kind, group: _Group, dx, dy):
     return t_min, i_min
 
 
-def _cast_tiled(kind, group: _Group, dx, dy, sensor, tiles, k_max):
+def _cast_tiled(kind, group: _Group, dx, dy, sensor, tiles, k_max, tilt):
     h, w = sensor.hr_shape
     n_r, n_c = tiles
     th, tw = h // n_r, w // n_c
     n_t = n_r * n_c
     col, row, const = jax.lax.optimization_barrier(_TERMS[kind](group.params, dx, dy))
-    key = jnp.where(_tile_touches(group, sensor, tiles), group.aabb[None, :, 4], _INF)
+    key = jnp.where(_tile_touches(group, sensor, tiles, tilt), group.aabb[None, :, 4], _INF)
     neg, order = jax.lax.top_k(-key, k_max)  # (tiles, k_max), nearest first
     valid = jnp.isfinite(neg)
     tile_c = jnp.tile(jnp.arange(n_c), n_r)
@@ -423,7 +428,8 @@ def tile_overflow(scene: Scene, t, *, sensor: SensorConfig = SensorConfig(), til
     groups, _, _ = _pose_all(scene, jnp.asarray(t, jnp.float32))
     out = {}
     for name, group, k in zip(("boxes", "cylinders", "ellipsoids"), groups, k_max):
-        out[name] = int(_tile_touches(group, sensor, tiles).sum(-1).max()) - min(k, group.params.shape[0])
+        touches = _tile_touches(group, sensor, tiles, scene.camera.tilt)
+        out[name] = int(touches.sum(-1).max()) - min(k, group.params.shape[0])
     return out
 
 
@@ -506,7 +512,9 @@ def render(scene: Scene, t, *, sensor: SensorConfig = SensorConfig(), tiles=DEFA
     pixel (the reference, slower).
     """
     h, w = sensor.hr_shape
-    dx, dy, norm = pixel_rays(sensor)
+    dx, dy, _ = pixel_rays(sensor)
+    dy = dy - scene.camera.tilt
+    norm = jnp.sqrt(1.0 + dx[None, :] ** 2 + dy[:, None] ** 2)
     groups, cam_pos, psi = _pose_all(scene, jnp.asarray(t, jnp.float32))
     # Materialise the per-primitive parameters: otherwise XLA recomputes their sin/cos in every pixel.
     groups = jax.lax.optimization_barrier(groups)
@@ -519,7 +527,7 @@ def render(scene: Scene, t, *, sensor: SensorConfig = SensorConfig(), tiles=DEFA
         if tiles is None or k is None or k >= n or h % tiles[0] or w % tiles[1]:
             t_min, i_min = _cast_full(kind, group, dx, dy)
         else:
-            t_min, i_min = _cast_tiled(kind, group, dx, dy, sensor, tiles, k)
+            t_min, i_min = _cast_tiled(kind, group, dx, dy, sensor, tiles, k, scene.camera.tilt)
         # Materialise: otherwise XLA fuses (recomputes) the whole cast into each consumer.
         hits.append(jax.lax.optimization_barrier((t_min, i_min + offset)))
         offset += n

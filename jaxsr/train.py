@@ -109,7 +109,7 @@ def _simulate_example(key, depth, intensity, tr: int, train_cfg: TrainConfig, se
 def scene_batches(tr: int, train_cfg: TrainConfig, *, sensor: SensorConfig = SensorConfig()):
     """The default data source: `make_batch(key)` rendering `batch_size` random scenes.
 
-    Per example: `jaxsr.scenes.training_clip` (2tr+1 frames, motion 0.2-5 LR px/frame) -> frame SNR and
+    Per example: `jaxsr.scenes.training_clip` (2tr+1 frames, motion log-uniform in `motion_range`) -> SNR and
     mean signal log-uniform in the config's ranges -> `simulate_histograms` -> `centre_of_mass` -> the
     LR window; GT = `normalise_depth` of the centre frame; then an optional random crop (`patch`).
     Returns make_batch: key -> (windows (B, 2tr+1, h, w), gt (B, h*r, w*r)).
@@ -118,7 +118,7 @@ def scene_batches(tr: int, train_cfg: TrainConfig, *, sensor: SensorConfig = Sen
 
     def example(key):
         k_scene, k_rest = jax.random.split(key)
-        depth, intensity = training_clip(k_scene, 2 * tr + 1, sensor)
+        depth, intensity = training_clip(k_scene, 2 * tr + 1, sensor=sensor, shift_range=train_cfg.motion_range)
         return _simulate_example(k_rest, depth, intensity, tr, train_cfg, sensor)
 
     def make_batch(key):
@@ -181,7 +181,7 @@ def validation_set(key, tr: int, train_cfg: TrainConfig, *, sensor: SensorConfig
     if sequences is None:
         from .scenes import test_sequences
 
-        sequences = test_sequences(n_frames=train_cfg.val_frames)
+        sequences = test_sequences(train_cfg.val_frames, names=train_cfg.val_sequences or None, sensor=sensor)
     names = list(train_cfg.val_sequences) or sorted(sequences)
     windows, gts, lrs = [], [], []
     for i, name in enumerate(names):
@@ -213,11 +213,15 @@ def make_train_step(model_cfg: ModelConfig, train_cfg: TrainConfig, make_batch, 
     the batch, prediction clipped), "lr"}. With a `mesh`, the batch is sharded over its "data" axis and
     params/state/optimiser state are replicated (batch statistics and gradients are reduced over the mesh).
     """
+    return _train_step(model_cfg, train_cfg, make_batch, mesh)
+
+
+@functools.lru_cache(maxsize=16)
+def _train_step(model_cfg, train_cfg, make_batch, mesh):
+    # cached: fitting again with the same configs and data source (e.g. a resume) does not recompile
     schedule = step_decay(
         train_cfg.lr, factor=train_cfg.lr_decay, every=train_cfg.decay_epochs * train_cfg.steps_per_epoch
     )
-    if mesh is not None and train_cfg.batch_size % mesh.size:
-        raise ValueError(f"make_train_step: batch size {train_cfg.batch_size} not divisible by {mesh.size} devices")
 
     def constrain(tree, spec):
         if mesh is None:

@@ -11,6 +11,8 @@ from jaxsr.config import ModelConfig
 from jaxsr.model import Model, apply_model, count_params, init_model, super_resolve, temporal_windows
 
 TINY = dict(base=8, growth=4, head=16, filter_hidden=16)
+# jit once per config: much faster than op-by-op dispatch of the whole network
+apply_jit = jax.jit(apply_model, static_argnums=3, static_argnames="train")
 PAPER_COUNTS = {0: 1_056_608, 1: 1_295_072, 2: 1_572_608, 3: 1_891_264, 4: 2_253_088}
 
 
@@ -51,22 +53,22 @@ def test_tiny_forward_runs(tr, scale):
     cfg = ModelConfig(tr=tr, scale=scale, **TINY)
     params, state = init_model(jax.random.key(0), cfg)
     win = jax.random.uniform(jax.random.key(1), (2, cfg.frames, 4, 6))
-    hr = apply_model(params, state, win, cfg)
+    hr = apply_jit(params, state, win, cfg)
     assert hr.shape == (2, 4 * scale, 6 * scale) and bool(jnp.all(jnp.isfinite(hr)))
-    hr_t, new_state = apply_model(params, state, win, cfg, train=True)
+    hr_t, new_state = apply_jit(params, state, win, cfg, train=True)
     # training mode uses batch statistics (differs from the running ones) and moves the running mean
     assert not np.allclose(hr_t, hr)
     assert not np.allclose(new_state["blocks"][1]["bn1"]["mean"], state["blocks"][1]["bn1"]["mean"])
     # inference is deterministic and leaves no state behind
-    np.testing.assert_array_equal(apply_model(params, state, win, cfg), hr)
+    np.testing.assert_array_equal(apply_jit(params, state, win, cfg), hr)
 
 
 def test_conv3d_impls_give_same_network():
     cfg = ModelConfig(tr=1, **TINY)
     params, state = init_model(jax.random.key(0), cfg)
     win = jax.random.uniform(jax.random.key(1), (2, 3, 4, 6))
-    a = apply_model(params, state, win, dataclasses.replace(cfg, conv3d_impl="native"))
-    b = apply_model(params, state, win, dataclasses.replace(cfg, conv3d_impl="taps"))
+    a = apply_jit(params, state, win, dataclasses.replace(cfg, conv3d_impl="native"))
+    b = apply_jit(params, state, win, dataclasses.replace(cfg, conv3d_impl="taps"))
     np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5)
 
 
@@ -80,12 +82,12 @@ def test_hand_set_head_gives_nearest_upsampling_of_centre_frame():
     logits = jnp.full((25, r2), -1e4).at[12].set(0.0).reshape(-1)
     params["filter"]["conv2"] = {"w": jnp.zeros_like(params["filter"]["conv2"]["w"]), "b": logits}
     win = jax.random.uniform(jax.random.key(1), (2, 5, 3, 4))
-    hr = apply_model(params, state, win, cfg)
+    hr = apply_jit(params, state, win, cfg)
     expect = jnp.repeat(jnp.repeat(win[:, 2], 4, axis=1), 4, axis=2)
     np.testing.assert_allclose(hr, expect, rtol=1e-6)
     # a constant residual is added unclipped, without activation
     params["residual"]["conv2"]["b"] = jnp.full(r2, -2.0)
-    np.testing.assert_allclose(apply_model(params, state, win, cfg), expect - 2.0, rtol=1e-6)
+    np.testing.assert_allclose(apply_jit(params, state, win, cfg), expect - 2.0, rtol=1e-6)
 
 
 def test_bad_window_shape_raises():
@@ -122,4 +124,4 @@ def test_model_pytree_and_super_resolve():
     seq = jax.random.uniform(jax.random.key(2), (5, 4, 6))
     out = super_resolve(model, seq, batch_size=2)
     assert out.shape == (5, 16, 24)
-    np.testing.assert_allclose(out, model(temporal_windows(seq, 1)), rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(out, apply_jit(model.params, model.state, temporal_windows(seq, 1), cfg), rtol=1e-5, atol=1e-6)

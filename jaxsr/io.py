@@ -1,0 +1,478 @@
+"""File I/O: depth frames (EXR, PFM, TIFF, 16-bit PNG), NPY/NPZ sequences, AirSim recordings, histogram
+sequences, and PNG previews and comparison strips. OpenImageIO underneath for the image formats.
+
+Conventions:
+- a depth frame is (H, W) float32 radial metres; no return is +inf (NaN is read as no return too);
+- EXR and TIFF store float32 exactly (inf included); PFM likewise (written and read here, bottom-to-top as the
+  format and AirSim demand: OpenImageIO 3.2 returns PFM rows in file order, i.e. upside down);
+- 16-bit PNG stores millimetres as uint16: 0 = no return, 1..65535 = 0.001..65.535 m; depths beyond 65.535 m
+  saturate at 65535 and depths below 1 mm are stored as 1 (round trip within 0.5 mm);
+- writes are atomic (a temporary file in the same folder, then `os.replace`) and never replace an existing file
+  unless `overwrite=True` (FileExistsError otherwise).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import json
+import os
+import re
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+__all__ = [
+    "DEPTH_FORMATS",
+    "read_airsim",
+    "read_depth",
+    "read_histograms",
+    "read_image",
+    "read_sequence",
+    "write_comparison",
+    "write_depth",
+    "write_histograms",
+    "write_preview",
+    "write_sequence",
+]
+
+DEPTH_FORMATS = (".exr", ".pfm", ".tif", ".tiff", ".png", ".npy")
+PNG_MAX_M = 65.535
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Atomic writes
+
+
+@contextlib.contextmanager
+def _atomic(path, overwrite):
+    """Yield a temporary path in the destination folder; on success move it onto `path`."""
+    path = Path(path)
+    if path.exists() and not overwrite:
+        raise FileExistsError(f"{path} exists; pass overwrite=True (or --force) to replace it")
+    if not path.parent.exists():
+        raise FileNotFoundError(f"folder {path.parent} does not exist (writing {path.name})")
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
+    os.close(fd)
+    try:
+        yield Path(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.remove(tmp)
+        raise
+
+
+def _require_file(path):
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no such file: {path}")
+    return path
+
+
+# ---------------------------------------------------------------------------------------------------------
+# OpenImageIO
+
+
+def _oiio():
+    import OpenImageIO as oiio
+
+    return oiio
+
+
+def read_image(path):
+    """Read any image OpenImageIO can open as float32 (H, W, C), integer formats scaled to [0, 1]."""
+    path = _require_file(path)
+    oiio = _oiio()
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise ValueError(f"cannot read {path} as an image: {oiio.geterror()}")
+    try:
+        pixels = inp.read_image(0, 0, 0, -1, "float")
+        err = inp.geterror()
+    finally:
+        inp.close()
+    if pixels is None or err:
+        raise ValueError(f"cannot read {path}: the file is truncated or corrupt ({err or oiio.geterror()})")
+    pixels = np.asarray(pixels, np.float32)
+    return pixels.reshape(pixels.shape[0], pixels.shape[1], -1)
+
+
+def _read_raw(path):
+    """Read an image in its stored pixel type (H, W, C) (for 16-bit PNG millimetres)."""
+    path = _require_file(path)
+    oiio = _oiio()
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise ValueError(f"cannot read {path} as an image: {oiio.geterror()}")
+    try:
+        spec = inp.spec()
+        pixels = inp.read_image(0, 0, 0, -1, spec.format)
+        err = inp.geterror()
+    finally:
+        inp.close()
+    if pixels is None or err:
+        raise ValueError(f"cannot read {path}: the file is truncated or corrupt ({err or oiio.geterror()})")
+    pixels = np.asarray(pixels)
+    return pixels.reshape(pixels.shape[0], pixels.shape[1], -1), str(spec.format)
+
+
+def _write_oiio(tmp, pixels, pixel_type, attributes=()):
+    oiio = _oiio()
+    h, w, c = pixels.shape
+    spec = oiio.ImageSpec(w, h, c, pixel_type)
+    for name, value in attributes:
+        spec.attribute(name, value)
+    out = oiio.ImageOutput.create(str(tmp))
+    if out is None:
+        raise ValueError(f"OpenImageIO cannot write {tmp.suffix} files: {oiio.geterror()}")
+    try:
+        if not out.open(str(tmp), spec):
+            raise ValueError(f"cannot open {tmp} for writing: {out.geterror()}")
+        if not out.write_image(np.ascontiguousarray(pixels)):
+            raise ValueError(f"cannot write {tmp}: {out.geterror()}")
+    finally:
+        out.close()
+
+
+# ---------------------------------------------------------------------------------------------------------
+# PFM (Portable Float Map), bottom-to-top rows, negative scale = little-endian
+
+
+def _read_pfm(path):
+    path = _require_file(path)
+    data = path.read_bytes()
+    m = re.match(rb"(P[fF])\s+(\d+)\s+(\d+)\s+([-+0-9.eE]+)\s", data)
+    if m is None:
+        raise ValueError(f"{path} is not a PFM file (expected a 'Pf' or 'PF' header, got {data[:8]!r})")
+    kind, w, h, scale, pos = m.group(1), int(m.group(2)), int(m.group(3)), float(m.group(4)), m.end()
+    c = 1 if kind == b"Pf" else 3
+    need = w * h * c * 4
+    if len(data) - pos < need:
+        raise ValueError(f"{path} is truncated: {len(data) - pos} bytes of pixels, expected {need} ({w}x{h}x{c})")
+    dtype = "<f4" if scale < 0 else ">f4"
+    pixels = np.frombuffer(data, dtype, w * h * c, pos).reshape(h, w, c)
+    return np.flipud(pixels).astype(np.float32)
+
+
+def _write_pfm(tmp, pixels):
+    h, w, c = pixels.shape
+    header = f"{'Pf' if c == 1 else 'PF'}\n{w} {h}\n-1.0\n".encode()
+    with open(tmp, "wb") as f:
+        f.write(header)
+        f.write(np.flipud(pixels).astype("<f4").tobytes())
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Depth frames
+
+
+def _check_depth(depth, path):
+    depth = np.asarray(depth)
+    if depth.ndim != 2:
+        raise ValueError(f"writing {path}: expected a depth frame of shape (H, W), got {depth.shape}")
+    if np.any(depth < 0):
+        raise ValueError(f"writing {path}: depth must be non-negative metres (no return = inf)")
+    return depth.astype(np.float32)
+
+
+def _suffix(path):
+    suffix = Path(path).suffix.lower()
+    if suffix not in DEPTH_FORMATS:
+        raise ValueError(f"{path}: unknown depth format {suffix!r}; expected one of {DEPTH_FORMATS}")
+    return suffix
+
+
+def write_depth(path, depth, *, overwrite=False):
+    """Write a depth frame (H, W) in radial metres (inf = no return), format from the suffix: .exr, .pfm, .tif /
+    .tiff (float32, exact), .png (uint16 millimetres, 0 = no return, saturating at 65.535 m), .npy."""
+    suffix = _suffix(path)
+    depth = _check_depth(depth, path)
+    with _atomic(path, overwrite) as tmp:
+        if suffix == ".npy":
+            with open(tmp, "wb") as f:
+                np.save(f, depth)
+        elif suffix == ".pfm":
+            _write_pfm(tmp, depth[..., None])
+        elif suffix == ".png":
+            mm = np.where(np.isfinite(depth), np.clip(np.rint(depth * 1000.0), 1, 65535), 0).astype(np.uint16)
+            _write_oiio(tmp, mm[..., None], "uint16")
+        else:
+            attrs = [("compression", "zip")] if suffix == ".exr" else [("compression", "zip")]
+            _write_oiio(tmp, depth[..., None], "float", attrs)
+
+
+def read_depth(path):
+    """Read a depth frame written by `write_depth` (or AirSim's PFM, or any 1-channel float image): (H, W)
+    float32 metres, inf = no return (NaN and, for 16-bit PNG, 0 are read as no return)."""
+    suffix = _suffix(path)
+    if suffix == ".npy":
+        path = _require_file(path)
+        try:
+            depth = np.load(path, allow_pickle=False)
+        except (ValueError, EOFError, OSError) as e:
+            raise ValueError(f"cannot read {path}: truncated or not an NPY file ({e})") from e
+        depth = depth[..., None] if depth.ndim == 2 else depth
+    elif suffix == ".pfm":
+        depth = _read_pfm(path)
+    elif suffix == ".png":
+        raw, fmt = _read_raw(path)
+        if fmt != "uint16":
+            raise ValueError(f"{path}: expected a 16-bit PNG of millimetres, got pixel type {fmt}")
+        if raw.shape[-1] != 1:
+            raise ValueError(f"{path}: expected 1 channel (depth in millimetres), got {raw.shape[-1]}")
+        mm = raw[..., 0].astype(np.float32)
+        return np.where(mm > 0, mm / 1000.0, np.inf).astype(np.float32)
+    else:
+        depth = read_image(path)
+    if depth.ndim != 3 or depth.shape[-1] != 1:
+        raise ValueError(f"{path}: expected a 1-channel depth image, got shape {depth.shape} "
+                         f"({depth.shape[-1] if depth.ndim == 3 else '?'} channels)")
+    depth = depth[..., 0].astype(np.float32)
+    return np.where(np.isnan(depth), np.inf, depth)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Sequences (NPY: one array; NPZ: named arrays plus JSON metadata)
+
+
+def write_sequence(path, depth, *, intensity=None, overwrite=False, **metadata):
+    """Write a depth sequence (T, H, W) as .npy, or depth (+ intensity) and JSON-able metadata (fps, snr, ...)
+    as .npz."""
+    depth = np.asarray(depth, np.float32)
+    if depth.ndim != 3:
+        raise ValueError(f"writing {path}: expected a sequence of shape (T, H, W), got {depth.shape}")
+    suffix = Path(path).suffix.lower()
+    with _atomic(path, overwrite) as tmp:
+        if suffix == ".npy":
+            if intensity is not None or metadata:
+                raise ValueError(f"{path}: .npy holds the depth only; use .npz for intensity and metadata")
+            with open(tmp, "wb") as f:
+                np.save(f, depth)
+        elif suffix == ".npz":
+            arrays = dict(depth=depth, metadata=np.array(json.dumps(metadata)))
+            if intensity is not None:
+                intensity = np.asarray(intensity, np.float32)
+                if intensity.shape != depth.shape:
+                    raise ValueError(f"writing {path}: intensity {intensity.shape} != depth {depth.shape}")
+                arrays["intensity"] = intensity
+            with open(tmp, "wb") as f:
+                np.savez_compressed(f, **arrays)
+        else:
+            raise ValueError(f"{path}: sequences are .npy or .npz, got {suffix!r}")
+
+
+def _load_npz(path, required):
+    path = _require_file(path)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            out = {k: z[k] for k in z.files}
+    except Exception as e:  # zipfile.BadZipFile, EOFError, ValueError on truncated files
+        raise ValueError(f"cannot read {path}: truncated or not an NPZ file ({e})") from e
+    missing = [k for k in required if k not in out]
+    if missing:
+        raise ValueError(f"{path}: missing arrays {missing}; found {sorted(out)}")
+    return out
+
+
+def read_sequence(path):
+    """Read a sequence written by `write_sequence`: a dict with 'depth' (T, H, W), 'intensity' if stored, and
+    'metadata' (a dict)."""
+    if Path(path).suffix.lower() == ".npy":
+        path = _require_file(path)
+        try:
+            depth = np.load(path, allow_pickle=False)
+        except (ValueError, EOFError, OSError) as e:
+            raise ValueError(f"cannot read {path}: truncated or not an NPY file ({e})") from e
+        if depth.ndim != 3:
+            raise ValueError(f"{path}: expected a (T, H, W) sequence, got {depth.shape}")
+        return dict(depth=depth, metadata={})
+    z = _load_npz(path, ["depth"])
+    z["metadata"] = json.loads(str(z["metadata"])) if "metadata" in z else {}
+    return z
+
+
+def write_histograms(path, counts, *, depth=None, sensor=None, overwrite=False, **metadata):
+    """Write photon histograms (T, h, w, K) (non-negative integers; stored uint16 when they fit, else int32),
+    optionally the ground-truth HR depth (T, H, W) and the sensor config and metadata (JSON), as .npz."""
+    counts = np.asarray(counts)
+    if counts.ndim < 3:
+        raise ValueError(f"writing {path}: expected histograms (..., h, w, bins), got {counts.shape}")
+    if np.any(counts < 0) or not np.all(np.isfinite(counts)) or np.any(np.asarray(counts) % 1):
+        raise ValueError(f"writing {path}: histogram counts must be non-negative integers")
+    dtype = np.uint16 if counts.max(initial=0) <= np.iinfo(np.uint16).max else np.int32
+    config = {}
+    if sensor is not None:
+        import dataclasses
+
+        config = {k: (list(v) if isinstance(v, tuple) else float(v) if not isinstance(v, int) else v)
+                  for k, v in dataclasses.asdict(sensor).items()}
+    arrays = dict(counts=counts.astype(dtype), config=np.array(json.dumps(config)),
+                  metadata=np.array(json.dumps(metadata)))
+    if depth is not None:
+        arrays["depth"] = np.asarray(depth, np.float32)
+    if Path(path).suffix.lower() != ".npz":
+        raise ValueError(f"{path}: histograms are stored as .npz")
+    with _atomic(path, overwrite) as tmp:
+        with open(tmp, "wb") as f:
+            np.savez_compressed(f, **arrays)
+
+
+def read_histograms(path):
+    """Read `write_histograms` output: dict(counts=, depth= (if stored), config= dict, metadata= dict)."""
+    z = _load_npz(path, ["counts"])
+    z["config"] = json.loads(str(z["config"])) if "config" in z else {}
+    z["metadata"] = json.loads(str(z["metadata"])) if "metadata" in z else {}
+    return z
+
+
+# ---------------------------------------------------------------------------------------------------------
+# AirSim recordings
+
+# AirSim ImageType numbers as they appear in image file names img_<vehicle>_<camera>_<type>_<timestamp>.<ext>
+_AIRSIM_SCENE, _AIRSIM_DEPTH_PLANAR, _AIRSIM_DEPTH_PERSPECTIVE = 0, 1, 2
+
+
+def _airsim_type(name):
+    parts = Path(name).stem.split("_")
+    try:
+        return int(parts[-2])
+    except (IndexError, ValueError):
+        return None
+
+
+def _grayscale(rgb):
+    """ITU-R BT.601 luma of RGB(A) in [0, 1]; a 1-channel image is returned as is. (H, W, C) -> (H, W)."""
+    if rgb.shape[-1] == 1:
+        return rgb[..., 0]
+    if rgb.shape[-1] < 3:
+        raise ValueError(f"expected an RGB(A) or grayscale image, got {rgb.shape[-1]} channels")
+    return 0.299 * rgb[..., 0] + 0.587 * rgb[..., 1] + 0.114 * rgb[..., 2]
+
+
+def read_airsim(folder, *, sensor=None):
+    """Read an AirSim recording folder: `airsim_rec.txt` (tab-separated, an `ImageFile` column listing each row's
+    images separated by ';') and the images in `folder/images/` (or `folder/`).
+
+    Depth comes from the DepthPlanar (image type 1, converted to radial with `jaxsr.sensor.planar_to_radial`) or
+    DepthPerspective (type 2, already radial) PFM; intensity is the grayscale of the Scene image (type 0), or
+    ones if there is none. Returns dict(depth (T, H, W) radial m, intensity (T, H, W) in [0, 1], timestamps (T,)
+    seconds from the first frame, fps (median), files).
+    """
+    folder = Path(folder)
+    rec = folder / "airsim_rec.txt"
+    if not rec.is_file():
+        raise FileNotFoundError(f"{folder} is not an AirSim recording: no airsim_rec.txt")
+    with open(rec, newline="") as f:
+        rows = list(csv.DictReader(f, delimiter="\t"))
+    if not rows or "ImageFile" not in rows[0]:
+        raise ValueError(f"{rec}: expected a tab-separated header with an ImageFile column")
+    image_dir = folder / "images" if (folder / "images").is_dir() else folder
+    depth, intensity, stamps, files = [], [], [], []
+    for i, row in enumerate(rows):
+        names = [n.strip() for n in (row["ImageFile"] or "").split(";") if n.strip()]
+        by_type = {_airsim_type(n): n for n in names}
+        if _AIRSIM_DEPTH_PLANAR in by_type:
+            d = read_depth(image_dir / by_type[_AIRSIM_DEPTH_PLANAR])
+            from .sensor import planar_to_radial
+
+            d = np.asarray(planar_to_radial(d, sensor) if sensor is not None else planar_to_radial(d))
+        elif _AIRSIM_DEPTH_PERSPECTIVE in by_type:
+            d = read_depth(image_dir / by_type[_AIRSIM_DEPTH_PERSPECTIVE])
+        else:
+            raise ValueError(f"{rec} row {i + 1}: no DepthPlanar (type 1) or DepthPerspective (type 2) image "
+                             f"among {names}")
+        if _AIRSIM_SCENE in by_type:
+            g = _grayscale(read_image(image_dir / by_type[_AIRSIM_SCENE]))
+            if g.shape != d.shape:
+                raise ValueError(f"{by_type[_AIRSIM_SCENE]}: scene image {g.shape} does not match depth {d.shape}")
+        else:
+            g = np.ones_like(d)
+        depth.append(d.astype(np.float32))
+        intensity.append(np.clip(g, 0, 1).astype(np.float32))
+        stamps.append(float(row.get("TimeStamp") or i))
+        files.append(names)
+    stamps = np.asarray(stamps)
+    # AirSim time stamps are milliseconds.
+    t = (stamps - stamps[0]) / 1000.0
+    fps = float(1.0 / np.median(np.diff(t))) if len(t) > 1 and np.median(np.diff(t)) > 0 else float("nan")
+    return dict(depth=np.stack(depth), intensity=np.stack(intensity), timestamps=t, fps=fps, files=files)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Previews
+
+
+def _colourise(depth, d_max, cmap):
+    import matplotlib
+
+    depth = np.asarray(depth, np.float32)
+    norm = np.clip(np.where(np.isfinite(depth), depth, np.inf) / d_max, 0.0, 1.0)
+    rgb = matplotlib.colormaps[cmap](norm)[..., :3]
+    no_return = ~np.isfinite(depth) | (depth > d_max)
+    rgb[no_return] = (0.0, 0.0, 0.0)  # no return: black, distinct from every colour of the map
+    return rgb.astype(np.float32)
+
+
+def _depth_from_normalised(frame, d_max):
+    """Accept normalised depth in [0, 1] (1 = no return) or metres; return metres with inf for no return."""
+    frame = np.asarray(frame, np.float32)
+    if np.nanmax(np.where(np.isfinite(frame), frame, 0.0), initial=0.0) <= 1.0:
+        return np.where(frame >= 1.0, np.inf, frame * d_max)
+    return frame
+
+
+def write_preview(path, depth, *, d_max=35.0, cmap="turbo", normalised=False, overwrite=False):
+    """Write a colour-mapped PNG of a depth frame (H, W) in metres (or normalised [0, 1] with normalised=True);
+    no return (inf, NaN, > d_max) is black."""
+    depth = np.asarray(depth, np.float32)
+    if depth.ndim != 2:
+        raise ValueError(f"writing {path}: expected a depth frame (H, W), got {depth.shape}")
+    if normalised:
+        depth = np.where(depth >= 1.0, np.inf, depth * d_max)
+    rgb = (_colourise(depth, d_max, cmap) * 255 + 0.5).astype(np.uint8)
+    with _atomic(path, overwrite) as tmp:
+        _write_oiio(tmp, rgb, "uint8")
+
+
+def _label(rgb, text):
+    """Draw `text` in the top-left corner with matplotlib's Agg renderer (white on a dark box)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    h, w = rgb.shape[:2]
+    fig = Figure(figsize=(w / 100, h / 100), dpi=100)
+    canvas = FigureCanvasAgg(fig)
+    ax = fig.add_axes((0, 0, 1, 1))
+    ax.imshow(rgb, interpolation="nearest")
+    ax.axis("off")
+    ax.text(3, 3, text, color="white", fontsize=7, va="top", ha="left",
+            bbox=dict(facecolor="black", alpha=0.6, pad=1, linewidth=0))
+    canvas.draw()
+    return np.asarray(canvas.buffer_rgba())[..., :3].astype(np.float32) / 255.0
+
+
+def write_comparison(path, lr, sr, gt, *, d_max=35.0, cmap="turbo", labels=("LR", "SR", "GT"), overwrite=False):
+    """Write an LR | SR | GT strip as PNG. lr (h, w) is nearest-upsampled to the HR size of sr and gt (H, W).
+    Frames in metres or normalised [0, 1] (1 = no return); no return is black."""
+    lr, sr, gt = (_depth_from_normalised(a, d_max) for a in (lr, sr, gt))
+    if sr.shape != gt.shape or sr.ndim != 2:
+        raise ValueError(f"writing {path}: SR {sr.shape} and GT {gt.shape} must be equal (H, W) frames")
+    fy, fx = gt.shape[0] // lr.shape[0], gt.shape[1] // lr.shape[1]
+    if lr.shape[0] * fy != gt.shape[0] or lr.shape[1] * fx != gt.shape[1]:
+        raise ValueError(f"writing {path}: LR {lr.shape} is not an integer downscale of GT {gt.shape}")
+    lr_up = np.repeat(np.repeat(lr, fy, 0), fx, 1)
+    panels = [_colourise(a, d_max, cmap) for a in (lr_up, sr, gt)]
+    if labels:
+        panels = [_label(p, t) for p, t in zip(panels, labels)]
+    gap = np.ones((gt.shape[0], 2, 3), np.float32)
+    strip = np.concatenate([panels[0], gap, panels[1], gap, panels[2]], axis=1)
+    with _atomic(path, overwrite) as tmp:
+        _write_oiio(tmp, (strip * 255 + 0.5).astype(np.uint8), "uint8")
+
+
+def _write_preview_gray(path, gray, *, overwrite=True):
+    """Write an 8-bit grayscale PNG (H, W) uint8."""
+    with _atomic(path, overwrite) as tmp:
+        _write_oiio(tmp, np.asarray(gray, np.uint8)[..., None], "uint8")

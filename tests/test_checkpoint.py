@@ -1,0 +1,147 @@
+"""Checkpoints: round trip, atomic writes, and clear errors for corrupt or mismatched files."""
+
+import json
+import os
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxsr.checkpoint import (
+    FORMAT_VERSION,
+    flatten_tree,
+    load_model,
+    load_tree,
+    read_metadata,
+    save_model,
+    save_tree,
+)
+from jaxsr.config import ModelConfig
+from jaxsr.model import Model, init_model
+
+CFG = ModelConfig(tr=1, base=8, growth=4, head=16, filter_hidden=16)
+
+
+@pytest.fixture(scope="module")
+def model():
+    return Model(*init_model(jax.random.key(0), CFG), CFG)
+
+
+def test_round_trip(tmp_path, model):
+    card = {"data": "toy", "steps": 3, "validation": {"psnr": 21.5}}
+    path = save_model(tmp_path / "m.npz", model, card=card)
+    assert sorted(os.listdir(tmp_path)) == ["m.npz"]  # no temporary file left behind
+    loaded = load_model(path)
+    assert loaded.config == CFG
+    for a, b in zip(jax.tree_util.tree_leaves(model), jax.tree_util.tree_leaves(loaded)):
+        np.testing.assert_array_equal(a, b)
+    meta = read_metadata(path)
+    assert meta["card"] == card and meta["format_version"] == FORMAT_VERSION and meta["kind"] == "model"
+    assert load_model(tmp_path / "m").config == CFG  # ".npz" may be left out
+    with np.load(path) as data:
+        assert "params/blocks/0/conv2/w" in data.files and "state/head/bn/var" in data.files
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(FileNotFoundError):
+        load_model(tmp_path / "nothing.npz")
+
+
+def test_truncated_file(tmp_path, model):
+    path = save_model(tmp_path / "m.npz", model)
+    raw = path.read_bytes()
+    for cut in (len(raw) // 2, len(raw) - 10, 100):
+        bad = tmp_path / f"cut{cut}.npz"
+        bad.write_bytes(raw[:cut])
+        with pytest.raises(ValueError, match="truncated or corrupt"):
+            load_model(bad)
+
+
+def test_corrupt_member(tmp_path, model):
+    path = save_model(tmp_path / "m.npz", model)
+    raw = bytearray(path.read_bytes())
+    i = raw.find(b"params/blocks/0/conv2/w")
+    raw[i + 200 : i + 260] = bytes(60)  # zero some array bytes: the zip CRC no longer matches
+    bad = tmp_path / "crc.npz"
+    bad.write_bytes(bytes(raw))
+    with pytest.raises(ValueError):
+        load_model(bad)
+
+
+def _meta(cfg=CFG):
+    import dataclasses
+
+    return {"kind": "model", "config": dataclasses.asdict(cfg), "card": {}}
+
+
+def test_missing_key(tmp_path, model):
+    params = {k: v for k, v in model.params.items() if k != "residual"}
+    tree = {"params": params, "state": model.state}
+    save_tree(tmp_path / "m.npz", tree, _meta())
+    with pytest.raises(ValueError, match="missing .*residual"):
+        load_model(tmp_path / "m.npz")
+
+
+def test_unexpected_key(tmp_path, model):
+    tree = {"params": dict(model.params, extra={"w": jnp.zeros(2)}), "state": model.state}
+    save_tree(tmp_path / "m.npz", tree, _meta())
+    with pytest.raises(ValueError, match="unexpected .*extra"):
+        load_model(tmp_path / "m.npz")
+
+
+def test_shape_mismatch(tmp_path, model):
+    # weights of a tr=1 model under the metadata of a tr=1 model with 16 base channels
+    import dataclasses
+
+    save_tree(tmp_path / "m.npz", {"params": model.params, "state": model.state},
+              _meta(dataclasses.replace(CFG, base=16)))
+    with pytest.raises(ValueError, match="shape"):
+        load_model(tmp_path / "m.npz")
+
+
+def test_dtype_mismatch(tmp_path, model):
+    params = jax.tree_util.tree_map(lambda x: x.astype(jnp.float16), model.params)
+    save_tree(tmp_path / "m.npz", {"params": params, "state": model.state}, _meta())
+    with pytest.raises(ValueError, match="dtype"):
+        load_model(tmp_path / "m.npz")
+
+
+def test_version_mismatch(tmp_path, model):
+    path = save_model(tmp_path / "m.npz", model)
+    with np.load(path) as data:
+        arrays = {k: data[k] for k in data.files}
+    meta = json.loads(str(arrays["__metadata__"]))
+    meta["format_version"] = FORMAT_VERSION + 1
+    arrays["__metadata__"] = np.array(json.dumps(meta))
+    np.savez(tmp_path / "v.npz", **arrays)
+    with pytest.raises(ValueError, match="format version"):
+        load_model(tmp_path / "v.npz")
+
+
+def test_not_a_checkpoint(tmp_path):
+    np.savez(tmp_path / "x.npz", a=np.zeros(3))
+    with pytest.raises(ValueError, match="not a jaxsr checkpoint"):
+        load_model(tmp_path / "x.npz")
+
+
+def test_failed_write_keeps_old_file(tmp_path, model):
+    path = save_model(tmp_path / "m.npz", model)
+    before = path.read_bytes()
+
+    class Boom:
+        def __array__(self, *a, **k):
+            raise RuntimeError("disk full")
+
+    with pytest.raises(RuntimeError):
+        save_tree(path, {"params": {"w": Boom()}}, _meta())
+    assert path.read_bytes() == before and sorted(os.listdir(tmp_path)) == ["m.npz"]
+
+
+def test_load_tree_generic(tmp_path):
+    tree = {"a": [jnp.arange(3.0), {"b": jnp.ones((2, 2), jnp.int32)}]}
+    save_tree(tmp_path / "t.npz", tree, {"kind": "test"})
+    assert set(flatten_tree(tree)) == {"a/0", "a/1/b"}
+    back, meta = load_tree(tmp_path / "t.npz", jax.eval_shape(lambda: tree))
+    np.testing.assert_array_equal(back["a"][1]["b"], np.ones((2, 2)))
+    assert meta["kind"] == "test"

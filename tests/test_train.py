@@ -1,0 +1,257 @@
+"""Training: Huber's closed form, Adam and the decay boundary by hand, a short run that learns, bit-identical
+resume, sharded == unsharded, and the file-based data source."""
+
+import dataclasses
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jax.test_util import check_grads
+
+from jaxsr.checkpoint import load_model, read_metadata
+from jaxsr.config import PRESETS, ModelConfig, SensorConfig, TrainConfig
+from jaxsr.optim import adam_init, adam_update, step_decay
+from jaxsr.train import fit, huber_loss, make_train_step, random_crop, sequence_batches
+
+# momentum 0.9: running BN statistics settle within the few dozen steps of these runs (0.99 needs hundreds)
+TINY = ModelConfig(tr=1, base=8, growth=4, head=16, filter_hidden=16, bn_momentum=0.9)
+LR_SHAPE = (8, 16)
+
+
+def toy_batches(tr, batch, *, lr_shape=LR_SHAPE, scale=4, noise=0.1):
+    """A stand-in data source: a rectangle at a random depth before a far wall (HR), its 4x4 block mean plus
+    Gaussian noise in every frame of the window (LR). Pure and jittable, like the real one."""
+    hh, ww = lr_shape[0] * scale, lr_shape[1] * scale
+    yy, xx = jnp.mgrid[:hh, :ww]
+
+    def example(key):
+        k = jax.random.split(key, 6)
+        y0 = jax.random.randint(k[0], (), 0, hh - 8)
+        x0 = jax.random.randint(k[1], (), 0, ww - 8)
+        h = jax.random.randint(k[2], (), 5, hh // 2)
+        w = jax.random.randint(k[3], (), 5, ww // 2)
+        d = jax.random.uniform(k[4], (), minval=0.1, maxval=0.6)
+        hr = jnp.where((yy >= y0) & (yy < y0 + h) & (xx >= x0) & (xx < x0 + w), d, 0.9)
+        lr = hr.reshape(lr_shape[0], scale, lr_shape[1], scale).mean(axis=(1, 3))
+        return lr[None] + noise * jax.random.normal(k[5], (2 * tr + 1, *lr_shape)), hr
+
+    def make_batch(key):
+        return jax.vmap(example)(jax.random.split(key, batch))
+
+    return make_batch
+
+
+def toy_validation(tr, n=8):
+    windows, gt = toy_batches(tr, n)(jax.random.key(123))
+    return {"windows": windows, "gt": gt, "lr": windows[:, tr], "names": ["toy"]}
+
+
+def tiny_train_cfg(**kw):
+    base = dict(batch_size=4, examples_per_epoch=40, epochs=3, patience=5, decay_epochs=10, lr=3e-3,
+                val_frames=8, seed=0)
+    return TrainConfig(**{**base, **kw})
+
+
+# --- loss and optimiser -----------------------------------------------------------------------------------
+
+def test_huber_closed_form_and_grads():
+    e = jnp.array([-0.03, -0.01, -0.004, 0.0, 0.002, 0.01, 0.5])
+    d = 0.01
+    expect = np.where(np.abs(e) <= d, 0.5 * np.asarray(e) ** 2, d * (np.abs(e) - d / 2))
+    np.testing.assert_allclose(huber_loss(e, jnp.zeros_like(e), delta=d), expect.mean(), rtol=1e-6)
+    # slope: e inside the band, delta * sign(e) outside
+    g = jax.grad(lambda p: huber_loss(p, jnp.zeros_like(p), delta=d))(e)
+    np.testing.assert_allclose(g * e.size, np.clip(np.asarray(e), -d, d), rtol=1e-5, atol=1e-9)
+    with jax.enable_x64(True):
+        pred = jnp.array([[0.3, 0.5], [0.2, 0.9]], jnp.float64)  # away from the kinks |e| = delta
+        gt = jnp.array([[0.305, 0.1], [0.197, 0.95]], jnp.float64)
+        check_grads(lambda p, g: huber_loss(p, g, delta=0.01), (pred, gt), order=2, modes=["fwd", "rev"])
+
+
+def test_adam_matches_hand_computation():
+    lr, b1, b2, eps = 0.1, 0.9, 0.999, 1e-7
+    params = {"a": jnp.array([1.0, -2.0]), "b": [jnp.array(3.0)]}
+    g1 = {"a": jnp.array([0.5, -0.2]), "b": [jnp.array(0.0)]}
+    g2 = {"a": jnp.array([-1.0, 0.3]), "b": [jnp.array(2.0)]}
+    opt = adam_init(params)
+    p1, opt = adam_update(g1, opt, params, lr=lr, b1=b1, b2=b2, eps=eps)
+    # first step, closed form: p - lr * g / (|g| + eps / sqrt(1 - b2)); zero gradient -> no move
+    ga = np.array([0.5, -0.2])
+    np.testing.assert_allclose(p1["a"], np.array([1.0, -2.0]) - lr * ga / (np.abs(ga) + eps / np.sqrt(1 - b2)), rtol=1e-6)
+    assert float(p1["b"][0]) == 3.0
+    p2, opt = adam_update(g2, opt, p1, lr=lr, b1=b1, b2=b2, eps=eps)
+    # second step by hand (float64), Keras's form
+    m = b1 * (1 - b1) * ga + (1 - b1) * np.array([-1.0, 0.3])
+    v = b2 * (1 - b2) * ga**2 + (1 - b2) * np.array([1.0, 0.09])
+    alpha = lr * np.sqrt(1 - b2**2) / (1 - b1**2)
+    np.testing.assert_allclose(p2["a"], np.asarray(p1["a"], np.float64) - alpha * m / (np.sqrt(v) + eps), rtol=1e-6)
+    assert int(opt.count) == 2
+
+
+def test_step_decay_exactly_at_epoch_boundaries():
+    spe = 7
+    lr = step_decay(1e-3, factor=0.1, every=10 * spe)
+    got = [float(lr(s)) for s in (0, 69, 70, 139, 140)]
+    np.testing.assert_allclose(got, [1e-3, 1e-3, 1e-4, 1e-4, 1e-5], rtol=1e-6)
+    np.testing.assert_allclose(jax.jit(lr)(70), 1e-4, rtol=1e-6)
+
+
+def test_random_crop_is_aligned():
+    lr = jnp.arange(8 * 16, dtype=jnp.float32).reshape(1, 8, 16)
+    hr = jnp.repeat(jnp.repeat(lr[0], 4, 0), 4, 1)
+    w, g = random_crop(jax.random.key(3), lr, hr, (4, 6), 4)
+    assert w.shape == (1, 4, 6) and g.shape == (16, 24)
+    np.testing.assert_array_equal(jnp.repeat(jnp.repeat(w[0], 4, 0), 4, 1), g)
+
+
+def test_presets():
+    assert PRESETS["paper"].steps_per_epoch == 3875 and PRESETS["paper"].epochs == 100
+    assert PRESETS["paper"].patience == 5 and PRESETS["paper"].huber_delta == 0.01 and PRESETS["paper"].lr == 1e-3
+    assert PRESETS["cpu"].batch_size == 4
+    with pytest.raises(ValueError):
+        TrainConfig(batch_size=8, examples_per_epoch=4)
+
+
+# --- fitting ----------------------------------------------------------------------------------------------
+
+def test_short_run_learns_and_beats_bicubic(tmp_path):
+    from jaxsr.baselines import bicubic
+    from jaxsr.metrics import psnr
+
+    cfg = tiny_train_cfg(epochs=3, examples_per_epoch=400)
+    val = toy_validation(TINY.tr)
+    model, history = fit(TINY, cfg, out=tmp_path, make_batch=toy_batches(TINY.tr, 4), validation=val, progress=False)
+    assert len(history) == 3
+    assert history[-1]["train_loss"] < 0.75 * history[0]["train_loss"], history
+    assert min(r["val_loss"] for r in history[1:]) < history[0]["val_loss"]
+    bicubic_psnr = float(jnp.mean(psnr(bicubic(val["lr"], scale=4), val["gt"])))
+    best = min(history, key=lambda r: r["val_loss"])
+    assert best["val_psnr"] > bicubic_psnr + 1.0, (best["val_psnr"], bicubic_psnr)
+    # logs and checkpoints
+    lines = (tmp_path / "metrics.jsonl").read_text().splitlines()
+    assert [json.loads(l)["epoch"] for l in lines] == [1, 2, 3]
+    loaded = load_model(tmp_path / "best.npz")
+    for a, b in zip(jax.tree_util.tree_leaves(model), jax.tree_util.tree_leaves(loaded)):
+        np.testing.assert_array_equal(a, b)
+    card = read_metadata(tmp_path / "best.npz")["card"]
+    assert card["steps"] >= cfg.steps_per_epoch and card["validation"]["psnr"] == pytest.approx(best["val_psnr"])
+    assert card["hardware"]["backend"] == "cpu" and card["train_config"]["lr"] == cfg.lr
+
+
+class Killed(Exception):
+    pass
+
+
+def test_kill_and_resume_equals_uninterrupted(tmp_path):
+    # decay every epoch and patience 1 so the schedule and the early-stopping counters cross the restart
+    cfg = tiny_train_cfg(examples_per_epoch=12, epochs=4, decay_epochs=1, patience=2)
+    val = toy_validation(TINY.tr, n=4)
+    make_batch = toy_batches(TINY.tr, 4)
+    ref, ref_hist = fit(TINY, cfg, out=tmp_path / "a", make_batch=make_batch, validation=val, progress=False)
+
+    def kill_after_2(record):
+        if record["epoch"] == 2:
+            raise Killed
+
+    with pytest.raises(Killed):
+        fit(TINY, cfg, out=tmp_path / "b", make_batch=make_batch, validation=val, progress=False, callback=kill_after_2)
+    got, hist = fit(TINY, cfg, out=tmp_path / "b", make_batch=make_batch, validation=val, progress=False, resume=True)
+    for a, b in zip(jax.tree_util.tree_leaves(ref), jax.tree_util.tree_leaves(got)):
+        np.testing.assert_array_equal(a, b)
+    strip = lambda h: [{k: v for k, v in r.items() if "time" not in k and "per_s" not in k} for r in h]
+    assert strip(hist) == strip(ref_hist)
+    assert [r["lr"] for r in ref_hist][:3] == pytest.approx([3e-3, 3e-4, 3e-5])
+    last_a = read_metadata(tmp_path / "a" / "last.npz")["run"]
+    last_b = read_metadata(tmp_path / "b" / "last.npz")["run"]
+    assert {k: v for k, v in last_a.items() if k not in ("wall_time_s", "history")} == \
+        {k: v for k, v in last_b.items() if k not in ("wall_time_s", "history")}
+    # a different config cannot resume this run
+    with pytest.raises(ValueError, match="cannot resume"):
+        fit(TINY, dataclasses.replace(cfg, lr=1.0), out=tmp_path / "b", make_batch=make_batch, validation=val,
+            progress=False, resume=True)
+
+
+_SHARDED_SCRIPT = textwrap.dedent(
+    """
+    import os, sys, json
+    os.environ["XLA_FLAGS"] = "--xla_force_host_platform_device_count=2"
+    import jax, numpy as np
+    sys.path.insert(0, {tests!r})
+    from test_train import TINY, toy_batches, tiny_train_cfg
+    from jaxsr.model import init_model
+    from jaxsr.optim import adam_init
+    from jaxsr.train import data_mesh, make_train_step
+    assert jax.device_count() == 2, jax.devices()
+    cfg = tiny_train_cfg()
+    make_batch = toy_batches(TINY.tr, cfg.batch_size)
+    out = []
+    for mesh in (None, data_mesh()):
+        params, state = init_model(jax.random.key(0), TINY)
+        opt = adam_init(params)
+        step = make_train_step(TINY, cfg, make_batch, mesh=mesh)
+        losses = []
+        for i in range(3):
+            params, state, opt, m = step(params, state, opt, jax.random.key(i), i)
+            losses.append(float(m["loss"]))
+        out.append((jax.tree_util.tree_leaves((params, state)), losses))
+    (a, la), (b, lb) = out
+    err = max(float(np.max(np.abs(np.asarray(x) - np.asarray(y)))) for x, y in zip(a, b))
+    sharded = str(b[0].sharding)
+    print(json.dumps(dict(err=err, la=la, lb=lb, sharding=sharded)))
+    """
+)
+
+
+@pytest.mark.slow  # a subprocess with 2 host devices compiles two train steps: about 40 s on 2 busy cores
+def test_sharded_equals_single_device():
+    tests = str(Path(__file__).parent)
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2", JAX_PLATFORMS="cpu")
+    proc = subprocess.run([sys.executable, "-c", _SHARDED_SCRIPT.format(tests=tests)], capture_output=True,
+                          text=True, env=env, timeout=300, cwd=str(Path(__file__).parent.parent))
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    res = json.loads(proc.stdout.strip().splitlines()[-1])
+    np.testing.assert_allclose(res["la"], res["lb"], rtol=1e-4)
+    assert res["err"] < 1e-4, res
+
+
+# --- data sources -----------------------------------------------------------------------------------------
+
+def test_sequence_batches_from_hr_arrays():
+    sensor = SensorConfig(hr_shape=(16, 32))
+    rng = np.random.default_rng(0)
+    depth = np.full((2, 6, 16, 32), 10.0, np.float32)
+    depth[:, :, :, 16:] = 20.0
+    depth[1, :, :4] = np.inf  # sky: no return
+    intensity = rng.uniform(0.3, 1.0, depth.shape).astype(np.float32)
+    cfg = tiny_train_cfg(batch_size=3, snr_range=(50.0, 50.0), mean_signal_range=(500.0, 500.0))
+    make_batch = jax.jit(sequence_batches(depth, intensity, 2, cfg, sensor=sensor))
+    windows, gt = make_batch(jax.random.key(0))
+    assert windows.shape == (3, 5, 4, 8) and gt.shape == (3, 16, 32)
+    g = np.asarray(gt).ravel()
+    assert np.all(np.min(np.abs(g[:, None] - np.array([10 / 35, 20 / 35, 1.0])), axis=1) < 1e-6)
+    # plenty of photons: centre of mass within half a bin (1/32) of the truth away from the edge column
+    w = np.asarray(windows)
+    np.testing.assert_allclose(w[:, :, 1:, :3], 10 / 35, atol=1 / 32)
+    np.testing.assert_allclose(w[:, :, 1:, 5:], 20 / 35, atol=1 / 32)
+    with pytest.raises(ValueError, match="fewer than the window"):
+        sequence_batches(depth[:, :3], intensity[:, :3], 2, cfg, sensor=sensor)
+    with pytest.raises(ValueError, match="equal shape"):
+        sequence_batches(depth, intensity[..., :16], 2, cfg, sensor=sensor)
+
+
+def test_cli_parser():
+    import argparse
+
+    from jaxsr.train import add_train_parser, train_command
+
+    parser = argparse.ArgumentParser(prog="jaxsr")
+    add_train_parser(parser.add_subparsers(dest="command"))
+    args = parser.parse_args(["train", "--tr", "4", "--preset", "cpu", "--out", "runs/tr4", "--resume"])
+    assert args.tr == 4 and args.preset == "cpu" and args.resume and args.func is train_command
