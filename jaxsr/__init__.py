@@ -7,8 +7,19 @@ __version__ = "0.1.0"
 
 from .baselines import bicubic as bicubic
 from .baselines import lanczos as lanczos
+from .checkpoint import load_model as load_model
+from .checkpoint import read_metadata as read_metadata
+from .checkpoint import save_model as save_model
 from .config import DEFAULT_MEAN_SIGNAL as DEFAULT_MEAN_SIGNAL
+from .config import PRESETS as PRESETS
+from .config import ModelConfig as ModelConfig
 from .config import SensorConfig as SensorConfig
+from .config import TrainConfig as TrainConfig
+from .model import Model as Model
+from .model import apply_model as apply_model
+from .model import count_params as count_params
+from .model import init_model as init_model
+from .model import super_resolve as super_resolve
 from .metrics import TemporalCoherence as TemporalCoherence
 from .metrics import psnr as psnr
 from .metrics import ssim as ssim
@@ -17,8 +28,15 @@ from .metrics import temporal_coherence as temporal_coherence
 from .peaks import centre_of_mass as centre_of_mass
 from .peaks import maximum_likelihood_depth as maximum_likelihood_depth
 from .poisson import sample_poisson as sample_poisson
+from .optim import adam_init as adam_init
+from .optim import adam_update as adam_update
+from .optim import step_decay as step_decay
 from .sensor import calibrate as calibrate
 from .sensor import expected_histograms as expected_histograms
 from .sensor import normalise_depth as normalise_depth
 from .sensor import planar_to_radial as planar_to_radial
 from .sensor import simulate_histograms as simulate_histograms
+from .train import evaluate as evaluate
+from .train import fit as fit
+from .train import huber_loss as huber_loss
+from .train import make_train_step as make_train_step

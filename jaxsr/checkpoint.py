@@ -100,7 +100,10 @@ def _read_meta(data, path) -> dict:
 
 
 def read_metadata(path) -> dict:
-    """The JSON metadata of a checkpoint (format and jaxsr versions, configs, training card)."""
+    """The JSON metadata of a checkpoint (format and jaxsr versions, configs, training card).
+
+    Reads only the metadata entry, not the arrays; returns a dict (no pytree of arrays).
+    """
     with _open(path) as data:
         return _read_meta(data, path)
 
@@ -160,7 +163,8 @@ def model_template(cfg: ModelConfig):
 
 
 def save_model(path, model: Model, *, card: dict | None = None) -> Path:
-    """Save a `Model` to `path` (.npz): arrays `params/...`, `state/...`, metadata {kind, config, card}.
+    """Save a `Model` (a pytree of params and BN state) to `path` (.npz): arrays `params/...`, `state/...`,
+    and metadata {kind, config, card}.
 
     `card` is the training card (JSON-ready dict: data, steps, wall time, hardware, validation PSNR, ...).
     """
@@ -181,7 +185,7 @@ def _resolve(path) -> Path:
 
 
 def load_model(path) -> Model:
-    """Load a `Model` saved by `save_model` (or the model inside a training checkpoint of `jaxsr.train`).
+    """Load a `Model` pytree saved by `save_model` (or the model inside a training checkpoint of `jaxsr.train`).
 
     `path` is a file, a file without its `.npz`, or the name of bundled weights ("tr4"). Every array is
     checked against the shapes `init_model` gives for the stored config; raises `ValueError` for a truncated

@@ -89,7 +89,7 @@ def read_image(path):
     if inp is None:
         raise ValueError(f"cannot read {path} as an image: {oiio.geterror()}")
     try:
-        pixels = inp.read_image(0, 0, 0, -1, "float")
+        pixels = inp.read_image("float")
         err = inp.geterror()
     finally:
         inp.close()
@@ -108,7 +108,7 @@ def _read_raw(path):
         raise ValueError(f"cannot read {path} as an image: {oiio.geterror()}")
     try:
         spec = inp.spec()
-        pixels = inp.read_image(0, 0, 0, -1, spec.format)
+        pixels = inp.read_image(spec.format)
         err = inp.geterror()
     finally:
         inp.close()

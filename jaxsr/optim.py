@@ -24,7 +24,10 @@ class AdamState(NamedTuple):
 
 
 def adam_init(params) -> AdamState:
-    """Zero moments for `params` (any pytree of float arrays)."""
+    """Adam state for `params` (any pytree of float arrays).
+
+    Returns `AdamState(count=0, mu=zeros like params, nu=zeros like params)`.
+    """
     zeros = jax.tree_util.tree_map(jnp.zeros_like, params)
     return AdamState(jnp.zeros((), jnp.int32), zeros, jax.tree_util.tree_map(jnp.zeros_like, params))
 

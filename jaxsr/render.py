@@ -486,8 +486,9 @@ def _object_intensity(row, px, py, pz, dx, dy, norm):
 
 # Screen-space culling: tiles (rows, cols) of the HR frame and, per primitive type (boxes, cylinders,
 # ellipsoids), how many of the nearest primitives touching a tile are intersected there. None = no culling.
-DEFAULT_TILES = (4, 16)
-DEFAULT_K_MAX = (12, 12, 8)
+# Measured on 120 random scene-times: at most 7 boxes, 6 cylinders, 2 ellipsoids touch one 32x8 tile.
+DEFAULT_TILES = (4, 32)
+DEFAULT_K_MAX = (8, 10, 6)
 
 
 def _pose_all(scene: Scene, t):

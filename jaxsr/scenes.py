@@ -704,11 +704,18 @@ def sequence(key, n_frames, fps, *, kind=None, sensor: SensorConfig = SensorConf
     Returns (depth, intensity), each (n_frames, H, W) float32: radial metres (inf = no return) and [0, 1].
     jit- and vmap-able over key, fps and t0.
     """
-    scene = sample_scene(key, kind=kind, camera=camera, **options)
+    sample_scene(key, kind=kind, camera=camera, **options)  # validates the arguments eagerly (cheap checks)
+    return _sequence_jit(key, n_frames, fps, t0, sensor, kind, camera, tuple(sorted(options.items())))
+
+
+@functools.partial(jax.jit, static_argnums=(1, 5, 6, 7))
+def _sequence_jit(key, n_frames, fps, t0, sensor, kind, camera, options):
+    scene = _sample_scene_jit(key, kind, camera, options)
     times = t0 + jnp.arange(n_frames, dtype=jnp.float32) / fps
     return render_sequence(scene, times, sensor=sensor)
 
 
+@jax.jit
 def mean_lr_shift(scene: Scene, fps, *, sensor: SensorConfig = SensorConfig(), t=0.0):
     """Mean image motion of the moving objects, in LR pixels per frame at `fps`.
 
@@ -750,6 +757,11 @@ def training_scene(key, *, sensor: SensorConfig = SensorConfig(), shift_range=(0
     Returns (scene, fps, t0): a `Scene`, frames per second (scalar) and the start time (s, scalar). The mean
     shift `mean_lr_shift(scene, fps, t=t0)` is log-uniform in `shift_range` (up to the fps clip to [1, 2000]);
     scenes where nothing in view moves are replaced by the same kind of draw with a moving camera."""
+    return _training_scene_jit(key, sensor, tuple(float(v) for v in shift_range))
+
+
+@functools.partial(jax.jit, static_argnums=(2,))
+def _training_scene_jit(key, sensor, shift_range):
     k_scene, k_moving, k_shift, k_t0 = jax.random.split(key, 4)
     t0 = _u(_Stream.from_key(k_t0, 1), 0.0, 10.0)
     scene = sample_scene(k_scene)
@@ -773,7 +785,12 @@ def training_clip(key, n_frames, *, sensor: SensorConfig = SensorConfig(), shift
     Returns (depth, intensity), each (n_frames, H, W) float32 (radial metres, inf = no return; [0, 1]); with
     return_info also a dict(fps=, shift=) of scalars. jit- and vmap-able over key (n_frames static).
     """
-    scene, fps, t0 = training_scene(key, sensor=sensor, shift_range=shift_range)
+    return _training_clip_jit(key, int(n_frames), sensor, tuple(float(v) for v in shift_range), bool(return_info))
+
+
+@functools.partial(jax.jit, static_argnums=(1, 3, 4))
+def _training_clip_jit(key, n_frames, sensor, shift_range, return_info):
+    scene, fps, t0 = _training_scene_jit(key, sensor, shift_range)
     times = t0 + jnp.arange(n_frames, dtype=jnp.float32) / fps
     depth, intensity = render_sequence(scene, times, sensor=sensor)
     if return_info:
@@ -849,6 +866,9 @@ TEST_SEQUENCES = {
 }
 
 
+_render_jit = jax.jit(render_sequence, static_argnames=("sensor", "tiles", "k_max"))
+
+
 def test_scene(name):
     """The fixed scene of a named test sequence (see `TEST_SEQUENCES`).
 
@@ -867,8 +887,7 @@ def test_sequence(name, *, n_frames=500, sensor: SensorConfig = SensorConfig()):
     scene, fps = test_scene(name)
     kind, _, _, snr, _, _, description = TEST_SEQUENCES[name]
     times = jnp.arange(n_frames, dtype=jnp.float32) / fps
-    render = jax.jit(lambda s, ts: render_sequence(s, ts, sensor=sensor))
-    chunks = [render(scene, times[i:i + 50]) for i in range(0, n_frames, 50)]
+    chunks = [_render_jit(scene, times[i:i + 50], sensor=sensor) for i in range(0, n_frames, 50)]
     depth = np.concatenate([np.asarray(c[0]) for c in chunks])
     intensity = np.concatenate([np.asarray(c[1]) for c in chunks])
     return TestSequence(name, depth, intensity, fps, snr, kind, description)

@@ -1,0 +1,171 @@
+"""File I/O round trips (bit-exact float formats, <= 0.5 mm for 16-bit PNG) and clear errors."""
+
+import numpy as np
+import pytest
+
+from jaxsr import io
+
+
+def depth_frame(h=16, w=24, seed=0):
+    rng = np.random.default_rng(seed)
+    d = rng.uniform(0.3, 60.0, (h, w)).astype(np.float32)
+    d[0, :3] = np.inf  # no return
+    return d
+
+
+@pytest.mark.parametrize("suffix", [".exr", ".pfm", ".tif", ".tiff", ".npy"])
+def test_float_formats_round_trip_bit_exact(tmp_path, suffix):
+    d = depth_frame()
+    path = tmp_path / f"d{suffix}"
+    io.write_depth(path, d)
+    back = io.read_depth(path)
+    assert back.dtype == np.float32 and back.shape == d.shape
+    np.testing.assert_array_equal(back.view(np.uint32), d.view(np.uint32))
+
+
+def test_png_millimetres_round_trip(tmp_path):
+    d = depth_frame()
+    d[1, 0] = 70.0  # beyond 65.535 m: saturates
+    d[1, 1] = 0.0002  # below 1 mm: stored as 1 mm
+    io.write_depth(tmp_path / "d.png", d)
+    back = io.read_depth(tmp_path / "d.png")
+    ok = np.isfinite(d) & (d <= io.PNG_MAX_M) & (d >= 0.001)
+    assert np.max(np.abs(back[ok] - d[ok])) <= 0.0005 + 1e-6
+    assert np.all(np.isinf(back[~np.isfinite(d)]))
+    assert back[1, 0] == pytest.approx(65.535) and back[1, 1] == pytest.approx(0.001)
+    # The file really is 16-bit millimetres (read independently with OpenImageIO).
+    raw, fmt = io._read_raw(tmp_path / "d.png")
+    assert fmt == "uint16" and raw[0, 0, 0] == 0 and raw[2, 2, 0] == round(float(d[2, 2]) * 1000)
+
+
+def test_pfm_is_bottom_to_top_like_airsim(tmp_path):
+    """AirSim's write_pfm flips the image and writes little-endian floats with scale -1."""
+    d = depth_frame(3, 4)
+    d[0, :3] = 1.0
+    with open(tmp_path / "a.pfm", "wb") as f:
+        f.write(b"Pf\n4 3\n-1\n")
+        f.write(np.flipud(d).astype("<f4").tobytes())
+    np.testing.assert_array_equal(io.read_depth(tmp_path / "a.pfm"), d)
+    with open(tmp_path / "b.pfm", "wb") as f:  # big-endian (positive scale)
+        f.write(b"Pf\n4 3\n1.0\n")
+        f.write(np.flipud(d).astype(">f4").tobytes())
+    np.testing.assert_array_equal(io.read_depth(tmp_path / "b.pfm"), d)
+
+
+def test_never_overwrites_without_permission(tmp_path):
+    path = tmp_path / "d.exr"
+    io.write_depth(path, depth_frame())
+    with pytest.raises(FileExistsError, match="overwrite"):
+        io.write_depth(path, depth_frame(seed=1))
+    np.testing.assert_array_equal(io.read_depth(path), depth_frame())
+    io.write_depth(path, depth_frame(seed=1), overwrite=True)
+    np.testing.assert_array_equal(io.read_depth(path), depth_frame(seed=1))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["d.exr"], "no temporary files left behind"
+
+
+def test_missing_truncated_and_wrong_files_raise_clearly(tmp_path):
+    with pytest.raises(FileNotFoundError, match="nothere.exr"):
+        io.read_depth(tmp_path / "nothere.exr")
+    for suffix in (".exr", ".pfm", ".tif", ".png", ".npy"):
+        path = tmp_path / f"d{suffix}"
+        io.write_depth(path, depth_frame(64, 64))
+        data = path.read_bytes()
+        path.write_bytes(data[: len(data) // 2])
+        with pytest.raises(ValueError, match=str(path.name)):
+            io.read_depth(path)
+    with pytest.raises(ValueError, match="unknown depth format"):
+        io.read_depth(tmp_path / "d.jpg")
+    with pytest.raises(ValueError, match="not a PFM"):
+        (tmp_path / "x.pfm").write_bytes(b"P6\n1 1\n255\n\0\0\0")
+        io.read_depth(tmp_path / "x.pfm")
+
+
+def test_wrong_channels_and_types_raise(tmp_path):
+    rgb = np.zeros((8, 8, 3), np.float32)
+    io._write_oiio(tmp_path / "rgb.exr", rgb, "float")
+    with pytest.raises(ValueError, match="1-channel"):
+        io.read_depth(tmp_path / "rgb.exr")
+    io._write_oiio(tmp_path / "p8.png", np.zeros((8, 8, 1), np.uint8), "uint8")
+    with pytest.raises(ValueError, match="16-bit"):
+        io.read_depth(tmp_path / "p8.png")
+    with pytest.raises(ValueError, match=r"\(H, W\)"):
+        io.write_depth(tmp_path / "bad.exr", np.zeros((2, 3, 4)))
+    with pytest.raises(ValueError, match="non-negative"):
+        io.write_depth(tmp_path / "neg.exr", -np.ones((2, 3)))
+
+
+def test_sequences_and_histograms_round_trip(tmp_path):
+    from jaxsr.config import SensorConfig
+
+    d = np.stack([depth_frame(seed=s) for s in range(3)])
+    inten = np.random.default_rng(0).uniform(0, 1, d.shape).astype(np.float32)
+    io.write_sequence(tmp_path / "s.npz", d, intensity=inten, fps=25.0, snr=1.3)
+    z = io.read_sequence(tmp_path / "s.npz")
+    np.testing.assert_array_equal(z["depth"], d)
+    np.testing.assert_array_equal(z["intensity"], inten)
+    assert z["metadata"] == dict(fps=25.0, snr=1.3)
+    io.write_sequence(tmp_path / "s.npy", d)
+    np.testing.assert_array_equal(io.read_sequence(tmp_path / "s.npy")["depth"], d)
+
+    counts = np.random.default_rng(1).poisson(3.0, (3, 4, 6, 16)).astype(np.float32)
+    io.write_histograms(tmp_path / "h.npz", counts, depth=d, sensor=SensorConfig(), snr=1.3)
+    h = io.read_histograms(tmp_path / "h.npz")
+    assert h["counts"].dtype == np.uint16
+    np.testing.assert_array_equal(h["counts"], counts)
+    assert h["config"]["hr_shape"] == [128, 256] and h["config"]["d_max"] == 35.0
+    assert h["metadata"]["snr"] == 1.3
+    with pytest.raises(ValueError, match="non-negative integers"):
+        io.write_histograms(tmp_path / "bad.npz", counts + 0.5)
+    (tmp_path / "t.npz").write_bytes((tmp_path / "h.npz").read_bytes()[:100])
+    with pytest.raises(ValueError, match="t.npz"):
+        io.read_histograms(tmp_path / "t.npz")
+
+
+def test_previews(tmp_path):
+    d = depth_frame(32, 64)
+    io.write_preview(tmp_path / "p.png", d)
+    img = io.read_image(tmp_path / "p.png")
+    assert img.shape == (32, 64, 3)
+    np.testing.assert_array_equal(img[0, 0], [0, 0, 0])  # no return is black
+    assert img[5, 5].sum() > 0
+    lr = np.clip(d[::4, ::4] / 35, 0, 1)
+    io.write_comparison(tmp_path / "c.png", lr, d / 35, d / 35)
+    strip = io.read_image(tmp_path / "c.png")
+    assert strip.shape == (32, 3 * 64 + 4, 3)
+    with pytest.raises(ValueError, match="downscale"):
+        io.write_comparison(tmp_path / "c2.png", d[:5, :7], d, d)
+
+
+def _airsim_folder(tmp_path, planar, gray, stamps):
+    rec = tmp_path / "rec"
+    (rec / "images").mkdir(parents=True)
+    lines = ["VehicleName\tTimeStamp\tPOS_X\tPOS_Y\tPOS_Z\tQ_W\tQ_X\tQ_Y\tQ_Z\tImageFile"]
+    for i, (z, g, t) in enumerate(zip(planar, gray, stamps)):
+        dname, sname = f"img_Drone1_0_1_{t}.pfm", f"img_Drone1_0_0_{t}.png"
+        with open(rec / "images" / dname, "wb") as f:
+            f.write(b"Pf\n%d %d\n-1\n" % (z.shape[1], z.shape[0]))
+            f.write(np.flipud(z).astype("<f4").tobytes())
+        rgb = np.stack([g, g, g], -1)
+        io._write_oiio(rec / "images" / sname, (rgb * 255).astype(np.uint8), "uint8")
+        lines.append(f"Drone1\t{t}\t0\t0\t0\t1\t0\t0\t0\t{sname};{dname}")
+    (rec / "airsim_rec.txt").write_text("\n".join(lines) + "\n")
+    return rec
+
+
+def test_read_airsim_converts_planar_to_radial(tmp_path):
+    from jaxsr.config import SensorConfig
+    from jaxsr.sensor import planar_to_radial
+
+    sensor = SensorConfig()
+    h, w = sensor.hr_shape
+    planar = [np.full((h, w), 10.0, np.float32), np.full((h, w), 12.0, np.float32)]
+    gray = [np.full((h, w), 0.4, np.float32), np.full((h, w), 0.8, np.float32)]
+    rec = _airsim_folder(tmp_path, planar, gray, [1000, 1040])
+    out = io.read_airsim(rec, sensor=sensor)
+    assert out["depth"].shape == (2, h, w)
+    np.testing.assert_allclose(out["depth"][1], np.asarray(planar_to_radial(planar[1], sensor)), rtol=1e-6)
+    assert out["depth"][0, 0, 0] > 10.0 and out["depth"][0, h // 2, w // 2] == pytest.approx(10.0, rel=1e-5)
+    np.testing.assert_allclose(out["intensity"][0], round(0.4 * 255) / 255, atol=1e-6)
+    assert out["fps"] == pytest.approx(25.0)
+    with pytest.raises(FileNotFoundError, match="airsim_rec.txt"):
+        io.read_airsim(tmp_path)
