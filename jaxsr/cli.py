@@ -2,6 +2,7 @@
 
     jaxsr simulate --kind street --frames 20 --fps 25 --snr 1.3 --seed 0 --out DIR [--force]
     jaxsr simulate --input AIRSIM_FOLDER --out DIR [--snr 1.3]
+    jaxsr train --tr 4 --preset cpu --out runs/tr4 [--resume]
 
 `simulate` renders a procedural scene (or reads an AirSim recording), simulates SPAD photon histograms and the
 centre-of-mass depth, and writes DIR/histograms.npz (counts, ground-truth depth, config), DIR/com_depth.npy
@@ -92,7 +93,14 @@ def add_simulate(subparsers):
     p.set_defaults(func=run_simulate)
 
 
-COMMANDS = [add_simulate]
+def add_train(subparsers):
+    """`jaxsr train`: arguments and runner live with the trainer (`jaxsr.train.add_train_parser`)."""
+    from .train import add_train_parser
+
+    add_train_parser(subparsers)
+
+
+COMMANDS = [add_simulate, add_train]
 
 
 def build_parser():

@@ -82,7 +82,10 @@ def _oiio():
 
 
 def read_image(path):
-    """Read any image OpenImageIO can open as float32 (H, W, C), integer formats scaled to [0, 1]."""
+    """Read any image OpenImageIO can open as float32 (H, W, C), integer formats scaled to [0, 1].
+
+    Args: path. Returns an array of shape (H, W, C) float32.
+    """
     path = _require_file(path)
     oiio = _oiio()
     inp = oiio.ImageInput.open(str(path))
@@ -186,7 +189,10 @@ def _suffix(path):
 
 def write_depth(path, depth, *, overwrite=False):
     """Write a depth frame (H, W) in radial metres (inf = no return), format from the suffix: .exr, .pfm, .tif /
-    .tiff (float32, exact), .png (uint16 millimetres, 0 = no return, saturating at 65.535 m), .npy."""
+    .tiff (float32, exact), .png (uint16 millimetres, 0 = no return, saturating at 65.535 m), .npy.
+
+    Args: path (str or Path), depth (H, W). Returns None; raises FileExistsError, ValueError.
+    """
     suffix = _suffix(path)
     depth = _check_depth(depth, path)
     with _atomic(path, overwrite) as tmp:
@@ -205,7 +211,10 @@ def write_depth(path, depth, *, overwrite=False):
 
 def read_depth(path):
     """Read a depth frame written by `write_depth` (or AirSim's PFM, or any 1-channel float image): (H, W)
-    float32 metres, inf = no return (NaN and, for 16-bit PNG, 0 are read as no return)."""
+    float32 metres, inf = no return (NaN and, for 16-bit PNG, 0 are read as no return).
+
+    Returns an array of shape (H, W) float32.
+    """
     suffix = _suffix(path)
     if suffix == ".npy":
         path = _require_file(path)
@@ -239,7 +248,10 @@ def read_depth(path):
 
 def write_sequence(path, depth, *, intensity=None, overwrite=False, **metadata):
     """Write a depth sequence (T, H, W) as .npy, or depth (+ intensity) and JSON-able metadata (fps, snr, ...)
-    as .npz."""
+    as .npz.
+
+    Args: path, depth (T, H, W), intensity (T, H, W) or None. Returns None.
+    """
     depth = np.asarray(depth, np.float32)
     if depth.ndim != 3:
         raise ValueError(f"writing {path}: expected a sequence of shape (T, H, W), got {depth.shape}")
@@ -278,7 +290,10 @@ def _load_npz(path, required):
 
 def read_sequence(path):
     """Read a sequence written by `write_sequence`: a dict with 'depth' (T, H, W), 'intensity' if stored, and
-    'metadata' (a dict)."""
+    'metadata' (a dict).
+
+    Args: path (.npy or .npz). Returns a dict of arrays, depth of shape (T, H, W).
+    """
     if Path(path).suffix.lower() == ".npy":
         path = _require_file(path)
         try:
@@ -295,7 +310,10 @@ def read_sequence(path):
 
 def write_histograms(path, counts, *, depth=None, sensor=None, overwrite=False, **metadata):
     """Write photon histograms (T, h, w, K) (non-negative integers; stored uint16 when they fit, else int32),
-    optionally the ground-truth HR depth (T, H, W) and the sensor config and metadata (JSON), as .npz."""
+    optionally the ground-truth HR depth (T, H, W) and the sensor config and metadata (JSON), as .npz.
+
+    Args: path (.npz), counts (T, h, w, K), depth (T, H, W) or None. Returns None.
+    """
     counts = np.asarray(counts)
     if counts.ndim < 3:
         raise ValueError(f"writing {path}: expected histograms (..., h, w, bins), got {counts.shape}")
@@ -320,7 +338,10 @@ def write_histograms(path, counts, *, depth=None, sensor=None, overwrite=False, 
 
 
 def read_histograms(path):
-    """Read `write_histograms` output: dict(counts=, depth= (if stored), config= dict, metadata= dict)."""
+    """Read `write_histograms` output: dict(counts=, depth= (if stored), config= dict, metadata= dict).
+
+    Args: path (.npz). Returns a dict; counts of shape (T, h, w, K).
+    """
     z = _load_npz(path, ["counts"])
     z["config"] = json.loads(str(z["config"])) if "config" in z else {}
     z["metadata"] = json.loads(str(z["metadata"])) if "metadata" in z else {}
@@ -425,7 +446,10 @@ def _depth_from_normalised(frame, d_max):
 
 def write_preview(path, depth, *, d_max=35.0, cmap="turbo", normalised=False, overwrite=False):
     """Write a colour-mapped PNG of a depth frame (H, W) in metres (or normalised [0, 1] with normalised=True);
-    no return (inf, NaN, > d_max) is black."""
+    no return (inf, NaN, > d_max) is black.
+
+    Args: path (.png), depth (H, W). Returns None (an RGB PNG of shape (H, W, 3)).
+    """
     depth = np.asarray(depth, np.float32)
     if depth.ndim != 2:
         raise ValueError(f"writing {path}: expected a depth frame (H, W), got {depth.shape}")
@@ -455,7 +479,11 @@ def _label(rgb, text):
 
 def write_comparison(path, lr, sr, gt, *, d_max=35.0, cmap="turbo", labels=("LR", "SR", "GT"), overwrite=False):
     """Write an LR | SR | GT strip as PNG. lr (h, w) is nearest-upsampled to the HR size of sr and gt (H, W).
-    Frames in metres or normalised [0, 1] (1 = no return); no return is black."""
+    Frames in metres or normalised [0, 1] (1 = no return); no return is black.
+
+    Args: path (.png), lr (h, w), sr (H, W), gt (H, W). Returns None (a PNG of shape
+    (H, 3 W + 4, 3)).
+    """
     lr, sr, gt = (_depth_from_normalised(a, d_max) for a in (lr, sr, gt))
     if sr.shape != gt.shape or sr.ndim != 2:
         raise ValueError(f"writing {path}: SR {sr.shape} and GT {gt.shape} must be equal (H, W) frames")

@@ -15,9 +15,10 @@ import jax
 import jax.numpy as jnp
 
 from .config import ModelConfig
+from .temporal import windows as temporal_windows
 from .layers import batch_norm, conv3d, depth_to_space, dynamic_upsample, glorot_limit, init_batch_norm
 
-__all__ = ["Model", "init_model", "apply_model", "count_params", "temporal_windows", "super_resolve"]
+__all__ = ["Model", "init_model", "apply_model", "count_params", "super_resolve"]
 
 
 def init_model(key, cfg: ModelConfig) -> tuple[dict, dict]:
@@ -152,16 +153,6 @@ class Model:
 jax.tree_util.register_dataclass(Model, data_fields=["params", "state"], meta_fields=["config"])
 
 
-def temporal_windows(seq, tr: int):
-    """Sliding windows of 2*tr+1 frames centred on every frame, the ends edge-replicated.
-
-    seq: (T, H, W) -> (T, 2*tr+1, H, W); window t holds frames clip(t - tr .. t + tr, 0, T-1).
-    """
-    t = seq.shape[0]
-    idx = jnp.clip(jnp.arange(t)[:, None] + jnp.arange(-tr, tr + 1)[None, :], 0, t - 1)
-    return seq[idx]
-
-
 @jax.jit
 def _infer(model: Model, windows):
     return model(windows)
@@ -170,7 +161,7 @@ def _infer(model: Model, windows):
 def super_resolve(model: Model, lr_seq, *, batch_size: int = 8):
     """Super-resolve a whole LR depth sequence: (T, H, W) -> (T, H*r, W*r), normalised depth.
 
-    Each frame is the centre of an edge-replicated window of 2*tr+1 frames (`temporal_windows`); the frames
+    Each frame is the centre of an edge-replicated window of 2*tr+1 frames (`jaxsr.temporal.windows`); the frames
     are processed `batch_size` at a time by one jitted function (the last batch is padded, then cropped).
     """
     lr_seq = jnp.asarray(lr_seq, jnp.float32)

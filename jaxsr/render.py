@@ -422,7 +422,10 @@ def _cast_tiled(kind, group: _Group, dx, dy, sensor, tiles, k_max, tilt):
 
 def tile_overflow(scene: Scene, t, *, sensor: SensorConfig = SensorConfig(), tiles=None, k_max=None):
     """Diagnostic: for each primitive type, the largest number of primitives touching one tile minus its
-    `k_max` (> 0 means the tiled renderer dropped the farthest ones somewhere). Returns a dict of ints."""
+    `k_max` (> 0 means the tiled renderer dropped the farthest ones somewhere). Returns a dict of ints.
+
+    Args: scene (Scene), t (s). Returns a dict with one int per primitive type (shape-free).
+    """
     tiles = DEFAULT_TILES if tiles is None else tiles
     k_max = DEFAULT_K_MAX if k_max is None else k_max
     groups, _, _ = _pose_all(scene, jnp.asarray(t, jnp.float32))
@@ -565,6 +568,10 @@ def render(scene: Scene, t, *, sensor: SensorConfig = SensorConfig(), tiles=DEFA
 
 def render_sequence(scene: Scene, times, *, sensor: SensorConfig = SensorConfig(), tiles=DEFAULT_TILES,
                     k_max=DEFAULT_K_MAX):
-    """Render `scene` at each time of `times` (T,) s: (depth, intensity), each (T, H, W)."""
+    """Render `scene` at each time of `times` (T,) s: (depth, intensity), each (T, H, W).
+
+    Args: scene (Scene), times (T,) seconds.
+    Returns (depth, intensity), each of shape (T, H, W) float32.
+    """
     times = jnp.asarray(times, jnp.float32)
     return jax.vmap(lambda t: render(scene, t, sensor=sensor, tiles=tiles, k_max=k_max))(times)

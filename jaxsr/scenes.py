@@ -23,6 +23,8 @@ import numpy as np
 from .config import SensorConfig
 from .render import (Boxes, Camera, Cylinders, Ellipsoids, Ground, Motion, Scene, _pose_all, _project_bounds,
                      render_sequence)
+from .temporal import change_frame_rate as change_frame_rate  # re-exported: part of the scenes API
+from .temporal import windows as windows
 
 __all__ = [
     "KINDS",
@@ -649,7 +651,10 @@ def empty_scene(*, camera_height=1.7, tilt=0.0, sky=0.9):
 
 def place(scene, part):
     """Put the primitives of `part` (a Boxes, Cylinders or Ellipsoids with a leading count n) into the first n
-    slots of that type in `scene` (shapes (N, ...) unchanged). Returns the new scene."""
+    slots of that type in `scene` (shapes (N, ...) unchanged). Returns the new scene.
+
+    Args: scene (Scene), part (a group with leading count n <= the slots of its type).
+    """
     name = {Boxes: "boxes", Cylinders: "cylinders", Ellipsoids: "ellipsoids"}[type(part)]
     group = getattr(scene, name)
     n = part.active.shape[0]
@@ -800,33 +805,6 @@ def _training_clip_jit(key, n_frames, sensor, shift_range, return_info):
 
 # ---------------------------------------------------------------------------------------------------------
 # Temporal windows and frame-rate changes
-
-
-def windows(seq, tr):
-    """Temporal windows of radius `tr` around every frame, edge-replicated at the sequence ends (the paper).
-
-    seq (T, ...) -> (T, 2 tr + 1, ...): window t holds frames clip(t - tr .. t + tr, 0, T - 1).
-    """
-    seq = jnp.asarray(seq)
-    if tr < 0:
-        raise ValueError(f"temporal radius must be >= 0, got {tr}")
-    if seq.ndim < 1 or seq.shape[0] < 1:
-        raise ValueError(f"expected a sequence with a leading time axis, got shape {seq.shape}")
-    n = seq.shape[0]
-    idx = jnp.clip(jnp.arange(n)[:, None] + jnp.arange(-tr, tr + 1)[None, :], 0, n - 1)
-    return seq[idx]
-
-
-def change_frame_rate(seq, fps, new_fps):
-    """Subsample a sequence captured at `fps` to `new_fps` by keeping every (fps / new_fps)-th frame (the paper's
-    frame-rate study: 100 FPS -> 50, 25, ...). The ratio must be an integer.
-
-    Returns seq[::k], shape (ceil(T / k), ...) for seq (T, ...), k = fps / new_fps."""
-    ratio = fps / new_fps
-    step = int(round(ratio))
-    if step < 1 or abs(ratio - step) > 1e-6:
-        raise ValueError(f"can only subsample by an integer factor: {fps} FPS -> {new_fps} FPS is x{ratio:g}")
-    return seq[::step]
 
 
 # ---------------------------------------------------------------------------------------------------------

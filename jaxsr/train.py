@@ -35,7 +35,8 @@ from .checkpoint import (
     save_tree,
 )
 from .config import PRESETS, ModelConfig, SensorConfig, TrainConfig
-from .model import Model, apply_model, init_model, temporal_windows
+from .model import Model, apply_model, init_model
+from .temporal import windows as temporal_windows
 from .optim import AdamState, adam_init, adam_update, step_decay
 
 __all__ = [

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from jaxsr.config import ModelConfig
-from jaxsr.model import Model, apply_model, count_params, init_model, super_resolve, temporal_windows
+from jaxsr.model import Model, apply_model, count_params, init_model, super_resolve
+from jaxsr.temporal import windows as temporal_windows
 
 TINY = dict(base=8, growth=4, head=16, filter_hidden=16)
 # jit once per config: much faster than op-by-op dispatch of the whole network

@@ -11,7 +11,7 @@ import pytest
 
 from jaxsr import scenes
 from jaxsr.config import SensorConfig
-from jaxsr.render import Boxes, Cylinders, Ellipsoids, Motion, render_sequence, tile_overflow
+from jaxsr.render import Boxes, Cylinders, Ellipsoids, Motion, tile_overflow
 from jaxsr.sensor import planar_to_radial
 
 SENSOR = SensorConfig()
@@ -123,7 +123,6 @@ def test_leaning_cylinder_matches_brute_force_march():
     scene = scenes.place(scenes.empty_scene(camera_height=CAM_H), cylinder(tuple(pivot), length, rad, lean=lean))
     depth = np.asarray(frames(scene)[0][0])
     d = unit_rays()
-    axis = np.array([math.sin(lean), -math.cos(lean), 0.0])  # from the pivot down, lower end forward (+X)
     p0 = pivot - np.array([0.0, CAM_H, 0.0])
     rows, cols = np.nonzero(np.isfinite(depth) & (depth < 20))
     rng = np.random.default_rng(0)
@@ -132,16 +131,12 @@ def test_leaning_cylinder_matches_brute_force_march():
     for i in pick:
         ray = d[rows[i], cols[i]]
         pts = ts[:, None] * ray[None, :] - p0
-        along = pts @ axis
-        radial = np.linalg.norm(pts - along[:, None] * axis, axis=-1)
         # Horizontal caps: the solid is the oblique slab of heights [top - L cos a, top] of the infinite cylinder.
-        inside = (radial <= rad * 1.0) | False
         height = pts[:, 1]
         inside_oblique = _inside_oblique(pts, lean, rad) & (height <= 0) & (height >= -length * math.cos(lean))
         first = ts[np.argmax(inside_oblique)] if inside_oblique.any() else np.inf
         ground = CAM_H / -ray[1] if ray[1] < 0 else np.inf
         assert depth[rows[i], cols[i]] == pytest.approx(min(first, ground), abs=2e-3)
-        del inside
 
 
 def _inside_oblique(pts, lean, rad):
