@@ -6,10 +6,11 @@ import datetime
 import os
 import platform
 import sys
-import tempfile
 import time
 
 import jax
+
+from jaxsr._files import write_text_atomic
 
 
 def machine() -> str:
@@ -36,17 +37,8 @@ def header(title: str, started: float) -> str:
 
 
 def write_atomic(path: str, text: str) -> None:
-    """Write text to path via a temporary file in the same folder and os.replace."""
-    folder = os.path.dirname(os.path.abspath(path))
-    os.makedirs(folder, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=folder, prefix=".tmp-")
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        os.unlink(tmp)
-        raise
+    """Write text to path atomically, replacing the previous result file."""
+    write_text_atomic(path, text)
 
 
 def markdown_table(columns, rows) -> str:

@@ -12,13 +12,13 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-import tempfile
 import zipfile
 from pathlib import Path
 
 import jax
 import numpy as np
 
+from ._files import atomic_path
 from .config import ModelConfig, TrainConfig
 from .model import Model, init_model
 
@@ -59,17 +59,10 @@ def save_tree(path, tree, metadata: dict) -> Path:
         raise ValueError(f"save_tree: key {_META!r} is reserved")
     meta = dict(metadata, format_version=FORMAT_VERSION, jaxsr_version=_version())
     arrays[_META] = np.array(json.dumps(meta, sort_keys=True))
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, **arrays)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    with atomic_path(path, overwrite=True, make_parents=True) as tmp, open(tmp, "wb") as f:
+        np.savez(f, **arrays)
+        f.flush()
+        os.fsync(f.fileno())
     return path
 
 

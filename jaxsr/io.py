@@ -13,15 +13,14 @@ Conventions:
 
 from __future__ import annotations
 
-import contextlib
 import csv
 import json
-import os
 import re
-import tempfile
 from pathlib import Path
 
 import numpy as np
+
+from ._files import atomic_path
 
 __all__ = [
     "DEPTH_FORMATS",
@@ -45,23 +44,9 @@ PNG_MAX_M = 65.535
 # Atomic writes
 
 
-@contextlib.contextmanager
 def _atomic(path, overwrite):
-    """Yield a temporary path in the destination folder; on success move it onto `path`."""
-    path = Path(path)
-    if path.exists() and not overwrite:
-        raise FileExistsError(f"{path} exists; pass overwrite=True (or --force) to replace it")
-    if not path.parent.exists():
-        raise FileNotFoundError(f"folder {path.parent} does not exist (writing {path.name})")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
-    try:
-        yield Path(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.remove(tmp)
-        raise
+    """Atomic write to `path` (see `jaxsr._files.atomic_path`)."""
+    return atomic_path(path, overwrite=overwrite)
 
 
 def _require_file(path):

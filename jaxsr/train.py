@@ -15,7 +15,6 @@ import argparse
 import functools
 import json
 import math
-import os
 import platform
 import time
 from pathlib import Path
@@ -26,7 +25,6 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
 
 from .checkpoint import (
-    config_from_dict,
     config_to_dict,
     load_tree,
     model_template,
@@ -34,6 +32,7 @@ from .checkpoint import (
     save_model,
     save_tree,
 )
+from ._files import write_text_atomic
 from .config import PRESETS, ModelConfig, SensorConfig, TrainConfig
 from .model import Model, apply_model, init_model
 from .temporal import windows as temporal_windows
@@ -182,7 +181,7 @@ def validation_set(key, tr: int, train_cfg: TrainConfig, *, sensor: SensorConfig
     if sequences is None:
         from .scenes import test_sequences
 
-        sequences = test_sequences(train_cfg.val_frames, names=train_cfg.val_sequences or None, sensor=sensor)
+        sequences = test_sequences(n_frames=train_cfg.val_frames, names=train_cfg.val_sequences or None, sensor=sensor)
     names = list(train_cfg.val_sequences) or sorted(sequences)
     windows, gts, lrs = [], [], []
     for i, name in enumerate(names):
@@ -274,13 +273,6 @@ def evaluate(params, state, windows, gt, cfg: ModelConfig, *, delta: float = 0.0
         losses.append(l)
         psnrs.append(p)
     return {"loss": float(jnp.concatenate(losses)[:n].mean()), "psnr": float(jnp.concatenate(psnrs)[:n].mean())}
-
-
-def _write_text(path: Path, text: str):
-    """Atomic text write (the log always matches the history stored in last.npz)."""
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
 
 
 def _hardware() -> dict:
@@ -455,7 +447,7 @@ def fit(
         tree = {"params": params, "state": state, "opt": opt_state, "best": best,
                 "key": jax.random.key_data(k_data)}
         save_tree(last_path, tree, dict(meta_common, kind="train_state", run=run, card=card()))
-        _write_text(out / "metrics.jsonl", "".join(json.dumps(r) + "\n" for r in history))
+        write_text_atomic(out / "metrics.jsonl", "".join(json.dumps(r) + "\n" for r in history))
         if callback is not None:
             callback(record)
     model = Model(jax.tree_util.tree_map(jnp.asarray, best["params"]),

@@ -18,7 +18,7 @@ from jax.test_util import check_grads
 from jaxsr.checkpoint import load_model, read_metadata
 from jaxsr.config import PRESETS, ModelConfig, SensorConfig, TrainConfig
 from jaxsr.optim import adam_init, adam_update, step_decay
-from jaxsr.train import fit, huber_loss, make_train_step, random_crop, sequence_batches
+from jaxsr.train import fit, huber_loss, random_crop, sequence_batches, validation_set
 
 # momentum 0.9: running BN statistics settle within the few dozen steps of these runs (0.99 needs hundreds)
 TINY = ModelConfig(tr=1, base=8, growth=4, head=16, filter_hidden=16, bn_momentum=0.9)
@@ -255,3 +255,27 @@ def test_cli_parser():
     add_train_parser(parser.add_subparsers(dest="command"))
     args = parser.parse_args(["train", "--tr", "4", "--preset", "cpu", "--out", "runs/tr4", "--resume"])
     assert args.tr == 4 and args.preset == "cpu" and args.resume and args.func is train_command
+
+
+def test_validation_set_from_the_named_sequences():
+    """The default validation data: the first frames of the scenes module's named validation sequences."""
+    cfg = dataclasses.replace(PRESETS["cpu"], val_frames=2)
+    val = validation_set(jax.random.key(0), 1, cfg)
+    n = 2 * len(cfg.val_sequences)
+    assert val["windows"].shape == (n, 3, 32, 64) and val["gt"].shape == (n, 128, 256)
+    assert val["names"] == list(cfg.val_sequences)
+    assert float(val["gt"].min()) >= 0 and float(val["gt"].max()) <= 1
+
+
+@pytest.mark.slow
+def test_train_command_end_to_end(tmp_path):
+    """`jaxsr train` with the default scene data for one epoch of the cpu preset, then resume to epoch 2."""
+    from jaxsr.cli import main
+
+    out = tmp_path / "tr0"
+    assert main(["train", "--tr", "0", "--preset", "cpu", "--epochs", "1", "--out", str(out), "--no-progress"]) == 0
+    assert (out / "best.npz").exists() and (out / "last.npz").exists()
+    assert main(["train", "--tr", "0", "--preset", "cpu", "--epochs", "2", "--out", str(out), "--no-progress",
+                 "--resume"]) == 0
+    lines = (out / "metrics.jsonl").read_text().splitlines()
+    assert len(lines) == 2
