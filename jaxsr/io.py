@@ -66,29 +66,9 @@ def _oiio():
     return oiio
 
 
-def read_image(path):
-    """Read any image OpenImageIO can open as float32 (H, W, C), integer formats scaled to [0, 1].
-
-    Args: path. Returns an array of shape (H, W, C) float32.
-    """
-    path = _require_file(path)
-    oiio = _oiio()
-    inp = oiio.ImageInput.open(str(path))
-    if inp is None:
-        raise ValueError(f"cannot read {path} as an image: {oiio.geterror()}")
-    try:
-        pixels = inp.read_image("float")
-        err = inp.geterror()
-    finally:
-        inp.close()
-    if pixels is None or err:
-        raise ValueError(f"cannot read {path}: the file is truncated or corrupt ({err or oiio.geterror()})")
-    pixels = np.asarray(pixels, np.float32)
-    return pixels.reshape(pixels.shape[0], pixels.shape[1], -1)
-
-
-def _read_raw(path):
-    """Read an image in its stored pixel type (H, W, C) (for 16-bit PNG millimetres)."""
+def _read_oiio(path, pixel_type=None):
+    """Read an image with OpenImageIO as (H, W, C) pixels in `pixel_type` ("float", or None for the stored
+    type, e.g. uint16 for 16-bit PNG millimetres); returns (pixels, stored type name)."""
     path = _require_file(path)
     oiio = _oiio()
     inp = oiio.ImageInput.open(str(path))
@@ -96,7 +76,7 @@ def _read_raw(path):
         raise ValueError(f"cannot read {path} as an image: {oiio.geterror()}")
     try:
         spec = inp.spec()
-        pixels = inp.read_image(spec.format)
+        pixels = inp.read_image(pixel_type or spec.format)
         err = inp.geterror()
     finally:
         inp.close()
@@ -104,6 +84,19 @@ def _read_raw(path):
         raise ValueError(f"cannot read {path}: the file is truncated or corrupt ({err or oiio.geterror()})")
     pixels = np.asarray(pixels)
     return pixels.reshape(pixels.shape[0], pixels.shape[1], -1), str(spec.format)
+
+
+def read_image(path):
+    """Read any image OpenImageIO can open as float32 (H, W, C), integer formats scaled to [0, 1].
+
+    Args: path. Returns an array of shape (H, W, C) float32.
+    """
+    return _read_oiio(path, "float")[0].astype(np.float32)
+
+
+def _read_raw(path):
+    """Read an image in its stored pixel type: ((H, W, C) pixels, type name)."""
+    return _read_oiio(path)
 
 
 def _write_oiio(tmp, pixels, pixel_type, attributes=()):

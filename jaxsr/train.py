@@ -22,8 +22,11 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
+from jax.sharding import Mesh, NamedSharding
+from jax.sharding import PartitionSpec as P
 
+from ._files import write_text_atomic
+from .baselines import bicubic
 from .checkpoint import (
     config_to_dict,
     load_tree,
@@ -32,11 +35,14 @@ from .checkpoint import (
     save_model,
     save_tree,
 )
-from ._files import write_text_atomic
 from .config import PRESETS, ModelConfig, SensorConfig, TrainConfig
+from .metrics import psnr
 from .model import Model, apply_model, init_model
-from .temporal import windows as temporal_windows
 from .optim import AdamState, adam_init, adam_update, step_decay
+from .peaks import centre_of_mass
+from .scenes import test_sequences, training_clip
+from .sensor import normalise_depth, simulate_histograms
+from .temporal import windows as temporal_windows
 
 __all__ = [
     "huber_loss",
@@ -60,12 +66,6 @@ def huber_loss(pred, gt, *, delta: float = 0.01):
     e = jnp.abs(pred - gt)
     quad = jnp.minimum(e, delta)
     return jnp.mean(0.5 * quad**2 + delta * (e - quad))
-
-
-def _psnr(pred, gt):
-    from .metrics import psnr
-
-    return psnr(pred, gt)
 
 
 def log_uniform(key, lo: float, hi: float, shape=()):
@@ -93,9 +93,6 @@ def random_crop(key, windows, gt, patch: tuple[int, int] | None, scale: int):
 
 def _simulate_example(key, depth, intensity, tr: int, train_cfg: TrainConfig, sensor: SensorConfig):
     """(2tr+1, H, W) HR radial depth + intensity -> (LR window (2tr+1, h, w), GT of the centre (H, W))."""
-    from .peaks import centre_of_mass
-    from .sensor import normalise_depth, simulate_histograms
-
     k_snr, k_sig, k_noise, k_crop = jax.random.split(key, 4)
     snr = log_uniform(k_snr, *train_cfg.snr_range)
     mean_signal = log_uniform(k_sig, *train_cfg.mean_signal_range)
@@ -114,8 +111,6 @@ def scene_batches(tr: int, train_cfg: TrainConfig, *, sensor: SensorConfig = Sen
     LR window; GT = `normalise_depth` of the centre frame; then an optional random crop (`patch`).
     Returns make_batch: key -> (windows (B, 2tr+1, h, w), gt (B, h*r, w*r)).
     """
-    from .scenes import training_clip
-
     def example(key):
         k_scene, k_rest = jax.random.split(key)
         depth, intensity = training_clip(k_scene, 2 * tr + 1, sensor=sensor, shift_range=train_cfg.motion_range)
@@ -175,12 +170,7 @@ def validation_set(key, tr: int, train_cfg: TrainConfig, *, sensor: SensorConfig
     `jaxsr.scenes.test_sequences(n_frames=train_cfg.val_frames)` restricted to `train_cfg.val_sequences`.
     Returns {"windows": (N, 2tr+1, h, w), "gt": (N, H, W), "lr": (N, h, w) centre frames, "names": [...]}.
     """
-    from .peaks import centre_of_mass
-    from .sensor import normalise_depth, simulate_histograms
-
     if sequences is None:
-        from .scenes import test_sequences
-
         sequences = test_sequences(n_frames=train_cfg.val_frames, names=train_cfg.val_sequences or None, sensor=sensor)
     names = list(train_cfg.val_sequences) or sorted(sequences)
     windows, gts, lrs = [], [], []
@@ -241,7 +231,7 @@ def _train_step(model_cfg, train_cfg, make_batch, mesh):
             grads, opt_state, params, lr=lr, b1=train_cfg.adam_b1, b2=train_cfg.adam_b2, eps=train_cfg.adam_eps
         )
         params, new_state, opt_state = constrain((params, new_state, opt_state), P())
-        metrics = {"loss": loss, "psnr": jnp.mean(_psnr(hr, gt)), "lr": lr}
+        metrics = {"loss": loss, "psnr": jnp.mean(psnr(hr, gt)), "lr": lr}
         return params, new_state, opt_state, metrics
 
     donate = (0, 1, 2) if jax.default_backend() != "cpu" else ()
@@ -254,7 +244,7 @@ def _eval_chunk(params, state, windows, gt, cfg, delta):
     e = jnp.abs(hr - gt)
     quad = jnp.minimum(e, delta)
     loss = jnp.mean(0.5 * quad**2 + delta * (e - quad), axis=(-2, -1))
-    return loss, _psnr(hr, gt)
+    return loss, psnr(hr, gt)
 
 
 def evaluate(params, state, windows, gt, cfg: ModelConfig, *, delta: float = 0.01, batch_size: int = 8) -> dict:
@@ -339,9 +329,7 @@ def fit(
         validation = validation_set(k_val, model_cfg.tr, train_cfg, sensor=sensor)
     val_bicubic = None
     if "lr" in validation:
-        from .baselines import bicubic
-
-        val_bicubic = float(jnp.mean(_psnr(bicubic(validation["lr"], scale=model_cfg.scale), validation["gt"])))
+        val_bicubic = float(jnp.mean(psnr(bicubic(validation["lr"], scale=model_cfg.scale), validation["gt"])))
 
     spe = train_cfg.steps_per_epoch
     last_path, best_path = out / "last.npz", out / "best.npz"
