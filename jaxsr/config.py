@@ -12,7 +12,7 @@ import jax.numpy as jnp
 
 # Mean signal photons per LR pixel with a return (PHYSICS.md section 2). The paper does not give it; this is
 # the level at which bicubic upsampling of centre-of-mass depth on our three test scenes comes closest to the
-# paper's bicubic row (RMS 2.4 dB; experiments/results/calibration.md).
+# paper's bicubic row (RMS 1.2 dB; experiments/results/calibration.md).
 DEFAULT_MEAN_SIGNAL = 14.0
 # Training draws the photon level log-uniformly around it (half to double), so models meet brighter and
 # darker scenes than the calibrated one.

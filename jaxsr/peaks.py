@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import jax.scipy.special
 import numpy as np
 import optimistix as optx
 
@@ -92,7 +93,7 @@ def _bin_model(theta, sensor):
 def _poisson_nll(theta, args):
     n, sensor = args
     lam = _bin_model(theta, sensor)
-    return jnp.sum(lam - n * jnp.log(lam))
+    return jnp.sum(lam - jax.scipy.special.xlogy(n, lam))  # 0 log 0 = 0 where erf saturates
 
 
 def maximum_likelihood_depth(
@@ -102,7 +103,7 @@ def maximum_likelihood_depth(
 
     Minimises sum_k lambda_k - n_k log lambda_k with lambda_k = S h_k(tau) + B / K (the forward model of
     one LR pixel with a single surface) by BFGS (optimistix), vmapped over pixels and started from the
-    centre of mass (tau), the windowed excess (S) and the median (B). Better than the centre of mass where
+    centre of mass (tau), the counts above the median over all bins (S) and the median (B). Better than the centre of mass where
     photons are plentiful; no better in the photon-starved regime (experiments/results/extraction.md).
 
     Args:

@@ -131,8 +131,9 @@ def _calibrate_from_sums(s_sum, a_sum, *, snr, mean_signal):
     n_valid = jnp.sum(has_signal)
     denom = jnp.maximum(n_valid, 1)
     mean_s = jnp.sum(s_sum) / denom
-    a_safe = jnp.maximum(a_sum, jnp.finfo(a_sum.dtype).tiny)
-    mean_ratio = jnp.sum(jnp.where(has_signal, s_sum / a_safe, 0.0)) / denom
+    # Double `where`: a block with no ambient (a0 = 0, black) must not put inf * 0 = NaN into the gradients.
+    ratio = jnp.where(has_signal, s_sum / jnp.where(has_signal, a_sum, 1.0), 0.0)
+    mean_ratio = jnp.sum(ratio) / denom
     any_signal = n_valid > 0
     alpha = jnp.where(any_signal, mean_signal / jnp.where(any_signal, mean_s, 1.0), 0.0)
     beta_signal = alpha * mean_ratio / snr

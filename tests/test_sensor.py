@@ -233,6 +233,15 @@ def test_black_scene_and_zero_ambient():
     cfg = jaxsr.SensorConfig(hr_shape=SMALL.hr_shape, scale=4, ambient_floor=0.0)
     rates = jaxsr.expected_histograms(depth, intensity, cfg, snr=1.0, mean_signal=4.0)
     assert np.all(np.isfinite(rates))
+    lit = np.full(SMALL.hr_shape, 0.5)
+    lit[:4, :4] = 0.0  # one LR block without any light: no signal and no ambient there
+
+    def loss(i, a0):
+        c = jaxsr.SensorConfig(hr_shape=SMALL.hr_shape, scale=4, ambient_floor=a0)
+        return jnp.sum(jaxsr.expected_histograms(depth, i, c, snr=1.0, mean_signal=4.0))
+
+    grads = jax.grad(loss, argnums=(0, 1))(jnp.asarray(lit, jnp.float32), jnp.float32(0.0))
+    assert all(np.all(np.isfinite(g)) for g in grads)
 
 
 # --- bad input ---------------------------------------------------------------------------------------------
