@@ -23,10 +23,14 @@ import numpy as np
 __all__ = ["COMMANDS", "main"]
 
 
+SIMULATE_OUTPUTS = ("histograms.npz", "com_depth.npy", "gt_depth.npy", "preview_gt.png", "preview_com.png",
+                    "preview_intensity.png", "preview_strip.png")
+
+
 def _out_dir(path, force):
     out = Path(path)
     out.mkdir(parents=True, exist_ok=True)
-    clash = [n for n in ("histograms.npz", "com_depth.npy", "gt_depth.npy") if (out / n).exists()]
+    clash = [n for n in SIMULATE_OUTPUTS if (out / n).exists()]
     if clash and not force:
         raise FileExistsError(f"{out} already holds {', '.join(clash)}; pass --force to overwrite")
     return out
@@ -39,8 +43,10 @@ def run_simulate(args):
 
     from . import io
     from .config import DEFAULT_MEAN_SIGNAL, SensorConfig
+    from .baselines import bicubic
+    from .metrics import psnr, ssim
     from .peaks import centre_of_mass
-    from .sensor import simulate_histograms
+    from .sensor import normalise_depth, simulate_histograms
 
     sensor = SensorConfig()
     out = _out_dir(args.out, args.force)
@@ -72,7 +78,14 @@ def run_simulate(args):
     io.write_preview(out / "preview_com.png", com[0], d_max=float(sensor.d_max), normalised=True, overwrite=True)
     gray = (np.clip(np.asarray(intensity[0]), 0, 1) * 255 + 0.5).astype(np.uint8)
     io._write_preview_gray(out / "preview_intensity.png", gray)
-    print(json.dumps(dict(meta, out=str(out), counts_shape=list(counts.shape))))
+    # The baseline a network has to beat: bicubic upsampling of the centre-of-mass depth.
+    gt = np.asarray(normalise_depth(jnp.asarray(depth), sensor))
+    up = np.asarray(bicubic(com, scale=sensor.scale))
+    io.write_comparison(out / "preview_strip.png", com[0], np.clip(up[0], 0, 1), gt[0],
+                        labels=("centre of mass", "bicubic", "ground truth"), overwrite=True)
+    quality = dict(bicubic_psnr_db=round(float(np.mean(psnr(up, gt))), 2),
+                   bicubic_ssim=round(float(np.mean(ssim(up, gt))), 3))
+    print(json.dumps(dict(meta, **quality, out=str(out), counts_shape=list(counts.shape))))
     return 0
 
 

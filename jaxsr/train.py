@@ -337,10 +337,16 @@ def fit(
     meta_common = json.loads(json.dumps({"config": config_to_dict(model_cfg), "train_config": config_to_dict(train_cfg)}))
     if resume and last_path.is_file():
         meta = read_metadata(last_path)
-        if meta["config"] != meta_common["config"] or meta["train_config"] != meta_common["train_config"]:
+        # Everything must match except `epochs`: extending a finished run is a resume, not a new run (the
+        # schedule depends on decay_epochs and patience, not on the epoch budget).
+        saved = dict(meta["config"], **{f"train.{k}": v for k, v in meta["train_config"].items() if k != "epochs"})
+        wanted = dict(meta_common["config"],
+                      **{f"train.{k}": v for k, v in meta_common["train_config"].items() if k != "epochs"})
+        differ = sorted(k for k in saved.keys() | wanted.keys() if saved.get(k) != wanted.get(k))
+        if differ:
             raise ValueError(
-                f"fit: cannot resume {str(last_path)!r}: it was trained with other settings "
-                f"({meta['config']}, {meta['train_config']})"
+                f"fit: cannot resume {str(last_path)!r}: it was trained with other settings: "
+                + ", ".join(f"{k} {saved.get(k)!r} (now {wanted.get(k)!r})" for k in differ)
             )
         tree, meta = load_tree(last_path, _train_state_template(model_cfg))
         tree = jax.tree_util.tree_map(jnp.asarray, tree)
@@ -349,6 +355,8 @@ def fit(
         best = tree["best"]
         k_data = jax.random.wrap_key_data(tree["key"])
         run = meta["run"]
+        # A run that used up its epoch budget continues when given more; an early-stopped run stays stopped.
+        run["finished"] = run["bad_epochs"] >= train_cfg.patience
         history = run["history"]
     else:
         params, state = init_model(k_init, model_cfg)

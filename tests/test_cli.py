@@ -26,6 +26,12 @@ def test_simulate_scene(tmp_path, capsys):
     assert np.median(np.abs(com - gt_lr)[gt_lr < 0.9]) < 0.1
     for name in ("preview_gt.png", "preview_com.png", "preview_intensity.png"):
         assert io.read_image(out / name).shape[:2] in {(128, 256), (32, 64)}
+    assert io.read_image(out / "preview_strip.png").shape[:2] == (128, 3 * 256 + 4)
+    # The reported baseline score is the PSNR of bicubic(centre of mass) against the normalised ground truth.
+    from jaxsr import bicubic, normalise_depth, psnr
+
+    want = float(np.mean(psnr(bicubic(com, scale=4), normalise_depth(gt))))
+    assert summary["bicubic_psnr_db"] == pytest.approx(want, abs=0.01)
     # A second run refuses to overwrite, then overwrites with --force.
     assert cli.main(["simulate", "--kind", "walkers", "--frames", "3", "--out", str(out)]) == 2
     assert "--force" in capsys.readouterr().err

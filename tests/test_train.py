@@ -172,8 +172,16 @@ def test_kill_and_resume_equals_uninterrupted(tmp_path):
     last_b = read_metadata(tmp_path / "b" / "last.npz")["run"]
     assert {k: v for k, v in last_a.items() if k not in ("wall_time_s", "history")} == \
         {k: v for k, v in last_b.items() if k not in ("wall_time_s", "history")}
-    # a different config cannot resume this run
-    with pytest.raises(ValueError, match="cannot resume"):
+    # a run given a larger epoch budget later continues exactly like one that had it from the start
+    fit(TINY, dataclasses.replace(cfg, epochs=2), out=tmp_path / "c", make_batch=make_batch, validation=val,
+        progress=False)
+    extended, ext_hist = fit(TINY, cfg, out=tmp_path / "c", make_batch=make_batch, validation=val, progress=False,
+                             resume=True)
+    for a, b in zip(jax.tree_util.tree_leaves(ref), jax.tree_util.tree_leaves(extended)):
+        np.testing.assert_array_equal(a, b)
+    assert strip(ext_hist) == strip(ref_hist)
+    # any other change of settings cannot resume this run, and the error names it
+    with pytest.raises(ValueError, match=r"cannot resume .*train\.lr"):
         fit(TINY, dataclasses.replace(cfg, lr=1.0), out=tmp_path / "b", make_batch=make_batch, validation=val,
             progress=False, resume=True)
 
