@@ -19,7 +19,7 @@ import jax
 import numpy as np
 
 from ._files import atomic_path
-from .config import ModelConfig, TrainConfig
+from .config import ModelConfig
 from .model import Model, init_model
 
 __all__ = [
@@ -194,9 +194,3 @@ def load_model(path) -> Model:
     tree, _ = load_tree(path, {"params": params_t, "state": state_t}, strict=strict)
     tree = jax.tree_util.tree_map(jax.numpy.asarray, tree)
     return Model(tree["params"], tree["state"], cfg)
-
-
-def train_config_from_metadata(meta: dict) -> TrainConfig | None:
-    """The `TrainConfig` recorded in a checkpoint's metadata, or None."""
-    d = meta.get("train_config")
-    return None if d is None else config_from_dict(TrainConfig, d)

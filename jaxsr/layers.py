@@ -1,8 +1,9 @@
 """Layers of the dynamic-upsampling-filter network, as pure functions of arrays.
 
 Layout: activations are (B, T, H, W, C) (channels last); convolution weights are (kt, kh, kw, cin, cout).
-Each layer is an `init_*(key, ...) -> params` / apply pair; batch norm also has explicit running
-statistics (`state`) and a `train` flag. Nothing here is jitted: jit the function that calls them.
+Convolution kernels are drawn by `jaxsr.model.init_model` (Glorot uniform, bound `glorot_limit`, in one flat
+draw); batch norm has `init_batch_norm` and explicit running statistics (`state`) with a `train` flag.
+Nothing here is jitted: jit the function that calls them.
 """
 
 from __future__ import annotations
@@ -17,7 +18,6 @@ __all__ = [
     "conv3d_native",
     "conv3d_taps",
     "default_conv3d_impl",
-    "init_conv",
     "glorot_limit",
     "init_batch_norm",
     "batch_norm",
@@ -25,17 +25,6 @@ __all__ = [
     "dynamic_upsample",
     "depth_to_space",
 ]
-
-
-def init_conv(key, kernel: tuple[int, int, int], cin: int, cout: int, *, dtype=jnp.float32) -> dict:
-    """Glorot-uniform kernel (Keras's default) and zero bias for a conv with `kernel` = (kt, kh, kw).
-
-    Returns {"w": (kt, kh, kw, cin, cout), "b": (cout,)}.
-    """
-    shape = (*kernel, cin, cout)
-    # a flat draw, then reshape: compiles far faster on XLA:CPU than a 5-D draw, same distribution
-    u = jax.random.uniform(key, (math.prod(shape),), dtype, -1.0, 1.0).reshape(shape)
-    return {"w": glorot_limit(kernel, cin, cout) * u, "b": jnp.zeros((cout,), dtype)}
 
 
 def glorot_limit(kernel: tuple[int, int, int], cin: int, cout: int) -> float:

@@ -629,11 +629,6 @@ def _walkers(key, *, depth=9.0, speed_kmh=4.3, n_people=(3, 5)):
     return parts, _ground(next(k), "grass")
 
 
-def _gate_parts(parts, active):
-    return _Parts([_gate(p, active) for p in parts.boxes], [_gate(p, active) for p in parts.cylinders],
-                  [_gate(p, active) for p in parts.ellipsoids])
-
-
 _KIND_FNS = {"street": _street, "road": _road, "courtyard": _courtyard, "walkers": _walkers}
 
 
