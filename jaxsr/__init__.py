@@ -19,7 +19,10 @@ from .model import Model as Model
 from .model import apply_model as apply_model
 from .model import count_params as count_params
 from .model import init_model as init_model
-from .model import super_resolve as super_resolve
+from .inference import enable_compilation_cache as enable_compilation_cache
+from .inference import iter_super_resolve as iter_super_resolve
+from .inference import super_resolve as super_resolve
+from .inference import super_resolve_histograms as super_resolve_histograms
 from .io import read_airsim as read_airsim
 from .io import read_depth as read_depth
 from .io import read_histograms as read_histograms

@@ -113,7 +113,21 @@ def add_train(subparsers):
     add_train_parser(subparsers)
 
 
-COMMANDS = [add_simulate, add_train]
+def add_upscale(subparsers):
+    """`jaxsr upscale`: see `jaxsr.upscale.add_upscale`."""
+    from .upscale import add_upscale as add
+
+    add(subparsers)
+
+
+def add_info(subparsers):
+    """`jaxsr info`: see `jaxsr.upscale.add_info`."""
+    from .upscale import add_info as add
+
+    add(subparsers)
+
+
+COMMANDS = [add_simulate, add_train, add_upscale, add_info]
 
 
 def build_parser():

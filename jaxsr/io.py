@@ -455,25 +455,27 @@ def _label(rgb, text):
     return np.asarray(canvas.buffer_rgba())[..., :3].astype(np.float32) / 255.0
 
 
-def write_comparison(path, lr, sr, gt, *, d_max=35.0, cmap="turbo", labels=("LR", "SR", "GT"), overwrite=False):
-    """Write an LR | SR | GT strip as PNG. lr (h, w) is nearest-upsampled to the HR size of sr and gt (H, W).
-    Frames in metres or normalised [0, 1] (1 = no return); no return is black.
+def write_comparison(path, lr, sr, gt=None, *, d_max=35.0, cmap="turbo", labels=("LR", "SR", "GT"), overwrite=False):
+    """Write an LR | SR | GT strip (LR | SR without `gt`) as PNG. lr (h, w) is nearest-upsampled to the HR size
+    of sr and gt (H, W). Frames in metres or normalised [0, 1] (1 = no return); no return is black.
 
-    Args: path (.png), lr (h, w), sr (H, W), gt (H, W). Returns None (a PNG of shape
-    (H, 3 W + 4, 3)).
+    Args: path (.png), lr (h, w), sr (H, W), gt (H, W) or None. Returns None (a PNG of shape
+    (H, n W + 2 (n - 1), 3) for n panels).
     """
-    lr, sr, gt = (_depth_from_normalised(a, d_max) for a in (lr, sr, gt))
-    if sr.shape != gt.shape or sr.ndim != 2:
-        raise ValueError(f"writing {path}: SR {sr.shape} and GT {gt.shape} must be equal (H, W) frames")
-    fy, fx = gt.shape[0] // lr.shape[0], gt.shape[1] // lr.shape[1]
-    if lr.shape[0] * fy != gt.shape[0] or lr.shape[1] * fx != gt.shape[1]:
-        raise ValueError(f"writing {path}: LR {lr.shape} is not an integer downscale of GT {gt.shape}")
+    frames = [_depth_from_normalised(a, d_max) for a in ((lr, sr) if gt is None else (lr, sr, gt))]
+    lr, hr = frames[0], frames[1:]
+    if hr[0].ndim != 2 or any(a.shape != hr[0].shape for a in hr):
+        raise ValueError(f"writing {path}: SR and GT must be equal (H, W) frames, got {[a.shape for a in hr]}")
+    shape = hr[0].shape
+    fy, fx = shape[0] // lr.shape[0], shape[1] // lr.shape[1]
+    if lr.ndim != 2 or lr.shape[0] * fy != shape[0] or lr.shape[1] * fx != shape[1]:
+        raise ValueError(f"writing {path}: LR {lr.shape} is not an integer downscale of {shape}")
     lr_up = np.repeat(np.repeat(lr, fy, 0), fx, 1)
-    panels = [_colourise(a, d_max, cmap) for a in (lr_up, sr, gt)]
+    panels = [_colourise(a, d_max, cmap) for a in [lr_up, *hr]]
     if labels:
         panels = [_label(p, t) for p, t in zip(panels, labels)]
-    gap = np.ones((gt.shape[0], 2, 3), np.float32)
-    strip = np.concatenate([panels[0], gap, panels[1], gap, panels[2]], axis=1)
+    gap = np.ones((shape[0], 2, 3), np.float32)
+    strip = np.concatenate([x for p in panels for x in (gap, p)][1:], axis=1)
     with _atomic(path, overwrite) as tmp:
         _write_oiio(tmp, (strip * 255 + 0.5).astype(np.uint8), "uint8")
 

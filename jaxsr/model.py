@@ -15,10 +15,9 @@ import jax
 import jax.numpy as jnp
 
 from .config import ModelConfig
-from .temporal import windows as temporal_windows
 from .layers import batch_norm, conv3d, depth_to_space, dynamic_upsample, glorot_limit, init_batch_norm
 
-__all__ = ["Model", "init_model", "apply_model", "count_params", "super_resolve"]
+__all__ = ["Model", "init_model", "apply_model", "count_params", "flops_per_frame"]
 
 
 def init_model(key, cfg: ModelConfig) -> tuple[dict, dict]:
@@ -88,6 +87,38 @@ def count_params(params) -> int:
     return sum(math.prod(x.shape) for x in jax.tree_util.tree_leaves(params))
 
 
+def flops_per_frame(cfg: ModelConfig, lr_shape=(32, 64)) -> int:
+    """Floating-point operations (2 per multiply-add) of the convolutions and the dynamic filter for one output
+    frame of `lr_shape` (h, w) LR pixels; batch norm, ReLU and softmax (under 1 %) are not counted.
+
+    Counts what `apply_model` computes: "same" blocks on all 2 tr + 1 frames, temporally valid blocks on the
+    frames they keep, taps that fall in the temporal zero padding skipped (as `conv3d_taps` does).
+    """
+    shapes = _conv_shapes(cfg)
+    macs, t = 0, cfg.frames
+
+    def conv(key, t_out, taps_per_frame):
+        (_, kh, kw), cin, cout = shapes[key]
+        return taps_per_frame * t_out * kh * kw * cin * cout
+
+    def same_taps(t):  # taps inside a T-frame window, zero padding 1 at each end
+        return sum(min(i + 1, t - 1) - max(i - 1, 0) + 1 for i in range(t)) / t
+
+    macs += conv(("stem", None, None), t, 1)
+    for i in range(cfg.same_blocks + cfg.tr):
+        macs += conv(("blocks", i, "conv1"), t, 1)
+        if i < cfg.same_blocks:
+            macs += conv(("blocks", i, "conv2"), t, same_taps(t))
+        else:
+            t -= 2
+            macs += conv(("blocks", i, "conv2"), t, 3)
+    macs += conv(("head", None, "conv"), 1, 1)
+    for group in ("residual", "filter"):
+        macs += conv((group, None, "conv1"), 1, 1) + conv((group, None, "conv2"), 1, 1)
+    macs += cfg.filter_size**2 * cfg.scale**2  # the dynamic filter, per LR pixel
+    return int(round(2 * macs * lr_shape[0] * lr_shape[1]))
+
+
 def _check_windows(windows, cfg: ModelConfig):
     if windows.ndim != 4 or windows.shape[1] != cfg.frames:
         raise ValueError(
@@ -151,25 +182,3 @@ class Model:
 
 
 jax.tree_util.register_dataclass(Model, data_fields=["params", "state"], meta_fields=["config"])
-
-
-@jax.jit
-def _infer(model: Model, windows):
-    return model(windows)
-
-
-def super_resolve(model: Model, lr_seq, *, batch_size: int = 8):
-    """Super-resolve a whole LR depth sequence: (T, H, W) -> (T, H*r, W*r), normalised depth.
-
-    Each frame is the centre of an edge-replicated window of 2*tr+1 frames (`jaxsr.temporal.windows`); the frames
-    are processed `batch_size` at a time by one jitted function (the last batch is padded, then cropped).
-    """
-    lr_seq = jnp.asarray(lr_seq, jnp.float32)
-    if lr_seq.ndim != 3:
-        raise ValueError(f"super_resolve: expected an LR sequence (T, H, W), got shape {lr_seq.shape}")
-    windows = temporal_windows(lr_seq, model.config.tr)
-    t = windows.shape[0]
-    pad = (-t) % batch_size
-    windows = jnp.concatenate([windows, jnp.repeat(windows[-1:], pad, axis=0)]) if pad else windows
-    out = [_infer(model, windows[i : i + batch_size]) for i in range(0, windows.shape[0], batch_size)]
-    return jnp.concatenate(out)[:t]

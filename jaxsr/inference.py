@@ -1,0 +1,198 @@
+"""Inference on recordings: streaming super-resolution of depth or histogram sequences in bounded memory.
+
+Frames go through the network `batch_size` at a time. Each batch is sent to the device as the chunk of
+`batch_size + 2 tr` LR frames it needs, and the windows are cut inside the compiled function, so a frame is
+transferred once rather than 2 tr + 1 times. Every batch has the same shape (the last one is padded by
+repeating the final frame), so a model compiles once per frame size. At most `batch_size + 2 tr` LR frames
+and two batches of HR frames are held, however long the sequence is.
+"""
+
+from __future__ import annotations
+
+import os
+from collections import deque
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .config import SensorConfig
+from .model import Model
+from .peaks import centre_of_mass
+
+# Frames per batch when `batch_size=None`: on 2 XLA:CPU cores one frame at a time is as fast as any batch
+# (benchmarks/bench_inference.py), and it keeps the latency of a stream at one frame.
+DEFAULT_BATCH_SIZE = 1
+
+
+@jax.jit
+def _infer_chunk(model: Model, chunk):
+    """chunk (B + 2 tr, h, w) -> (B, h r, w r): the centre frame of each of the B windows of 2 tr + 1 frames."""
+    n = model.config.frames
+    b = chunk.shape[0] - n + 1
+    windows = chunk[jnp.arange(b)[:, None] + jnp.arange(n)[None, :]]
+    return model(windows)
+
+
+def _check_frame(frame, shape, index):
+    frame = np.asarray(frame, np.float32)
+    if frame.ndim != 2 or (shape is not None and frame.shape != shape):
+        want = "(h, w)" if shape is None else str(shape)
+        raise ValueError(f"super_resolve: frame {index} has shape {frame.shape}, expected {want} "
+                         "(LR normalised depth)")
+    if not np.all(np.isfinite(frame)):
+        raise ValueError(f"super_resolve: frame {index} holds NaN or inf; expected normalised depth in [0, 1] "
+                         "(1 = no return)")
+    return frame
+
+
+def iter_super_resolve(model: Model, frames: Iterable, *, batch_size: int | None = None) -> Iterator[np.ndarray]:
+    """Super-resolve a stream of LR frames, yielding HR frames in order, in bounded memory.
+
+    frames: an iterable of (h, w) LR normalised depth frames (0..1, 1 = no return), e.g. a generator reading
+    files one by one. Frame t is the centre of the window t - tr .. t + tr, edge-replicated at both ends of
+    the stream (as `jaxsr.temporal.windows`), so frame t is yielded once frame t + tr has arrived (or the
+    stream has ended). batch_size: frames per compiled call (None: `DEFAULT_BATCH_SIZE`).
+    Yields (h r, w r) float32 NumPy arrays of HR normalised depth (unclipped network output). Raises
+    ValueError for a frame of another shape than the first, or holding NaN or inf.
+    """
+    batch_size = DEFAULT_BATCH_SIZE if batch_size is None else int(batch_size)
+    if batch_size < 1:
+        raise ValueError(f"super_resolve: batch_size must be >= 1, got {batch_size}")
+    tr = model.config.tr
+    held = deque()  # LR frames first_held .. ; frame `first_held` is the oldest any pending window needs
+    first_held, next_out, n_seen, shape, pending = 0, 0, 0, None, None
+
+    def frame(i, last):  # edge-replicated access
+        return held[min(max(i, 0), last) - first_held]
+
+    def run(count, last):
+        """Dispatch windows next_out .. next_out + count - 1 (padded to batch_size), asynchronously."""
+        idx = [min(next_out + j, last) for j in range(batch_size)]
+        chunk = np.stack([frame(i, last) for i in range(idx[0] - tr, idx[-1] + tr + 1)])
+        if idx[-1] - idx[0] + 1 < batch_size:  # padding at the end: repeat the last window's frames
+            chunk = np.concatenate([chunk, np.repeat(chunk[-1:], batch_size - (idx[-1] - idx[0] + 1), 0)])
+        return _infer_chunk(model, jnp.asarray(chunk)), count
+
+    def drain(result):
+        out, count = result
+        yield from np.asarray(out)[:count]
+
+    for f in frames:
+        f = _check_frame(f, shape, n_seen)
+        shape = f.shape
+        held.append(f)
+        n_seen += 1
+        # windows next_out .. next_out + batch_size - 1 are complete once frame next_out + batch_size - 1 + tr is in
+        if n_seen - 1 >= next_out + batch_size - 1 + tr:
+            result = run(batch_size, n_seen - 1 + 10**9)  # no end yet: nothing to replicate on the right
+            if pending is not None:
+                yield from drain(pending)
+            pending = result
+            next_out += batch_size
+            while first_held < next_out - tr:
+                held.popleft()
+                first_held += 1
+    last = n_seen - 1
+    while next_out <= last:
+        count = min(batch_size, last - next_out + 1)
+        result = run(count, last)
+        if pending is not None:
+            yield from drain(pending)
+        pending = result
+        next_out += count
+    if pending is not None:
+        yield from drain(pending)
+
+
+def super_resolve(model: Model, lr_seq, *, batch_size: int | None = None) -> np.ndarray:
+    """Super-resolve a whole LR depth sequence: (T, h, w) -> (T, h r, w r) normalised depth (NumPy, float32).
+
+    Each frame is the centre of an edge-replicated window of 2 tr + 1 frames (`jaxsr.temporal.windows`); the
+    result equals `apply_model` on those windows. Memory on the device is bounded by the batch (see
+    `iter_super_resolve`); the HR result is assembled on the host. For a differentiable, traceable version,
+    call `apply_model(params, state, jaxsr.windows(lr_seq, tr), cfg)`.
+    """
+    lr_seq = np.asarray(lr_seq, np.float32)
+    if lr_seq.ndim != 3 or lr_seq.shape[0] < 1:
+        raise ValueError(f"super_resolve: expected an LR sequence (T, h, w) with T >= 1, got shape {lr_seq.shape}")
+    r = model.config.scale
+    out = np.empty((lr_seq.shape[0], lr_seq.shape[1] * r, lr_seq.shape[2] * r), np.float32)
+    for t, hr in enumerate(iter_super_resolve(model, lr_seq, batch_size=batch_size)):
+        out[t] = hr
+    return out
+
+
+@jax.jit
+def _com_chunk(counts, sensor):
+    return centre_of_mass(counts, sensor)
+
+
+def iter_centre_of_mass(counts: Iterable, sensor: SensorConfig = SensorConfig(), *, chunk: int = 16) -> Iterator[np.ndarray]:
+    """Centre-of-mass depth of a stream of histogram frames, `chunk` frames per compiled call.
+
+    counts: an iterable of (h, w, K) photon counts, or a (T, h, w, K) array. Yields (h, w) float32 LR
+    normalised depth frames. Raises ValueError for a frame whose bin count is not `sensor.bins`, or with
+    negative or non-finite counts."""
+    buf = []
+
+    def flush():
+        block = np.stack(buf)
+        n = block.shape[0]
+        if n < chunk:  # keep one compiled shape
+            block = np.concatenate([block, np.zeros((chunk - n, *block.shape[1:]), block.dtype)])
+        yield from np.asarray(_com_chunk(jnp.asarray(block), sensor))[:n]
+        buf.clear()
+
+    for i, c in enumerate(counts):
+        c = np.asarray(c, np.float32)
+        if c.ndim != 3 or c.shape[-1] != sensor.bins:
+            raise ValueError(f"super_resolve_histograms: frame {i} has shape {c.shape}, expected (h, w, "
+                             f"{sensor.bins}) photon counts")
+        if not np.all(np.isfinite(c)) or np.any(c < 0):
+            raise ValueError(f"super_resolve_histograms: frame {i} has negative or non-finite counts")
+        buf.append(c)
+        if len(buf) == chunk:
+            yield from flush()
+    if buf:
+        yield from flush()
+
+
+def super_resolve_histograms(model: Model, counts, sensor: SensorConfig = SensorConfig(), *,
+                             batch_size: int | None = None) -> np.ndarray:
+    """Super-resolve photon histograms: (T, h, w, K) counts -> (T, h r, w r) normalised depth (NumPy).
+
+    Depth is extracted by centre of mass (`jaxsr.centre_of_mass` with `sensor`), then `super_resolve`d,
+    streaming (see `iter_super_resolve`)."""
+    counts = np.asarray(counts)
+    if counts.ndim != 4:
+        raise ValueError(f"super_resolve_histograms: expected counts (T, h, w, {sensor.bins}), got shape "
+                         f"{counts.shape}")
+    r = model.config.scale
+    out = np.empty((counts.shape[0], counts.shape[1] * r, counts.shape[2] * r), np.float32)
+    stream = iter_super_resolve(model, iter_centre_of_mass(counts, sensor), batch_size=batch_size)
+    for t, hr in enumerate(stream):
+        out[t] = hr
+    return out
+
+
+def enable_compilation_cache(path=None) -> Path | None:
+    """Turn on JAX's persistent compilation cache, so that a second run skips XLA compilation.
+
+    path: the cache folder (default: $JAXSR_CACHE_DIR, else $XDG_CACHE_HOME/jaxsr/xla, else ~/.cache/jaxsr/xla).
+    JAXSR_CACHE_DIR=off disables it. Returns the folder used, or None when disabled."""
+    if path is None:
+        path = os.environ.get("JAXSR_CACHE_DIR")
+        if path is None:
+            base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+            path = Path(base) / "jaxsr" / "xla"
+    if str(path).lower() == "off":
+        return None
+    path = Path(path).expanduser()
+    path.mkdir(parents=True, exist_ok=True)
+    jax.config.update("jax_compilation_cache_dir", str(path))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+    return path

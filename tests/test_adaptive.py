@@ -1,0 +1,71 @@
+"""Scene-adaptive TR: the motion estimator on sequences with known motion, and the choice from a study table."""
+
+import numpy as np
+import pytest
+
+from jaxsr.adaptive import SEARCH_RADIUS, choose_tr, estimate_motion, load_study
+
+
+def _blocks(v, *, frames=32, angle=0.0, noise=0.05, seed=0):
+    """Three near blocks (0.25) on a textured far plane (0.6) translating at v LR px/frame, rendered at 4x and
+    block-averaged (sub-pixel motion is real), plus Gaussian noise."""
+    rng = np.random.default_rng(seed)
+    h, w = 32 * 4, 64 * 4
+    yy, xx = np.mgrid[:h, :w]
+    out = []
+    for t in range(frames):
+        d = 0.6 + 0.02 * np.sin(xx / 7.0)
+        for k in range(3):
+            cx = (40 + 80 * k + 4 * v * t * np.cos(angle)) % w
+            cy = 64 + 4 * v * t * np.sin(angle)
+            d = np.where((np.abs(xx - cx) < 16) & (np.abs(yy - cy) < 40), 0.25, d)
+        out.append(d.reshape(32, 4, 64, 4).mean((1, 3)) + noise * rng.standard_normal((32, 64)))
+    return np.clip(np.asarray(out, np.float32), 0, 1)
+
+
+@pytest.mark.parametrize("v", [0.25, 0.5, 1.0, 2.0])
+def test_estimate_motion_known_translation(v):
+    est = estimate_motion(_blocks(v))
+    assert est.motion == pytest.approx(v, rel=0.15) and not est.saturated
+
+
+def test_estimate_motion_diagonal():
+    assert estimate_motion(_blocks(1.0, angle=0.5)).motion == pytest.approx(1.0, rel=0.2)
+
+
+def test_static_scene_has_no_motion_and_fast_motion_saturates():
+    assert estimate_motion(_blocks(0.0)).motion == 0.0
+    fast = estimate_motion(_blocks(8.0))
+    assert fast.saturated and fast.motion >= SEARCH_RADIUS / 2
+
+
+def test_estimate_motion_bad_input():
+    with pytest.raises(ValueError, match="T >= 2"):
+        estimate_motion(np.zeros((1, 32, 64)))
+    with pytest.raises(ValueError, match="NaN"):
+        estimate_motion(np.full((3, 32, 64), np.nan))
+
+
+TABLE = {  # a made-up study: TR4 best when slow, TR0 best when fast, TR4 too slow for 10 frames/s
+    "motion": [0.1, 1.0, 10.0],
+    "psnr": {"0": [30.0, 29.0, 27.0], "2": [31.0, 29.5, 26.5], "4": [32.0, 29.2, 25.0]},
+    "fps": {"0": 40.0, "2": 12.0, "4": 5.0},
+}
+
+
+def test_choose_tr_follows_the_table():
+    assert choose_tr(_blocks(0.25), table=TABLE).tr == 4
+    assert choose_tr(_blocks(1.0), table=TABLE).tr == 2
+    assert choose_tr(_blocks(8.0), table=TABLE).tr == 0
+    budget = choose_tr(_blocks(0.25), table=TABLE, min_fps=10.0)
+    assert budget.tr == 2 and "reach 10" in budget.reason
+    nothing = choose_tr(_blocks(0.25), table=TABLE, min_fps=100.0)
+    assert nothing.tr == 0 and "fastest" in nothing.reason
+
+
+def test_load_study_errors(tmp_path):
+    with pytest.raises(FileNotFoundError, match="fps_study"):
+        load_study(tmp_path / "none.json")
+    (tmp_path / "bad.json").write_text('{"motion": []}')
+    with pytest.raises(ValueError, match="psnr"):
+        load_study(tmp_path / "bad.json")

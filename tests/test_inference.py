@@ -1,0 +1,93 @@
+"""Streaming inference: `super_resolve` equals a window-by-window loop of `apply_model`, ends included."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxsr.config import ModelConfig, SensorConfig
+from jaxsr.inference import (enable_compilation_cache, iter_centre_of_mass, iter_super_resolve, super_resolve,
+                             super_resolve_histograms)
+from jaxsr.model import Model, apply_model, init_model
+from jaxsr.peaks import centre_of_mass
+
+TINY = dict(base=8, growth=4, head=16, filter_hidden=16)
+apply_jit = jax.jit(apply_model, static_argnums=3)
+
+
+def _model(tr, seed=0):
+    cfg = ModelConfig(tr=tr, **TINY)
+    return Model(*init_model(jax.random.key(seed), cfg), cfg)
+
+
+def _loop(model, seq):
+    """The reference: one window at a time, indices clipped to the sequence by hand."""
+    t_max, tr = seq.shape[0] - 1, model.config.tr
+    out = []
+    for t in range(seq.shape[0]):
+        idx = [min(max(s, 0), t_max) for s in range(t - tr, t + tr + 1)]
+        out.append(apply_jit(model.params, model.state, jnp.asarray(seq[idx])[None], model.config)[0])
+    return np.stack(out)
+
+
+@pytest.mark.parametrize("tr,frames,batch", [(0, 5, 1), (1, 7, 3), (2, 3, 2), (2, 9, 4), (1, 1, 8)])
+def test_super_resolve_equals_window_loop(tr, frames, batch):
+    model = _model(tr)
+    seq = np.asarray(jax.random.uniform(jax.random.key(tr + frames), (frames, 4, 6)))
+    out = super_resolve(model, seq, batch_size=batch)
+    assert out.shape == (frames, 16, 24) and out.dtype == np.float32
+    np.testing.assert_allclose(out, _loop(model, seq), rtol=1e-5, atol=1e-6)
+
+
+def test_streaming_holds_a_bounded_number_of_frames():
+    model = _model(2)
+    seq = np.asarray(jax.random.uniform(jax.random.key(3), (12, 4, 6)))
+    consumed = []
+
+    def frames():
+        for t, f in enumerate(seq):
+            consumed.append(t)
+            yield f
+
+    stream = iter_super_resolve(model, frames(), batch_size=2)
+    first = next(stream)
+    # frame 0 needs frames 0..2; with batch 2 the first batch waits for frame 3, and one batch is pending
+    assert len(consumed) <= 2 + 2 + 2 * 2
+    rest = list(stream)
+    np.testing.assert_allclose(np.stack([first] + rest), _loop(model, seq), rtol=1e-5, atol=1e-6)
+
+
+def test_super_resolve_histograms_is_com_then_super_resolve():
+    sensor = SensorConfig()
+    model = _model(1)
+    counts = jax.random.poisson(jax.random.key(4), 2.0, (5, 4, 6, sensor.bins)).astype(jnp.float32)
+    out = super_resolve_histograms(model, counts, sensor, batch_size=2)
+    np.testing.assert_allclose(out, _loop(model, np.asarray(centre_of_mass(counts, sensor))), rtol=1e-5, atol=1e-6)
+
+
+def test_bad_input_is_refused_clearly():
+    model = _model(0)
+    with pytest.raises(ValueError, match=r"\(T, h, w\)"):
+        super_resolve(model, np.zeros((4, 6)))
+    with pytest.raises(ValueError, match="NaN or inf"):
+        super_resolve(model, np.full((2, 4, 6), np.nan))
+    with pytest.raises(ValueError, match="frame 1 has shape"):
+        list(iter_super_resolve(model, [np.zeros((4, 6)), np.zeros((4, 7))]))
+    with pytest.raises(ValueError, match="batch_size"):
+        super_resolve(model, np.zeros((2, 4, 6)), batch_size=0)
+    with pytest.raises(ValueError, match="16\\) photon counts"):
+        super_resolve_histograms(model, np.zeros((2, 4, 6, 8)))
+    with pytest.raises(ValueError, match="negative"):
+        list(iter_centre_of_mass(-np.ones((1, 4, 6, 16))))
+
+
+def test_compilation_cache_folder(tmp_path, monkeypatch):
+    before = jax.config.jax_compilation_cache_dir
+    try:
+        monkeypatch.setenv("JAXSR_CACHE_DIR", "off")
+        assert enable_compilation_cache() is None
+        monkeypatch.setenv("JAXSR_CACHE_DIR", str(tmp_path / "xla"))
+        assert enable_compilation_cache() == tmp_path / "xla"
+        assert jax.config.jax_compilation_cache_dir == str(tmp_path / "xla")
+    finally:
+        jax.config.update("jax_compilation_cache_dir", before)
