@@ -1,0 +1,161 @@
+"""Shared pieces of the paper's experiments: test data, scoring, frames/s, and models (bundled or trained)."""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import jaxsr
+from jaxsr import scenes
+from jaxsr.config import DEFAULT_MEAN_SIGNAL, PRESETS, ModelConfig, SensorConfig, TrainConfig
+from jaxsr.inference import super_resolve, super_resolve_histograms
+from jaxsr.train import sequence_batches
+
+TEST_SCENES = ("scene1_street", "scene2_road", "scene3_courtyard")
+SCENE_LABELS = {"scene1_street": "Scene 1", "scene2_road": "Scene 2", "scene3_courtyard": "Scene 3"}
+# The paper's Table 1 (x4, RTX 2070): PSNR, SSIM per scene and frames/s per TR.
+PAPER_TABLE1 = {
+    0: ((20.68, 0.877), (22.18, 0.895), (30.66, 0.889), 46.9),
+    1: ((21.20, 0.890), (22.72, 0.910), (31.17, 0.901), 43.4),
+    2: ((21.90, 0.903), (22.82, 0.912), (31.33, 0.905), 38.4),
+    3: ((22.04, 0.907), (22.89, 0.915), (31.35, 0.906), 33.5),
+    4: ((22.05, 0.909), (23.00, 0.916), (31.31, 0.906), 30.8),
+}
+PAPER_BICUBIC = ((15.82, 0.538), (17.60, 0.607), (26.80, 0.841), 185.0)
+
+
+@dataclasses.dataclass
+class Clip:
+    """One simulated recording: LR centre-of-mass depth (T, h, w), photon counts (T, h, w, K), the normalised
+    HR ground truth (T, H, W), its frame rate and SNR."""
+
+    name: str
+    lr: np.ndarray
+    counts: np.ndarray
+    gt: np.ndarray
+    fps: float
+    snr: float
+
+
+@jax.jit
+def _simulate(key, depth, intensity, sensor, snr, mean_signal):
+    counts = jaxsr.simulate_histograms(key, depth, intensity, sensor, snr=snr, mean_signal=mean_signal)
+    return counts, jaxsr.centre_of_mass(counts, sensor), jaxsr.normalise_depth(depth, sensor)
+
+
+def simulate_clip(key, seq, *, sensor: SensorConfig = SensorConfig(), snr=None,
+                  mean_signal: float = DEFAULT_MEAN_SIGNAL, name=None) -> Clip:
+    """Histograms, centre of mass and normalised ground truth of a `TestSequence`-like record (depth,
+    intensity, fps, snr), at its own SNR unless `snr` is given."""
+    snr = seq.snr if snr is None else snr
+    counts, lr, gt = _simulate(key, jnp.asarray(seq.depth), jnp.asarray(seq.intensity), sensor,
+                               jnp.float32(snr), jnp.float32(mean_signal))
+    return Clip(name or seq.name, np.asarray(lr), np.asarray(counts), np.asarray(gt), float(seq.fps), float(snr))
+
+
+def test_clips(n_frames: int, *, seed: int = 0, sensor: SensorConfig = SensorConfig(), names=TEST_SCENES):
+    """The test scenes, first `n_frames` frames, simulated at their SNR (noise from `seed`)."""
+    seqs = scenes.test_sequences(n_frames=n_frames, names=names, sensor=sensor)
+    return {n: simulate_clip(jax.random.key(seed * 1000 + i), seqs[n], sensor=sensor) for i, n in enumerate(names)}
+
+
+@jax.jit
+def _frame_scores(sr, gt):
+    return jaxsr.psnr(sr, gt), jaxsr.ssim(sr, gt)
+
+
+def score(sr, gt, *, chunk: int = 50) -> tuple[float, float]:
+    """Mean PSNR (dB) and SSIM over frames of sr against gt (T, H, W), both normalised; sr is clipped to
+    [0, 1] as a user would display it."""
+    p, s = [], []
+    for i in range(0, len(gt), chunk):
+        a, b = _frame_scores(jnp.clip(jnp.asarray(sr[i:i + chunk]), 0, 1), jnp.asarray(gt[i:i + chunk]))
+        p.append(np.asarray(a))
+        s.append(np.asarray(b))
+    return float(np.mean(np.concatenate(p))), float(np.mean(np.concatenate(s)))
+
+
+def frames_per_second(fn, n_frames: int, *, min_time: float = 3.0) -> float:
+    """Frames/s of `fn()` (which processes n_frames frames and returns NumPy), after one warm-up call."""
+    fn()
+    done, start = 0, time.perf_counter()
+    while True:
+        fn()
+        done += n_frames
+        elapsed = time.perf_counter() - start
+        if elapsed >= min_time:
+            return done / elapsed
+
+
+def model_fps(model, clip: Clip, *, batch_size=None, frames: int = 32, histograms: bool = True,
+              min_time: float = 3.0) -> float:
+    """End-to-end frames/s of a model on this machine: histograms -> centre of mass -> network (or from the
+    centre-of-mass frames with histograms=False)."""
+    if histograms:
+        counts = clip.counts[:frames]
+        fn = lambda: super_resolve_histograms(model, counts, batch_size=batch_size)  # noqa: E731
+    else:
+        lr = clip.lr[:frames]
+        fn = lambda: super_resolve(model, lr, batch_size=batch_size)  # noqa: E731
+    return frames_per_second(fn, frames, min_time=min_time)
+
+
+@jax.jit
+def _com_bicubic(counts, sensor):
+    return jaxsr.bicubic(jaxsr.centre_of_mass(counts, sensor), scale=sensor.scale)
+
+
+def bicubic_fps(clip: Clip, *, sensor: SensorConfig = SensorConfig(), frames: int = 32, min_time: float = 3.0):
+    """End-to-end frames/s of the bicubic baseline: histograms -> centre of mass -> bicubic, `frames` at once."""
+    counts = jnp.asarray(clip.counts[:frames])
+    return frames_per_second(lambda: np.asarray(_com_bicubic(counts, sensor)), frames, min_time=min_time)
+
+
+def quick_config() -> TrainConfig:
+    """The `--quick` smoke run: 2 steps of 2 examples, validation on 2 frames."""
+    return dataclasses.replace(PRESETS["cpu"], batch_size=2, examples_per_epoch=4, epochs=1, val_frames=2)
+
+
+def get_model(tr: int, *, pretrained: bool, preset: str, runs: Path, scale: int = 4, quick: bool = False,
+              progress: bool = True):
+    """The bundled weights (`pretrained`), or a model trained with `preset` into runs/x{scale}/tr{tr}
+    (resumed when interrupted; a finished run is loaded, not retrained). Returns (Model, card dict)."""
+    if pretrained:
+        if scale != 4:
+            raise SystemExit("bundled weights are x4 only; train x8 models without --pretrained")
+        model = jaxsr.load_model(f"tr{tr}")
+        return model, jaxsr.read_metadata(Path(jaxsr.__file__).parent / "weights" / f"tr{tr}.npz").get("card", {})
+    sensor = SensorConfig(scale=scale)
+    cfg = ModelConfig(tr=tr, scale=scale)
+    out = runs / ("quick" if quick else preset) / f"x{scale}" / f"tr{tr}"
+    make_batch = None
+    train_cfg = PRESETS[preset]
+    if quick:  # no scene rendering inside the step (its compilation alone takes a minute)
+        train_cfg = quick_config()
+        seq = scenes.test_sequence("val1_street", n_frames=2 * tr + 3, sensor=sensor)
+        make_batch = sequence_batches(seq.depth, seq.intensity, tr, train_cfg, sensor=sensor)
+    model, history = jaxsr.fit(cfg, train_cfg, out=out, make_batch=make_batch, sensor=sensor, resume=True,
+                               progress=progress)
+    card = jaxsr.read_metadata(out / "last.npz").get("card", {})
+    return model, card
+
+
+def load_tr(tr: int, weights=None):
+    """TR`tr`'s model: the bundled weights (weights=None), or from a folder holding tr<N>.npz or
+    tr<N>/best.npz (e.g. a sweep_tr.py run folder such as runs/sweep_tr/cpu/x4)."""
+    if weights is None:
+        return jaxsr.load_model(f"tr{tr}")
+    folder = Path(weights)
+    for path in (folder / f"tr{tr}.npz", folder / f"tr{tr}" / "best.npz"):
+        if path.is_file():
+            return jaxsr.load_model(path)
+    raise SystemExit(f"no TR{tr} weights in {folder} (expected tr{tr}.npz or tr{tr}/best.npz)")
+
+
+def weights_source(weights) -> str:
+    return "the bundled weights (jaxsr/weights)" if weights is None else f"the weights in {weights}"
