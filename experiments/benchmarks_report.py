@@ -18,7 +18,8 @@ from pathlib import Path
 from _report import header, markdown_table, write_atomic
 
 ROOT = Path(__file__).resolve().parent.parent
-SUITES = ["benchmarks/bench_sensor.py", "benchmarks/bench_scenes.py", "benchmarks/bench_train.py"]
+SUITES = ["benchmarks/bench_sensor.py", "benchmarks/bench_scenes.py", "benchmarks/bench_train.py",
+          "benchmarks/bench_inference.py"]
 
 
 def main():
@@ -34,15 +35,20 @@ def main():
     for b in results:
         info = b.get("extra_info", {})
         rate = info.get("items_per_s", info.get("examples_per_s"))
+        gflops = info.get("gflops_per_s")
         rows.append([f"`{b['fullname'].split('/')[-1]}`", f"{1e3 * b['stats']['mean']:.1f}",
-                     f"{1e3 * b['stats']['stddev']:.1f}", f"{rate:.1f}" if rate else ""])
+                     f"{1e3 * b['stats']['stddev']:.1f}", f"{rate:.1f}" if rate else "",
+                     f"{gflops:.0f}" if gflops else ""])
     text = header("Benchmarks (pytest-benchmark)", started)
     text += (
         "Steady state after compilation, float32, XLA:CPU. Throughput: LR frames/s for the sensor suite "
         "(histograms simulated from HR depth + intensity, then centre of mass, batch of 64 frames), HR frames/s "
-        "for rendering, examples/s for training steps (batch 4, cpu preset: 16 x 32 LR crops).\n\n"
+        "for rendering, examples/s for training steps (batch 4, cpu preset: 16 x 32 LR crops), HR frames/s for "
+        "inference (16 frames of 32 x 64 per call; `super_resolve_histograms` includes the centre of mass). "
+        "GFLOP/s: the network's convolutions and dynamic filter (`flops_per_frame`) per second; "
+        "`test_matmul_peak` is a 2048^2 float32 matrix product, the ceiling XLA:CPU reaches here.\n\n"
     )
-    text += markdown_table(["benchmark", "mean ms / call", "std ms", "items / s"], rows)
+    text += markdown_table(["benchmark", "mean ms / call", "std ms", "items / s", "GFLOP/s"], rows)
     write_atomic(str(ROOT / "experiments/results/benchmarks.md"), text)
 
 

@@ -1,0 +1,60 @@
+"""Inference throughput: frames/s of `super_resolve` for TR0-TR4 at batch 1 and 8, end to end from photon
+histograms, and the GFLOP/s it achieves against what this machine's matrix multiply reaches.
+
+Run: pytest benchmarks/bench_inference.py --benchmark-enable      (about 3 min on 2 CPU cores)
+
+Weights are random (speed does not depend on them). 16 frames of 32 x 64 LR per call. `gflops_per_s` uses
+`jaxsr.model.flops_per_frame` (convolutions and the dynamic filter); `test_matmul_peak` measures the GFLOP/s of
+a large float32 matrix product, the practical ceiling for convolution-bound code on this XLA:CPU build.
+"""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxsr.config import ModelConfig, SensorConfig
+from jaxsr.inference import super_resolve, super_resolve_histograms
+from jaxsr.model import Model, flops_per_frame, init_model
+
+SENSOR = SensorConfig()
+FRAMES = 16
+
+
+def _model(tr):
+    cfg = ModelConfig(tr=tr)
+    return Model(*init_model(jax.random.key(0), cfg), cfg)
+
+
+def _lr():
+    return np.asarray(jax.random.uniform(jax.random.key(1), (FRAMES, *SENSOR.lr_shape)), np.float32)
+
+
+def _record(benchmark, cfg):
+    if benchmark.stats is not None:
+        fps = FRAMES / benchmark.stats.stats.mean
+        benchmark.extra_info["gflops_per_s"] = fps * flops_per_frame(cfg, SENSOR.lr_shape) / 1e9
+
+
+@pytest.mark.parametrize("batch", [1, 8])
+@pytest.mark.parametrize("tr", [0, 1, 2, 3, 4])
+def test_super_resolve(timed, benchmark, tr, batch):
+    model, lr = _model(tr), _lr()
+    timed(lambda: super_resolve(model, lr, batch_size=batch), rounds=3, items=FRAMES)
+    _record(benchmark, model.config)
+
+
+@pytest.mark.parametrize("tr", [0, 4])
+def test_super_resolve_histograms(timed, benchmark, tr):
+    """End to end as a user runs it: counts -> centre of mass -> network, batch 1."""
+    model = _model(tr)
+    counts = np.asarray(jax.random.poisson(jax.random.key(2), 2.0, (FRAMES, *SENSOR.lr_shape, SENSOR.bins)))
+    timed(lambda: super_resolve_histograms(model, counts, batch_size=1), rounds=3, items=FRAMES)
+    _record(benchmark, model.config)
+
+
+def test_matmul_peak(timed, benchmark):
+    a = jax.random.normal(jax.random.key(3), (2048, 2048), jnp.float32)
+    timed(jax.jit(lambda a: a @ a), a, rounds=5)
+    if benchmark.stats is not None:
+        benchmark.extra_info["gflops_per_s"] = 2 * 2048**3 / benchmark.stats.stats.mean / 1e9
