@@ -129,7 +129,10 @@ def load_tree(path, template, *, prefix: str = "", strict: bool = True):
                 raise ValueError(
                     f"checkpoint {str(path)!r}: array {key!r} has shape {arr.shape}, expected {tuple(tmpl.shape)}"
                 )
-            if arr.dtype != np.dtype(tmpl.dtype):
+            want = np.dtype(tmpl.dtype)
+            if arr.dtype == np.float16 and want == np.float32 and meta.get("storage_dtype") == "float16":
+                arr = arr.astype(np.float32)  # stored at half precision (`save_model(storage_dtype="float16")`)
+            if arr.dtype != want:
                 raise ValueError(f"checkpoint {str(path)!r}: array {key!r} has dtype {arr.dtype}, expected {tmpl.dtype}")
             leaves.append(arr)
     treedef = jax.tree_util.tree_structure(template)
@@ -155,14 +158,26 @@ def model_template(cfg: ModelConfig):
     return jax.eval_shape(lambda k: init_model(k, cfg), jax.random.key(0))
 
 
-def save_model(path, model: Model, *, card: dict | None = None) -> Path:
+def save_model(path, model: Model, *, card: dict | None = None, storage_dtype: str = "float32") -> Path:
     """Save a `Model` (a pytree of params and BN state) to `path` (.npz): arrays `params/...`, `state/...`,
-    and metadata {kind, config, card}.
+    and metadata {kind, config, card, storage_dtype}.
 
     `card` is the training card (JSON-ready dict: data, steps, wall time, hardware, validation PSNR, ...).
+    storage_dtype: "float32", or "float16" to halve the file (`load_model` returns float32 either way);
+    raises ValueError if a value does not fit float16 (|x| > 65504).
     """
-    meta = {"kind": "model", "config": config_to_dict(model.config), "card": card or {}}
-    return save_tree(path, {"params": model.params, "state": model.state}, meta)
+    tree = {"params": model.params, "state": model.state}
+    if storage_dtype == "float16":
+        tree = jax.tree_util.tree_map(lambda x: np.asarray(x, np.float32), tree)
+        too_big = [k for k, v in flatten_tree(tree).items() if np.any(np.abs(v) > np.finfo(np.float16).max)]
+        if too_big:
+            raise ValueError(f"save_model: {too_big[:3]} hold values beyond float16's range; store as float32")
+        tree = jax.tree_util.tree_map(lambda x: x.astype(np.float16), tree)
+    elif storage_dtype != "float32":
+        raise ValueError(f"save_model: storage_dtype must be 'float32' or 'float16', got {storage_dtype!r}")
+    meta = {"kind": "model", "config": config_to_dict(model.config), "card": card or {},
+            "storage_dtype": storage_dtype}
+    return save_tree(path, tree, meta)
 
 
 def _resolve(path) -> Path:
