@@ -65,15 +65,17 @@ def iter_super_resolve(model: Model, frames: Iterable, *, batch_size: int | None
     held = deque()  # LR frames first_held .. ; frame `first_held` is the oldest any pending window needs
     first_held, next_out, n_seen, shape, pending = 0, 0, 0, None, None
 
-    def frame(i, last):  # edge-replicated access
-        return held[min(max(i, 0), last) - first_held]
+    def frame(i, last):
+        """LR frame i, edge-replicated: clipped to 0 and, once the stream has ended, to its last frame."""
+        i = max(i, 0) if last is None else min(max(i, 0), last)
+        return held[i - first_held]
 
     def run(count, last):
-        """Dispatch windows next_out .. next_out + count - 1 (padded to batch_size), asynchronously."""
-        idx = [min(next_out + j, last) for j in range(batch_size)]
-        chunk = np.stack([frame(i, last) for i in range(idx[0] - tr, idx[-1] + tr + 1)])
-        if idx[-1] - idx[0] + 1 < batch_size:  # padding at the end: repeat the last window's frames
-            chunk = np.concatenate([chunk, np.repeat(chunk[-1:], batch_size - (idx[-1] - idx[0] + 1), 0)])
+        """Dispatch (asynchronously) windows next_out .. next_out + count - 1, padded to batch_size by
+        repeating the final frame so that every call has the same shape."""
+        chunk = np.stack([frame(i, last) for i in range(next_out - tr, next_out + count + tr)])
+        if count < batch_size:
+            chunk = np.concatenate([chunk, np.repeat(chunk[-1:], batch_size - count, 0)])
         return _infer_chunk(model, jnp.asarray(chunk)), count
 
     def drain(result):
@@ -87,7 +89,7 @@ def iter_super_resolve(model: Model, frames: Iterable, *, batch_size: int | None
         n_seen += 1
         # windows next_out .. next_out + batch_size - 1 are complete once frame next_out + batch_size - 1 + tr is in
         if n_seen - 1 >= next_out + batch_size - 1 + tr:
-            result = run(batch_size, n_seen - 1 + 10**9)  # no end yet: nothing to replicate on the right
+            result = run(batch_size, None)  # the stream goes on: nothing to replicate on the right
             if pending is not None:
                 yield from drain(pending)
             pending = result
