@@ -81,7 +81,7 @@ def run_simulate(args):
     # The baseline a network has to beat: bicubic upsampling of the centre-of-mass depth.
     gt = np.asarray(normalise_depth(jnp.asarray(depth), sensor))
     up = np.asarray(bicubic(com, scale=sensor.scale))
-    io.write_comparison(out / "preview_strip.png", com[0], np.clip(up[0], 0, 1), gt[0],
+    io.write_comparison(out / "preview_strip.png", com[0], np.clip(up[0], 0, 1), gt=gt[0],
                         labels=("centre of mass", "bicubic", "ground truth"), overwrite=True)
     quality = dict(bicubic_psnr_db=round(float(np.mean(psnr(up, gt))), 2),
                    bicubic_ssim=round(float(np.mean(ssim(up, gt))), 3))

@@ -180,11 +180,12 @@ def super_resolve_histograms(model: Model, counts, sensor: SensorConfig = Sensor
     return out
 
 
-def enable_compilation_cache(path=None) -> Path | None:
+def enable_compilation_cache(*, path=None) -> Path | None:
     """Turn on JAX's persistent compilation cache, so that a second run skips XLA compilation.
 
     path: the cache folder (default: $JAXSR_CACHE_DIR, else $XDG_CACHE_HOME/jaxsr/xla, else ~/.cache/jaxsr/xla).
-    JAXSR_CACHE_DIR=off disables it. Returns the folder used, or None when disabled."""
+    JAXSR_CACHE_DIR=off disables it. Takes no arrays (path is a scalar option); returns the folder used, or None
+    when disabled."""
     if path is None:
         path = os.environ.get("JAXSR_CACHE_DIR")
         if path is None:

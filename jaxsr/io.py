@@ -455,7 +455,7 @@ def _label(rgb, text):
     return np.asarray(canvas.buffer_rgba())[..., :3].astype(np.float32) / 255.0
 
 
-def write_comparison(path, lr, sr, gt=None, *, d_max=35.0, cmap="turbo", labels=("LR", "SR", "GT"), overwrite=False):
+def write_comparison(path, lr, sr, *, gt=None, d_max=35.0, cmap="turbo", labels=("LR", "SR", "GT"), overwrite=False):
     """Write an LR | SR | GT strip (LR | SR without `gt`) as PNG. lr (h, w) is nearest-upsampled to the HR size
     of sr and gt (H, W). Frames in metres or normalised [0, 1] (1 = no return); no return is black.
 

@@ -129,11 +129,11 @@ def test_previews(tmp_path):
     np.testing.assert_array_equal(img[0, 0], [0, 0, 0])  # no return is black
     assert img[5, 5].sum() > 0
     lr = np.clip(d[::4, ::4] / 35, 0, 1)
-    io.write_comparison(tmp_path / "c.png", lr, d / 35, d / 35)
+    io.write_comparison(tmp_path / "c.png", lr, d / 35, gt=d / 35)
     strip = io.read_image(tmp_path / "c.png")
     assert strip.shape == (32, 3 * 64 + 4, 3)
     with pytest.raises(ValueError, match="downscale"):
-        io.write_comparison(tmp_path / "c2.png", d[:5, :7], d, d)
+        io.write_comparison(tmp_path / "c2.png", d[:5, :7], d, gt=d)
 
 
 def _airsim_folder(tmp_path, planar, gray, stamps):
