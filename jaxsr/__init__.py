@@ -5,6 +5,8 @@ The public API is re-exported here; see README.md and DESIGN.md for the pipeline
 
 __version__ = "0.1.0"
 
+from .adaptive import choose_tr as choose_tr
+from .adaptive import estimate_motion as estimate_motion
 from .baselines import bicubic as bicubic
 from .baselines import lanczos as lanczos
 from .checkpoint import load_model as load_model
@@ -43,6 +45,7 @@ from .poisson import sample_poisson as sample_poisson
 from .optim import adam_init as adam_init
 from .optim import adam_update as adam_update
 from .optim import step_decay as step_decay
+from .recon import tv_super_resolve as tv_super_resolve
 from .render import Scene as Scene
 from .render import render as render
 from .scenes import mean_lr_shift as mean_lr_shift
