@@ -1,5 +1,6 @@
-"""Inference throughput: frames/s of `super_resolve` for TR0-TR4 at batch 1 and 8, end to end from photon
-histograms, and the GFLOP/s it achieves against what this machine's matrix multiply reaches.
+"""Inference throughput: frames/s of `super_resolve` for TR0-TR4 at batch 1 (one device), the default batch
+(one frame per device, split over the host's cores as CPU devices: benchmarks/conftest.py) and 8, end to end
+from photon histograms, and the GFLOP/s it achieves against what this machine's matrix multiply reaches.
 
 Run: pytest benchmarks/bench_inference.py --benchmark-enable      (about 3 min on 2 CPU cores)
 
@@ -14,7 +15,7 @@ import numpy as np
 import pytest
 
 from jaxsr.config import ModelConfig, SensorConfig
-from jaxsr.inference import super_resolve, super_resolve_histograms
+from jaxsr.inference import DEFAULT_BATCH_SIZE, super_resolve, super_resolve_histograms
 from jaxsr.model import Model, flops_per_frame, init_model
 
 SENSOR = SensorConfig()
@@ -36,20 +37,22 @@ def _record(benchmark, cfg):
         benchmark.extra_info["gflops_per_s"] = fps * flops_per_frame(cfg, SENSOR.lr_shape) / 1e9
 
 
-@pytest.mark.parametrize("batch", [1, 8])
+@pytest.mark.parametrize("batch", [1, None, 8])
 @pytest.mark.parametrize("tr", [0, 1, 2, 3, 4])
 def test_super_resolve(timed, benchmark, tr, batch):
     model, lr = _model(tr), _lr()
     timed(lambda: super_resolve(model, lr, batch_size=batch), rounds=3, items=FRAMES)
+    if benchmark.stats is not None:
+        benchmark.extra_info["batch"] = batch or DEFAULT_BATCH_SIZE * jax.local_device_count()
     _record(benchmark, model.config)
 
 
 @pytest.mark.parametrize("tr", [0, 4])
 def test_super_resolve_histograms(timed, benchmark, tr):
-    """End to end as a user runs it: counts -> centre of mass -> network, batch 1."""
+    """End to end as a user runs it: counts -> centre of mass -> network, default batch."""
     model = _model(tr)
     counts = np.asarray(jax.random.poisson(jax.random.key(2), 2.0, (FRAMES, *SENSOR.lr_shape, SENSOR.bins)))
-    timed(lambda: super_resolve_histograms(model, counts, batch_size=1), rounds=3, items=FRAMES)
+    timed(lambda: super_resolve_histograms(model, counts), rounds=3, items=FRAMES)
     _record(benchmark, model.config)
 
 

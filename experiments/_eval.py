@@ -16,6 +16,10 @@ from jaxsr.config import DEFAULT_MEAN_SIGNAL, PRESETS, ModelConfig, SensorConfig
 from jaxsr.inference import super_resolve, super_resolve_histograms
 from jaxsr.train import sequence_batches
 
+# The host's cores as CPU devices, before any JAX operation: training and `super_resolve` split batches over
+# them, as `jaxsr upscale` and `jaxsr train` do.
+N_DEVICES = jaxsr.use_cpu_cores()
+
 TEST_SCENES = ("scene1_street", "scene2_road", "scene3_courtyard")
 SCENE_LABELS = {"scene1_street": "Scene 1", "scene2_road": "Scene 2", "scene3_courtyard": "Scene 3"}
 # The paper's Table 1 (x4, RTX 2070): PSNR, SSIM per scene and frames/s per TR.

@@ -25,6 +25,7 @@ from .inference import enable_compilation_cache as enable_compilation_cache
 from .inference import iter_super_resolve as iter_super_resolve
 from .inference import super_resolve as super_resolve
 from .inference import super_resolve_histograms as super_resolve_histograms
+from .inference import use_cpu_cores as use_cpu_cores
 from .io import read_airsim as read_airsim
 from .io import read_depth as read_depth
 from .io import read_histograms as read_histograms

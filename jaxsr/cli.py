@@ -144,6 +144,10 @@ def main(argv=None):
     Args: argv (list of str, default sys.argv[1:]). Returns the exit status (0 on success, 2 on a user error
     such as a missing file or an existing output, after printing the message to stderr)."""
     args = build_parser().parse_args(argv)
+    if argv is None:  # run as a program (not called from Python, where the user owns JAX's devices)
+        from .inference import use_cpu_cores
+
+        use_cpu_cores()
     try:
         return args.func(args)
     except (FileNotFoundError, FileExistsError, ValueError) as e:

@@ -5,10 +5,15 @@ Frames go through the network `batch_size` at a time. Each batch is sent to the 
 transferred once rather than 2 tr + 1 times. Every batch has the same shape (the last one is padded by
 repeating the final frame), so a model compiles once per frame size. At most `batch_size + 2 tr` LR frames
 and two batches of HR frames are held, however long the sequence is.
+
+With several devices (e.g. the host's cores exposed as CPU devices by `use_cpu_cores`), each batch is split
+over them: on 2 XLA:CPU cores that is 1.6-2x faster than one device using both cores, whose convolutions do
+not keep two threads busy (benchmarks/bench_inference.py).
 """
 
 from __future__ import annotations
 
+import functools
 import os
 from collections import deque
 from collections.abc import Iterable, Iterator
@@ -17,22 +22,58 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.sharding import Mesh, NamedSharding
+from jax.sharding import PartitionSpec as P
 
 from .config import SensorConfig
 from .model import Model
 from .peaks import centre_of_mass
 
-# Frames per batch when `batch_size=None`: on 2 XLA:CPU cores one frame at a time is as fast as any batch
-# (benchmarks/bench_inference.py), and it keeps the latency of a stream at one frame.
+# Frames per device and batch when `batch_size=None`: on XLA:CPU larger batches are no faster per frame
+# (benchmarks/bench_inference.py), and one frame per device keeps the latency of a stream low.
 DEFAULT_BATCH_SIZE = 1
+# `use_cpu_cores` exposes at most this many: the speed-up was measured on 2 cores only.
+MAX_CPU_DEVICES = 8
 
 
-@jax.jit
-def _infer_chunk(model: Model, chunk):
-    """chunk (B + 2 tr, h, w) -> (B, h r, w r): the centre frame of each of the B windows of 2 tr + 1 frames."""
+def use_cpu_cores(*, n: int | None = None) -> int:
+    """Expose the host's CPU cores as n JAX CPU devices, so that `super_resolve` splits each batch over them.
+
+    Call it right after `import jax`, before any JAX operation: once the backend is running the device count is
+    fixed, and this leaves it as it is. n: a scalar count (default: the cores this process may use, at most
+    MAX_CPU_DEVICES). It does nothing if XLA_FLAGS already sets --xla_force_host_platform_device_count. Returns
+    the number of devices JAX will use.
+    """
+    if n is None:
+        n = min(len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1,
+                MAX_CPU_DEVICES)
+    if n < 1:
+        raise ValueError(f"use_cpu_cores: n must be >= 1, got {n}")
+    if "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", ""):
+        try:
+            jax.config.update("jax_num_cpu_devices", int(n))
+        except RuntimeError:  # the backend is already initialised: keep its devices
+            pass
+    return jax.local_device_count()
+
+
+def _batch_sharding(batch_size: int) -> NamedSharding | None:
+    """Split a batch over all local devices when there are several and they divide it evenly."""
+    devices = jax.local_devices()
+    if len(devices) < 2 or batch_size % len(devices):
+        return None
+    return NamedSharding(Mesh(np.asarray(devices), ("batch",)), P("batch"))
+
+
+@functools.partial(jax.jit, static_argnames="sharding")
+def _infer_chunk(model: Model, chunk, sharding=None):
+    """chunk (B + 2 tr, h, w) -> (B, h r, w r): the centre frame of each of the B windows of 2 tr + 1 frames,
+    the windows split over `sharding`'s devices (the model and chunk are replicated)."""
     n = model.config.frames
     b = chunk.shape[0] - n + 1
     windows = chunk[jnp.arange(b)[:, None] + jnp.arange(n)[None, :]]
+    if sharding is not None:
+        windows = jax.lax.with_sharding_constraint(windows, sharding)
     return model(windows)
 
 
@@ -54,13 +95,18 @@ def iter_super_resolve(model: Model, frames: Iterable, *, batch_size: int | None
     frames: an iterable of (h, w) LR normalised depth frames (0..1, 1 = no return), e.g. a generator reading
     files one by one. Frame t is the centre of the window t - tr .. t + tr, edge-replicated at both ends of
     the stream (as `jaxsr.temporal.windows`), so frame t is yielded once frame t + tr has arrived (or the
-    stream has ended). batch_size: frames per compiled call (None: `DEFAULT_BATCH_SIZE`).
+    stream has ended). batch_size: frames per compiled call (None: `DEFAULT_BATCH_SIZE` per local device);
+    split over the local devices when they divide it.
     Yields (h r, w r) float32 NumPy arrays of HR normalised depth (unclipped network output). Raises
     ValueError for a frame of another shape than the first, or holding NaN or inf.
     """
-    batch_size = DEFAULT_BATCH_SIZE if batch_size is None else int(batch_size)
+    batch_size = DEFAULT_BATCH_SIZE * jax.local_device_count() if batch_size is None else int(batch_size)
     if batch_size < 1:
         raise ValueError(f"super_resolve: batch_size must be >= 1, got {batch_size}")
+    sharding = _batch_sharding(batch_size)
+    if sharding is not None:  # replicate the weights once, not on every call
+        replicated = NamedSharding(sharding.mesh, P())
+        model = jax.device_put(model, replicated)
     tr = model.config.tr
     held = deque()  # LR frames first_held .. ; frame `first_held` is the oldest any pending window needs
     first_held, next_out, n_seen, shape, pending = 0, 0, 0, None, None
@@ -76,7 +122,8 @@ def iter_super_resolve(model: Model, frames: Iterable, *, batch_size: int | None
         chunk = np.stack([frame(i, last) for i in range(next_out - tr, next_out + count + tr)])
         if count < batch_size:
             chunk = np.concatenate([chunk, np.repeat(chunk[-1:], batch_size - count, 0)])
-        return _infer_chunk(model, jnp.asarray(chunk)), count
+        chunk = jnp.asarray(chunk) if sharding is None else jax.device_put(chunk, replicated)
+        return _infer_chunk(model, chunk, sharding), count
 
     def drain(result):
         out, count = result

@@ -1,5 +1,12 @@
 """Streaming inference: `super_resolve` equals a window-by-window loop of `apply_model`, ends included."""
 
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -7,7 +14,7 @@ import pytest
 
 from jaxsr.config import ModelConfig, SensorConfig
 from jaxsr.inference import (enable_compilation_cache, iter_centre_of_mass, iter_super_resolve, super_resolve,
-                             super_resolve_histograms)
+                             super_resolve_histograms, use_cpu_cores)
 from jaxsr.model import Model, apply_model, init_model
 from jaxsr.peaks import centre_of_mass
 
@@ -91,3 +98,39 @@ def test_compilation_cache_folder(tmp_path, monkeypatch):
         assert jax.config.jax_compilation_cache_dir == str(tmp_path / "xla")
     finally:
         jax.config.update("jax_compilation_cache_dir", before)
+
+
+def test_use_cpu_cores_keeps_a_running_backend():
+    jnp.zeros(1).block_until_ready()  # the backend is running: the device count can no longer change
+    assert use_cpu_cores(n=4) == jax.local_device_count()
+    with pytest.raises(ValueError, match="n must be >= 1"):
+        use_cpu_cores(n=0)
+
+
+_SHARDED_SCRIPT = textwrap.dedent(
+    """
+    import sys, json
+    import jax, numpy as np
+    from jaxsr.inference import use_cpu_cores, super_resolve
+    assert use_cpu_cores(n=2) == 2
+    sys.path.insert(0, {tests!r})
+    from test_inference import _loop, _model
+    model = _model(2)
+    seq = np.random.default_rng(3).uniform(0, 1, (7, 8, 12)).astype(np.float32)
+    ref = _loop(model, seq)
+    print(json.dumps({{str(b): float(np.max(np.abs(super_resolve(model, seq, batch_size=b) - ref)))
+                      for b in (None, 4, 3)}}))
+    """
+)
+
+
+def test_batches_split_over_devices_equal_the_window_loop():
+    """Two CPU devices: the default batch (one frame per device) and batch 4 are split over them, batch 3 is
+    not; all three equal the one-window-at-a-time reference, the padded last batch included."""
+    env = dict(os.environ, JAX_PLATFORMS="cpu")
+    env.pop("XLA_FLAGS", None)
+    proc = subprocess.run([sys.executable, "-c", _SHARDED_SCRIPT.format(tests=str(Path(__file__).parent))],
+                          capture_output=True, text=True, env=env, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    errors = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert max(errors.values()) < 1e-5, errors
