@@ -267,7 +267,7 @@ def add_upscale(subparsers):
                    "histograms give metres")
     p.add_argument("--frame-format", choices=["exr", "pfm", "tif", "png"], default="exr",
                    help="frame files when OUTPUT is a folder (default exr; always metres)")
-    p.add_argument("--batch-size", type=int, default=None, help="frames per compiled call (default: fastest measured)")
+    p.add_argument("--batch-size", type=int, default=None, help="frames per compiled call (default: one per CPU core, each core a JAX device)")
     p.add_argument("--min-fps", type=float, default=None, help="with --model auto: the slowest acceptable frames/s")
     p.add_argument("--preview", default=None, help="write an input | output PNG strip of the middle frame")
     p.add_argument("--force", action="store_true", help="overwrite OUTPUT (and the preview)")
