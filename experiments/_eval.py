@@ -19,6 +19,7 @@ from jaxsr.train import sequence_batches
 # The host's cores as CPU devices, before any JAX operation: training and `super_resolve` split batches over
 # them, as `jaxsr upscale` and `jaxsr train` do.
 N_DEVICES = jaxsr.use_cpu_cores()
+FPS_NOTE = f"default batch: one frame on each of {N_DEVICES} CPU cores as JAX devices"
 
 TEST_SCENES = ("scene1_street", "scene2_road", "scene3_courtyard")
 SCENE_LABELS = {"scene1_street": "Scene 1", "scene2_road": "Scene 2", "scene3_courtyard": "Scene 3"}
@@ -99,7 +100,7 @@ def frames_per_second(fn, n_frames: int, *, min_time: float = 3.0) -> float:
 def model_fps(model, clip: Clip, *, batch_size=None, frames: int = 32, histograms: bool = True,
               min_time: float = 3.0) -> float:
     """End-to-end frames/s of a model on this machine: histograms -> centre of mass -> network (or from the
-    centre-of-mass frames with histograms=False)."""
+    centre-of-mass frames with histograms=False). batch_size None: the default, one frame per device."""
     if histograms:
         counts = clip.counts[:frames]
         fn = lambda: super_resolve_histograms(model, counts, batch_size=batch_size)  # noqa: E731

@@ -22,7 +22,7 @@ import jaxsr
 from jaxsr.inference import enable_compilation_cache
 from jaxsr.recon import tv_super_resolve
 
-from _eval import (PAPER_BICUBIC, PAPER_TABLE1, SCENE_LABELS, TEST_SCENES, frames_per_second, load_tr, score,
+from _eval import (FPS_NOTE, PAPER_BICUBIC, PAPER_TABLE1, SCENE_LABELS, TEST_SCENES, frames_per_second, load_tr, score,
                    test_clips, weights_source)
 from _report import header, markdown_table, write_atomic
 
@@ -130,7 +130,8 @@ def main():
              f"{jaxsr.DEFAULT_MEAN_SIGNAL:g} signal photons per LR pixel, noise seed {args.seed}); PSNR (dB) and "
              f"SSIM of the clipped output against the normalised ground truth. Ours: {weights_source(args.weights)}. "
              "frames/s: end to end on this machine (16 frames of histograms -> centre of mass or ML fit -> "
-             "upscaling); the paper's are on an RTX 2070. TV multi-frame: `jaxsr.recon.tv_super_resolve` "
+             f"upscaling; ours with the {FPS_NOTE}); the paper's are on an RTX 2070. "
+             "TV multi-frame: `jaxsr.recon.tv_super_resolve` "
              "(robust data term over 3 frames + smoothed TV, L-BFGS), defaults chosen on a validation sequence. "
              "iSeeBetter and HistNet are quoted from the paper, not run here.\n\n")
     text += markdown_table(columns, rows)

@@ -30,7 +30,7 @@ from jaxsr.inference import enable_compilation_cache
 from jaxsr.render import render_sequence
 from jaxsr.scenes import TEST_SEQUENCES, mean_lr_shift, test_scene
 
-from _eval import Clip, load_tr, model_fps, score, simulate_clip, weights_source
+from _eval import FPS_NOTE, Clip, load_tr, model_fps, score, simulate_clip, weights_source
 from _report import header, markdown_table, write_atomic
 
 RATES = (1.0, 2.5, 5.0, 10.0, 20.0, 25.0, 50.0, 100.0)
@@ -98,14 +98,14 @@ def main():
         print(f"{fps:g} FPS: motion {motion[fps]:.2f} (estimated {estimated[fps].motion:.2f}) LR px/frame; "
               + ", ".join(f"TR{tr} {p:.2f}/{s:.3f}" for tr, (p, s) in study[fps].items()), flush=True)
 
-    speed = {tr: model_fps(m, held_out[RATES[-1]][0], batch_size=1) for tr, m in models.items()}
+    speed = {tr: model_fps(m, held_out[RATES[-1]][0]) for tr, m in models.items()}
     table = {
         "motion": [estimated[f].motion for f in RATES],
         "psnr": {str(tr): [study[f][tr][0] for f in RATES] for tr in models},
         "fps": {str(tr): speed[tr] for tr in models},
         "source": (f"experiments/fps_study.py --frames {args.frames}, {weights_source(args.weights)}, "
-                   f"{time.strftime('%Y-%m-%d')}; motion as estimate_motion measures it, frames/s end to end at "
-                   "batch 1 on a 2-core CPU"),
+                   f"{time.strftime('%Y-%m-%d')}; motion as estimate_motion measures it, frames/s end to end, "
+                   f"{FPS_NOTE}"),
     }
     # choose_tr on the held-out clips, with the table from the study clips
     auto = {}
@@ -133,7 +133,7 @@ def main():
              "(scene geometry) and estimated from the noisy centre-of-mass frames. Last column: the paper's PSNR "
              "for the same TRs.\n\n")
     text += markdown_table(["FPS", "motion", "estimated"] + [f"TR{tr}" for tr in trs] + ["paper PSNR"], rows)
-    text += ("\nFrames/s of each TR on this machine (end to end, batch 1): "
+    text += (f"\nFrames/s of each TR on this machine (end to end, {FPS_NOTE}): "
              + ", ".join(f"TR{tr} {speed[tr]:.1f}" for tr in trs) + "\n")
     text += ("\n## choose_tr on held-out clips\n\nThe table above (t0 = 0 s, noise seed 0) drives `choose_tr`; "
              "each held-out clip (t0 = 60 s, seed 1) is scored with the TR chosen from its own frames and "

@@ -24,8 +24,8 @@ import jaxsr
 from jaxsr.config import PRESETS, SensorConfig
 from jaxsr.inference import enable_compilation_cache
 
-from _eval import (PAPER_BICUBIC, PAPER_TABLE1, SCENE_LABELS, TEST_SCENES, bicubic_fps, get_model, model_fps, score,
-                   test_clips)
+from _eval import (FPS_NOTE, PAPER_BICUBIC, PAPER_TABLE1, SCENE_LABELS, TEST_SCENES, bicubic_fps, get_model,
+                   model_fps, score, test_clips)
 from _report import header, markdown_table, write_atomic
 
 
@@ -80,7 +80,7 @@ def plot(path, rows, bicubic, fps_bicubic):
         ax.plot(f, p, "o")
         ax.annotate(lab, (f, p), textcoords="offset points", xytext=(4, 4), fontsize=8)
     ax.set_xscale("log")
-    ax.set_xlabel("frames/s on this machine (end to end, batch 1)")
+    ax.set_xlabel("frames/s on this machine (end to end)")
     ax.set_ylabel("mean PSNR over the 3 scenes (dB)")
     ax.legend(fontsize=8)
     fig.tight_layout()
@@ -122,7 +122,7 @@ def main():
         model, card = get_model(tr, pretrained=args.pretrained, preset=args.preset, runs=Path(args.runs),
                                 scale=args.scale, quick=args.quick, progress=not args.no_progress)
         scores = evaluate_tr(model, clips)
-        fps = model_fps(model, clip0, batch_size=1, min_time=min_time)
+        fps = model_fps(model, clip0, min_time=min_time)
         rows[tr] = {"scores": scores, "fps": fps, "card": card}
         print(f"TR{tr}: " + ", ".join(f"{SCENE_LABELS[n]} {p:.2f} dB / {s:.3f}" for n, (p, s) in scores.items())
               + f", {fps:.1f} frames/s ({time.time() - t0:.0f} s)", flush=True)
@@ -146,7 +146,8 @@ def main():
     text += (f"Models: {source}. Test data: the first {frames} frames of each test scene (scenes 1-2 at SNR 1.3, "
              f"scene 3 at SNR 3, {jaxsr.DEFAULT_MEAN_SIGNAL:g} signal photons per LR pixel), noise seed {args.seed}; "
              "PSNR (dB) and SSIM of the clipped output against the normalised HR ground truth, averaged over frames. "
-             "frames/s: end to end (histograms -> centre of mass -> network), batch 1, on this machine; the paper's "
+             f"frames/s: end to end (histograms -> centre of mass -> network), {FPS_NOTE}, on this machine; "
+             "the paper's "
              "are on an RTX 2070.\n\n")
     text += markdown_table(columns, table + paper)
     cards = [f"- TR{tr}: {r['card'].get('steps', '?')} steps, {r['card'].get('examples', '?')} examples, "
