@@ -39,6 +39,12 @@ import jax  # noqa: E402
 import numpy as np  # noqa: E402
 
 import jaxsr  # noqa: E402
+
+# JAX as users run it (`jaxsr upscale`): each core a CPU device, a batch split over them when they divide it.
+# Before any JAX operation.
+N_DEVICES = jaxsr.use_cpu_cores()
+CORES = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+
 from _report import header, markdown_table, write_atomic  # noqa: E402
 
 TORCH_MISSING = ("compare_torch.py needs PyTorch, which is not a jaxsr dependency; install the CPU build with:\n"
@@ -49,9 +55,9 @@ LR_SHAPE = (32, 64)
 def parse_args(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--tr", type=int, nargs="+", default=[0, 1, 2, 3, 4], help="temporal radii")
-    parser.add_argument("--batch", type=int, nargs="+", default=[1, 8], help="frames per network call")
+    parser.add_argument("--batch", type=int, nargs="+", default=[1, 2, 8], help="frames per network call")
     parser.add_argument("--frames", type=int, default=32, help="length of the LR sequence")
-    parser.add_argument("--threads", type=int, default=os.cpu_count(), help="torch.set_num_threads")
+    parser.add_argument("--threads", type=int, default=CORES, help="torch.set_num_threads (default: usable cores)")
     parser.add_argument("--rounds", type=int, default=3, help="timed passes per engine (the best counts)")
     parser.add_argument("--variants", nargs="+", default=None, metavar="LAYOUT/CONV",
                         help="torch variants to time (default: all of channels_last|channels_first x native|taps)")
@@ -99,6 +105,7 @@ def main(argv=None):
     rows, sweep_rows = [], []
     for tr in args.tr:
         model = tref.random_model(tr, seed=args.seed)
+        model = jax.tree_util.tree_map(jax.numpy.asarray, model)  # weights on the device once, as load_model does
         for b in args.batch:
             def run_jax():
                 return jax.block_until_ready(jaxsr.super_resolve(model, lr_seq, batch_size=b))
@@ -130,7 +137,8 @@ def main(argv=None):
     notes = (
         f"Full-frame inference, LR {LR_SHAPE[0]}x{LR_SHAPE[1]} -> HR {LR_SHAPE[0] * 4}x{LR_SHAPE[1] * 4}, a random "
         f"sequence of {args.frames} frames, random weights. JAX: `jaxsr.super_resolve(model, lr_seq, batch_size=B)` "
-        f"(XLA:CPU, its own thread pool over all {os.cpu_count()} cores). PyTorch {torch.__version__}: the port in "
+        f"(XLA:CPU, {N_DEVICES} CPU devices over {CORES} cores: a batch divisible by {N_DEVICES} is split over them, "
+        f"as `jaxsr.use_cpu_cores` sets up). PyTorch {torch.__version__}: the port in "
         f"`benchmarks/torch_reference.py` (`torch_super_resolve`, eval mode, `torch.inference_mode()`, BN folded "
         f"into the preceding 1x1x1 convolution), `torch.set_num_threads({args.threads})`, oneDNN "
         f"{'on' if torch.backends.mkldnn.is_available() and torch.backends.mkldnn.enabled else 'off'}, "

@@ -7,8 +7,8 @@ repeating the final frame), so a model compiles once per frame size. At most `ba
 and two batches of HR frames are held, however long the sequence is.
 
 With several devices (e.g. the host's cores exposed as CPU devices by `use_cpu_cores`), each batch is split
-over them: on 2 XLA:CPU cores that is 1.6-2x faster than one device using both cores, whose convolutions do
-not keep two threads busy (benchmarks/bench_inference.py).
+over them: on 2 XLA:CPU cores TR4 ran 1.7x and TR0 1.15x faster than on one device using both cores, whose
+convolutions do not keep two threads busy (benchmarks/bench_inference.py).
 """
 
 from __future__ import annotations
@@ -42,7 +42,8 @@ def use_cpu_cores(*, n: int | None = None) -> int:
     Call it right after `import jax`, before any JAX operation: once the backend is running the device count is
     fixed, and this leaves it as it is. n: a scalar count (default: the cores this process may use, at most
     MAX_CPU_DEVICES). It does nothing if XLA_FLAGS already sets --xla_force_host_platform_device_count. Returns
-    the number of devices JAX will use.
+    the number of devices JAX will use (asking starts the backend: call `jax.distributed.initialize` first).
+    On a JAX without the `jax_num_cpu_devices` option it leaves the devices as they are.
     """
     if n is None:
         n = min(len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1,
@@ -52,7 +53,7 @@ def use_cpu_cores(*, n: int | None = None) -> int:
     if "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", ""):
         try:
             jax.config.update("jax_num_cpu_devices", int(n))
-        except RuntimeError:  # the backend is already initialised: keep its devices
+        except (RuntimeError, AttributeError):  # backend already running, or an older JAX: keep its devices
             pass
     return jax.local_device_count()
 
@@ -179,7 +180,8 @@ def _com_chunk(counts, sensor):
     return centre_of_mass(counts, sensor)
 
 
-def iter_centre_of_mass(counts: Iterable, sensor: SensorConfig = SensorConfig(), *, chunk: int = 16) -> Iterator[np.ndarray]:
+def iter_centre_of_mass(counts: Iterable, sensor: SensorConfig = SensorConfig(), *,
+                        chunk: int = 16) -> Iterator[np.ndarray]:
     """Centre-of-mass depth of a stream of histogram frames, `chunk` frames per compiled call.
 
     counts: an iterable of (h, w, K) photon counts, or a (T, h, w, K) array. Yields (h, w) float32 LR

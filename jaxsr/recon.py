@@ -126,31 +126,35 @@ def tv_super_resolve(
 
     where y_s are the LR frames of the window (edge-replicated at the sequence ends, as `jaxsr.windows`), D the
     sensor's lateral forward model (an LR pixel is the mean of its scale x scale HR block), rho(r) =
-    sqrt(r^2 + delta^2) - delta the Charbonnier penalty (quadratic for small residuals, linear for large ones, so
-    moving objects in neighbouring frames and wrong-peak pixels are down-weighted rather than smeared), w_s =
+    sqrt(r^2 + delta^2) - delta the Charbonnier penalty (quadratic for small residuals, linear for large ones:
+    for residuals >> delta each block mean tends to the weighted median of the window's values), w_s =
     neighbour_weight^|s - t| normalised to sum 1, and TV_eps(x) = sum_i sqrt(dx_i^2 + dy_i^2 + eps^2) - eps a
     smoothed isotropic total variation (forward differences), so the energy is differentiable and convex. Each
-    frame starts from bicubic upsampling of its LR frame and runs `max_steps` iterations of L-BFGS (optimistix,
-    `throw=False`: a frame that has not met the tolerances returns its last iterate); frames are vmapped and the
+    frame starts from bicubic upsampling of its LR frame and runs at most `max_steps` iterations of L-BFGS
+    (optimistix, `throw=False`: a frame that has not met the tolerances returns its last iterate); frames are vmapped and the
     whole solve is one jitted call (compiled once per shape and static option).
 
-    Frames are not registered: the window only helps where the scene is static, and the robust penalty keeps
-    moving content from the centre frame. Gradients flow through the solution by the implicit function theorem
+    Frames are not registered: the window only helps where the scene is static. The robust penalty keeps moving
+    content where the centre frame has it as long as the centre frame holds more than half of the weight
+    (sum_{d=1..tr} neighbour_weight^d < 1/2: 0.25 at the defaults and tr = 1; not so at neighbour_weight 0.5);
+    the same median makes it reject outliers (wrong-peak pixels) of the neighbouring frames only: those of the
+    centre frame are left to the TV prior. Gradients flow through the solution by the implicit function theorem
     (optimistix's `ImplicitAdjoint` with matrix-free conjugate gradients), exact at a converged minimum; they are
     zero where the output is clipped.
 
     How the defaults were chosen: on the validation sequence `val1_street` only (first 8 frames at its SNR and
     `DEFAULT_MEAN_SIGNAL` photons, centre-of-mass depth, PSNR against `normalise_depth` of the ground truth),
-    a small grid over lam, delta, neighbour_weight and max_steps. Re-measured 2026-11-21 with noise key
-    `jax.random.key(0)` (experiments/_eval.simulate_clip): bicubic 21.9 dB / SSIM 0.577, the defaults 29.4 dB /
-    SSIM 0.900. The test scenes were not used.
+    a small grid over lam, delta, neighbour_weight and max_steps (an exploratory search; no script keeps it).
+    Re-measured 2026-11-21 with noise key `jax.random.key(0)` (experiments/_eval.simulate_clip): bicubic 21.9 dB
+    / SSIM 0.577, the defaults 29.4 dB / SSIM 0.900. The test scenes were not used.
 
     Args:
       lr_seq: (T, h, w) LR normalised depth in [0, 1] (1.0 = no return), e.g. `jaxsr.centre_of_mass` output.
       scale: integer upsampling factor (HR pixels per LR pixel along each axis).
       tr: temporal radius; each frame uses the 2 tr + 1 frames around it (tr = 0: single-frame TV SR).
-      lam: weight of the TV prior (per LR-pixel area); larger is smoother.
-      eps: TV smoothing (normalised depth); below it a gradient counts quadratically.
+      lam: weight of the TV prior (per LR-pixel area), > 0 (it makes the minimum unique); larger is smoother.
+      eps: TV smoothing (normalised depth); below it a gradient counts quadratically. Gradients through the
+        solver may fail to converge (lineax raises) for eps below about 0.003 or a tiny delta.
       delta: Charbonnier scale (normalised depth); residuals much larger than it are treated as outliers.
       neighbour_weight: weight of a frame at temporal distance d relative to the centre frame is
         neighbour_weight^d (in [0, 1]; 0 uses the centre frame only).
@@ -173,7 +177,7 @@ def tv_super_resolve(
         raise ValueError(f"tv_super_resolve: tr (temporal radius) must be an integer >= 0, got {tr!r}")
     if not (isinstance(max_steps, (int, np.integer)) and max_steps >= 1):
         raise ValueError(f"tv_super_resolve: max_steps must be an integer >= 1, got {max_steps!r}")
-    _require_number("lam", lam, minimum=0.0, strict=False)
+    _require_number("lam", lam, minimum=0.0, strict=True)
     _require_number("eps", eps, minimum=0.0, strict=True)
     _require_number("delta", delta, minimum=0.0, strict=True)
     _require_number("neighbour_weight", neighbour_weight, minimum=0.0, strict=False)

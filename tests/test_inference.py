@@ -102,7 +102,8 @@ def test_compilation_cache_folder(tmp_path, monkeypatch):
 
 def test_use_cpu_cores_keeps_a_running_backend():
     jnp.zeros(1).block_until_ready()  # the backend is running: the device count can no longer change
-    assert use_cpu_cores(n=4) == jax.local_device_count()
+    before = jax.local_device_count()
+    assert use_cpu_cores(n=before + 3) == before == jax.local_device_count()
     with pytest.raises(ValueError, match="n must be >= 1"):
         use_cpu_cores(n=0)
 
@@ -111,15 +112,19 @@ _SHARDED_SCRIPT = textwrap.dedent(
     """
     import sys, json
     import jax, numpy as np
-    from jaxsr.inference import use_cpu_cores, super_resolve
+    from jaxsr.inference import _batch_sharding, _infer_chunk, use_cpu_cores, super_resolve
     assert use_cpu_cores(n=2) == 2
+    assert _batch_sharding(4) is not None and _batch_sharding(3) is None and _batch_sharding(1) is None
     sys.path.insert(0, {tests!r})
     from test_inference import _loop, _model
     model = _model(2)
     seq = np.random.default_rng(3).uniform(0, 1, (7, 8, 12)).astype(np.float32)
     ref = _loop(model, seq)
-    print(json.dumps({{str(b): float(np.max(np.abs(super_resolve(model, seq, batch_size=b) - ref)))
-                      for b in (None, 4, 3)}}))
+    errors = {{str(b): float(np.max(np.abs(super_resolve(model, seq, batch_size=b) - ref))) for b in (None, 4, 3)}}
+    compiled = _infer_chunk._cache_size()
+    super_resolve(model, seq)  # the same shapes again: nothing recompiles
+    assert _infer_chunk._cache_size() == compiled == 3, compiled
+    print(json.dumps(errors))
     """
 )
 

@@ -139,6 +139,7 @@ def test_gradient_through_the_solver_matches_finite_differences():
         (np.zeros((2, 4, 4)), {"tr": -1}, "tr"),
         (np.zeros((2, 4, 4)), {"max_steps": 0}, "max_steps"),
         (np.zeros((2, 4, 4)), {"lam": -1.0}, "lam"),
+        (np.zeros((2, 4, 4)), {"lam": 0.0}, "lam"),
         (np.zeros((2, 4, 4)), {"eps": 0.0}, "eps"),
         (np.zeros((2, 4, 4)), {"delta": np.nan}, "delta"),
         (np.zeros((2, 4, 4)), {"neighbour_weight": 1.5}, "neighbour_weight"),
