@@ -141,3 +141,23 @@ def test_info(model_path, capsys):
     assert cli.main(["info", str(model_path), "--json"]) == 0
     info = json.loads(capsys.readouterr().out)
     assert info["config"]["tr"] == 1 and info["frames_per_window"] == 3 and info["gflops_per_frame"] > 0
+
+
+def test_auto_model_uses_choose_tr_and_the_bundled_weights(tmp_path, capsys):
+    """--model auto: the TR that `choose_tr` picks from the recording, run with that TR's bundled weights."""
+    from jaxsr.adaptive import choose_tr
+    from jaxsr.checkpoint import load_model
+
+    # a near wall sweeping 3 LR px per frame across a far background: fast motion
+    lr = np.full((6, 32, 64), 0.8, np.float32)
+    for t in range(6):
+        lr[t, 8:24, 3 * t + 4 : 3 * t + 16] = 0.2
+    np.save(tmp_path / "in.npy", lr)
+    choice = choose_tr(lr)
+    assert upscale(tmp_path / "in.npy", tmp_path / "out.npy", "--model", "auto") == 0
+    assert f"model tr{choice.tr} (auto: " in capsys.readouterr().err
+    np.testing.assert_allclose(np.load(tmp_path / "out.npy"), np.clip(super_resolve(load_model(f"tr{choice.tr}"), lr), 0, 1),
+                               atol=1e-6)
+    # a budget no model meets: the fastest one, and the reason says so
+    assert upscale(tmp_path / "in.npy", tmp_path / "out2.npy", "--model", "auto", "--min-fps", "1e6") == 0
+    assert "model tr0 (auto: " in capsys.readouterr().err
