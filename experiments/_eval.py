@@ -150,6 +150,14 @@ def get_model(tr: int, *, pretrained: bool, preset: str, runs: Path, scale: int 
     return model, card
 
 
+def add_model_args(parser, *, trs) -> None:
+    """--trs and --weights, shared by the scripts that score trained models (see `load_tr`)."""
+    parser.add_argument("--trs", type=int, nargs="+", default=list(trs),
+                        help=f"temporal radii (default {' '.join(map(str, trs))})")
+    parser.add_argument("--weights", default=None,
+                        help="folder of trained models, tr<N>.npz or tr<N>/best.npz (default: bundled weights)")
+
+
 def load_tr(tr: int, weights=None):
     """TR`tr`'s model: the bundled weights (weights=None), or from a folder holding tr<N>.npz or
     tr<N>/best.npz (e.g. a sweep_tr.py run folder such as runs/sweep_tr/cpu/x4)."""

@@ -21,7 +21,7 @@ import jaxsr
 from jaxsr.inference import enable_compilation_cache
 from jaxsr.scenes import test_sequence
 
-from _eval import load_tr, score, simulate_clip, weights_source
+from _eval import add_model_args, load_tr, score, simulate_clip, weights_source
 from _report import header, markdown_table, write_atomic
 
 EPS = (1 / 255, 0.01, 0.05)
@@ -48,8 +48,7 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=100)
     parser.add_argument("--fps", type=float, default=25.0, help="frame rate sampled from the 100 FPS sequence")
-    parser.add_argument("--trs", type=int, nargs="+", default=[0, 4])
-    parser.add_argument("--weights", default=None, help="folder of trained models (default: bundled weights)")
+    add_model_args(parser, trs=(0, 4))
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", default="experiments/results/coherence")
     args = parser.parse_args()

@@ -22,8 +22,8 @@ import jaxsr
 from jaxsr.inference import enable_compilation_cache
 from jaxsr.recon import tv_super_resolve
 
-from _eval import (FPS_NOTE, PAPER_BICUBIC, PAPER_TABLE1, SCENE_LABELS, TEST_SCENES, frames_per_second, load_tr, score,
-                   test_clips, weights_source)
+from _eval import (FPS_NOTE, PAPER_BICUBIC, PAPER_TABLE1, SCENE_LABELS, TEST_SCENES, add_model_args, frames_per_second,
+                   load_tr, score, test_clips, weights_source)
 from _report import header, markdown_table, write_atomic
 
 PAPER_OTHERS = {
@@ -97,8 +97,7 @@ def figures(path_frames, path_errors, clips, outputs, frame):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=50, help="frames per test scene (default 50)")
-    parser.add_argument("--trs", type=int, nargs="+", default=[1, 4])
-    parser.add_argument("--weights", default=None, help="folder of trained models (default: bundled weights)")
+    add_model_args(parser, trs=(1, 4))
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--figure-frame", type=int, default=None, help="frame shown in the figures (default middle)")
     parser.add_argument("--out", default="experiments/results/compare")

@@ -30,7 +30,7 @@ from jaxsr.inference import enable_compilation_cache
 from jaxsr.render import render_sequence
 from jaxsr.scenes import TEST_SEQUENCES, mean_lr_shift, test_scene
 
-from _eval import FPS_NOTE, Clip, load_tr, model_fps, score, simulate_clip, weights_source
+from _eval import FPS_NOTE, Clip, add_model_args, load_tr, model_fps, score, simulate_clip, weights_source
 from _report import header, markdown_table, write_atomic
 
 RATES = (1.0, 2.5, 5.0, 10.0, 20.0, 25.0, 50.0, 100.0)
@@ -78,8 +78,7 @@ def plot(path, rates, psnr, ssim, auto=None):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=48, help="frames per frame rate (default 48)")
-    parser.add_argument("--trs", type=int, nargs="+", default=[0, 1, 2, 3, 4])
-    parser.add_argument("--weights", default=None, help="folder of trained models (default: bundled weights)")
+    add_model_args(parser, trs=(0, 1, 2, 3, 4))
     parser.add_argument("--write-table", action="store_true", help="store the table choose_tr uses")
     parser.add_argument("--out", default="experiments/results/fps_study")
     args = parser.parse_args()

@@ -20,7 +20,7 @@ import jaxsr
 from jaxsr import scenes
 from jaxsr.inference import enable_compilation_cache
 
-from _eval import TEST_SCENES, load_tr, score, simulate_clip, weights_source
+from _eval import TEST_SCENES, add_model_args, load_tr, score, simulate_clip, weights_source
 from _report import header, markdown_table, write_atomic
 
 SNRS = (0.001, 0.25, 0.34, 0.5, 0.75, 1.0, 10.0, 10000.0)
@@ -51,8 +51,7 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=50, help="frames per scene (default 50)")
     parser.add_argument("--snrs", type=float, nargs="+", default=list(SNRS))
-    parser.add_argument("--trs", type=int, nargs="+", default=[0, 4])
-    parser.add_argument("--weights", default=None, help="folder of trained models (default: bundled weights)")
+    add_model_args(parser, trs=(0, 4))
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", default="experiments/results/snr_sweep")
     args = parser.parse_args()

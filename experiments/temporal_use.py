@@ -21,7 +21,7 @@ import numpy as np
 
 import jaxsr
 
-from _eval import SCENE_LABELS, load_tr, test_clips, weights_source
+from _eval import SCENE_LABELS, add_model_args, load_tr, test_clips, weights_source
 from _report import header, markdown_table, write_atomic
 from fps_study import walkers_clip
 
@@ -58,8 +58,7 @@ def moving_mask(gt, threshold: float = 0.01):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=48, help="frames per clip (default 48)")
-    parser.add_argument("--trs", type=int, nargs="+", default=[1, 2, 3, 4])
-    parser.add_argument("--weights", default=None, help="folder of trained models (default: bundled weights)")
+    add_model_args(parser, trs=(1, 2, 3, 4))
     parser.add_argument("--out", default="experiments/results/temporal_use")
     args = parser.parse_args()
     started = time.time()
