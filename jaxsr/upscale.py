@@ -220,9 +220,17 @@ def run_upscale(args) -> int:
           f"model {described}", file=sys.stderr)
     r = model.config.scale
     hr_shape = (rec.shape[0] * r, rec.shape[1] * r)
-    stream = iter_super_resolve(model, lr_stream(), batch_size=args.batch_size)
-    bar = tqdm(stream, total=rec.frames, unit="frame", disable=args.no_progress, desc="upscale")
     preview_t = rec.frames // 2
+    preview_lr = []  # the preview's LR frame, kept as it streams past (no second pass over the input)
+
+    def keep_preview(frames):
+        for t, f in enumerate(frames):
+            if t == preview_t:
+                preview_lr.append(f)
+            yield f
+
+    stream = iter_super_resolve(model, keep_preview(lr_stream()), batch_size=args.batch_size)
+    bar = tqdm(stream, total=rec.frames, unit="frame", disable=args.no_progress, desc="upscale")
     preview = None
     if out.suffix.lower() in ARRAY_FORMATS:
         result = np.empty((rec.frames, *hr_shape), np.float32)
@@ -241,8 +249,7 @@ def run_upscale(args) -> int:
             io.write_depth(out / f"frame_{t:06d}{ext}", to_units(hr, "m", sensor), overwrite=args.force)
             preview = hr if t == preview_t else preview
     if args.preview:
-        lr = next(f for t, f in enumerate(lr_stream()) if t == preview_t)
-        io.write_comparison(args.preview, lr, np.clip(preview, 0, 1), d_max=float(sensor.d_max),
+        io.write_comparison(args.preview, preview_lr[0], np.clip(preview, 0, 1), d_max=float(sensor.d_max),
                             labels=("input (centre of mass)" if rec.kind == "histograms" else "input", described),
                             overwrite=args.force)
     print(json.dumps({"frames": rec.frames, "output": str(out), "shape": [rec.frames, *hr_shape],
