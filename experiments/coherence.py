@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxsr
-from jaxsr.inference import enable_compilation_cache
+from jaxsr.runtime import enable_compilation_cache
 from jaxsr.scenes import test_sequence
 
 from _eval import add_model_args, load_tr, score, simulate_clip, weights_source

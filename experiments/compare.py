@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxsr
-from jaxsr.inference import enable_compilation_cache
+from jaxsr.runtime import enable_compilation_cache
 from jaxsr.recon import tv_super_resolve
 
 from _eval import (FPS_NOTE, PAPER_BICUBIC, PAPER_TABLE1, SCENE_LABELS, TEST_SCENES, add_model_args, frames_per_second,

@@ -26,7 +26,7 @@ import jax.numpy as jnp
 
 import jaxsr
 from jaxsr.adaptive import STUDY_TABLE, choose_tr, estimate_motion
-from jaxsr.inference import enable_compilation_cache
+from jaxsr.runtime import enable_compilation_cache
 from jaxsr.render import render_sequence
 from jaxsr.scenes import TEST_SEQUENCES, mean_lr_shift, test_scene
 

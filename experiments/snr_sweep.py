@@ -18,7 +18,7 @@ import numpy as np
 
 import jaxsr
 from jaxsr import scenes
-from jaxsr.inference import enable_compilation_cache
+from jaxsr.runtime import enable_compilation_cache
 
 from _eval import TEST_SCENES, add_model_args, load_tr, score, simulate_clip, weights_source
 from _report import header, markdown_table, write_atomic

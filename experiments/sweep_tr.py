@@ -22,7 +22,7 @@ import numpy as np
 
 import jaxsr
 from jaxsr.config import PRESETS, SensorConfig
-from jaxsr.inference import enable_compilation_cache
+from jaxsr.runtime import enable_compilation_cache
 
 from _eval import (FPS_NOTE, PAPER_BICUBIC, PAPER_TABLE1, SCENE_LABELS, TEST_SCENES, bicubic_fps, get_model,
                    model_fps, score, test_clips)

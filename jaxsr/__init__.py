@@ -21,11 +21,9 @@ from .model import Model as Model
 from .model import apply_model as apply_model
 from .model import count_params as count_params
 from .model import init_model as init_model
-from .inference import enable_compilation_cache as enable_compilation_cache
 from .inference import iter_super_resolve as iter_super_resolve
 from .inference import super_resolve as super_resolve
 from .inference import super_resolve_histograms as super_resolve_histograms
-from .inference import use_cpu_cores as use_cpu_cores
 from .io import read_airsim as read_airsim
 from .io import read_depth as read_depth
 from .io import read_histograms as read_histograms
@@ -47,6 +45,9 @@ from .optim import adam_init as adam_init
 from .optim import adam_update as adam_update
 from .optim import step_decay as step_decay
 from .recon import tv_super_resolve as tv_super_resolve
+from .runtime import compiler_options as compiler_options
+from .runtime import enable_compilation_cache as enable_compilation_cache
+from .runtime import use_cpu_cores as use_cpu_cores
 from .render import Scene as Scene
 from .render import render as render
 from .scenes import mean_lr_shift as mean_lr_shift

@@ -145,7 +145,7 @@ def main(argv=None):
     such as a missing file or an existing output, after printing the message to stderr)."""
     args = build_parser().parse_args(argv)
     if argv is None:  # run as a program (not called from Python, where the user owns JAX's devices)
-        from .inference import use_cpu_cores
+        from .runtime import use_cpu_cores
 
         use_cpu_cores()
     try:

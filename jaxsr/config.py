@@ -108,9 +108,9 @@ class ModelConfig:
             raise ValueError(f"ModelConfig: filter_size must be odd and >= 1, got {self.filter_size}")
         if self.filter_padding not in ("edge", "zero"):
             raise ValueError(f"ModelConfig: filter_padding must be 'edge' or 'zero', got {self.filter_padding!r}")
-        if self.conv3d_impl not in ("auto", "native", "taps"):
+        if self.conv3d_impl not in ("auto", "native", "taps", "stacked"):
             raise ValueError(
-                f"ModelConfig: conv3d_impl must be 'auto', 'native' or 'taps', got {self.conv3d_impl!r}"
+                f"ModelConfig: conv3d_impl must be 'auto', 'native', 'taps' or 'stacked', got {self.conv3d_impl!r}"
             )
 
     @property

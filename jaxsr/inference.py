@@ -14,10 +14,8 @@ convolutions do not keep two threads busy (benchmarks/bench_inference.py).
 from __future__ import annotations
 
 import functools
-import os
 from collections import deque
 from collections.abc import Iterable, Iterator
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -28,34 +26,11 @@ from jax.sharding import PartitionSpec as P
 from .config import SensorConfig
 from .model import Model
 from .peaks import centre_of_mass
+from .runtime import compiler_options
 
 # Frames per device and batch when `batch_size=None`: on XLA:CPU larger batches are no faster per frame
 # (benchmarks/bench_inference.py), and one frame per device keeps the latency of a stream low.
 DEFAULT_BATCH_SIZE = 1
-# `use_cpu_cores` exposes at most this many: the speed-up was measured on 2 cores only.
-MAX_CPU_DEVICES = 8
-
-
-def use_cpu_cores(*, n: int | None = None) -> int:
-    """Expose the host's CPU cores as n JAX CPU devices, so that `super_resolve` splits each batch over them.
-
-    Call it right after `import jax`, before any JAX operation: once the backend is running the device count is
-    fixed, and this leaves it as it is. n: a scalar count (default: the cores this process may use, at most
-    MAX_CPU_DEVICES). It does nothing if XLA_FLAGS already sets --xla_force_host_platform_device_count. Returns
-    the number of devices JAX will use (asking starts the backend: call `jax.distributed.initialize` first).
-    On a JAX without the `jax_num_cpu_devices` option it leaves the devices as they are.
-    """
-    if n is None:
-        n = min(len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1,
-                MAX_CPU_DEVICES)
-    if n < 1:
-        raise ValueError(f"use_cpu_cores: n must be >= 1, got {n}")
-    if "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", ""):
-        try:
-            jax.config.update("jax_num_cpu_devices", int(n))
-        except (RuntimeError, AttributeError):  # backend already running, or an older JAX: keep its devices
-            pass
-    return jax.local_device_count()
 
 
 def _batch_sharding(batch_size: int) -> NamedSharding | None:
@@ -66,8 +41,7 @@ def _batch_sharding(batch_size: int) -> NamedSharding | None:
     return NamedSharding(Mesh(np.asarray(devices), ("batch",)), P("batch"))
 
 
-@functools.partial(jax.jit, static_argnames="sharding")
-def _infer_chunk(model: Model, chunk, sharding=None):
+def _windows_through_model(model: Model, chunk, sharding=None):
     """chunk (B + 2 tr, h, w) -> (B, h r, w r): the centre frame of each of the B windows of 2 tr + 1 frames,
     the windows split over `sharding`'s devices (the model and chunk are replicated)."""
     n = model.config.frames
@@ -76,6 +50,12 @@ def _infer_chunk(model: Model, chunk, sharding=None):
     if sharding is not None:
         windows = jax.lax.with_sharding_constraint(windows, sharding)
     return model(windows)
+
+
+@functools.cache
+def _infer_chunk():
+    """`_windows_through_model`, jitted once the backend (and so its `compiler_options`) is known."""
+    return jax.jit(_windows_through_model, static_argnames="sharding", compiler_options=compiler_options())
 
 
 def _check_frame(frame, shape, index):
@@ -124,7 +104,7 @@ def iter_super_resolve(model: Model, frames: Iterable, *, batch_size: int | None
         if count < batch_size:
             chunk = np.concatenate([chunk, np.repeat(chunk[-1:], batch_size - count, 0)])
         chunk = jnp.asarray(chunk) if sharding is None else jax.device_put(chunk, replicated)
-        return _infer_chunk(model, chunk, sharding), count
+        return _infer_chunk()(model, chunk, sharding), count
 
     def drain(result):
         out, count = result
@@ -227,24 +207,3 @@ def super_resolve_histograms(model: Model, counts, sensor: SensorConfig = Sensor
     for t, hr in enumerate(stream):
         out[t] = hr
     return out
-
-
-def enable_compilation_cache(*, path=None) -> Path | None:
-    """Turn on JAX's persistent compilation cache, so that a second run skips XLA compilation.
-
-    path: the cache folder (default: $JAXSR_CACHE_DIR, else $XDG_CACHE_HOME/jaxsr/xla, else ~/.cache/jaxsr/xla).
-    JAXSR_CACHE_DIR=off disables it. Takes no arrays (path is a scalar option); returns the folder used, or None
-    when disabled."""
-    if path is None:
-        path = os.environ.get("JAXSR_CACHE_DIR")
-        if path is None:
-            base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
-            path = Path(base) / "jaxsr" / "xla"
-    if str(path).lower() == "off":
-        return None
-    path = Path(path).expanduser()
-    path.mkdir(parents=True, exist_ok=True)
-    jax.config.update("jax_compilation_cache_dir", str(path))
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
-    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
-    return path

@@ -17,6 +17,7 @@ __all__ = [
     "conv3d",
     "conv3d_native",
     "conv3d_taps",
+    "conv3d_stacked",
     "default_conv3d_impl",
     "glorot_limit",
     "init_batch_norm",
@@ -58,6 +59,32 @@ def conv3d_native(x, w, b=None, *, padding="same"):
     return y if b is None else y + b
 
 
+def _conv2d(x, w, pads):
+    """2D convolution of (N, H, W, Cin) by (kh, kw, Cin, Cout) with ((h_lo, h_hi), (w_lo, w_hi)) zero padding."""
+    return jax.lax.conv_general_dilated(
+        x, w, window_strides=(1, 1), padding=pads, dimension_numbers=("NHWC", "HWIO", "NHWC")
+    )
+
+
+def _t_out(t_in, t_lo, t_hi, kt):
+    t_out = t_in + t_lo + t_hi - kt + 1
+    if t_out < 1:
+        raise ValueError(f"conv3d: {t_in} frames (padded by {t_lo}, {t_hi}) are fewer than the temporal kernel {kt}")
+    return t_out
+
+
+def stacked_use(t_in: int, padding, kt: int = 3) -> float:
+    """The share of the frame x tap products of `conv3d_stacked` that reach an output frame (1 = no waste).
+
+    t_in input frames, temporal `padding` as in `conv3d` (its spatial part is ignored), kt temporal taps.
+    E.g. "same" on 9 frames 25/27, temporally valid 9 -> 7 frames 21/27, 3 -> 1 frame 3/9.
+    """
+    (t_lo, t_hi), _, _ = _pads(padding, (kt, 1, 1))
+    t_out = _t_out(t_in, t_lo, t_hi, kt)
+    used = sum(max(0, min(t_out, t_in + t_lo - k) - max(0, t_lo - k)) for k in range(kt))
+    return used / (t_in * kt)
+
+
 def conv3d_taps(x, w, b=None, *, padding="same"):
     """The same 3D convolution as `conv3d_native`, as a sum over the kt temporal taps of 2D convolutions.
 
@@ -67,9 +94,7 @@ def conv3d_taps(x, w, b=None, *, padding="same"):
     (t_lo, t_hi), hpad, wpad = _pads(padding, w.shape[:3])
     kt = w.shape[0]
     bsz, t_in, h, wd, cin = x.shape
-    t_out = t_in + t_lo + t_hi - kt + 1
-    if t_out < 1:
-        raise ValueError(f"conv3d: {t_in} frames (padded by {t_lo}, {t_hi}) are fewer than the temporal kernel {kt}")
+    t_out = _t_out(t_in, t_lo, t_hi, kt)
     y = None
     for k in range(kt):
         # Output frame t reads input frame t + k - t_lo; frames in the zero padding contribute nothing, so
@@ -79,9 +104,7 @@ def conv3d_taps(x, w, b=None, *, padding="same"):
         if t1 <= t0:
             continue
         xs = x[:, t0 + o : t1 + o].reshape(bsz * (t1 - t0), h, wd, cin)
-        yk = jax.lax.conv_general_dilated(
-            xs, w[k], window_strides=(1, 1), padding=(hpad, wpad), dimension_numbers=("NHWC", "HWIO", "NHWC")
-        )
+        yk = _conv2d(xs, w[k], (hpad, wpad))
         yk = yk.reshape(bsz, t1 - t0, *yk.shape[1:])
         if (t0, t1) != (0, t_out):
             yk = jnp.pad(yk, ((0, 0), (t0, t_out - t1), (0, 0), (0, 0), (0, 0)))
@@ -93,11 +116,38 @@ def conv3d_taps(x, w, b=None, *, padding="same"):
     return y if b is None else y + b
 
 
+def conv3d_stacked(x, w, b=None, *, padding="same"):
+    """The same 3D convolution as `conv3d_native`, as one 2D convolution with the temporal taps side by side.
+
+    The kt taps' kernels are stacked along the output channels ((kh, kw, Cin, kt * Cout)) and applied to every
+    input frame at once; tap k's channels, shifted by k frames, are then summed. Same arguments and result as
+    `conv3d_native`. It computes every tap on every input frame, `stacked_use` of which reach an output, but
+    XLA:CPU's convolutions run wider outputs at a higher rate: with Cout = 32 the stacked form was faster
+    whenever 70 % or more of its products are used (benchmarks/bench_inference.py, `conv3d(impl="auto")`).
+    """
+    (t_lo, t_hi), hpad, wpad = _pads(padding, w.shape[:3])
+    kt, kh, kw, cin, cout = w.shape
+    bsz, t_in, h, wd, _ = x.shape
+    t_out = _t_out(t_in, t_lo, t_hi, kt)
+    z = _conv2d(x.reshape(bsz * t_in, h, wd, cin), jnp.moveaxis(w, 0, 3).reshape(kh, kw, cin, kt * cout), (hpad, wpad))
+    z = z.reshape(bsz, t_in, *z.shape[1:3], kt, cout)
+    # output frame t takes tap k from (padded) input frame t + k
+    z = jnp.pad(z, ((0, 0), (t_lo, t_hi), (0, 0), (0, 0), (0, 0), (0, 0)))
+    y = sum(z[:, k : k + t_out, :, :, k] for k in range(kt))
+    return y if b is None else y + b
+
+
+# `conv3d(impl="auto")` on CPU stacks the temporal taps of a layer when at least this share of the stacked
+# products is used (`stacked_use`); below it the taps are convolved one by one.
+STACKED_MIN_USE = 0.7
+
+
 def default_conv3d_impl(backend: str | None = None) -> str:
-    """The faster conv3d implementation on `backend` (default: `jax.default_backend()`).
+    """The faster conv3d implementation family on `backend` (default: `jax.default_backend()`).
 
     "taps" on CPU (measured about 3x faster than the native 3D convolution on XLA:CPU, see
-    benchmarks/bench_train.py), "native" elsewhere (cuDNN has 3D convolutions).
+    benchmarks/bench_train.py; `conv3d(impl="auto")` then stacks the taps of layers where that pays, see
+    `STACKED_MIN_USE`), "native" elsewhere (cuDNN has 3D convolutions).
     """
     backend = backend or jax.default_backend()
     return "taps" if backend == "cpu" else "native"
@@ -106,8 +156,9 @@ def default_conv3d_impl(backend: str | None = None) -> str:
 def conv3d(x, w, b=None, *, padding="same", impl: str = "auto"):
     """3D convolution of (B, T, H, W, Cin) by (kt, kh, kw, Cin, Cout) weights, plus bias.
 
-    `impl`: "native", "taps" or "auto" (`default_conv3d_impl()`); both give the same result. A 1x1x1 kernel
-    is a matrix product whatever `impl` says. See `conv3d_native` for `padding`.
+    `impl`: "native", "taps", "stacked" or "auto"; all give the same result. "auto" is "native" off CPU and,
+    on CPU, "stacked" where `stacked_use` >= `STACKED_MIN_USE`, else "taps". A 1x1x1 kernel is a matrix
+    product whatever `impl` says. See `conv3d_native` for `padding`.
     """
     if x.ndim != 5 or w.ndim != 5 or x.shape[-1] != w.shape[3]:
         raise ValueError(
@@ -118,11 +169,15 @@ def conv3d(x, w, b=None, *, padding="same", impl: str = "auto"):
         return y if b is None else y + b
     if impl == "auto":
         impl = default_conv3d_impl()
+        if impl == "taps" and stacked_use(x.shape[1], padding, w.shape[0]) >= STACKED_MIN_USE:
+            impl = "stacked"
     if impl == "native":
         return conv3d_native(x, w, b, padding=padding)
     if impl == "taps":
         return conv3d_taps(x, w, b, padding=padding)
-    raise ValueError(f"conv3d: impl must be 'auto', 'native' or 'taps', got {impl!r}")
+    if impl == "stacked":
+        return conv3d_stacked(x, w, b, padding=padding)
+    raise ValueError(f"conv3d: impl must be 'auto', 'native', 'taps' or 'stacked', got {impl!r}")
 
 
 def init_batch_norm(channels: int, *, dtype=jnp.float32) -> tuple[dict, dict]:

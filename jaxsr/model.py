@@ -91,8 +91,9 @@ def flops_per_frame(cfg: ModelConfig, lr_shape=(32, 64)) -> int:
     """Floating-point operations (2 per multiply-add) of the convolutions and the dynamic filter for one output
     frame of `lr_shape` (h, w) LR pixels; batch norm, ReLU and softmax (under 1 %) are not counted.
 
-    Counts what `apply_model` computes: "same" blocks on all 2 tr + 1 frames, temporally valid blocks on the
-    frames they keep, taps that fall in the temporal zero padding skipped (as `conv3d_taps` does).
+    Counts the network's arithmetic: "same" blocks on all 2 tr + 1 frames, temporally valid blocks on the
+    frames they keep, taps that fall in the temporal zero padding skipped (as `conv3d_taps` computes it;
+    `conv3d_stacked` layers compute more products, `layers.stacked_use` says how many reach an output).
     """
     shapes = _conv_shapes(cfg)
     macs, t = 0, cfg.frames

@@ -192,7 +192,8 @@ def resolve_model(spec, lr_head, *, min_fps=None):
 def run_upscale(args) -> int:
     from tqdm.auto import tqdm
 
-    from .inference import enable_compilation_cache, iter_centre_of_mass, iter_super_resolve
+    from .inference import iter_centre_of_mass, iter_super_resolve
+    from .runtime import enable_compilation_cache
 
     enable_compilation_cache()
     sensor = SensorConfig()

@@ -13,8 +13,7 @@ import numpy as np
 import pytest
 
 from jaxsr.config import ModelConfig, SensorConfig
-from jaxsr.inference import (enable_compilation_cache, iter_centre_of_mass, iter_super_resolve, super_resolve,
-                             super_resolve_histograms, use_cpu_cores)
+from jaxsr.inference import iter_centre_of_mass, iter_super_resolve, super_resolve, super_resolve_histograms
 from jaxsr.model import Model, apply_model, init_model
 from jaxsr.peaks import centre_of_mass
 
@@ -88,31 +87,12 @@ def test_bad_input_is_refused_clearly():
         list(iter_centre_of_mass(-np.ones((1, 4, 6, 16))))
 
 
-def test_compilation_cache_folder(tmp_path, monkeypatch):
-    before = jax.config.jax_compilation_cache_dir
-    try:
-        monkeypatch.setenv("JAXSR_CACHE_DIR", "off")
-        assert enable_compilation_cache() is None
-        monkeypatch.setenv("JAXSR_CACHE_DIR", str(tmp_path / "xla"))
-        assert enable_compilation_cache() == tmp_path / "xla"
-        assert jax.config.jax_compilation_cache_dir == str(tmp_path / "xla")
-    finally:
-        jax.config.update("jax_compilation_cache_dir", before)
-
-
-def test_use_cpu_cores_keeps_a_running_backend():
-    jnp.zeros(1).block_until_ready()  # the backend is running: the device count can no longer change
-    before = jax.local_device_count()
-    assert use_cpu_cores(n=before + 3) == before == jax.local_device_count()
-    with pytest.raises(ValueError, match="n must be >= 1"):
-        use_cpu_cores(n=0)
-
-
 _SHARDED_SCRIPT = textwrap.dedent(
     """
     import sys, json
     import jax, numpy as np
-    from jaxsr.inference import _batch_sharding, _infer_chunk, use_cpu_cores, super_resolve
+    from jaxsr.inference import _batch_sharding, _infer_chunk, super_resolve
+    from jaxsr.runtime import use_cpu_cores
     assert use_cpu_cores(n=2) == 2
     assert _batch_sharding(4) is not None and _batch_sharding(3) is None and _batch_sharding(1) is None
     sys.path.insert(0, {tests!r})
@@ -121,9 +101,9 @@ _SHARDED_SCRIPT = textwrap.dedent(
     seq = np.random.default_rng(3).uniform(0, 1, (7, 8, 12)).astype(np.float32)
     ref = _loop(model, seq)
     errors = {{str(b): float(np.max(np.abs(super_resolve(model, seq, batch_size=b) - ref))) for b in (None, 4, 3)}}
-    compiled = _infer_chunk._cache_size()
+    compiled = _infer_chunk()._cache_size()
     super_resolve(model, seq)  # the same shapes again: nothing recompiles
-    assert _infer_chunk._cache_size() == compiled == 3, compiled
+    assert _infer_chunk()._cache_size() == compiled == 3, compiled
     print(json.dumps(errors))
     """
 )

@@ -10,12 +10,14 @@ from jaxsr.layers import (
     batch_norm,
     conv3d,
     conv3d_native,
+    conv3d_stacked,
     conv3d_taps,
     default_conv3d_impl,
     depth_to_space,
     dynamic_upsample,
     init_batch_norm,
     neighbourhoods,
+    stacked_use,
 )
 
 
@@ -50,7 +52,7 @@ def test_conv3d_implementations_match_loop(pads, t):
     if t + sum(pads[0]) < 3:
         pytest.skip("fewer padded frames than taps")
     ref = _conv3d_loop(x, w, pads)
-    for f in (conv3d_native, conv3d_taps):
+    for f in (conv3d_native, conv3d_taps, conv3d_stacked):
         np.testing.assert_allclose(f(x, w, padding=pads), ref, rtol=1e-4, atol=1e-4)
 
 
@@ -61,6 +63,7 @@ def test_conv3d_dispatch_and_bias():
     ref = conv3d_native(x, w, b)
     np.testing.assert_allclose(jax.jit(lambda x: conv3d(x, w, b, impl="taps"))(x), ref, rtol=1e-5, atol=1e-5)
     np.testing.assert_allclose(conv3d(x, w, b, impl="taps"), ref, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(conv3d(x, w, b, impl="stacked"), ref, rtol=1e-5, atol=1e-5)
     np.testing.assert_allclose(conv3d(x, w, b, impl="auto"), ref, rtol=1e-5, atol=1e-5)
     w1 = jax.random.normal(jax.random.key(3), (1, 1, 1, 3, 2))  # 1x1x1: a matrix product
     np.testing.assert_allclose(conv3d(x, w1, b), conv3d_native(x, w1, b), rtol=1e-5, atol=1e-5)
@@ -71,14 +74,26 @@ def test_conv3d_dispatch_and_bias():
         conv3d(x[..., :2], w)
 
 
-def test_conv3d_taps_gradients_match_native():
+@pytest.mark.parametrize("pads", PADS[:2])
+def test_conv3d_gradients_match_native(pads):
     x = jax.random.normal(jax.random.key(4), (1, 3, 4, 4, 2))
     w = jax.random.normal(jax.random.key(5), (3, 3, 3, 2, 3))
-    pads = ((1, 1), (1, 1), (1, 1))
     g = [jax.grad(lambda x, w: jnp.sum(f(x, w, padding=pads) ** 2), argnums=(0, 1))(x, w)
-         for f in (conv3d_native, conv3d_taps)]
-    for a, b in zip(*g):
-        np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-3)
+         for f in (conv3d_native, conv3d_taps, conv3d_stacked)]
+    for other in g[1:]:
+        for a, b in zip(g[0], other):
+            np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-3)
+
+
+def test_stacked_use_counts_the_products_that_reach_an_output():
+    """Brute force: tap k of input frame s reaches output s + t_lo - k when that lies in 0 .. t_out - 1."""
+    for t_in, (t_lo, t_hi) in [(9, (1, 1)), (9, (0, 0)), (3, (0, 0)), (1, (1, 1)), (4, (2, 0))]:
+        t_out = t_in + t_lo + t_hi - 2
+        used = sum(0 <= s + t_lo - k < t_out for s in range(t_in) for k in range(3))
+        assert stacked_use(t_in, ((t_lo, t_hi), (1, 1), (1, 1))) == pytest.approx(used / (3 * t_in))
+    assert stacked_use(9, "same") == pytest.approx(25 / 27) and stacked_use(3, "valid") == pytest.approx(1 / 3)
+    with pytest.raises(ValueError, match="fewer than the temporal kernel"):
+        stacked_use(1, "valid")
 
 
 def test_batch_norm_train_and_eval():

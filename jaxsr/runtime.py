@@ -1,0 +1,90 @@
+"""How JAX runs this project's programs: CPU devices, XLA compiler options and the compilation cache.
+
+These are process-wide settings, not pipeline stages: call `use_cpu_cores` and `enable_compilation_cache` once,
+right after `import jax`; pass `compiler_options()` to `jax.jit` around code that calls `apply_model`.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+
+__all__ = ["MAX_CPU_DEVICES", "use_cpu_cores", "compiler_options", "enable_compilation_cache"]
+
+# `use_cpu_cores` exposes at most this many: the speed-up was measured on 2 cores only.
+MAX_CPU_DEVICES = 8
+# XLA:CPU hands convolutions to the YNNPACK library by default. On this network's 3x3 convolutions with 32
+# output channels YNNPACK ran on one thread (135 GFLOP/s on 2 cores), XLA's own Eigen convolution on both
+# (240 GFLOP/s); TR4 inference went from 4.6 to 7.0 frames/s on one device (benchmarks/compare_torch.py).
+# The empty list turns YNNPACK fusions off.
+_CPU_OPTIONS = {"xla_cpu_experimental_ynn_fusion_type": ""}
+
+
+def use_cpu_cores(*, n: int | None = None) -> int:
+    """Expose the host's CPU cores as n JAX CPU devices, so that `super_resolve` can split a batch over them.
+
+    Call it right after `import jax`, before any JAX operation: once the backend is running the device count is
+    fixed, and this leaves it as it is. n: a scalar count (default: the cores this process may use, at most
+    MAX_CPU_DEVICES). It does nothing if XLA_FLAGS already sets --xla_force_host_platform_device_count. Returns
+    the number of devices JAX will use (asking starts the backend: call `jax.distributed.initialize` first).
+    On a JAX without the `jax_num_cpu_devices` option it leaves the devices as they are.
+    """
+    if n is None:
+        n = min(len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1,
+                MAX_CPU_DEVICES)
+    if n < 1:
+        raise ValueError(f"use_cpu_cores: n must be >= 1, got {n}")
+    if "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", ""):
+        try:
+            jax.config.update("jax_num_cpu_devices", int(n))
+        except (RuntimeError, AttributeError):  # backend already running, or an older JAX: keep its devices
+            pass
+    return jax.local_device_count()
+
+
+def compiler_options() -> dict:
+    """XLA compiler options under which the network's inference runs fastest on the default backend.
+
+    `jax.jit(f, compiler_options=jaxsr.compiler_options())`; `super_resolve` uses them. On CPU: XLA's own
+    convolutions instead of YNNPACK (see `_CPU_OPTIONS`); elsewhere, or on an XLA that does not know the option,
+    {} (the defaults). Not for training: the TR4 train step ran 1.8x slower with them (its gradient
+    convolutions are faster in YNNPACK). Probed once per process, by compiling a one-element function (this
+    starts the backend). Returns a new dict.
+    """
+    return dict(_CPU_OPTIONS) if _cpu_options_apply() else {}
+
+
+@functools.cache
+def _cpu_options_apply() -> bool:
+    if jax.default_backend() != "cpu":
+        return False
+    try:
+        jax.jit(lambda x: x + 1, compiler_options=_CPU_OPTIONS).lower(jnp.zeros(())).compile()
+    except Exception:  # noqa: BLE001 - an XLA without the option: INVALID_ARGUMENT, "No such compile option"
+        return False
+    return True
+
+
+def enable_compilation_cache(*, path=None) -> Path | None:
+    """Turn on JAX's persistent compilation cache, so that a second run skips XLA compilation.
+
+    path: the cache folder (default: $JAXSR_CACHE_DIR, else $XDG_CACHE_HOME/jaxsr/xla, else ~/.cache/jaxsr/xla).
+    JAXSR_CACHE_DIR=off disables it. Takes no arrays (path is a scalar option); returns the folder used, or None
+    when disabled."""
+    if path is None:
+        path = os.environ.get("JAXSR_CACHE_DIR")
+        if path is None:
+            base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+            path = Path(base) / "jaxsr" / "xla"
+    if str(path).lower() == "off":
+        return None
+    path = Path(path).expanduser()
+    path.mkdir(parents=True, exist_ok=True)
+    jax.config.update("jax_compilation_cache_dir", str(path))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+    return path

@@ -1,0 +1,49 @@
+"""Runtime settings: the compilation cache folder, CPU devices, and the inference compiler options."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxsr.config import ModelConfig
+from jaxsr.model import apply_model, init_model
+from jaxsr.runtime import compiler_options, enable_compilation_cache, use_cpu_cores
+
+
+def test_compilation_cache_folder(tmp_path, monkeypatch):
+    before = jax.config.jax_compilation_cache_dir
+    try:
+        monkeypatch.setenv("JAXSR_CACHE_DIR", "off")
+        assert enable_compilation_cache() is None
+        monkeypatch.setenv("JAXSR_CACHE_DIR", str(tmp_path / "xla"))
+        assert enable_compilation_cache() == tmp_path / "xla"
+        assert jax.config.jax_compilation_cache_dir == str(tmp_path / "xla")
+    finally:
+        jax.config.update("jax_compilation_cache_dir", before)
+
+
+def test_use_cpu_cores_keeps_a_running_backend():
+    jnp.zeros(1).block_until_ready()  # the backend is running: the device count can no longer change
+    before = jax.local_device_count()
+    assert use_cpu_cores(n=before + 3) == before == jax.local_device_count()
+    with pytest.raises(ValueError, match="n must be >= 1"):
+        use_cpu_cores(n=0)
+
+
+def test_compiler_options_change_the_convolutions_not_the_results():
+    """On CPU the options take the convolutions away from YNNPACK; the network's output does not change."""
+    opts = compiler_options()
+    if jax.default_backend() != "cpu":
+        assert opts == {}
+        return
+    cfg = ModelConfig(tr=1, base=8, growth=4, head=16, filter_hidden=16)
+    params, state = init_model(jax.random.key(0), cfg)
+    windows = jax.random.uniform(jax.random.key(1), (2, 3, 8, 12))
+    f = lambda p, s, w: apply_model(p, s, w, cfg)  # noqa: E731
+    default = jax.jit(f).lower(params, state, windows).compile()
+    tuned = jax.jit(f, compiler_options=opts).lower(params, state, windows).compile()
+    np.testing.assert_allclose(tuned(params, state, windows), default(params, state, windows), rtol=1e-5, atol=1e-5)
+    if opts:  # this XLA knows the option: no convolution may go to YNNPACK
+        assert "__ynn_fusion" not in tuned.as_text()
+    opts["extra"] = 1  # a new dict each call: the caller may change it
+    assert "extra" not in compiler_options()
