@@ -16,7 +16,8 @@ import pytest
 
 from jaxsr.config import ModelConfig, SensorConfig
 from jaxsr.inference import DEFAULT_BATCH_SIZE, super_resolve, super_resolve_histograms
-from jaxsr.model import Model, flops_per_frame, init_model
+from jaxsr.model import Model, apply_model, flops_per_frame, init_model
+from jaxsr.runtime import compiler_options
 
 SENSOR = SensorConfig()
 FRAMES = 16
@@ -54,6 +55,22 @@ def test_super_resolve_histograms(timed, benchmark, tr):
     counts = np.asarray(jax.random.poisson(jax.random.key(2), 2.0, (FRAMES, *SENSOR.lr_shape, SENSOR.bins)))
     timed(lambda: super_resolve_histograms(model, counts), rounds=3, items=FRAMES)
     _record(benchmark, model.config)
+
+
+@pytest.mark.parametrize("options", ["xla-defaults", "jaxsr"])
+@pytest.mark.parametrize("impl", ["taps", "auto"])
+def test_network_tr4_one_window(timed, benchmark, impl, options):
+    """What `compiler_options` and the stacked temporal taps (`conv3d_impl="auto"`) are worth: one TR4 window
+    through `apply_model` on one device, under XLA's default options or jaxsr's, with every tap convolved on
+    its own ("taps") or stacked where `stacked_use` >= 0.7 ("auto")."""
+    cfg = ModelConfig(tr=4, conv3d_impl=impl)
+    params, state = init_model(jax.random.key(0), cfg)
+    windows = jax.random.uniform(jax.random.key(1), (1, cfg.frames, *SENSOR.lr_shape))
+    opts = compiler_options() if options == "jaxsr" else {}
+    f = jax.jit(lambda p, s, w: apply_model(p, s, w, cfg), compiler_options=opts)
+    timed(f, params, state, windows, rounds=5, items=1)
+    if benchmark.stats is not None:
+        benchmark.extra_info["gflops_per_s"] = flops_per_frame(cfg, SENSOR.lr_shape) / benchmark.stats.stats.mean / 1e9
 
 
 def test_matmul_peak(timed, benchmark):

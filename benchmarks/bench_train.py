@@ -1,5 +1,5 @@
 """Training throughput: examples/s of the jitted train step for TR0 and TR4 at the `cpu` preset, the data
-pipeline on its own, and the two conv3d implementations side by side.
+pipeline on its own, and the three conv3d implementations side by side.
 
     pytest benchmarks/bench_train.py --benchmark-only            (about 3 min on 2 CPU cores)
 
@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from jaxsr.config import PRESETS, ModelConfig, SensorConfig
-from jaxsr.layers import conv3d_native, conv3d_taps
+from jaxsr.layers import conv3d_native, conv3d_stacked, conv3d_taps
 from jaxsr.model import init_model
 from jaxsr.optim import adam_init
 from jaxsr.train import make_train_step, scene_batches, sequence_batches
@@ -86,19 +86,22 @@ _W = jax.random.normal(jax.random.key(1), (3, 3, 3, 128, 32)) * 0.01
 _PAD = ((1, 1), (1, 1), (1, 1))
 
 
+_IMPLS = {"native": conv3d_native, "taps": conv3d_taps, "stacked": conv3d_stacked}
+
+
 @pytest.mark.benchmark(group="conv3d")
-@pytest.mark.parametrize("impl", ["native", "taps"])
+@pytest.mark.parametrize("impl", list(_IMPLS))
 def test_conv3d_forward(benchmark, impl):
-    f = {"native": conv3d_native, "taps": conv3d_taps}[impl]
+    f = _IMPLS[impl]
     g = jax.jit(lambda x, w: f(x, w, padding=_PAD))
     jax.block_until_ready(g(_X, _W))
     benchmark.pedantic(lambda: jax.block_until_ready(g(_X, _W)), rounds=5, iterations=1)
 
 
 @pytest.mark.benchmark(group="conv3d")
-@pytest.mark.parametrize("impl", ["native", "taps"])
+@pytest.mark.parametrize("impl", list(_IMPLS))
 def test_conv3d_forward_backward(benchmark, impl):
-    f = {"native": conv3d_native, "taps": conv3d_taps}[impl]
+    f = _IMPLS[impl]
     g = jax.jit(jax.grad(lambda x, w: jnp.sum(f(x, w, padding=_PAD) ** 2), argnums=(0, 1)))
     jax.block_until_ready(g(_X, _W))
     benchmark.pedantic(lambda: jax.block_until_ready(g(_X, _W)), rounds=5, iterations=1)

@@ -7,8 +7,8 @@ repeating the final frame), so a model compiles once per frame size. At most `ba
 and two batches of HR frames are held, however long the sequence is.
 
 With several devices (e.g. the host's cores exposed as CPU devices by `use_cpu_cores`), each batch is split
-over them: on 2 XLA:CPU cores TR4 ran 1.65x and TR0 1.4x faster than on one device using both cores, whose
-convolutions do not keep two threads busy (benchmarks/bench_inference.py).
+over them. The compiled call uses `jaxsr.compiler_options()` (on CPU, XLA's own convolutions, which keep both
+cores busy on one frame; benchmarks/bench_inference.py::test_network_tr4_one_window).
 """
 
 from __future__ import annotations
