@@ -18,6 +18,7 @@ __all__ = [
     "conv3d_native",
     "conv3d_taps",
     "conv3d_stacked",
+    "stacked_use",
     "default_conv3d_impl",
     "glorot_limit",
     "init_batch_norm",
