@@ -74,6 +74,12 @@ def _t_out(t_in, t_lo, t_hi, kt):
     return t_out
 
 
+def _tap_frames(k, t_lo, t_in, t_out) -> tuple[int, int]:
+    """Output frames t0 .. t1 - 1 whose tap k reads a real input frame (t + k - t_lo), not the zero padding."""
+    o = k - t_lo
+    return max(0, -o), min(t_out, t_in - o)
+
+
 def stacked_use(t_in: int, padding, kt: int = 3) -> float:
     """The share of the frame x tap products of `conv3d_stacked` that reach an output frame (1 = no waste).
 
@@ -82,7 +88,7 @@ def stacked_use(t_in: int, padding, kt: int = 3) -> float:
     """
     (t_lo, t_hi), _, _ = _pads(padding, (kt, 1, 1))
     t_out = _t_out(t_in, t_lo, t_hi, kt)
-    used = sum(max(0, min(t_out, t_in + t_lo - k) - max(0, t_lo - k)) for k in range(kt))
+    used = sum(max(0, t1 - t0) for t0, t1 in (_tap_frames(k, t_lo, t_in, t_out) for k in range(kt)))
     return used / (t_in * kt)
 
 
@@ -100,11 +106,10 @@ def conv3d_taps(x, w, b=None, *, padding="same"):
     for k in range(kt):
         # Output frame t reads input frame t + k - t_lo; frames in the zero padding contribute nothing, so
         # they are skipped rather than convolved (with T = 1 and padding 1 that saves 2 of 3 taps).
-        o = k - t_lo
-        t0, t1 = max(0, -o), min(t_out, t_in - o)
+        t0, t1 = _tap_frames(k, t_lo, t_in, t_out)
         if t1 <= t0:
             continue
-        xs = x[:, t0 + o : t1 + o].reshape(bsz * (t1 - t0), h, wd, cin)
+        xs = x[:, t0 + k - t_lo : t1 + k - t_lo].reshape(bsz * (t1 - t0), h, wd, cin)
         yk = _conv2d(xs, w[k], (hpad, wpad))
         yk = yk.reshape(bsz, t1 - t0, *yk.shape[1:])
         if (t0, t1) != (0, t_out):
