@@ -13,6 +13,32 @@ import jax
 from jaxsr._files import write_text_atomic
 
 
+def cpu_times() -> tuple[int, int] | None:
+    """(steal, total) CPU time of the machine so far, in clock ticks summed over its cores, from /proc/stat.
+
+    Steal is time the hypervisor ran something else on this virtual machine's cores: a timing taken while it
+    is high is low for reasons outside the code. None where /proc/stat is not there (not Linux)."""
+    try:
+        with open("/proc/stat") as f:
+            fields = [int(v) for v in f.readline().split()[1:]]
+    except (OSError, ValueError):
+        return None
+    # user nice system idle iowait irq softirq steal [guest guest_nice, already counted in user and nice]
+    return (fields[7], sum(fields[:8])) if len(fields) >= 8 else None
+
+
+def steal_share(since: tuple[int, int] | None, until: tuple[int, int] | None = None) -> float | None:
+    """The share of CPU time stolen by the hypervisor between two `cpu_times()` readings (until: now)."""
+    until = cpu_times() if until is None else until
+    if since is None or until is None or until[1] <= since[1]:
+        return None
+    return (until[0] - since[0]) / (until[1] - since[1])
+
+
+# when the experiment script imported this module, i.e. about when it started
+_CPU_TIMES_AT_START = cpu_times()
+
+
 def machine() -> str:
     """A one-line description of where the experiment ran."""
     cpu = platform.processor() or platform.machine()
@@ -25,7 +51,7 @@ def machine() -> str:
 
 
 def header(title: str, started: float) -> str:
-    """Markdown header: title, the exact command, machine, date and wall time."""
+    """Markdown header: title, the exact command, machine, date, wall time, load and CPU steal during the run."""
     command = "python " + " ".join([os.path.relpath(sys.argv[0])] + sys.argv[1:])
     return (
         f"# {title}\n\n"
@@ -35,8 +61,18 @@ def header(title: str, started: float) -> str:
         f"- wall time: {time.time() - started:.0f} s\n"
         f"- load average at the end (1, 5, 15 min): {', '.join(f'{v:.1f}' for v in os.getloadavg())} "
         "(the run itself keeps the cores busy; well above the core count, other work shared the CPU and "
-        "timings are low)\n\n"
+        "timings are low)\n"
+        + _steal_line()
+        + "\n"
     )
+
+
+def _steal_line() -> str:
+    share = steal_share(_CPU_TIMES_AT_START)
+    if share is None:
+        return ""
+    return (f"- CPU steal during the run: {100 * share:.0f} % of the machine's CPU time went to other virtual "
+            "machines on the same host (0 on a dedicated machine; the higher, the slower every timing here)\n")
 
 
 def write_atomic(path: str, text: str) -> None:
