@@ -19,8 +19,8 @@ environment): on a loaded machine torch's spinning OpenMP threads were measured 
 Timing: warm-up passes (compilation, oneDNN primitive creation) are excluded; then `--rounds` rounds
 alternate JAX and every torch variant, so that a background load hits all of them alike; frames/s counts
 the fastest round of each (frames / best wall time), and the JAX / torch ratio is also given round by round
-(median and range), which is the steadier figure on a shared host. Weights are random (`torch_reference.random_model`): the
-speed does not depend on them.
+(median and range), which is the steadier figure on a shared host. Weights are random
+(`torch_reference.random_model`): the speed does not depend on them.
 """
 
 from __future__ import annotations

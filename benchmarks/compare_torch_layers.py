@@ -87,7 +87,7 @@ def torch_timer(torch, fn, *args):
 def block_stages(torch, model, net, x_np):
     """[(name, GFLOP, jax timer, torch timer)] of every dense block, fed the same activations."""
     cfg, params, state = model.config, model.params, model.state
-    bn = dict(train=False, momentum=cfg.bn_momentum, eps=cfg.bn_eps)
+    bn = {"train": False, "momentum": cfg.bn_momentum, "eps": cfg.bn_eps}
     pixels = x_np.shape[0] * LR_SHAPE[0] * LR_SHAPE[1]
     stages = []
     xj, xt = jnp.asarray(x_np), torch.from_numpy(x_np)
@@ -107,7 +107,7 @@ def block_stages(torch, model, net, x_np):
         pad = ((0, 0) if valid else (1, 1), (1, 1), (1, 1))
         j1, yj = jax_timer(pointwise, xj)
         t1, yt = torch_timer(torch, pointwise_torch, xt)
-        j2, zj = jax_timer(lambda y, p=p: conv3d(y, p["conv2"]["w"], p["conv2"]["b"], padding=pad), yj)
+        j2, zj = jax_timer(lambda y, p=p, pad=pad: conv3d(y, p["conv2"]["w"], p["conv2"]["b"], padding=pad), yj)
         t2, zt = torch_timer(torch, lambda y, blk=blk: net._apply_conv(y, blk["conv2"]), yt)
         j3, xj = jax_timer(lambda x, z, v=valid: jnp.concatenate([x[:, 1:-1] if v else x, z], -1), xj, zj)
         t3, xt = torch_timer(torch, lambda x, z, v=valid: torch.cat([x[:, 1:-1] if v else x, z], -1), xt, zt)
