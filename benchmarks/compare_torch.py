@@ -48,7 +48,7 @@ CORES = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os
 
 from _report import header, markdown_table, write_atomic  # noqa: E402
 
-TORCH_MISSING = ("compare_torch.py needs PyTorch, which is not a jaxsr dependency; install the CPU build with:\n"
+TORCH_MISSING = ("The JAX vs PyTorch comparisons need PyTorch, which is not a jaxsr dependency; install the CPU build with:\n"
                  "    pip install torch==2.13.0")
 LR_SHAPE = (32, 64)
 

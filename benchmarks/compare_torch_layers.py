@@ -18,29 +18,21 @@ that reach an output (as `jaxsr.flops_per_frame`), not the extra ones of `conv3d
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
-from pathlib import Path
 
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # as compare_torch.py: sleeping, not spinning, OpenMP threads
+# compare_torch sets the process up as that comparison does (OMP_WAIT_POLICY, the cores as JAX devices) and
+# holds the shared constants; import it before any JAX operation
+import compare_torch as ct
+import jax
+import jax.numpy as jnp
+import numpy as np
+from _report import header, markdown_table, write_atomic
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
+import jaxsr
+from jaxsr.layers import batch_norm, conv3d
 
-import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
-
-import jaxsr  # noqa: E402
-
-jaxsr.use_cpu_cores()  # as compare_torch.py and `jaxsr upscale`; before any JAX operation
-
-from _report import header, markdown_table, write_atomic  # noqa: E402
-
-from jaxsr.layers import batch_norm, conv3d  # noqa: E402
-
-CORES = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-LR_SHAPE = (32, 64)
+LR_SHAPE = ct.LR_SHAPE
 
 
 def parse_args(argv=None):
@@ -48,7 +40,7 @@ def parse_args(argv=None):
     parser.add_argument("--tr", type=int, default=4, help="temporal radius of the network")
     parser.add_argument("--batch", type=int, default=1, help="windows per call")
     parser.add_argument("--rounds", type=int, default=7, help="timed rounds (the fastest counts)")
-    parser.add_argument("--threads", type=int, default=CORES, help="torch.set_num_threads (default: usable cores)")
+    parser.add_argument("--threads", type=int, default=ct.CORES, help="torch.set_num_threads (default: usable cores)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", default="experiments/results/torch_layers.md")
     args = parser.parse_args(argv)
@@ -127,9 +119,7 @@ def main(argv=None):
     try:
         import torch
     except ImportError:
-        sys.exit("compare_torch_layers.py needs PyTorch, which is not a jaxsr dependency; install the CPU build "
-                 "with:\n    pip install torch==2.13.0")
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
+        sys.exit(ct.TORCH_MISSING)
     import torch_reference as tref
 
     torch.set_num_threads(args.threads)
