@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import pytest
 
 from jaxsr import scenes
-from jaxsr.render import render_sequence
+from jaxsr.scenes import render_sequence
 
 FRAMES = 32
 

@@ -27,7 +27,7 @@ import jax.numpy as jnp
 import jaxsr
 from jaxsr.adaptive import STUDY_TABLE, choose_tr, estimate_motion
 from jaxsr.runtime import enable_compilation_cache
-from jaxsr.render import render_sequence
+from jaxsr.scenes import render_sequence
 from jaxsr.scenes import TEST_SEQUENCES, mean_lr_shift, test_scene
 
 from _eval import FPS_NOTE, Clip, add_model_args, load_tr, model_fps, score, simulate_clip, weights_source

@@ -48,8 +48,8 @@ from .recon import tv_super_resolve as tv_super_resolve
 from .runtime import compiler_options as compiler_options
 from .runtime import enable_compilation_cache as enable_compilation_cache
 from .runtime import use_cpu_cores as use_cpu_cores
-from .render import Scene as Scene
-from .render import render as render
+from .scenes import Scene as Scene
+from .scenes import render as render
 from .scenes import mean_lr_shift as mean_lr_shift
 from .scenes import sample_scene as sample_scene
 from .scenes import sequence as sequence

@@ -36,13 +36,25 @@ def planar_to_radial(z, sensor: SensorConfig = SensorConfig()):
     return z * ray_norm(sensor)
 
 
-def ray_norm(sensor: SensorConfig = SensorConfig()):
-    """(H, W) length of the ray direction (x, y, 1) through each HR pixel centre: radial = planar * norm."""
+def pixel_rays(sensor: SensorConfig = SensorConfig(), *, tilt=0.0):
+    """Ray directions of the HR pixel centres (col + 0.5, row + 0.5) in the camera frame (x right, y up, z
+    forward), scaled so that their z component is 1.
+
+    tilt: a downward view as a vertical lens shift (radians, small): each ray's y is reduced by `tilt`.
+    Returns (dx (W,), dy (H,), norm (H, W)): D = (dx[col], dy[row], 1) and norm = |D|, so a planar depth z is
+    the radial depth z * norm.
+    """
     h, w = sensor.hr_shape
     f = sensor.focal_px
-    u = (jnp.arange(w) + 0.5 - w / 2) / f
-    v = (jnp.arange(h) + 0.5 - h / 2) / f
-    return jnp.sqrt(1.0 + u[None, :] ** 2 + v[:, None] ** 2)
+    dx = (jnp.arange(w, dtype=jnp.float32) + 0.5 - w / 2) / f
+    dy = -(jnp.arange(h, dtype=jnp.float32) + 0.5 - h / 2) / f - tilt
+    norm = jnp.sqrt(1.0 + dx[None, :] ** 2 + dy[:, None] ** 2)
+    return dx, dy, norm
+
+
+def ray_norm(sensor: SensorConfig = SensorConfig()):
+    """(H, W) length of the ray direction (x, y, 1) through each HR pixel centre: radial = planar * norm."""
+    return pixel_rays(sensor)[2]
 
 
 def has_return(depth, sensor: SensorConfig = SensorConfig()):

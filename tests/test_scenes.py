@@ -11,7 +11,7 @@ import pytest
 
 from jaxsr import scenes
 from jaxsr.config import SensorConfig
-from jaxsr.render import Boxes, Cylinders, Ellipsoids, Motion, tile_overflow
+from jaxsr.scenes import Boxes, Cylinders, Ellipsoids, Motion, test_sets, tile_overflow
 from jaxsr.sensor import planar_to_radial
 
 SENSOR = SensorConfig()
@@ -20,7 +20,7 @@ F = float(SENSOR.focal_px)
 T = 8
 CAM_H = 1.7
 
-_render = scenes._render_jit  # one compiled renderer shared with test_sequence (same shapes, same cache)
+_render = test_sets._render_jit  # one compiled renderer shared with test_sequence (same shapes, same cache)
 
 
 def frames(scene, fps=100.0, t0=0.0, **kw):

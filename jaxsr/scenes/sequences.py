@@ -1,0 +1,123 @@
+"""Sequences of a random scene, their motion in LR pixels per frame, and the training clips.
+
+Motion is in physical units: speeds in m/s (drawn in km/h), times in seconds, frame rates in frames per second;
+the shift per frame in LR pixels of an object at depth z moving across the view at speed v is
+v / (fps z) * focal_px / scale (`mean_lr_shift`).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import jax
+import jax.numpy as jnp
+
+from ..config import SensorConfig
+from .layouts import sample_scene
+from .pose import pose_all, project_bounds
+from .primitives import Scene
+from .raycast import render_sequence
+
+__all__ = ["mean_lr_shift", "sequence", "training_clip", "training_scene"]
+
+
+def sequence(key, n_frames, fps, *, kind=None, sensor: SensorConfig = SensorConfig(), t0=0.0, camera="random",
+             **options):
+    """Render a random scene for `n_frames` (static int) frames at `fps` frames per second from time `t0` (s).
+
+    Returns (depth, intensity), each (n_frames, H, W) float32: radial metres (inf = no return) and [0, 1].
+    jit- and vmap-able over key, fps and t0.
+    """
+    sample_scene(key, kind=kind, camera=camera, **options)  # validates the arguments eagerly (cheap checks)
+    return _sequence_jit(key, n_frames, fps, t0, sensor, kind, camera, tuple(sorted(options.items())))
+
+
+@functools.partial(jax.jit, static_argnums=(1, 5, 6, 7))
+def _sequence_jit(key, n_frames, fps, t0, sensor, kind, camera, options):
+    scene = sample_scene(key, kind=kind, camera=camera, **dict(options))
+    times = t0 + jnp.arange(n_frames, dtype=jnp.float32) / fps
+    return render_sequence(scene, times, sensor=sensor)
+
+
+@jax.jit
+def mean_lr_shift(scene: Scene, fps, *, sensor: SensorConfig = SensorConfig(), t=0.0):
+    """Mean image motion of the moving objects, in LR pixels per frame at `fps`.
+
+    Args: scene (a `Scene`), fps (frames per second, scalar), t (s, scalar). For every active primitive whose
+    projected bounding box overlaps the frame widened by half a frame on each side at time t, the image velocity
+    of its bounding-box centre (HR px/s, the exact derivative of the projection, camera motion and pan included)
+    is divided by `sensor.scale` and `fps`; the mean is over those that move (> 1e-3 LR px/s).
+    Returns a scalar (0 if nothing moves). An object at depth z crossing the view at speed v moves
+    v / (fps z) * focal_px / scale LR px per frame: 35 m, 50 km/h, 100 FPS -> 0.47 (the paper's "about 0.5").
+    """
+    h, w = sensor.hr_shape
+    f = sensor.focal_px
+    tilt = scene.camera.tilt
+
+    def project(t):
+        groups, _, _ = pose_all(scene, t)
+        c = jnp.concatenate([(g.aabb[:, 0::2] + g.aabb[:, 1::2]) / 2 for g in groups], 0)
+        z = jnp.maximum(c[:, 2], 1e-3)
+        return jnp.stack([f * c[:, 0] / z, -f * (c[:, 1] / z + tilt)], -1)
+
+    t = jnp.asarray(t, jnp.float32)
+    _, duv = jax.jvp(project, (t,), (jnp.ones_like(t),))
+    groups, _, _ = pose_all(scene, t)
+    in_view = []
+    for g in groups:
+        bounds, visible = project_bounds(g.aabb, sensor, tilt)
+        in_view.append(g.active & visible & (bounds[:, 1] > -w / 2) & (bounds[:, 0] < 1.5 * w)
+                       & (bounds[:, 3] > -h / 2) & (bounds[:, 2] < 1.5 * h) & (g.aabb[:, 5] > 0.5))
+    in_view = jnp.concatenate(in_view)
+    speed = jnp.sqrt(jnp.sum(duv ** 2, -1)) / sensor.scale  # LR px per second
+    moving = in_view & (speed > 1e-3)
+    mean = jnp.sum(jnp.where(moving, speed, 0.0)) / jnp.maximum(jnp.sum(moving), 1)
+    return mean / fps
+
+
+def training_scene(key, *, sensor: SensorConfig = SensorConfig(), shift_range=(0.2, 5.0)):
+    """Draw the scene, frame rate and start time of a training clip (see `training_clip`), without rendering.
+
+    Returns (scene, fps, t0): a `Scene`, frames per second (scalar) and the start time (s, scalar). The mean
+    shift `mean_lr_shift(scene, fps, t=t0)` is log-uniform in `shift_range` (up to the fps clip to [1, 2000]);
+    scenes where nothing in view moves are replaced by the same kind of draw with a moving camera."""
+    return _training_scene_jit(key, sensor, tuple(float(v) for v in shift_range))
+
+
+@functools.partial(jax.jit, static_argnums=(2,))
+def _training_scene_jit(key, sensor, shift_range):
+    k_scene, k_moving, k_shift, k_t0 = jax.random.split(key, 4)
+    t0 = jax.random.uniform(k_t0, (), minval=0.0, maxval=10.0)
+    scene = sample_scene(k_scene)
+    per_second = mean_lr_shift(scene, 1.0, sensor=sensor, t=t0)
+    moving = sample_scene(k_moving, camera="moving")
+    use_moving = per_second <= 0
+    scene = jax.tree.map(lambda a, b: jnp.where(use_moving, b, a), scene, moving)
+    per_second = jnp.where(use_moving, mean_lr_shift(moving, 1.0, sensor=sensor, t=t0), per_second)
+    lo, hi = shift_range
+    target = jnp.exp(jax.random.uniform(k_shift, (), minval=math.log(lo), maxval=math.log(hi)))
+    fps = jnp.where(per_second > 0, jnp.clip(per_second / target, 1.0, 2000.0), 25.0)
+    return scene, fps, t0
+
+
+def training_clip(key, n_frames, *, sensor: SensorConfig = SensorConfig(), shift_range=(0.2, 5.0),
+                  return_info=False):
+    """A random training clip whose mean motion is log-uniform in `shift_range` LR pixels per frame.
+
+    Draws a random kind and scene (35 % with a moving camera), a target shift, and the frame rate that gives it
+    (fps = mean LR shift per second / target, clipped to [1, 2000]); starts at a random time in [0, 10) s.
+    Returns (depth, intensity), each (n_frames, H, W) float32 (radial metres, inf = no return; [0, 1]); with
+    return_info also a dict(fps=, shift=) of scalars. jit- and vmap-able over key (n_frames static).
+    """
+    return _training_clip_jit(key, int(n_frames), sensor, tuple(float(v) for v in shift_range), bool(return_info))
+
+
+@functools.partial(jax.jit, static_argnums=(1, 3, 4))
+def _training_clip_jit(key, n_frames, sensor, shift_range, return_info):
+    scene, fps, t0 = _training_scene_jit(key, sensor, shift_range)
+    times = t0 + jnp.arange(n_frames, dtype=jnp.float32) / fps
+    depth, intensity = render_sequence(scene, times, sensor=sensor)
+    if return_info:
+        return depth, intensity, dict(fps=fps, shift=mean_lr_shift(scene, fps, sensor=sensor, t=t0))
+    return depth, intensity
