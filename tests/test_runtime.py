@@ -1,5 +1,9 @@
 """Runtime settings: the compilation cache folder, CPU devices, and the inference compiler options."""
 
+import os
+import subprocess
+import sys
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -22,10 +26,26 @@ def test_compilation_cache_folder(tmp_path, monkeypatch):
         jax.config.update("jax_compilation_cache_dir", before)
 
 
-def test_use_cpu_cores_keeps_a_running_backend():
-    jnp.zeros(1).block_until_ready()  # the backend is running: the device count can no longer change
-    before = jax.local_device_count()
-    assert use_cpu_cores(n=before + 3) == before == jax.local_device_count()
+_CORES_SCRIPT = """
+import os, jax, jax.numpy as jnp
+from jaxsr.runtime import use_cpu_cores
+first = use_cpu_cores(n=3)            # before any operation: the backend starts with 3 CPU devices
+jnp.zeros(1).block_until_ready()
+later = use_cpu_cores(n=5)            # the backend runs: the count can no longer change, and no error
+print(first, later, jax.local_device_count())
+"""
+
+
+@pytest.mark.parametrize("xla_flags,expected", [("", "3 3 3"), ("--xla_force_host_platform_device_count=2", "2 2 2")])
+def test_use_cpu_cores_sets_the_device_count_once(xla_flags, expected):
+    """In a fresh process: n devices when called first, unchanged once the backend runs, and XLA_FLAGS wins."""
+    env = dict(os.environ, XLA_FLAGS=xla_flags, JAX_PLATFORMS="cpu")
+    proc = subprocess.run([sys.executable, "-c", _CORES_SCRIPT], env=env, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.split()[-3:] == expected.split()
+
+
+def test_use_cpu_cores_rejects_a_bad_count():
     with pytest.raises(ValueError, match="n must be >= 1"):
         use_cpu_cores(n=0)
 
