@@ -56,6 +56,7 @@ from .scenes import sequence as sequence
 from .scenes import test_sequences as test_sequences
 from .scenes import training_clip as training_clip
 from .sensor import calibrate as calibrate
+from .sensor import denormalise_depth as denormalise_depth
 from .sensor import expected_histograms as expected_histograms
 from .sensor import normalise_depth as normalise_depth
 from .sensor import planar_to_radial as planar_to_radial
