@@ -46,6 +46,7 @@ def run_simulate(args):
     from .baselines import bicubic
     from .metrics import psnr, ssim
     from .peaks import centre_of_mass
+    from .previews import write_comparison, write_gray_preview, write_preview
     from .sensor import normalise_depth, simulate_histograms
 
     sensor = SensorConfig()
@@ -74,15 +75,14 @@ def run_simulate(args):
                         overwrite=True, **meta)
     io.write_sequence(out / "com_depth.npy", com, overwrite=True)
     io.write_sequence(out / "gt_depth.npy", np.asarray(depth), overwrite=True)
-    io.write_preview(out / "preview_gt.png", np.asarray(depth[0]), d_max=float(sensor.d_max), overwrite=True)
-    io.write_preview(out / "preview_com.png", com[0], d_max=float(sensor.d_max), normalised=True, overwrite=True)
-    gray = (np.clip(np.asarray(intensity[0]), 0, 1) * 255 + 0.5).astype(np.uint8)
-    io._write_preview_gray(out / "preview_intensity.png", gray)
+    write_preview(out / "preview_gt.png", np.asarray(depth[0]), d_max=float(sensor.d_max), overwrite=True)
+    write_preview(out / "preview_com.png", com[0], d_max=float(sensor.d_max), normalised=True, overwrite=True)
+    write_gray_preview(out / "preview_intensity.png", np.asarray(intensity[0]), overwrite=True)
     # The baseline a network has to beat: bicubic upsampling of the centre-of-mass depth.
     gt = np.asarray(normalise_depth(jnp.asarray(depth), sensor))
     up = np.asarray(bicubic(com, scale=sensor.scale))
-    io.write_comparison(out / "preview_strip.png", com[0], np.clip(up[0], 0, 1), gt=gt[0],
-                        labels=("centre of mass", "bicubic", "ground truth"), overwrite=True)
+    write_comparison(out / "preview_strip.png", com[0], np.clip(up[0], 0, 1), gt=gt[0],
+                     labels=("centre of mass", "bicubic", "ground truth"), overwrite=True)
     quality = dict(bicubic_psnr_db=round(float(np.mean(psnr(up, gt))), 2),
                    bicubic_ssim=round(float(np.mean(ssim(up, gt))), 3))
     print(json.dumps(dict(meta, **quality, out=str(out), counts_shape=list(counts.shape))))

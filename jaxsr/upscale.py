@@ -16,7 +16,8 @@ import numpy as np
 
 from . import io
 from .config import SensorConfig
-from .sensor import normalise_depth
+from .previews import write_comparison
+from .sensor import denormalise_depth, normalise_depth
 
 FRAME_FORMATS = (".exr", ".pfm", ".tif", ".tiff", ".png")
 ARRAY_FORMATS = (".npy", ".npz")
@@ -90,7 +91,7 @@ def open_recording(spec, *, kind: str | None = None) -> Recording:
             except (ValueError, OSError) as e:
                 raise ValueError(f"cannot read {spec}: truncated or not an NPY file ({e})") from e
         else:
-            z = io._load_npz(p, [])
+            z = io.read_npz_arrays(p)
             name = "counts" if "counts" in z and kind != "depth" else "depth"
             if name not in z:
                 raise ValueError(f"{spec}: expected an array 'depth' or 'counts', found {sorted(z)}")
@@ -160,12 +161,11 @@ def check_output(spec, *, force: bool) -> Path:
 
 
 def to_units(hr, units, sensor):
-    """Network output (normalised) -> the input's units: clipped to [0, 1], or metres with inf for no return."""
-    hr = np.clip(hr, 0.0, 1.0)
+    """Network output (normalised) -> the input's units: clipped to [0, 1], or metres with inf for no
+    return (`jaxsr.sensor.denormalise_depth`)."""
     if units == "normalised":
-        return hr
-    d_max = float(sensor.d_max)
-    return np.where(hr >= 1.0 - 0.5 / 65535, np.inf, hr * d_max).astype(np.float32)
+        return np.clip(hr, 0.0, 1.0)
+    return np.asarray(denormalise_depth(hr, sensor), np.float32)
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -250,9 +250,9 @@ def run_upscale(args) -> int:
             io.write_depth(out / f"frame_{t:06d}{ext}", to_units(hr, "m", sensor), overwrite=args.force)
             preview = hr if t == preview_t else preview
     if args.preview:
-        io.write_comparison(args.preview, preview_lr[0], np.clip(preview, 0, 1), d_max=float(sensor.d_max),
-                            labels=("input (centre of mass)" if rec.kind == "histograms" else "input", described),
-                            overwrite=args.force)
+        write_comparison(args.preview, preview_lr[0], np.clip(preview, 0, 1), d_max=float(sensor.d_max),
+                         labels=("input (centre of mass)" if rec.kind == "histograms" else "input", described),
+                         overwrite=args.force)
     print(json.dumps({"frames": rec.frames, "output": str(out), "shape": [rec.frames, *hr_shape],
                       "units": units, "model": described}))
     return 0
