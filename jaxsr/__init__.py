@@ -28,11 +28,11 @@ from .io import read_airsim as read_airsim
 from .io import read_depth as read_depth
 from .io import read_histograms as read_histograms
 from .io import read_sequence as read_sequence
-from .io import write_comparison as write_comparison
 from .io import write_depth as write_depth
 from .io import write_histograms as write_histograms
-from .io import write_preview as write_preview
 from .io import write_sequence as write_sequence
+from .previews import write_comparison as write_comparison
+from .previews import write_preview as write_preview
 from .metrics import TemporalCoherence as TemporalCoherence
 from .metrics import psnr as psnr
 from .metrics import ssim as ssim
@@ -56,6 +56,7 @@ from .scenes import sequence as sequence
 from .scenes import test_sequences as test_sequences
 from .scenes import training_clip as training_clip
 from .sensor import calibrate as calibrate
+from .sensor import denormalise_depth as denormalise_depth
 from .sensor import expected_histograms as expected_histograms
 from .sensor import normalise_depth as normalise_depth
 from .sensor import planar_to_radial as planar_to_radial

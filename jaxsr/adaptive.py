@@ -6,7 +6,8 @@ hurt once they move far (the network cannot align them). `estimate_motion` measu
 parts of the scene in LR pixels per frame from the centre-of-mass frames themselves, by block matching at
 several frame lags; `choose_tr` looks that motion up in the table `experiments/fps_study.py` measured
 (`jaxsr/weights/frame_rate_study.json`: PSNR of each TR against the same estimator's motion, and each TR's
-frames/s) and returns the best TR within a frame-rate budget.
+frames/s) and returns the best TR within a frame-rate budget; `resolve_model` loads the bundled weights it
+picks (`jaxsr upscale --model auto`).
 """
 
 from __future__ import annotations
@@ -19,6 +20,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+from .checkpoint import load_model
 
 STUDY_TABLE = Path(__file__).parent / "weights" / "frame_rate_study.json"
 SEARCH_RADIUS = 6  # LR px: block matching searches shifts up to this far
@@ -169,3 +172,13 @@ def choose_tr(lr_seq, *, min_fps: float | None = None, table: dict | None = None
     tr = max(allowed, key=predicted.get)
     budget = "" if min_fps is None else f", {len(allowed)} TRs reach {min_fps:g} frames/s"
     return TRChoice(tr, est, f"motion {est.motion:.2f} LR px/frame{budget}; predicted {predicted[tr]:.2f} dB")
+
+
+def resolve_model(spec, lr_head, *, min_fps: float | None = None):
+    """The model for a recording: `spec` is "auto" (`choose_tr` on `lr_head`, the recording's first LR frames
+    (T, h, w), within `min_fps`; then the bundled weights of that TR) or anything `jaxsr.load_model` takes
+    (tr0..tr4, a checkpoint path). Returns (Model, a one-line description for people)."""
+    if spec == "auto":
+        choice = choose_tr(lr_head, min_fps=min_fps)
+        return load_model(f"tr{choice.tr}"), f"tr{choice.tr} (auto: {choice.reason})"
+    return load_model(spec), str(spec)

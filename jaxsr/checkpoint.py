@@ -20,7 +20,7 @@ import numpy as np
 
 from ._files import atomic_path
 from .config import ModelConfig
-from .model import Model, init_model
+from .model import Model, count_params, flops_per_frame, init_model
 
 __all__ = [
     "FORMAT_VERSION",
@@ -30,6 +30,8 @@ __all__ = [
     "read_metadata",
     "save_model",
     "load_model",
+    "model_info",
+    "resolve_model_path",
     "config_to_dict",
     "config_from_dict",
 ]
@@ -180,7 +182,12 @@ def save_model(path, model: Model, *, card: dict | None = None, storage_dtype: s
     return save_tree(path, tree, meta)
 
 
-def _resolve(path) -> Path:
+def resolve_model_path(path) -> Path:
+    """Where a model lives: `path` itself if it is a file, else `path` + ".npz", else the bundled weights of
+    that name (`jaxsr/weights/tr4.npz` for "tr4"). Raises FileNotFoundError naming all three.
+
+    Args: path (str or Path). Returns a Path to an existing file (not opened or checked).
+    """
     p = Path(path)
     if p.is_file():
         return p
@@ -199,7 +206,7 @@ def load_model(path) -> Model:
     checked against the shapes `init_model` gives for the stored config; raises `ValueError` for a truncated
     file, a missing or unexpected key, a wrong shape or dtype, or an unsupported format version.
     """
-    path = _resolve(path)
+    path = resolve_model_path(path)
     meta = read_metadata(path)
     if meta.get("kind") not in ("model", "train_state") or "config" not in meta:
         raise ValueError(f"checkpoint {str(path)!r} does not hold a jaxsr model (kind {meta.get('kind')!r})")
@@ -209,3 +216,21 @@ def load_model(path) -> Model:
     tree, _ = load_tree(path, {"params": params_t, "state": state_t}, strict=strict)
     tree = jax.tree_util.tree_map(jax.numpy.asarray, tree)
     return Model(tree["params"], tree["state"], cfg)
+
+
+def model_info(path, *, lr_shape=(32, 64)) -> dict:
+    """Describe a model (see `resolve_model_path` for `path`): its file, config, frames per window, parameter
+    count, GFLOP per frame at `lr_shape` (rows, cols) and training card, as a JSON-ready dict."""
+    path = resolve_model_path(path)
+    model = load_model(path)
+    meta = read_metadata(path)
+    cfg = model.config
+    return {
+        "path": str(path),
+        "config": json.loads(json.dumps(meta["config"])),
+        "frames_per_window": cfg.frames,
+        "parameters": count_params(model.params),
+        "lr_shape": list(lr_shape),
+        "gflops_per_frame": round(flops_per_frame(cfg, lr_shape) / 1e9, 3),
+        "card": meta.get("card", {}),
+    }

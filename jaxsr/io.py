@@ -1,5 +1,6 @@
-"""File I/O: depth frames (EXR, PFM, TIFF, 16-bit PNG), NPY/NPZ sequences, AirSim recordings, histogram
-sequences, and PNG previews and comparison strips. OpenImageIO underneath for the image formats.
+"""File formats: depth frames (EXR, PFM, TIFF, 16-bit PNG), NPY/NPZ sequences, AirSim recordings, histogram
+sequences, and plain images. OpenImageIO underneath for the image formats. Colour-mapped pictures of depth
+(previews, comparison strips) are drawn in `jaxsr.previews`.
 
 Conventions:
 - a depth frame is (H, W) float32 radial metres; no return is +inf (NaN is read as no return too);
@@ -28,11 +29,11 @@ __all__ = [
     "read_depth",
     "read_histograms",
     "read_image",
+    "read_npz_arrays",
     "read_sequence",
-    "write_comparison",
     "write_depth",
     "write_histograms",
-    "write_preview",
+    "write_image",
     "write_sequence",
 ]
 
@@ -115,6 +116,25 @@ def _write_oiio(tmp, pixels, pixel_type, attributes=()):
             raise ValueError(f"cannot write {tmp}: {out.geterror()}")
     finally:
         out.close()
+
+
+def write_image(path, pixels, *, overwrite=False):
+    """Write pixels as an image, format from the suffix (PNG, EXR, TIFF, ... as OpenImageIO writes them), in
+    their own type: uint8 -> 8 bits, uint16 -> 16 bits, float32 -> float. Atomic; no existing file is replaced
+    unless `overwrite`.
+
+    Args: path, pixels (H, W) or (H, W, C) uint8, uint16 or float32. Returns None.
+    """
+    pixels = np.asarray(pixels)
+    types = {np.dtype(np.uint8): "uint8", np.dtype(np.uint16): "uint16", np.dtype(np.float32): "float"}
+    if pixels.dtype not in types:
+        raise ValueError(f"writing {path}: expected uint8, uint16 or float32 pixels, got {pixels.dtype}")
+    if pixels.ndim == 2:
+        pixels = pixels[..., None]
+    if pixels.ndim != 3:
+        raise ValueError(f"writing {path}: expected an image of shape (H, W) or (H, W, C), got {pixels.shape}")
+    with _atomic(path, overwrite) as tmp:
+        _write_oiio(tmp, pixels, types[pixels.dtype])
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -253,7 +273,12 @@ def write_sequence(path, depth, *, intensity=None, overwrite=False, **metadata):
             raise ValueError(f"{path}: sequences are .npy or .npz, got {suffix!r}")
 
 
-def _load_npz(path, required):
+def read_npz_arrays(path, required=()):
+    """Every array of an .npz file, read eagerly (no pickles); the arrays named in `required` must be there.
+
+    Args: path (.npz), required (names). Returns a dict {name: array}; raises FileNotFoundError, or ValueError
+    for a truncated or foreign file or a missing array.
+    """
     path = _require_file(path)
     try:
         with np.load(path, allow_pickle=False) as z:
@@ -281,7 +306,7 @@ def read_sequence(path):
         if depth.ndim != 3:
             raise ValueError(f"{path}: expected a (T, H, W) sequence, got {depth.shape}")
         return dict(depth=depth, metadata={})
-    z = _load_npz(path, ["depth"])
+    z = read_npz_arrays(path, ["depth"])
     z["metadata"] = json.loads(str(z["metadata"])) if "metadata" in z else {}
     return z
 
@@ -320,7 +345,7 @@ def read_histograms(path):
 
     Args: path (.npz). Returns a dict; counts of shape (T, h, w, K).
     """
-    z = _load_npz(path, ["counts"])
+    z = read_npz_arrays(path, ["counts"])
     z["config"] = json.loads(str(z["config"])) if "config" in z else {}
     z["metadata"] = json.loads(str(z["metadata"])) if "metadata" in z else {}
     return z
@@ -397,90 +422,3 @@ def read_airsim(folder, *, sensor=None):
     t = (stamps - stamps[0]) / 1000.0
     fps = float(1.0 / np.median(np.diff(t))) if len(t) > 1 and np.median(np.diff(t)) > 0 else float("nan")
     return dict(depth=np.stack(depth), intensity=np.stack(intensity), timestamps=t, fps=fps, files=files)
-
-
-# ---------------------------------------------------------------------------------------------------------
-# Previews
-
-
-def _colourise(depth, d_max, cmap):
-    import matplotlib
-
-    depth = np.asarray(depth, np.float32)
-    norm = np.clip(np.where(np.isfinite(depth), depth, np.inf) / d_max, 0.0, 1.0)
-    rgb = matplotlib.colormaps[cmap](norm)[..., :3]
-    no_return = ~np.isfinite(depth) | (depth > d_max)
-    rgb[no_return] = (0.0, 0.0, 0.0)  # no return: black, distinct from every colour of the map
-    return rgb.astype(np.float32)
-
-
-def _depth_from_normalised(frame, d_max):
-    """Accept normalised depth in [0, 1] (1 = no return) or metres; return metres with inf for no return."""
-    frame = np.asarray(frame, np.float32)
-    if np.nanmax(np.where(np.isfinite(frame), frame, 0.0), initial=0.0) <= 1.0:
-        return np.where(frame >= 1.0, np.inf, frame * d_max)
-    return frame
-
-
-def write_preview(path, depth, *, d_max=35.0, cmap="turbo", normalised=False, overwrite=False):
-    """Write a colour-mapped PNG of a depth frame (H, W) in metres (or normalised [0, 1] with normalised=True);
-    no return (inf, NaN, > d_max) is black.
-
-    Args: path (.png), depth (H, W). Returns None (an RGB PNG of shape (H, W, 3)).
-    """
-    depth = np.asarray(depth, np.float32)
-    if depth.ndim != 2:
-        raise ValueError(f"writing {path}: expected a depth frame (H, W), got {depth.shape}")
-    if normalised:
-        depth = np.where(depth >= 1.0, np.inf, depth * d_max)
-    rgb = (_colourise(depth, d_max, cmap) * 255 + 0.5).astype(np.uint8)
-    with _atomic(path, overwrite) as tmp:
-        _write_oiio(tmp, rgb, "uint8")
-
-
-def _label(rgb, text):
-    """Draw `text` in the top-left corner with matplotlib's Agg renderer (white on a dark box)."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    h, w = rgb.shape[:2]
-    fig = Figure(figsize=(w / 100, h / 100), dpi=100)
-    canvas = FigureCanvasAgg(fig)
-    ax = fig.add_axes((0, 0, 1, 1))
-    ax.imshow(rgb, interpolation="nearest")
-    ax.axis("off")
-    ax.text(3, 3, text, color="white", fontsize=7, va="top", ha="left",
-            bbox=dict(facecolor="black", alpha=0.6, pad=1, linewidth=0))
-    canvas.draw()
-    return np.asarray(canvas.buffer_rgba())[..., :3].astype(np.float32) / 255.0
-
-
-def write_comparison(path, lr, sr, *, gt=None, d_max=35.0, cmap="turbo", labels=("LR", "SR", "GT"), overwrite=False):
-    """Write an LR | SR | GT strip (LR | SR without `gt`) as PNG. lr (h, w) is nearest-upsampled to the HR size
-    of sr and gt (H, W). Frames in metres or normalised [0, 1] (1 = no return); no return is black.
-
-    Args: path (.png), lr (h, w), sr (H, W), gt (H, W) or None. Returns None (a PNG of shape
-    (H, n W + 2 (n - 1), 3) for n panels).
-    """
-    frames = [_depth_from_normalised(a, d_max) for a in ((lr, sr) if gt is None else (lr, sr, gt))]
-    lr, hr = frames[0], frames[1:]
-    if hr[0].ndim != 2 or any(a.shape != hr[0].shape for a in hr):
-        raise ValueError(f"writing {path}: SR and GT must be equal (H, W) frames, got {[a.shape for a in hr]}")
-    shape = hr[0].shape
-    fy, fx = shape[0] // lr.shape[0], shape[1] // lr.shape[1]
-    if lr.ndim != 2 or lr.shape[0] * fy != shape[0] or lr.shape[1] * fx != shape[1]:
-        raise ValueError(f"writing {path}: LR {lr.shape} is not an integer downscale of {shape}")
-    lr_up = np.repeat(np.repeat(lr, fy, 0), fx, 1)
-    panels = [_colourise(a, d_max, cmap) for a in [lr_up, *hr]]
-    if labels:
-        panels = [_label(p, t) for p, t in zip(panels, labels)]
-    gap = np.ones((shape[0], 2, 3), np.float32)
-    strip = np.concatenate([x for p in panels for x in (gap, p)][1:], axis=1)
-    with _atomic(path, overwrite) as tmp:
-        _write_oiio(tmp, (strip * 255 + 0.5).astype(np.uint8), "uint8")
-
-
-def _write_preview_gray(path, gray, *, overwrite=True):
-    """Write an 8-bit grayscale PNG (H, W) uint8."""
-    with _atomic(path, overwrite) as tmp:
-        _write_oiio(tmp, np.asarray(gray, np.uint8)[..., None], "uint8")

@@ -78,6 +78,27 @@ def normalise_depth(depth, sensor: SensorConfig = SensorConfig()):
     return jnp.clip(safe / sensor.d_max, 0.0, 1.0)
 
 
+def denormalise_depth(norm, sensor: SensorConfig = SensorConfig()):
+    """Normalised depth -> radial metres norm * d_max, with "no return" mapped to +inf.
+
+    The one threshold: no return is normalised 1.0 and above (PHYSICS.md: 1.0 is the no-return code, and
+    r > d_max lies past the range gate), and anything below 1.0 is a return, however close to 1 (0.999 ->
+    34.965 m at d_max = 35 m). Network outputs are not clipped, but no margin below 1.0 would separate "far"
+    from "nothing": training targets put a wall at 34.9 m at 0.997 and the sky at exactly 1.0, so a margin
+    would turn real far returns into sky. Below 0 is clipped to 0 m. NaN is no return, as in
+    `normalise_depth` and `jaxsr.io.read_depth`. The inverse of `normalise_depth` for depths in [0, d_max);
+    d_max itself normalises to 1.0 and so comes back as no return.
+
+    Args:
+      norm: (...) normalised depth, nominally [0, 1].
+    Returns:
+      (...) float radial depth in metres, in [0, d_max) or +inf.
+    """
+    norm = jnp.asarray(norm, dtype=jnp.result_type(float))
+    no_return = jnp.isnan(norm) | (norm >= 1.0)
+    return jnp.where(no_return, jnp.inf, jnp.clip(norm, 0.0, 1.0) * sensor.d_max)
+
+
 def irf_bin_weights(tau, sensor: SensorConfig = SensorConfig()):
     """Fraction of a return at `tau` (bins) that falls into each of the K bins.
 

@@ -1,11 +1,19 @@
-"""The `jaxsr simulate` command on a tiny case (3 frames) and its user errors."""
+"""The `jaxsr` command: its parser (every subcommand registered, with help and a runner), argument errors of
+`jaxsr train`, and `jaxsr simulate` on a tiny case (3 frames) with its user errors. `jaxsr upscale` and
+`jaxsr info` are tested in test_upscale.py."""
 
 import json
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from jaxsr import cli, io
+
+# The subcommands the README documents.
+SUBCOMMANDS = {"simulate", "train", "upscale", "info"}
 
 
 def test_simulate_scene(tmp_path, capsys):
@@ -43,6 +51,66 @@ def test_simulate_missing_input_is_a_clear_error(tmp_path, capsys):
     assert "airsim_rec.txt" in capsys.readouterr().err
 
 
-def test_parser_needs_a_command():
-    with pytest.raises(SystemExit):
+def test_parser_needs_a_command(capsys):
+    with pytest.raises(SystemExit) as e:
         cli.main([])
+    assert e.value.code == 2 and "required" in capsys.readouterr().err
+
+
+def _subparsers(parser):
+    (action,) = [a for a in parser._actions if a.dest == "command"]
+    return action
+
+
+def test_every_subcommand_has_help_and_its_runner():
+    action = _subparsers(cli.build_parser())
+    assert set(action.choices) == SUBCOMMANDS
+    helps = {a.dest: a.help for a in action._choices_actions}
+    modules = {m.__name__.rsplit(".", 1)[-1]: m for m in cli.COMMANDS}
+    for name, sub in action.choices.items():
+        assert helps.get(name), f"jaxsr {name} has no help string"
+        assert sub.get_default("func") is modules[name].run, f"jaxsr {name} does not run jaxsr.cli.{name}.run"
+
+
+def test_help_lists_every_subcommand(capsys):
+    with pytest.raises(SystemExit) as e:
+        cli.main(["--help"])
+    out = capsys.readouterr().out
+    assert e.value.code == 0
+    assert all(name in out for name in SUBCOMMANDS), out
+    for name in SUBCOMMANDS:
+        with pytest.raises(SystemExit) as e:
+            cli.main([name, "--help"])
+        assert e.value.code == 0 and f"usage: jaxsr {name}" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("args,message", [
+    (["--tr", "x"], "argument --tr: invalid int value: 'x'"),
+    (["--preset", "nope"], "argument --preset: invalid choice: 'nope'"),
+    (["--epochs", "1.5"], "argument --epochs: invalid int value"),
+])
+def test_train_bad_arguments_exit_2(tmp_path, capsys, args, message):
+    with pytest.raises(SystemExit) as e:
+        cli.main(["train", "--out", str(tmp_path / "run"), *args])
+    assert e.value.code == 2 and message in capsys.readouterr().err
+    assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize("args,message", [
+    (["--tr", "-1"], "tr must be >= 0"),
+    (["--scale", "3"], "must be divisible by scale 3"),
+])
+def test_train_bad_values_are_errors_before_any_training(tmp_path, capsys, args, message):
+    assert cli.main(["train", "--out", str(tmp_path / "run"), *args]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("jaxsr train: error: ") and message in err
+    assert not (tmp_path / "run").exists()
+
+
+def test_runs_as_python_m_jaxsr_cli():
+    """`python -m jaxsr.cli` (experiments/startup.py runs the command so) reaches the same parser."""
+    root = Path(__file__).resolve().parents[1]
+    done = subprocess.run([sys.executable, "-m", "jaxsr.cli", "info", "--help"], cwd=root, capture_output=True,
+                          text=True, timeout=120, check=False)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.startswith("usage: jaxsr info")

@@ -34,8 +34,11 @@ def test_png_millimetres_round_trip(tmp_path):
     assert np.all(np.isinf(back[~np.isfinite(d)]))
     assert back[1, 0] == pytest.approx(65.535) and back[1, 1] == pytest.approx(0.001)
     # The file really is 16-bit millimetres (read independently with OpenImageIO).
-    raw, fmt = io._read_raw(tmp_path / "d.png")
-    assert fmt == "uint16" and raw[0, 0, 0] == 0 and raw[2, 2, 0] == round(float(d[2, 2]) * 1000)
+    import OpenImageIO as oiio
+
+    buf = oiio.ImageBuf(str(tmp_path / "d.png"))
+    raw = buf.get_pixels(oiio.UINT16)
+    assert str(buf.spec().format) == "uint16" and raw[0, 0, 0] == 0 and raw[2, 2, 0] == round(float(d[2, 2]) * 1000)
 
 
 def test_pfm_is_bottom_to_top_like_airsim(tmp_path):
@@ -82,10 +85,10 @@ def test_missing_truncated_and_wrong_files_raise_clearly(tmp_path):
 
 def test_wrong_channels_and_types_raise(tmp_path):
     rgb = np.zeros((8, 8, 3), np.float32)
-    io._write_oiio(tmp_path / "rgb.exr", rgb, "float")
+    io.write_image(tmp_path / "rgb.exr", rgb)
     with pytest.raises(ValueError, match="1-channel"):
         io.read_depth(tmp_path / "rgb.exr")
-    io._write_oiio(tmp_path / "p8.png", np.zeros((8, 8, 1), np.uint8), "uint8")
+    io.write_image(tmp_path / "p8.png", np.zeros((8, 8), np.uint8))
     with pytest.raises(ValueError, match="16-bit"):
         io.read_depth(tmp_path / "p8.png")
     with pytest.raises(ValueError, match=r"\(H, W\)"):
@@ -121,19 +124,30 @@ def test_sequences_and_histograms_round_trip(tmp_path):
         io.read_histograms(tmp_path / "t.npz")
 
 
-def test_previews(tmp_path):
-    d = depth_frame(32, 64)
-    io.write_preview(tmp_path / "p.png", d)
-    img = io.read_image(tmp_path / "p.png")
-    assert img.shape == (32, 64, 3)
-    np.testing.assert_array_equal(img[0, 0], [0, 0, 0])  # no return is black
-    assert img[5, 5].sum() > 0
-    lr = np.clip(d[::4, ::4] / 35, 0, 1)
-    io.write_comparison(tmp_path / "c.png", lr, d / 35, gt=d / 35)
-    strip = io.read_image(tmp_path / "c.png")
-    assert strip.shape == (32, 3 * 64 + 4, 3)
-    with pytest.raises(ValueError, match="downscale"):
-        io.write_comparison(tmp_path / "c2.png", d[:5, :7], d, gt=d)
+def test_write_image_keeps_the_pixel_type(tmp_path):
+    rng = np.random.default_rng(0)
+    u16 = rng.integers(0, 65536, (5, 7, 1)).astype(np.uint16)
+    io.write_image(tmp_path / "a.png", u16)
+    np.testing.assert_array_equal(np.rint(io.read_image(tmp_path / "a.png") * 65535), u16)
+    rgb = rng.uniform(0, 1, (5, 7, 3)).astype(np.float32)
+    io.write_image(tmp_path / "b.exr", rgb)
+    np.testing.assert_array_equal(io.read_image(tmp_path / "b.exr"), rgb)
+    with pytest.raises(FileExistsError):
+        io.write_image(tmp_path / "a.png", u16)
+    with pytest.raises(ValueError, match="uint8, uint16 or float32"):
+        io.write_image(tmp_path / "c.png", rgb.astype(np.float64))
+    with pytest.raises(ValueError, match=r"\(H, W\) or \(H, W, C\)"):
+        io.write_image(tmp_path / "c.png", np.zeros((2, 3, 4, 5), np.uint8))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.png", "b.exr"]
+
+
+def test_read_npz_arrays_names_the_file_and_the_missing_array(tmp_path):
+    np.savez(tmp_path / "a.npz", x=np.arange(3))
+    np.testing.assert_array_equal(io.read_npz_arrays(tmp_path / "a.npz")["x"], np.arange(3))
+    with pytest.raises(ValueError, match=r"a.npz: missing arrays \['y'\]; found \['x'\]"):
+        io.read_npz_arrays(tmp_path / "a.npz", ["y"])
+    with pytest.raises(FileNotFoundError, match="b.npz"):
+        io.read_npz_arrays(tmp_path / "b.npz")
 
 
 def _airsim_folder(tmp_path, planar, gray, stamps):
@@ -146,7 +160,7 @@ def _airsim_folder(tmp_path, planar, gray, stamps):
             f.write(b"Pf\n%d %d\n-1\n" % (z.shape[1], z.shape[0]))
             f.write(np.flipud(z).astype("<f4").tobytes())
         rgb = np.stack([g, g, g], -1)
-        io._write_oiio(rec / "images" / sname, (rgb * 255).astype(np.uint8), "uint8")
+        io.write_image(rec / "images" / sname, (rgb * 255).astype(np.uint8))
         lines.append(f"Drone1\t{t}\t0\t0\t0\t1\t0\t0\t0\t{sname};{dname}")
     (rec / "airsim_rec.txt").write_text("\n".join(lines) + "\n")
     return rec

@@ -144,6 +144,30 @@ def test_normalise_depth_conventions():
     np.testing.assert_allclose(jaxsr.normalise_depth(d, cfg), [0, 0.5, 1, 1, 1, 1, 1, 1])
 
 
+def test_denormalise_depth_inverts_normalise_depth_inside_the_range():
+    cfg = jaxsr.SensorConfig(d_max=20.0)
+    # up to the last float32 below d_max: the largest depth that is still a return
+    d = np.concatenate([np.random.default_rng(0).uniform(0.0, 20.0, 1000), [0.0, np.nextafter(np.float32(20), 0)]])
+    back = np.asarray(jaxsr.denormalise_depth(jaxsr.normalise_depth(d.astype(np.float32), cfg), cfg))
+    assert np.all(np.isfinite(back))
+    np.testing.assert_allclose(back, d, rtol=2e-7, atol=0)
+
+
+def test_denormalise_depth_no_return_and_nan():
+    """Normalised 1.0 and above is no return; just below 1 is a return; NaN is no return; below 0 is 0 m."""
+    cfg = jaxsr.SensorConfig()
+    below_one = np.nextafter(np.float32(1), np.float32(0))
+    norm = jnp.array([0.5, 1.0, 1.2, below_one, jnp.nan, -0.1])
+    out = np.asarray(jaxsr.denormalise_depth(norm, cfg))
+    np.testing.assert_array_equal(out[[1, 2, 4]], np.inf)
+    np.testing.assert_allclose(out[[0, 3, 5]], [17.5, float(below_one) * 35.0, 0.0], rtol=1e-7)
+    # what normalise_depth calls no return (inf, NaN, beyond or at d_max) comes back as inf
+    for d in (np.inf, np.nan, 35.0, 40.0):
+        assert np.isinf(jaxsr.denormalise_depth(jaxsr.normalise_depth(d, cfg), cfg))
+    # jit-compatible, and batched like any elementwise function
+    np.testing.assert_array_equal(jax.jit(jaxsr.denormalise_depth)(norm, cfg), out)
+
+
 def test_sum_over_blocks_is_the_block_sum():
     rng = np.random.default_rng(6)
     x = rng.normal(size=(2, 8, 12))

@@ -254,17 +254,6 @@ def test_sequence_batches_from_hr_arrays():
         sequence_batches(depth, intensity[..., :16], 2, cfg, sensor=sensor)
 
 
-def test_cli_parser():
-    import argparse
-
-    from jaxsr.train import add_train_parser, train_command
-
-    parser = argparse.ArgumentParser(prog="jaxsr")
-    add_train_parser(parser.add_subparsers(dest="command"))
-    args = parser.parse_args(["train", "--tr", "4", "--preset", "cpu", "--out", "runs/tr4", "--resume"])
-    assert args.tr == 4 and args.preset == "cpu" and args.resume and args.func is train_command
-
-
 def test_validation_set_from_the_named_sequences():
     """The default validation data: the first frames of the scenes module's named validation sequences."""
     cfg = dataclasses.replace(PRESETS["cpu"], val_frames=2)

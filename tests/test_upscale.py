@@ -47,7 +47,8 @@ def expected(model_path, lr):
 
 
 def to_metres(n):
-    return np.where(n >= 1.0 - 0.5 / 65535, np.inf, n * float(SENSOR.d_max))
+    """Clipped normalised output -> metres: 1.0 is no return (PHYSICS.md), anything below is n * d_max."""
+    return np.where(n >= 1.0, np.inf, n * float(SENSOR.d_max))
 
 
 def test_npy_normalised_in_and_out(tmp_path, model_path, metres):

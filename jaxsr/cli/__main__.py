@@ -1,0 +1,7 @@
+"""`python -m jaxsr.cli ...`: the `jaxsr` command without the console script (as experiments/startup.py runs it)."""
+
+import sys
+
+from . import main
+
+sys.exit(main())

@@ -1,0 +1,171 @@
+"""Recordings to super-resolve, as `jaxsr upscale` reads and writes them: open depth or histogram recordings in
+any supported layout, stream their frames as LR normalised depth, and bring network output back to the
+recording's units.
+
+A recording is an .npy array, an .npz from `jaxsr.io.write_sequence` / `write_histograms`, or a folder or glob
+pattern of depth frames (EXR, PFM, TIFF, 16-bit PNG). Frames stream one by one where the format allows (image
+frames, or an .npy read through a memory map), so a long recording needs memory for a batch, not for the whole
+sequence. Units: "m" (radial metres, inf = no return) or "normalised" ([0, 1], 1 = no return).
+"""
+
+from __future__ import annotations
+
+import glob
+from pathlib import Path
+
+import numpy as np
+
+from . import io
+from .config import SensorConfig
+from .sensor import denormalise_depth, normalise_depth
+
+__all__ = ["ARRAY_FORMATS", "FRAME_FORMATS", "Recording", "check_output", "guess_units", "normalised_frames",
+           "open_recording", "to_units"]
+
+FRAME_FORMATS = (".exr", ".pfm", ".tif", ".tiff", ".png")
+ARRAY_FORMATS = (".npy", ".npz")
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Input
+
+
+class Recording:
+    """A recording opened for reading: `kind` ("depth" or "histograms"), `frames` (the number of frames),
+    `shape` (of one frame) and `__iter__` over frames (NumPy, as stored)."""
+
+    def __init__(self, kind, frames, shape, reader, source):
+        self.kind, self.frames, self.shape, self._reader, self.source = kind, frames, shape, reader, source
+
+    def __iter__(self):
+        return self._reader()
+
+    def head(self, n):
+        """The first n frames as one array."""
+        out = []
+        for f in self:
+            out.append(np.asarray(f))
+            if len(out) == n:
+                break
+        return np.stack(out)
+
+
+def _frame_files(spec: str) -> list[Path]:
+    p = Path(spec)
+    if p.is_dir():
+        files = sorted(f for f in p.iterdir() if f.suffix.lower() in FRAME_FORMATS)
+        if not files:
+            raise ValueError(f"{spec}: no depth frames ({', '.join(FRAME_FORMATS)}) in this folder")
+        return files
+    if any(c in spec for c in "*?["):
+        files = sorted(Path(f) for f in glob.glob(spec))
+        if not files:
+            raise FileNotFoundError(f"{spec}: the pattern matches no file")
+        bad = [f.name for f in files if f.suffix.lower() not in FRAME_FORMATS]
+        if bad:
+            raise ValueError(f"{spec}: matches files that are not depth frames ({', '.join(FRAME_FORMATS)}): "
+                             f"{bad[:3]}")
+        return files
+    raise FileNotFoundError(f"no such file or folder: {spec}")
+
+
+def _kind_of(ndim, requested, source):
+    kind = requested or {3: "depth", 4: "histograms"}.get(ndim)
+    want = {"depth": 3, "histograms": 4}
+    if kind is None or ndim != want[kind]:
+        raise ValueError(f"{source}: expected depth (T, h, w) or histograms (T, h, w, bins), got {ndim} "
+                         f"dimensions" + (f" for --input {requested}" if requested else ""))
+    return kind
+
+
+def open_recording(spec, *, kind: str | None = None) -> Recording:
+    """Open INPUT: an .npy array, an .npz from `write_sequence` (depth) or `write_histograms` (counts), or a
+    folder or glob pattern of EXR / PFM / TIFF / 16-bit PNG depth frames (sorted by name).
+    kind: "depth", "histograms" or None (from the data: 4 dimensions or a `counts` array = histograms)."""
+    spec = str(spec)
+    p = Path(spec)
+    suffix = p.suffix.lower()
+    if suffix in ARRAY_FORMATS and not any(c in spec for c in "*?["):
+        if not p.is_file():
+            raise FileNotFoundError(f"no such file: {spec}")
+        if suffix == ".npy":
+            try:
+                arr = np.load(p, mmap_mode="r", allow_pickle=False)
+            except (ValueError, OSError) as e:
+                raise ValueError(f"cannot read {spec}: truncated or not an NPY file ({e})") from e
+        else:
+            z = io.read_npz_arrays(p)
+            name = "counts" if "counts" in z and kind != "depth" else "depth"
+            if name not in z:
+                raise ValueError(f"{spec}: expected an array 'depth' or 'counts', found {sorted(z)}")
+            arr = z[name]
+        if arr.ndim == 2 and kind != "histograms":  # one frame
+            arr = arr[None]
+        k = _kind_of(arr.ndim, kind, spec)
+        if arr.shape[0] < 1:
+            raise ValueError(f"{spec}: the recording has no frames")
+        return Recording(k, arr.shape[0], arr.shape[1:], lambda: iter(arr), spec)
+    if suffix in ARRAY_FORMATS:
+        raise ValueError(f"{spec}: patterns select image frames ({', '.join(FRAME_FORMATS)}), not {suffix} arrays")
+    if kind == "histograms":
+        raise ValueError(f"{spec}: histograms are read from .npy or .npz arrays, not from image frames")
+    files = _frame_files(spec)
+    first = io.read_depth(files[0])
+
+    def frames():
+        for f in files:
+            d = io.read_depth(f)
+            if d.shape != first.shape:
+                raise ValueError(f"{f}: frame of shape {d.shape}, expected {first.shape} like {files[0].name}")
+            yield d
+
+    return Recording("depth", len(files), first.shape, frames, spec)
+
+
+def normalised_frames(recording: Recording, units: str, sensor: SensorConfig):
+    """Depth frames of a recording as LR normalised depth, checked: metres -> `normalise_depth`."""
+    for t, f in enumerate(recording):
+        f = np.asarray(f, np.float32)
+        if np.any(np.isnan(f)):
+            raise ValueError(f"{recording.source}: frame {t} holds NaN; expected depth (inf = no return)")
+        if units == "m":
+            yield np.asarray(normalise_depth(f, sensor))
+        else:
+            if not np.all((f >= 0) & (f <= 1)):
+                raise ValueError(f"{recording.source}: frame {t} has values outside [0, 1]; for depth in metres "
+                                 "pass --units m")
+            yield f
+
+
+def guess_units(recording: Recording) -> str:
+    """"normalised" when the first frame is finite and within [0, 1] (no lidar scene lies within a metre), else "m"."""
+    f = np.asarray(recording.head(1)[0], np.float32)
+    return "normalised" if np.all(np.isfinite(f)) and f.min() >= 0 and f.max() <= 1 else "m"
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Output
+
+
+def check_output(spec, *, force: bool) -> Path:
+    """OUTPUT: .npy / .npz (one array) or a folder (one frame file per frame). Refuses to replace an existing
+    file or a non-empty folder unless `force`."""
+    out = Path(spec)
+    if out.suffix.lower() in ARRAY_FORMATS:
+        if out.exists() and not force:
+            raise FileExistsError(f"{out} exists; pass --force to overwrite it")
+        if not out.parent.is_dir():
+            raise FileNotFoundError(f"no such folder for the output: {out.parent}")
+    elif out.suffix:
+        raise ValueError(f"{out}: OUTPUT is an .npy or .npz file, or a folder for frames (see --frame-format)")
+    elif out.is_file() or (out.is_dir() and any(out.iterdir()) and not force):
+        raise FileExistsError(f"{out} exists and is not an empty folder; pass --force to write into it")
+    return out
+
+
+def to_units(hr, units: str, sensor: SensorConfig):
+    """Network output (H, W), normalised and unclipped -> the recording's units: "normalised" (clipped to
+    [0, 1]) or "m" (radial metres, inf for no return: `jaxsr.sensor.denormalise_depth`). Returns (H, W)."""
+    if units == "normalised":
+        return np.clip(hr, 0.0, 1.0)
+    return np.asarray(denormalise_depth(hr, sensor), np.float32)
