@@ -17,8 +17,9 @@ from jax.test_util import check_grads
 
 from jaxsr.checkpoint import load_model, read_metadata
 from jaxsr.config import PRESETS, ModelConfig, SensorConfig, TrainConfig
+from jaxsr.data import random_crop, sequence_batches, validation_set
 from jaxsr.optim import adam_init, adam_update, step_decay
-from jaxsr.train import fit, huber_loss, random_crop, sequence_batches, validation_set
+from jaxsr.train import fit, huber_loss
 
 # momentum 0.9: running BN statistics settle within the few dozen steps of these runs (0.99 needs hundreds)
 TINY = ModelConfig(tr=1, base=8, growth=4, head=16, filter_hidden=16, bn_momentum=0.9)
