@@ -50,12 +50,17 @@ __all__ = [
 ]
 
 
-def huber_loss(pred, gt, *, delta: float = 0.01):
+def huber_loss(pred, gt, *, delta: float = 0.01, axis=None):
     """Mean Huber loss (the paper's Eq. 3, Keras's `Huber`): per pixel e = pred - gt,
-    0.5 e^2 if |e| <= delta else delta (|e| - delta / 2); averaged over every pixel. Returns a scalar."""
+    0.5 e^2 if |e| <= delta else delta (|e| - delta / 2), averaged over `axis`.
+
+    pred, gt: arrays of the same shape, e.g. (B, H, W). axis: None (every pixel: a scalar) or the axes to
+    average over, e.g. (-2, -1) for one loss per frame (B,).
+    """
     e = jnp.abs(pred - gt)
+    # min(e, delta) written once gives both branches: the quadratic part and the linear excess beyond delta
     quad = jnp.minimum(e, delta)
-    return jnp.mean(0.5 * quad**2 + delta * (e - quad))
+    return jnp.mean(0.5 * quad**2 + delta * (e - quad), axis=axis)
 
 
 def data_mesh(devices=None) -> Mesh:
@@ -110,10 +115,7 @@ def _train_step(model_cfg, train_cfg, make_batch, mesh):
 @functools.partial(jax.jit, static_argnames=("cfg", "delta"))
 def _eval_chunk(params, state, windows, gt, cfg, delta):
     hr = apply_model(params, state, windows, cfg)
-    e = jnp.abs(hr - gt)
-    quad = jnp.minimum(e, delta)
-    loss = jnp.mean(0.5 * quad**2 + delta * (e - quad), axis=(-2, -1))
-    return loss, psnr(hr, gt)
+    return huber_loss(hr, gt, delta=delta, axis=(-2, -1)), psnr(hr, gt)
 
 
 def evaluate(params, state, windows, gt, cfg: ModelConfig, *, delta: float = 0.01, batch_size: int = 8) -> dict:

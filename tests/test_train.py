@@ -18,8 +18,10 @@ from jax.test_util import check_grads
 from jaxsr.checkpoint import load_model, read_metadata
 from jaxsr.config import PRESETS, ModelConfig, SensorConfig, TrainConfig
 from jaxsr.data import random_crop, sequence_batches, validation_set
+from jaxsr.metrics import psnr
+from jaxsr.model import apply_model, init_model
 from jaxsr.optim import adam_init, adam_update, step_decay
-from jaxsr.train import fit, huber_loss
+from jaxsr.train import evaluate, fit, huber_loss
 
 # momentum 0.9: running BN statistics settle within the few dozen steps of these runs (0.99 needs hundreds)
 TINY = ModelConfig(tr=1, base=8, growth=4, head=16, filter_hidden=16, bn_momentum=0.9)
@@ -65,8 +67,7 @@ def tiny_train_cfg(**kw):
 def test_huber_closed_form_and_grads():
     e = jnp.array([-0.03, -0.01, -0.004, 0.0, 0.002, 0.01, 0.5])
     d = 0.01
-    expect = np.where(np.abs(e) <= d, 0.5 * np.asarray(e) ** 2, d * (np.abs(e) - d / 2))
-    np.testing.assert_allclose(huber_loss(e, jnp.zeros_like(e), delta=d), expect.mean(), rtol=1e-6)
+    np.testing.assert_allclose(huber_loss(e, jnp.zeros_like(e), delta=d), _huber_closed_form(e, d).mean(), rtol=1e-6)
     # slope: e inside the band, delta * sign(e) outside
     g = jax.grad(lambda p: huber_loss(p, jnp.zeros_like(p), delta=d))(e)
     np.testing.assert_allclose(g * e.size, np.clip(np.asarray(e), -d, d), rtol=1e-5, atol=1e-9)
@@ -74,6 +75,27 @@ def test_huber_closed_form_and_grads():
         pred = jnp.array([[0.3, 0.5], [0.2, 0.9]], jnp.float64)  # away from the kinks |e| = delta
         gt = jnp.array([[0.305, 0.1], [0.197, 0.95]], jnp.float64)
         check_grads(lambda p, g: huber_loss(p, g, delta=0.01), (pred, gt), order=2, modes=["fwd", "rev"])
+
+
+def _huber_closed_form(e, d):
+    e = np.abs(np.asarray(e, np.float64))
+    return np.where(e <= d, 0.5 * e**2, d * (e - d / 2))
+
+
+def test_huber_per_frame_and_in_validation():
+    """`axis` averages per frame; `evaluate` reports the same loss as `huber_loss` on the network's output."""
+    d = 0.01
+    e = np.random.default_rng(0).choice([-0.05, -0.01, -0.003, 0.0, 0.004, 0.02], size=(3, 4, 5))
+    got = huber_loss(jnp.asarray(e, jnp.float32), jnp.zeros(e.shape), delta=d, axis=(-2, -1))
+    assert got.shape == (3,)
+    np.testing.assert_allclose(got, _huber_closed_form(e, d).mean(axis=(1, 2)), rtol=1e-5)
+    # 5 frames in chunks of 4: the padded last chunk must not count
+    params, state = init_model(jax.random.key(0), TINY)
+    val = toy_validation(TINY.tr, n=5)
+    hr = apply_model(params, state, val["windows"], TINY)
+    res = evaluate(params, state, val["windows"], val["gt"], TINY, delta=d, batch_size=4)
+    assert res["loss"] == pytest.approx(float(huber_loss(hr, val["gt"], delta=d)), rel=1e-5)
+    assert res["psnr"] == pytest.approx(float(jnp.mean(psnr(hr, val["gt"]))), rel=1e-5)
 
 
 def test_adam_matches_hand_computation():
@@ -124,7 +146,6 @@ def test_presets():
 
 def test_short_run_learns_and_beats_bicubic(tmp_path):
     from jaxsr.baselines import bicubic
-    from jaxsr.metrics import psnr
 
     cfg = tiny_train_cfg(epochs=3, examples_per_epoch=400)
     val = toy_validation(TINY.tr)
