@@ -27,6 +27,7 @@ from ._files import write_text_atomic
 from .baselines import bicubic
 from .checkpoint import (
     config_to_dict,
+    drop_legacy_fields,
     load_tree,
     model_template,
     read_metadata,
@@ -36,7 +37,7 @@ from .checkpoint import (
 from .config import PRESETS, ModelConfig, SensorConfig, TrainConfig
 from .data import scene_batches, sequence_batches, validation_set
 from .metrics import psnr
-from .model import Model, apply_model, init_model
+from .model import Model, apply_model, apply_model_train, init_model
 from .optim import AdamState, adam_init, adam_update, step_decay
 
 __all__ = [
@@ -69,19 +70,21 @@ def data_mesh(devices=None) -> Mesh:
     return Mesh(np.asarray(devices), ("data",))
 
 
-def make_train_step(model_cfg: ModelConfig, train_cfg: TrainConfig, make_batch, *, mesh: Mesh | None = None):
+def make_train_step(model_cfg: ModelConfig, train_cfg: TrainConfig, make_batch, *, mesh: Mesh | None = None,
+                    conv3d_impl: str = "auto"):
     """The jitted train step: step(params, state, opt_state, key, step) -> (params, state, opt_state, metrics).
 
     Inside one jit: make_batch(key) -> network with BN in training mode -> Huber loss -> gradients -> Adam
     with lr = lr0 * decay ** (step // (decay_epochs * steps_per_epoch)). metrics: {"loss", "psnr" (mean over
     the batch, prediction clipped), "lr"}. With a `mesh`, the batch is sharded over its "data" axis and
     params/state/optimiser state are replicated (batch statistics and gradients are reduced over the mesh).
+    conv3d_impl: how the network's convolutions run (see `apply_model`).
     """
-    return _train_step(model_cfg, train_cfg, make_batch, mesh)
+    return _train_step(model_cfg, train_cfg, make_batch, mesh, conv3d_impl)
 
 
 @functools.lru_cache(maxsize=16)
-def _train_step(model_cfg, train_cfg, make_batch, mesh):
+def _train_step(model_cfg, train_cfg, make_batch, mesh, conv3d_impl):
     # cached: fitting again with the same configs and data source (e.g. a resume) does not recompile
     schedule = step_decay(
         train_cfg.lr, factor=train_cfg.lr_decay, every=train_cfg.decay_epochs * train_cfg.steps_per_epoch
@@ -96,7 +99,7 @@ def _train_step(model_cfg, train_cfg, make_batch, mesh):
         windows, gt = constrain(make_batch(key), P("data"))
 
         def loss_fn(p):
-            hr, new_state = apply_model(p, state, windows, model_cfg, train=True)
+            hr, new_state = apply_model_train(p, state, windows, model_cfg, conv3d_impl=conv3d_impl)
             return huber_loss(hr, gt, delta=train_cfg.huber_delta), (new_state, hr)
 
         (loss, (new_state, hr)), grads = jax.value_and_grad(loss_fn, has_aux=True)(params)
@@ -112,16 +115,18 @@ def _train_step(model_cfg, train_cfg, make_batch, mesh):
     return jax.jit(step_fn, donate_argnums=donate)
 
 
-@functools.partial(jax.jit, static_argnames=("cfg", "delta"))
-def _eval_chunk(params, state, windows, gt, cfg, delta):
-    hr = apply_model(params, state, windows, cfg)
+@functools.partial(jax.jit, static_argnames=("cfg", "delta", "conv3d_impl"))
+def _eval_chunk(params, state, windows, gt, cfg, delta, conv3d_impl):
+    hr = apply_model(params, state, windows, cfg, conv3d_impl=conv3d_impl)
     return huber_loss(hr, gt, delta=delta, axis=(-2, -1)), psnr(hr, gt)
 
 
-def evaluate(params, state, windows, gt, cfg: ModelConfig, *, delta: float = 0.01, batch_size: int = 8) -> dict:
+def evaluate(params, state, windows, gt, cfg: ModelConfig, *, delta: float = 0.01, batch_size: int = 8,
+             conv3d_impl: str = "auto") -> dict:
     """Validation with BN in inference mode: {"loss": mean Huber, "psnr": mean per-frame PSNR (dB)}.
 
-    windows: (N, 2tr+1, h, w); gt: (N, h*r, w*r). Runs in chunks of `batch_size` frames (the last padded).
+    windows: (N, 2tr+1, h, w); gt: (N, h*r, w*r). Runs in chunks of `batch_size` frames (the last padded);
+    conv3d_impl: see `apply_model`.
     """
     n = windows.shape[0]
     pad = (-n) % batch_size
@@ -130,7 +135,8 @@ def evaluate(params, state, windows, gt, cfg: ModelConfig, *, delta: float = 0.0
         gt = jnp.concatenate([gt, jnp.repeat(gt[-1:], pad, 0)])
     losses, psnrs = [], []
     for i in range(0, n + pad, batch_size):
-        l, p = _eval_chunk(params, state, windows[i : i + batch_size], gt[i : i + batch_size], cfg, delta)
+        l, p = _eval_chunk(params, state, windows[i : i + batch_size], gt[i : i + batch_size], cfg, delta,
+                           conv3d_impl)
         losses.append(l)
         psnrs.append(p)
     return {"loss": float(jnp.concatenate(losses)[:n].mean()), "psnr": float(jnp.concatenate(psnrs)[:n].mean())}
@@ -172,6 +178,7 @@ def fit(
     progress: bool = True,
     callback=None,
     data_description: str | None = None,
+    conv3d_impl: str = "auto",
 ):
     """Train a network; returns (best `Model`, history: list of per-epoch records).
 
@@ -182,7 +189,8 @@ def fit(
     make_batch: the data source (default `scene_batches`); validation: a dict from `validation_set`
     (default: built from `jaxsr.scenes.test_sequences`). mesh: "auto" (all devices when there are more than
     one), None (no sharding) or a `Mesh` with a "data" axis. callback(record) is called after each epoch's
-    checkpoint is written. Everything random follows `train_cfg.seed`.
+    checkpoint is written. conv3d_impl: how the network's convolutions run (see `apply_model`; not saved, a
+    run may resume with another). Everything random follows `train_cfg.seed`.
     """
     if model_cfg.scale != sensor.scale:
         raise ValueError(f"fit: model scale {model_cfg.scale} differs from sensor scale {sensor.scale}")
@@ -210,7 +218,8 @@ def fit(
         meta = read_metadata(last_path)
         # Everything must match except `epochs`: extending a finished run is a resume, not a new run (the
         # schedule depends on decay_epochs and patience, not on the epoch budget).
-        saved = dict(meta["config"], **{f"train.{k}": v for k, v in meta["train_config"].items() if k != "epochs"})
+        saved = dict(drop_legacy_fields(ModelConfig, meta["config"]),
+                     **{f"train.{k}": v for k, v in meta["train_config"].items() if k != "epochs"})
         wanted = dict(meta_common["config"],
                       **{f"train.{k}": v for k, v in meta_common["train_config"].items() if k != "epochs"})
         differ = sorted(k for k in saved.keys() | wanted.keys() if saved.get(k) != wanted.get(k))
@@ -237,7 +246,7 @@ def fit(
                "wall_time_s": 0.0, "finished": False, "history": []}
         history = run["history"]
 
-    step_fn = make_train_step(model_cfg, train_cfg, make_batch, mesh=mesh)
+    step_fn = make_train_step(model_cfg, train_cfg, make_batch, mesh=mesh, conv3d_impl=conv3d_impl)
     if mesh is not None:
         params, state, opt_state = jax.device_put((params, state, opt_state), NamedSharding(mesh, P()))
 
@@ -287,7 +296,8 @@ def fit(
             bar.update()
         bar.close()
         train_time = time.perf_counter() - t0
-        val = evaluate(params, state, validation["windows"], validation["gt"], model_cfg, delta=train_cfg.huber_delta)
+        val = evaluate(params, state, validation["windows"], validation["gt"], model_cfg, delta=train_cfg.huber_delta,
+                       conv3d_impl=conv3d_impl)
         run["step"] = (epoch + 1) * spe
         run["epoch"] = epoch + 1
         record = {

@@ -171,6 +171,16 @@ class Killed(Exception):
     pass
 
 
+def _add_legacy_conv3d_impl(path):
+    """Rewrite a checkpoint's metadata as older jaxsr wrote it: `conv3d_impl` in the model config."""
+    with np.load(path) as data:
+        arrays = {k: data[k] for k in data.files}
+    meta = json.loads(str(arrays["__metadata__"]))
+    meta["config"]["conv3d_impl"] = "auto"
+    arrays["__metadata__"] = np.array(json.dumps(meta))
+    np.savez(path, **arrays)
+
+
 def test_kill_and_resume_equals_uninterrupted(tmp_path):
     # decay every epoch and patience 1 so the schedule and the early-stopping counters cross the restart
     cfg = tiny_train_cfg(examples_per_epoch=12, epochs=4, decay_epochs=1, patience=2)
@@ -184,6 +194,7 @@ def test_kill_and_resume_equals_uninterrupted(tmp_path):
 
     with pytest.raises(Killed):
         fit(TINY, cfg, out=tmp_path / "b", make_batch=make_batch, validation=val, progress=False, callback=kill_after_2)
+    _add_legacy_conv3d_impl(tmp_path / "b" / "last.npz")  # as written before conv3d_impl left ModelConfig
     got, hist = fit(TINY, cfg, out=tmp_path / "b", make_batch=make_batch, validation=val, progress=False, resume=True)
     for a, b in zip(jax.tree_util.tree_leaves(ref), jax.tree_util.tree_leaves(got)):
         np.testing.assert_array_equal(a, b)
