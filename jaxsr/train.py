@@ -10,12 +10,14 @@ axis (default: all devices); the batch is split over it and the parameters are r
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import functools
 import json
 import math
 import platform
 import time
 from pathlib import Path
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -154,6 +156,36 @@ def _hardware() -> dict:
     }
 
 
+class _TrainState(NamedTuple):
+    """The arrays of a run, as `last.npz` holds them (the key as raw key data there): what the train step
+    updates (params, BN state, Adam state), the best epoch's {"params", "state"} (on the host), and the data
+    key (step s draws its batch with fold_in(key, s))."""
+
+    params: dict
+    state: dict
+    opt: AdamState
+    best: dict
+    key: jax.Array
+
+
+@dataclasses.dataclass(frozen=True)
+class _Run:
+    """Where a run stands after `epoch` epochs; saved as the "run" metadata of `last.npz`.
+
+    best_loss / best_epoch (0-based, -1 before the first) / bad_epochs (epochs since the best) drive early
+    stopping; history holds the per-epoch records of `metrics.jsonl`.
+    """
+
+    epoch: int = 0
+    step: int = 0
+    best_loss: float = math.inf
+    best_epoch: int = -1
+    bad_epochs: int = 0
+    wall_time_s: float = 0.0
+    finished: bool = False
+    history: tuple = ()
+
+
 def _train_state_template(model_cfg: ModelConfig):
     params_t, state_t = model_template(model_cfg)
     return {
@@ -163,6 +195,135 @@ def _train_state_template(model_cfg: ModelConfig):
         "best": {"params": params_t, "state": state_t},
         "key": jax.eval_shape(lambda: jax.random.key_data(jax.random.key(0))),
     }
+
+
+def _choose_mesh(mesh, batch_size: int) -> Mesh | None:
+    """`fit`'s mesh argument resolved: "auto" shards over all devices when there are several that divide the
+    batch evenly."""
+    if mesh != "auto":
+        return mesh
+    n = jax.device_count()
+    return data_mesh() if n > 1 and batch_size % n == 0 else None
+
+
+def _settings(model_cfg: ModelConfig, train_cfg: TrainConfig) -> dict:
+    """{"config", "train_config"} as a checkpoint's metadata holds them."""
+    # JSON round trip: tuples become lists, as they are when read back from a checkpoint
+    return json.loads(json.dumps({"config": config_to_dict(model_cfg), "train_config": config_to_dict(train_cfg)}))
+
+
+def _check_resumable(path: Path, meta: dict, settings: dict):
+    """Raise ValueError naming every setting in which the run saved at `path` differs from `settings`.
+
+    Everything must match except `epochs`: extending a finished run is a resume, not a new run (the schedule
+    depends on decay_epochs and patience, not on the epoch budget). Fields older versions kept in the model
+    config (`checkpoint.LEGACY_FIELDS`) are ignored.
+    """
+    def flat(model, train):
+        return dict(model, **{f"train.{k}": v for k, v in train.items() if k != "epochs"})
+
+    saved = flat(drop_legacy_fields(ModelConfig, meta["config"]), meta["train_config"])
+    wanted = flat(settings["config"], settings["train_config"])
+    differ = sorted(k for k in saved.keys() | wanted.keys() if saved.get(k) != wanted.get(k))
+    if differ:
+        raise ValueError(
+            f"fit: cannot resume {str(path)!r}: it was trained with other settings: "
+            + ", ".join(f"{k} {saved.get(k)!r} (now {wanted.get(k)!r})" for k in differ)
+        )
+
+
+def _start_or_resume(last_path: Path, model_cfg: ModelConfig, train_cfg: TrainConfig, settings: dict, *,
+                     k_init, k_data, resume: bool) -> tuple[_TrainState, _Run]:
+    """The run saved in `last_path` when resuming from an existing file, else a fresh one (weights from
+    `k_init`, data from `k_data`)."""
+    if not (resume and last_path.is_file()):
+        params, state = init_model(k_init, model_cfg)
+        best = jax.device_get({"params": params, "state": state})
+        return _TrainState(params, state, adam_init(params), best, k_data), _Run()
+    _check_resumable(last_path, read_metadata(last_path), settings)
+    tree, meta = load_tree(last_path, _train_state_template(model_cfg))
+    tree = jax.tree_util.tree_map(jnp.asarray, tree)
+    ts = _TrainState(tree["params"], tree["state"], AdamState(*tree["opt"]), tree["best"],
+                     jax.random.wrap_key_data(tree["key"]))
+    saved = meta["run"]
+    # A run that used up its epoch budget continues when given more; an early-stopped run stays stopped.
+    run = _Run(**dict(saved, history=tuple(saved["history"]), finished=saved["bad_epochs"] >= train_cfg.patience))
+    return ts, run
+
+
+def _run_epoch(step_fn, ts: _TrainState, epoch: int, train_cfg: TrainConfig, *, progress: bool):
+    """`steps_per_epoch` train steps of epoch `epoch` (0-based) with a progress bar.
+
+    Returns (the new train state, {"loss", "psnr": means over the epoch's steps, "lr": the last step's rate}).
+    """
+    from tqdm.auto import tqdm  # late: only training needs it
+
+    spe = train_cfg.steps_per_epoch
+    params, state, opt = ts.params, ts.state, ts.opt
+    sums = {"loss": 0.0, "psnr": 0.0}
+    lr = None
+    bar = tqdm(total=spe, desc=f"epoch {epoch + 1}/{train_cfg.epochs}", disable=not progress, leave=False)
+    for i in range(spe):
+        step = epoch * spe + i
+        t_step = time.perf_counter()
+        params, state, opt, m = step_fn(params, state, opt, jax.random.fold_in(ts.key, step), step)
+        m = {k: float(v) for k, v in jax.device_get(m).items()}
+        sums["loss"] += m["loss"]
+        sums["psnr"] += m["psnr"]
+        lr = m["lr"]
+        bar.set_postfix(loss=f"{m['loss']:.2e}", psnr=f"{m['psnr']:.2f}", lr=f"{lr:.0e}",
+                        ex_s=f"{train_cfg.batch_size / (time.perf_counter() - t_step):.1f}")
+        bar.update()
+    bar.close()
+    means = {"loss": sums["loss"] / spe, "psnr": sums["psnr"] / spe, "lr": lr}
+    return ts._replace(params=params, state=state, opt=opt), means
+
+
+def _early_stopping(run: _Run, ts: _TrainState, val_loss: float, train_cfg: TrainConfig) -> tuple[_Run, _TrainState]:
+    """After epoch `run.epoch` (1-based, just finished): keep its weights if its validation loss is the lowest
+    so far, else count one more bad epoch; the run is finished after `patience` bad epochs in a row or when
+    the epoch budget is used up."""
+    if val_loss < run.best_loss:
+        run = dataclasses.replace(run, best_loss=val_loss, best_epoch=run.epoch - 1, bad_epochs=0)
+        ts = ts._replace(best=jax.device_get({"params": ts.params, "state": ts.state}))
+    else:
+        run = dataclasses.replace(run, bad_epochs=run.bad_epochs + 1)
+    finished = run.bad_epochs >= train_cfg.patience or run.epoch >= train_cfg.epochs
+    return dataclasses.replace(run, finished=finished), ts
+
+
+def _training_card(run: _Run, *, train_cfg: TrainConfig, settings: dict, sensor: SensorConfig, validation: dict,
+                   bicubic_psnr: float | None, data: str) -> dict:
+    """The training card saved with the checkpoints: data, sensor, amount of training, hardware, validation."""
+    return {
+        "data": data,
+        "sensor": jax.tree_util.tree_map(lambda v: v.tolist() if hasattr(v, "tolist") else v, config_to_dict(sensor)),
+        "steps": run.step,
+        "epochs": run.epoch,
+        "examples": run.step * train_cfg.batch_size,
+        "best_epoch": run.best_epoch,
+        "wall_time_s": run.wall_time_s,
+        "hardware": _hardware(),
+        "validation": {
+            "sequences": list(validation.get("names", [])),
+            "frames": int(validation["windows"].shape[0]),
+            "loss": run.best_loss,
+            "psnr": run.history[run.best_epoch]["val_psnr"] if run.best_epoch >= 0 else None,
+            "bicubic_psnr": bicubic_psnr,
+        },
+        "train_config": settings["train_config"],
+        "seed": train_cfg.seed,
+    }
+
+
+def _write_checkpoints(out: Path, ts: _TrainState, run: _Run, model_cfg: ModelConfig, settings: dict, card: dict):
+    """`best.npz` (when this epoch is the best), `last.npz` and `metrics.jsonl`, each written atomically."""
+    # best first, then last: a kill between the two resumes from the previous epoch and rewrites both.
+    if run.best_epoch == run.epoch - 1:
+        save_model(out / "best.npz", Model(ts.best["params"], ts.best["state"], model_cfg), card=card)
+    tree = {"params": ts.params, "state": ts.state, "opt": ts.opt, "best": ts.best, "key": jax.random.key_data(ts.key)}
+    save_tree(out / "last.npz", tree, dict(settings, kind="train_state", run=dataclasses.asdict(run), card=card))
+    write_text_atomic(out / "metrics.jsonl", "".join(json.dumps(r) + "\n" for r in run.history))
 
 
 def fit(
@@ -186,18 +347,17 @@ def fit(
     training card; `jaxsr.load_model` reads it) and `last.npz` (params, BN state, Adam state, RNG key, step,
     epoch, best-so-far weights and early-stopping counters), all written every epoch. `resume=True` continues
     from `last.npz` and gives the same result as an uninterrupted run (bit-identical on the same machine).
-    make_batch: the data source (default `scene_batches`); validation: a dict from `validation_set`
-    (default: built from `jaxsr.scenes.test_sequences`). mesh: "auto" (all devices when there are more than
-    one), None (no sharding) or a `Mesh` with a "data" axis. callback(record) is called after each epoch's
-    checkpoint is written. conv3d_impl: how the network's convolutions run (see `apply_model`; not saved, a
-    run may resume with another). Everything random follows `train_cfg.seed`.
+    make_batch: the data source (default `jaxsr.data.scene_batches`); validation: a dict from
+    `jaxsr.data.validation_set` (default: built from `jaxsr.scenes.test_sequences`). mesh: "auto" (all
+    devices when there are more than one), None (no sharding) or a `Mesh` with a "data" axis. callback(record)
+    is called after each epoch's checkpoint is written. conv3d_impl: how the network's convolutions run (see
+    `apply_model`; not saved, a run may resume with another). Everything random follows `train_cfg.seed`.
     """
     if model_cfg.scale != sensor.scale:
         raise ValueError(f"fit: model scale {model_cfg.scale} differs from sensor scale {sensor.scale}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    if mesh == "auto":
-        mesh = data_mesh() if jax.device_count() > 1 and train_cfg.batch_size % jax.device_count() == 0 else None
+    mesh = _choose_mesh(mesh, train_cfg.batch_size)
     root = jax.random.key(train_cfg.seed)
     k_init, k_data, k_val = (jax.random.fold_in(root, i) for i in range(3))
     if make_batch is None:
@@ -209,127 +369,41 @@ def fit(
     val_bicubic = None
     if "lr" in validation:
         val_bicubic = float(jnp.mean(psnr(bicubic(validation["lr"], scale=model_cfg.scale), validation["gt"])))
-
-    spe = train_cfg.steps_per_epoch
-    last_path, best_path = out / "last.npz", out / "best.npz"
-    # JSON round trip: tuples become lists, as they are when read back from a checkpoint
-    meta_common = json.loads(json.dumps({"config": config_to_dict(model_cfg), "train_config": config_to_dict(train_cfg)}))
-    if resume and last_path.is_file():
-        meta = read_metadata(last_path)
-        # Everything must match except `epochs`: extending a finished run is a resume, not a new run (the
-        # schedule depends on decay_epochs and patience, not on the epoch budget).
-        saved = dict(drop_legacy_fields(ModelConfig, meta["config"]),
-                     **{f"train.{k}": v for k, v in meta["train_config"].items() if k != "epochs"})
-        wanted = dict(meta_common["config"],
-                      **{f"train.{k}": v for k, v in meta_common["train_config"].items() if k != "epochs"})
-        differ = sorted(k for k in saved.keys() | wanted.keys() if saved.get(k) != wanted.get(k))
-        if differ:
-            raise ValueError(
-                f"fit: cannot resume {str(last_path)!r}: it was trained with other settings: "
-                + ", ".join(f"{k} {saved.get(k)!r} (now {wanted.get(k)!r})" for k in differ)
-            )
-        tree, meta = load_tree(last_path, _train_state_template(model_cfg))
-        tree = jax.tree_util.tree_map(jnp.asarray, tree)
-        params, state = tree["params"], tree["state"]
-        opt_state = AdamState(*tree["opt"])
-        best = tree["best"]
-        k_data = jax.random.wrap_key_data(tree["key"])
-        run = meta["run"]
-        # A run that used up its epoch budget continues when given more; an early-stopped run stays stopped.
-        run["finished"] = run["bad_epochs"] >= train_cfg.patience
-        history = run["history"]
-    else:
-        params, state = init_model(k_init, model_cfg)
-        opt_state = adam_init(params)
-        best = jax.device_get({"params": params, "state": state})
-        run = {"epoch": 0, "step": 0, "best_loss": math.inf, "best_epoch": -1, "bad_epochs": 0,
-               "wall_time_s": 0.0, "finished": False, "history": []}
-        history = run["history"]
-
+    settings = _settings(model_cfg, train_cfg)
+    ts, run = _start_or_resume(out / "last.npz", model_cfg, train_cfg, settings, k_init=k_init, k_data=k_data,
+                               resume=resume)
     step_fn = make_train_step(model_cfg, train_cfg, make_batch, mesh=mesh, conv3d_impl=conv3d_impl)
     if mesh is not None:
-        params, state, opt_state = jax.device_put((params, state, opt_state), NamedSharding(mesh, P()))
+        params, state, opt = jax.device_put((ts.params, ts.state, ts.opt), NamedSharding(mesh, P()))
+        ts = ts._replace(params=params, state=state, opt=opt)
 
-    def card():
-        return {
-            "data": data_description,
-            "sensor": jax.tree_util.tree_map(lambda v: v.tolist() if hasattr(v, "tolist") else v,
-                                             config_to_dict(sensor)),
-            "steps": run["step"],
-            "epochs": run["epoch"],
-            "examples": run["step"] * train_cfg.batch_size,
-            "best_epoch": run["best_epoch"],
-            "wall_time_s": run["wall_time_s"],
-            "hardware": _hardware(),
-            "validation": {
-                "sequences": list(validation.get("names", [])),
-                "frames": int(validation["windows"].shape[0]),
-                "loss": run["best_loss"],
-                "psnr": history[run["best_epoch"]]["val_psnr"] if run["best_epoch"] >= 0 else None,
-                "bicubic_psnr": val_bicubic,
-            },
-            "train_config": meta_common["train_config"],
-            "seed": train_cfg.seed,
-        }
-
-    try:
-        from tqdm.auto import tqdm
-    except ImportError:  # pragma: no cover
-        progress = False
-
-    while not run["finished"] and run["epoch"] < train_cfg.epochs:
-        epoch = run["epoch"]
+    spe = train_cfg.steps_per_epoch
+    while not run.finished and run.epoch < train_cfg.epochs:
         t0 = time.perf_counter()
-        sums = {"loss": 0.0, "psnr": 0.0}
-        bar = tqdm(total=spe, desc=f"epoch {epoch + 1}/{train_cfg.epochs}", disable=not progress, leave=False)
-        lr = None
-        for i in range(spe):
-            step = epoch * spe + i
-            ts = time.perf_counter()
-            params, state, opt_state, m = step_fn(params, state, opt_state, jax.random.fold_in(k_data, step), step)
-            m = {k: float(v) for k, v in jax.device_get(m).items()}
-            sums["loss"] += m["loss"]
-            sums["psnr"] += m["psnr"]
-            lr = m["lr"]
-            bar.set_postfix(loss=f"{m['loss']:.2e}", psnr=f"{m['psnr']:.2f}", lr=f"{lr:.0e}",
-                            ex_s=f"{train_cfg.batch_size / (time.perf_counter() - ts):.1f}")
-            bar.update()
-        bar.close()
+        ts, train = _run_epoch(step_fn, ts, run.epoch, train_cfg, progress=progress)
         train_time = time.perf_counter() - t0
-        val = evaluate(params, state, validation["windows"], validation["gt"], model_cfg, delta=train_cfg.huber_delta,
-                       conv3d_impl=conv3d_impl)
-        run["step"] = (epoch + 1) * spe
-        run["epoch"] = epoch + 1
+        val = evaluate(ts.params, ts.state, validation["windows"], validation["gt"], model_cfg,
+                       delta=train_cfg.huber_delta, conv3d_impl=conv3d_impl)
+        run = dataclasses.replace(run, epoch=run.epoch + 1, step=(run.epoch + 1) * spe)
         record = {
-            "epoch": epoch + 1, "step": run["step"], "lr": lr,
-            "train_loss": sums["loss"] / spe, "train_psnr": sums["psnr"] / spe,
+            "epoch": run.epoch, "step": run.step, "lr": train["lr"],
+            "train_loss": train["loss"], "train_psnr": train["psnr"],
             "val_loss": val["loss"], "val_psnr": val["psnr"], "val_bicubic_psnr": val_bicubic,
             "examples_per_s": spe * train_cfg.batch_size / train_time,
             "epoch_time_s": time.perf_counter() - t0,
         }
-        if val["loss"] < run["best_loss"]:
-            run.update(best_loss=val["loss"], best_epoch=epoch, bad_epochs=0)
-            best = jax.device_get({"params": params, "state": state})
-        else:
-            run["bad_epochs"] += 1
-        run["finished"] = run["bad_epochs"] >= train_cfg.patience or run["epoch"] >= train_cfg.epochs
-        run["wall_time_s"] += time.perf_counter() - t0
-        record["wall_time_s"] = run["wall_time_s"]
-        history.append(record)
+        run, ts = _early_stopping(run, ts, val["loss"], train_cfg)
+        record["wall_time_s"] = run.wall_time_s + time.perf_counter() - t0
+        run = dataclasses.replace(run, wall_time_s=record["wall_time_s"], history=(*run.history, record))
         if progress:
             print(json.dumps(record))
-        # best first, then last: a kill between the two resumes from the previous epoch and rewrites both.
-        if run["best_epoch"] == epoch:
-            save_model(best_path, Model(best["params"], best["state"], model_cfg), card=card())
-        tree = {"params": params, "state": state, "opt": opt_state, "best": best,
-                "key": jax.random.key_data(k_data)}
-        save_tree(last_path, tree, dict(meta_common, kind="train_state", run=run, card=card()))
-        write_text_atomic(out / "metrics.jsonl", "".join(json.dumps(r) + "\n" for r in history))
+        card = _training_card(run, train_cfg=train_cfg, settings=settings, sensor=sensor, validation=validation,
+                              bicubic_psnr=val_bicubic, data=data_description)
+        _write_checkpoints(out, ts, run, model_cfg, settings, card)
         if callback is not None:
             callback(record)
-    model = Model(jax.tree_util.tree_map(jnp.asarray, best["params"]),
-                  jax.tree_util.tree_map(jnp.asarray, best["state"]), model_cfg)
-    return model, history
+    best = jax.tree_util.tree_map(jnp.asarray, ts.best)
+    return Model(best["params"], best["state"], model_cfg), list(run.history)
 
 
 def add_train_parser(subparsers) -> argparse.ArgumentParser:
