@@ -44,6 +44,7 @@ from .optim import AdamState, adam_init, adam_update, step_decay
 
 __all__ = [
     "huber_loss",
+    "lr_schedule",
     "make_train_step",
     "evaluate",
     "data_mesh",
@@ -72,14 +73,23 @@ def data_mesh(devices=None) -> Mesh:
     return Mesh(np.asarray(devices), ("data",))
 
 
+def lr_schedule(train_cfg: TrainConfig):
+    """The learning rate of the train step: step -> lr (a scalar), step the 0-based update index.
+
+    lr0 * lr_decay ** (step // (decay_epochs * steps_per_epoch)): constant within an epoch, cut exactly at
+    the first step of epochs decay_epochs + 1, 2 decay_epochs + 1, ... (1-based).
+    """
+    return step_decay(train_cfg.lr, factor=train_cfg.lr_decay, every=train_cfg.decay_epochs * train_cfg.steps_per_epoch)
+
+
 def make_train_step(model_cfg: ModelConfig, train_cfg: TrainConfig, make_batch, *, mesh: Mesh | None = None,
                     conv3d_impl: str = "auto"):
     """The jitted train step: step(params, state, opt_state, key, step) -> (params, state, opt_state, metrics).
 
     Inside one jit: make_batch(key) -> network with BN in training mode -> Huber loss -> gradients -> Adam
-    with lr = lr0 * decay ** (step // (decay_epochs * steps_per_epoch)). metrics: {"loss", "psnr" (mean over
-    the batch, prediction clipped), "lr"}. With a `mesh`, the batch is sharded over its "data" axis and
-    params/state/optimiser state are replicated (batch statistics and gradients are reduced over the mesh).
+    with lr = `lr_schedule(train_cfg)(step)`. metrics: {"loss", "psnr" (mean over the batch, prediction
+    clipped), "lr"}. With a `mesh`, the batch is sharded over its "data" axis and params/state/optimiser
+    state are replicated (batch statistics and gradients are reduced over the mesh).
     conv3d_impl: how the network's convolutions run (see `apply_model`).
     """
     return _train_step(model_cfg, train_cfg, make_batch, mesh, conv3d_impl)
@@ -88,9 +98,7 @@ def make_train_step(model_cfg: ModelConfig, train_cfg: TrainConfig, make_batch, 
 @functools.lru_cache(maxsize=16)
 def _train_step(model_cfg, train_cfg, make_batch, mesh, conv3d_impl):
     # cached: fitting again with the same configs and data source (e.g. a resume) does not recompile
-    schedule = step_decay(
-        train_cfg.lr, factor=train_cfg.lr_decay, every=train_cfg.decay_epochs * train_cfg.steps_per_epoch
-    )
+    schedule = lr_schedule(train_cfg)
 
     def constrain(tree, spec):
         if mesh is None:
@@ -204,6 +212,14 @@ def _choose_mesh(mesh, batch_size: int) -> Mesh | None:
         return mesh
     n = jax.device_count()
     return data_mesh() if n > 1 and batch_size % n == 0 else None
+
+
+def _bicubic_psnr(validation: dict, scale: int) -> float | None:
+    """Mean PSNR (dB) of bicubic upsampling of the validation set's centre frames (None without "lr"): the
+    baseline every epoch's validation PSNR is logged beside."""
+    if "lr" not in validation:
+        return None
+    return float(jnp.mean(psnr(bicubic(validation["lr"], scale=scale), validation["gt"])))
 
 
 def _settings(model_cfg: ModelConfig, train_cfg: TrainConfig) -> dict:
@@ -366,14 +382,12 @@ def fit(
         data_description = getattr(make_batch, "description", "user-supplied make_batch")
     if validation is None:
         validation = validation_set(k_val, model_cfg.tr, train_cfg, sensor=sensor)
-    val_bicubic = None
-    if "lr" in validation:
-        val_bicubic = float(jnp.mean(psnr(bicubic(validation["lr"], scale=model_cfg.scale), validation["gt"])))
+    val_bicubic = _bicubic_psnr(validation, model_cfg.scale)
     settings = _settings(model_cfg, train_cfg)
     ts, run = _start_or_resume(out / "last.npz", model_cfg, train_cfg, settings, k_init=k_init, k_data=k_data,
                                resume=resume)
     step_fn = make_train_step(model_cfg, train_cfg, make_batch, mesh=mesh, conv3d_impl=conv3d_impl)
-    if mesh is not None:
+    if mesh is not None:  # replicated over the mesh; the train step shards only the batch
         params, state, opt = jax.device_put((ts.params, ts.state, ts.opt), NamedSharding(mesh, P()))
         ts = ts._replace(params=params, state=state, opt=opt)
 

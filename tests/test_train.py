@@ -1,5 +1,6 @@
-"""Training: Huber's closed form, Adam and the decay boundary by hand, a short run that learns, bit-identical
-resume, sharded == unsharded, and the file-based data source."""
+"""Training: Huber's closed form, Adam and the decay boundary by hand, the presets' schedules, a short run that
+learns, bit-identical resume (also from a checkpoint of an older version), sharded == unsharded, and the data
+sources and validation set of `jaxsr.data`."""
 
 import dataclasses
 import json
@@ -8,6 +9,7 @@ import subprocess
 import sys
 import textwrap
 from pathlib import Path
+from types import SimpleNamespace
 
 import jax
 import jax.numpy as jnp
@@ -21,7 +23,9 @@ from jaxsr.data import random_crop, sequence_batches, validation_set
 from jaxsr.metrics import psnr
 from jaxsr.model import apply_model, init_model
 from jaxsr.optim import adam_init, adam_update, step_decay
-from jaxsr.train import evaluate, fit, huber_loss
+from jaxsr.scenes import test_sequences
+from jaxsr.sensor import normalise_depth
+from jaxsr.train import evaluate, fit, huber_loss, lr_schedule
 
 # momentum 0.9: running BN statistics settle within the few dozen steps of these runs (0.99 needs hundreds)
 TINY = ModelConfig(tr=1, base=8, growth=4, head=16, filter_hidden=16, bn_momentum=0.9)
@@ -134,12 +138,56 @@ def test_random_crop_is_aligned():
     np.testing.assert_array_equal(jnp.repeat(jnp.repeat(w[0], 4, 0), 4, 1), g)
 
 
-def test_presets():
-    assert PRESETS["paper"].steps_per_epoch == 3875 and PRESETS["paper"].epochs == 100
-    assert PRESETS["paper"].patience == 5 and PRESETS["paper"].huber_delta == 0.01 and PRESETS["paper"].lr == 1e-3
-    assert PRESETS["cpu"].batch_size == 4
-    with pytest.raises(ValueError):
-        TrainConfig(batch_size=8, examples_per_epoch=4)
+# What the scaled-down presets may change (config.PRESETS: "sized so that ...", "scaled down with the epochs"):
+# the amount of data and epochs, the schedule with them, crops, and the validation length. Never the loss,
+# the optimiser, the data distribution or the seed.
+SCALED_DOWN = {"examples_per_epoch", "epochs", "patience", "decay_epochs", "patch", "val_frames"}
+
+
+def test_paper_preset_follows_the_paper():
+    """15500 examples in batches of 4 per epoch; lr 1e-3 cut to 1e-4 exactly at the first step of epoch 11,
+    to 1e-5 at epoch 21 (1-based), through the schedule the train step uses."""
+    cfg = PRESETS["paper"]
+    spe = cfg.steps_per_epoch
+    assert spe * cfg.batch_size == 15500 and cfg.batch_size == 4
+    lr = lr_schedule(cfg)
+
+    def first_step(epoch):  # of a 1-based epoch
+        return (epoch - 1) * spe
+
+    got = [float(lr(s)) for s in (first_step(1), first_step(10), first_step(11) - 1, first_step(11),
+                                  first_step(20), first_step(21))]
+    np.testing.assert_allclose(got, [1e-3, 1e-3, 1e-3, 1e-4, 1e-4, 1e-5], rtol=1e-6)
+    assert (cfg.huber_delta, cfg.epochs, cfg.patience) == (0.01, 100, 5)
+
+
+@pytest.mark.parametrize("name", ["cpu", "bundle"])
+def test_scaled_presets_change_only_the_amount_of_training(name):
+    cfg, paper = PRESETS[name], PRESETS["paper"]
+    differ = {f.name for f in dataclasses.fields(TrainConfig) if getattr(cfg, f.name) != getattr(paper, f.name)}
+    assert differ <= SCALED_DOWN, differ - SCALED_DOWN
+    # the schedule scaled with the epochs: one cut, before the last epoch; early stopping can still act
+    lr, spe = lr_schedule(cfg), cfg.steps_per_epoch
+    assert float(lr(cfg.decay_epochs * spe - 1)) == pytest.approx(cfg.lr)
+    assert float(lr(cfg.epochs * spe - 1)) == pytest.approx(cfg.lr * cfg.lr_decay)
+    assert cfg.patience < cfg.epochs
+    # the crops fit the sensor's LR frame (random_crop refuses larger ones)
+    assert all(p <= s for p, s in zip(cfg.patch, SensorConfig().lr_shape))
+
+
+@pytest.mark.parametrize("change,message", [
+    ({"batch_size": 8, "examples_per_epoch": 4}, "examples_per_epoch >= batch_size"),
+    ({"batch_size": 0}, "batch_size >= 1"),
+    ({"epochs": 0}, "epochs, patience and decay_epochs must be >= 1"),
+    ({"patience": 0}, "epochs, patience and decay_epochs must be >= 1"),
+    ({"decay_epochs": 0}, "epochs, patience and decay_epochs must be >= 1"),
+    ({"snr_range": (2.0, 1.0)}, r"snr_range must be 0 < lo <= hi, got \(2.0, 1.0\)"),
+    ({"snr_range": (0.0, 1.0)}, "snr_range must be 0 < lo <= hi"),
+    ({"mean_signal_range": (28.0, 7.0)}, "mean_signal_range must be 0 < lo <= hi"),
+])
+def test_train_config_refuses_inconsistent_settings(change, message):
+    with pytest.raises(ValueError, match=message):
+        TrainConfig(**change)
 
 
 # --- fitting ----------------------------------------------------------------------------------------------
@@ -301,11 +349,38 @@ def test_cli_parser():
 def test_validation_set_from_the_named_sequences():
     """The default validation data: the first frames of the scenes module's named validation sequences."""
     cfg = dataclasses.replace(PRESETS["cpu"], val_frames=2)
+    sensor = SensorConfig()
     val = validation_set(jax.random.key(0), 1, cfg)
     n = 2 * len(cfg.val_sequences)
-    assert val["windows"].shape == (n, 3, 32, 64) and val["gt"].shape == (n, 128, 256)
+    assert val["windows"].shape == (n, 3, 32, 64) and val["gt"].shape == (n, 128, 256) and val["lr"].shape == (n, 32, 64)
     assert val["names"] == list(cfg.val_sequences)
-    assert float(val["gt"].min()) >= 0 and float(val["gt"].max()) <= 1
+    # GT: each named sequence's first val_frames frames, normalised, in the order of val_sequences
+    seqs = test_sequences(n_frames=2, names=cfg.val_sequences, sensor=sensor)
+    expect = np.concatenate([np.asarray(normalise_depth(seqs[name].depth[:2], sensor)) for name in val["names"]])
+    np.testing.assert_array_equal(val["gt"], expect)
+    # windows: centred on the LR frames, edge-replicated within each sequence (no frame of a neighbour)
+    w, lr = np.asarray(val["windows"]), np.asarray(val["lr"])
+    np.testing.assert_array_equal(w[:, 1], lr)
+    np.testing.assert_array_equal(w[0::2, 0], lr[0::2])  # first frame of each sequence: its own frame before
+    np.testing.assert_array_equal(w[1::2, 2], lr[1::2])  # last frame: its own frame after
+    np.testing.assert_array_equal(w[0::2, 2], lr[1::2])
+
+
+def test_validation_set_simulates_each_sequence_at_its_own_snr():
+    """The same flat wall at SNR 1000 and 0.01: centre of mass finds it in the first; in the second the ambient
+    light often hides the peak (errors of a tenth of the range). Sequences may be dicts or objects with fields."""
+    sensor = SensorConfig(hr_shape=(16, 32))
+    depth = np.full((3, 16, 32), 10.0, np.float32)
+    intensity = np.full_like(depth, 0.8)
+    seqs = {"clear": {"depth": depth, "intensity": intensity, "snr": 1000.0},
+            "murky": SimpleNamespace(depth=depth, intensity=intensity, snr=0.01)}
+    cfg = dataclasses.replace(PRESETS["cpu"], val_frames=2, val_sequences=("murky", "clear"), val_mean_signal=50.0)
+    val = validation_set(jax.random.key(0), 0, cfg, sensor=sensor, sequences=seqs)
+    assert val["names"] == ["murky", "clear"] and val["lr"].shape == (4, 4, 8)
+    np.testing.assert_allclose(val["gt"], 10 / 35, rtol=1e-6)
+    err = np.abs(np.asarray(val["lr"]) - 10 / 35)
+    assert err[2:].max() < 1 / 32, err[2:].max()  # within half a bin (1/16 of the range)
+    assert err[:2].mean() > 10 * err[2:].mean(), (err[:2].mean(), err[2:].mean())
 
 
 @pytest.mark.slow
