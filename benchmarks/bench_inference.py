@@ -63,11 +63,11 @@ def test_network_tr4_one_window(timed, benchmark, impl, options):
     """What `compiler_options` and the stacked temporal taps (`conv3d_impl="auto"`) are worth: one TR4 window
     through `apply_model` on one device, under XLA's default options or jaxsr's, with every tap convolved on
     its own ("taps") or stacked where `stacked_use` >= 0.7 ("auto")."""
-    cfg = ModelConfig(tr=4, conv3d_impl=impl)
+    cfg = ModelConfig(tr=4)
     params, state = init_model(jax.random.key(0), cfg)
     windows = jax.random.uniform(jax.random.key(1), (1, cfg.frames, *SENSOR.lr_shape))
     opts = compiler_options() if options == "jaxsr" else {}
-    f = jax.jit(lambda p, s, w: apply_model(p, s, w, cfg), compiler_options=opts)
+    f = jax.jit(lambda p, s, w: apply_model(p, s, w, cfg, conv3d_impl=impl), compiler_options=opts)
     timed(f, params, state, windows, rounds=5, items=1)
     if benchmark.stats is not None:
         benchmark.extra_info["gflops_per_s"] = flops_per_frame(cfg, SENSOR.lr_shape) / benchmark.stats.stats.mean / 1e9

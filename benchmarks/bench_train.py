@@ -15,10 +15,11 @@ import numpy as np
 import pytest
 
 from jaxsr.config import PRESETS, ModelConfig, SensorConfig
+from jaxsr.data import scene_batches, sequence_batches
 from jaxsr.layers import conv3d_native, conv3d_stacked, conv3d_taps
 from jaxsr.model import init_model
 from jaxsr.optim import adam_init
-from jaxsr.train import make_train_step, scene_batches, sequence_batches
+from jaxsr.train import make_train_step
 
 CPU = PRESETS["cpu"]
 

@@ -13,8 +13,8 @@ import numpy as np
 import jaxsr
 from jaxsr import scenes
 from jaxsr.config import DEFAULT_MEAN_SIGNAL, PRESETS, ModelConfig, SensorConfig, TrainConfig
+from jaxsr.data import sequence_batches
 from jaxsr.inference import super_resolve, super_resolve_histograms
-from jaxsr.train import sequence_batches
 
 # The host's cores as CPU devices, before any JAX operation: training and `super_resolve` split batches over
 # them, as `jaxsr upscale` and `jaxsr train` do.

@@ -19,6 +19,7 @@ from .config import SensorConfig as SensorConfig
 from .config import TrainConfig as TrainConfig
 from .model import Model as Model
 from .model import apply_model as apply_model
+from .model import apply_model_train as apply_model_train
 from .model import count_params as count_params
 from .model import init_model as init_model
 from .inference import iter_super_resolve as iter_super_resolve

@@ -34,10 +34,15 @@ __all__ = [
     "resolve_model_path",
     "config_to_dict",
     "config_from_dict",
+    "drop_legacy_fields",
 ]
 
 FORMAT_VERSION = 1
 _META = "__metadata__"
+# Fields that older checkpoints carry in a config but the config no longer has: execution choices that used
+# to live there (`conv3d_impl`, now an argument of `apply_model`). They say nothing about the weights, so
+# reading drops them and those checkpoints still load and resume.
+LEGACY_FIELDS = {ModelConfig: frozenset({"conv3d_impl"})}
 
 
 def _version() -> str:
@@ -146,8 +151,16 @@ def config_to_dict(cfg) -> dict:
     return dataclasses.asdict(cfg)
 
 
+def drop_legacy_fields(cls, d: dict) -> dict:
+    """`d` (a config dict read from a checkpoint) without the fields `cls` no longer has (`LEGACY_FIELDS`)."""
+    legacy = LEGACY_FIELDS.get(cls, frozenset())
+    return {k: v for k, v in d.items() if k not in legacy}
+
+
 def config_from_dict(cls, d: dict):
-    """Rebuild a config dataclass from `config_to_dict`'s output (JSON lists become tuples)."""
+    """Rebuild a config dataclass from `config_to_dict`'s output (JSON lists become tuples); fields of
+    older versions (`LEGACY_FIELDS`) are dropped, any other unknown field raises ValueError."""
+    d = drop_legacy_fields(cls, d)
     names = {f.name for f in dataclasses.fields(cls)}
     unknown = sorted(set(d) - names)
     if unknown:

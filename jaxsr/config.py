@@ -81,9 +81,8 @@ class ModelConfig:
     the paper's widths. `same_blocks` is the number of temporally padded blocks (3). BN uses the Keras
     defaults `bn_momentum` 0.99, `bn_eps` 1e-3. `filter_padding` is how the 5x5 neighbourhood of a border LR
     pixel is completed: "edge" (replicate; the default, a deviation from DUF's zero padding, because a zero
-    means "depth 0", the nearest possible return) or "zero" (DUF). `conv3d_impl` is "auto" (the faster one
-    on the current backend), "native" (one 3D convolution) or "taps" (a sum of 2D convolutions over the
-    temporal taps).
+    means "depth 0", the nearest possible return) or "zero" (DUF). The config describes what the network
+    computes and goes into checkpoints; how it runs (`conv3d_impl`) is an argument of `apply_model`.
     """
 
     tr: int = 0
@@ -97,7 +96,6 @@ class ModelConfig:
     bn_momentum: float = 0.99
     bn_eps: float = 1e-3
     filter_padding: str = "edge"
-    conv3d_impl: str = "auto"
 
     def __post_init__(self):
         if self.tr < 0:
@@ -108,10 +106,6 @@ class ModelConfig:
             raise ValueError(f"ModelConfig: filter_size must be odd and >= 1, got {self.filter_size}")
         if self.filter_padding not in ("edge", "zero"):
             raise ValueError(f"ModelConfig: filter_padding must be 'edge' or 'zero', got {self.filter_padding!r}")
-        if self.conv3d_impl not in ("auto", "native", "taps", "stacked"):
-            raise ValueError(
-                f"ModelConfig: conv3d_impl must be 'auto', 'native', 'taps' or 'stacked', got {self.conv3d_impl!r}"
-            )
 
     @property
     def frames(self) -> int:

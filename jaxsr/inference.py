@@ -24,7 +24,7 @@ from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
 from .config import SensorConfig
-from .model import Model
+from .model import Model, apply_model
 from .peaks import centre_of_mass
 from .runtime import compiler_options
 
@@ -41,7 +41,7 @@ def _batch_sharding(batch_size: int) -> NamedSharding | None:
     return NamedSharding(Mesh(np.asarray(devices), ("batch",)), P("batch"))
 
 
-def _windows_through_model(model: Model, chunk, sharding=None):
+def _windows_through_model(model: Model, chunk, sharding=None, conv3d_impl="auto"):
     """chunk (B + 2 tr, h, w) -> (B, h r, w r): the centre frame of each of the B windows of 2 tr + 1 frames,
     the windows split over `sharding`'s devices (the model and chunk are replicated)."""
     n = model.config.frames
@@ -49,13 +49,14 @@ def _windows_through_model(model: Model, chunk, sharding=None):
     windows = chunk[jnp.arange(b)[:, None] + jnp.arange(n)[None, :]]
     if sharding is not None:
         windows = jax.lax.with_sharding_constraint(windows, sharding)
-    return model(windows)
+    return apply_model(model.params, model.state, windows, model.config, conv3d_impl=conv3d_impl)
 
 
 @functools.cache
 def _infer_chunk():
     """`_windows_through_model`, jitted once the backend (and so its `compiler_options`) is known."""
-    return jax.jit(_windows_through_model, static_argnames="sharding", compiler_options=compiler_options())
+    return jax.jit(_windows_through_model, static_argnames=("sharding", "conv3d_impl"),
+                   compiler_options=compiler_options())
 
 
 def _check_frame(frame, shape, index):
@@ -70,14 +71,15 @@ def _check_frame(frame, shape, index):
     return frame
 
 
-def iter_super_resolve(model: Model, frames: Iterable, *, batch_size: int | None = None) -> Iterator[np.ndarray]:
+def iter_super_resolve(model: Model, frames: Iterable, *, batch_size: int | None = None,
+                       conv3d_impl: str = "auto") -> Iterator[np.ndarray]:
     """Super-resolve a stream of LR frames, yielding HR frames in order, in bounded memory.
 
     frames: an iterable of (h, w) LR normalised depth frames (0..1, 1 = no return), e.g. a generator reading
     files one by one. Frame t is the centre of the window t - tr .. t + tr, edge-replicated at both ends of
     the stream (as `jaxsr.temporal.windows`), so frame t is yielded once frame t + tr has arrived (or the
     stream has ended). batch_size: frames per compiled call (None: `DEFAULT_BATCH_SIZE` per local device);
-    split over the local devices when they divide it.
+    split over the local devices when they divide it. conv3d_impl: how the convolutions run (see `apply_model`).
     Yields (h r, w r) float32 NumPy arrays of HR normalised depth (unclipped network output). Raises
     ValueError for a frame of another shape than the first, or holding NaN or inf.
     """
@@ -104,7 +106,7 @@ def iter_super_resolve(model: Model, frames: Iterable, *, batch_size: int | None
         if count < batch_size:
             chunk = np.concatenate([chunk, np.repeat(chunk[-1:], batch_size - count, 0)])
         chunk = jnp.asarray(chunk) if sharding is None else jax.device_put(chunk, replicated)
-        return _infer_chunk()(model, chunk, sharding), count
+        return _infer_chunk()(model, chunk, sharding, conv3d_impl), count
 
     def drain(result):
         out, count = result
@@ -137,20 +139,20 @@ def iter_super_resolve(model: Model, frames: Iterable, *, batch_size: int | None
         yield from drain(pending)
 
 
-def super_resolve(model: Model, lr_seq, *, batch_size: int | None = None) -> np.ndarray:
+def super_resolve(model: Model, lr_seq, *, batch_size: int | None = None, conv3d_impl: str = "auto") -> np.ndarray:
     """Super-resolve a whole LR depth sequence: (T, h, w) -> (T, h r, w r) normalised depth (NumPy, float32).
 
     Each frame is the centre of an edge-replicated window of 2 tr + 1 frames (`jaxsr.temporal.windows`); the
-    result equals `apply_model` on those windows. Memory on the device is bounded by the batch (see
-    `iter_super_resolve`); the HR result is assembled on the host. For a differentiable, traceable version,
-    call `apply_model(params, state, jaxsr.windows(lr_seq, tr), cfg)`.
+    result equals `apply_model` on those windows (`conv3d_impl` is passed to it). Memory on the device is
+    bounded by the batch (see `iter_super_resolve`); the HR result is assembled on the host. For a
+    differentiable, traceable version, call `apply_model(params, state, jaxsr.windows(lr_seq, tr), cfg)`.
     """
     lr_seq = np.asarray(lr_seq, np.float32)
     if lr_seq.ndim != 3 or lr_seq.shape[0] < 1:
         raise ValueError(f"super_resolve: expected an LR sequence (T, h, w) with T >= 1, got shape {lr_seq.shape}")
     r = model.config.scale
     out = np.empty((lr_seq.shape[0], lr_seq.shape[1] * r, lr_seq.shape[2] * r), np.float32)
-    for t, hr in enumerate(iter_super_resolve(model, lr_seq, batch_size=batch_size)):
+    for t, hr in enumerate(iter_super_resolve(model, lr_seq, batch_size=batch_size, conv3d_impl=conv3d_impl)):
         out[t] = hr
     return out
 
@@ -192,18 +194,19 @@ def iter_centre_of_mass(counts: Iterable, sensor: SensorConfig = SensorConfig(),
 
 
 def super_resolve_histograms(model: Model, counts, sensor: SensorConfig = SensorConfig(), *,
-                             batch_size: int | None = None) -> np.ndarray:
+                             batch_size: int | None = None, conv3d_impl: str = "auto") -> np.ndarray:
     """Super-resolve photon histograms: (T, h, w, K) counts -> (T, h r, w r) normalised depth (NumPy).
 
     Depth is extracted by centre of mass (`jaxsr.centre_of_mass` with `sensor`), then `super_resolve`d,
-    streaming (see `iter_super_resolve`)."""
+    streaming (see `iter_super_resolve`; `batch_size` and `conv3d_impl` as there)."""
     counts = np.asarray(counts)
     if counts.ndim != 4:
         raise ValueError(f"super_resolve_histograms: expected counts (T, h, w, {sensor.bins}), got shape "
                          f"{counts.shape}")
     r = model.config.scale
     out = np.empty((counts.shape[0], counts.shape[1] * r, counts.shape[2] * r), np.float32)
-    stream = iter_super_resolve(model, iter_centre_of_mass(counts, sensor), batch_size=batch_size)
+    stream = iter_super_resolve(model, iter_centre_of_mass(counts, sensor), batch_size=batch_size,
+                                conv3d_impl=conv3d_impl)
     for t, hr in enumerate(stream):
         out[t] = hr
     return out

@@ -20,6 +20,7 @@ __all__ = [
     "conv3d_stacked",
     "stacked_use",
     "default_conv3d_impl",
+    "CONV3D_IMPLS",
     "glorot_limit",
     "init_batch_norm",
     "batch_norm",
@@ -143,6 +144,9 @@ def conv3d_stacked(x, w, b=None, *, padding="same"):
     y = sum(z[:, k : k + t_out, :, :, k] for k in range(kt))
     return y if b is None else y + b
 
+
+# The ways `conv3d` can run a convolution; all give the same result (to float rounding).
+CONV3D_IMPLS = ("auto", "native", "taps", "stacked")
 
 # `conv3d(impl="auto")` on CPU stacks the temporal taps of a layer when at least this share of the stacked
 # products is used (`stacked_use`); below it the taps are convolved one by one.

@@ -1,8 +1,10 @@
 """The 3+TR-block dynamic-upsampling-filter network (VSR-DUF adapted; DESIGN.md "The network").
 
-`init_model(key, cfg) -> (params, state)` and `apply_model(params, state, windows, cfg)` are pure functions
-of nested dicts/lists of arrays (pytree key paths such as `blocks/0/conv2/w` name every array). `Model`
-bundles params, state and config as one pytree; `super_resolve` runs a model over a whole LR sequence.
+`init_model(key, cfg) -> (params, state)`, `apply_model(params, state, windows, cfg) -> hr` (BN in inference
+mode) and `apply_model_train(...) -> (hr, new_state)` (BN with batch statistics) are pure functions of nested
+dicts/lists of arrays (pytree key paths such as `blocks/0/conv2/w` name every array). `Model` bundles params,
+state and config as one pytree; `super_resolve` runs a model over a whole LR sequence. How the convolutions
+are computed (`conv3d_impl`) is an argument of the call, not part of the model's config.
 """
 
 from __future__ import annotations
@@ -15,9 +17,17 @@ import jax
 import jax.numpy as jnp
 
 from .config import ModelConfig
-from .layers import batch_norm, conv3d, depth_to_space, dynamic_upsample, glorot_limit, init_batch_norm
+from .layers import (
+    CONV3D_IMPLS,
+    batch_norm,
+    conv3d,
+    depth_to_space,
+    dynamic_upsample,
+    glorot_limit,
+    init_batch_norm,
+)
 
-__all__ = ["Model", "init_model", "apply_model", "count_params", "flops_per_frame"]
+__all__ = ["Model", "init_model", "apply_model", "apply_model_train", "count_params", "flops_per_frame"]
 
 
 def init_model(key, cfg: ModelConfig) -> tuple[dict, dict]:
@@ -120,23 +130,41 @@ def flops_per_frame(cfg: ModelConfig, lr_shape=(32, 64)) -> int:
     return int(round(2 * macs * lr_shape[0] * lr_shape[1]))
 
 
-def _check_windows(windows, cfg: ModelConfig):
+def _check_inputs(windows, cfg: ModelConfig, conv3d_impl: str, who: str):
     if windows.ndim != 4 or windows.shape[1] != cfg.frames:
-        raise ValueError(
-            f"apply_model: expected windows (B, {cfg.frames}, H, W) for tr={cfg.tr}, got shape {windows.shape}"
-        )
+        raise ValueError(f"{who}: expected windows (B, {cfg.frames}, H, W) for tr={cfg.tr}, got shape {windows.shape}")
+    if conv3d_impl not in CONV3D_IMPLS:
+        raise ValueError(f"{who}: conv3d_impl must be one of {', '.join(map(repr, CONV3D_IMPLS))}, got {conv3d_impl!r}")
 
 
-def apply_model(params, state, windows, cfg: ModelConfig, *, train: bool = False):
-    """Super-resolve the centre frame of each window.
+def apply_model(params, state, windows, cfg: ModelConfig, *, conv3d_impl: str = "auto"):
+    """Super-resolve the centre frame of each window, batch norm in inference mode (running statistics).
 
     windows: (B, 2*tr+1, H, W) LR normalised depth (0..1, 1 = no return), the centre frame at index tr.
-    Returns hr (B, H*r, W*r) normalised depth, neither clipped nor passed through an activation; with
-    `train=True` batch norm uses batch statistics and the result is (hr, new_state).
+    Returns hr (B, H*r, W*r) normalised depth, neither clipped nor passed through an activation.
+    conv3d_impl: how the 3x3x3 convolutions run, not what they compute (`jaxsr.layers.conv3d`): "auto" (the
+    faster one on the current backend), "native" (one 3D convolution), "taps" (a sum of 2D convolutions over
+    the temporal taps) or "stacked" (the taps' kernels side by side in one 2D convolution).
     """
-    _check_windows(windows, cfg)
+    _check_inputs(windows, cfg, conv3d_impl, "apply_model")
+    hr, _ = _forward(params, state, windows, cfg, train=False, impl=conv3d_impl)
+    return hr
+
+
+def apply_model_train(params, state, windows, cfg: ModelConfig, *, conv3d_impl: str = "auto"):
+    """The network as it trains: batch norm normalises with the batch's own statistics.
+
+    windows: (B, 2*tr+1, H, W) as for `apply_model`. Returns (hr (B, H*r, W*r), new_state): new_state holds
+    the running BN statistics moved towards this batch's (same structure as `state`). conv3d_impl: as for
+    `apply_model`.
+    """
+    _check_inputs(windows, cfg, conv3d_impl, "apply_model_train")
+    return _forward(params, state, windows, cfg, train=True, impl=conv3d_impl)
+
+
+def _forward(params, state, windows, cfg: ModelConfig, *, train: bool, impl: str):
+    """The network's body for both BN modes: (hr (B, H*r, W*r), new_state)."""
     bn = dict(train=train, momentum=cfg.bn_momentum, eps=cfg.bn_eps)
-    impl = cfg.conv3d_impl
     x = windows[..., None]  # (B, T, H, W, 1)
     x = conv3d(x, params["stem"]["w"], params["stem"]["b"], padding="same", impl=impl)
     new_state = {"blocks": []}
@@ -166,7 +194,7 @@ def apply_model(params, state, windows, cfg: ModelConfig, *, train: bool = False
     centre = windows[:, cfg.tr]
     sub = dynamic_upsample(centre, filters, padding=cfg.filter_padding) + residual  # (B, H, W, r^2)
     hr = depth_to_space(sub, cfg.scale)[..., 0]
-    return (hr, new_state) if train else hr
+    return hr, new_state
 
 
 @dataclasses.dataclass(frozen=True)

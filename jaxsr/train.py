@@ -1,22 +1,22 @@
-"""Training: Huber loss, the jitted train step (data simulated inside it), validation, and `fit`.
+"""Training: the Huber loss, the jitted train step (data simulated inside it), validation, and `fit`.
 
-The data source is a pure function `make_batch(key) -> (windows (B, 2tr+1, h, w), hr_gt (B, h*r, w*r))`:
-`scene_batches` renders random scenes and simulates the sensor (the default), `sequence_batches` draws
-windows from HR depth/intensity arrays read from files (e.g. AirSim recordings); both run inside the jitted
-step. `fit` runs epochs of `TrainConfig.steps_per_epoch` steps with step decay, validates with BN in
-inference mode, logs to `metrics.jsonl`, writes `best.npz` (a `Model`) and `last.npz` (everything needed to
-resume) after every epoch, and stops early. Data parallelism: pass a `jax.sharding.Mesh` with a "data"
+The data come from a source `make_batch(key) -> (windows, gt)` of `jaxsr.data` (default `scene_batches`), run
+inside the jitted step. `fit` runs epochs of `TrainConfig.steps_per_epoch` steps with step decay, validates with
+BN in inference mode, logs to `metrics.jsonl`, writes `best.npz` (a `Model`) and `last.npz` (everything needed
+to resume) after every epoch, and stops early. Data parallelism: pass a `jax.sharding.Mesh` with a "data"
 axis (default: all devices); the batch is split over it and the parameters are replicated.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import json
 import math
 import platform
 import time
 from pathlib import Path
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -28,28 +28,22 @@ from ._files import write_text_atomic
 from .baselines import bicubic
 from .checkpoint import (
     config_to_dict,
+    drop_legacy_fields,
     load_tree,
     model_template,
     read_metadata,
     save_model,
     save_tree,
 )
-from .config import PRESETS, ModelConfig, SensorConfig, TrainConfig
+from .config import ModelConfig, SensorConfig, TrainConfig
+from .data import scene_batches, validation_set
 from .metrics import psnr
-from .model import Model, apply_model, init_model
+from .model import Model, apply_model, apply_model_train, init_model
 from .optim import AdamState, adam_init, adam_update, step_decay
-from .peaks import centre_of_mass
-from .scenes import test_sequences, training_clip
-from .sensor import normalise_depth, simulate_histograms
-from .temporal import windows as temporal_windows
 
 __all__ = [
     "huber_loss",
-    "log_uniform",
-    "random_crop",
-    "scene_batches",
-    "sequence_batches",
-    "validation_set",
+    "lr_schedule",
     "make_train_step",
     "evaluate",
     "data_mesh",
@@ -57,133 +51,17 @@ __all__ = [
 ]
 
 
-def huber_loss(pred, gt, *, delta: float = 0.01):
+def huber_loss(pred, gt, *, delta: float = 0.01, axis=None):
     """Mean Huber loss (the paper's Eq. 3, Keras's `Huber`): per pixel e = pred - gt,
-    0.5 e^2 if |e| <= delta else delta (|e| - delta / 2); averaged over every pixel. Returns a scalar."""
+    0.5 e^2 if |e| <= delta else delta (|e| - delta / 2), averaged over `axis`.
+
+    pred, gt: arrays of the same shape, e.g. (B, H, W). axis: None (every pixel: a scalar) or the axes to
+    average over, e.g. (-2, -1) for one loss per frame (B,).
+    """
     e = jnp.abs(pred - gt)
+    # min(e, delta) written once gives both branches: the quadratic part and the linear excess beyond delta
     quad = jnp.minimum(e, delta)
-    return jnp.mean(0.5 * quad**2 + delta * (e - quad))
-
-
-def log_uniform(key, lo: float, hi: float, shape=()):
-    """Samples log-uniform in [lo, hi] (lo == hi gives the constant)."""
-    u = jax.random.uniform(key, shape)
-    return jnp.exp(jnp.log(lo) + u * (jnp.log(hi) - jnp.log(lo)))
-
-
-def random_crop(key, windows, gt, patch: tuple[int, int] | None, scale: int):
-    """A random LR crop of one example: windows (T, h, w) -> (T, ph, pw) and gt (h*r, w*r) -> (ph*r, pw*r),
-    aligned (LR pixel (y, x) covers HR pixels r*y .. r*y + r - 1). `patch` None returns the inputs."""
-    if patch is None:
-        return windows, gt
-    ph, pw = patch
-    t, h, w = windows.shape
-    if ph > h or pw > w:
-        raise ValueError(f"random_crop: patch {patch} is larger than the LR frame {(h, w)}")
-    ky, kx = jax.random.split(key)
-    y0 = jax.random.randint(ky, (), 0, h - ph + 1)
-    x0 = jax.random.randint(kx, (), 0, w - pw + 1)
-    windows = jax.lax.dynamic_slice(windows, (0, y0, x0), (t, ph, pw))
-    gt = jax.lax.dynamic_slice(gt, (y0 * scale, x0 * scale), (ph * scale, pw * scale))
-    return windows, gt
-
-
-def _simulate_example(key, depth, intensity, tr: int, train_cfg: TrainConfig, sensor: SensorConfig):
-    """(2tr+1, H, W) HR radial depth + intensity -> (LR window (2tr+1, h, w), GT of the centre (H, W))."""
-    k_snr, k_sig, k_noise, k_crop = jax.random.split(key, 4)
-    snr = log_uniform(k_snr, *train_cfg.snr_range)
-    mean_signal = log_uniform(k_sig, *train_cfg.mean_signal_range)
-    # Calibration over the whole clip: the laser and the sun do not change from frame to frame.
-    counts = simulate_histograms(k_noise, depth, intensity, sensor, snr=snr, mean_signal=mean_signal)
-    window = centre_of_mass(counts, sensor)
-    gt = normalise_depth(depth[tr], sensor)
-    return random_crop(k_crop, window, gt, train_cfg.patch, sensor.scale)
-
-
-def scene_batches(tr: int, train_cfg: TrainConfig, *, sensor: SensorConfig = SensorConfig()):
-    """The default data source: `make_batch(key)` rendering `batch_size` random scenes.
-
-    Per example: `jaxsr.scenes.training_clip` (2tr+1 frames, motion log-uniform in `motion_range`) -> SNR and
-    mean signal log-uniform in the config's ranges -> `simulate_histograms` -> `centre_of_mass` -> the
-    LR window; GT = `normalise_depth` of the centre frame; then an optional random crop (`patch`).
-    Returns make_batch: key -> (windows (B, 2tr+1, h, w), gt (B, h*r, w*r)).
-    """
-    def example(key):
-        k_scene, k_rest = jax.random.split(key)
-        depth, intensity = training_clip(k_scene, 2 * tr + 1, sensor=sensor, shift_range=train_cfg.motion_range)
-        return _simulate_example(k_rest, depth, intensity, tr, train_cfg, sensor)
-
-    def make_batch(key):
-        return jax.vmap(example)(jax.random.split(key, train_cfg.batch_size))
-
-    make_batch.description = "jaxsr.scenes.training_clip -> simulate_histograms -> centre_of_mass"
-    return make_batch
-
-
-def sequence_batches(depth, intensity, tr: int, train_cfg: TrainConfig, *, sensor: SensorConfig = SensorConfig()):
-    """A data source drawing windows from HR sequences held in memory (e.g. AirSim recordings read from files).
-
-    depth: (N, T, H, W) or (T, H, W) radial metres (inf/NaN/beyond d_max = no return); intensity: the same
-    shape in [0, 1]; (H, W) = sensor.hr_shape and T >= 2tr+1. Per example: a random sequence and start
-    frame, then the same simulation as `scene_batches`. Returns make_batch: key -> (windows, gt).
-    """
-    depth = jnp.asarray(depth, jnp.float32)
-    intensity = jnp.asarray(intensity, jnp.float32)
-    if depth.ndim == 3:
-        depth, intensity = depth[None], intensity[None]
-    if depth.ndim != 4 or depth.shape != intensity.shape or depth.shape[-2:] != tuple(sensor.hr_shape):
-        raise ValueError(
-            f"sequence_batches: expected depth and intensity of equal shape (N, T, {sensor.hr_shape[0]}, "
-            f"{sensor.hr_shape[1]}), got {depth.shape} and {intensity.shape}"
-        )
-    n, t = depth.shape[:2]
-    frames = 2 * tr + 1
-    if t < frames:
-        raise ValueError(f"sequence_batches: sequences have {t} frames, fewer than the window 2*tr+1 = {frames}")
-
-    def example(key):
-        k_seq, k_start, k_rest = jax.random.split(key, 3)
-        i = jax.random.randint(k_seq, (), 0, n)
-        s = jax.random.randint(k_start, (), 0, t - frames + 1)
-        d = jax.lax.dynamic_slice(depth[i], (s, 0, 0), (frames, *depth.shape[2:]))
-        a = jax.lax.dynamic_slice(intensity[i], (s, 0, 0), (frames, *depth.shape[2:]))
-        return _simulate_example(k_rest, d, a, tr, train_cfg, sensor)
-
-    def make_batch(key):
-        return jax.vmap(example)(jax.random.split(key, train_cfg.batch_size))
-
-    make_batch.description = f"{n} HR sequence(s) of {t} frames -> simulate_histograms -> centre_of_mass"
-    return make_batch
-
-
-def _field(seq, name):
-    return seq[name] if isinstance(seq, dict) else getattr(seq, name)
-
-
-def validation_set(key, tr: int, train_cfg: TrainConfig, *, sensor: SensorConfig = SensorConfig(), sequences=None):
-    """Fixed validation windows: the first `val_frames` frames of each named sequence at its own SNR.
-
-    sequences: {name: seq with fields depth, intensity (T, H, W) and snr}; default
-    `jaxsr.scenes.test_sequences(n_frames=train_cfg.val_frames)` restricted to `train_cfg.val_sequences`.
-    Returns {"windows": (N, 2tr+1, h, w), "gt": (N, H, W), "lr": (N, h, w) centre frames, "names": [...]}.
-    """
-    if sequences is None:
-        sequences = test_sequences(n_frames=train_cfg.val_frames, names=train_cfg.val_sequences or None, sensor=sensor)
-    names = list(train_cfg.val_sequences) or sorted(sequences)
-    windows, gts, lrs = [], [], []
-    for i, name in enumerate(names):
-        seq = sequences[name]
-        depth = jnp.asarray(_field(seq, "depth"))[: train_cfg.val_frames]
-        intensity = jnp.asarray(_field(seq, "intensity"))[: train_cfg.val_frames]
-        counts = simulate_histograms(
-            jax.random.fold_in(key, i), depth, intensity, sensor,
-            snr=float(_field(seq, "snr")), mean_signal=train_cfg.val_mean_signal,
-        )
-        lr = centre_of_mass(counts, sensor)
-        windows.append(temporal_windows(lr, tr))
-        gts.append(normalise_depth(depth, sensor))
-        lrs.append(lr)
-    return {"windows": jnp.concatenate(windows), "gt": jnp.concatenate(gts), "lr": jnp.concatenate(lrs), "names": names}
+    return jnp.mean(0.5 * quad**2 + delta * (e - quad), axis=axis)
 
 
 def data_mesh(devices=None) -> Mesh:
@@ -192,23 +70,32 @@ def data_mesh(devices=None) -> Mesh:
     return Mesh(np.asarray(devices), ("data",))
 
 
-def make_train_step(model_cfg: ModelConfig, train_cfg: TrainConfig, make_batch, *, mesh: Mesh | None = None):
+def lr_schedule(train_cfg: TrainConfig):
+    """The learning rate of the train step: step -> lr (a scalar), step the 0-based update index.
+
+    lr0 * lr_decay ** (step // (decay_epochs * steps_per_epoch)): constant within an epoch, cut exactly at
+    the first step of epochs decay_epochs + 1, 2 decay_epochs + 1, ... (1-based).
+    """
+    return step_decay(train_cfg.lr, factor=train_cfg.lr_decay, every=train_cfg.decay_epochs * train_cfg.steps_per_epoch)
+
+
+def make_train_step(model_cfg: ModelConfig, train_cfg: TrainConfig, make_batch, *, mesh: Mesh | None = None,
+                    conv3d_impl: str = "auto"):
     """The jitted train step: step(params, state, opt_state, key, step) -> (params, state, opt_state, metrics).
 
     Inside one jit: make_batch(key) -> network with BN in training mode -> Huber loss -> gradients -> Adam
-    with lr = lr0 * decay ** (step // (decay_epochs * steps_per_epoch)). metrics: {"loss", "psnr" (mean over
-    the batch, prediction clipped), "lr"}. With a `mesh`, the batch is sharded over its "data" axis and
-    params/state/optimiser state are replicated (batch statistics and gradients are reduced over the mesh).
+    with lr = `lr_schedule(train_cfg)(step)`. metrics: {"loss", "psnr" (mean over the batch, prediction
+    clipped), "lr"}. With a `mesh`, the batch is sharded over its "data" axis and params/state/optimiser
+    state are replicated (batch statistics and gradients are reduced over the mesh).
+    conv3d_impl: how the network's convolutions run (see `apply_model`).
     """
-    return _train_step(model_cfg, train_cfg, make_batch, mesh)
+    return _train_step(model_cfg, train_cfg, make_batch, mesh, conv3d_impl)
 
 
 @functools.lru_cache(maxsize=16)
-def _train_step(model_cfg, train_cfg, make_batch, mesh):
+def _train_step(model_cfg, train_cfg, make_batch, mesh, conv3d_impl):
     # cached: fitting again with the same configs and data source (e.g. a resume) does not recompile
-    schedule = step_decay(
-        train_cfg.lr, factor=train_cfg.lr_decay, every=train_cfg.decay_epochs * train_cfg.steps_per_epoch
-    )
+    schedule = lr_schedule(train_cfg)
 
     def constrain(tree, spec):
         if mesh is None:
@@ -219,7 +106,7 @@ def _train_step(model_cfg, train_cfg, make_batch, mesh):
         windows, gt = constrain(make_batch(key), P("data"))
 
         def loss_fn(p):
-            hr, new_state = apply_model(p, state, windows, model_cfg, train=True)
+            hr, new_state = apply_model_train(p, state, windows, model_cfg, conv3d_impl=conv3d_impl)
             return huber_loss(hr, gt, delta=train_cfg.huber_delta), (new_state, hr)
 
         (loss, (new_state, hr)), grads = jax.value_and_grad(loss_fn, has_aux=True)(params)
@@ -235,19 +122,18 @@ def _train_step(model_cfg, train_cfg, make_batch, mesh):
     return jax.jit(step_fn, donate_argnums=donate)
 
 
-@functools.partial(jax.jit, static_argnames=("cfg", "delta"))
-def _eval_chunk(params, state, windows, gt, cfg, delta):
-    hr = apply_model(params, state, windows, cfg)
-    e = jnp.abs(hr - gt)
-    quad = jnp.minimum(e, delta)
-    loss = jnp.mean(0.5 * quad**2 + delta * (e - quad), axis=(-2, -1))
-    return loss, psnr(hr, gt)
+@functools.partial(jax.jit, static_argnames=("cfg", "delta", "conv3d_impl"))
+def _eval_chunk(params, state, windows, gt, cfg, delta, conv3d_impl):
+    hr = apply_model(params, state, windows, cfg, conv3d_impl=conv3d_impl)
+    return huber_loss(hr, gt, delta=delta, axis=(-2, -1)), psnr(hr, gt)
 
 
-def evaluate(params, state, windows, gt, cfg: ModelConfig, *, delta: float = 0.01, batch_size: int = 8) -> dict:
+def evaluate(params, state, windows, gt, cfg: ModelConfig, *, delta: float = 0.01, batch_size: int = 8,
+             conv3d_impl: str = "auto") -> dict:
     """Validation with BN in inference mode: {"loss": mean Huber, "psnr": mean per-frame PSNR (dB)}.
 
-    windows: (N, 2tr+1, h, w); gt: (N, h*r, w*r). Runs in chunks of `batch_size` frames (the last padded).
+    windows: (N, 2tr+1, h, w); gt: (N, h*r, w*r). Runs in chunks of `batch_size` frames (the last padded);
+    conv3d_impl: see `apply_model`.
     """
     n = windows.shape[0]
     pad = (-n) % batch_size
@@ -256,7 +142,8 @@ def evaluate(params, state, windows, gt, cfg: ModelConfig, *, delta: float = 0.0
         gt = jnp.concatenate([gt, jnp.repeat(gt[-1:], pad, 0)])
     losses, psnrs = [], []
     for i in range(0, n + pad, batch_size):
-        l, p = _eval_chunk(params, state, windows[i : i + batch_size], gt[i : i + batch_size], cfg, delta)
+        l, p = _eval_chunk(params, state, windows[i : i + batch_size], gt[i : i + batch_size], cfg, delta,
+                           conv3d_impl)
         losses.append(l)
         psnrs.append(p)
     return {"loss": float(jnp.concatenate(losses)[:n].mean()), "psnr": float(jnp.concatenate(psnrs)[:n].mean())}
@@ -274,6 +161,36 @@ def _hardware() -> dict:
     }
 
 
+class _TrainState(NamedTuple):
+    """The arrays of a run, as `last.npz` holds them (the key as raw key data there): what the train step
+    updates (params, BN state, Adam state), the best epoch's {"params", "state"} (on the host), and the data
+    key (step s draws its batch with fold_in(key, s))."""
+
+    params: dict
+    state: dict
+    opt: AdamState
+    best: dict
+    key: jax.Array
+
+
+@dataclasses.dataclass(frozen=True)
+class _Run:
+    """Where a run stands after `epoch` epochs; saved as the "run" metadata of `last.npz`.
+
+    best_loss / best_epoch (0-based, -1 before the first) / bad_epochs (epochs since the best) drive early
+    stopping; history holds the per-epoch records of `metrics.jsonl`.
+    """
+
+    epoch: int = 0
+    step: int = 0
+    best_loss: float = math.inf
+    best_epoch: int = -1
+    bad_epochs: int = 0
+    wall_time_s: float = 0.0
+    finished: bool = False
+    history: tuple = ()
+
+
 def _train_state_template(model_cfg: ModelConfig):
     params_t, state_t = model_template(model_cfg)
     return {
@@ -283,6 +200,143 @@ def _train_state_template(model_cfg: ModelConfig):
         "best": {"params": params_t, "state": state_t},
         "key": jax.eval_shape(lambda: jax.random.key_data(jax.random.key(0))),
     }
+
+
+def _choose_mesh(mesh, batch_size: int) -> Mesh | None:
+    """`fit`'s mesh argument resolved: "auto" shards over all devices when there are several that divide the
+    batch evenly."""
+    if mesh != "auto":
+        return mesh
+    n = jax.device_count()
+    return data_mesh() if n > 1 and batch_size % n == 0 else None
+
+
+def _bicubic_psnr(validation: dict, scale: int) -> float | None:
+    """Mean PSNR (dB) of bicubic upsampling of the validation set's centre frames (None without "lr"): the
+    baseline every epoch's validation PSNR is logged beside."""
+    if "lr" not in validation:
+        return None
+    return float(jnp.mean(psnr(bicubic(validation["lr"], scale=scale), validation["gt"])))
+
+
+def _settings(model_cfg: ModelConfig, train_cfg: TrainConfig) -> dict:
+    """{"config", "train_config"} as a checkpoint's metadata holds them."""
+    # JSON round trip: tuples become lists, as they are when read back from a checkpoint
+    return json.loads(json.dumps({"config": config_to_dict(model_cfg), "train_config": config_to_dict(train_cfg)}))
+
+
+def _check_resumable(path: Path, meta: dict, settings: dict):
+    """Raise ValueError naming every setting in which the run saved at `path` differs from `settings`.
+
+    Everything must match except `epochs`: extending a finished run is a resume, not a new run (the schedule
+    depends on decay_epochs and patience, not on the epoch budget). Fields older versions kept in the model
+    config (`checkpoint.LEGACY_FIELDS`) are ignored.
+    """
+    def flat(model, train):
+        return dict(model, **{f"train.{k}": v for k, v in train.items() if k != "epochs"})
+
+    saved = flat(drop_legacy_fields(ModelConfig, meta["config"]), meta["train_config"])
+    wanted = flat(settings["config"], settings["train_config"])
+    differ = sorted(k for k in saved.keys() | wanted.keys() if saved.get(k) != wanted.get(k))
+    if differ:
+        raise ValueError(
+            f"fit: cannot resume {str(path)!r}: it was trained with other settings: "
+            + ", ".join(f"{k} {saved.get(k)!r} (now {wanted.get(k)!r})" for k in differ)
+        )
+
+
+def _start_or_resume(last_path: Path, model_cfg: ModelConfig, train_cfg: TrainConfig, settings: dict, *,
+                     k_init, k_data, resume: bool) -> tuple[_TrainState, _Run]:
+    """The run saved in `last_path` when resuming from an existing file, else a fresh one (weights from
+    `k_init`, data from `k_data`)."""
+    if not (resume and last_path.is_file()):
+        params, state = init_model(k_init, model_cfg)
+        best = jax.device_get({"params": params, "state": state})
+        return _TrainState(params, state, adam_init(params), best, k_data), _Run()
+    _check_resumable(last_path, read_metadata(last_path), settings)
+    tree, meta = load_tree(last_path, _train_state_template(model_cfg))
+    tree = jax.tree_util.tree_map(jnp.asarray, tree)
+    ts = _TrainState(tree["params"], tree["state"], AdamState(*tree["opt"]), tree["best"],
+                     jax.random.wrap_key_data(tree["key"]))
+    saved = meta["run"]
+    # A run that used up its epoch budget continues when given more; an early-stopped run stays stopped.
+    run = _Run(**dict(saved, history=tuple(saved["history"]), finished=saved["bad_epochs"] >= train_cfg.patience))
+    return ts, run
+
+
+def _run_epoch(step_fn, ts: _TrainState, epoch: int, train_cfg: TrainConfig, *, progress: bool):
+    """`steps_per_epoch` train steps of epoch `epoch` (0-based) with a progress bar.
+
+    Returns (the new train state, {"loss", "psnr": means over the epoch's steps, "lr": the last step's rate}).
+    """
+    from tqdm.auto import tqdm  # late: only training needs it
+
+    spe = train_cfg.steps_per_epoch
+    params, state, opt = ts.params, ts.state, ts.opt
+    sums = {"loss": 0.0, "psnr": 0.0}
+    lr = None
+    bar = tqdm(total=spe, desc=f"epoch {epoch + 1}/{train_cfg.epochs}", disable=not progress, leave=False)
+    for i in range(spe):
+        step = epoch * spe + i
+        t_step = time.perf_counter()
+        params, state, opt, m = step_fn(params, state, opt, jax.random.fold_in(ts.key, step), step)
+        m = {k: float(v) for k, v in jax.device_get(m).items()}
+        sums["loss"] += m["loss"]
+        sums["psnr"] += m["psnr"]
+        lr = m["lr"]
+        bar.set_postfix(loss=f"{m['loss']:.2e}", psnr=f"{m['psnr']:.2f}", lr=f"{lr:.0e}",
+                        ex_s=f"{train_cfg.batch_size / (time.perf_counter() - t_step):.1f}")
+        bar.update()
+    bar.close()
+    means = {"loss": sums["loss"] / spe, "psnr": sums["psnr"] / spe, "lr": lr}
+    return ts._replace(params=params, state=state, opt=opt), means
+
+
+def _early_stopping(run: _Run, ts: _TrainState, val_loss: float, train_cfg: TrainConfig) -> tuple[_Run, _TrainState]:
+    """After epoch `run.epoch` (1-based, just finished): keep its weights if its validation loss is the lowest
+    so far, else count one more bad epoch; the run is finished after `patience` bad epochs in a row or when
+    the epoch budget is used up."""
+    if val_loss < run.best_loss:
+        run = dataclasses.replace(run, best_loss=val_loss, best_epoch=run.epoch - 1, bad_epochs=0)
+        ts = ts._replace(best=jax.device_get({"params": ts.params, "state": ts.state}))
+    else:
+        run = dataclasses.replace(run, bad_epochs=run.bad_epochs + 1)
+    finished = run.bad_epochs >= train_cfg.patience or run.epoch >= train_cfg.epochs
+    return dataclasses.replace(run, finished=finished), ts
+
+
+def _training_card(run: _Run, *, train_cfg: TrainConfig, settings: dict, sensor: SensorConfig, validation: dict,
+                   bicubic_psnr: float | None, data: str) -> dict:
+    """The training card saved with the checkpoints: data, sensor, amount of training, hardware, validation."""
+    return {
+        "data": data,
+        "sensor": jax.tree_util.tree_map(lambda v: v.tolist() if hasattr(v, "tolist") else v, config_to_dict(sensor)),
+        "steps": run.step,
+        "epochs": run.epoch,
+        "examples": run.step * train_cfg.batch_size,
+        "best_epoch": run.best_epoch,
+        "wall_time_s": run.wall_time_s,
+        "hardware": _hardware(),
+        "validation": {
+            "sequences": list(validation.get("names", [])),
+            "frames": int(validation["windows"].shape[0]),
+            "loss": run.best_loss,
+            "psnr": run.history[run.best_epoch]["val_psnr"] if run.best_epoch >= 0 else None,
+            "bicubic_psnr": bicubic_psnr,
+        },
+        "train_config": settings["train_config"],
+        "seed": train_cfg.seed,
+    }
+
+
+def _write_checkpoints(out: Path, ts: _TrainState, run: _Run, model_cfg: ModelConfig, settings: dict, card: dict):
+    """`best.npz` (when this epoch is the best), `last.npz` and `metrics.jsonl`, each written atomically."""
+    # best first, then last: a kill between the two resumes from the previous epoch and rewrites both.
+    if run.best_epoch == run.epoch - 1:
+        save_model(out / "best.npz", Model(ts.best["params"], ts.best["state"], model_cfg), card=card)
+    tree = {"params": ts.params, "state": ts.state, "opt": ts.opt, "best": ts.best, "key": jax.random.key_data(ts.key)}
+    save_tree(out / "last.npz", tree, dict(settings, kind="train_state", run=dataclasses.asdict(run), card=card))
+    write_text_atomic(out / "metrics.jsonl", "".join(json.dumps(r) + "\n" for r in run.history))
 
 
 def fit(
@@ -298,6 +352,7 @@ def fit(
     progress: bool = True,
     callback=None,
     data_description: str | None = None,
+    conv3d_impl: str = "auto",
 ):
     """Train a network; returns (best `Model`, history: list of per-epoch records).
 
@@ -305,17 +360,17 @@ def fit(
     training card; `jaxsr.load_model` reads it) and `last.npz` (params, BN state, Adam state, RNG key, step,
     epoch, best-so-far weights and early-stopping counters), all written every epoch. `resume=True` continues
     from `last.npz` and gives the same result as an uninterrupted run (bit-identical on the same machine).
-    make_batch: the data source (default `scene_batches`); validation: a dict from `validation_set`
-    (default: built from `jaxsr.scenes.test_sequences`). mesh: "auto" (all devices when there are more than
-    one), None (no sharding) or a `Mesh` with a "data" axis. callback(record) is called after each epoch's
-    checkpoint is written. Everything random follows `train_cfg.seed`.
+    make_batch: the data source (default `jaxsr.data.scene_batches`); validation: a dict from
+    `jaxsr.data.validation_set` (default: built from `jaxsr.scenes.test_sequences`). mesh: "auto" (all
+    devices when there are more than one), None (no sharding) or a `Mesh` with a "data" axis. callback(record)
+    is called after each epoch's checkpoint is written. conv3d_impl: how the network's convolutions run (see
+    `apply_model`; not saved, a run may resume with another). Everything random follows `train_cfg.seed`.
     """
     if model_cfg.scale != sensor.scale:
         raise ValueError(f"fit: model scale {model_cfg.scale} differs from sensor scale {sensor.scale}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    if mesh == "auto":
-        mesh = data_mesh() if jax.device_count() > 1 and train_cfg.batch_size % jax.device_count() == 0 else None
+    mesh = _choose_mesh(mesh, train_cfg.batch_size)
     root = jax.random.key(train_cfg.seed)
     k_init, k_data, k_val = (jax.random.fold_in(root, i) for i in range(3))
     if make_batch is None:
@@ -324,125 +379,39 @@ def fit(
         data_description = getattr(make_batch, "description", "user-supplied make_batch")
     if validation is None:
         validation = validation_set(k_val, model_cfg.tr, train_cfg, sensor=sensor)
-    val_bicubic = None
-    if "lr" in validation:
-        val_bicubic = float(jnp.mean(psnr(bicubic(validation["lr"], scale=model_cfg.scale), validation["gt"])))
+    val_bicubic = _bicubic_psnr(validation, model_cfg.scale)
+    settings = _settings(model_cfg, train_cfg)
+    ts, run = _start_or_resume(out / "last.npz", model_cfg, train_cfg, settings, k_init=k_init, k_data=k_data,
+                               resume=resume)
+    step_fn = make_train_step(model_cfg, train_cfg, make_batch, mesh=mesh, conv3d_impl=conv3d_impl)
+    if mesh is not None:  # replicated over the mesh; the train step shards only the batch
+        params, state, opt = jax.device_put((ts.params, ts.state, ts.opt), NamedSharding(mesh, P()))
+        ts = ts._replace(params=params, state=state, opt=opt)
 
     spe = train_cfg.steps_per_epoch
-    last_path, best_path = out / "last.npz", out / "best.npz"
-    # JSON round trip: tuples become lists, as they are when read back from a checkpoint
-    meta_common = json.loads(json.dumps({"config": config_to_dict(model_cfg), "train_config": config_to_dict(train_cfg)}))
-    if resume and last_path.is_file():
-        meta = read_metadata(last_path)
-        # Everything must match except `epochs`: extending a finished run is a resume, not a new run (the
-        # schedule depends on decay_epochs and patience, not on the epoch budget).
-        saved = dict(meta["config"], **{f"train.{k}": v for k, v in meta["train_config"].items() if k != "epochs"})
-        wanted = dict(meta_common["config"],
-                      **{f"train.{k}": v for k, v in meta_common["train_config"].items() if k != "epochs"})
-        differ = sorted(k for k in saved.keys() | wanted.keys() if saved.get(k) != wanted.get(k))
-        if differ:
-            raise ValueError(
-                f"fit: cannot resume {str(last_path)!r}: it was trained with other settings: "
-                + ", ".join(f"{k} {saved.get(k)!r} (now {wanted.get(k)!r})" for k in differ)
-            )
-        tree, meta = load_tree(last_path, _train_state_template(model_cfg))
-        tree = jax.tree_util.tree_map(jnp.asarray, tree)
-        params, state = tree["params"], tree["state"]
-        opt_state = AdamState(*tree["opt"])
-        best = tree["best"]
-        k_data = jax.random.wrap_key_data(tree["key"])
-        run = meta["run"]
-        # A run that used up its epoch budget continues when given more; an early-stopped run stays stopped.
-        run["finished"] = run["bad_epochs"] >= train_cfg.patience
-        history = run["history"]
-    else:
-        params, state = init_model(k_init, model_cfg)
-        opt_state = adam_init(params)
-        best = jax.device_get({"params": params, "state": state})
-        run = {"epoch": 0, "step": 0, "best_loss": math.inf, "best_epoch": -1, "bad_epochs": 0,
-               "wall_time_s": 0.0, "finished": False, "history": []}
-        history = run["history"]
-
-    step_fn = make_train_step(model_cfg, train_cfg, make_batch, mesh=mesh)
-    if mesh is not None:
-        params, state, opt_state = jax.device_put((params, state, opt_state), NamedSharding(mesh, P()))
-
-    def card():
-        return {
-            "data": data_description,
-            "sensor": jax.tree_util.tree_map(lambda v: v.tolist() if hasattr(v, "tolist") else v,
-                                             config_to_dict(sensor)),
-            "steps": run["step"],
-            "epochs": run["epoch"],
-            "examples": run["step"] * train_cfg.batch_size,
-            "best_epoch": run["best_epoch"],
-            "wall_time_s": run["wall_time_s"],
-            "hardware": _hardware(),
-            "validation": {
-                "sequences": list(validation.get("names", [])),
-                "frames": int(validation["windows"].shape[0]),
-                "loss": run["best_loss"],
-                "psnr": history[run["best_epoch"]]["val_psnr"] if run["best_epoch"] >= 0 else None,
-                "bicubic_psnr": val_bicubic,
-            },
-            "train_config": meta_common["train_config"],
-            "seed": train_cfg.seed,
-        }
-
-    try:
-        from tqdm.auto import tqdm
-    except ImportError:  # pragma: no cover
-        progress = False
-
-    while not run["finished"] and run["epoch"] < train_cfg.epochs:
-        epoch = run["epoch"]
+    while not run.finished and run.epoch < train_cfg.epochs:
         t0 = time.perf_counter()
-        sums = {"loss": 0.0, "psnr": 0.0}
-        bar = tqdm(total=spe, desc=f"epoch {epoch + 1}/{train_cfg.epochs}", disable=not progress, leave=False)
-        lr = None
-        for i in range(spe):
-            step = epoch * spe + i
-            ts = time.perf_counter()
-            params, state, opt_state, m = step_fn(params, state, opt_state, jax.random.fold_in(k_data, step), step)
-            m = {k: float(v) for k, v in jax.device_get(m).items()}
-            sums["loss"] += m["loss"]
-            sums["psnr"] += m["psnr"]
-            lr = m["lr"]
-            bar.set_postfix(loss=f"{m['loss']:.2e}", psnr=f"{m['psnr']:.2f}", lr=f"{lr:.0e}",
-                            ex_s=f"{train_cfg.batch_size / (time.perf_counter() - ts):.1f}")
-            bar.update()
-        bar.close()
+        ts, train = _run_epoch(step_fn, ts, run.epoch, train_cfg, progress=progress)
         train_time = time.perf_counter() - t0
-        val = evaluate(params, state, validation["windows"], validation["gt"], model_cfg, delta=train_cfg.huber_delta)
-        run["step"] = (epoch + 1) * spe
-        run["epoch"] = epoch + 1
+        val = evaluate(ts.params, ts.state, validation["windows"], validation["gt"], model_cfg,
+                       delta=train_cfg.huber_delta, conv3d_impl=conv3d_impl)
+        run = dataclasses.replace(run, epoch=run.epoch + 1, step=(run.epoch + 1) * spe)
         record = {
-            "epoch": epoch + 1, "step": run["step"], "lr": lr,
-            "train_loss": sums["loss"] / spe, "train_psnr": sums["psnr"] / spe,
+            "epoch": run.epoch, "step": run.step, "lr": train["lr"],
+            "train_loss": train["loss"], "train_psnr": train["psnr"],
             "val_loss": val["loss"], "val_psnr": val["psnr"], "val_bicubic_psnr": val_bicubic,
             "examples_per_s": spe * train_cfg.batch_size / train_time,
             "epoch_time_s": time.perf_counter() - t0,
         }
-        if val["loss"] < run["best_loss"]:
-            run.update(best_loss=val["loss"], best_epoch=epoch, bad_epochs=0)
-            best = jax.device_get({"params": params, "state": state})
-        else:
-            run["bad_epochs"] += 1
-        run["finished"] = run["bad_epochs"] >= train_cfg.patience or run["epoch"] >= train_cfg.epochs
-        run["wall_time_s"] += time.perf_counter() - t0
-        record["wall_time_s"] = run["wall_time_s"]
-        history.append(record)
+        run, ts = _early_stopping(run, ts, val["loss"], train_cfg)
+        record["wall_time_s"] = run.wall_time_s + time.perf_counter() - t0
+        run = dataclasses.replace(run, wall_time_s=record["wall_time_s"], history=(*run.history, record))
         if progress:
             print(json.dumps(record))
-        # best first, then last: a kill between the two resumes from the previous epoch and rewrites both.
-        if run["best_epoch"] == epoch:
-            save_model(best_path, Model(best["params"], best["state"], model_cfg), card=card())
-        tree = {"params": params, "state": state, "opt": opt_state, "best": best,
-                "key": jax.random.key_data(k_data)}
-        save_tree(last_path, tree, dict(meta_common, kind="train_state", run=run, card=card()))
-        write_text_atomic(out / "metrics.jsonl", "".join(json.dumps(r) + "\n" for r in history))
+        card = _training_card(run, train_cfg=train_cfg, settings=settings, sensor=sensor, validation=validation,
+                              bicubic_psnr=val_bicubic, data=data_description)
+        _write_checkpoints(out, ts, run, model_cfg, settings, card)
         if callback is not None:
             callback(record)
-    model = Model(jax.tree_util.tree_map(jnp.asarray, best["params"]),
-                  jax.tree_util.tree_map(jnp.asarray, best["state"]), model_cfg)
-    return model, history
+    best = jax.tree_util.tree_map(jnp.asarray, ts.best)
+    return Model(best["params"], best["state"], model_cfg), list(run.history)

@@ -2,12 +2,14 @@
 
 import json
 import os
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import jaxsr
 from jaxsr.checkpoint import (
     FORMAT_VERSION,
     flatten_tree,
@@ -163,3 +165,26 @@ def test_float16_storage_round_trip(tmp_path):
         save_model(tmp_path / "big.npz", big, storage_dtype="float16")
     with pytest.raises(ValueError, match="storage_dtype"):
         save_model(tmp_path / "x.npz", model, storage_dtype="bfloat16")
+
+
+def test_legacy_execution_field_is_dropped(tmp_path, model):
+    """Checkpoints written while `conv3d_impl` was part of ModelConfig (the bundled weights among them) still
+    load; any other unknown config field is still an error."""
+    path = save_model(tmp_path / "m.npz", model)
+    with np.load(path) as data:
+        arrays = {k: data[k] for k in data.files}
+    meta = json.loads(str(arrays["__metadata__"]))
+    for extra, ok in (({"conv3d_impl": "native"}, True), ({"width": 3}, False)):
+        arrays["__metadata__"] = np.array(json.dumps(dict(meta, config=dict(meta["config"], **extra))))
+        np.savez(tmp_path / "old.npz", **arrays)
+        if ok:
+            loaded = load_model(tmp_path / "old.npz")
+            assert loaded.config == CFG
+            for a, b in zip(jax.tree_util.tree_leaves(model), jax.tree_util.tree_leaves(loaded)):
+                np.testing.assert_array_equal(a, b)
+        else:
+            with pytest.raises(ValueError, match=r"unknown field\(s\) \['width'\]"):
+                load_model(tmp_path / "old.npz")
+    bundled = Path(jaxsr.__file__).parent / "weights" / "tr0.npz"
+    assert "conv3d_impl" in read_metadata(bundled)["config"]
+    assert load_model("tr0").config == ModelConfig(tr=0)

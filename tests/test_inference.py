@@ -45,6 +45,16 @@ def test_super_resolve_equals_window_loop(tr, frames, batch):
     np.testing.assert_allclose(out, _loop(model, seq), rtol=1e-5, atol=1e-6)
 
 
+def test_conv3d_impl_is_passed_to_the_network():
+    """Another way of running the convolutions gives the same frames; an unknown one is refused by name."""
+    model = _model(1)
+    seq = np.asarray(jax.random.uniform(jax.random.key(5), (4, 4, 6)))
+    native = super_resolve(model, seq, batch_size=2, conv3d_impl="native")
+    np.testing.assert_allclose(native, _loop(model, seq), rtol=1e-4, atol=1e-5)
+    with pytest.raises(ValueError, match="conv3d_impl must be one of"):
+        super_resolve(model, seq, batch_size=2, conv3d_impl="fft")
+
+
 def test_streaming_holds_a_bounded_number_of_frames():
     model = _model(2)
     seq = np.asarray(jax.random.uniform(jax.random.key(3), (12, 4, 6)))

@@ -1,19 +1,18 @@
 """The network: parameter counts of DESIGN.md, shapes for TR0-4 and scale 8, BN modes, hand-set weights."""
 
-import dataclasses
-
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from jaxsr.config import ModelConfig
-from jaxsr.model import Model, apply_model, count_params, flops_per_frame, init_model
+from jaxsr.model import Model, apply_model, apply_model_train, count_params, flops_per_frame, init_model
 from jaxsr.temporal import windows as temporal_windows
 
 TINY = dict(base=8, growth=4, head=16, filter_hidden=16)
 # jit once per config: much faster than op-by-op dispatch of the whole network
-apply_jit = jax.jit(apply_model, static_argnums=3, static_argnames="train")
+apply_jit = jax.jit(apply_model, static_argnums=3, static_argnames="conv3d_impl")
+train_jit = jax.jit(apply_model_train, static_argnums=3, static_argnames="conv3d_impl")
 PAPER_COUNTS = {0: 1_056_608, 1: 1_295_072, 2: 1_572_608, 3: 1_891_264, 4: 2_253_088}
 
 
@@ -44,7 +43,7 @@ def test_shapes_full_size(tr, scale):
     win = jax.ShapeDtypeStruct((2, 2 * tr + 1, *lr), jnp.float32)
     out = jax.eval_shape(lambda p, s, w: apply_model(p, s, w, cfg), params, state, win)
     assert out.shape == (2, 128, 256)
-    hr, new_state = jax.eval_shape(lambda p, s, w: apply_model(p, s, w, cfg, train=True), params, state, win)
+    hr, new_state = jax.eval_shape(lambda p, s, w: apply_model_train(p, s, w, cfg), params, state, win)
     assert hr.shape == (2, 128, 256)
     assert jax.tree_util.tree_structure(new_state) == jax.tree_util.tree_structure(state)
 
@@ -56,7 +55,7 @@ def test_tiny_forward_runs(tr, scale):
     win = jax.random.uniform(jax.random.key(1), (2, cfg.frames, 4, 6))
     hr = apply_jit(params, state, win, cfg)
     assert hr.shape == (2, 4 * scale, 6 * scale) and bool(jnp.all(jnp.isfinite(hr)))
-    hr_t, new_state = apply_jit(params, state, win, cfg, train=True)
+    hr_t, new_state = train_jit(params, state, win, cfg)
     # training mode uses batch statistics (differs from the running ones) and moves the running mean
     assert not np.allclose(hr_t, hr)
     assert not np.allclose(new_state["blocks"][1]["bn1"]["mean"], state["blocks"][1]["bn1"]["mean"])
@@ -68,9 +67,14 @@ def test_conv3d_impls_give_same_network():
     cfg = ModelConfig(tr=1, **TINY)
     params, state = init_model(jax.random.key(0), cfg)
     win = jax.random.uniform(jax.random.key(1), (2, 3, 4, 6))
-    a = apply_jit(params, state, win, dataclasses.replace(cfg, conv3d_impl="native"))
-    b = apply_jit(params, state, win, dataclasses.replace(cfg, conv3d_impl="taps"))
+    a = apply_jit(params, state, win, cfg, conv3d_impl="native")
+    b = apply_jit(params, state, win, cfg, conv3d_impl="taps")
     np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5)
+    # the training form too, batch statistics and all
+    (a_t, sa), (b_t, sb) = (train_jit(params, state, win, cfg, conv3d_impl=i) for i in ("native", "taps"))
+    np.testing.assert_allclose(a_t, b_t, rtol=1e-4, atol=1e-5)
+    for x, y in zip(jax.tree_util.tree_leaves(sa), jax.tree_util.tree_leaves(sb)):
+        np.testing.assert_allclose(x, y, rtol=1e-4, atol=1e-5)
 
 
 def test_hand_set_head_gives_nearest_upsampling_of_centre_frame():
@@ -98,6 +102,12 @@ def test_bad_window_shape_raises():
         apply_model(params, state, jnp.zeros((2, 5, 4, 4)), cfg)
     with pytest.raises(ValueError):
         apply_model(params, state, jnp.zeros((3, 4, 4)), cfg)
+    with pytest.raises(ValueError, match=r"apply_model_train: expected windows \(B, 3, H, W\)"):
+        apply_model_train(params, state, jnp.zeros((2, 5, 4, 4)), cfg)
+    # how to run is checked before anything runs, and the message lists the choices
+    for f in (apply_model, apply_model_train):
+        with pytest.raises(ValueError, match=r"conv3d_impl must be one of 'auto', 'native', 'taps', 'stacked', got 'fft'"):
+            f(params, state, jnp.zeros((2, 3, 4, 4)), cfg, conv3d_impl="fft")
 
 
 def test_config_validation():
@@ -130,9 +140,9 @@ def test_flops_per_frame_matches_xla(tr):
     """The analytic count agrees with XLA's own cost analysis of the compiled network at the paper's widths
     (within 3 %: batch norm, ReLU and softmax are not counted, and XLA skips taps in the zero padding).
     The count is the network's arithmetic, as "taps" computes it; "stacked" layers compute some products twice."""
-    cfg = ModelConfig(tr=tr, conv3d_impl="taps")
+    cfg = ModelConfig(tr=tr)
     params, state = init_model(jax.random.key(0), cfg)
     x = jnp.zeros((1, cfg.frames, 32, 64))  # the sensor's frame: XLA skips taps in the spatial zero padding
-    cost = apply_jit.lower(params, state, x, cfg).compile().cost_analysis()
+    cost = apply_jit.lower(params, state, x, cfg, conv3d_impl="taps").compile().cost_analysis()
     cost = cost[0] if isinstance(cost, list) else cost
     assert flops_per_frame(cfg) == pytest.approx(cost["flops"], rel=0.03)

@@ -1,5 +1,6 @@
-"""Training: Huber's closed form, Adam and the decay boundary by hand, a short run that learns, bit-identical
-resume, sharded == unsharded, and the file-based data source."""
+"""Training: Huber's closed form, Adam and the decay boundary by hand, the presets' schedules, a short run that
+learns, bit-identical resume (also from a checkpoint of an older version), sharded == unsharded, and the data
+sources and validation set of `jaxsr.data`."""
 
 import dataclasses
 import json
@@ -8,6 +9,7 @@ import subprocess
 import sys
 import textwrap
 from pathlib import Path
+from types import SimpleNamespace
 
 import jax
 import jax.numpy as jnp
@@ -17,8 +19,13 @@ from jax.test_util import check_grads
 
 from jaxsr.checkpoint import load_model, read_metadata
 from jaxsr.config import PRESETS, ModelConfig, SensorConfig, TrainConfig
+from jaxsr.data import random_crop, sequence_batches, validation_set
+from jaxsr.metrics import psnr
+from jaxsr.model import apply_model, init_model
 from jaxsr.optim import adam_init, adam_update, step_decay
-from jaxsr.train import fit, huber_loss, random_crop, sequence_batches, validation_set
+from jaxsr.scenes import test_sequences
+from jaxsr.sensor import normalise_depth
+from jaxsr.train import evaluate, fit, huber_loss, lr_schedule
 
 # momentum 0.9: running BN statistics settle within the few dozen steps of these runs (0.99 needs hundreds)
 TINY = ModelConfig(tr=1, base=8, growth=4, head=16, filter_hidden=16, bn_momentum=0.9)
@@ -64,8 +71,7 @@ def tiny_train_cfg(**kw):
 def test_huber_closed_form_and_grads():
     e = jnp.array([-0.03, -0.01, -0.004, 0.0, 0.002, 0.01, 0.5])
     d = 0.01
-    expect = np.where(np.abs(e) <= d, 0.5 * np.asarray(e) ** 2, d * (np.abs(e) - d / 2))
-    np.testing.assert_allclose(huber_loss(e, jnp.zeros_like(e), delta=d), expect.mean(), rtol=1e-6)
+    np.testing.assert_allclose(huber_loss(e, jnp.zeros_like(e), delta=d), _huber_closed_form(e, d).mean(), rtol=1e-6)
     # slope: e inside the band, delta * sign(e) outside
     g = jax.grad(lambda p: huber_loss(p, jnp.zeros_like(p), delta=d))(e)
     np.testing.assert_allclose(g * e.size, np.clip(np.asarray(e), -d, d), rtol=1e-5, atol=1e-9)
@@ -73,6 +79,27 @@ def test_huber_closed_form_and_grads():
         pred = jnp.array([[0.3, 0.5], [0.2, 0.9]], jnp.float64)  # away from the kinks |e| = delta
         gt = jnp.array([[0.305, 0.1], [0.197, 0.95]], jnp.float64)
         check_grads(lambda p, g: huber_loss(p, g, delta=0.01), (pred, gt), order=2, modes=["fwd", "rev"])
+
+
+def _huber_closed_form(e, d):
+    e = np.abs(np.asarray(e, np.float64))
+    return np.where(e <= d, 0.5 * e**2, d * (e - d / 2))
+
+
+def test_huber_per_frame_and_in_validation():
+    """`axis` averages per frame; `evaluate` reports the same loss as `huber_loss` on the network's output."""
+    d = 0.01
+    e = np.random.default_rng(0).choice([-0.05, -0.01, -0.003, 0.0, 0.004, 0.02], size=(3, 4, 5))
+    got = huber_loss(jnp.asarray(e, jnp.float32), jnp.zeros(e.shape), delta=d, axis=(-2, -1))
+    assert got.shape == (3,)
+    np.testing.assert_allclose(got, _huber_closed_form(e, d).mean(axis=(1, 2)), rtol=1e-5)
+    # 5 frames in chunks of 4: the padded last chunk must not count
+    params, state = init_model(jax.random.key(0), TINY)
+    val = toy_validation(TINY.tr, n=5)
+    hr = apply_model(params, state, val["windows"], TINY)
+    res = evaluate(params, state, val["windows"], val["gt"], TINY, delta=d, batch_size=4)
+    assert res["loss"] == pytest.approx(float(huber_loss(hr, val["gt"], delta=d)), rel=1e-5)
+    assert res["psnr"] == pytest.approx(float(jnp.mean(psnr(hr, val["gt"]))), rel=1e-5)
 
 
 def test_adam_matches_hand_computation():
@@ -111,19 +138,62 @@ def test_random_crop_is_aligned():
     np.testing.assert_array_equal(jnp.repeat(jnp.repeat(w[0], 4, 0), 4, 1), g)
 
 
-def test_presets():
-    assert PRESETS["paper"].steps_per_epoch == 3875 and PRESETS["paper"].epochs == 100
-    assert PRESETS["paper"].patience == 5 and PRESETS["paper"].huber_delta == 0.01 and PRESETS["paper"].lr == 1e-3
-    assert PRESETS["cpu"].batch_size == 4
-    with pytest.raises(ValueError):
-        TrainConfig(batch_size=8, examples_per_epoch=4)
+# What the scaled-down presets may change (config.PRESETS: "sized so that ...", "scaled down with the epochs"):
+# the amount of data and epochs, the schedule with them, crops, and the validation length. Never the loss,
+# the optimiser, the data distribution or the seed.
+SCALED_DOWN = {"examples_per_epoch", "epochs", "patience", "decay_epochs", "patch", "val_frames"}
+
+
+def test_paper_preset_follows_the_paper():
+    """15500 examples in batches of 4 per epoch; lr 1e-3 cut to 1e-4 exactly at the first step of epoch 11,
+    to 1e-5 at epoch 21 (1-based), through the schedule the train step uses."""
+    cfg = PRESETS["paper"]
+    spe = cfg.steps_per_epoch
+    assert spe * cfg.batch_size == 15500 and cfg.batch_size == 4
+    lr = lr_schedule(cfg)
+
+    def first_step(epoch):  # of a 1-based epoch
+        return (epoch - 1) * spe
+
+    got = [float(lr(s)) for s in (first_step(1), first_step(10), first_step(11) - 1, first_step(11),
+                                  first_step(20), first_step(21))]
+    np.testing.assert_allclose(got, [1e-3, 1e-3, 1e-3, 1e-4, 1e-4, 1e-5], rtol=1e-6)
+    assert (cfg.huber_delta, cfg.epochs, cfg.patience) == (0.01, 100, 5)
+
+
+@pytest.mark.parametrize("name", ["cpu", "bundle"])
+def test_scaled_presets_change_only_the_amount_of_training(name):
+    cfg, paper = PRESETS[name], PRESETS["paper"]
+    differ = {f.name for f in dataclasses.fields(TrainConfig) if getattr(cfg, f.name) != getattr(paper, f.name)}
+    assert differ <= SCALED_DOWN, differ - SCALED_DOWN
+    # the schedule scaled with the epochs: one cut, before the last epoch; early stopping can still act
+    lr, spe = lr_schedule(cfg), cfg.steps_per_epoch
+    assert float(lr(cfg.decay_epochs * spe - 1)) == pytest.approx(cfg.lr)
+    assert float(lr(cfg.epochs * spe - 1)) == pytest.approx(cfg.lr * cfg.lr_decay)
+    assert cfg.patience < cfg.epochs
+    # the crops fit the sensor's LR frame (random_crop refuses larger ones)
+    assert all(p <= s for p, s in zip(cfg.patch, SensorConfig().lr_shape))
+
+
+@pytest.mark.parametrize("change,message", [
+    ({"batch_size": 8, "examples_per_epoch": 4}, "examples_per_epoch >= batch_size"),
+    ({"batch_size": 0}, "batch_size >= 1"),
+    ({"epochs": 0}, "epochs, patience and decay_epochs must be >= 1"),
+    ({"patience": 0}, "epochs, patience and decay_epochs must be >= 1"),
+    ({"decay_epochs": 0}, "epochs, patience and decay_epochs must be >= 1"),
+    ({"snr_range": (2.0, 1.0)}, r"snr_range must be 0 < lo <= hi, got \(2.0, 1.0\)"),
+    ({"snr_range": (0.0, 1.0)}, "snr_range must be 0 < lo <= hi"),
+    ({"mean_signal_range": (28.0, 7.0)}, "mean_signal_range must be 0 < lo <= hi"),
+])
+def test_train_config_refuses_inconsistent_settings(change, message):
+    with pytest.raises(ValueError, match=message):
+        TrainConfig(**change)
 
 
 # --- fitting ----------------------------------------------------------------------------------------------
 
 def test_short_run_learns_and_beats_bicubic(tmp_path):
     from jaxsr.baselines import bicubic
-    from jaxsr.metrics import psnr
 
     cfg = tiny_train_cfg(epochs=3, examples_per_epoch=400)
     val = toy_validation(TINY.tr)
@@ -149,6 +219,16 @@ class Killed(Exception):
     pass
 
 
+def _add_legacy_conv3d_impl(path):
+    """Rewrite a checkpoint's metadata as older jaxsr wrote it: `conv3d_impl` in the model config."""
+    with np.load(path) as data:
+        arrays = {k: data[k] for k in data.files}
+    meta = json.loads(str(arrays["__metadata__"]))
+    meta["config"]["conv3d_impl"] = "auto"
+    arrays["__metadata__"] = np.array(json.dumps(meta))
+    np.savez(path, **arrays)
+
+
 def test_kill_and_resume_equals_uninterrupted(tmp_path):
     # decay every epoch and patience 1 so the schedule and the early-stopping counters cross the restart
     cfg = tiny_train_cfg(examples_per_epoch=12, epochs=4, decay_epochs=1, patience=2)
@@ -162,6 +242,7 @@ def test_kill_and_resume_equals_uninterrupted(tmp_path):
 
     with pytest.raises(Killed):
         fit(TINY, cfg, out=tmp_path / "b", make_batch=make_batch, validation=val, progress=False, callback=kill_after_2)
+    _add_legacy_conv3d_impl(tmp_path / "b" / "last.npz")  # as written before conv3d_impl left ModelConfig
     got, hist = fit(TINY, cfg, out=tmp_path / "b", make_batch=make_batch, validation=val, progress=False, resume=True)
     for a, b in zip(jax.tree_util.tree_leaves(ref), jax.tree_util.tree_leaves(got)):
         np.testing.assert_array_equal(a, b)
@@ -257,11 +338,38 @@ def test_sequence_batches_from_hr_arrays():
 def test_validation_set_from_the_named_sequences():
     """The default validation data: the first frames of the scenes module's named validation sequences."""
     cfg = dataclasses.replace(PRESETS["cpu"], val_frames=2)
+    sensor = SensorConfig()
     val = validation_set(jax.random.key(0), 1, cfg)
     n = 2 * len(cfg.val_sequences)
-    assert val["windows"].shape == (n, 3, 32, 64) and val["gt"].shape == (n, 128, 256)
+    assert val["windows"].shape == (n, 3, 32, 64) and val["gt"].shape == (n, 128, 256) and val["lr"].shape == (n, 32, 64)
     assert val["names"] == list(cfg.val_sequences)
-    assert float(val["gt"].min()) >= 0 and float(val["gt"].max()) <= 1
+    # GT: each named sequence's first val_frames frames, normalised, in the order of val_sequences
+    seqs = test_sequences(n_frames=2, names=cfg.val_sequences, sensor=sensor)
+    expect = np.concatenate([np.asarray(normalise_depth(seqs[name].depth[:2], sensor)) for name in val["names"]])
+    np.testing.assert_array_equal(val["gt"], expect)
+    # windows: centred on the LR frames, edge-replicated within each sequence (no frame of a neighbour)
+    w, lr = np.asarray(val["windows"]), np.asarray(val["lr"])
+    np.testing.assert_array_equal(w[:, 1], lr)
+    np.testing.assert_array_equal(w[0::2, 0], lr[0::2])  # first frame of each sequence: its own frame before
+    np.testing.assert_array_equal(w[1::2, 2], lr[1::2])  # last frame: its own frame after
+    np.testing.assert_array_equal(w[0::2, 2], lr[1::2])
+
+
+def test_validation_set_simulates_each_sequence_at_its_own_snr():
+    """The same flat wall at SNR 1000 and 0.01: centre of mass finds it in the first; in the second the ambient
+    light often hides the peak (errors of a tenth of the range). Sequences may be dicts or objects with fields."""
+    sensor = SensorConfig(hr_shape=(16, 32))
+    depth = np.full((3, 16, 32), 10.0, np.float32)
+    intensity = np.full_like(depth, 0.8)
+    seqs = {"clear": {"depth": depth, "intensity": intensity, "snr": 1000.0},
+            "murky": SimpleNamespace(depth=depth, intensity=intensity, snr=0.01)}
+    cfg = dataclasses.replace(PRESETS["cpu"], val_frames=2, val_sequences=("murky", "clear"), val_mean_signal=50.0)
+    val = validation_set(jax.random.key(0), 0, cfg, sensor=sensor, sequences=seqs)
+    assert val["names"] == ["murky", "clear"] and val["lr"].shape == (4, 4, 8)
+    np.testing.assert_allclose(val["gt"], 10 / 35, rtol=1e-6)
+    err = np.abs(np.asarray(val["lr"]) - 10 / 35)
+    assert err[2:].max() < 1 / 32, err[2:].max()  # within half a bin (1/16 of the range)
+    assert err[:2].mean() > 10 * err[2:].mean(), (err[:2].mean(), err[2:].mean())
 
 
 @pytest.mark.slow

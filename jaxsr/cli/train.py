@@ -9,7 +9,8 @@ from pathlib import Path
 import numpy as np
 
 from ..config import PRESETS, ModelConfig, SensorConfig
-from ..train import fit, sequence_batches
+from ..data import sequence_batches
+from ..train import fit
 
 
 def add_parser(subparsers):
