@@ -217,7 +217,8 @@ def load_model(path) -> Model:
 
     `path` is a file, a file without its `.npz`, or the name of bundled weights ("tr4"). Every array is
     checked against the shapes `init_model` gives for the stored config; raises `ValueError` for a truncated
-    file, a missing or unexpected key, a wrong shape or dtype, or an unsupported format version.
+    file, a missing or unexpected key, a wrong shape or dtype, or an unsupported format version. Returns the
+    `Model` (params and state float32 in memory, config from the file).
     """
     path = resolve_model_path(path)
     meta = read_metadata(path)

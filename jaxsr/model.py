@@ -92,7 +92,7 @@ def _init_model(key, cfg: ModelConfig) -> tuple[dict, dict]:
 def count_params(params) -> int:
     """Number of scalars in a params pytree (weights, biases, BN scale and shift).
 
-    DESIGN.md: TR0 1,056,608 ... TR4 2,253,088 at the paper's widths.
+    Returns an int; DESIGN.md: TR0 1,056,608 ... TR4 2,253,088 at the paper's widths.
     """
     return sum(math.prod(x.shape) for x in jax.tree_util.tree_leaves(params))
 

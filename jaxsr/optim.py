@@ -56,7 +56,7 @@ def step_decay(lr0: float, *, factor: float, every: int):
 
     With every = decay_epochs * steps_per_epoch the rate changes exactly at the first update of epoch
     decay_epochs, 2 * decay_epochs, ... (not one step late, as `jax.example_libraries`'s
-    `piecewise_constant` does).
+    `piecewise_constant` does). Returns the schedule, a function step -> lr (scalar).
     """
     if every < 1:
         raise ValueError(f"step_decay: every must be >= 1, got {every}")

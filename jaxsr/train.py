@@ -56,7 +56,7 @@ def huber_loss(pred, gt, *, delta: float = 0.01, axis=None):
     0.5 e^2 if |e| <= delta else delta (|e| - delta / 2), averaged over `axis`.
 
     pred, gt: arrays of the same shape, e.g. (B, H, W). axis: None (every pixel: a scalar) or the axes to
-    average over, e.g. (-2, -1) for one loss per frame (B,).
+    average over, e.g. (-2, -1) for one loss per frame (B,). Returns the mean over `axis`.
     """
     e = jnp.abs(pred - gt)
     # min(e, delta) written once gives both branches: the quadratic part and the linear excess beyond delta
@@ -133,7 +133,7 @@ def evaluate(params, state, windows, gt, cfg: ModelConfig, *, delta: float = 0.0
     """Validation with BN in inference mode: {"loss": mean Huber, "psnr": mean per-frame PSNR (dB)}.
 
     windows: (N, 2tr+1, h, w); gt: (N, h*r, w*r). Runs in chunks of `batch_size` frames (the last padded);
-    conv3d_impl: see `apply_model`.
+    conv3d_impl: see `apply_model`. Returns the dict of two Python floats.
     """
     n = windows.shape[0]
     pad = (-n) % batch_size
