@@ -3,7 +3,8 @@
 Implements PHYSICS.md sections 1-2. Every function is pure and jit/vmap/grad compatible; the sensor
 config is a pytree whose physical numbers are leaves. Eager calls validate shapes and values and raise a
 `ValueError` that says what was expected. Traced (under `jax.jit`, `vmap` or `grad`) only the shapes can be
-checked, and the values have these meanings instead, so that no traced result is plausible but wrong:
+checked, and the values have these meanings instead (a bad pixel is read as a valid one and turns no other
+pixel NaN; a bad scalar turns everything NaN):
 
 - depth: NaN, inf, negative and beyond `d_max` mean "no return" (signal weight 0), eager or traced alike;
 - intensity: a non-finite value is a black pixel (rho = 0: no signal, ambient floor only) and a finite one
