@@ -180,11 +180,11 @@ def _photon_terms(depth, intensity, sensor: SensorConfig):
 def _physical_scalars(sensor: SensorConfig, snr, mean_signal):
     """name -> (value, must be > 0 rather than >= 0, what it is): every scalar the rates depend on."""
     return {
-        "snr": (snr, True, "(signal / background photons)"),
-        "mean_signal": (mean_signal, False, "photons per LR pixel"),
-        "SensorConfig.d_max": (sensor.d_max, True, "m"),
-        "SensorConfig.irf_sigma": (sensor.irf_sigma, True, "bins"),
-        "SensorConfig.r_min": (sensor.r_min, True, "m"),
+        "snr": (snr, True, " (signal / background photons)"),
+        "mean_signal": (mean_signal, False, " photons per LR pixel"),
+        "SensorConfig.d_max": (sensor.d_max, True, " m"),
+        "SensorConfig.irf_sigma": (sensor.irf_sigma, True, " bins"),
+        "SensorConfig.r_min": (sensor.r_min, True, " m"),
         "SensorConfig.ambient_floor": (sensor.ambient_floor, False, ""),
     }
 
@@ -236,8 +236,8 @@ def _check_photon_args(name, depth, intensity, sensor, snr, mean_signal):
                              "jit a non-finite intensity is taken as 0 and one outside [0, 1] is clipped)")
     for label, (value, strict, unit) in _physical_scalars(sensor, snr, mean_signal).items():
         if is_concrete(value) and not np.all(_in_domain(np.asarray(value), strict, np)):
-            raise ValueError(f"{name}: {label} must be finite and {'>' if strict else '>='} 0 {unit}, got {value} "
-                             "(under jit every rate and count would be NaN)")
+            raise ValueError(f"{name}: {label} must be finite and {'>' if strict else '>='} 0{unit}, got {value} "
+                             "(under jit the result would be all NaN)")
     return depth, intensity
 
 
