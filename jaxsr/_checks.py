@@ -4,6 +4,11 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
+
+# How far normalised depth may stray outside [0, 1] by float rounding (a resize, a float16 round trip) and
+# still be taken as normalised (and clipped): far less than any depth in metres, which is 0 only at the lens.
+NORMALISED_SLACK = 1e-6
 
 
 def is_concrete(x) -> bool:
@@ -31,3 +36,22 @@ def require_bins(name, counts, sensor):
     if counts.ndim < 1 or counts.shape[-1] != sensor.bins:
         raise ValueError(f"{name}: counts must have shape (..., {sensor.bins}) (K bins last), got {counts.shape}")
     return counts
+
+
+def require_normalised_depth(name, frame):
+    """Check LR normalised depth on the host and return it as float32 NumPy, ready for the network.
+
+    NaN is "no return" and becomes 1.0 (PHYSICS.md; as in `normalise_depth` and `denormalise_depth`); values
+    within `NORMALISED_SLACK` of [0, 1] are clipped to it; anything else (depth in metres, negated depth, +-inf)
+    raises a ValueError that names the range seen and how to normalise metres.
+    """
+    frame = np.asarray(frame, np.float32)
+    nan = np.isnan(frame)
+    if not np.all(nan | ((frame >= -NORMALISED_SLACK) & (frame <= 1 + NORMALISED_SLACK))):
+        seen = frame[~nan]
+        raise ValueError(
+            f"{name} has values in [{seen.min():.4g}, {seen.max():.4g}], outside [0, 1]: expected normalised depth "
+            f"(1 or NaN = no return; up to {NORMALISED_SLACK:g} of float rounding is clipped). Depth in metres: "
+            "normalise it with jaxsr.normalise_depth, or run `jaxsr upscale --units m`"
+        )
+    return np.where(nan, np.float32(1.0), np.clip(frame, np.float32(0.0), np.float32(1.0)))

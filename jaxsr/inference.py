@@ -23,6 +23,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
+from ._checks import require_normalised_depth
 from .config import SensorConfig
 from .model import Model, apply_model
 from .peaks import centre_of_mass
@@ -65,23 +66,22 @@ def _check_frame(frame, shape, index):
         want = "(h, w)" if shape is None else str(shape)
         raise ValueError(f"super_resolve: frame {index} has shape {frame.shape}, expected {want} "
                          "(LR normalised depth)")
-    if not np.all(np.isfinite(frame)):
-        raise ValueError(f"super_resolve: frame {index} holds NaN or inf; expected normalised depth in [0, 1] "
-                         "(1 = no return)")
-    return frame
+    return require_normalised_depth(f"super_resolve: frame {index}", frame)
 
 
 def iter_super_resolve(model: Model, frames: Iterable, *, batch_size: int | None = None,
                        conv3d_impl: str = "auto") -> Iterator[np.ndarray]:
     """Super-resolve a stream of LR frames, yielding HR frames in order, in bounded memory.
 
-    frames: an iterable of (h, w) LR normalised depth frames (0..1, 1 = no return), e.g. a generator reading
+    frames: an iterable of (h, w) LR normalised depth frames (0..1, 1 or NaN = no return), e.g. a generator reading
     files one by one. Frame t is the centre of the window t - tr .. t + tr, edge-replicated at both ends of
     the stream (as `jaxsr.temporal.windows`), so frame t is yielded once frame t + tr has arrived (or the
     stream has ended). batch_size: frames per compiled call (None: `DEFAULT_BATCH_SIZE` per local device);
     split over the local devices when they divide it. conv3d_impl: how the convolutions run (see `apply_model`).
-    Yields (h r, w r) float32 NumPy arrays of HR normalised depth (unclipped network output). Raises
-    ValueError for a frame of another shape than the first, or holding NaN or inf.
+    Yields (h r, w r) float32 NumPy arrays of HR normalised depth (unclipped network output). NaN is read as
+    no return (1.0) and values within 1e-6 of [0, 1] are clipped to it; raises ValueError for a frame of
+    another shape than the first, or with values further outside [0, 1] (metres, negated, inf: the message
+    names the range seen; `jaxsr.normalise_depth` converts metres).
     """
     batch_size = DEFAULT_BATCH_SIZE * jax.local_device_count() if batch_size is None else int(batch_size)
     if batch_size < 1:
@@ -144,7 +144,8 @@ def super_resolve(model: Model, lr_seq, *, batch_size: int | None = None, conv3d
 
     Each frame is the centre of an edge-replicated window of 2 tr + 1 frames (`jaxsr.temporal.windows`); the
     result equals `apply_model` on those windows (`conv3d_impl` is passed to it). Memory on the device is
-    bounded by the batch (see `iter_super_resolve`); the HR result is assembled on the host. For a
+    bounded by the batch (see `iter_super_resolve`); the HR result is assembled on the host. `lr_seq` is
+    normalised depth in [0, 1] (1 or NaN = no return; checked as in `iter_super_resolve`). For a
     differentiable, traceable version, call `apply_model(params, state, jaxsr.windows(lr_seq, tr), cfg)`.
     """
     lr_seq = np.asarray(lr_seq, np.float32)

@@ -2,7 +2,9 @@
 
 All take (..., H, W) frames with any leading axes and return one value per frame (or per transition for
 temporal coherence), so report the mean over frames yourself. Predictions are clipped to [0, 1] (the
-data range) before scoring; the ground truth is used as given.
+data range) before scoring; the ground truth is used as given. Values are not checked, eager or traced
+alike: a NaN in either frame makes that frame's PSNR and SSIM NaN (a prediction's +-inf is clipped like any
+value); in `temporal_coherence` a NaN prediction never counts as flicker, nor a NaN ground truth as static.
 """
 
 from __future__ import annotations

@@ -3,6 +3,11 @@
 Implements PHYSICS.md section 3. Both work per LR pixel on the last (bins) axis and accept any leading
 axes. Depth is returned normalised (tau / K in [0, 1], bin-centre convention); pixels without a usable
 return are 1.0 ("no return", the same value the ground truth uses for sky).
+
+Counts must be finite and >= 0: eagerly anything else is a `ValueError`; traced (under `jax.jit`, `vmap` or
+`grad`, where values cannot be checked) a histogram holding a non-finite or negative count is "no return"
+(1.0, invalid) and no other pixel is affected. Counts are computed in at least float32, and the centre of
+mass does not depend on the photon scale, so float16 histograms and counts up to float32's maximum work.
 """
 
 from __future__ import annotations
@@ -20,12 +25,22 @@ NO_RETURN = 1.0
 
 
 def _check_counts(name, counts, sensor):
+    """Eagerly refuse non-finite or negative counts; return them as floats of at least 32 bits (float16 sums
+    of a few thousand photons overflow)."""
     counts = require_bins(name, counts, sensor)
     if is_concrete(counts):
         values = np.asarray(counts)
         if values.size and not (np.all(np.isfinite(values)) and values.min() >= 0):
-            raise ValueError(f"{name}: counts must be finite and >= 0 photons, got min {values.min()}")
-    return jnp.asarray(counts, dtype=jnp.result_type(counts.dtype, float))
+            raise ValueError(f"{name}: counts must be finite and >= 0 photons, got min {values.min()} (under jit "
+                             "such a histogram is no return, 1.0)")
+    return jnp.asarray(counts, dtype=jnp.promote_types(jnp.result_type(counts.dtype, float), jnp.float32))
+
+
+def _usable(n):
+    """(counts with unusable histograms zeroed, usable mask): a histogram with a non-finite or negative count
+    is no return (the traced rule; eager calls have refused it)."""
+    usable = jnp.all(jnp.isfinite(n) & (n >= 0), axis=-1)
+    return jnp.where(usable[..., None], n, 0.0), usable
 
 
 def median_of_bins(n):
@@ -54,29 +69,33 @@ def centre_of_mass(counts, sensor: SensorConfig = SensorConfig(), *, window=None
 
     b = median over bins (robust background per bin), k* = first argmax, window W = k* +- w clipped to
     the gate, x_k = max(n_k - b, 0) on W, tau = sum (k + 0.5) x_k / sum x_k. A pixel is invalid (-> 1.0) if
-    sum x_k = 0 or n[k*] < b + z sqrt(max(b, 1)). Non-finite counts (possible only under jit, where values
-    are not checked) also give an invalid pixel.
+    sum x_k = 0 (zero photons, a flat histogram) or n[k*] < b + z sqrt(max(b, 1)). Differentiable in the
+    counts (except at ties of the median and the argmax), with finite gradients everywhere, zero photons
+    included.
 
     Args:
-      counts: (..., K) photon counts, K = `sensor.bins`.
+      counts: (..., K) photon counts, K = `sensor.bins`: finite and >= 0 (eagerly a `ValueError`; traced, a
+        histogram with a non-finite or negative count is invalid).
       window: half-width w in bins (default: `default_window(sensor)`).
       z: peak-significance threshold in standard deviations of the background (0 keeps every peak).
       return_mask: also return the boolean validity mask.
     Returns:
       (...) normalised depth in [0, 1]; with `return_mask`, (depth, valid).
     """
-    n = _check_counts("centre_of_mass", counts, sensor)
-    finite = jnp.all(jnp.isfinite(n), axis=-1)
-    n = jnp.where(finite[..., None], n, 0.0)
+    n, usable = _usable(_check_counts("centre_of_mass", counts, sensor))
     k = jnp.arange(sensor.bins)
     w = default_window(sensor) if window is None else window
     background = median_of_bins(n)
     k_peak = jnp.argmax(n, axis=-1)
     in_window = jnp.abs(k - k_peak[..., None]) <= w
     excess = jnp.where(in_window, jnp.maximum(n - background[..., None], 0.0), 0.0)
+    # Counts near float32's maximum would overflow the sums below: scale those by 2^-100, which is exact (a
+    # power of two), so that nothing else changes, gradients included.
+    huge = jnp.max(excess, axis=-1, keepdims=True) > 2.0**100
+    excess = jnp.where(huge, excess * 2.0**-100, excess)
     mass = jnp.sum(excess, axis=-1)
     peak = jnp.max(n, axis=-1)
-    valid = finite & (mass > 0) & (peak >= background + z * jnp.sqrt(jnp.maximum(background, 1.0)))
+    valid = usable & (mass > 0) & (peak >= background + z * jnp.sqrt(jnp.maximum(background, 1.0)))
     tau = jnp.sum((k + 0.5) * excess, axis=-1) / jnp.where(valid, mass, 1.0)
     depth = jnp.where(valid, tau / sensor.bins, NO_RETURN)
     return (depth, valid) if return_mask else depth
@@ -107,13 +126,14 @@ def maximum_likelihood_depth(
     photons are plentiful; no better in the photon-starved regime (experiments/results/extraction.md).
 
     Args:
-      counts: (..., K) photon counts.
+      counts: (..., K) photon counts, as in `centre_of_mass` (eagerly checked; traced, a histogram with a
+        non-finite or negative count is invalid and is fitted as an empty one).
       max_steps: BFGS iterations per pixel; rtol, atol: its tolerances.
       return_mask: also return (valid, converged) masks: a pixel is valid if the centre of mass was.
     Returns:
       (...) normalised depth in [0, 1] (invalid pixels 1.0); with `return_mask`, (depth, valid, converged).
     """
-    n = _check_counts("maximum_likelihood_depth", counts, sensor)
+    n, _ = _usable(_check_counts("maximum_likelihood_depth", counts, sensor))
     com, valid = centre_of_mass(n, sensor, return_mask=True)
     batch_shape = n.shape[:-1]
     n_flat = n.reshape(-1, sensor.bins)

@@ -60,11 +60,13 @@ def sample_poisson(key, rates, *, method: str = "fast"):
       rates: (...) non-negative float rates (photons).
       method: "fast" (one uniform per count, see the module docstring) or "exact" (`jax.random.poisson`).
     Returns:
-      (...) counts as floats of the rates' dtype (integers; above 2^24 float32 rounds them).
+      (...) counts as floats of the rates' dtype (integers; above 2^24 float32 rounds them, and "exact"
+      saturates at 2^31 - 1). A NaN rate gives a NaN count with either method.
     """
     rates = jnp.asarray(rates)
     if method == "exact":
-        return jax.random.poisson(key, rates, dtype=jnp.int32).astype(rates.dtype)
+        counts = jax.random.poisson(key, rates, dtype=jnp.int32).astype(rates.dtype)
+        return jnp.where(jnp.isnan(rates), jnp.nan, counts)  # jax.random.poisson draws -1 for NaN
     if method != "fast":
         raise ValueError(f"sample_poisson: method must be 'fast' or 'exact', got {method!r}")
     small = rates < EXACT_BELOW

@@ -5,7 +5,8 @@ recording's units.
 A recording is an .npy array, an .npz from `jaxsr.io.write_sequence` / `write_histograms`, or a folder or glob
 pattern of depth frames (EXR, PFM, TIFF, 16-bit PNG). Frames stream one by one where the format allows (image
 frames, or an .npy read through a memory map), so a long recording needs memory for a batch, not for the whole
-sequence. Units: "m" (radial metres, inf = no return) or "normalised" ([0, 1], 1 = no return).
+sequence. Units: "m" (radial metres, inf = no return) or "normalised" ([0, 1], 1 = no return); NaN is no
+return in either.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from . import io
+from ._checks import NORMALISED_SLACK, require_normalised_depth
 from .config import SensorConfig
 from .sensor import denormalise_depth, normalise_depth
 
@@ -123,24 +125,24 @@ def open_recording(spec, *, kind: str | None = None) -> Recording:
 
 
 def normalised_frames(recording: Recording, units: str, sensor: SensorConfig):
-    """Depth frames of a recording as LR normalised depth, checked: metres -> `normalise_depth`."""
+    """Depth frames of a recording as LR normalised depth: metres -> `normalise_depth` (NaN, inf, negative and
+    beyond d_max: no return, 1.0); normalised -> checked as `super_resolve` checks it (NaN -> 1.0, values
+    outside [0, 1] by more than float rounding refused with a message that suggests --units m)."""
     for t, f in enumerate(recording):
         f = np.asarray(f, np.float32)
-        if np.any(np.isnan(f)):
-            raise ValueError(f"{recording.source}: frame {t} holds NaN; expected depth (inf = no return)")
         if units == "m":
             yield np.asarray(normalise_depth(f, sensor))
         else:
-            if not np.all((f >= 0) & (f <= 1)):
-                raise ValueError(f"{recording.source}: frame {t} has values outside [0, 1]; for depth in metres "
-                                 "pass --units m")
-            yield f
+            yield require_normalised_depth(f"{recording.source}: frame {t}", f)
 
 
 def guess_units(recording: Recording) -> str:
-    """"normalised" when the first frame is finite and within [0, 1] (no lidar scene lies within a metre), else "m"."""
+    """"normalised" when the first frame's values other than NaN (no return in either unit) are finite and within
+    [0, 1] up to float rounding (no lidar scene lies within a metre), else "m"."""
     f = np.asarray(recording.head(1)[0], np.float32)
-    return "normalised" if np.all(np.isfinite(f)) and f.min() >= 0 and f.max() <= 1 else "m"
+    f = f[~np.isnan(f)]
+    in_range = np.all(np.isfinite(f) & (f >= -NORMALISED_SLACK) & (f <= 1 + NORMALISED_SLACK))
+    return "normalised" if in_range else "m"
 
 
 # ---------------------------------------------------------------------------------------------------------

@@ -2,7 +2,16 @@
 
 Implements PHYSICS.md sections 1-2. Every function is pure and jit/vmap/grad compatible; the sensor
 config is a pytree whose physical numbers are leaves. Eager calls validate shapes and values and raise a
-`ValueError` that says what was expected; under `jax.jit` only the shape checks run.
+`ValueError` that says what was expected. Traced (under `jax.jit`, `vmap` or `grad`) only the shapes can be
+checked, and the values have these meanings instead (a bad pixel is read as a valid one and turns no other
+pixel NaN; a bad scalar turns everything NaN):
+
+- depth: NaN, inf, negative and beyond `d_max` mean "no return" (signal weight 0), eager or traced alike;
+- intensity: a non-finite value is a black pixel (rho = 0: no signal, ambient floor only) and a finite one
+  outside [0, 1] is clipped to it, for that pixel alone (eagerly both are a `ValueError`);
+- scalars: `snr` not finite and > 0, `mean_signal` not finite and >= 0, or a sensor leaf out of its domain
+  (`d_max`, `irf_sigma`, `r_min` finite and > 0, `ambient_floor` finite and >= 0) make every rate and count
+  NaN, and `calibrate` return (NaN, NaN).
 
 Conventions: depth is radial range in metres along each pixel's ray; NaN, inf, negative and beyond-`d_max`
 depths mean "no return". Intensity is a reflectivity proxy in [0, 1].
@@ -130,14 +139,24 @@ def _sum_over_blocks(f, scale: int, *hr_arrays):
     return total
 
 
+def _reflectivity(intensity):
+    """rho: intensity clipped to [0, 1], non-finite -> 0 (the traced rule; eager calls refuse both).
+
+    `where`, not `jnp.clip`: the gradient stays 1 at exactly 0 and 1 (clip's is 1/2 there) and is 0 at a
+    non-finite pixel."""
+    rho = jnp.where(jnp.isfinite(intensity), intensity, 0.0)
+    return jnp.where(rho < 0, 0.0, jnp.where(rho > 1, 1.0, rho))
+
+
 def _photon_terms(depth, intensity, sensor: SensorConfig):
     """Per-LR-pixel un-calibrated sums: (signal histogram shape, sum s_i, sum a_i).
 
-    s_i = rho_i / max(r_i, r_min)^2 for pixels with a return (else 0); a_i = rho_i + a0.
+    s_i = rho_i / max(r_i, r_min)^2 for pixels with a return (else 0); a_i = rho_i + a0, with rho_i the
+    intensity clipped to [0, 1] and 0 where it is not finite (a no-op on checked input).
     Returns shapes (..., h, w, K), (..., h, w), (..., h, w).
     """
     depth = jnp.asarray(depth, dtype=jnp.result_type(float))
-    intensity = jnp.asarray(intensity, dtype=depth.dtype)
+    intensity = _reflectivity(jnp.asarray(intensity, dtype=depth.dtype))
     ret = has_return(depth, sensor)
     # Keep a finite stand-in where there is no return, so gradients through `where` stay finite.
     r = jnp.where(ret, depth, sensor.d_max)
@@ -158,8 +177,33 @@ def _photon_terms(depth, intensity, sensor: SensorConfig):
     )
 
 
-def _calibrate_from_sums(s_sum, a_sum, *, snr, mean_signal):
-    """alpha, beta from per-LR-pixel sums over everything passed (PHYSICS.md "Calibration")."""
+def _physical_scalars(sensor: SensorConfig, snr, mean_signal):
+    """name -> (value, must be > 0 rather than >= 0, what it is): every scalar the rates depend on."""
+    return {
+        "snr": (snr, True, " (signal / background photons)"),
+        "mean_signal": (mean_signal, False, " photons per LR pixel"),
+        "SensorConfig.d_max": (sensor.d_max, True, " m"),
+        "SensorConfig.irf_sigma": (sensor.irf_sigma, True, " bins"),
+        "SensorConfig.r_min": (sensor.r_min, True, " m"),
+        "SensorConfig.ambient_floor": (sensor.ambient_floor, False, ""),
+    }
+
+
+def _in_domain(x, strict, xp):
+    return xp.isfinite(x) & ((x > 0) if strict else (x >= 0))
+
+
+def _levels_valid(sensor: SensorConfig, snr, mean_signal):
+    """A boolean scalar: every physical scalar is in its domain (traced, a value to select on, not a check)."""
+    ok = True
+    for value, strict, _ in _physical_scalars(sensor, snr, mean_signal).values():
+        ok = ok & jnp.all(_in_domain(jnp.asarray(value), strict, jnp))
+    return ok
+
+
+def _calibrate_from_sums(s_sum, a_sum, sensor: SensorConfig, *, snr, mean_signal):
+    """alpha, beta from per-LR-pixel sums over everything passed (PHYSICS.md "Calibration"); both NaN when a
+    physical scalar is out of its domain (which only a traced call can reach)."""
     has_signal = s_sum > 0
     n_valid = jnp.sum(has_signal)
     denom = jnp.maximum(n_valid, 1)
@@ -174,21 +218,26 @@ def _calibrate_from_sums(s_sum, a_sum, *, snr, mean_signal):
     # black and a0 = 0, where any beta gives zero rates).
     mean_a = jnp.mean(a_sum)
     beta_sky = jnp.where(mean_a > 0, mean_signal / (snr * jnp.where(mean_a > 0, mean_a, 1.0)), 0.0)
-    return alpha, jnp.where(any_signal, beta_signal, beta_sky)
+    beta = jnp.where(any_signal, beta_signal, beta_sky)
+    # Invalid levels: NaN everywhere downstream, never counts that look plausible.
+    valid = _levels_valid(sensor, snr, mean_signal)
+    return jnp.where(valid, alpha, jnp.nan), jnp.where(valid, beta, jnp.nan)
 
 
 def _check_photon_args(name, depth, intensity, sensor, snr, mean_signal):
+    """Shapes always; values where concrete (eager). Traced values follow the rules in the module docstring."""
     depth, intensity = require_hr_pair(name, depth, intensity, sensor)
     # Value checks use NumPy so that they never create tracers inside a jit.
     if is_concrete(intensity):
         values = np.asarray(intensity)
         lo, hi = (float(values.min()), float(values.max())) if values.size else (0.0, 0.0)
         if not (0.0 <= lo and hi <= 1.0):  # also catches NaN, whose comparisons are False
-            raise ValueError(f"{name}: intensity must be finite and in [0, 1], got values in [{lo}, {hi}]")
-    if is_concrete(snr) and not np.all(np.asarray(snr) > 0):
-        raise ValueError(f"{name}: snr must be > 0 (signal / background photons), got {snr}")
-    if is_concrete(mean_signal) and not np.all(np.isfinite(mean_signal) & (np.asarray(mean_signal) >= 0)):
-        raise ValueError(f"{name}: mean_signal must be finite and >= 0 photons per LR pixel, got {mean_signal}")
+            raise ValueError(f"{name}: intensity must be finite and in [0, 1], got values in [{lo}, {hi}] (under "
+                             "jit a non-finite intensity is taken as 0 and one outside [0, 1] is clipped)")
+    for label, (value, strict, unit) in _physical_scalars(sensor, snr, mean_signal).items():
+        if is_concrete(value) and not np.all(_in_domain(np.asarray(value), strict, np)):
+            raise ValueError(f"{name}: {label} must be finite and {'>' if strict else '>='} 0{unit}, got {value} "
+                             "(under jit the result would be all NaN)")
     return depth, intensity
 
 
@@ -201,13 +250,16 @@ def calibrate(depth, intensity, sensor: SensorConfig = SensorConfig(), *, snr, m
 
     Args:
       depth: (..., H, W) radial metres; intensity: (..., H, W) in [0, 1]; (H, W) = `sensor.hr_shape`.
-      snr: target frame SNR (> 0). mean_signal: target mean signal photons per LR pixel with a return.
+      snr: target frame SNR (finite, > 0). mean_signal: target mean signal photons per LR pixel with a return
+        (finite, >= 0).
     Returns:
-      (alpha, beta) scalars: photons per unit of s = rho / r^2, and per unit of a = rho + a0.
+      (alpha, beta) scalars: photons per unit of s = rho / r^2, and per unit of a = rho + a0. Values out of
+      their domain raise `ValueError` eagerly; traced, they give the rules of the module docstring
+      (invalid scalars: (NaN, NaN)).
     """
     depth, intensity = _check_photon_args("calibrate", depth, intensity, sensor, snr, mean_signal)
     _, s_sum, a_sum = _photon_terms(depth, intensity, sensor)
-    return _calibrate_from_sums(s_sum, a_sum, snr=snr, mean_signal=mean_signal)
+    return _calibrate_from_sums(s_sum, a_sum, sensor, snr=snr, mean_signal=mean_signal)
 
 
 def expected_histograms(
@@ -220,16 +272,18 @@ def expected_histograms(
     intensity, snr, mean_signal and the sensor's physical parameters.
 
     Args:
-      depth: (..., H, W) radial metres (NaN/inf/negative/beyond d_max = no return).
-      intensity: (..., H, W) reflectivity proxy in [0, 1].
-      snr: target frame SNR; mean_signal: mean signal photons per LR pixel with a return (default
-        `DEFAULT_MEAN_SIGNAL`). Calibration runs over all leading axes together.
+      depth: (..., H, W) radial metres (NaN/inf/negative/beyond d_max = no return, eager or traced).
+      intensity: (..., H, W) reflectivity proxy in [0, 1]; eagerly anything else is a `ValueError`, traced
+        a non-finite value counts as 0 and a finite one is clipped to [0, 1], on its own pixel.
+      snr: target frame SNR (finite, > 0); mean_signal: mean signal photons per LR pixel with a return
+        (finite, >= 0; default `DEFAULT_MEAN_SIGNAL`). Calibration runs over all leading axes together.
     Returns:
-      (..., H/scale, W/scale, K) non-negative rates (photons).
+      (..., H/scale, W/scale, K) non-negative rates (photons); all NaN if, traced, `snr`, `mean_signal` or a
+      sensor leaf is out of its domain (eagerly a `ValueError`).
     """
     depth, intensity = _check_photon_args("expected_histograms", depth, intensity, sensor, snr, mean_signal)
     signal_hist, s_sum, a_sum = _photon_terms(depth, intensity, sensor)
-    alpha, beta = _calibrate_from_sums(s_sum, a_sum, snr=snr, mean_signal=mean_signal)
+    alpha, beta = _calibrate_from_sums(s_sum, a_sum, sensor, snr=snr, mean_signal=mean_signal)
     return alpha * signal_hist + (beta / sensor.bins) * a_sum[..., None]
 
 
@@ -251,8 +305,9 @@ def simulate_histograms(
       sampler: "fast" (exact below 24 photons per bin, Cornish-Fisher above; see `jaxsr.poisson`) or
         "exact" (`jax.random.poisson`, about 4x slower on CPU).
     Returns:
-      (..., H/scale, W/scale, K) counts, integers stored as floats so they feed the centre of mass directly.
-      Gradients flow through nothing here: the draw is not differentiable.
+      (..., H/scale, W/scale, K) counts, integers stored as floats so they feed the centre of mass directly;
+      all NaN where the rates are (traced, invalid scalars: see `expected_histograms`). Gradients flow
+      through nothing here: the draw is not differentiable.
     """
     rates = expected_histograms(depth, intensity, sensor, snr=snr, mean_signal=mean_signal)
     return sample_poisson(key, jax.lax.stop_gradient(rates), method=sampler)

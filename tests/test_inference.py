@@ -85,8 +85,6 @@ def test_bad_input_is_refused_clearly():
     model = _model(0)
     with pytest.raises(ValueError, match=r"\(T, h, w\)"):
         super_resolve(model, np.zeros((4, 6)))
-    with pytest.raises(ValueError, match="NaN or inf"):
-        super_resolve(model, np.full((2, 4, 6), np.nan))
     with pytest.raises(ValueError, match="frame 1 has shape"):
         list(iter_super_resolve(model, [np.zeros((4, 6)), np.zeros((4, 7))]))
     with pytest.raises(ValueError, match="batch_size"):
@@ -95,6 +93,37 @@ def test_bad_input_is_refused_clearly():
         super_resolve_histograms(model, np.zeros((2, 4, 6, 8)))
     with pytest.raises(ValueError, match="negative"):
         list(iter_centre_of_mass(-np.ones((1, 4, 6, 16))))
+
+
+
+@pytest.mark.parametrize("make", [lambda s: s * 35.0, lambda s: -s, lambda s: np.where(s == s[0].max(), np.inf, s),
+                                  lambda s: np.where(s == s[0].max(), 1.0 + 3e-6, s)],
+                         ids=["metres", "negated", "inf", "beyond-the-slack"])
+def test_depth_outside_0_1_is_refused_with_the_range_and_the_remedy(make):
+    """Metres, negated or infinite input is refused before it reaches the network, naming what was seen and
+    how to normalise; the message says how much float slack is allowed."""
+    seq = np.asarray(jax.random.uniform(jax.random.key(6), (3, 4, 6)))
+    bad = make(seq)
+    with pytest.raises(ValueError, match=r"frame 0 has values in \[.*\], outside \[0, 1\]: expected normalised depth") as err:
+        super_resolve(_model(0), bad)
+    msg = str(err.value)
+    assert "--units m" in msg and "jaxsr.normalise_depth" in msg and "1e-06" in msg
+    assert f"{np.float32(bad[0].min()):.4g}" in msg
+
+
+def test_float_slack_is_clipped_and_nan_is_no_return():
+    """Within 1e-6 of [0, 1] a value is clipped (rounding, not metres); NaN is "no return", the same as 1.0."""
+    model = _model(1)
+    seq = np.array(jax.random.uniform(jax.random.key(7), (4, 4, 6)), np.float32)
+    seq[0, 0, 0], seq[1, 1, 1] = 0.0, 1.0
+    slack = seq.copy()
+    slack[0, 0, 0], slack[1, 1, 1] = -9e-7, 1.0 + 9e-7
+    np.testing.assert_array_equal(super_resolve(model, slack, batch_size=2), super_resolve(model, seq, batch_size=2))
+    holes = seq.copy()
+    holes[2, :2] = np.nan
+    sky = seq.copy()
+    sky[2, :2] = 1.0
+    np.testing.assert_array_equal(super_resolve(model, holes, batch_size=2), super_resolve(model, sky, batch_size=2))
 
 
 _SHARDED_SCRIPT = textwrap.dedent(

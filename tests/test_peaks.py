@@ -178,3 +178,45 @@ def test_median_of_bins_equals_numpy_median_with_ties(k):
     g = jax.grad(lambda v: jnp.sum(median_of_bins(v)))(jnp.asarray(y))
     g_ref = jax.grad(lambda v: jnp.sum(jnp.median(v, axis=-1)))(jnp.asarray(y))
     np.testing.assert_allclose(g, g_ref)
+
+
+# --- the traced path (jit, vmap, grad): what the eager call refuses has a defined meaning -------------------
+
+
+@pytest.mark.parametrize("jit", [False, True])
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf, -1.0, -1e-3])
+@pytest.mark.parametrize("fn", ["centre_of_mass", "maximum_likelihood_depth"])
+def test_unusable_counts_raise_eagerly_and_are_no_return_traced(jit, bad, fn):
+    """A histogram with a non-finite or negative count is refused eagerly; traced it is "no return" (1.0,
+    invalid) and leaves every other pixel exactly as it would be without it."""
+    rng = np.random.default_rng(7)
+    counts = rng.poisson(irf_histogram(rng.uniform(1, K - 1, 6), signal=40.0, background=20.0)).astype(np.float32)
+    f = lambda c: getattr(jaxsr, fn)(c, CFG, return_mask=True)
+    broken = counts.copy()
+    broken[[1, 4], [3, 0]] = bad
+    if not jit:
+        with pytest.raises(ValueError, match=r"finite and >= 0"):
+            f(broken)
+        return
+    depth, valid = jax.jit(f)(broken)[:2]
+    want, want_valid = f(counts)[:2]
+    np.testing.assert_array_equal(np.asarray(depth)[[1, 4]], [1.0, 1.0])
+    assert not np.any(np.asarray(valid)[[1, 4]])
+    keep = [0, 2, 3, 5]
+    np.testing.assert_allclose(np.asarray(depth)[keep], np.asarray(want)[keep], atol=1e-6)
+    np.testing.assert_array_equal(np.asarray(valid)[keep], np.asarray(want_valid)[keep])
+
+
+@pytest.mark.parametrize("jit", [False, True])
+@pytest.mark.parametrize("dtype,scale", [(np.float16, 1e4), (np.float32, 1e38), (np.float32, 1e-30)])
+def test_huge_and_tiny_counts_and_narrow_dtypes(jit, dtype, scale):
+    """The centre of mass does not depend on the photon scale: float16 counts of 10^4 (whose window sum
+    overflows float16) and float32 counts near its maximum give the same depth as moderate counts."""
+    tau = np.array([2.3, 7.6, 12.9])
+    hist = irf_histogram(tau, signal=1.0, background=0.2)
+    f = lambda c: jaxsr.centre_of_mass(c, CFG)
+    f = jax.jit(f) if jit else f
+    want = np.asarray(jaxsr.centre_of_mass(hist.astype(np.float32), CFG))
+    got = np.asarray(f((hist * scale).astype(dtype)))
+    assert got.dtype == np.float32
+    np.testing.assert_allclose(got, want, atol=2e-3)

@@ -1,5 +1,6 @@
 """Conformance of the sensor model with PHYSICS.md sections 1-2, against a slow float64 NumPy reference."""
 
+import dataclasses
 import math
 
 import jax
@@ -297,7 +298,123 @@ def test_intensity_out_of_range_raises(bad):
         jaxsr.simulate_histograms(jax.random.key(0), np.ones(SMALL.hr_shape), intensity, SMALL, snr=1.0)
 
 
-@pytest.mark.parametrize("kwargs,match", [(dict(snr=0.0), "snr must be > 0"), (dict(snr=1.0, mean_signal=-1.0), "mean_signal")])
+@pytest.mark.parametrize("kwargs,match", [(dict(snr=0.0), "snr must be finite and > 0"), (dict(snr=1.0, mean_signal=-1.0), "mean_signal")])
 def test_bad_photon_levels_raise(kwargs, match):
     with pytest.raises(ValueError, match=match):
         jaxsr.calibrate(np.ones(SMALL.hr_shape), np.ones(SMALL.hr_shape), SMALL, **kwargs)
+
+
+# --- the traced path (jit, vmap, grad): values cannot be checked, so they have defined meanings ---------------
+
+
+def _scene(seed=11):
+    depth, intensity = random_scene(np.random.default_rng(seed), SMALL.hr_shape)
+    return depth.astype(np.float32), intensity.astype(np.float32)
+
+
+@pytest.mark.parametrize("bad,means", [(np.nan, 0.0), (np.inf, 0.0), (-np.inf, 0.0), (-0.5, 0.0), (1.5, 1.0)])
+@pytest.mark.parametrize("fn", ["expected_histograms", "calibrate"])
+def test_traced_intensity_outside_0_1_is_clipped_and_non_finite_is_black(bad, means, fn):
+    """Under jit an intensity the eager call refuses acts on its own pixel only, by the documented rule
+    (non-finite -> 0, outside [0, 1] -> clipped), and never poisons the other pixels."""
+    depth, intensity = _scene()
+    bad_i, clean_i = intensity.copy(), intensity.copy()
+    bad_i[[0, 5, 9], [3, 0, 17]] = bad
+    clean_i[[0, 5, 9], [3, 0, 17]] = means
+    f = lambda d, i: getattr(jaxsr, fn)(d, i, SMALL, snr=1.3, mean_signal=5.0)
+    with pytest.raises(ValueError, match=r"intensity must be finite and in \[0, 1\]"):
+        f(depth, bad_i)  # eagerly a user error
+    got, want = jax.jit(f)(depth, bad_i), f(depth, clean_i)
+    np.testing.assert_allclose(got, want, rtol=1e-6)
+    assert all(np.all(np.isfinite(x)) for x in jax.tree_util.tree_leaves(got))
+
+
+@pytest.mark.parametrize("jit", [False, True])
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf, -3.0, 1e30])
+def test_depth_without_a_return_is_the_same_eager_and_traced(jit, bad):
+    """NaN, inf, negative and beyond-d_max depth mean "no return" (signal weight 0) in both paths."""
+    depth, intensity = _scene()
+    f = lambda d: jaxsr.expected_histograms(d, intensity, SMALL, snr=1.3, mean_signal=5.0)
+    f = jax.jit(f) if jit else f
+    bad_d, sky_d = depth.copy(), depth.copy()
+    bad_d[2, :] = bad
+    sky_d[2, :] = np.inf
+    np.testing.assert_allclose(f(bad_d), f(sky_d), rtol=1e-6)
+    key = jax.random.key(1)
+    sim = lambda k, d, i: jaxsr.simulate_histograms(k, d, i, SMALL, snr=1.3)
+    sim = jax.jit(sim) if jit else sim
+    bad_i = intensity.copy()
+    bad_i[0, 0] = np.nan if jit else 0.5  # the issue's case: one NaN pixel used to make every count NaN
+    assert np.all(np.isfinite(sim(key, bad_d, bad_i)))
+
+
+BAD_LEVELS = [
+    ({"snr": -1.0}, "snr"), ({"snr": 0.0}, "snr"), ({"snr": np.nan}, "snr"), ({"snr": np.inf}, "snr"),
+    ({"snr": 1.3, "mean_signal": -1.0}, "mean_signal"), ({"snr": 1.3, "mean_signal": np.nan}, "mean_signal"),
+    ({"snr": 1.3, "mean_signal": np.inf}, "mean_signal"),
+]
+
+
+@pytest.mark.parametrize("kwargs,name", BAD_LEVELS, ids=[",".join(f"{k}={v}" for k, v in kw.items()) for kw, _ in BAD_LEVELS])
+@pytest.mark.parametrize("jit", [False, True])
+def test_invalid_photon_levels_raise_eagerly_and_are_nan_everywhere_traced(kwargs, name, jit):
+    depth, intensity = _scene()
+    key = jax.random.key(2)
+    calls = {
+        "calibrate": lambda d, i, s, m: jaxsr.calibrate(d, i, SMALL, snr=s, mean_signal=m),
+        "expected_histograms": lambda d, i, s, m: jaxsr.expected_histograms(d, i, SMALL, snr=s, mean_signal=m),
+        "fast": lambda d, i, s, m: jaxsr.simulate_histograms(key, d, i, SMALL, snr=s, mean_signal=m),
+        "exact": lambda d, i, s, m: jaxsr.simulate_histograms(key, d, i, SMALL, snr=s, mean_signal=m, sampler="exact"),
+    }
+    args = (depth, intensity, jnp.float32(kwargs["snr"]), jnp.float32(kwargs.get("mean_signal", 5.0)))
+    for fn in calls.values():
+        if not jit:
+            with pytest.raises(ValueError, match=name):
+                fn(*args)
+            continue
+        out = jax.tree_util.tree_leaves(jax.jit(fn)(*args))
+        assert all(np.all(np.isnan(x)) for x in out), [np.asarray(x).ravel()[:4] for x in out]
+
+
+@pytest.mark.parametrize(
+    "field,value", [("d_max", 0.0), ("d_max", np.nan), ("irf_sigma", 0.0), ("irf_sigma", -0.4), ("r_min", 0.0),
+                    ("ambient_floor", -0.05), ("ambient_floor", np.inf)]
+)
+@pytest.mark.parametrize("jit", [False, True])
+def test_invalid_sensor_physics_raises_eagerly_and_is_nan_everywhere_traced(field, value, jit):
+    depth, intensity = _scene()
+
+    def rates(v):
+        cfg = dataclasses.replace(SMALL, **{field: v})
+        return jaxsr.expected_histograms(depth, intensity, cfg, snr=1.3, mean_signal=5.0)
+
+    if not jit:
+        with pytest.raises(ValueError, match=field):
+            rates(value)
+    else:
+        assert np.all(np.isnan(jax.jit(rates)(jnp.float32(value))))
+
+
+@pytest.mark.parametrize(
+    "snr,mean_signal,where",
+    [(1.3, 0.0, None), (1e-3, 5.0, None), (1e4, 5.0, None), (1.3, 5.0, "depth"), (1.3, 5.0, "intensity")],
+)
+def test_depth_pipeline_gradients_stay_finite_at_the_extremes(snr, mean_signal, where):
+    """d/d(depth, intensity) of centre_of_mass(expected_histograms(...)): zero photons, SNR 1e-3 and 1e4, and
+    NaN pixels in the input (under grad, as under jit, by the traced rules) all give finite gradients."""
+    depth, intensity = _scene(12)
+    depth[0, 0] = np.inf
+    if where == "depth":
+        depth[[1, 4], [2, 7]] = np.nan
+    elif where == "intensity":
+        intensity[[1, 4], [2, 7]] = np.nan
+
+    def loss(d, i):
+        rates = jaxsr.expected_histograms(d, i, SMALL, snr=snr, mean_signal=mean_signal)
+        return jnp.sum(jaxsr.centre_of_mass(rates, SMALL))
+
+    value, grads = jax.value_and_grad(loss, argnums=(0, 1))(jnp.asarray(depth), jnp.asarray(intensity))
+    assert np.isfinite(value)
+    assert all(np.all(np.isfinite(g)) for g in grads)
+    if mean_signal > 0 and where is None:  # the gradient is there, not just finite
+        assert np.any(np.asarray(grads[0]) != 0)

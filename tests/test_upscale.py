@@ -110,7 +110,7 @@ def test_no_overwrite_without_force(tmp_path, model_path, metres, capsys):
 @pytest.mark.parametrize("make,args,message", [
     (lambda p: None, [], "no such file"),
     (lambda p: np.save(p / "in.npy", np.zeros(5)), [], "expected depth"),
-    (lambda p: np.save(p / "in.npy", np.full((2, 32, 64), np.nan)), [], "NaN"),
+    (lambda p: np.save(p / "in.npy", np.full((2, 32, 64), -0.5)), ["--units", "normalised"], "--units m"),
     (lambda p: np.save(p / "in.npy", np.full((2, 32, 64), 5.0)), ["--units", "normalised"], "outside \\[0, 1\\]"),
     (lambda p: np.save(p / "in.npy", np.zeros((2, 32, 64, 8))), [], "8 bins"),
     (lambda p: (p / "in.npy").write_bytes(b"\x93NUMPY garbage"), [], "cannot read"),
@@ -122,6 +122,21 @@ def test_bad_input_is_a_clear_error(tmp_path, model_path, capsys, make, args, me
     assert "jaxsr upscale: error" in err
     assert __import__("re").search(message, err), err
     assert not (tmp_path / "out.npy").exists()
+
+
+
+@pytest.mark.parametrize("kind,units", [("m", []), ("m", ["--units", "m"]), ("normalised", []),
+                                        ("normalised", ["--units", "normalised"])])
+def test_nan_is_no_return_in_either_unit(tmp_path, model_path, metres, kind, units):
+    """NaN depth is "no return" (README, PHYSICS.md), in metres (like inf) and normalised (like 1.0), with the
+    units given or guessed: the output equals that of the same recording with the no-return code."""
+    coded = metres if kind == "m" else np.asarray(normalise_depth(metres))  # rows :4 are no return
+    holes = coded.copy()
+    holes[:, :4] = np.nan
+    for name, data in (("coded", coded), ("holes", holes)):
+        np.save(tmp_path / f"{name}.npy", data)
+        assert upscale(tmp_path / f"{name}.npy", tmp_path / f"{name}_out.npy", "--model", model_path, *units) == 0
+    np.testing.assert_array_equal(np.load(tmp_path / "holes_out.npy"), np.load(tmp_path / "coded_out.npy"))
 
 
 def test_empty_folder_and_bad_output(tmp_path, model_path, capsys):
