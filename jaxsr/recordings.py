@@ -211,12 +211,7 @@ def check_output(spec, *, force: bool) -> Path:
     into a non-empty folder unless `force`, and a file where a folder is meant in any case. Writes nothing."""
     out = Path(spec)
     if out.suffix.lower() in ARRAY_FORMATS:
-        if out.is_dir():
-            raise IsADirectoryError(f"{out} is a folder; OUTPUT {out.suffix} is a file")
-        if out.exists() and not force:
-            raise FileExistsError(f"{out} exists; pass --force to overwrite it")
-        if not out.parent.is_dir():
-            raise FileNotFoundError(f"no such folder for the output: {out.parent}")
+        _check_new_file(out, force=force, what=f"OUTPUT {out.suffix}")
     elif out.suffix:
         raise ValueError(f"{out}: OUTPUT is an .npy or .npz file, or a folder for frames (see --frame-format)")
     elif out.exists() and not out.is_dir():
@@ -226,6 +221,16 @@ def check_output(spec, *, force: bool) -> Path:
     else:
         _check_ancestors(out)
     return out
+
+
+def _check_new_file(path: Path, *, force: bool, what: str) -> None:
+    """A file about to be written: not a folder, not an existing file unless `force`, in an existing folder."""
+    if path.is_dir():
+        raise IsADirectoryError(f"{path} is a folder; {what} is a file")
+    if path.exists() and not force:
+        raise FileExistsError(f"{path} exists; pass --force to overwrite it")
+    if not path.parent.is_dir():
+        raise FileNotFoundError(f"no such folder for {what}: {path.parent}")
 
 
 def _check_ancestors(path: Path) -> None:
@@ -245,12 +250,7 @@ def check_preview(spec, *, force: bool, output=None) -> Path:
         raise ValueError(f"{path}: the preview is a .png file")
     if output is not None and path.resolve() == Path(output).resolve():
         raise ValueError(f"{path}: the preview and OUTPUT are the same file")
-    if path.is_dir():
-        raise IsADirectoryError(f"{path} is a folder; the preview is a .png file")
-    if path.exists() and not force:
-        raise FileExistsError(f"{path} exists; pass --force to overwrite it")
-    if not path.parent.is_dir():
-        raise FileNotFoundError(f"no such folder for the preview: {path.parent}")
+    _check_new_file(path, force=force, what="the preview")
     return path
 
 
