@@ -1,10 +1,13 @@
 """Atomic file writes: a temporary file in the destination folder, then `os.replace`, so a crash or an
-exception never leaves a half-written file, and an existing file is only replaced when asked."""
+exception never leaves a half-written file, and an existing file is only replaced when asked. Folders of
+outputs are written the same way (`atomic_folder`): into a hidden temporary sibling, moved into place at the end.
+"""
 
 from __future__ import annotations
 
 import contextlib
 import os
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -21,7 +24,7 @@ def atomic_path(path, *, overwrite: bool = False, make_parents: bool = False):
 
     Raises FileExistsError if `path` exists and `overwrite` is False, FileNotFoundError if its folder does
     not exist (unless `make_parents`). The file gets the usual permissions (0666 less the umask), not
-    mkstemp's private 0600.
+    mkstemp's private 0600. Any exception, KeyboardInterrupt included, removes the temporary file.
     """
     path = Path(path)
     if path.exists() and not overwrite:
@@ -30,15 +33,17 @@ def atomic_path(path, *, overwrite: bool = False, make_parents: bool = False):
         path.parent.mkdir(parents=True, exist_ok=True)
     elif not path.parent.is_dir():
         raise FileNotFoundError(f"folder {path.parent} does not exist (writing {path.name})")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
+    tmp = None
     try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
+        os.close(fd)
         yield Path(tmp)
         os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, path)
     except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.remove(tmp)
+        if tmp is not None:
+            with contextlib.suppress(FileNotFoundError):
+                os.remove(tmp)
         raise
 
 
@@ -46,3 +51,59 @@ def write_text_atomic(path, text: str, *, overwrite: bool = True, make_parents: 
     """Write `text` to `path` atomically (replacing an existing file by default)."""
     with atomic_path(path, overwrite=overwrite, make_parents=make_parents) as tmp:
         tmp.write_text(text)
+
+
+def _nearest_existing(path: Path) -> Path:
+    """`path` or its nearest ancestor that exists (the current folder for a relative path)."""
+    path = Path(os.path.abspath(path))
+    while not path.exists():
+        path = path.parent
+    return path
+
+
+@contextlib.contextmanager
+def atomic_folder(path):
+    """Yield a new hidden temporary folder (`.NAME.XXXX.partial`) for the files of the folder `path`; when the
+    block succeeds, the folder becomes `path` (or, if `path` is an existing folder, its files are moved into
+    it, replacing files of the same name), creating missing parent folders only then. Any exception,
+    KeyboardInterrupt included, removes the temporary folder, so a partial folder never looks complete.
+
+    The caller decides beforehand whether `path` may be written into (`jaxsr.recordings.check_output`).
+    Raises FileExistsError if `path` is a file.
+    """
+    path = Path(path)
+    if path.is_file():
+        raise FileExistsError(f"{path} is a file, not a folder")
+    # In the nearest existing ancestor, so the final rename stays on one file system.
+    home = _nearest_existing(path.parent)
+    tmp = None
+    try:
+        tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".partial", dir=home))
+        yield tmp
+        os.chmod(tmp, 0o777 & ~_umask())
+        path.parent.mkdir(parents=True, exist_ok=True)
+        if not path.exists() or not any(path.iterdir()):
+            os.replace(tmp, path)  # an empty folder is replaced as a whole
+            return
+        for f in sorted(tmp.iterdir()):
+            os.replace(f, path / f.name)
+        tmp.rmdir()
+    except BaseException:
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
+        raise
+
+
+@contextlib.contextmanager
+def removing_new_folder(path):
+    """Run the block; if it fails (any exception, KeyboardInterrupt included), remove the folder `path` and
+    the parents the block created, if they are empty, so a failed command leaves no folder behind."""
+    home = _nearest_existing(path)
+    try:
+        yield
+    except BaseException:
+        p = Path(os.path.abspath(path))
+        while p != home and p.is_dir() and not any(p.iterdir()):
+            p.rmdir()
+            p = p.parent
+        raise

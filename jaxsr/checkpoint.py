@@ -78,9 +78,14 @@ def _open(path):
     if not path.is_file():
         raise FileNotFoundError(f"checkpoint {str(path)!r} does not exist")
     try:
-        return np.load(path, allow_pickle=False)
+        data = np.load(path, allow_pickle=False)
     except (zipfile.BadZipFile, EOFError, OSError, ValueError) as e:
         raise ValueError(f"checkpoint {str(path)!r} is not a readable .npz file (truncated or corrupt?): {e}") from e
+    if not isinstance(data, np.lib.npyio.NpzFile):  # an .npy file: np.load gives the array itself
+        raise ValueError(  # noqa: TRY004 - a wrong file (the user's mistake), not a wrong type in code
+            f"checkpoint {str(path)!r} is a single .npy array, not an .npz checkpoint of jaxsr "
+            "(save_model / jaxsr train write those)")
+    return data
 
 
 def _read_meta(data, path) -> dict:
@@ -90,6 +95,9 @@ def _read_meta(data, path) -> dict:
         meta = json.loads(str(data[_META]))
     except (zipfile.BadZipFile, EOFError, OSError, ValueError) as e:
         raise ValueError(f"checkpoint {str(path)!r}: unreadable metadata (truncated or corrupt?): {e}") from e
+    if not isinstance(meta, dict):
+        raise ValueError(  # noqa: TRY004 - a foreign file, not a wrong type in code
+            f"checkpoint {str(path)!r}: metadata is not a JSON object: not a jaxsr checkpoint")
     fv = meta.get("format_version")
     if fv != FORMAT_VERSION:
         raise ValueError(
@@ -224,7 +232,10 @@ def load_model(path) -> Model:
     meta = read_metadata(path)
     if meta.get("kind") not in ("model", "train_state") or "config" not in meta:
         raise ValueError(f"checkpoint {str(path)!r} does not hold a jaxsr model (kind {meta.get('kind')!r})")
-    cfg = config_from_dict(ModelConfig, meta["config"])
+    try:
+        cfg = config_from_dict(ModelConfig, meta["config"])
+    except (TypeError, AttributeError) as e:  # a config that is not a dict, or fields of the wrong type
+        raise ValueError(f"checkpoint {str(path)!r}: unreadable model config {meta['config']!r}: {e}") from e
     params_t, state_t = model_template(cfg)
     strict = meta["kind"] == "model"
     tree, _ = load_tree(path, {"params": params_t, "state": state_t}, strict=strict)

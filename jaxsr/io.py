@@ -389,9 +389,13 @@ def read_airsim(folder, *, sensor=None):
     if not rec.is_file():
         raise FileNotFoundError(f"{folder} is not an AirSim recording: no airsim_rec.txt")
     with open(rec, newline="") as f:
-        rows = list(csv.DictReader(f, delimiter="\t"))
-    if not rows or "ImageFile" not in rows[0]:
+        reader = csv.DictReader(f, delimiter="\t")
+        rows = list(reader)
+        header = reader.fieldnames or []
+    if "ImageFile" not in header:
         raise ValueError(f"{rec}: expected a tab-separated header with an ImageFile column")
+    if not rows:
+        raise ValueError(f"{rec}: no frames (a header and no rows)")
     image_dir = folder / "images" if (folder / "images").is_dir() else folder
     depth, intensity, stamps, files = [], [], [], []
     for i, row in enumerate(rows):

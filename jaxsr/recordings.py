@@ -21,8 +21,8 @@ from ._checks import NORMALISED_SLACK, require_normalised_depth
 from .config import SensorConfig
 from .sensor import denormalise_depth, normalise_depth
 
-__all__ = ["ARRAY_FORMATS", "FRAME_FORMATS", "Recording", "check_output", "guess_units", "normalised_frames",
-           "open_recording", "to_units"]
+__all__ = ["ARRAY_FORMATS", "FRAME_FORMATS", "Recording", "check_frames", "check_output", "check_preview",
+           "guess_units", "normalised_frames", "open_recording", "to_units"]
 
 FRAME_FORMATS = (".exr", ".pfm", ".tif", ".tiff", ".png")
 ARRAY_FORMATS = (".npy", ".npz")
@@ -34,10 +34,12 @@ ARRAY_FORMATS = (".npy", ".npz")
 
 class Recording:
     """A recording opened for reading: `kind` ("depth" or "histograms"), `frames` (the number of frames),
-    `shape` (of one frame) and `__iter__` over frames (NumPy, as stored)."""
+    `shape` (of one frame), `__iter__` over frames (NumPy, as stored) and `array` (the whole (T, ...) array,
+    memory-mapped for .npy, when the recording is one; None for image frames)."""
 
-    def __init__(self, kind, frames, shape, reader, source):
+    def __init__(self, kind, frames, shape, reader, source, array=None):
         self.kind, self.frames, self.shape, self._reader, self.source = kind, frames, shape, reader, source
+        self.array = array
 
     def __iter__(self):
         return self._reader()
@@ -54,6 +56,11 @@ class Recording:
 
 def _frame_files(spec: str) -> list[Path]:
     p = Path(spec)
+    if p.is_file():
+        if p.suffix.lower() not in FRAME_FORMATS:
+            raise ValueError(f"{spec}: not a recording; expected an .npy / .npz array, or depth frames "
+                             f"({', '.join(FRAME_FORMATS)}): one, a folder or a quoted pattern")
+        return [p]
     if p.is_dir():
         files = sorted(f for f in p.iterdir() if f.suffix.lower() in FRAME_FORMATS)
         if not files:
@@ -101,12 +108,15 @@ def open_recording(spec, *, kind: str | None = None) -> Recording:
             if name not in z:
                 raise ValueError(f"{spec}: expected an array 'depth' or 'counts', found {sorted(z)}")
             arr = z[name]
+        if arr.dtype.kind not in "iuf":
+            raise ValueError(f"{spec}: holds {arr.dtype} values; expected real numbers (an integer or floating "
+                             "point array)")
         if arr.ndim == 2 and kind != "histograms":  # one frame
             arr = arr[None]
         k = _kind_of(arr.ndim, kind, spec)
         if arr.shape[0] < 1:
             raise ValueError(f"{spec}: the recording has no frames")
-        return Recording(k, arr.shape[0], arr.shape[1:], lambda: iter(arr), spec)
+        return Recording(k, arr.shape[0], arr.shape[1:], lambda: iter(arr), spec, array=arr)
     if suffix in ARRAY_FORMATS:
         raise ValueError(f"{spec}: patterns select image frames ({', '.join(FRAME_FORMATS)}), not {suffix} arrays")
     if kind == "histograms":
@@ -124,12 +134,60 @@ def open_recording(spec, *, kind: str | None = None) -> Recording:
     return Recording("depth", len(files), first.shape, frames, spec)
 
 
+def _chunks(recording: Recording, size: int = 256):
+    """(first frame index, (n, ...) float64 block) over the recording: blocks of an array, else single frames.
+    float64 holds every stored value (float16/32/64, integers) without overflow."""
+    if recording.array is not None:
+        for t in range(0, recording.frames, size):
+            yield t, np.asarray(recording.array[t : t + size], np.float64)
+    else:
+        for t, f in enumerate(recording):
+            yield t, np.asarray(f, np.float64)[None]
+
+
+def check_frames(recording: Recording, units: str, sensor: SensorConfig) -> None:
+    """Check every frame before any work, so that a bad recording is refused before compute and before any
+    output is written (one pass over the input: a memory-mapped array in blocks, image frames one by one).
+
+    The networks know one frame size: the sensor's LR frames (`sensor.lr_shape`, 32 x 64 for the 30 deg sensor
+    of the bundled models); histograms must also have `sensor.bins` bins. Other sizes are refused (not yet
+    supported). Depth: NaN and inf are no return; for `units` "normalised" the other values lie within [0, 1]
+    (up to NORMALISED_SLACK, as `super_resolve` checks). Histograms: finite, non-negative counts. Raises
+    ValueError naming the recording, the frame and what was expected."""
+    h, w = sensor.lr_shape
+    src = recording.source
+    if recording.kind == "histograms":
+        want = (h, w, sensor.bins)
+        if tuple(recording.shape) != want:
+            raise ValueError(f"{src}: histogram frames of shape {tuple(recording.shape)} ({recording.shape[-1]} bins); "
+                             f"expected {want} "
+                             f"({h} x {w} LR pixels of {sensor.bins} bins, the sensor the models were trained for; "
+                             "other sizes are not supported yet)")
+    elif tuple(recording.shape) != (h, w):
+        raise ValueError(f"{src}: frames of {' x '.join(map(str, recording.shape))} pixels; expected {h} x {w} LR "
+                         f"frames (the {float(sensor.fov_deg):g} deg sensor the models were trained for; other sizes "
+                         "are not supported yet)")
+    for t, block in _chunks(recording):
+        if recording.kind == "histograms":
+            bad = ~(np.isfinite(block) & (block >= 0) & (block <= np.finfo(np.float32).max))
+            what = "negative, non-finite or huge (beyond float32) photon counts; expected counts >= 0"
+        elif units == "normalised":
+            bad = ~np.isnan(block) & ((block < -NORMALISED_SLACK) | (block > 1 + NORMALISED_SLACK))
+            what = "values outside [0, 1]; for depth in metres pass --units m"
+        else:
+            continue  # metres: any value is meaningful (NaN, inf, negative and beyond d_max: no return)
+        if np.any(bad):
+            first = t + int(np.argmax(bad.reshape(len(block), -1).any(axis=1)))
+            raise ValueError(f"{src}: frame {first} holds {what}")
+
+
 def normalised_frames(recording: Recording, units: str, sensor: SensorConfig):
     """Depth frames of a recording as LR normalised depth: metres -> `normalise_depth` (NaN, inf, negative and
     beyond d_max: no return, 1.0); normalised -> checked as `super_resolve` checks it (NaN -> 1.0, values
     outside [0, 1] by more than float rounding refused with a message that suggests --units m)."""
     for t, f in enumerate(recording):
-        f = np.asarray(f, np.float32)
+        with np.errstate(over="ignore"):  # metres beyond float32 are no return (inf), as they should be
+            f = np.asarray(f, np.float32)
         if units == "m":
             yield np.asarray(normalise_depth(f, sensor))
         else:
@@ -150,19 +208,52 @@ def guess_units(recording: Recording) -> str:
 
 
 def check_output(spec, *, force: bool) -> Path:
-    """OUTPUT: .npy / .npz (one array) or a folder (one frame file per frame). Refuses to replace an existing
-    file or a non-empty folder unless `force`."""
+    """OUTPUT: .npy / .npz (one array, in an existing folder) or a folder (one frame file per frame; missing
+    parent folders are created when the frames are all written). Refuses to replace an existing file or write
+    into a non-empty folder unless `force`, and a file where a folder is meant in any case. Writes nothing."""
     out = Path(spec)
     if out.suffix.lower() in ARRAY_FORMATS:
-        if out.exists() and not force:
-            raise FileExistsError(f"{out} exists; pass --force to overwrite it")
-        if not out.parent.is_dir():
-            raise FileNotFoundError(f"no such folder for the output: {out.parent}")
+        _check_new_file(out, force=force, what=f"OUTPUT {out.suffix}")
     elif out.suffix:
         raise ValueError(f"{out}: OUTPUT is an .npy or .npz file, or a folder for frames (see --frame-format)")
-    elif out.is_file() or (out.is_dir() and any(out.iterdir()) and not force):
+    elif out.exists() and not out.is_dir():
+        raise FileExistsError(f"{out} is a file; OUTPUT without a suffix is a folder for frames")
+    elif out.is_dir() and any(out.iterdir()) and not force:
         raise FileExistsError(f"{out} exists and is not an empty folder; pass --force to write into it")
+    else:
+        _check_ancestors(out)
     return out
+
+
+def _check_new_file(path: Path, *, force: bool, what: str) -> None:
+    """A file about to be written: not a folder, not an existing file unless `force`, in an existing folder."""
+    if path.is_dir():
+        raise IsADirectoryError(f"{path} is a folder; {what} is a file")
+    if path.exists() and not force:
+        raise FileExistsError(f"{path} exists; pass --force to overwrite it")
+    if not path.parent.is_dir():
+        raise FileNotFoundError(f"no such folder for {what}: {path.parent}")
+
+
+def _check_ancestors(path: Path) -> None:
+    """Refuse a folder path whose nearest existing ancestor is a file (it could never be created)."""
+    p = path.parent
+    while not p.exists():
+        p = p.parent
+    if not p.is_dir():
+        raise NotADirectoryError(f"cannot create the folder {path}: {p} is a file")
+
+
+def check_preview(spec, *, force: bool, output=None) -> Path:
+    """A preview path (.png): refuses an existing file unless `force`, a missing folder, and the OUTPUT path
+    itself. Writes nothing."""
+    path = Path(spec)
+    if path.suffix.lower() != ".png":
+        raise ValueError(f"{path}: the preview is a .png file")
+    if output is not None and path.resolve() == Path(output).resolve():
+        raise ValueError(f"{path}: the preview and OUTPUT are the same file")
+    _check_new_file(path, force=force, what="the preview")
+    return path
 
 
 def to_units(hr, units: str, sensor: SensorConfig):

@@ -329,6 +329,9 @@ def _training_card(run: _Run, *, train_cfg: TrainConfig, settings: dict, sensor:
     }
 
 
+RUN_FILES = ("metrics.jsonl", "last.npz", "best.npz")  # what `fit` writes into its folder
+
+
 def _write_checkpoints(out: Path, ts: _TrainState, run: _Run, model_cfg: ModelConfig, settings: dict, card: dict):
     """`best.npz` (when this epoch is the best), `last.npz` and `metrics.jsonl`, each written atomically."""
     # best first, then last: a kill between the two resumes from the previous epoch and rewrites both.
@@ -348,6 +351,7 @@ def fit(
     validation: dict | None = None,
     sensor: SensorConfig = SensorConfig(),
     resume: bool = False,
+    overwrite: bool = False,
     mesh: Mesh | None | str = "auto",
     progress: bool = True,
     callback=None,
@@ -360,6 +364,8 @@ def fit(
     training card; `jaxsr.load_model` reads it) and `last.npz` (params, BN state, Adam state, RNG key, step,
     epoch, best-so-far weights and early-stopping counters), all written every epoch. `resume=True` continues
     from `last.npz` and gives the same result as an uninterrupted run (bit-identical on the same machine).
+    A folder that already holds a run (any of `RUN_FILES`) is refused (FileExistsError) unless `resume` or
+    `overwrite` (start a new run whose epochs replace the old files as they are written) is given.
     make_batch: the data source (default `jaxsr.data.scene_batches`); validation: a dict from
     `jaxsr.data.validation_set` (default: built from `jaxsr.scenes.test_sequences`). mesh: "auto" (all
     devices when there are more than one), None (no sharding) or a `Mesh` with a "data" axis. callback(record)
@@ -369,6 +375,12 @@ def fit(
     if model_cfg.scale != sensor.scale:
         raise ValueError(f"fit: model scale {model_cfg.scale} differs from sensor scale {sensor.scale}")
     out = Path(out)
+    held = [name for name in RUN_FILES if (out / name).exists()]
+    if resume and overwrite:
+        raise ValueError("fit: resume and overwrite exclude each other (continue the run, or start over)")
+    if held and not (resume or overwrite):
+        raise FileExistsError(f"{out} holds a training run ({', '.join(held)}); pass resume=True (--resume) to "
+                              "continue it or overwrite=True (--force) to start a new one in its place")
     out.mkdir(parents=True, exist_ok=True)
     mesh = _choose_mesh(mesh, train_cfg.batch_size)
     root = jax.random.key(train_cfg.seed)

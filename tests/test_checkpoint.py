@@ -127,6 +127,14 @@ def test_not_a_checkpoint(tmp_path):
         load_model(tmp_path / "x.npz")
 
 
+def test_an_npy_file_is_not_a_checkpoint(tmp_path):
+    """np.load gives an .npy's array itself (no archive); that is a clear ValueError, not a TypeError."""
+    np.save(tmp_path / "x.npy", np.zeros(3))
+    for read in (load_model, read_metadata, jaxsr.checkpoint.model_info):
+        with pytest.raises(ValueError, match="single .npy array, not an .npz checkpoint"):
+            read(tmp_path / "x.npy")
+
+
 def test_failed_write_keeps_old_file(tmp_path, model):
     path = save_model(tmp_path / "m.npz", model)
     before = path.read_bytes()

@@ -85,19 +85,22 @@ def test_help_lists_every_subcommand(capsys):
 
 
 @pytest.mark.parametrize("args,message", [
-    (["--tr", "x"], "argument --tr: invalid int value: 'x'"),
+    (["--tr", "x"], "argument --tr: expected an integer, got 'x'"),
     (["--preset", "nope"], "argument --preset: invalid choice: 'nope'"),
-    (["--epochs", "1.5"], "argument --epochs: invalid int value"),
+    (["--epochs", "1.5"], "argument --epochs: expected an integer, got '1.5'"),
+    (["--tr", "-1"], "argument --tr: expected an integer from 0 to 8, got -1"),
+    (["--tr", "9"], "argument --tr: expected an integer from 0 to 8, got 9 (memory and compute grow"),
 ])
 def test_train_bad_arguments_exit_2(tmp_path, capsys, args, message):
     with pytest.raises(SystemExit) as e:
         cli.main(["train", "--out", str(tmp_path / "run"), *args])
-    assert e.value.code == 2 and message in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and message in err
+    assert err.count("\n") == 1 and err.startswith("jaxsr train: error: "), err  # one line, no usage block
     assert not (tmp_path / "run").exists()
 
 
 @pytest.mark.parametrize("args,message", [
-    (["--tr", "-1"], "tr must be >= 0"),
     (["--scale", "3"], "must be divisible by scale 3"),
 ])
 def test_train_bad_values_are_errors_before_any_training(tmp_path, capsys, args, message):

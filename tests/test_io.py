@@ -183,3 +183,36 @@ def test_read_airsim_converts_planar_to_radial(tmp_path):
     assert out["fps"] == pytest.approx(25.0)
     with pytest.raises(FileNotFoundError, match="airsim_rec.txt"):
         io.read_airsim(tmp_path)
+
+
+def test_read_airsim_without_rows_is_a_clear_error(tmp_path):
+    (tmp_path / "airsim_rec.txt").write_text("VehicleName\tTimeStamp\tImageFile\n")
+    with pytest.raises(ValueError, match="no frames"):
+        io.read_airsim(tmp_path)
+
+
+class Stop(KeyboardInterrupt):
+    pass
+
+
+def test_atomic_writes_leave_nothing_when_interrupted(tmp_path):
+    """Ctrl-C (or SIGTERM turned into it by the `jaxsr` command) inside an atomic write removes the temporary
+    file or folder; a folder's files appear under its name only once the block completes."""
+    from jaxsr._files import atomic_folder, atomic_path
+
+    with pytest.raises(Stop), atomic_path(tmp_path / "a.npy") as tmp:
+        tmp.write_bytes(b"half")
+        raise Stop
+    with pytest.raises(Stop), atomic_folder(tmp_path / "new" / "frames") as tmp:
+        (tmp / "f0.exr").write_bytes(b"x")
+        assert tmp.parent == tmp_path and tmp.name.startswith(".frames.") and tmp.name.endswith(".partial")
+        assert not (tmp_path / "new").exists()  # parents come at the end
+        raise Stop
+    assert list(tmp_path.iterdir()) == []
+    with atomic_folder(tmp_path / "new" / "frames") as tmp:
+        (tmp / "f0.exr").write_bytes(b"x")
+    assert [p.name for p in (tmp_path / "new" / "frames").iterdir()] == ["f0.exr"]
+    with atomic_folder(tmp_path / "new" / "frames") as tmp:  # into an existing folder: files moved in
+        (tmp / "f1.exr").write_bytes(b"y")
+    assert sorted(p.name for p in (tmp_path / "new" / "frames").iterdir()) == ["f0.exr", "f1.exr"]
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["f0.exr", "f1.exr", "frames", "new"]

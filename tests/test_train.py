@@ -229,6 +229,24 @@ def _add_legacy_conv3d_impl(path):
     np.savez(path, **arrays)
 
 
+def test_a_folder_holding_a_run_is_refused_without_resume_or_overwrite(tmp_path):
+    cfg = tiny_train_cfg(examples_per_epoch=8, epochs=1)
+    val = toy_validation(TINY.tr, n=4)
+    make_batch = toy_batches(TINY.tr, 4)
+    fit(TINY, cfg, out=tmp_path, make_batch=make_batch, validation=val, progress=False)
+    files = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    assert set(files) == {"metrics.jsonl", "best.npz", "last.npz"}
+    with pytest.raises(FileExistsError, match=r"holds a training run .*resume=True \(--resume\).*overwrite=True"):
+        fit(TINY, cfg, out=tmp_path, make_batch=make_batch, validation=val, progress=False)
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == files  # nothing replaced
+    with pytest.raises(ValueError, match="exclude each other"):
+        fit(TINY, cfg, out=tmp_path, make_batch=make_batch, validation=val, progress=False, resume=True,
+            overwrite=True)
+    fit(TINY, dataclasses.replace(cfg, seed=1), out=tmp_path, make_batch=make_batch, validation=val, progress=False,
+        overwrite=True)
+    assert (tmp_path / "best.npz").read_bytes() != files["best.npz"]
+
+
 def test_kill_and_resume_equals_uninterrupted(tmp_path):
     # decay every epoch and patience 1 so the schedule and the early-stopping counters cross the restart
     cfg = tiny_train_cfg(examples_per_epoch=12, epochs=4, decay_epochs=1, patience=2)

@@ -3,49 +3,85 @@ library modules they call).
 
     jaxsr simulate --kind street --frames 20 --fps 25 --snr 1.3 --seed 0 --out DIR [--force]
     jaxsr simulate --input AIRSIM_FOLDER --out DIR [--snr 1.3]
-    jaxsr train --tr 4 --preset cpu --out runs/tr4 [--resume]
+    jaxsr train --tr 4 --preset cpu --out runs/tr4 [--resume | --force]
     jaxsr upscale INPUT OUTPUT [--model tr4|auto|CHECKPOINT] [--preview strip.png]
     jaxsr info tr4 [--json]
 
 Each subcommand is a module here with `add_parser(subparsers)`, which registers its arguments and sets
 `func=run`, and `run(args) -> exit status`. To add one, write such a module and list it in `COMMANDS`.
-A user error (a missing file, an existing output, a bad value) is printed as `jaxsr CMD: error: ...` and
-exits with status 2, as argparse does for bad arguments.
+
+Errors: a user's mistake (a bad argument, a missing or unreadable file, an existing output, a wrongly shaped
+input) is one line on stderr, `jaxsr CMD: error: ...`, saying what was expected, and exit status 2, with no
+output or temporary file left behind; options and inputs are checked before the long work starts. A traceback
+means a bug. Ctrl-C (SIGINT) and SIGTERM remove what the command had started to write and exit with 130 and
+143 (128 + the signal number) after one line saying so.
 """
 
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
+import threading
 
 from . import info, simulate, train, upscale
 
-__all__ = ["COMMANDS", "build_parser", "main"]
+__all__ = ["COMMANDS", "USER_ERRORS", "Terminated", "build_parser", "main"]
 
 COMMANDS = (simulate, train, upscale, info)
+# Exceptions that mean the user asked for something impossible (the library raises these with a message).
+USER_ERRORS = (FileNotFoundError, FileExistsError, IsADirectoryError, NotADirectoryError, PermissionError, ValueError)
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised like Ctrl-C so that the same clean-up runs (temporary files and folders removed)."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, but a bad argument is one line on stderr (no usage block), exit status 2."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The `jaxsr` parser with every subcommand of `COMMANDS`; a subcommand is required."""
-    parser = argparse.ArgumentParser(prog="jaxsr", description="Video super-resolution for single-photon lidar.")
+    parser = _Parser(prog="jaxsr", description="Video super-resolution for single-photon lidar.")
     subparsers = parser.add_subparsers(dest="command", required=True)
     for command in COMMANDS:
         command.add_parser(subparsers)
     return parser
 
 
+def _one_line(error: BaseException) -> str:
+    return " ".join(str(error).split()) or type(error).__name__
+
+
+def _raise_terminated(signum, frame):
+    raise Terminated()
+
+
 def main(argv=None) -> int:
     """Entry point of the `jaxsr` console script.
 
-    Args: argv (list of str, default sys.argv[1:]). Returns the exit status (0 on success, 2 on a user error
-    such as a missing file or an existing output, after printing the message to stderr)."""
+    Args: argv (list of str, default sys.argv[1:]). Returns the exit status: 0 on success; 2 on a user error
+    (see the module docstring), after printing the message to stderr; 130 after Ctrl-C, 143 after SIGTERM."""
     args = build_parser().parse_args(argv)
     if argv is None:  # run as a program (not called from Python, where the user owns JAX's devices)
         from ..runtime import use_cpu_cores
 
         use_cpu_cores()
+    in_main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, _raise_terminated) if in_main_thread else None
     try:
         return args.func(args)
-    except (FileNotFoundError, FileExistsError, ValueError) as e:
-        print(f"jaxsr {args.command}: error: {e}", file=sys.stderr)
+    except USER_ERRORS as e:
+        print(f"jaxsr {args.command}: error: {_one_line(e)}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt as e:
+        what = "terminated (SIGTERM)" if isinstance(e, Terminated) else "interrupted"
+        print(f"jaxsr {args.command}: {what}; unfinished outputs removed", file=sys.stderr)
+        return 128 + (signal.SIGTERM if isinstance(e, Terminated) else signal.SIGINT)
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
