@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import PRESETS, ModelConfig, SensorConfig
-from ..data import sequence_batches
+from ..config import PRESETS, TEMPORAL_FORMS, ModelConfig, SensorConfig
+from ..data import sequence_batches, sequence_clips
 from ..train import fit
 
 
@@ -24,23 +24,37 @@ def add_parser(subparsers):
     p.add_argument("--epochs", type=int, default=None, help="override the preset's number of epochs")
     p.add_argument("--data", default=None,
                    help="train on HR sequences from an .npz with arrays depth (radial m) and intensity, (N, T, H, W)")
+    p.add_argument("--temporal", choices=TEMPORAL_FORMS, default="window",
+                   help="the network's form: window (the paper: one window of 2TR+1 frames per output) or sequence "
+                   "(all 3+TR blocks temporally valid, run over whole sequences and streams; trains on clips)")
+    p.add_argument("--clip-frames", type=int, default=None,
+                   help="with --temporal sequence: LR frames per training clip, at least 2(3+TR)+1 "
+                   "(default: 2(3+TR) + jaxsr.config.DEFAULT_CLIP_OUTPUTS)")
+    p.add_argument("--init", default=None,
+                   help="start from these weights (tr0..tr4 or a checkpoint of the same TR and scale, in either "
+                   "form), e.g. fine-tune a windowed model into the sequence form")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
     """Train as the arguments say; prints the best epoch. Configs are built (and checked) before any work."""
-    changes = {k: v for k, v in (("seed", args.seed), ("epochs", args.epochs)) if v is not None}
+    changes = {k: v for k, v in (("seed", args.seed), ("epochs", args.epochs), ("clip_frames", args.clip_frames))
+               if v is not None}
     cfg = dataclasses.replace(PRESETS[args.preset], **changes)
     sensor = SensorConfig() if args.scale == 4 else SensorConfig(scale=args.scale)
-    model_cfg = ModelConfig(tr=args.tr, scale=args.scale)
+    model_cfg = ModelConfig(tr=args.tr, scale=args.scale, temporal=args.temporal)
+    clip = cfg.clip_length(model_cfg) if args.temporal == "sequence" else None  # checked before any work
     make_batch = None
     if args.data:
         with np.load(args.data) as d:
-            make_batch = sequence_batches(d["depth"], d["intensity"], args.tr, cfg, sensor=sensor)
+            if clip is None:
+                make_batch = sequence_batches(d["depth"], d["intensity"], args.tr, cfg, sensor=sensor)
+            else:
+                make_batch = sequence_clips(d["depth"], d["intensity"], clip, cfg, sensor=sensor)
         make_batch.description = f"{args.data}: " + make_batch.description
     _, history = fit(model_cfg, cfg, out=args.out, make_batch=make_batch, sensor=sensor,
-                     resume=args.resume, progress=not args.no_progress)
+                     resume=args.resume, progress=not args.no_progress, init=args.init)
     best = min(history, key=lambda r: r["val_loss"]) if history else None
     if best:
         print(f"best epoch {best['epoch']}: val loss {best['val_loss']:.3e}, val PSNR {best['val_psnr']:.2f} dB "
