@@ -138,7 +138,10 @@ class ModelConfig:
 jax.tree_util.register_dataclass(ModelConfig, data_fields=[], meta_fields=[f.name for f in dataclasses.fields(ModelConfig)])
 
 
-# Outputs per training clip of the sequence form when `TrainConfig.clip_frames` is None (L = 2R + this).
+# Outputs per training clip of the sequence form when `TrainConfig.clip_frames` is None (L = 2R + this). The TR4
+# train step (batch 2, 16 x 32 LR patches, 2 busy CPU cores) trained 2.2 output frames/s at 1 output per clip
+# (the windowed step: 2.3), 4.3 at 8 (L = 22) and 4.1 at 16 (L = 30): longer clips stop paying at about 8
+# (benchmarks/bench_train.py::test_train_step_sequence_tr4).
 DEFAULT_CLIP_OUTPUTS = 8
 
 

@@ -38,8 +38,9 @@ from .streaming import stream_init, stream_step
 # (benchmarks/bench_inference.py), and one frame per device keeps the latency of a stream low.
 DEFAULT_BATCH_SIZE = 1
 # Output frames per compiled call of a sequence-form model when `batch_size=None` (fewer for a shorter array):
-# a chunk computes 2R frames more than it returns, so longer chunks waste less; at 32 (TR4: 46 LR frames per
-# call) a chunk ran as fast per frame as `Stream`'s step (experiments/results/sequence_form.md).
+# a chunk computes 2R frames more than it returns, so longer chunks waste less. 32 frames from histograms in
+# one chunk (TR4: 46 LR frames) ran 1.1-1.3x faster than `Stream`'s per-frame step (a `lax.scan` of that step
+# no faster than the loop) and TR4 3.2x faster than the window form (experiments/results/sequence_form.md).
 DEFAULT_SEQUENCE_CHUNK = 32
 
 
@@ -127,10 +128,12 @@ def iter_super_resolve(model: Model, frames: Iterable, *, batch_size: int | None
 
     def run(count, last):
         """Dispatch (asynchronously) windows next_out .. next_out + count - 1, padded to batch_size by
-        repeating the final frame so that every call has the same shape."""
+        repeating the final frame so that every call has the same shape (sequence form: a last, shorter
+        chunk to the next power of two, so that a long chunk does not run for a few frames)."""
         chunk = np.stack([frame(i, last) for i in range(next_out - tr, next_out + count + tr)])
-        if count < batch_size:
-            chunk = np.concatenate([chunk, np.repeat(chunk[-1:], batch_size - count, 0)])
+        size = min(batch_size, 1 << (count - 1).bit_length()) if sequence_form else batch_size
+        if count < size:
+            chunk = np.concatenate([chunk, np.repeat(chunk[-1:], size - count, 0)])
         chunk = jnp.asarray(chunk) if sharding is None else jax.device_put(chunk, replicated)
         return _infer_chunk()(model, chunk, sharding, conv3d_impl), count
 
@@ -233,6 +236,8 @@ def super_resolve_histograms(model: Model, counts, sensor: SensorConfig = Sensor
                          f"{counts.shape}")
     r = model.config.scale
     out = np.empty((counts.shape[0], counts.shape[1] * r, counts.shape[2] * r), np.float32)
+    if batch_size is None:  # the frames' count is known here, not in the stream of centre-of-mass frames
+        batch_size = _default_batch_size(counts, model.config.temporal == "sequence")
     stream = iter_super_resolve(model, iter_centre_of_mass(counts, sensor), batch_size=batch_size,
                                 conv3d_impl=conv3d_impl)
     for t, hr in enumerate(stream):

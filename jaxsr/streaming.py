@@ -9,20 +9,20 @@ pytree of fixed shape: memory does not grow with the length of the stream.
 
 Step n takes padded input frame n and returns the output whose centre is padded frame n - R, i.e. output
 n - 2R of the sequence; it is valid once n >= 2R (the first R + 1 steps feed the first frame, the edge
-padding). `jaxsr.inference.Stream` wraps this for live input; `stream_scan` runs the step over a block of
-frames with `lax.scan`.
+padding). `jaxsr.inference.Stream` wraps this for live input. A `lax.scan` of the step over a whole sequence
+ran no faster than a Python loop over the jitted step, and both slower than the sequence form in chunks
+(experiments/results/sequence_form.md), so whole sequences go through `apply_model_sequence` instead.
 """
 
 from __future__ import annotations
 
-import jax
 import jax.numpy as jnp
 
 from .config import ModelConfig
 from .layers import CONV3D_IMPLS, conv3d
 from .model import _block_input, _head, _stem, sequence_radius
 
-__all__ = ["stream_init", "stream_scan", "stream_step"]
+__all__ = ["stream_init", "stream_step"]
 
 
 def stream_init(cfg: ModelConfig, lr_shape: tuple[int, int], *, batch: int = 1, dtype=jnp.float32) -> dict:
@@ -83,15 +83,3 @@ def stream_step(params, state, buffers: dict, frame, cfg: ModelConfig, *, conv3d
         new_blocks.append(buf)
     hr, _ = _head(params, state, x, lr[:, :1], cfg, bn=bn, impl=conv3d_impl)
     return {"lr": lr, "blocks": new_blocks}, hr[:, 0]
-
-
-def stream_scan(params, state, buffers: dict, frames, cfg: ModelConfig, *, conv3d_impl: str = "auto"):
-    """`stream_step` over a block of frames with `lax.scan`: frames (T, B, h, w) -> (new buffers,
-    hr (T, B, h*r, w*r)), hr[i] the output of the step that took frames[i]."""
-    if frames.ndim != 4:
-        raise ValueError(f"stream_scan: expected frames (T, B, h, w), got shape {frames.shape}")
-
-    def body(buf, frame):
-        return stream_step(params, state, buf, frame, cfg, conv3d_impl=conv3d_impl)
-
-    return jax.lax.scan(body, buffers, frames)

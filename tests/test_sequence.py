@@ -128,7 +128,7 @@ def test_super_resolve_runs_the_models_form():
     model = _model(1)
     seq = _lr(11, 3)
     ref = np.asarray(seq_jit(model.params, model.state, jnp.asarray(seq)[None], model.config)[0])
-    for batch in (None, 1):
+    for batch in (None, 8):  # one chunk of 11; chunks of 8 and of 3 (run as 4)
         np.testing.assert_allclose(super_resolve(model, seq, batch_size=batch), ref, rtol=1e-5, atol=2e-6)
     streamed = np.stack(list(iter_super_resolve(model, iter(seq), batch_size=1)))  # a generator: no len()
     np.testing.assert_allclose(streamed, ref, rtol=1e-5, atol=2e-6)
@@ -149,7 +149,7 @@ def _strip_temporal(path):
     np.savez(path, **arrays)
 
 
-def test_windowed_checkpoint_loads_into_the_sequence_form(tmp_path):
+def test_windowed_checkpoint_loads_into_the_sequence_form(tmp_path, capsys):
     windowed = _model(1, temporal="window")
     path = save_model(tmp_path / "w.npz", windowed)
     _strip_temporal(path)  # as older versions wrote it: read as the window form
@@ -167,6 +167,8 @@ def test_windowed_checkpoint_loads_into_the_sequence_form(tmp_path):
     assert info["temporal"] == "sequence" and info["input_radius"] == 4 and info["config"]["temporal"] == "sequence"
     assert info["gflops_per_frame"] == round(flops_per_frame(model.config, (4, 6)) / 1e9, 3)
     assert model_info(path)["config"]["temporal"] == "window"
+    assert cli.main(["info", str(tmp_path / "s.npz")]) == 0
+    assert "TR 1 (sequence form: frame t from frames t-4 .. t+4, stream latency 4 frames)" in capsys.readouterr().out
 
 
 def test_sequence_loss_gradients_are_finite_and_those_of_the_window_loop():
