@@ -39,8 +39,8 @@ from .streaming import stream_init, stream_step
 DEFAULT_BATCH_SIZE = 1
 # Output frames per compiled call of a sequence-form model when `batch_size=None` (fewer for a shorter array):
 # a chunk computes 2R frames more than it returns, so longer chunks waste less. 32 frames from histograms in
-# one chunk (TR4: 46 LR frames) ran 1.1-1.3x faster than `Stream`'s per-frame step (a `lax.scan` of that step
-# no faster than the loop) and TR4 3.2x faster than the window form (experiments/results/sequence_form.md).
+# one chunk (TR4: 46 LR frames) ran 1.1-1.2x faster than `Stream`'s per-frame step (a `lax.scan` of that step
+# no faster than the loop) and TR4 3.1x faster than the window form (experiments/results/sequence_form.md).
 DEFAULT_SEQUENCE_CHUNK = 32
 
 
