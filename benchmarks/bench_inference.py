@@ -1,6 +1,9 @@
 """Inference throughput: frames/s of `super_resolve` for TR0-TR4 at batch 1 (one device), the default batch
 (one frame per device, split over the host's cores as CPU devices: benchmarks/conftest.py) and 8, end to end
 from photon histograms, and the GFLOP/s it achieves against what this machine's matrix multiply reaches.
+`test_forms_from_histograms` times the network's three forms side by side for TR0-TR4 on 32 frames, end to
+end from histograms: window (the paper), sequence (`super_resolve` of a sequence-form model: chunks of
+`DEFAULT_SEQUENCE_CHUNK` outputs) and stream (`Stream`, one frame at a time).
 
 Run: pytest benchmarks/bench_inference.py --benchmark-enable      (about 3 min on 2 CPU cores)
 
@@ -15,7 +18,7 @@ import numpy as np
 import pytest
 
 from jaxsr.config import ModelConfig, SensorConfig
-from jaxsr.inference import DEFAULT_BATCH_SIZE, super_resolve, super_resolve_histograms
+from jaxsr.inference import DEFAULT_BATCH_SIZE, Stream, iter_centre_of_mass, super_resolve, super_resolve_histograms
 from jaxsr.model import Model, apply_model, flops_per_frame, init_model
 from jaxsr.runtime import compiler_options
 
@@ -23,8 +26,8 @@ SENSOR = SensorConfig()
 FRAMES = 16
 
 
-def _model(tr):
-    cfg = ModelConfig(tr=tr)
+def _model(tr, temporal="window"):
+    cfg = ModelConfig(tr=tr, temporal=temporal)
     return Model(*init_model(jax.random.key(0), cfg), cfg)
 
 
@@ -55,6 +58,30 @@ def test_super_resolve_histograms(timed, benchmark, tr):
     counts = np.asarray(jax.random.poisson(jax.random.key(2), 2.0, (FRAMES, *SENSOR.lr_shape, SENSOR.bins)))
     timed(lambda: super_resolve_histograms(model, counts), rounds=3, items=FRAMES)
     _record(benchmark, model.config)
+
+
+def stream_histograms(model, counts, sensor=SENSOR):
+    """End to end through `Stream`: (T, h, w, K) counts -> centre of mass -> one frame at a time -> (T, H, W)."""
+    stream, out = Stream(model), []
+    for lr in iter_centre_of_mass(counts, sensor):
+        hr = stream.push(lr)
+        if hr is not None:
+            out.append(hr)
+    return np.stack(out + stream.flush())
+
+
+@pytest.mark.parametrize("form", ["window", "sequence", "stream"])
+@pytest.mark.parametrize("tr", [0, 1, 2, 3, 4])
+def test_forms_from_histograms(timed, benchmark, tr, form):
+    """32 frames end to end from histograms in each of the network's forms, default batch / chunk."""
+    frames = 32
+    model = _model(tr, "window" if form == "window" else "sequence")
+    counts = np.asarray(jax.random.poisson(jax.random.key(2), 2.0, (frames, *SENSOR.lr_shape, SENSOR.bins)))
+    run = stream_histograms if form == "stream" else super_resolve_histograms
+    timed(lambda: run(model, counts), rounds=2, items=frames)
+    if benchmark.stats is not None:
+        benchmark.extra_info["gflops_per_s"] = frames / benchmark.stats.stats.mean * flops_per_frame(
+            model.config, SENSOR.lr_shape) / 1e9
 
 
 @pytest.mark.parametrize("options", ["xla-defaults", "jaxsr"])

@@ -1,13 +1,17 @@
-"""Training throughput: examples/s of the jitted train step for TR0 and TR4 at the `cpu` preset, the data
-pipeline on its own, and the three conv3d implementations side by side.
+"""Training throughput: examples/s of the jitted train step for TR0 and TR4 at the `cpu` preset, the sequence
+form's output frames/s against its clip length, the data pipeline on its own, and the three conv3d
+implementations side by side.
 
     pytest benchmarks/bench_train.py --benchmark-only            (about 3 min on 2 CPU cores)
 
 The train-step benchmarks draw windows from a fixed synthetic HR sequence with `sequence_batches` (sensor
 simulation + centre of mass inside the step, no scene rendering), so they time the network and the sensor
 model; `test_scene_batches` times the rendering path of the default data source on its own.
-examples/s = batch_size / (mean step time); pytest-benchmark reports the step time.
+examples/s = batch_size / (mean step time); pytest-benchmark reports the step time. In the sequence form an
+example is a clip of L = 2R + K frames that trains K outputs: `frames_per_s` = batch_size K / (mean step time).
 """
+
+import dataclasses
 
 import jax
 import jax.numpy as jnp
@@ -15,7 +19,7 @@ import numpy as np
 import pytest
 
 from jaxsr.config import PRESETS, ModelConfig, SensorConfig
-from jaxsr.data import scene_batches, sequence_batches
+from jaxsr.data import scene_batches, sequence_batches, sequence_clips
 from jaxsr.layers import conv3d_native, conv3d_stacked, conv3d_taps
 from jaxsr.model import init_model
 from jaxsr.optim import adam_init
@@ -40,13 +44,22 @@ def _hr_sequence(frames=12, seed=0):
     return depth, intensity
 
 
-def _bench_step(benchmark, tr):
-    cfg = ModelConfig(tr=tr)
-    depth, intensity = _hr_sequence()
-    make_batch = sequence_batches(depth, intensity, tr, CPU)
+def _bench_step(benchmark, tr, *, clip_outputs=None):
+    """The train step of the window form, or (clip_outputs K) of the sequence form on clips of 2R + K frames."""
+    train_cfg, frames = CPU, 1
+    if clip_outputs is None:
+        cfg = ModelConfig(tr=tr)
+        depth, intensity = _hr_sequence()
+        make_batch = sequence_batches(depth, intensity, tr, CPU)
+    else:
+        cfg = ModelConfig(tr=tr, temporal="sequence")
+        train_cfg = dataclasses.replace(CPU, clip_frames=2 * (3 + tr) + clip_outputs)
+        depth, intensity = _hr_sequence(train_cfg.clip_frames + 2)
+        make_batch = sequence_clips(depth, intensity, train_cfg.clip_frames, train_cfg)
+        frames = clip_outputs
     params, state = init_model(jax.random.key(0), cfg)
     carry = [params, state, adam_init(params), 0]
-    step_fn = make_train_step(cfg, CPU, make_batch, mesh=None)
+    step_fn = make_train_step(cfg, train_cfg, make_batch, mesh=None)
 
     def one():
         p, s, o, i = carry
@@ -57,6 +70,7 @@ def _bench_step(benchmark, tr):
     one()  # compile
     benchmark.pedantic(one, rounds=3 if tr else 10, iterations=1)
     benchmark.extra_info["examples_per_s"] = CPU.batch_size / benchmark.stats["mean"]
+    benchmark.extra_info["frames_per_s"] = CPU.batch_size * frames / benchmark.stats["mean"]
     benchmark.extra_info["patch"] = CPU.patch
     benchmark.extra_info["backend"] = jax.default_backend()
 
@@ -69,6 +83,13 @@ def test_train_step_tr0(benchmark):
 @pytest.mark.benchmark(group="train_step")
 def test_train_step_tr4(benchmark):
     _bench_step(benchmark, 4)
+
+
+@pytest.mark.benchmark(group="train_step")
+@pytest.mark.parametrize("clip_outputs", [1, 8, 16])
+def test_train_step_sequence_tr4(benchmark, clip_outputs):
+    """The sequence form on clips of 2R + K frames (TR4: 15, 22, 30), loss on the K frames inside."""
+    _bench_step(benchmark, 4, clip_outputs=clip_outputs)
 
 
 @pytest.mark.benchmark(group="data")

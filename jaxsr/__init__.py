@@ -19,9 +19,12 @@ from .config import SensorConfig as SensorConfig
 from .config import TrainConfig as TrainConfig
 from .model import Model as Model
 from .model import apply_model as apply_model
+from .model import apply_model_sequence as apply_model_sequence
+from .model import apply_model_sequence_train as apply_model_sequence_train
 from .model import apply_model_train as apply_model_train
 from .model import count_params as count_params
 from .model import init_model as init_model
+from .inference import Stream as Stream
 from .inference import iter_super_resolve as iter_super_resolve
 from .inference import super_resolve as super_resolve
 from .inference import super_resolve_histograms as super_resolve_histograms
@@ -56,6 +59,8 @@ from .scenes import sample_scene as sample_scene
 from .scenes import sequence as sequence
 from .scenes import test_sequences as test_sequences
 from .scenes import training_clip as training_clip
+from .streaming import stream_init as stream_init
+from .streaming import stream_step as stream_step
 from .sensor import calibrate as calibrate
 from .sensor import denormalise_depth as denormalise_depth
 from .sensor import expected_histograms as expected_histograms

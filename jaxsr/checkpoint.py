@@ -43,6 +43,8 @@ _META = "__metadata__"
 # to live there (`conv3d_impl`, now an argument of `apply_model`). They say nothing about the weights, so
 # reading drops them and those checkpoints still load and resume.
 LEGACY_FIELDS = {ModelConfig: frozenset({"conv3d_impl"})}
+# Fields added since take their defaults when a file lacks them (`config_from_dict`): `ModelConfig.temporal`
+# is "window", the only form older versions trained.
 
 
 def _version() -> str:
@@ -167,7 +169,8 @@ def drop_legacy_fields(cls, d: dict) -> dict:
 
 def config_from_dict(cls, d: dict):
     """Rebuild a config dataclass from `config_to_dict`'s output (JSON lists become tuples); fields of
-    older versions (`LEGACY_FIELDS`) are dropped, any other unknown field raises ValueError."""
+    older versions (`LEGACY_FIELDS`) are dropped, missing fields take their defaults, any other unknown field
+    raises ValueError."""
     d = drop_legacy_fields(cls, d)
     names = {f.name for f in dataclasses.fields(cls)}
     unknown = sorted(set(d) - names)
@@ -220,13 +223,15 @@ def resolve_model_path(path) -> Path:
     raise FileNotFoundError(f"no checkpoint at {str(path)!r} (nor {str(path)!r}.npz, nor bundled weights {p.name!r})")
 
 
-def load_model(path) -> Model:
+def load_model(path, *, temporal: str | None = None) -> Model:
     """Load a `Model` pytree saved by `save_model` (or the model inside a training checkpoint of `jaxsr.train`).
 
     `path` is a file, a file without its `.npz`, or the name of bundled weights ("tr4"). Every array is
     checked against the shapes `init_model` gives for the stored config; raises `ValueError` for a truncated
     file, a missing or unexpected key, a wrong shape or dtype, or an unsupported format version. Returns the
-    `Model` (params and state float32 in memory, config from the file).
+    `Model` (params and state float32 in memory, config from the file). temporal: None (the form the file
+    records; "window" for files older than the field), or "window" / "sequence" to run the same weights in
+    that form (both forms have the same parameters; e.g. `load_model("tr4", temporal="sequence")`).
     """
     path = resolve_model_path(path)
     meta = read_metadata(path)
@@ -236,6 +241,8 @@ def load_model(path) -> Model:
         cfg = config_from_dict(ModelConfig, meta["config"])
     except (TypeError, AttributeError) as e:  # a config that is not a dict, or fields of the wrong type
         raise ValueError(f"checkpoint {str(path)!r}: unreadable model config {meta['config']!r}: {e}") from e
+    if temporal is not None:
+        cfg = dataclasses.replace(cfg, temporal=temporal)
     params_t, state_t = model_template(cfg)
     strict = meta["kind"] == "model"
     tree, _ = load_tree(path, {"params": params_t, "state": state_t}, strict=strict)
@@ -244,16 +251,19 @@ def load_model(path) -> Model:
 
 
 def model_info(path, *, lr_shape=(32, 64)) -> dict:
-    """Describe a model (see `resolve_model_path` for `path`): its file, config, frames per window, parameter
-    count, GFLOP per frame at `lr_shape` (rows, cols) and training card, as a JSON-ready dict."""
+    """Describe a model (see `resolve_model_path` for `path`): its file, config (with its temporal form), frames
+    per window, input radius R (output t from frames t-R .. t+R), parameter count, GFLOP per frame at
+    `lr_shape` (rows, cols) in its form and training card, as a JSON-ready dict."""
     path = resolve_model_path(path)
     model = load_model(path)
     meta = read_metadata(path)
     cfg = model.config
     return {
         "path": str(path),
-        "config": json.loads(json.dumps(meta["config"])),
+        "config": config_to_dict(cfg),  # with the fields older files lack at their defaults
+        "temporal": cfg.temporal,
         "frames_per_window": cfg.frames,
+        "input_radius": cfg.input_radius,
         "parameters": count_params(model.params),
         "lr_shape": list(lr_shape),
         "gflops_per_frame": round(flops_per_frame(cfg, lr_shape) / 1e9, 3),

@@ -71,6 +71,10 @@ jax.tree_util.register_dataclass(
 )
 
 
+# The network's temporal forms (`ModelConfig.temporal`).
+TEMPORAL_FORMS = ("window", "sequence")
+
+
 @dataclasses.dataclass(frozen=True)
 class ModelConfig:
     """The 3+TR-block dynamic-upsampling-filter network (DESIGN.md "The network"). All fields are static.
@@ -83,6 +87,10 @@ class ModelConfig:
     pixel is completed: "edge" (replicate; the default, a deviation from DUF's zero padding, because a zero
     means "depth 0", the nearest possible return) or "zero" (DUF). The config describes what the network
     computes and goes into checkpoints; how it runs (`conv3d_impl`) is an argument of `apply_model`.
+    `temporal` is the form the network was trained in (DESIGN.md "The network"): "window" (the paper: each
+    output from its own window of 2*tr+1 frames, the first `same_blocks` blocks temporally padded) or
+    "sequence" (every block temporally valid, run once over a whole edge-padded sequence: output t from frames
+    t-R .. t+R, R = `input_radius` = same_blocks + tr). Both forms have the same parameters.
     """
 
     tr: int = 0
@@ -96,6 +104,7 @@ class ModelConfig:
     bn_momentum: float = 0.99
     bn_eps: float = 1e-3
     filter_padding: str = "edge"
+    temporal: str = "window"
 
     def __post_init__(self):
         if self.tr < 0:
@@ -106,11 +115,19 @@ class ModelConfig:
             raise ValueError(f"ModelConfig: filter_size must be odd and >= 1, got {self.filter_size}")
         if self.filter_padding not in ("edge", "zero"):
             raise ValueError(f"ModelConfig: filter_padding must be 'edge' or 'zero', got {self.filter_padding!r}")
+        if self.temporal not in TEMPORAL_FORMS:
+            raise ValueError(f"ModelConfig: temporal must be one of {TEMPORAL_FORMS}, got {self.temporal!r}")
 
     @property
     def frames(self) -> int:
         """Input window length 2*tr + 1."""
         return 2 * self.tr + 1
+
+    @property
+    def input_radius(self) -> int:
+        """R: output frame t depends on input frames t-R .. t+R; tr (window form) or same_blocks + tr (sequence
+        form, also the stream's latency in frames)."""
+        return self.tr if self.temporal == "window" else self.same_blocks + self.tr
 
     @property
     def features(self) -> int:
@@ -119,6 +136,13 @@ class ModelConfig:
 
 
 jax.tree_util.register_dataclass(ModelConfig, data_fields=[], meta_fields=[f.name for f in dataclasses.fields(ModelConfig)])
+
+
+# Outputs per training clip of the sequence form when `TrainConfig.clip_frames` is None (L = 2R + this). The TR4
+# train step (batch 2, 16 x 32 LR patches, 2 busy CPU cores) trained 2.2 output frames/s at 1 output per clip
+# (the windowed step: 2.3), 4.3 at 8 (L = 22) and 4.1 at 16 (L = 30): longer clips stop paying at about 8
+# (benchmarks/bench_train.py::test_train_step_sequence_tr4).
+DEFAULT_CLIP_OUTPUTS = 8
 
 
 @dataclasses.dataclass(frozen=True)
@@ -137,6 +161,9 @@ class TrainConfig:
     Validation: the first `val_frames` frames of each sequence in `val_sequences` of
     `jaxsr.scenes.test_sequences` (the three validation sequences, distinct from the test scenes), at each sequence's own SNR, with `val_mean_signal`.
     `seed` fixes everything random (data, initial weights, validation noise).
+    `clip_frames`: LR frames per training clip of a sequence-form model (`ModelConfig(temporal="sequence")`),
+    at least 2R + 1 (R = 3 + tr); the loss covers the clip's L - 2R frames whose inputs all lie inside it. None:
+    2R + `DEFAULT_CLIP_OUTPUTS`. Window-form training ignores it.
     """
 
     batch_size: int = 4
@@ -158,6 +185,7 @@ class TrainConfig:
     val_sequences: tuple[str, ...] = ("val1_street", "val2_road", "val3_courtyard")
     val_mean_signal: float = DEFAULT_MEAN_SIGNAL
     seed: int = 0
+    clip_frames: int | None = None
 
     def __post_init__(self):
         if self.batch_size < 1 or self.examples_per_epoch < self.batch_size:
@@ -171,6 +199,16 @@ class TrainConfig:
             raise ValueError(f"TrainConfig: snr_range must be 0 < lo <= hi, got {self.snr_range}")
         if not (0 < self.mean_signal_range[0] <= self.mean_signal_range[1]):
             raise ValueError(f"TrainConfig: mean_signal_range must be 0 < lo <= hi, got {self.mean_signal_range}")
+
+    def clip_length(self, model: ModelConfig) -> int:
+        """L, the frames per training clip of `model` in the sequence form (`clip_frames` or its default);
+        raises ValueError if it is shorter than 2R + 1."""
+        r = model.same_blocks + model.tr
+        frames = 2 * r + DEFAULT_CLIP_OUTPUTS if self.clip_frames is None else self.clip_frames
+        if frames < 2 * r + 1:
+            raise ValueError(f"TrainConfig: clip_frames must be at least 2R + 1 = {2 * r + 1} for tr={model.tr} "
+                             f"(R = {r}), got {frames}")
+        return frames
 
     @property
     def steps_per_epoch(self) -> int:

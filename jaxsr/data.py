@@ -7,7 +7,9 @@ device and never stored. A source may carry a `description` attribute (a string)
 records. The sources:
 
 - `scene_batches`: random procedural clips (`jaxsr.scenes.training_clip`), the default;
-- `sequence_batches`: windows drawn from HR depth/intensity sequences held in memory (e.g. AirSim recordings).
+- `sequence_batches`: windows drawn from HR depth/intensity sequences held in memory (e.g. AirSim recordings);
+- `scene_clips` and `sequence_clips`: the same, as whole clips of L frames with the ground truth of every frame,
+  `make_batch(key) -> (clips (B, L, h, w), gt (B, L, h*r, w*r))`, for the sequence form of the network.
 
 Both draw a frame SNR and a mean signal log-uniformly per example, simulate photon histograms over the whole
 clip (`simulate_histograms`), extract centre-of-mass depth and optionally crop a random LR patch
@@ -25,7 +27,18 @@ from .scenes import test_sequences, training_clip
 from .sensor import normalise_depth, simulate_histograms
 from .temporal import windows as temporal_windows
 
-__all__ = ["log_uniform", "random_crop", "scene_batches", "sequence_batches", "validation_set"]
+__all__ = [
+    "log_uniform",
+    "random_crop",
+    "scene_batches",
+    "scene_clips",
+    "sequence_batches",
+    "sequence_clips",
+    "validation_set",
+]
+
+_SCENES = "jaxsr.scenes.training_clip -> simulate_histograms -> centre_of_mass"  # the default data, described
+_SENSOR = SensorConfig()  # the default sensor
 
 
 def log_uniform(key, lo: float, hi: float, shape=()):
@@ -35,8 +48,9 @@ def log_uniform(key, lo: float, hi: float, shape=()):
 
 
 def random_crop(key, windows, gt, patch: tuple[int, int] | None, scale: int):
-    """A random LR crop of one example: windows (T, h, w) -> (T, ph, pw) and gt (h*r, w*r) -> (ph*r, pw*r),
-    aligned (LR pixel (y, x) covers HR pixels r*y .. r*y + r - 1). `patch` None returns the inputs."""
+    """A random LR crop of one example: windows (T, h, w) -> (T, ph, pw) and gt (..., h*r, w*r) ->
+    (..., ph*r, pw*r) (one frame or several), aligned (LR pixel (y, x) covers HR pixels r*y .. r*y + r - 1).
+    `patch` None returns the inputs."""
     if patch is None:
         return windows, gt
     ph, pw = patch
@@ -47,20 +61,30 @@ def random_crop(key, windows, gt, patch: tuple[int, int] | None, scale: int):
     y0 = jax.random.randint(ky, (), 0, h - ph + 1)
     x0 = jax.random.randint(kx, (), 0, w - pw + 1)
     windows = jax.lax.dynamic_slice(windows, (0, y0, x0), (t, ph, pw))
-    gt = jax.lax.dynamic_slice(gt, (y0 * scale, x0 * scale), (ph * scale, pw * scale))
+    lead = gt.shape[:-2]
+    gt = jax.lax.dynamic_slice(gt, (0,) * len(lead) + (y0 * scale, x0 * scale), (*lead, ph * scale, pw * scale))
     return windows, gt
 
 
-def _simulate_example(key, depth, intensity, tr: int, train_cfg: TrainConfig, sensor: SensorConfig):
-    """(2tr+1, H, W) HR radial depth + intensity -> (LR window (2tr+1, h, w), GT of the centre (H, W))."""
+def _simulate_clip(key, depth, intensity, train_cfg: TrainConfig, sensor: SensorConfig):
+    """(T, H, W) HR radial depth + intensity -> (LR clip (T, h, w), GT of every frame (T, H, W)), cropped."""
     k_snr, k_sig, k_noise, k_crop = jax.random.split(key, 4)
     snr = log_uniform(k_snr, *train_cfg.snr_range)
     mean_signal = log_uniform(k_sig, *train_cfg.mean_signal_range)
     # Calibration over the whole clip: the laser and the sun do not change from frame to frame.
     counts = simulate_histograms(k_noise, depth, intensity, sensor, snr=snr, mean_signal=mean_signal)
-    window = centre_of_mass(counts, sensor)
-    gt = normalise_depth(depth[tr], sensor)
-    return random_crop(k_crop, window, gt, train_cfg.patch, sensor.scale)
+    clip = centre_of_mass(counts, sensor)
+    gt = normalise_depth(depth, sensor)
+    return random_crop(k_crop, clip, gt, train_cfg.patch, sensor.scale)
+
+
+def _centre_frames(make_clips, tr: int):
+    """A window source from a clip source of 2tr+1 frames: the GT of the centre frame only."""
+    def make_batch(key):
+        windows, gt = make_clips(key)
+        return windows, gt[:, tr]
+
+    return make_batch
 
 
 def scene_batches(tr: int, train_cfg: TrainConfig, *, sensor: SensorConfig = SensorConfig()):
@@ -71,15 +95,26 @@ def scene_batches(tr: int, train_cfg: TrainConfig, *, sensor: SensorConfig = Sen
     LR window; GT = `normalise_depth` of the centre frame; then an optional random crop (`patch`).
     Returns make_batch: key -> (windows (B, 2tr+1, h, w), gt (B, h*r, w*r)).
     """
+    make_batch = _centre_frames(scene_clips(2 * tr + 1, train_cfg, sensor=sensor), tr)
+    make_batch.description = _SCENES
+    return make_batch
+
+
+def scene_clips(frames: int, train_cfg: TrainConfig, *, sensor: SensorConfig = _SENSOR):
+    """Rendered training clips for the sequence form: `make_batch(key)` with `batch_size` random scenes of
+    `frames` frames each, simulated as in `scene_batches` (one SNR, mean signal and crop per clip).
+
+    Returns make_batch: key -> (clips (B, frames, h, w) LR normalised depth, gt (B, frames, h*r, w*r)).
+    """
     def example(key):
         k_scene, k_rest = jax.random.split(key)
-        depth, intensity = training_clip(k_scene, 2 * tr + 1, sensor=sensor, shift_range=train_cfg.motion_range)
-        return _simulate_example(k_rest, depth, intensity, tr, train_cfg, sensor)
+        depth, intensity = training_clip(k_scene, frames, sensor=sensor, shift_range=train_cfg.motion_range)
+        return _simulate_clip(k_rest, depth, intensity, train_cfg, sensor)
 
     def make_batch(key):
         return jax.vmap(example)(jax.random.split(key, train_cfg.batch_size))
 
-    make_batch.description = "jaxsr.scenes.training_clip -> simulate_histograms -> centre_of_mass"
+    make_batch.description = _SCENES
     return make_batch
 
 
@@ -90,19 +125,37 @@ def sequence_batches(depth, intensity, tr: int, train_cfg: TrainConfig, *, senso
     shape in [0, 1]; (H, W) = sensor.hr_shape and T >= 2tr+1. Per example: a random sequence and start
     frame, then the same simulation as `scene_batches`. Returns make_batch: key -> (windows, gt).
     """
+    clips = _sequence_clips(depth, intensity, 2 * tr + 1, train_cfg, sensor, "sequence_batches", "the window 2*tr+1")
+    make_batch = _centre_frames(clips, tr)
+    make_batch.description = clips.description
+    return make_batch
+
+
+def sequence_clips(depth, intensity, frames: int, train_cfg: TrainConfig, *, sensor: SensorConfig = _SENSOR):
+    """Training clips of `frames` frames drawn from HR sequences held in memory, for the sequence form.
+
+    depth, intensity: as for `sequence_batches`, with T >= frames. Per example: a random sequence and start
+    frame, then the same simulation as `scene_clips`. Returns make_batch: key -> (clips (B, frames, h, w),
+    gt (B, frames, h*r, w*r)).
+    """
+    return _sequence_clips(depth, intensity, frames, train_cfg, sensor, "sequence_clips", "the clip")
+
+
+def _sequence_clips(depth, intensity, frames: int, train_cfg: TrainConfig, sensor: SensorConfig, who: str,
+                    what: str):
+    """`sequence_clips`, with the caller's name and what `frames` is for its error messages."""
     depth = jnp.asarray(depth, jnp.float32)
     intensity = jnp.asarray(intensity, jnp.float32)
     if depth.ndim == 3:
         depth, intensity = depth[None], intensity[None]
     if depth.ndim != 4 or depth.shape != intensity.shape or depth.shape[-2:] != tuple(sensor.hr_shape):
         raise ValueError(
-            f"sequence_batches: expected depth and intensity of equal shape (N, T, {sensor.hr_shape[0]}, "
+            f"{who}: expected depth and intensity of equal shape (N, T, {sensor.hr_shape[0]}, "
             f"{sensor.hr_shape[1]}), got {depth.shape} and {intensity.shape}"
         )
     n, t = depth.shape[:2]
-    frames = 2 * tr + 1
     if t < frames:
-        raise ValueError(f"sequence_batches: sequences have {t} frames, fewer than the window 2*tr+1 = {frames}")
+        raise ValueError(f"{who}: sequences have {t} frames, fewer than {what} = {frames}")
 
     def example(key):
         k_seq, k_start, k_rest = jax.random.split(key, 3)
@@ -110,7 +163,7 @@ def sequence_batches(depth, intensity, tr: int, train_cfg: TrainConfig, *, senso
         s = jax.random.randint(k_start, (), 0, t - frames + 1)
         d = jax.lax.dynamic_slice(depth[i], (s, 0, 0), (frames, *depth.shape[2:]))
         a = jax.lax.dynamic_slice(intensity[i], (s, 0, 0), (frames, *depth.shape[2:]))
-        return _simulate_example(k_rest, d, a, tr, train_cfg, sensor)
+        return _simulate_clip(k_rest, d, a, train_cfg, sensor)
 
     def make_batch(key):
         return jax.vmap(example)(jax.random.split(key, train_cfg.batch_size))
@@ -128,7 +181,8 @@ def validation_set(key, tr: int, train_cfg: TrainConfig, *, sensor: SensorConfig
 
     sequences: {name: seq with fields depth, intensity (T, H, W) and snr}; default
     `jaxsr.scenes.test_sequences(n_frames=train_cfg.val_frames)` restricted to `train_cfg.val_sequences`.
-    Returns {"windows": (N, 2tr+1, h, w), "gt": (N, H, W), "lr": (N, h, w) centre frames, "names": [...]}.
+    Returns {"windows": (N, 2tr+1, h, w), "gt": (N, H, W), "lr": (N, h, w) centre frames, "names": [...],
+    "lengths": [frames of each sequence, in order]} (the sequence form validates on "lr" sequence by sequence).
     """
     if sequences is None:
         sequences = test_sequences(n_frames=train_cfg.val_frames, names=train_cfg.val_sequences or None, sensor=sensor)
@@ -146,4 +200,5 @@ def validation_set(key, tr: int, train_cfg: TrainConfig, *, sensor: SensorConfig
         windows.append(temporal_windows(lr, tr))
         gts.append(normalise_depth(depth, sensor))
         lrs.append(lr)
-    return {"windows": jnp.concatenate(windows), "gt": jnp.concatenate(gts), "lr": jnp.concatenate(lrs), "names": names}
+    return {"windows": jnp.concatenate(windows), "gt": jnp.concatenate(gts), "lr": jnp.concatenate(lrs), "names": names,
+            "lengths": [int(lr.shape[0]) for lr in lrs]}

@@ -6,8 +6,12 @@ transferred once rather than 2 tr + 1 times. Every batch has the same shape (the
 repeating the final frame), so a model compiles once per frame size. At most `batch_size + 2 tr` LR frames
 and two batches of HR frames are held, however long the sequence is.
 
-With several devices (e.g. the host's cores exposed as CPU devices by `use_cpu_cores`), each batch is split
-over them. The compiled call uses `jaxsr.compiler_options()` (on CPU, XLA's own convolutions, which keep both
+A model in the sequence form (`ModelConfig(temporal="sequence")`) runs the same loop with R = 3 + tr in place of
+tr: each chunk of `batch_size + 2R` frames goes through `apply_model_sequence` ("valid") once, neighbouring chunks
+overlapping by 2R frames. `Stream` takes live input one frame at a time instead, with a latency of R frames.
+
+With several devices (e.g. the host's cores exposed as CPU devices by `use_cpu_cores`), each batch of windows is
+split over them (a sequence chunk runs on one device, its convolutions on all cores). The compiled call uses `jaxsr.compiler_options()` (on CPU, XLA's own convolutions, which keep both
 cores busy on one frame; benchmarks/bench_inference.py::test_network_tr4_one_window).
 """
 
@@ -25,13 +29,19 @@ from jax.sharding import PartitionSpec as P
 
 from ._checks import require_normalised_depth
 from .config import SensorConfig
-from .model import Model, apply_model
+from .model import Model, apply_model, apply_model_sequence, sequence_radius
 from .peaks import centre_of_mass
 from .runtime import compiler_options
+from .streaming import stream_init, stream_step
 
 # Frames per device and batch when `batch_size=None`: on XLA:CPU larger batches are no faster per frame
 # (benchmarks/bench_inference.py), and one frame per device keeps the latency of a stream low.
 DEFAULT_BATCH_SIZE = 1
+# Output frames per compiled call of a sequence-form model when `batch_size=None` (fewer for a shorter array):
+# a chunk computes 2R frames more than it returns, so longer chunks waste less. 32 frames from histograms in
+# one chunk (TR4: 46 LR frames) ran 1.1-1.2x faster than `Stream`'s per-frame step (a `lax.scan` of that step
+# no faster than the loop) and TR4 3.1x faster than the window form (experiments/results/sequence_form.md).
+DEFAULT_SEQUENCE_CHUNK = 32
 
 
 def _batch_sharding(batch_size: int) -> NamedSharding | None:
@@ -43,8 +53,12 @@ def _batch_sharding(batch_size: int) -> NamedSharding | None:
 
 
 def _windows_through_model(model: Model, chunk, sharding=None, conv3d_impl="auto"):
-    """chunk (B + 2 tr, h, w) -> (B, h r, w r): the centre frame of each of the B windows of 2 tr + 1 frames,
-    the windows split over `sharding`'s devices (the model and chunk are replicated)."""
+    """chunk (B + 2 R, h, w) -> (B, h r, w r), R = `input_radius`. Window form: the centre frame of each of the
+    B windows of 2 tr + 1 frames, the windows split over `sharding`'s devices (the model and chunk are
+    replicated). Sequence form: the B outputs of the chunk, "valid" (`apply_model_sequence`)."""
+    if model.config.temporal == "sequence":
+        return apply_model_sequence(model.params, model.state, chunk[None], model.config, padding="valid",
+                                    conv3d_impl=conv3d_impl)[0]
     n = model.config.frames
     b = chunk.shape[0] - n + 1
     windows = chunk[jnp.arange(b)[:, None] + jnp.arange(n)[None, :]]
@@ -58,6 +72,15 @@ def _infer_chunk():
     """`_windows_through_model`, jitted once the backend (and so its `compiler_options`) is known."""
     return jax.jit(_windows_through_model, static_argnames=("sharding", "conv3d_impl"),
                    compiler_options=compiler_options())
+
+
+def _default_batch_size(frames, sequence_form: bool) -> int:
+    """Frames per compiled call when the caller gives none: one per local device (window form), or a chunk of
+    `DEFAULT_SEQUENCE_CHUNK` but no longer than `frames` when it has a length (sequence form)."""
+    if not sequence_form:
+        return DEFAULT_BATCH_SIZE * jax.local_device_count()
+    n = len(frames) if hasattr(frames, "__len__") else DEFAULT_SEQUENCE_CHUNK
+    return max(1, min(n, DEFAULT_SEQUENCE_CHUNK))
 
 
 def _check_frame(frame, shape, index):
@@ -74,23 +97,27 @@ def iter_super_resolve(model: Model, frames: Iterable, *, batch_size: int | None
     """Super-resolve a stream of LR frames, yielding HR frames in order, in bounded memory.
 
     frames: an iterable of (h, w) LR normalised depth frames (0..1, 1 or NaN = no return), e.g. a generator reading
-    files one by one. Frame t is the centre of the window t - tr .. t + tr, edge-replicated at both ends of
-    the stream (as `jaxsr.temporal.windows`), so frame t is yielded once frame t + tr has arrived (or the
-    stream has ended). batch_size: frames per compiled call (None: `DEFAULT_BATCH_SIZE` per local device);
-    split over the local devices when they divide it. conv3d_impl: how the convolutions run (see `apply_model`).
+    files one by one. In the model's form (`model.config.temporal`): frame t is computed from frames t - R ..
+    t + R, R = `model.config.input_radius` (tr for the window form, 3 + tr for the sequence form),
+    edge-replicated at both ends of the stream (as `jaxsr.temporal.windows`), so frame t is yielded once frame
+    t + R has arrived (or the stream has ended), `batch_size` at a time. batch_size: frames per compiled call
+    (None: `DEFAULT_BATCH_SIZE` per local device, split over the local devices when they divide it; sequence
+    form: `DEFAULT_SEQUENCE_CHUNK`, or the length of a shorter list or array). conv3d_impl: how the
+    convolutions run (see `apply_model`).
     Yields (h r, w r) float32 NumPy arrays of HR normalised depth (unclipped network output). NaN is read as
     no return (1.0) and values within 1e-6 of [0, 1] are clipped to it; raises ValueError for a frame of
     another shape than the first, or with values further outside [0, 1] (metres, negated, inf: the message
     names the range seen; `jaxsr.normalise_depth` converts metres).
     """
-    batch_size = DEFAULT_BATCH_SIZE * jax.local_device_count() if batch_size is None else int(batch_size)
+    sequence_form = model.config.temporal == "sequence"
+    batch_size = _default_batch_size(frames, sequence_form) if batch_size is None else int(batch_size)
     if batch_size < 1:
         raise ValueError(f"super_resolve: batch_size must be >= 1, got {batch_size}")
-    sharding = _batch_sharding(batch_size)
+    sharding = None if sequence_form else _batch_sharding(batch_size)
     if sharding is not None:  # replicate the weights once, not on every call
         replicated = NamedSharding(sharding.mesh, P())
         model = jax.device_put(model, replicated)
-    tr = model.config.tr
+    tr = model.config.input_radius  # the loop below needs only the radius: tr, or R in the sequence form
     held = deque()  # LR frames first_held .. ; frame `first_held` is the oldest any pending window needs
     first_held, next_out, n_seen, shape, pending = 0, 0, 0, None, None
 
@@ -101,10 +128,12 @@ def iter_super_resolve(model: Model, frames: Iterable, *, batch_size: int | None
 
     def run(count, last):
         """Dispatch (asynchronously) windows next_out .. next_out + count - 1, padded to batch_size by
-        repeating the final frame so that every call has the same shape."""
+        repeating the final frame so that every call has the same shape (sequence form: a last, shorter
+        chunk to the next power of two, so that a long chunk does not run for a few frames)."""
         chunk = np.stack([frame(i, last) for i in range(next_out - tr, next_out + count + tr)])
-        if count < batch_size:
-            chunk = np.concatenate([chunk, np.repeat(chunk[-1:], batch_size - count, 0)])
+        size = min(batch_size, 1 << (count - 1).bit_length()) if sequence_form else batch_size
+        if count < size:
+            chunk = np.concatenate([chunk, np.repeat(chunk[-1:], size - count, 0)])
         chunk = jnp.asarray(chunk) if sharding is None else jax.device_put(chunk, replicated)
         return _infer_chunk()(model, chunk, sharding, conv3d_impl), count
 
@@ -142,8 +171,9 @@ def iter_super_resolve(model: Model, frames: Iterable, *, batch_size: int | None
 def super_resolve(model: Model, lr_seq, *, batch_size: int | None = None, conv3d_impl: str = "auto") -> np.ndarray:
     """Super-resolve a whole LR depth sequence: (T, h, w) -> (T, h r, w r) normalised depth (NumPy, float32).
 
-    Each frame is the centre of an edge-replicated window of 2 tr + 1 frames (`jaxsr.temporal.windows`); the
-    result equals `apply_model` on those windows (`conv3d_impl` is passed to it). Memory on the device is
+    In the model's form: each frame is the centre of an edge-replicated window of 2 tr + 1 frames
+    (`jaxsr.temporal.windows`) and the result equals `apply_model` on those windows, or (sequence form) the
+    result equals `apply_model_sequence` on the whole sequence (`conv3d_impl` is passed on). Memory on the device is
     bounded by the batch (see `iter_super_resolve`); the HR result is assembled on the host. `lr_seq` is
     normalised depth in [0, 1] (1 or NaN = no return; checked as in `iter_super_resolve`). For a
     differentiable, traceable version, call `apply_model(params, state, jaxsr.windows(lr_seq, tr), cfg)`.
@@ -206,8 +236,68 @@ def super_resolve_histograms(model: Model, counts, sensor: SensorConfig = Sensor
                          f"{counts.shape}")
     r = model.config.scale
     out = np.empty((counts.shape[0], counts.shape[1] * r, counts.shape[2] * r), np.float32)
+    if batch_size is None:  # the frames' count is known here, not in the stream of centre-of-mass frames
+        batch_size = _default_batch_size(counts, model.config.temporal == "sequence")
     stream = iter_super_resolve(model, iter_centre_of_mass(counts, sensor), batch_size=batch_size,
                                 conv3d_impl=conv3d_impl)
     for t, hr in enumerate(stream):
         out[t] = hr
     return out
+
+
+@functools.cache
+def _stream_step():
+    """`stream_step`, jitted once the backend (and so its `compiler_options`) is known."""
+    return jax.jit(stream_step, static_argnames=("cfg", "conv3d_impl"), compiler_options=compiler_options())
+
+
+class Stream:
+    """Live super-resolution in the sequence form: push LR frames one at a time, get each HR frame R frames later.
+
+    `push(frame)` takes an (h, w) LR normalised depth frame and returns the (h r, w r) HR frame of R frames
+    earlier (R = 3 + tr, `jaxsr.model.sequence_radius`), or None during the first R frames; `flush()` ends the
+    stream and returns the last min(T, R) HR frames (a list), after which the next `push` starts a new stream.
+    The ends are edge-replicated, so the frames equal `super_resolve` of a sequence-form model (and
+    `apply_model_sequence`) to float32 rounding. Memory is a fixed set of per-layer buffers (`stream_init`),
+    whatever the length of the stream. The weights run in the sequence form whatever `model.config.temporal`
+    says (a windowed checkpoint streams too, with the sequence form's accuracy). Outputs are float32 NumPy,
+    unclipped. Frames are checked as in `iter_super_resolve` (NaN = no return); raises ValueError for a frame of
+    another shape than the first or with values outside [0, 1], and for a flush before any frame.
+    """
+
+    def __init__(self, model: Model, *, conv3d_impl: str = "auto"):
+        self.model = model
+        self.conv3d_impl = conv3d_impl
+        self.latency = sequence_radius(model.config)
+        self._reset()
+
+    def _reset(self):
+        self._buffers, self._shape, self._last, self._fed = None, None, None, 0
+
+    def _step(self, frame) -> np.ndarray | None:
+        """Feed one padded-sequence frame; the output of step n is frame n - 2R of the sequence."""
+        m = self.model
+        self._buffers, hr = _stream_step()(m.params, m.state, self._buffers, jnp.asarray(frame)[None], m.config,
+                                           conv3d_impl=self.conv3d_impl)
+        self._fed += 1
+        return np.asarray(hr[0]) if self._fed > 2 * self.latency else None
+
+    def push(self, frame) -> np.ndarray | None:
+        """Feed LR frame t (h, w); returns HR frame t - R (h r, w r), or None while t < R."""
+        frame = _check_frame(frame, self._shape, self._fed - self.latency if self._shape else 0)
+        if self._shape is None:  # a new stream: R copies of the first frame before it (edge padding)
+            self._shape = frame.shape
+            self._buffers = stream_init(self.model.config, frame.shape)
+            for _ in range(self.latency):
+                self._step(frame)
+        self._last = frame
+        return self._step(frame)
+
+    def flush(self) -> list[np.ndarray]:
+        """End the stream: R copies of the last frame (edge padding) give the HR frames still owed, a list of
+        min(T, R) (h r, w r) arrays, T the frames pushed. Raises ValueError if no frame was pushed."""
+        if self._shape is None:
+            raise ValueError("Stream.flush: no frame was pushed; a stream needs at least one LR frame (h, w)")
+        out = [hr for hr in (self._step(self._last) for _ in range(self.latency)) if hr is not None]
+        self._reset()
+        return out

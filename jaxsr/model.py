@@ -27,7 +27,18 @@ from .layers import (
     init_batch_norm,
 )
 
-__all__ = ["Model", "init_model", "apply_model", "apply_model_train", "count_params", "flops_per_frame"]
+__all__ = [
+    "Model",
+    "init_model",
+    "apply_model",
+    "apply_model_train",
+    "apply_model_sequence",
+    "apply_model_sequence_train",
+    "edge_pad_sequence",
+    "sequence_radius",
+    "count_params",
+    "flops_per_frame",
+]
 
 
 def init_model(key, cfg: ModelConfig) -> tuple[dict, dict]:
@@ -97,37 +108,54 @@ def count_params(params) -> int:
     return sum(math.prod(x.shape) for x in jax.tree_util.tree_leaves(params))
 
 
-def flops_per_frame(cfg: ModelConfig, lr_shape=(32, 64)) -> int:
+def flops_per_frame(cfg: ModelConfig, lr_shape=(32, 64), *, clip_frames: int | None = None) -> int:
     """Floating-point operations (2 per multiply-add) of the convolutions and the dynamic filter for one output
     frame of `lr_shape` (h, w) LR pixels; batch norm, ReLU and softmax (under 1 %) are not counted.
 
-    Counts the network's arithmetic: "same" blocks on all 2 tr + 1 frames, temporally valid blocks on the
-    frames they keep, taps that fall in the temporal zero padding skipped (as `conv3d_taps` computes it;
+    In the form `cfg.temporal` says. "window": "same" blocks on all 2 tr + 1 frames, temporally valid blocks on
+    the frames they keep, taps that fall in the temporal zero padding skipped (as `conv3d_taps` computes it;
     `conv3d_stacked` layers compute more products, `layers.stacked_use` says how many reach an output).
+    "sequence": with clip_frames None, a long sequence or a stream (every layer computes each frame once);
+    with clip_frames = L >= 2R + 1, one pass over a clip of L frames ("valid", L - 2R outputs) per output.
+    Returns an int.
     """
     shapes = _conv_shapes(cfg)
-    macs, t = 0, cfg.frames
+    n_blocks = cfg.same_blocks + cfg.tr
 
-    def conv(key, t_out, taps_per_frame):
+    def conv(key, frames):
         (_, kh, kw), cin, cout = shapes[key]
-        return taps_per_frame * t_out * kh * kw * cin * cout
+        return frames * kh * kw * cin * cout
 
-    def same_taps(t):  # taps inside a T-frame window, zero padding 1 at each end
-        return sum(min(i + 1, t - 1) - max(i - 1, 0) + 1 for i in range(t)) / t
-
-    macs += conv(("stem", None, None), t, 1)
-    for i in range(cfg.same_blocks + cfg.tr):
-        macs += conv(("blocks", i, "conv1"), t, 1)
-        if i < cfg.same_blocks:
-            macs += conv(("blocks", i, "conv2"), t, same_taps(t))
+    if cfg.temporal == "window":
+        if clip_frames is not None:
+            raise ValueError("flops_per_frame: clip_frames applies to the sequence form only")
+        t, outputs = cfg.frames, 1
+        stem_t, block_t, conv2_taps = t, [], []
+        for i in range(n_blocks):
+            block_t.append(t)
+            if i < cfg.same_blocks:  # taps inside a T-frame window, zero padding 1 at each end
+                conv2_taps.append(sum(min(j + 1, t - 1) - max(j - 1, 0) + 1 for j in range(t)))
+            else:
+                t -= 2
+                conv2_taps.append(3 * t)
+    else:
+        r = sequence_radius(cfg)
+        if clip_frames is None:
+            stem_t, block_t, conv2_taps, outputs = 1, [1] * n_blocks, [3] * n_blocks, 1
+        elif clip_frames < 2 * r + 1:
+            raise ValueError(f"flops_per_frame: a clip needs at least 2R + 1 = {2 * r + 1} frames, got {clip_frames}")
         else:
-            t -= 2
-            macs += conv(("blocks", i, "conv2"), t, 3)
-    macs += conv(("head", None, "conv"), 1, 1)
+            stem_t, outputs = clip_frames, clip_frames - 2 * r
+            block_t = [clip_frames - 2 * i for i in range(n_blocks)]
+            conv2_taps = [3 * (t - 2) for t in block_t]
+    macs = conv(("stem", None, None), stem_t)
+    for i in range(n_blocks):
+        macs += conv(("blocks", i, "conv1"), block_t[i]) + conv(("blocks", i, "conv2"), conv2_taps[i])
+    macs += conv(("head", None, "conv"), outputs)
     for group in ("residual", "filter"):
-        macs += conv((group, None, "conv1"), 1, 1) + conv((group, None, "conv2"), 1, 1)
-    macs += cfg.filter_size**2 * cfg.scale**2  # the dynamic filter, per LR pixel
-    return int(round(2 * macs * lr_shape[0] * lr_shape[1]))
+        macs += conv((group, None, "conv1"), outputs) + conv((group, None, "conv2"), outputs)
+    macs += outputs * cfg.filter_size**2 * cfg.scale**2  # the dynamic filter, per LR pixel
+    return int(round(2 * macs * lr_shape[0] * lr_shape[1] / outputs))
 
 
 def _check_inputs(windows, cfg: ModelConfig, conv3d_impl: str, who: str):
@@ -162,27 +190,118 @@ def apply_model_train(params, state, windows, cfg: ModelConfig, *, conv3d_impl: 
     return _forward(params, state, windows, cfg, train=True, impl=conv3d_impl)
 
 
+def sequence_radius(cfg: ModelConfig) -> int:
+    """R = same_blocks + tr: in the sequence form output t depends on input frames t-R .. t+R (an int)."""
+    return cfg.same_blocks + cfg.tr
+
+
+def _check_sequence(lr_seq, cfg: ModelConfig, padding: str, conv3d_impl: str, who: str):
+    r = sequence_radius(cfg)
+    if padding not in ("edge", "valid"):
+        raise ValueError(f"{who}: padding must be 'edge' or 'valid', got {padding!r}")
+    need = 1 if padding == "edge" else 2 * r + 1
+    if lr_seq.ndim != 4 or lr_seq.shape[1] < need:
+        raise ValueError(
+            f"{who}: expected an LR sequence (B, T, H, W) with T >= {need} for tr={cfg.tr} and padding "
+            f"{padding!r} (R = {r}), got shape {lr_seq.shape}"
+        )
+    if conv3d_impl not in CONV3D_IMPLS:
+        raise ValueError(f"{who}: conv3d_impl must be one of {', '.join(map(repr, CONV3D_IMPLS))}, got {conv3d_impl!r}")
+
+
+def apply_model_sequence(params, state, lr_seq, cfg: ModelConfig, *, padding: str = "edge",
+                         conv3d_impl: str = "auto"):
+    """The network in its sequence form, BN in inference mode: every output frame of a sequence in one pass.
+
+    All 3 + tr blocks are temporally valid, so with R = `sequence_radius(cfg)` = same_blocks + tr, output t is
+    the network applied to input frames t-R .. t+R (the dynamic filter on frame t) and neighbouring outputs
+    share every intermediate frame. Same parameters as `apply_model` (any checkpoint runs in either form).
+    lr_seq: (B, T, H, W) LR normalised depth. padding: "edge" (the ends padded with R copies of the first and
+    last frame; T >= 1) returns (B, T, H*r, W*r); "valid" (no padding; T >= 2R + 1) returns the T - 2R frames
+    whose inputs all lie inside the sequence, (B, T - 2R, H*r, W*r). conv3d_impl: as for `apply_model`.
+    """
+    _check_sequence(lr_seq, cfg, padding, conv3d_impl, "apply_model_sequence")
+    hr, _ = _forward_sequence(params, state, lr_seq, cfg, padding=padding, train=False, impl=conv3d_impl)
+    return hr
+
+
+def apply_model_sequence_train(params, state, lr_seq, cfg: ModelConfig, *, padding: str = "valid",
+                               conv3d_impl: str = "auto"):
+    """The sequence form as it trains: BN normalises with the statistics of the whole clip, (B, T', H, W).
+
+    lr_seq: (B, T, H, W) training clips; padding: "valid" (default: only outputs whose inputs all lie inside
+    the clip, T' = T - 2R) or "edge" (T' = T), as for `apply_model_sequence`. Returns (hr (B, T', H*r, W*r),
+    new_state), new_state the running BN statistics moved towards the clip's (same structure as `state`).
+    """
+    _check_sequence(lr_seq, cfg, padding, conv3d_impl, "apply_model_sequence_train")
+    return _forward_sequence(params, state, lr_seq, cfg, padding=padding, train=True, impl=conv3d_impl)
+
+
+def edge_pad_sequence(lr_seq, radius: int):
+    """(B, T, ...) -> (B, T + 2 radius, ...): `radius` copies of the first frame before, of the last after."""
+    first = jnp.repeat(lr_seq[:, :1], radius, axis=1)
+    last = jnp.repeat(lr_seq[:, -1:], radius, axis=1)
+    return jnp.concatenate([first, lr_seq, last], axis=1)
+
+
+def _forward_sequence(params, state, lr_seq, cfg: ModelConfig, *, padding: str, train: bool, impl: str):
+    """The sequence form's body for both BN modes: (hr (B, T', H*r, W*r), new_state)."""
+    r = sequence_radius(cfg)
+    x_in = edge_pad_sequence(lr_seq, r) if padding == "edge" else lr_seq
+    bn = {"train": train, "momentum": cfg.bn_momentum, "eps": cfg.bn_eps}
+    x = _stem(params, x_in, impl=impl)
+    new_state = {"blocks": []}
+    for p, s in zip(params["blocks"], state["blocks"]):
+        x, s_i = _block(p, s, x, valid=True, bn=bn, impl=impl)
+        new_state["blocks"].append(s_i)
+    hr, new_state["head"] = _head(params, state, x, x_in[:, r : x_in.shape[1] - r], cfg, bn=bn, impl=impl)
+    return hr, new_state
+
+
 def _forward(params, state, windows, cfg: ModelConfig, *, train: bool, impl: str):
-    """The network's body for both BN modes: (hr (B, H*r, W*r), new_state)."""
+    """The windowed network for both BN modes: (hr (B, H*r, W*r), new_state)."""
     bn = dict(train=train, momentum=cfg.bn_momentum, eps=cfg.bn_eps)
-    x = windows[..., None]  # (B, T, H, W, 1)
-    x = conv3d(x, params["stem"]["w"], params["stem"]["b"], padding="same", impl=impl)
+    x = _stem(params, windows, impl=impl)
     new_state = {"blocks": []}
     for i, (p, s) in enumerate(zip(params["blocks"], state["blocks"])):
-        valid = i >= cfg.same_blocks  # temporally unpadded: T drops by 2
-        y, s1 = batch_norm(p["bn1"], s["bn1"], x, **bn)
-        y = conv3d(jax.nn.relu(y), p["conv1"]["w"], p["conv1"]["b"])
-        y, s2 = batch_norm(p["bn2"], s["bn2"], y, **bn)
-        pad = ((0, 0) if valid else (1, 1), (1, 1), (1, 1))
-        y = conv3d(jax.nn.relu(y), p["conv2"]["w"], p["conv2"]["b"], padding=pad, impl=impl)
-        if valid:
-            x = x[:, 1:-1]
-        x = jnp.concatenate([x, y], axis=-1)
-        new_state["blocks"].append({"bn1": s1, "bn2": s2})
+        x, s_i = _block(p, s, x, valid=i >= cfg.same_blocks, bn=bn, impl=impl)
+        new_state["blocks"].append(s_i)
+    hr, new_state["head"] = _head(params, state, x, windows[:, cfg.tr : cfg.tr + 1], cfg, bn=bn, impl=impl)
+    return hr[:, 0], new_state  # T = 1 after tr valid blocks
+
+
+def _stem(params, lr, *, impl: str):
+    """lr (B, T, H, W) -> stem features (B, T, H, W, base): conv 1x3x3, spatial zero padding."""
+    return conv3d(lr[..., None], params["stem"]["w"], params["stem"]["b"], padding="same", impl=impl)
+
+
+def _block_input(p, s, x, *, bn: dict):
+    """The per-frame part of a dense block: BN, ReLU, conv 1x1x1, BN, ReLU; (..., F) -> ((..., F), (s1, s2))."""
+    y, s1 = batch_norm(p["bn1"], s["bn1"], x, **bn)
+    y = conv3d(jax.nn.relu(y), p["conv1"]["w"], p["conv1"]["b"])
+    y, s2 = batch_norm(p["bn2"], s["bn2"], y, **bn)
+    return jax.nn.relu(y), {"bn1": s1, "bn2": s2}
+
+
+def _block(p, s, x, *, valid: bool, bn: dict, impl: str):
+    """One dense block: x (B, T, H, W, F) -> (B, T', H, W, F + growth) and its new BN state.
+
+    `valid`: the 3x3x3 conv is not padded in time (T' = T - 2) and the skip path is cropped to the middle
+    frames; otherwise T' = T (temporal zero padding 1).
+    """
+    y, new_state = _block_input(p, s, x, bn=bn)
+    pad = ((0, 0) if valid else (1, 1), (1, 1), (1, 1))
+    y = conv3d(y, p["conv2"]["w"], p["conv2"]["b"], padding=pad, impl=impl)
+    if valid:
+        x = x[:, 1:-1]
+    return jnp.concatenate([x, y], axis=-1), new_state
+
+
+def _head(params, state, x, centre, cfg: ModelConfig, *, bn: dict, impl: str):
+    """Features (B, T, H, W, F) and the LR frames they belong to, centre (B, T, H, W) -> (hr (B, T, H*r, W*r),
+    new head BN state): head conv, residual and filter branches, dynamic upsampling of `centre`."""
     h, sh = batch_norm(params["head"]["bn"], state["head"]["bn"], x, **bn)
-    new_state["head"] = {"bn": sh}
     h = jax.nn.relu(conv3d(jax.nn.relu(h), params["head"]["conv"]["w"], params["head"]["conv"]["b"], impl=impl))
-    h = h[:, 0]  # T = 1 after tr valid blocks: (B, H, W, head)
 
     def dense(p, z):
         return z @ p["w"][0, 0, 0] + p["b"]
@@ -191,10 +310,11 @@ def _forward(params, state, windows, cfg: ModelConfig, *, train: bool, impl: str
     logits = dense(params["filter"]["conv2"], jax.nn.relu(dense(params["filter"]["conv1"], h)))
     r2 = cfg.scale * cfg.scale
     filters = jax.nn.softmax(logits.reshape(*logits.shape[:-1], cfg.filter_size**2, r2), axis=-2)
-    centre = windows[:, cfg.tr]
-    sub = dynamic_upsample(centre, filters, padding=cfg.filter_padding) + residual  # (B, H, W, r^2)
-    hr = depth_to_space(sub, cfg.scale)[..., 0]
-    return hr, new_state
+    b, t = centre.shape[:2]
+    sub = dynamic_upsample(centre.reshape(b * t, *centre.shape[2:]), filters.reshape(b * t, *filters.shape[2:]),
+                           padding=cfg.filter_padding)
+    sub = sub.reshape(b, t, *sub.shape[1:]) + residual  # (B, T, H, W, r^2)
+    return depth_to_space(sub, cfg.scale)[..., 0], {"bn": sh}
 
 
 @dataclasses.dataclass(frozen=True)

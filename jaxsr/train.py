@@ -1,7 +1,9 @@
 """Training: the Huber loss, the jitted train step (data simulated inside it), validation, and `fit`.
 
 The data come from a source `make_batch(key) -> (windows, gt)` of `jaxsr.data` (default `scene_batches`), run
-inside the jitted step. `fit` runs epochs of `TrainConfig.steps_per_epoch` steps with step decay, validates with
+inside the jitted step; a sequence-form model (`ModelConfig(temporal="sequence")`) trains on clips instead,
+`make_batch(key) -> (clips (B, L, h, w), gt (B, L, H, W))` (default `scene_clips`), with the loss on the L - 2R
+frames whose inputs lie inside the clip and BN statistics over the clip. `fit` runs epochs of `TrainConfig.steps_per_epoch` steps with step decay, validates with
 BN in inference mode, logs to `metrics.jsonl`, writes `best.npz` (a `Model`) and `last.npz` (everything needed
 to resume) after every epoch, and stops early. Data parallelism: pass a `jax.sharding.Mesh` with a "data"
 axis (default: all devices); the batch is split over it and the parameters are replicated.
@@ -27,8 +29,9 @@ from jax.sharding import PartitionSpec as P
 from ._files import write_text_atomic
 from .baselines import bicubic
 from .checkpoint import (
+    config_from_dict,
     config_to_dict,
-    drop_legacy_fields,
+    load_model,
     load_tree,
     model_template,
     read_metadata,
@@ -36,9 +39,10 @@ from .checkpoint import (
     save_tree,
 )
 from .config import ModelConfig, SensorConfig, TrainConfig
-from .data import scene_batches, validation_set
+from .data import scene_batches, scene_clips, validation_set
+from .inference import super_resolve
 from .metrics import psnr
-from .model import Model, apply_model, apply_model_train, init_model
+from .model import Model, apply_model, apply_model_sequence_train, apply_model_train, init_model, sequence_radius
 from .optim import AdamState, adam_init, adam_update, step_decay
 
 __all__ = [
@@ -46,6 +50,7 @@ __all__ = [
     "lr_schedule",
     "make_train_step",
     "evaluate",
+    "evaluate_sequences",
     "data_mesh",
     "fit",
 ]
@@ -84,7 +89,8 @@ def make_train_step(model_cfg: ModelConfig, train_cfg: TrainConfig, make_batch, 
     """The jitted train step: step(params, state, opt_state, key, step) -> (params, state, opt_state, metrics).
 
     Inside one jit: make_batch(key) -> network with BN in training mode -> Huber loss -> gradients -> Adam
-    with lr = `lr_schedule(train_cfg)(step)`. metrics: {"loss", "psnr" (mean over the batch, prediction
+    with lr = `lr_schedule(train_cfg)(step)`. The network runs in `model_cfg.temporal`'s form (see
+    `sequence_loss` for the sequence form's batches). metrics: {"loss", "psnr" (mean over the batch, prediction
     clipped), "lr"}. With a `mesh`, the batch is sharded over its "data" axis and params/state/optimiser
     state are replicated (batch statistics and gradients are reduced over the mesh).
     conv3d_impl: how the network's convolutions run (see `apply_model`).
@@ -106,10 +112,13 @@ def _train_step(model_cfg, train_cfg, make_batch, mesh, conv3d_impl):
         windows, gt = constrain(make_batch(key), P("data"))
 
         def loss_fn(p):
+            if model_cfg.temporal == "sequence":
+                return sequence_loss(p, state, windows, gt, model_cfg, delta=train_cfg.huber_delta,
+                                     conv3d_impl=conv3d_impl)
             hr, new_state = apply_model_train(p, state, windows, model_cfg, conv3d_impl=conv3d_impl)
-            return huber_loss(hr, gt, delta=train_cfg.huber_delta), (new_state, hr)
+            return huber_loss(hr, gt, delta=train_cfg.huber_delta), (new_state, hr, gt)
 
-        (loss, (new_state, hr)), grads = jax.value_and_grad(loss_fn, has_aux=True)(params)
+        (loss, (new_state, hr, gt)), grads = jax.value_and_grad(loss_fn, has_aux=True)(params)
         lr = schedule(step)
         params, opt_state = adam_update(
             grads, opt_state, params, lr=lr, b1=train_cfg.adam_b1, b2=train_cfg.adam_b2, eps=train_cfg.adam_eps
@@ -120,6 +129,21 @@ def _train_step(model_cfg, train_cfg, make_batch, mesh, conv3d_impl):
 
     donate = (0, 1, 2) if jax.default_backend() != "cpu" else ()
     return jax.jit(step_fn, donate_argnums=donate)
+
+
+def sequence_loss(params, state, clips, gt, cfg: ModelConfig, *, delta: float = 0.01, conv3d_impl: str = "auto"):
+    """The sequence form's training loss: mean Huber loss over the frames of each clip whose inputs all lie
+    inside it, BN with the statistics of the whole batch of clips (`apply_model_sequence_train`, "valid").
+
+    clips: (B, L, h, w) LR normalised depth, L >= 2R + 1 (R = 3 + tr); gt: (B, L, h*r, w*r) the ground truth of
+    every frame. Returns (loss (scalar), (new BN state, hr (B, L - 2R, h*r, w*r), gt of those frames)).
+    """
+    r = sequence_radius(cfg)
+    if gt.ndim != 4 or gt.shape[:2] != clips.shape[:2]:
+        raise ValueError(f"sequence_loss: expected gt (B, L, H, W) for clips {clips.shape}, got {gt.shape}")
+    hr, new_state = apply_model_sequence_train(params, state, clips, cfg, padding="valid", conv3d_impl=conv3d_impl)
+    gt = gt[:, r : gt.shape[1] - r]
+    return huber_loss(hr, gt, delta=delta), (new_state, hr, gt)
 
 
 @functools.partial(jax.jit, static_argnames=("cfg", "delta", "conv3d_impl"))
@@ -147,6 +171,44 @@ def evaluate(params, state, windows, gt, cfg: ModelConfig, *, delta: float = 0.0
         losses.append(l)
         psnrs.append(p)
     return {"loss": float(jnp.concatenate(losses)[:n].mean()), "psnr": float(jnp.concatenate(psnrs)[:n].mean())}
+
+
+@jax.jit
+def _frame_scores(hr, gt, delta):
+    return huber_loss(hr, gt, delta=delta, axis=(-2, -1)), psnr(hr, gt)
+
+
+def evaluate_sequences(params, state, lr, gt, cfg: ModelConfig, *, lengths=None, delta: float = 0.01,
+                       conv3d_impl: str = "auto") -> dict:
+    """Validation in the sequence form, BN in inference mode: {"loss": mean Huber, "psnr": mean per-frame PSNR}.
+
+    lr: (N, h, w) LR frames of one or more sequences end to end, `lengths` frames each (None: one sequence);
+    gt: (N, h*r, w*r). Each sequence is super-resolved whole, its ends edge-padded (`super_resolve` of the
+    sequence-form model, in chunks). Returns the dict of two Python floats.
+    """
+    lengths = [lr.shape[0]] if lengths is None else list(lengths)
+    if sum(lengths) != lr.shape[0] or gt.shape[0] != lr.shape[0]:
+        raise ValueError(f"evaluate_sequences: lengths {lengths} must add up to the frames of lr {lr.shape} and "
+                         f"gt {gt.shape}")
+    model = Model(params, state, dataclasses.replace(cfg, temporal="sequence"))
+    losses, psnrs, start = [], [], 0
+    for n in lengths:
+        hr = super_resolve(model, np.asarray(lr[start : start + n]), conv3d_impl=conv3d_impl)
+        l, p = _frame_scores(jnp.asarray(hr), jnp.asarray(gt[start : start + n]), delta)
+        losses.append(l)
+        psnrs.append(p)
+        start += n
+    return {"loss": float(jnp.concatenate(losses).mean()), "psnr": float(jnp.concatenate(psnrs).mean())}
+
+
+def _validate(ts, validation: dict, model_cfg: ModelConfig, train_cfg: TrainConfig, conv3d_impl: str) -> dict:
+    """`evaluate` (window form) or `evaluate_sequences` (sequence form) of the current weights."""
+    if model_cfg.temporal == "sequence":
+        return evaluate_sequences(ts.params, ts.state, validation["lr"], validation["gt"], model_cfg,
+                                  lengths=validation.get("lengths"), delta=train_cfg.huber_delta,
+                                  conv3d_impl=conv3d_impl)
+    return evaluate(ts.params, ts.state, validation["windows"], validation["gt"], model_cfg,
+                    delta=train_cfg.huber_delta, conv3d_impl=conv3d_impl)
 
 
 def _hardware() -> dict:
@@ -230,12 +292,12 @@ def _check_resumable(path: Path, meta: dict, settings: dict):
 
     Everything must match except `epochs`: extending a finished run is a resume, not a new run (the schedule
     depends on decay_epochs and patience, not on the epoch budget). Fields older versions kept in the model
-    config (`checkpoint.LEGACY_FIELDS`) are ignored.
+    config (`checkpoint.LEGACY_FIELDS`) are ignored, fields they lacked take their defaults.
     """
     def flat(model, train):
         return dict(model, **{f"train.{k}": v for k, v in train.items() if k != "epochs"})
 
-    saved = flat(drop_legacy_fields(ModelConfig, meta["config"]), meta["train_config"])
+    saved = flat(config_to_dict(config_from_dict(ModelConfig, meta["config"])), meta["train_config"])
     wanted = flat(settings["config"], settings["train_config"])
     differ = sorted(k for k in saved.keys() | wanted.keys() if saved.get(k) != wanted.get(k))
     if differ:
@@ -245,12 +307,35 @@ def _check_resumable(path: Path, meta: dict, settings: dict):
         )
 
 
+def _initial_weights(k_init, model_cfg: ModelConfig, init) -> tuple[dict, dict]:
+    """(params, state) to start from: drawn with `k_init`, or those of `init` (a `Model` or a checkpoint
+    path), which must have `model_cfg`'s architecture (its temporal form may differ: fine-tuning a windowed
+    model into the sequence form)."""
+    if init is None:
+        return init_model(k_init, model_cfg)
+    model = init if isinstance(init, Model) else load_model(init)
+    if dataclasses.replace(model.config, temporal=model_cfg.temporal) != model_cfg:
+        differ = [k for k, v in config_to_dict(model_cfg).items()
+                  if k != "temporal" and getattr(model.config, k) != v]
+        raise ValueError("fit: the init model's architecture differs from the model to train: "
+                         + ", ".join(f"{k} {getattr(model.config, k)!r} (training {getattr(model_cfg, k)!r})"
+                                     for k in differ))
+    return jax.tree_util.tree_map(jnp.asarray, (model.params, model.state))
+
+
+def _default_data(model_cfg: ModelConfig, train_cfg: TrainConfig, sensor: SensorConfig):
+    """Rendered scenes: windows of 2tr+1 frames (window form) or clips of `train_cfg.clip_length` frames."""
+    if model_cfg.temporal == "sequence":
+        return scene_clips(train_cfg.clip_length(model_cfg), train_cfg, sensor=sensor)
+    return scene_batches(model_cfg.tr, train_cfg, sensor=sensor)
+
+
 def _start_or_resume(last_path: Path, model_cfg: ModelConfig, train_cfg: TrainConfig, settings: dict, *,
-                     k_init, k_data, resume: bool) -> tuple[_TrainState, _Run]:
+                     k_init, k_data, resume: bool, init=None) -> tuple[_TrainState, _Run]:
     """The run saved in `last_path` when resuming from an existing file, else a fresh one (weights from
-    `k_init`, data from `k_data`)."""
+    `init` or drawn with `k_init`, data from `k_data`)."""
     if not (resume and last_path.is_file()):
-        params, state = init_model(k_init, model_cfg)
+        params, state = _initial_weights(k_init, model_cfg, init)
         best = jax.device_get({"params": params, "state": state})
         return _TrainState(params, state, adam_init(params), best, k_data), _Run()
     _check_resumable(last_path, read_metadata(last_path), settings)
@@ -319,12 +404,13 @@ def _training_card(run: _Run, *, train_cfg: TrainConfig, settings: dict, sensor:
         "hardware": _hardware(),
         "validation": {
             "sequences": list(validation.get("names", [])),
-            "frames": int(validation["windows"].shape[0]),
+            "frames": int(validation["gt"].shape[0]),
             "loss": run.best_loss,
             "psnr": run.history[run.best_epoch]["val_psnr"] if run.best_epoch >= 0 else None,
             "bicubic_psnr": bicubic_psnr,
         },
         "train_config": settings["train_config"],
+        "init": settings.get("init"),
         "seed": train_cfg.seed,
     }
 
@@ -357,6 +443,7 @@ def fit(
     callback=None,
     data_description: str | None = None,
     conv3d_impl: str = "auto",
+    init=None,
 ):
     """Train a network; returns (best `Model`, history: list of per-epoch records).
 
@@ -371,6 +458,11 @@ def fit(
     devices when there are more than one), None (no sharding) or a `Mesh` with a "data" axis. callback(record)
     is called after each epoch's checkpoint is written. conv3d_impl: how the network's convolutions run (see
     `apply_model`; not saved, a run may resume with another). Everything random follows `train_cfg.seed`.
+    The network trains in `model_cfg.temporal`'s form: windows, or clips of `train_cfg.clip_length(model_cfg)`
+    frames (default data `scene_clips`; validation on whole edge-padded sequences, `evaluate_sequences`).
+    init: start from these weights instead of random ones (a `Model` or a checkpoint path, the same
+    architecture in either temporal form: e.g. a windowed model fine-tuned into the sequence form); recorded
+    in the training card, ignored when resuming.
     """
     if model_cfg.scale != sensor.scale:
         raise ValueError(f"fit: model scale {model_cfg.scale} differs from sensor scale {sensor.scale}")
@@ -386,15 +478,17 @@ def fit(
     root = jax.random.key(train_cfg.seed)
     k_init, k_data, k_val = (jax.random.fold_in(root, i) for i in range(3))
     if make_batch is None:
-        make_batch = scene_batches(model_cfg.tr, train_cfg, sensor=sensor)
+        make_batch = _default_data(model_cfg, train_cfg, sensor)
     if data_description is None:
         data_description = getattr(make_batch, "description", "user-supplied make_batch")
     if validation is None:
         validation = validation_set(k_val, model_cfg.tr, train_cfg, sensor=sensor)
     val_bicubic = _bicubic_psnr(validation, model_cfg.scale)
     settings = _settings(model_cfg, train_cfg)
+    if init is not None:
+        settings["init"] = str(init) if not isinstance(init, Model) else "a Model passed to fit"
     ts, run = _start_or_resume(out / "last.npz", model_cfg, train_cfg, settings, k_init=k_init, k_data=k_data,
-                               resume=resume)
+                               resume=resume, init=init)
     step_fn = make_train_step(model_cfg, train_cfg, make_batch, mesh=mesh, conv3d_impl=conv3d_impl)
     if mesh is not None:  # replicated over the mesh; the train step shards only the batch
         params, state, opt = jax.device_put((ts.params, ts.state, ts.opt), NamedSharding(mesh, P()))
@@ -405,8 +499,7 @@ def fit(
         t0 = time.perf_counter()
         ts, train = _run_epoch(step_fn, ts, run.epoch, train_cfg, progress=progress)
         train_time = time.perf_counter() - t0
-        val = evaluate(ts.params, ts.state, validation["windows"], validation["gt"], model_cfg,
-                       delta=train_cfg.huber_delta, conv3d_impl=conv3d_impl)
+        val = _validate(ts, validation, model_cfg, train_cfg, conv3d_impl)
         run = dataclasses.replace(run, epoch=run.epoch + 1, step=(run.epoch + 1) * spe)
         record = {
             "epoch": run.epoch, "step": run.step, "lr": train["lr"],

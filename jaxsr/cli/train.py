@@ -9,8 +9,8 @@ from pathlib import Path
 
 from .. import io
 from .._files import removing_new_folder
-from ..config import PRESETS, ModelConfig, SensorConfig
-from ..data import sequence_batches
+from ..config import PRESETS, TEMPORAL_FORMS, ModelConfig, SensorConfig
+from ..data import sequence_batches, sequence_clips
 from ..train import fit
 from ._args import int_range, seed
 
@@ -33,12 +33,22 @@ def add_parser(subparsers):
     p.add_argument("--epochs", type=int_range(1), default=None, help="override the preset's number of epochs")
     p.add_argument("--data", default=None,
                    help="train on HR sequences from an .npz with arrays depth (radial m) and intensity, (N, T, H, W)")
+    p.add_argument("--temporal", choices=TEMPORAL_FORMS, default="window",
+                   help="the network's form: window (the paper: one window of 2TR+1 frames per output) or sequence "
+                   "(all 3+TR blocks temporally valid, run over whole sequences and streams; trains on clips)")
+    p.add_argument("--clip-frames", type=int, default=None,
+                   help="with --temporal sequence: LR frames per training clip, at least 2(3+TR)+1 "
+                   "(default: 2(3+TR) + jaxsr.config.DEFAULT_CLIP_OUTPUTS)")
+    p.add_argument("--init", default=None,
+                   help="start from these weights (tr0..tr4 or a checkpoint of the same TR and scale, in either "
+                   "form), e.g. fine-tune a windowed model into the sequence form")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
 
-def _sequence_data(path, tr, cfg, sensor):
-    """The data source for --data: HR sequences from an .npz, read and checked now."""
+def _sequence_data(path, tr, cfg, sensor, clip=None):
+    """The data source for --data: HR sequences from an .npz, read and checked now; windows for the window form,
+    clips of `clip` frames for the sequence form."""
     if Path(path).suffix.lower() != ".npz":
         raise ValueError(f"--data {path}: expected an .npz file with arrays depth (radial m) and intensity, "
                          "(N, T, H, W)")
@@ -46,23 +56,28 @@ def _sequence_data(path, tr, cfg, sensor):
     for name in ("depth", "intensity"):
         if d[name].dtype.kind not in "iuf":
             raise ValueError(f"--data {path}: {name} holds {d[name].dtype} values; expected real numbers")
-    make_batch = sequence_batches(d["depth"], d["intensity"], tr, cfg, sensor=sensor)
+    if clip is None:
+        make_batch = sequence_batches(d["depth"], d["intensity"], tr, cfg, sensor=sensor)
+    else:
+        make_batch = sequence_clips(d["depth"], d["intensity"], clip, cfg, sensor=sensor)
     make_batch.description = f"{path}: " + make_batch.description
     return make_batch
 
 
 def run(args) -> int:
     """Train as the arguments say; prints the best epoch. Configs and data are built (and checked) before any work."""
-    changes = {k: v for k, v in (("seed", args.seed), ("epochs", args.epochs)) if v is not None}
+    changes = {k: v for k, v in (("seed", args.seed), ("epochs", args.epochs), ("clip_frames", args.clip_frames))
+               if v is not None}
     cfg = dataclasses.replace(PRESETS[args.preset], **changes)
     sensor = SensorConfig() if args.scale == 4 else SensorConfig(scale=args.scale)
-    model_cfg = ModelConfig(tr=args.tr, scale=args.scale)
+    model_cfg = ModelConfig(tr=args.tr, scale=args.scale, temporal=args.temporal)
+    clip = cfg.clip_length(model_cfg) if args.temporal == "sequence" else None  # checked before any work
     if Path(args.out).exists() and not Path(args.out).is_dir():
         raise FileExistsError(f"{args.out} is a file; --out is a folder")
-    make_batch = _sequence_data(args.data, args.tr, cfg, sensor) if args.data else None
+    make_batch = _sequence_data(args.data, args.tr, cfg, sensor, clip) if args.data else None
     with removing_new_folder(args.out):  # a run that fails or is stopped before its first epoch leaves no folder
         _, history = fit(model_cfg, cfg, out=args.out, make_batch=make_batch, sensor=sensor, resume=args.resume,
-                         overwrite=args.force, progress=not args.no_progress)
+                         overwrite=args.force, progress=not args.no_progress, init=args.init)
     best = min(history, key=lambda r: r["val_loss"]) if history else None
     if best:
         print(f"best epoch {best['epoch']}: val loss {best['val_loss']:.3e}, val PSNR {best['val_psnr']:.2f} dB "

@@ -1,0 +1,85 @@
+"""The sequence form of the network as a stream: one LR frame in, the HR frame R frames earlier out.
+
+Every block of the sequence form is temporally valid (DESIGN.md "The network", `model.apply_model_sequence`),
+so a block's output for frame m needs its input features of frames m-1, m and m+1 only. The stream keeps, per
+block, the skip features of the previous frame and the partial sums of its 3x3x3 convolution for the next two
+outputs (each new frame is convolved once with the three temporal taps' kernels side by side, and each tap is
+added to the output it belongs to), plus the last R + 1 LR frames for the dynamic filter. The buffers are a
+pytree of fixed shape: memory does not grow with the length of the stream.
+
+Step n takes padded input frame n and returns the output whose centre is padded frame n - R, i.e. output
+n - 2R of the sequence; it is valid once n >= 2R (the first R + 1 steps feed the first frame, the edge
+padding). `jaxsr.inference.Stream` wraps this for live input. A `lax.scan` of the step over a whole sequence
+ran no faster than a Python loop over the jitted step, and both slower than the sequence form in chunks
+(experiments/results/sequence_form.md), so whole sequences go through `apply_model_sequence` instead.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+
+from .config import ModelConfig
+from .layers import CONV3D_IMPLS, conv3d
+from .model import _block_input, _head, _stem, sequence_radius
+
+__all__ = ["stream_init", "stream_step"]
+
+
+def stream_init(cfg: ModelConfig, lr_shape: tuple[int, int], *, batch: int = 1, dtype=jnp.float32) -> dict:
+    """Empty (zero) stream buffers for `batch` streams of (h, w) = lr_shape LR frames.
+
+    Returns {"lr": (batch, R + 1, h, w) the last LR frames, "blocks": [{"skip": (batch, h, w, F_i) the
+    block's input features of the previous frame, "partial": (batch, 2, h, w, growth) the partial sums of
+    the next two outputs}] * (same_blocks + tr)}, F_i = base + i * growth. The first 2R outputs of a stream
+    depend on these zeros and are to be discarded (`Stream` does).
+    """
+    h, w = (int(v) for v in lr_shape)
+    blocks = []
+    f = cfg.base
+    for _ in range(cfg.same_blocks + cfg.tr):
+        blocks.append({"skip": jnp.zeros((batch, h, w, f), dtype),
+                       "partial": jnp.zeros((batch, 2, h, w, cfg.growth), dtype)})
+        f += cfg.growth
+    return {"lr": jnp.zeros((batch, sequence_radius(cfg) + 1, h, w), dtype), "blocks": blocks}
+
+
+def _stream_block(p, s, buf, x, *, bn: dict, impl: str):
+    """One valid dense block, one frame: input features x (B, 1, h, w, F) of frame m -> (its output for frame
+    m - 1, (B, 1, h, w, F + growth), the new buffers)."""
+    z, _ = _block_input(p, s, x, bn=bn)
+    w = p["conv2"]["w"]  # (3, kh, kw, F, G): the taps' kernels side by side, one 2D convolution
+    kt, kh, kw, cin, cout = w.shape
+    stacked = jnp.moveaxis(w, 0, 3).reshape(1, kh, kw, cin, kt * cout)
+    pad = ((0, 0), ((kh - 1) // 2, kh // 2), ((kw - 1) // 2, kw // 2))
+    taps = conv3d(z, stacked, padding=pad, impl=impl)[:, 0]
+    taps = taps.reshape(*taps.shape[:-1], kt, cout)
+    # frame m is tap 2 of output m - 1, tap 1 of output m and tap 0 of output m + 1
+    y = buf["partial"][:, 0] + taps[..., 2, :] + p["conv2"]["b"]
+    partial = jnp.stack([buf["partial"][:, 1] + taps[..., 1, :], taps[..., 0, :]], axis=1)
+    return jnp.concatenate([buf["skip"], y], axis=-1)[:, None], {"skip": x[:, 0], "partial": partial}
+
+
+def stream_step(params, state, buffers: dict, frame, cfg: ModelConfig, *, conv3d_impl: str = "auto"):
+    """One step of the stream, BN in inference mode: feed LR frame n, get the output centred on frame n - R.
+
+    frame: (B, h, w) LR normalised depth; buffers: as `stream_init` (or the previous step) returns them.
+    Returns (new buffers, hr (B, h*r, w*r)). With the stream's input edge-padded (R + 1 copies of its first
+    frame, then the rest, then R copies of the last), the hr of step n >= 2R equals output n - 2R of
+    `apply_model_sequence` to float32 rounding. R = `sequence_radius(cfg)`; the weights run in the sequence
+    form whatever `cfg.temporal` says. conv3d_impl: as for `apply_model`.
+    """
+    if frame.ndim != 3 or frame.shape != buffers["lr"].shape[:1] + buffers["lr"].shape[2:]:
+        raise ValueError(f"stream_step: expected a frame (B, h, w) = {buffers['lr'].shape[:1] + buffers['lr'].shape[2:]}"
+                         f" matching the stream's buffers, got shape {frame.shape}")
+    if conv3d_impl not in CONV3D_IMPLS:
+        raise ValueError(f"stream_step: conv3d_impl must be one of {', '.join(map(repr, CONV3D_IMPLS))}, "
+                         f"got {conv3d_impl!r}")
+    bn = {"train": False, "momentum": cfg.bn_momentum, "eps": cfg.bn_eps}
+    lr = jnp.concatenate([buffers["lr"][:, 1:], frame[:, None].astype(buffers["lr"].dtype)], axis=1)
+    x = _stem(params, frame[:, None], impl=conv3d_impl)  # (B, 1, h, w, base)
+    new_blocks = []
+    for p, s, buf in zip(params["blocks"], state["blocks"], buffers["blocks"]):
+        x, buf = _stream_block(p, s, buf, x, bn=bn, impl=conv3d_impl)
+        new_blocks.append(buf)
+    hr, _ = _head(params, state, x, lr[:, :1], cfg, bn=bn, impl=conv3d_impl)
+    return {"lr": lr, "blocks": new_blocks}, hr[:, 0]
