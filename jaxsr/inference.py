@@ -261,8 +261,8 @@ class Stream:
     `apply_model_sequence`) to float32 rounding. Memory is a fixed set of per-layer buffers (`stream_init`),
     whatever the length of the stream. The weights run in the sequence form whatever `model.config.temporal`
     says (a windowed checkpoint streams too, with the sequence form's accuracy). Outputs are float32 NumPy,
-    unclipped. Raises ValueError for a frame of another shape than the first, or holding NaN or inf, and for a
-    flush before any frame.
+    unclipped. Frames are checked as in `iter_super_resolve` (NaN = no return); raises ValueError for a frame of
+    another shape than the first or with values outside [0, 1], and for a flush before any frame.
     """
 
     def __init__(self, model: Model, *, conv3d_impl: str = "auto"):

@@ -212,7 +212,7 @@ def toy_clips(frames, batch, *, lr_shape=(8, 16), scale=4, noise=0.1):
         x = x0 + scale * jnp.arange(frames)[:, None, None]
         hr = jnp.where((yy >= y0) & (yy < y0 + hh // 3) & (xx >= x) & (xx < x + ww // 3), d, 0.9)
         lr = hr.reshape(frames, lr_shape[0], scale, lr_shape[1], scale).mean(axis=(2, 4))
-        return lr + noise * jax.random.normal(k[3], lr.shape), hr
+        return jnp.clip(lr + noise * jax.random.normal(k[3], lr.shape), 0, 1), hr  # normalised depth, as the COM
 
     def make_batch(key):
         return jax.vmap(example)(jax.random.split(key, batch))
@@ -306,8 +306,8 @@ def test_bad_input_is_refused_clearly():
     stream.push(np.zeros((4, 6)))
     with pytest.raises(ValueError, match=r"frame 1 has shape \(5, 6\), expected \(4, 6\)"):
         stream.push(np.zeros((5, 6)))
-    with pytest.raises(ValueError, match="NaN or inf"):
-        stream.push(np.full((4, 6), np.nan))
+    with pytest.raises(ValueError, match=r"frame 1 has values in \[12, 12\], outside \[0, 1\]"):
+        stream.push(np.full((4, 6), 12.0))  # metres, not normalised depth
     with pytest.raises(ValueError, match="temporal must be one of"):
         ModelConfig(temporal="recurrent")
     with pytest.raises(ValueError, match=r"clip_frames must be at least 2R \+ 1 = 9 for tr=1"):
