@@ -182,7 +182,8 @@ def evaluate_sequences(params, state, lr, gt, cfg: ModelConfig, *, lengths=None,
                        conv3d_impl: str = "auto") -> dict:
     """Validation in the sequence form, BN in inference mode: {"loss": mean Huber, "psnr": mean per-frame PSNR}.
 
-    lr: (N, h, w) LR frames of one or more sequences end to end, `lengths` frames each (None: one sequence);
+    lr: (N, h, w) LR normalised depth in [0, 1] (checked as by `super_resolve`) of one or more sequences end
+    to end, `lengths` frames each (None: one sequence);
     gt: (N, h*r, w*r). Each sequence is super-resolved whole, its ends edge-padded (`super_resolve` of the
     sequence-form model, in chunks). Returns the dict of two Python floats.
     """

@@ -212,7 +212,7 @@ def toy_clips(frames, batch, *, lr_shape=(8, 16), scale=4, noise=0.1):
         x = x0 + scale * jnp.arange(frames)[:, None, None]
         hr = jnp.where((yy >= y0) & (yy < y0 + hh // 3) & (xx >= x) & (xx < x + ww // 3), d, 0.9)
         lr = hr.reshape(frames, lr_shape[0], scale, lr_shape[1], scale).mean(axis=(2, 4))
-        return lr + noise * jax.random.normal(k[3], lr.shape), hr
+        return jnp.clip(lr + noise * jax.random.normal(k[3], lr.shape), 0, 1), hr  # normalised depth, as the COM
 
     def make_batch(key):
         return jax.vmap(example)(jax.random.split(key, batch))
