@@ -197,7 +197,8 @@ def normalised_frames(recording: Recording, units: str, sensor: SensorConfig):
 def guess_units(recording: Recording) -> str:
     """"normalised" when the first frame's values other than NaN (no return in either unit) are finite and within
     [0, 1] up to float rounding (no lidar scene lies within a metre), else "m"."""
-    f = np.asarray(recording.head(1)[0], np.float32)
+    with np.errstate(over="ignore"):  # values beyond float32 become inf: not normalised depth
+        f = np.asarray(recording.head(1)[0], np.float32)
     f = f[~np.isnan(f)]
     in_range = np.all(np.isfinite(f) & (f >= -NORMALISED_SLACK) & (f <= 1 + NORMALISED_SLACK))
     return "normalised" if in_range else "m"

@@ -95,7 +95,10 @@ def make_train_step(model_cfg: ModelConfig, train_cfg: TrainConfig, make_batch, 
     state are replicated (batch statistics and gradients are reduced over the mesh).
     conv3d_impl: how the network's convolutions run (see `apply_model`).
     """
-    return _train_step(model_cfg, train_cfg, make_batch, mesh, conv3d_impl)
+    # the step does not read the seed, the length of the run or the stopping rule: runs that differ only in
+    # those (other seeds, more epochs on resume) share one compiled step
+    step_cfg = dataclasses.replace(train_cfg, seed=0, epochs=1, patience=1)
+    return _train_step(model_cfg, step_cfg, make_batch, mesh, conv3d_impl)
 
 
 @functools.lru_cache(maxsize=16)

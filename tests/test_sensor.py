@@ -355,24 +355,27 @@ BAD_LEVELS = [
 ]
 
 
+# The four calls with the photon levels as arguments, jitted once at import: the traced cases share their compiles.
+LEVEL_CALLS = {
+    "calibrate": lambda k, d, i, s, m: jaxsr.calibrate(d, i, SMALL, snr=s, mean_signal=m),
+    "expected_histograms": lambda k, d, i, s, m: jaxsr.expected_histograms(d, i, SMALL, snr=s, mean_signal=m),
+    "fast": lambda k, d, i, s, m: jaxsr.simulate_histograms(k, d, i, SMALL, snr=s, mean_signal=m),
+    "exact": lambda k, d, i, s, m: jaxsr.simulate_histograms(k, d, i, SMALL, snr=s, mean_signal=m, sampler="exact"),
+}
+LEVEL_CALLS_JIT = {name: jax.jit(fn) for name, fn in LEVEL_CALLS.items()}
+
+
 @pytest.mark.parametrize("kwargs,name", BAD_LEVELS, ids=[",".join(f"{k}={v}" for k, v in kw.items()) for kw, _ in BAD_LEVELS])
 @pytest.mark.parametrize("jit", [False, True])
 def test_invalid_photon_levels_raise_eagerly_and_are_nan_everywhere_traced(kwargs, name, jit):
     depth, intensity = _scene()
-    key = jax.random.key(2)
-    calls = {
-        "calibrate": lambda d, i, s, m: jaxsr.calibrate(d, i, SMALL, snr=s, mean_signal=m),
-        "expected_histograms": lambda d, i, s, m: jaxsr.expected_histograms(d, i, SMALL, snr=s, mean_signal=m),
-        "fast": lambda d, i, s, m: jaxsr.simulate_histograms(key, d, i, SMALL, snr=s, mean_signal=m),
-        "exact": lambda d, i, s, m: jaxsr.simulate_histograms(key, d, i, SMALL, snr=s, mean_signal=m, sampler="exact"),
-    }
-    args = (depth, intensity, jnp.float32(kwargs["snr"]), jnp.float32(kwargs.get("mean_signal", 5.0)))
-    for fn in calls.values():
+    args = (jax.random.key(2), depth, intensity, jnp.float32(kwargs["snr"]), jnp.float32(kwargs.get("mean_signal", 5.0)))
+    for fn in (LEVEL_CALLS_JIT if jit else LEVEL_CALLS).values():
         if not jit:
             with pytest.raises(ValueError, match=name):
                 fn(*args)
             continue
-        out = jax.tree_util.tree_leaves(jax.jit(fn)(*args))
+        out = jax.tree_util.tree_leaves(fn(*args))
         assert all(np.all(np.isnan(x)) for x in out), [np.asarray(x).ravel()[:4] for x in out]
 
 
