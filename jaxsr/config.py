@@ -71,6 +71,9 @@ jax.tree_util.register_dataclass(
 )
 
 
+# Smallest LR frame side the network is run on: below 4 pixels every output pixel lies in the border the network
+# pads, and a (T, h, w) array with such a side is more likely another layout (frames last, histograms) than frames.
+MIN_LR_SIDE = 4
 # Metres of radial range per second of round-trip time: r = c t / 2.
 METRES_PER_SECOND = 299_792_458.0 / 2
 # The range the bundled models were trained on: radial 0 .. 35 m as normalised depth 0 .. 1 (PHYSICS.md).

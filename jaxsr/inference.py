@@ -28,7 +28,7 @@ from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
 from ._checks import require_normalised_depth
-from .config import SensorConfig
+from .config import MIN_LR_SIDE, SensorConfig
 from .model import Model, apply_model, apply_model_sequence, sequence_radius, spatial_radius
 from .peaks import centre_of_mass
 from .runtime import compiler_options
@@ -46,9 +46,6 @@ DEFAULT_SEQUENCE_CHUNK = 32
 # LR pixels (16x the 32 x 64 sensor) run whole; larger ones in tiles, so device memory stays bounded whatever the
 # frame size (a 160 x 160 frame: 2 x 2 tiles of 98 x 98 for TR4).
 DEFAULT_TILE = 128
-# Smallest LR frame side accepted: below 4 pixels every output pixel lies in the border the network pads, and a
-# (T, h, w) array with such a side is more likely another layout (a few frames last, or histograms) than a frame.
-MIN_LR_SIDE = 4
 
 
 def _batch_sharding(batch_size: int) -> NamedSharding | None:
