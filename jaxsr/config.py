@@ -146,6 +146,8 @@ def _concrete_float(value, bad) -> bool:
     """bad(float(value)) for a concrete number; False for a tracer (checked by the caller's maths instead)."""
     try:
         return bool(bad(float(value)))
+    except ValueError:  # a string: not a number at all
+        return True
     except (TypeError, jax.errors.ConcretizationTypeError):
         return False
 
