@@ -136,7 +136,9 @@ def main():
     text += f"\nFlicker on the tof_radar video's static background ({int(static_lr.sum())} LR pixels, the quarter with " \
             "the least temporal std; share of pixel-frames changing by > 0.01):\n\n"
     text += markdown_table(["method", "flicker"], fl)
-    text += "\n![LR | bicubic | TR0 | TR4 | TR4 sequence](real_data.png)\n\n![tof_radar over time](real_data_strip.png)\n"
+    text += ("\nThe script also writes real_data.png (LR | bicubic | TR0 | TR4 | TR4 sequence) and real_data_strip.png "
+             "(the video, frames 40-47) beside this file; they are pictures of third-party data and are not "
+             "committed (.gitignore): run the command to see them.\n")
     write_atomic(RESULTS / "real_data.md", text)
     print(text)
 
