@@ -13,6 +13,8 @@ from .checkpoint import load_model as load_model
 from .checkpoint import read_metadata as read_metadata
 from .checkpoint import save_model as save_model
 from .config import DEFAULT_MEAN_SIGNAL as DEFAULT_MEAN_SIGNAL
+from .config import DepthScale as DepthScale
+from .config import Gate as Gate
 from .config import PRESETS as PRESETS
 from .config import ModelConfig as ModelConfig
 from .config import SensorConfig as SensorConfig
@@ -24,6 +26,10 @@ from .model import apply_model_sequence_train as apply_model_sequence_train
 from .model import apply_model_train as apply_model_train
 from .model import count_params as count_params
 from .model import init_model as init_model
+from .gates import from_network_depth as from_network_depth
+from .gates import gate_depth as gate_depth
+from .gates import gate_warnings as gate_warnings
+from .gates import to_network_depth as to_network_depth
 from .inference import Stream as Stream
 from .inference import iter_super_resolve as iter_super_resolve
 from .inference import super_resolve as super_resolve
@@ -69,6 +75,12 @@ from .sensor import planar_to_radial as planar_to_radial
 from .sensor import simulate_histograms as simulate_histograms
 from .temporal import change_frame_rate as change_frame_rate
 from .temporal import windows as windows
+from .timetags import TimeTags as TimeTags
+from .timetags import gate_of_tags as gate_of_tags
+from .timetags import histogram_photons as histogram_photons
+from .timetags import histogram_time_tags as histogram_time_tags
+from .timetags import read_time_tags as read_time_tags
+from .timetags import time_tags_from_cells as time_tags_from_cells
 from .train import evaluate as evaluate
 from .train import fit as fit
 from .train import huber_loss as huber_loss

@@ -28,8 +28,8 @@ from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
 from ._checks import require_normalised_depth
-from .config import SensorConfig
-from .model import Model, apply_model, apply_model_sequence, sequence_radius
+from .config import MIN_LR_SIDE, SensorConfig
+from .model import Model, apply_model, apply_model_sequence, sequence_radius, spatial_radius
 from .peaks import centre_of_mass
 from .runtime import compiler_options
 from .streaming import stream_init, stream_step
@@ -42,6 +42,10 @@ DEFAULT_BATCH_SIZE = 1
 # one chunk (TR4: 46 LR frames) ran 1.1-1.2x faster than `Stream`'s per-frame step (a `lax.scan` of that step
 # no faster than the loop) and TR4 3.1x faster than the window form (experiments/results/sequence_form.md).
 DEFAULT_SEQUENCE_CHUNK = 32
+# Largest side of a spatial tile, in LR pixels, margins included, when `tile` is not given: frames up to 128 x 128
+# LR pixels (16x the 32 x 64 sensor) run whole; larger ones in tiles, so device memory stays bounded whatever the
+# frame size (a 160 x 160 frame: 2 x 2 tiles of 98 x 98 for TR4).
+DEFAULT_TILE = 128
 
 
 def _batch_sharding(batch_size: int) -> NamedSharding | None:
@@ -85,15 +89,35 @@ def _default_batch_size(frames, sequence_form: bool) -> int:
 
 def _check_frame(frame, shape, index):
     frame = np.asarray(frame, np.float32)
-    if frame.ndim != 2 or (shape is not None and frame.shape != shape):
-        want = "(h, w)" if shape is None else str(shape)
+    if frame.ndim != 2 or (shape is not None and frame.shape != shape) or min(frame.shape) < MIN_LR_SIDE:
+        want = f"(h, w) with h, w >= {MIN_LR_SIDE}" if shape is None else str(shape)
         raise ValueError(f"super_resolve: frame {index} has shape {frame.shape}, expected {want} "
                          "(LR normalised depth)")
     return require_normalised_depth(f"super_resolve: frame {index}", frame)
 
 
+def tile_spans(n: int, radius: int, max_side: int | None) -> tuple[int, list[tuple[int, int, int]]]:
+    """Cut one axis of n LR pixels into tiles of one length (one compiled shape) whose outputs, kept on their
+    cores, equal the whole axis's output: each core [lo, hi) is computed in a tile [start, start + size) that
+    extends `radius` (the network's receptive radius) beyond it, or reaches the frame's edge, where the whole-frame
+    computation pads the same way.
+
+    Returns (size, spans): the tiles' length and a list of (start, lo, hi), each tile's first pixel and its
+    core; (n, [(0, 0, n)]) when n <= max_side (or max_side is None). Raises ValueError if max_side <= 2 radius
+    (no core would fit)."""
+    if max_side is None or n <= max_side:
+        return n, [(0, 0, n)]
+    if max_side <= 2 * radius:
+        raise ValueError(f"super_resolve: tile must exceed twice the receptive radius ({2 * radius} LR pixels), "
+                         f"got {max_side}")
+    count = -(-n // (max_side - 2 * radius))  # fewest tiles whose cores (and margins) fit in max_side
+    core = -(-n // count)
+    size = core + 2 * radius
+    return size, [(min(max(lo - radius, 0), n - size), lo, min(lo + core, n)) for lo in range(0, n, core)]
+
+
 def iter_super_resolve(model: Model, frames: Iterable, *, batch_size: int | None = None,
-                       conv3d_impl: str = "auto") -> Iterator[np.ndarray]:
+                       conv3d_impl: str = "auto", tile: int | None = DEFAULT_TILE) -> Iterator[np.ndarray]:
     """Super-resolve a stream of LR frames, yielding HR frames in order, in bounded memory.
 
     frames: an iterable of (h, w) LR normalised depth frames (0..1, 1 or NaN = no return), e.g. a generator reading
@@ -103,11 +127,15 @@ def iter_super_resolve(model: Model, frames: Iterable, *, batch_size: int | None
     t + R has arrived (or the stream has ended), `batch_size` at a time. batch_size: frames per compiled call
     (None: `DEFAULT_BATCH_SIZE` per local device, split over the local devices when they divide it; sequence
     form: `DEFAULT_SEQUENCE_CHUNK`, or the length of a shorter list or array). conv3d_impl: how the
-    convolutions run (see `apply_model`).
+    convolutions run (see `apply_model`). tile: the largest side, in LR pixels, of the spatial tiles a larger
+    frame is cut into (`tile_spans`: margins of the network's receptive radius, `jaxsr.model.spatial_radius`, so
+    the output equals the whole frame's to float rounding), bounding device memory whatever the frame size; None
+    runs whole frames. Any frame size h, w >= `MIN_LR_SIDE` runs, compiled once per size; the bundled models were
+    trained on 32 x 64 frames of a 30 deg field of view (README "Frame size").
     Yields (h r, w r) float32 NumPy arrays of HR normalised depth (unclipped network output). NaN is read as
     no return (1.0) and values within 1e-6 of [0, 1] are clipped to it; raises ValueError for a frame of
-    another shape than the first, or with values further outside [0, 1] (metres, negated, inf: the message
-    names the range seen; `jaxsr.normalise_depth` converts metres).
+    another shape than the first or smaller than `MIN_LR_SIDE`, or with values further outside [0, 1] (metres,
+    negated, inf: the message names the range seen; `jaxsr.normalise_depth` converts metres).
     """
     sequence_form = model.config.temporal == "sequence"
     batch_size = _default_batch_size(frames, sequence_form) if batch_size is None else int(batch_size)
@@ -118,6 +146,10 @@ def iter_super_resolve(model: Model, frames: Iterable, *, batch_size: int | None
         replicated = NamedSharding(sharding.mesh, P())
         model = jax.device_put(model, replicated)
     tr = model.config.input_radius  # the loop below needs only the radius: tr, or R in the sequence form
+    margin = spatial_radius(model.config)
+    if tile is not None and tile <= 2 * margin:
+        raise ValueError(f"super_resolve: tile must exceed twice the receptive radius ({2 * margin} LR pixels for "
+                         f"tr={model.config.tr}), got {tile}")
     held = deque()  # LR frames first_held .. ; frame `first_held` is the oldest any pending window needs
     first_held, next_out, n_seen, shape, pending = 0, 0, 0, None, None
 
@@ -134,12 +166,26 @@ def iter_super_resolve(model: Model, frames: Iterable, *, batch_size: int | None
         size = min(batch_size, 1 << (count - 1).bit_length()) if sequence_form else batch_size
         if count < size:
             chunk = np.concatenate([chunk, np.repeat(chunk[-1:], size - count, 0)])
-        chunk = jnp.asarray(chunk) if sharding is None else jax.device_put(chunk, replicated)
-        return _infer_chunk()(model, chunk, sharding, conv3d_impl), count
+        (th, rows), (tw, cols) = tile_spans(shape[0], margin, tile), tile_spans(shape[1], margin, tile)
+        tiles = []  # every tile one shape: one compilation per frame size
+        for y0, ylo, yhi in rows:
+            for x0, xlo, xhi in cols:
+                part = chunk[:, y0 : y0 + th, x0 : x0 + tw]
+                part = jnp.asarray(part) if sharding is None else jax.device_put(part, replicated)
+                tiles.append((_infer_chunk()(model, part, sharding, conv3d_impl), y0, ylo, yhi, x0, xlo, xhi))
+        return tiles, count
 
     def drain(result):
-        out, count = result
-        yield from np.asarray(out)[:count]
+        tiles, count = result
+        if len(tiles) == 1:
+            yield from np.asarray(tiles[0][0])[:count]
+            return
+        r = model.config.scale
+        out = np.empty((count, shape[0] * r, shape[1] * r), np.float32)
+        for hr, y0, ylo, yhi, x0, xlo, xhi in tiles:
+            out[:, ylo * r : yhi * r, xlo * r : xhi * r] = np.asarray(hr)[:count, (ylo - y0) * r : (yhi - y0) * r,
+                                                                          (xlo - x0) * r : (xhi - x0) * r]
+        yield from out
 
     for f in frames:
         f = _check_frame(f, shape, n_seen)
@@ -168,8 +214,11 @@ def iter_super_resolve(model: Model, frames: Iterable, *, batch_size: int | None
         yield from drain(pending)
 
 
-def super_resolve(model: Model, lr_seq, *, batch_size: int | None = None, conv3d_impl: str = "auto") -> np.ndarray:
-    """Super-resolve a whole LR depth sequence: (T, h, w) -> (T, h r, w r) normalised depth (NumPy, float32).
+def super_resolve(model: Model, lr_seq, *, batch_size: int | None = None, conv3d_impl: str = "auto",
+                  tile: int | None = DEFAULT_TILE) -> np.ndarray:
+    """Super-resolve a whole LR depth sequence: (T, h, w) -> (T, h r, w r) normalised depth (NumPy, float32), for
+    any h, w >= `MIN_LR_SIDE` (large frames in spatial tiles of at most `tile` LR pixels a side, margins included,
+    with the same result; see `iter_super_resolve`).
 
     In the model's form: each frame is the centre of an edge-replicated window of 2 tr + 1 frames
     (`jaxsr.temporal.windows`) and the result equals `apply_model` on those windows, or (sequence form) the
@@ -183,7 +232,8 @@ def super_resolve(model: Model, lr_seq, *, batch_size: int | None = None, conv3d
         raise ValueError(f"super_resolve: expected an LR sequence (T, h, w) with T >= 1, got shape {lr_seq.shape}")
     r = model.config.scale
     out = np.empty((lr_seq.shape[0], lr_seq.shape[1] * r, lr_seq.shape[2] * r), np.float32)
-    for t, hr in enumerate(iter_super_resolve(model, lr_seq, batch_size=batch_size, conv3d_impl=conv3d_impl)):
+    for t, hr in enumerate(iter_super_resolve(model, lr_seq, batch_size=batch_size, conv3d_impl=conv3d_impl,
+                                              tile=tile)):
         out[t] = hr
     return out
 
@@ -225,11 +275,14 @@ def iter_centre_of_mass(counts: Iterable, sensor: SensorConfig = SensorConfig(),
 
 
 def super_resolve_histograms(model: Model, counts, sensor: SensorConfig = SensorConfig(), *,
-                             batch_size: int | None = None, conv3d_impl: str = "auto") -> np.ndarray:
+                             batch_size: int | None = None, conv3d_impl: str = "auto",
+                             tile: int | None = DEFAULT_TILE) -> np.ndarray:
     """Super-resolve photon histograms: (T, h, w, K) counts -> (T, h r, w r) normalised depth (NumPy).
 
-    Depth is extracted by centre of mass (`jaxsr.centre_of_mass` with `sensor`), then `super_resolve`d,
-    streaming (see `iter_super_resolve`; `batch_size` and `conv3d_impl` as there)."""
+    Depth is extracted by centre of mass (`jaxsr.centre_of_mass` with `sensor`, K = `sensor.bins` over the
+    sensor's gate [0, d_max): the normalised depth is tau / K), then `super_resolve`d, streaming (see
+    `iter_super_resolve`; `batch_size`, `conv3d_impl` and `tile` as there). Any h, w >= `MIN_LR_SIDE`; for
+    histograms over another gate, see `jaxsr.Gate` and `jaxsr.gate_depth`."""
     counts = np.asarray(counts)
     if counts.ndim != 4:
         raise ValueError(f"super_resolve_histograms: expected counts (T, h, w, {sensor.bins}), got shape "
@@ -239,7 +292,7 @@ def super_resolve_histograms(model: Model, counts, sensor: SensorConfig = Sensor
     if batch_size is None:  # the frames' count is known here, not in the stream of centre-of-mass frames
         batch_size = _default_batch_size(counts, model.config.temporal == "sequence")
     stream = iter_super_resolve(model, iter_centre_of_mass(counts, sensor), batch_size=batch_size,
-                                conv3d_impl=conv3d_impl)
+                                conv3d_impl=conv3d_impl, tile=tile)
     for t, hr in enumerate(stream):
         out[t] = hr
     return out

@@ -36,6 +36,7 @@ __all__ = [
     "apply_model_sequence_train",
     "edge_pad_sequence",
     "sequence_radius",
+    "spatial_radius",
     "count_params",
     "flops_per_frame",
 ]
@@ -188,6 +189,13 @@ def apply_model_train(params, state, windows, cfg: ModelConfig, *, conv3d_impl: 
     """
     _check_inputs(windows, cfg, conv3d_impl, "apply_model_train")
     return _forward(params, state, windows, cfg, train=True, impl=conv3d_impl)
+
+
+def spatial_radius(cfg: ModelConfig) -> int:
+    """The network's spatial receptive radius in LR pixels (an int): output pixel (y, x) depends on input pixels
+    within +-radius rows and columns, in either form. Each 3x3 spatial convolution (stem, the 3x3x3 of every block,
+    head) widens it by 1; the dynamic filter reads +-filter_size // 2 of the input frame. TR0: 5, TR4: 9."""
+    return max(1 + cfg.same_blocks + cfg.tr + 1, cfg.filter_size // 2)
 
 
 def sequence_radius(cfg: ModelConfig) -> int:

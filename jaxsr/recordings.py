@@ -18,11 +18,13 @@ import numpy as np
 
 from . import io
 from ._checks import NORMALISED_SLACK, require_normalised_depth
-from .config import SensorConfig
-from .sensor import denormalise_depth, normalise_depth
+from .config import MIN_LR_SIDE, DepthScale, Gate, SensorConfig
+from .gates import from_network_depth, to_network_depth
+from .sensor import normalise_depth
+from .timetags import histogram_time_tags
 
 __all__ = ["ARRAY_FORMATS", "FRAME_FORMATS", "Recording", "check_frames", "check_output", "check_preview",
-           "guess_units", "normalised_frames", "open_recording", "to_units"]
+           "gate_frames", "guess_units", "normalised_frames", "open_recording", "time_tag_recording", "to_units"]
 
 FRAME_FORMATS = (".exr", ".pfm", ".tif", ".tiff", ".png")
 ARRAY_FORMATS = (".npy", ".npz")
@@ -145,28 +147,23 @@ def _chunks(recording: Recording, size: int = 256):
             yield t, np.asarray(f, np.float64)[None]
 
 
-def check_frames(recording: Recording, units: str, sensor: SensorConfig) -> None:
+def check_frames(recording: Recording, units: str, gate: Gate = Gate()) -> None:
     """Check every frame before any work, so that a bad recording is refused before compute and before any
     output is written (one pass over the input: a memory-mapped array in blocks, image frames one by one).
 
-    The networks know one frame size: the sensor's LR frames (`sensor.lr_shape`, 32 x 64 for the 30 deg sensor
-    of the bundled models); histograms must also have `sensor.bins` bins. Other sizes are refused (not yet
-    supported). Depth: NaN and inf are no return; for `units` "normalised" the other values lie within [0, 1]
-    (up to NORMALISED_SLACK, as `super_resolve` checks). Histograms: finite, non-negative counts. Raises
-    ValueError naming the recording, the frame and what was expected."""
-    h, w = sensor.lr_shape
+    Frames of any size h x w with h, w >= MIN_LR_SIDE run (the bundled models were trained on 32 x 64 frames
+    of a 30 deg field of view: README "Frame size"); histograms must have `gate.bins` bins (--bins). Depth: NaN
+    and inf are no return; for `units` "normalised" the other values lie within [0, 1] (up to
+    NORMALISED_SLACK, as `super_resolve` checks). Histograms: finite, non-negative counts. Raises ValueError
+    naming the recording, the frame and what was expected."""
     src = recording.source
-    if recording.kind == "histograms":
-        want = (h, w, sensor.bins)
-        if tuple(recording.shape) != want:
-            raise ValueError(f"{src}: histogram frames of shape {tuple(recording.shape)} ({recording.shape[-1]} bins); "
-                             f"expected {want} "
-                             f"({h} x {w} LR pixels of {sensor.bins} bins, the sensor the models were trained for; "
-                             "other sizes are not supported yet)")
-    elif tuple(recording.shape) != (h, w):
-        raise ValueError(f"{src}: frames of {' x '.join(map(str, recording.shape))} pixels; expected {h} x {w} LR "
-                         f"frames (the {float(sensor.fov_deg):g} deg sensor the models were trained for; other sizes "
-                         "are not supported yet)")
+    frame = tuple(recording.shape[:2])
+    if recording.kind == "histograms" and recording.shape[-1] != gate.bins:
+        raise ValueError(f"{src}: histogram frames of shape {tuple(recording.shape)} ({recording.shape[-1]} bins); "
+                         f"expected {gate.bins} bins (give the sensor's with --bins, --bin-width and --gate-start)")
+    if len(frame) != 2 or min(frame) < MIN_LR_SIDE:
+        raise ValueError(f"{src}: frames of {' x '.join(map(str, frame))} pixels; expected LR frames of at least "
+                         f"{MIN_LR_SIDE} x {MIN_LR_SIDE} pixels (T, h, w)")
     for t, block in _chunks(recording):
         if recording.kind == "histograms":
             bad = ~(np.isfinite(block) & (block >= 0) & (block <= np.finfo(np.float32).max))
@@ -179,6 +176,22 @@ def check_frames(recording: Recording, units: str, sensor: SensorConfig) -> None
         if np.any(bad):
             first = t + int(np.argmax(bad.reshape(len(block), -1).any(axis=1)))
             raise ValueError(f"{src}: frame {first} holds {what}")
+
+
+def gate_frames(com_frames, gate: Gate, scale: DepthScale):
+    """Centre-of-mass frames normalised to the gate (tau / K, 1.0 = no return, as `iter_centre_of_mass` gives
+    them for K = gate.bins) -> the network's normalised depth under `scale`: the range gate.start + n *
+    gate.length in metres, then `to_network_depth`. Yields (h, w) float32 frames."""
+    for f in com_frames:
+        metres = np.where(f >= 1.0, np.inf, float(gate.start) + np.float64(f) * float(gate.length))
+        yield np.asarray(to_network_depth(metres, scale), np.float32)
+
+
+def time_tag_recording(tags, gate: Gate, *, outside: str = "error") -> Recording:
+    """A recording of photon counts histogrammed from `jaxsr.timetags.TimeTags` over `gate`
+    (`histogram_time_tags`): kind "histograms", frames (h, w, gate.bins)."""
+    counts = histogram_time_tags(tags, gate, outside=outside)
+    return Recording("histograms", counts.shape[0], counts.shape[1:], lambda: iter(counts), tags.source, array=counts)
 
 
 def normalised_frames(recording: Recording, units: str, sensor: SensorConfig):
@@ -257,9 +270,10 @@ def check_preview(spec, *, force: bool, output=None) -> Path:
     return path
 
 
-def to_units(hr, units: str, sensor: SensorConfig):
+def to_units(hr, units: str, scale: DepthScale = DepthScale()):
     """Network output (H, W), normalised and unclipped -> the recording's units: "normalised" (clipped to
-    [0, 1]) or "m" (radial metres, inf for no return: `jaxsr.sensor.denormalise_depth`). Returns (H, W)."""
+    [0, 1]) or "m" (radial metres offset + n * span, inf for no return: `jaxsr.gates.from_network_depth`; with
+    the default scale `jaxsr.sensor.denormalise_depth`). Returns (H, W)."""
     if units == "normalised":
         return np.clip(hr, 0.0, 1.0)
-    return np.asarray(denormalise_depth(hr, sensor), np.float32)
+    return np.asarray(from_network_depth(hr, scale), np.float32)

@@ -8,7 +8,7 @@ import pytest
 import jaxsr
 
 # Positional parameters that may carry a default: configs passed alongside the data.
-CONFIG_PARAMS = {"sensor", "cfg", "config"}
+CONFIG_PARAMS = {"sensor", "cfg", "config", "gate", "scale"}
 
 
 def public_functions():
@@ -32,6 +32,9 @@ NO_ARRAYS = {
     "load_model": "a path or bundled name -> a Model",
     "save_model": "a path and a Model",
     "use_cpu_cores": "a device count",
+    "gate_warnings": "a Gate and a DepthScale -> sentences",
+    "gate_of_tags": "TimeTags -> a Gate",
+    "read_time_tags": "a path -> TimeTags",
 }
 # A whole shape tuple of short dimension names or numbers: (..., H, W), (B, 2tr+1, h, w), (T,), (N, h*r, w*r).
 _DIM = r"(\.\.\.|[A-Za-z0-9_*+/-]{1,10})"

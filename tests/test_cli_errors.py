@@ -69,13 +69,28 @@ def _frames(folder, shape, fmt="png"):
 
 # (setup(folder), arguments, words the message must hold). `MODEL` is replaced by the tiny checkpoint.
 CASES = {
-    # shapes the models were not made for
-    "upscale 31x64 array": (lambda p: np.save(p / "in.npy", np.full((3, 31, 64), 0.5, np.float32)),
-                            ["upscale", "in.npy", "out.npy", "--model", "MODEL"], ["31 x 64", "32 x 64"]),
-    "upscale folder of 31x64 frames": (lambda p: _frames(p, (31, 64)),
-                                       ["upscale", "frames", "out", "--model", "MODEL"], ["31 x 64", "32 x 64"]),
+    # shapes no network runs on (any h, w >= 4 does: issue 16), and histograms of other than --bins bins
+    "upscale 3x64 array": (lambda p: np.save(p / "in.npy", np.full((3, 3, 64), 0.5, np.float32)),
+                           ["upscale", "in.npy", "out.npy", "--model", "MODEL"], ["3 x 64", "at least 4 x 4"]),
+    "upscale folder of 64x3 frames": (lambda p: _frames(p, (64, 3)),
+                                      ["upscale", "frames", "out", "--model", "MODEL"], ["64 x 3", "at least 4 x 4"]),
     "upscale histograms of 8 bins": (lambda p: np.save(p / "in.npy", np.ones((2, 32, 64, 8), np.uint16)),
-                                     ["upscale", "in.npy", "out.npy", "--model", "MODEL"], ["8 bins", "16"]),
+                                     ["upscale", "in.npy", "out.npy", "--model", "MODEL"], ["8 bins", "16 bins", "--bins"]),
+    "upscale --bin-width without a unit": (lambda p: np.save(p / "in.npy", np.ones((2, 32, 64, 16), np.uint16)),
+                                           ["upscale", "in.npy", "out.npy", "--model", "MODEL", "--bin-width", "3"],
+                                           ["--bin-width", "with its unit"]),
+    "upscale --bins for depth": (lambda p: np.save(p / "in.npy", np.full((3, 32, 64), 0.5, np.float32)),
+                                 ["upscale", "in.npy", "out.npy", "--model", "MODEL", "--bins", "8"],
+                                 ["histograms and time tags only"]),
+    "upscale time tags of MATLAB v7.3": (lambda p: (p / "t.mat").write_bytes(b"MATLAB 7.3 MAT-file".ljust(124)
+                                                                            + b"\x00\x02IM" + b"\0" * 400),
+                                         ["upscale", "t.mat", "out.npy", "--model", "MODEL", "--input", "timetags",
+                                          "--time-unit", "1ps"], ["v7.3", "-v7"]),
+    "upscale time tags outside the gate": (lambda p: np.savez(p / "t.npz", pixel=np.arange(16), time=np.arange(16.0),
+                                                              shape=np.array([4, 4])),
+                                           ["upscale", "t.npz", "out.npy", "--model", "MODEL", "--input", "timetags",
+                                            "--time-unit", "1ns", "--gate-start", "2ns", "--bin-width", "1ns"],
+                                           ["2 of 16 photons", "outside the gate", "--drop-outside"]),
     # tracebacks that must be messages
     "upscale --model .npy": (lambda p: (np.save(p / "in.npy", np.full((3, 32, 64), 0.5, np.float32)),
                                         np.save(p / "m.npy", np.zeros(3))),
@@ -112,7 +127,8 @@ def test_user_mistakes_exit_2_with_one_line_and_leave_nothing(tmp_path, model_pa
     assert_refused(done, args[0], tmp_path, before, *words)
 
 
-# Arrays of any rank, size, dtype and values, the sensor's (T, 32, 64) and (T, 32, 64, 16) shapes among them.
+# Arrays of any rank, size, dtype and values, the sensor's (T, 32, 64) and (T, 32, 64, 16) shapes among them
+# (any (T, h, w) with h, w >= 4 and (T, h, w, 16) is upscaled; smaller sides and other bin counts refused).
 SHAPES = st.one_of(
     st.sampled_from([(2, 32, 64), (32, 64), (1, 32, 64, 16), (2, 31, 64), (2, 32, 64, 8), (0, 32, 64)]),
     hnp.array_shapes(min_dims=0, max_dims=5, min_side=0, max_side=4),
@@ -124,7 +140,7 @@ DTYPES = st.sampled_from(["<f4", "<f8", "<f2", "<i2", "|u1", "|b1", "<c8", "<U2"
 @settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture],
           phases=[Phase.explicit, Phase.generate])
 @given(arr=hnp.arrays(DTYPES, SHAPES), units=st.sampled_from([None, "m", "normalised"]))
-@example(arr=np.full((2, 31, 64), 0.5, np.float32), units=None)  # once upscaled to (2, 124, 256) without a word
+@example(arr=np.full((2, 31, 64), 0.5, np.float32), units=None)  # any size >= 4 x 4 runs: (2, 124, 256)
 @example(arr=np.full((1, 32, 64, 16), 1.5e59), units=None)  # once an overflow warning on stderr
 def test_upscale_any_array_is_upscaled_or_refused_cleanly(tmp_path_factory, model_path, arr, units):
     folder = tmp_path_factory.mktemp("any")
@@ -137,7 +153,8 @@ def test_upscale_any_array_is_upscaled_or_refused_cleanly(tmp_path_factory, mode
     if done.returncode == 0:
         assert len(done.stderr.splitlines()) == 1, done.stderr  # the "N frames ... model" line, no warnings
         out = np.load(folder / "out.npy")
-        assert out.shape == ((1,) if arr.ndim == 2 else arr.shape[:1]) + (128, 256)
+        lr = arr[None] if arr.ndim == 2 else arr
+        assert out.shape == (lr.shape[0], 4 * lr.shape[1], 4 * lr.shape[2])
         assert [n for n, _ in tree(folder)] == sorted(["in.npy", "out.npy"])
     else:
         assert_refused(done, "upscale", folder, before)

@@ -1,0 +1,95 @@
+"""Histograms over any time gate: centre-of-mass depth in metres on the gate's grid, and the explicit scale that
+turns metres into the network's normalised depth and back.
+
+The paper's sensor has 16 bins over [0, 35 m) and the network reads depth / 35 m. A real sensor has its own
+number of bins, bin width and gate start (`jaxsr.Gate`); `gate_depth` measures range on that grid, and a
+`jaxsr.DepthScale` (offset, span) says which metres become the network's 0 and 1. `gate_warnings` says where that
+choice takes the models outside what they were trained on.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+
+from .config import TRAINED_RANGE_M, DepthScale, Gate, SensorConfig
+from .peaks import centre_of_mass
+
+__all__ = ["gate_depth", "to_network_depth", "from_network_depth", "gate_warnings"]
+
+
+def gate_depth(counts, gate: Gate = Gate(), *, window: int = 1, z: float = 0.0, return_mask: bool = False):
+    """Centre-of-mass range of photon histograms over `gate`, in metres.
+
+    The centre of mass of PHYSICS.md section 3 (median background, +-`window` bins around the first maximum,
+    bin-centre convention) gives tau in bins; the range is gate.start + tau * gate.bin_width. With the default
+    gate this is `centre_of_mass(counts) * 35 m`.
+
+    Args:
+      counts: (..., K) photon counts, K = gate.bins, finite and >= 0 (as `jaxsr.centre_of_mass`).
+      window: half-width of the centre-of-mass window in bins (1 suits an IRF of sigma <= 0.5 bins, 2 wider).
+      z: peak-significance threshold (see `jaxsr.centre_of_mass`).
+      return_mask: also return the validity mask.
+    Returns:
+      (...) radial range in metres, +inf where there is no usable return; with `return_mask`, (range, valid).
+    """
+    norm, valid = centre_of_mass(counts, SensorConfig(bins=gate.bins), window=window, z=z, return_mask=True)
+    depth = jnp.where(valid, gate.start + norm * gate.length, jnp.inf)
+    return (depth, valid) if return_mask else depth
+
+
+def to_network_depth(depth, scale: DepthScale = DepthScale()):
+    """Radial metres -> the network's normalised depth (r - offset) / span, clipped to [0, 1].
+
+    No return (NaN, +-inf, or beyond offset + span) is 1.0; a return nearer than `offset` is 0 (the nearest
+    the network knows). With the default scale this equals `jaxsr.normalise_depth` for depths >= 0.
+
+    Args:
+      depth: (...) radial range in metres.
+    Returns:
+      (...) float normalised depth in [0, 1].
+    """
+    depth = jnp.asarray(depth, dtype=jnp.result_type(float))
+    norm = (depth - scale.offset) / scale.span
+    return jnp.where(jnp.isfinite(norm) & (norm <= 1.0), jnp.clip(norm, 0.0, 1.0), 1.0)
+
+
+def from_network_depth(norm, scale: DepthScale = DepthScale()):
+    """The network's normalised depth -> radial metres offset + n * span; 1.0 and above (and NaN) is no return,
+    +inf (the one threshold of `jaxsr.denormalise_depth`), below 0 is clipped to `offset`.
+
+    Args:
+      norm: (...) normalised depth (network output, unclipped).
+    Returns:
+      (...) float radial range in metres, in [offset, offset + span) or +inf.
+    """
+    norm = jnp.asarray(norm, dtype=jnp.result_type(float))
+    no_return = jnp.isnan(norm) | (norm >= 1.0)
+    return jnp.where(no_return, jnp.inf, scale.offset + jnp.clip(norm, 0.0, 1.0) * scale.span)
+
+
+def gate_warnings(gate: Gate, scale: DepthScale) -> list[str]:
+    """What the bundled models never saw in this gate and scale, as sentences (empty for the paper's sensor).
+
+    Raises ValueError if the gate lies wholly outside [offset, offset + span): every return would read as no
+    return or as 0 m. Warns (returns a sentence) when part of the gate lies beyond the span (those returns read
+    as no return), when the span is more than 2x from the trained 35 m (depth steps of another size than the
+    models learned), and when a bin is over 2x wider than the trained 1/16 of the span (coarser depth)."""
+    start, end = float(gate.start), float(gate.end)
+    lo, hi = float(scale.offset), float(scale.offset + scale.span)
+    if end <= lo or start >= hi:
+        raise ValueError(f"the gate [{start:g}, {end:g}) m lies outside the depth scale's [{lo:g}, {hi:g}) m: every "
+                         "return would be read as 0 m or no return; put the scale's offset at the gate start")
+    out = []
+    if end > hi or start < lo:
+        out.append(f"the gate [{start:g}, {end:g}) m extends past the depth scale's [{lo:g}, {hi:g}) m: returns "
+                   "outside it read as no return (beyond) or 0 m (before)")
+    ratio = float(scale.span) / TRAINED_RANGE_M
+    if not 0.5 <= ratio <= 2.0:
+        out.append(f"a depth span of {float(scale.span):g} m is {ratio:.3g}x the {TRAINED_RANGE_M:g} m the models were "
+                   "trained on: depth steps look that much smaller to them")
+    coarse = float(gate.bin_width) / float(scale.span) * 16
+    if coarse > 2.0:
+        out.append(f"bins of {float(gate.bin_width):g} m are {coarse:.3g}x the trained 1/16 of the depth span: "
+                   "coarser depth than the models saw")
+    return out
+

@@ -1,0 +1,270 @@
+"""Photon time tags: per-pixel lists of arrival times, read from files and histogrammed in JAX over a gate.
+
+Supported inputs (anything else is refused with a message that says so):
+- MATLAB v4-v7 .mat files (scipy.io) holding a cell array of shape (h, w) or (T, h, w) whose cells are numeric
+  vectors of arrival times (empty = no photon);
+- a flat NumPy table, .npz with `pixel` (N,) integer row-major indices into `shape` (h, w), `time` (N,) and
+  optionally `frame` (N,) frame indices and `time_unit_s` (seconds per time unit);
+- the same cells as a nested Python list or an object array (`time_tags_from_cells`).
+MATLAB v7.3 files are HDF5 and are refused: re-save them with save(FILE, VAR, '-v7').
+
+Times are in the recording's own unit (ps in most lidar files, or the system's bins); `time_unit_s` says how
+many seconds one unit is, which puts them on a `jaxsr.Gate` in metres (r = c t / 2).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import importlib.util
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .config import METRES_PER_SECOND, Gate
+
+__all__ = ["TimeTags", "time_tags_from_cells", "read_time_tags", "histogram_photons", "histogram_time_tags",
+           "gate_of_tags", "TIME_TAG_FORMATS"]
+
+TIME_TAG_FORMATS = (".mat", ".npz")
+
+
+@dataclasses.dataclass(frozen=True)
+class TimeTags:
+    """Photon arrival times of a recording (host NumPy arrays): `pixel` (N,) int64 row-major pixel indices into
+    `shape` (h, w), `frame` (N,) int64 frame indices in [0, frames), `time` (N,) float64 arrival times in the
+    recording's unit, `time_unit_s` (seconds per unit; None when the file does not say) and `source`."""
+
+    pixel: np.ndarray
+    frame: np.ndarray
+    time: np.ndarray
+    shape: tuple[int, int]
+    frames: int
+    time_unit_s: float | None = None
+    source: str = "time tags"
+
+    @property
+    def photons_per_pixel(self) -> float:
+        """Mean photons per pixel and frame."""
+        return self.time.size / (self.frames * self.shape[0] * self.shape[1])
+
+
+def _cell_times(cell, where: str, source: str) -> np.ndarray:
+    """One cell's arrival times as a float64 vector (empty for no photon); refuses anything but real numbers."""
+    arr = np.asarray(cell)
+    if arr.dtype == object or arr.dtype.kind not in "iuf":
+        raise ValueError(f"{source}: cell {where} holds {arr.dtype} values; expected a vector of arrival times "
+                         "(real numbers) or an empty cell")
+    if arr.size and arr.size != max(arr.shape):
+        raise ValueError(f"{source}: cell {where} is a {arr.shape} matrix; expected a vector of arrival times")
+    times = arr.astype(np.float64).ravel()
+    if not np.all(np.isfinite(times)):
+        raise ValueError(f"{source}: cell {where} holds non-finite arrival times")
+    return times
+
+
+def time_tags_from_cells(cells, *, time_unit_s: float | None = None, source: str = "cells") -> TimeTags:
+    """Time tags from per-pixel lists of arrival times.
+
+    cells: an (h, w) or (T, h, w) object array (a MATLAB cell array as scipy.io reads it) or nested lists of the
+    same rectangular shape, each entry a vector of arrival times (empty: no photon in that pixel, a no-return
+    pixel after histogramming). Returns `TimeTags`. Raises ValueError for ragged nesting, a cell that is not a
+    numeric vector, or non-finite times."""
+    if not isinstance(cells, np.ndarray) or cells.dtype != object:
+        grid = np.empty(_nested_shape(cells, source), dtype=object)
+        for index in np.ndindex(grid.shape):
+            item = cells
+            for i in index:
+                item = item[i]
+            grid[index] = item
+        cells = grid
+    if cells.ndim == 2:
+        cells = cells[None]
+    if cells.ndim != 3 or min(cells.shape) < 1:
+        raise ValueError(f"{source}: expected cells of shape (h, w) or (T, h, w), got {cells.shape}")
+    frames, h, w = cells.shape
+    times, pixel, frame = [], [], []
+    for (t, y, x), cell in np.ndenumerate(cells):
+        c = _cell_times(cell, f"({y}, {x})" + (f" of frame {t}" if frames > 1 else ""), source)
+        times.append(c)
+        pixel.append(np.full(c.size, y * w + x, np.int64))
+        frame.append(np.full(c.size, t, np.int64))
+    return TimeTags(np.concatenate(pixel), np.concatenate(frame), np.concatenate(times), (h, w), frames,
+                    time_unit_s, source)
+
+
+def _nested_shape(cells, source) -> tuple[int, ...]:
+    """The rectangular (rows, cols) or (T, rows, cols) shape of nested lists of time vectors; ValueError if ragged."""
+    if not isinstance(cells, (list, tuple)) or not cells:
+        raise ValueError(f"{source}: expected per-pixel lists of arrival times, (h, w) or (T, h, w) nested lists")
+    depth = 3 if isinstance(cells[0], (list, tuple)) and cells[0] and isinstance(cells[0][0], (list, tuple)) \
+        and cells[0][0] and isinstance(cells[0][0][0], (list, tuple, np.ndarray)) else 2
+
+    def lengths(item, level):
+        if level == depth:
+            return
+        if not isinstance(item, (list, tuple)):
+            raise ValueError(f"{source}: ragged cells: expected {depth} levels of lists")
+        yield level, len(item)
+        for sub in item:
+            yield from lengths(sub, level + 1)
+
+    shape = [None] * depth
+    for level, n in lengths(cells, 0):
+        if shape[level] is None:
+            shape[level] = n
+        elif shape[level] != n:
+            raise ValueError(f"{source}: ragged cells: rows of {shape[level]} and {n} entries at level {level}; "
+                             "expected every row to have the same number of pixels")
+    return tuple(shape)
+
+
+def _read_mat(path: Path, variable: str | None) -> tuple[np.ndarray, str]:
+    import scipy.io
+
+    try:
+        major, _ = scipy.io.matlab.matfile_version(str(path))
+    except Exception as e:  # scipy raises several kinds for a file that is not a MAT-file
+        raise ValueError(f"{path}: not a MATLAB .mat file ({e})") from None
+    if major == 2:
+        why = "h5py is not installed" if importlib.util.find_spec("h5py") is None else "not supported yet"
+        raise ValueError(f"{path}: a MATLAB v7.3 (HDF5) file, which jaxsr does not read ({why}); re-save it in "
+                         "MATLAB with save(FILE, VAR, '-v7')")
+    try:
+        contents = scipy.io.loadmat(str(path), squeeze_me=False)
+    except Exception as e:
+        raise ValueError(f"{path}: cannot read this .mat file ({e})") from None
+    cells = {k: v for k, v in contents.items() if not k.startswith("__") and isinstance(v, np.ndarray)
+             and v.dtype == object and v.ndim in (2, 3)}
+    if variable is not None:
+        if variable not in cells:
+            raise ValueError(f"{path}: no cell array named {variable!r}; cell arrays here: {sorted(cells) or 'none'}")
+        return cells[variable], variable
+    if len(cells) != 1:
+        found = sorted(k for k in contents if not k.startswith("__"))
+        raise ValueError(f"{path}: expected one cell array of per-pixel arrival times, found "
+                         f"{sorted(cells) or 'none'} among {found}" + ("; name one (--variable)" if cells else ""))
+    (name, value), = cells.items()
+    return value, name
+
+
+def _read_table(path: Path) -> TimeTags:
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+    except (ValueError, OSError) as e:
+        raise ValueError(f"{path}: cannot read this .npz file ({e})") from None
+    missing = {"pixel", "time", "shape"} - set(arrays)
+    if missing:
+        raise ValueError(f"{path}: a time-tag table needs arrays 'pixel', 'time' and 'shape'; missing "
+                         f"{sorted(missing)} (found {sorted(arrays)})")
+    pixel, time, shape = arrays["pixel"], arrays["time"], arrays["shape"]
+    frame = arrays.get("frame", np.zeros(pixel.shape, np.int64))
+    if shape.shape != (2,) or shape.dtype.kind not in "iu" or shape.min() < 1:
+        raise ValueError(f"{path}: 'shape' must be two integers (h, w) >= 1, got {shape!r}")
+    if pixel.ndim != 1 or time.shape != pixel.shape or frame.shape != pixel.shape:
+        raise ValueError(f"{path}: 'pixel', 'time' (and 'frame') must be vectors of one length, got "
+                         f"{pixel.shape}, {time.shape}, {frame.shape}")
+    if pixel.dtype.kind not in "iu" or frame.dtype.kind not in "iu" or time.dtype.kind not in "iuf":
+        raise ValueError(f"{path}: 'pixel' and 'frame' must be integers and 'time' real numbers")
+    h, w = (int(v) for v in shape)
+    if pixel.size and (pixel.min() < 0 or pixel.max() >= h * w or frame.min() < 0):
+        raise ValueError(f"{path}: pixel indices must lie in [0, {h * w}) (row-major in {h} x {w}) and frames >= 0")
+    if not np.all(np.isfinite(time)):
+        raise ValueError(f"{path}: 'time' holds non-finite arrival times")
+    unit = arrays.get("time_unit_s")
+    return TimeTags(pixel.astype(np.int64), frame.astype(np.int64), time.astype(np.float64), (h, w),
+                    int(frame.max()) + 1 if frame.size else 1, None if unit is None else float(unit), str(path))
+
+
+def read_time_tags(path, *, variable: str | None = None, time_unit_s: float | None = None) -> TimeTags:
+    """Read photon time tags from a .mat cell array or an .npz table of pixels and times (module docstring).
+
+    variable: the .mat cell array to read (default: the only one). time_unit_s: seconds per time unit (overrides
+    a table's `time_unit_s`). Returns `TimeTags`. Raises FileNotFoundError for a missing file and ValueError for
+    another format, MATLAB v7.3, no or several cell arrays, or malformed contents (the message says which)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no such file: {path}")
+    suffix = path.suffix.lower()
+    if suffix == ".mat":
+        cells, name = _read_mat(path, variable)
+        tags = time_tags_from_cells(cells, source=f"{path}:{name}")
+    elif suffix == ".npz":
+        tags = _read_table(path)
+    else:
+        raise ValueError(f"{path}: time tags are read from a MATLAB .mat cell array (v4-v7) or an .npz table "
+                         f"('pixel', 'time', 'shape'), not {suffix or 'a file without a suffix'}")
+    if time_unit_s is not None:
+        tags = dataclasses.replace(tags, time_unit_s=float(time_unit_s))
+    return tags
+
+
+@functools.partial(jax.jit, static_argnames=("cells", "bins"))
+def histogram_photons(cell, delay, *, cells: int, bins: int):
+    """Histogram photons into `cells` histograms of `bins` bins (pure JAX, jit-compiled).
+
+    Args:
+      cell: (N,) int histogram index of each photon (frame * pixels + pixel), in [0, cells).
+      delay: (N,) float arrival time after the gate start, in bins; photon n falls into bin floor(delay[n]), and
+        photons outside [0, bins) are not counted.
+    Returns:
+      (cells, bins) float32 photon counts.
+    """
+    k = jnp.floor(delay)
+    inside = (k >= 0) & (k < bins)
+    index = jnp.where(inside, cell * bins + k.astype(jnp.int32), 0)
+    counts = jnp.zeros(cells * bins, jnp.float32).at[index].add(inside.astype(jnp.float32))
+    return counts.reshape(cells, bins)
+
+
+def _unit_s(tags: TimeTags) -> float:
+    if tags.time_unit_s is None or not (0 < tags.time_unit_s < np.inf):
+        raise ValueError(f"{tags.source}: the time unit of the tags is unknown; give it (time_unit_s, --time-unit "
+                         "such as 1ps); if nobody knows it, any nominal unit with a depth span of the gate (--span gate) gives the "
+                         "same normalised depth")
+    return tags.time_unit_s
+
+
+def gate_of_tags(tags: TimeTags, *, bins: int = 16) -> Gate:
+    """The gate that just covers the photons seen: `bins` bins from the first to the last arrival time (the last
+    bin widened by 1e-6 so that the last photon falls inside). Returns a Gate in metres; raises ValueError when
+    there are no photons or all arrive at one time."""
+    if tags.time.size == 0 or tags.time.max() <= tags.time.min():
+        raise ValueError(f"{tags.source}: {tags.time.size} photons at one arrival time; give the gate "
+                         "(--gate-start, --bin-width)")
+    metres = METRES_PER_SECOND * _unit_s(tags)
+    t0, t1 = float(tags.time.min()), float(tags.time.max())
+    return Gate(bins, (t1 - t0) / bins * (1 + 1e-6) * metres, t0 * metres)
+
+
+def histogram_time_tags(tags: TimeTags, gate: Gate, *, outside: str = "error") -> np.ndarray:
+    """Photon counts of time tags over `gate`: (T, h, w, K) float32 NumPy, K = gate.bins, histogrammed in JAX
+    (`histogram_photons`).
+
+    Each time t (in the tags' unit) is placed in bin floor((t - t_start) / t_width), with the gate's start and
+    bin width converted to that unit (r = c t / 2); the subtraction is done in float64 first, so times of
+    microseconds in picoseconds keep their precision. A pixel with no photon in the gate is an empty histogram
+    (no return after the centre of mass). outside: "error" (default) refuses photons outside the gate with
+    their count and time range; "drop" ignores them. Raises ValueError for those, for an unknown time unit, and
+    for a gate that catches no photon."""
+    if outside not in ("error", "drop"):
+        raise ValueError(f"histogram_time_tags: outside must be 'error' or 'drop', got {outside!r}")
+    per_unit = METRES_PER_SECOND * _unit_s(tags)  # metres of range per time unit
+    delay = ((tags.time - float(gate.start) / per_unit) / (float(gate.bin_width) / per_unit)).astype(np.float32)
+    inside = (delay >= 0) & (delay < gate.bins)
+    n_out = int(delay.size - inside.sum())
+    if n_out and outside == "error":
+        lo, hi = gate.start / per_unit, gate.end / per_unit
+        raise ValueError(f"{tags.source}: {n_out} of {delay.size} photons arrive outside the gate [{lo:.6g}, {hi:.6g}) "
+                         f"(times seen {tags.time.min():.6g} .. {tags.time.max():.6g}, in the tags' unit); widen the "
+                         "gate or drop them (outside='drop', --drop-outside)")
+    if delay.size and not inside.any():
+        raise ValueError(f"{tags.source}: no photon arrives inside the gate")
+    h, w = tags.shape
+    cell = tags.frame * (h * w) + tags.pixel
+    counts = histogram_photons(jnp.asarray(cell, jnp.int32), jnp.asarray(delay),
+                               cells=tags.frames * h * w, bins=gate.bins)
+    return np.asarray(counts).reshape(tags.frames, h, w, gate.bins)
