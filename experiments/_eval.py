@@ -132,7 +132,7 @@ def get_model(tr: int, *, pretrained: bool, preset: str, runs: Path, scale: int 
     (resumed when interrupted; a finished run is loaded, not retrained). Returns (Model, card dict)."""
     if pretrained:
         if scale != 4:
-            raise SystemExit("bundled weights are x4 only; train x8 models without --pretrained")
+            raise SystemExit("bundled weights are x4 only; train x8 models with --train")
         model = jaxsr.load_model(f"tr{tr}")
         return model, jaxsr.read_metadata(Path(jaxsr.__file__).parent / "weights" / f"tr{tr}.npz").get("card", {})
     sensor = SensorConfig(scale=scale)

@@ -2,8 +2,11 @@
 under 0.05 dB, each with its training card; writes experiments/results/weights.md.
 
     python experiments/bundle_weights.py --runs runs/bundle [--trs 0 1 2 3 4] [--checkpoint select] [--force]
+    python experiments/bundle_weights.py --form sequence --runs runs/bundle-seq --trs 1 2 3 4 [--force]
 
-The models come from `jaxsr train --tr N --preset bundle --out runs/bundle/trN`. `--checkpoint select` (the
+The window-form models come from `jaxsr train --tr N --preset bundle --out runs/bundle/trN` and are bundled as
+tr<N>.npz (results/weights.md); the sequence-form models from `experiments/train_sequence_bundle.py` and are
+bundled as tr<N>-seq.npz (`jaxsr.load_model("tr4-seq")`; results/weights_sequence.md). `--checkpoint select` (the
 default) bundles whichever of best.npz (the epoch with the lowest validation loss during training) and last.npz
 (the final epoch) has the higher mean PSNR on the three validation sequences (first --frames frames each, with
 noise other than training's validation; never the test scenes). In a schedule as short as the bundle preset's,
@@ -31,6 +34,7 @@ from _report import header, markdown_table, write_atomic
 WEIGHTS = Path(jaxsr.__file__).parent / "weights"
 VALIDATION = ("val1_street", "val2_road", "val3_courtyard")
 MAX_COST_DB = 0.05
+SUFFIX = {"window": "", "sequence": "-seq"}  # bundled file names: tr4.npz, tr4-seq.npz
 
 
 def mean_psnr(model, clips):
@@ -45,6 +49,8 @@ def main():
     parser.add_argument("--checkpoint", choices=["select", "best", "last"], default="select",
                         help="which checkpoint of each run to bundle (default: the better of best and last on the "
                         "validation frames)")
+    parser.add_argument("--form", choices=["window", "sequence"], default="window",
+                        help="the runs' temporal form: window -> tr<N>.npz, sequence -> tr<N>-seq.npz")
     parser.add_argument("--force", action="store_true", help="replace existing bundled weights")
     args = parser.parse_args()
     started = time.time()
@@ -52,7 +58,7 @@ def main():
     clips = [simulate_clip(jax.random.key(7000 + i), seqs[n]) for i, n in enumerate(VALIDATION)]
     rows = []
     for tr in args.trs:
-        target = WEIGHTS / f"tr{tr}.npz"
+        target = WEIGHTS / f"tr{tr}{SUFFIX[args.form]}.npz"
         if target.exists() and not args.force:
             raise SystemExit(f"{target} exists; pass --force to replace it")
         run = Path(args.runs) / f"tr{tr}"
@@ -67,7 +73,9 @@ def main():
             reduced = mean_psnr(half, clips)
         cost = full - reduced
         dtype = "float16" if cost < MAX_COST_DB else "float32"
-        card = dict(card, trained_with=f"jaxsr train --tr {tr} --preset bundle --out {run}",
+        trained_with = (f"jaxsr train --tr {tr} --preset bundle --out {run}" if args.form == "window" else
+                        f"python experiments/train_sequence_bundle.py --trs {tr} --runs {args.runs}")
+        card = dict(card, trained_with=trained_with,
                     checkpoint={"file": f"{chosen}.npz", "rule": args.checkpoint,
                                 "validation_psnr_db": {k: round(v, 3) for k, v in val_psnr.items()}},
                     storage={"dtype": dtype, "psnr_cost_db": round(cost, 4),
@@ -81,10 +89,13 @@ def main():
                      " / ".join(f"{val_psnr.get(k, float('nan')):.2f}" for k in ("best", "last")),
                      f"{cost:+.4f}", dtype, f"{size:.1f}"])
         print(*rows[-1], flush=True)
-    total = sum((WEIGHTS / f"tr{tr}.npz").stat().st_size for tr in range(5) if (WEIGHTS / f"tr{tr}.npz").exists())
-    text = header("Bundled weights (jaxsr/weights)", started)
-    text += ("Each model trained with `jaxsr train --preset bundle` (batch 4, 16 x 32 LR crops of freshly rendered "
-             "random scenes, SNR 0.5-8, 7-28 signal photons, Adam 1e-3 cut to 1e-4 for the last epoch; "
+    total = sum(p.stat().st_size for p in WEIGHTS.glob("*.npz"))
+    form = args.form
+    text = header(f"Bundled weights (jaxsr/weights), {form} form", started)
+    text += (("Each model trained with `jaxsr train --preset bundle`" if form == "window" else
+              "Each model trained with `experiments/train_sequence_bundle.py` (the `bundle` preset in the sequence "
+              "form, clips of 2R + 8 frames, as long as the windowed model of its TR trained: see that script)") +
+             " (batch 4, 16 x 32 LR crops of freshly rendered random scenes, SNR 0.5-8, 7-28 signal photons, Adam 1e-3 cut to 1e-4 for the last epoch; "
              "validation on 3 x 16 frames of the validation sequences). Card columns: the best epoch's validation PSNR "
              "and bicubic's on the same frames, from the training card. 'val PSNR best / last': mean over "
              f"{', '.join(VALIDATION)} ({args.frames} frames each, other noise) of the two checkpoints of the run; "
@@ -93,8 +104,9 @@ def main():
     text += markdown_table(["model", "checkpoint", "steps", "examples", "train min", "card val PSNR",
                             "card bicubic", "val PSNR best / last", "float16 cost dB", "stored", "MB"], rows)
     text += f"\nAll bundled weights together: {total / 2**20:.1f} MB.\n"
-    write_atomic("experiments/results/weights.md", text)
-    print(f"wrote experiments/results/weights.md ({time.time() - started:.0f} s)")
+    results = "experiments/results/weights.md" if form == "window" else "experiments/results/weights_sequence.md"
+    write_atomic(results, text)
+    print(f"wrote {results} ({time.time() - started:.0f} s)")
 
 
 if __name__ == "__main__":

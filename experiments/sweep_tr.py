@@ -1,15 +1,16 @@
-"""Temporal-radius sweep (the paper's Table 1 and Fig. 5): train TR0-TR4, score them on the three test scenes,
-measure frames/s on this machine, and plot the speed-accuracy trade.
+"""Temporal-radius sweep (the paper's Table 1 and Fig. 5): score TR0-TR4 on the three test scenes, measure
+frames/s on this machine, and plot the speed-accuracy trade.
 
-    python experiments/sweep_tr.py                   # train with the cpu preset (2 CPU cores: about 45 min)
-    python experiments/sweep_tr.py --pretrained      # evaluate the bundled weights (minutes)
-    python experiments/sweep_tr.py --quick           # smoke run of the whole pipeline (under 3 min)
-    python experiments/sweep_tr.py --preset paper    # the paper's schedule (a GPU)
-    python experiments/sweep_tr.py --scale 8         # the supplement's x8 study (LR 16 x 32 -> 128 x 256)
+    python experiments/sweep_tr.py                   # the bundled weights (a few minutes on 2 CPU cores)
+    python experiments/sweep_tr.py --train cpu       # train first with the cpu preset (2 CPU cores: 20-40 min)
+    python experiments/sweep_tr.py --train paper     # the paper's schedule (a GPU)
+    python experiments/sweep_tr.py --quick           # smoke run of the training pipeline (under 3 min)
+    python experiments/sweep_tr.py --train cpu --scale 8   # the supplement's x8 study (LR 16 x 32 -> 128 x 256)
 
-Training runs go to runs/sweep_tr/<preset>/x<scale>/tr<N> and resume where they stopped; a finished run is
-loaded, not retrained. Writes experiments/results/sweep_tr[_x8][_pretrained|_quick].{md,csv,png} (the
-_pareto.png beside it: PSNR against frames/s).
+With the bundled weights, the sequence-form models that are bundled (tr<N>-seq) are scored beside the windowed
+ones and drawn in the speed-accuracy plot. Training runs go to runs/sweep_tr/<preset>/x<scale>/tr<N> and resume
+where they stopped; a finished run is loaded, not retrained. Writes experiments/results/sweep_tr[_x8][_<preset>|
+_quick].{md,csv,png} (the _pareto.png beside it: PSNR against frames/s).
 """
 
 from __future__ import annotations
@@ -27,6 +28,8 @@ from jaxsr.runtime import enable_compilation_cache
 from _eval import (FPS_NOTE, PAPER_BICUBIC, PAPER_TABLE1, SCENE_LABELS, TEST_SCENES, bicubic_fps, get_model,
                    model_fps, score, test_clips)
 from _report import header, markdown_table, write_atomic
+
+WEIGHTS = Path(jaxsr.__file__).parent / "weights"
 
 
 def evaluate_tr(model, clips) -> dict:
@@ -48,7 +51,7 @@ def pareto(points):
             if not any(f2 >= f and p2 >= p and (f2, p2) != (f, p) for f2, p2 in points)]
 
 
-def plot(path, rows, bicubic, fps_bicubic):
+def plot(path, rows, bicubic, fps_bicubic, seq_rows=None):
     """PSNR and SSIM against TR per scene (paper Fig. 5), and PSNR against frames/s with the Pareto front."""
     import matplotlib
 
@@ -74,10 +77,13 @@ def plot(path, rows, bicubic, fps_bicubic):
     pts = [(rows[tr]["fps"], np.mean([rows[tr]["scores"][n][0] for n in TEST_SCENES])) for tr in trs]
     pts.append((fps_bicubic, np.mean([bicubic[n][0] for n in TEST_SCENES])))
     labels = [f"TR{tr}" for tr in trs] + ["bicubic"]
+    for tr, r in (seq_rows or {}).items():
+        pts.append((r["fps"], np.mean([r["scores"][n][0] for n in TEST_SCENES])))
+        labels.append(f"TR{tr}-seq")
     front = sorted(pareto(pts), key=lambda i: pts[i][0])
     ax.plot([pts[i][0] for i in front], [pts[i][1] for i in front], "-", color="0.6", label="Pareto front")
     for (f, p), lab in zip(pts, labels):
-        ax.plot(f, p, "o")
+        ax.plot(f, p, "^" if lab.endswith("-seq") else "o")
         ax.annotate(lab, (f, p), textcoords="offset points", xytext=(4, 4), fontsize=8)
     ax.set_xscale("log")
     ax.set_xlabel("frames/s on this machine (end to end)")
@@ -90,8 +96,9 @@ def plot(path, rows, bicubic, fps_bicubic):
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--preset", choices=sorted(PRESETS), default="cpu", help="training preset (default cpu)")
-    parser.add_argument("--pretrained", action="store_true", help="evaluate the bundled weights, no training")
+    parser.add_argument("--train", choices=sorted(PRESETS), default=None, metavar="PRESET",
+                        help=f"train TR0-TR4 with this preset ({', '.join(sorted(PRESETS))}) first; default: score "
+                        "the bundled weights")
     parser.add_argument("--quick", action="store_true", help="smoke run: TR0 and TR1, 2 training steps, 8 frames")
     parser.add_argument("--scale", type=int, default=4, choices=[4, 8], help="upscaling factor (default 4)")
     parser.add_argument("--trs", type=int, nargs="+", default=None, help="temporal radii (default 0 1 2 3 4)")
@@ -107,7 +114,9 @@ def main():
     trs = args.trs or ([0, 1] if args.quick else [0, 1, 2, 3, 4])
     frames = args.frames or (8 if args.quick else 100)
     sensor = SensorConfig(scale=args.scale)
-    suffix = ("_x8" if args.scale == 8 else "") + ("_quick" if args.quick else "_pretrained" if args.pretrained else "")
+    pretrained = args.train is None and not args.quick
+    preset = args.train or "cpu"
+    suffix = ("_x8" if args.scale == 8 else "") + ("_quick" if args.quick else "" if pretrained else f"_{preset}")
     base = Path(args.results) / f"sweep_tr{suffix}"
     base.parent.mkdir(parents=True, exist_ok=True)
 
@@ -119,18 +128,28 @@ def main():
     rows = {}
     for tr in trs:
         t0 = time.time()
-        model, card = get_model(tr, pretrained=args.pretrained, preset=args.preset, runs=Path(args.runs),
+        model, card = get_model(tr, pretrained=pretrained, preset=preset, runs=Path(args.runs),
                                 scale=args.scale, quick=args.quick, progress=not args.no_progress)
         scores = evaluate_tr(model, clips)
         fps = model_fps(model, clip0, min_time=min_time)
         rows[tr] = {"scores": scores, "fps": fps, "card": card}
         print(f"TR{tr}: " + ", ".join(f"{SCENE_LABELS[n]} {p:.2f} dB / {s:.3f}" for n, (p, s) in scores.items())
               + f", {fps:.1f} frames/s ({time.time() - t0:.0f} s)", flush=True)
+    seq_rows = {}  # the bundled sequence-form models (tr<N>-seq), scored the same way
+    for tr in trs if pretrained else ():
+        path = WEIGHTS / f"tr{tr}-seq.npz"
+        if path.exists():
+            model = jaxsr.load_model(path)
+            seq_rows[tr] = {"scores": evaluate_tr(model, clips), "fps": model_fps(model, clip0, min_time=min_time),
+                            "card": jaxsr.read_metadata(path).get("card", {})}
+            print(f"TR{tr}-seq: {np.mean([p for p, _ in seq_rows[tr]['scores'].values()]):.2f} dB mean, "
+                  f"{seq_rows[tr]['fps']:.1f} frames/s", flush=True)
 
     cells = lambda sc: [f"{sc[n][i]:.{2 if i == 0 else 3}f}" for n in TEST_SCENES for i in (0, 1)]  # noqa: E731
     columns = ["method"] + [f"{SCENE_LABELS[n]} {m}" for n in TEST_SCENES for m in ("PSNR", "SSIM")] + ["frames/s"]
     table = [["bicubic"] + cells(bicubic) + [f"{fps_bicubic:.0f}"]]
     table += [[f"TR{tr}"] + cells(r["scores"]) + [f"{r['fps']:.1f}"] for tr, r in rows.items()]
+    table += [[f"TR{tr}-seq"] + cells(r["scores"]) + [f"{r['fps']:.1f}"] for tr, r in seq_rows.items()]
     paper = [["bicubic (paper)"] + [f"{v:.{2 if i == 0 else 3}f}" for sc in PAPER_BICUBIC[:3] for i, v in
                                     enumerate(sc)] + [f"{PAPER_BICUBIC[3]:.0f}"]]
     paper += [[f"TR{tr} (paper)"] + [f"{v:.{2 if i == 0 else 3}f}" for sc in PAPER_TABLE1[tr][:3] for i, v in
@@ -138,10 +157,11 @@ def main():
     csv = ",".join(["method", *[f"{n}_{m}" for n in TEST_SCENES for m in ("psnr", "ssim")], "fps"]) + "\n"
     csv += csv_row("bicubic", bicubic, fps_bicubic)
     csv += "".join(csv_row(f"TR{tr}", r["scores"], r["fps"]) for tr, r in rows.items())
+    csv += "".join(csv_row(f"TR{tr}-seq", r["scores"], r["fps"]) for tr, r in seq_rows.items())
 
-    source = ("the bundled weights (jaxsr/weights)" if args.pretrained else
+    source = ("the bundled weights (jaxsr/weights)" if pretrained else
               "a 2-step smoke training (--quick: numbers are meaningless)" if args.quick else
-              f"models trained here with the `{args.preset}` preset ({args.runs})")
+              f"models trained here with the `{preset}` preset ({args.runs})")
     text = header(f"Temporal-radius sweep, x{args.scale} (paper Table 1, Fig. 5)", started)
     text += (f"Models: {source}. Test data: the first {frames} frames of each test scene (scenes 1-2 at SNR 1.3, "
              f"scene 3 at SNR 3, {jaxsr.DEFAULT_MEAN_SIGNAL:g} signal photons per LR pixel), noise seed {args.seed}; "
@@ -153,12 +173,15 @@ def main():
     cards = [f"- TR{tr}: {r['card'].get('steps', '?')} steps, {r['card'].get('examples', '?')} examples, "
              f"{r['card'].get('wall_time_s', 0) / 60:.0f} min training on {r['card'].get('hardware', {}).get('backend', '?')}"
              for tr, r in rows.items()]
+    cards += [f"- TR{tr}-seq (the sequence form, `jaxsr.load_model('tr{tr}-seq')`): {r['card'].get('steps', '?')} steps "
+              f"of {r['card'].get('train_config', {}).get('batch_size', '?')} clips, "
+              f"{r['card'].get('wall_time_s', 0) / 60:.0f} min training" for tr, r in seq_rows.items()]
     text += "\nTraining of each model (from its card):\n\n" + "\n".join(cards) + "\n"
     text += "\n" + claims(rows, bicubic) + "\n"
     text += f"\nPlots: `{base.name}.png` (PSNR and SSIM against TR), `{base.name}_pareto.png` (PSNR against frames/s).\n"
     write_atomic(f"{base}.md", text)
     write_atomic(f"{base}.csv", csv)
-    plot(f"{base}.png", rows, bicubic, fps_bicubic)
+    plot(f"{base}.png", rows, bicubic, fps_bicubic, seq_rows)
     print(f"wrote {base}.md, .csv, .png ({time.time() - started:.0f} s)")
 
 

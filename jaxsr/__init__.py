@@ -48,6 +48,8 @@ from .metrics import psnr as psnr
 from .metrics import ssim as ssim
 from .metrics import ssim_global as ssim_global
 from .metrics import temporal_coherence as temporal_coherence
+from .stats import Interval as Interval
+from .stats import paired_interval as paired_interval
 from .peaks import centre_of_mass as centre_of_mass
 from .peaks import maximum_likelihood_depth as maximum_likelihood_depth
 from .poisson import sample_poisson as sample_poisson
