@@ -38,6 +38,7 @@ from .io import write_sequence as write_sequence
 from .previews import write_comparison as write_comparison
 from .previews import write_preview as write_preview
 from .metrics import TemporalCoherence as TemporalCoherence
+from .metrics import huber_loss as huber_loss
 from .metrics import psnr as psnr
 from .metrics import ssim as ssim
 from .metrics import ssim_global as ssim_global
@@ -71,5 +72,4 @@ from .temporal import change_frame_rate as change_frame_rate
 from .temporal import windows as windows
 from .train import evaluate as evaluate
 from .train import fit as fit
-from .train import huber_loss as huber_loss
 from .train import make_train_step as make_train_step
