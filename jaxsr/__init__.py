@@ -45,6 +45,8 @@ from .metrics import ssim_global as ssim_global
 from .metrics import temporal_coherence as temporal_coherence
 from .peaks import centre_of_mass as centre_of_mass
 from .peaks import maximum_likelihood_depth as maximum_likelihood_depth
+from .pipeline import pipeline_metric as pipeline_metric
+from .poisson import poisson_pathwise as poisson_pathwise
 from .poisson import sample_poisson as sample_poisson
 from .optim import adam_init as adam_init
 from .optim import adam_update as adam_update

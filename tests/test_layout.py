@@ -13,7 +13,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "jaxsr"
 LAYERS = [
     {"_checks", "_files", "config", "runtime", "optim", "metrics", "layers", "poisson", "temporal", "baselines"},
     {"sensor", "peaks", "model"},
-    {"scenes", "io", "checkpoint", "recon", "streaming"},
+    {"scenes", "io", "checkpoint", "recon", "streaming", "pipeline"},
     {"previews", "recordings", "data", "inference", "adaptive"},
     {"train"},
     {"cli"},
