@@ -44,6 +44,7 @@ from .io import write_sequence as write_sequence
 from .previews import write_comparison as write_comparison
 from .previews import write_preview as write_preview
 from .metrics import TemporalCoherence as TemporalCoherence
+from .metrics import huber_loss as huber_loss
 from .metrics import psnr as psnr
 from .metrics import ssim as ssim
 from .metrics import ssim_global as ssim_global
@@ -52,6 +53,8 @@ from .stats import Interval as Interval
 from .stats import paired_interval as paired_interval
 from .peaks import centre_of_mass as centre_of_mass
 from .peaks import maximum_likelihood_depth as maximum_likelihood_depth
+from .pipeline import pipeline_metric as pipeline_metric
+from .poisson import poisson_pathwise as poisson_pathwise
 from .poisson import sample_poisson as sample_poisson
 from .optim import adam_init as adam_init
 from .optim import adam_update as adam_update
@@ -85,5 +88,4 @@ from .timetags import read_time_tags as read_time_tags
 from .timetags import time_tags_from_cells as time_tags_from_cells
 from .train import evaluate as evaluate
 from .train import fit as fit
-from .train import huber_loss as huber_loss
 from .train import make_train_step as make_train_step

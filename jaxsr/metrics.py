@@ -5,6 +5,8 @@ temporal coherence), so report the mean over frames yourself. Predictions are cl
 data range) before scoring; the ground truth is used as given. Values are not checked, eager or traced
 alike: a NaN in either frame makes that frame's PSNR and SSIM NaN (a prediction's +-inf is clipped like any
 value); in `temporal_coherence` a NaN prediction never counts as flicker, nor a NaN ground truth as static.
+`huber_loss`, the training loss, is the exception: it scores the prediction unclipped (clipping before the loss
+would stop its gradients outside [0, 1]) and averages over the axes asked for.
 """
 
 from __future__ import annotations
@@ -38,6 +40,19 @@ def psnr(pred, gt):
     pred, gt = _pair("psnr", pred, gt)
     mse = jnp.mean((pred - gt) ** 2, axis=(-2, -1))
     return -10.0 * jnp.log10(jnp.maximum(mse, _MSE_FLOOR))
+
+
+def huber_loss(pred, gt, *, delta: float = 0.01, axis=None):
+    """Mean Huber loss (the paper's Eq. 3, Keras's `Huber`): per pixel e = pred - gt,
+    0.5 e^2 if |e| <= delta else delta (|e| - delta / 2), averaged over `axis`.
+
+    pred, gt: arrays of the same shape, e.g. (B, H, W). axis: None (every pixel: a scalar) or the axes to
+    average over, e.g. (-2, -1) for one loss per frame (B,). Returns the mean over `axis`.
+    """
+    e = jnp.abs(pred - gt)
+    # min(e, delta) written once gives both branches: the quadratic part and the linear excess beyond delta
+    quad = jnp.minimum(e, delta)
+    return jnp.mean(0.5 * quad**2 + delta * (e - quad), axis=axis)
 
 
 def _gaussian_kernel(size: int, sigma: float):

@@ -11,6 +11,19 @@ The fast sampler uses a single uniform per count:
   total-variation distance to the exact Poisson is below 1e-3 and its variance is lam + 1/12 (the rounding).
 
 Choose `method="exact"` to get `jax.random.poisson` instead.
+
+A draw has no derivative with respect to its rate; `poisson_pathwise` gives counts a surrogate one (the
+counts themselves unchanged) so that code downstream of a draw can be put under `jax.grad`:
+
+- "normal": the pathwise derivative of the normal approximation n = lam + sqrt(lam) z with z held at the
+  value the draw implies, dn/dlam = 1 + (n - lam) / (2 lam) = 1/2 + n / (2 lam), where lam >= `NORMAL_ABOVE`;
+  below it the variance term would blow up (n = 1 at lam = 0.01 gives 50), so those bins pass the gradient
+  straight through (dn/dlam = 1). For f a polynomial of degree <= 2 in one count the variance term makes the
+  estimator unbiased (E[f'(n)(1/2 + n/(2 lam))] = d/dlam E[f(n)]); for f = n^3 it is 1/2 too high (the exact
+  derivative is E[f(n+1) - f(n)]). It never sees jumps of f (an argmax that switches bins): that is where
+  it is biased downstream (experiments/results/sensor_design.md).
+- "straight-through": dn/dlam = 1 everywhere: unbiased only for f linear in the counts (for f = n^2 it
+  gives 2 lam of the exact 1 + 2 lam), with no variance of its own.
 """
 
 from __future__ import annotations
@@ -21,6 +34,10 @@ from jax.scipy.special import ndtri
 
 EXACT_BELOW = 24.0
 _SEARCH_TERMS = 72
+# "A few photons per bin": from here the normal approximation's variance term (its own variance 1 / (4 lam)
+# per bin) is used; below, gradients pass straight through.
+NORMAL_ABOVE = 3.0
+PATHWISE_ESTIMATORS = ("normal", "straight-through")
 
 
 def _pmf_terms(lam):
@@ -74,3 +91,55 @@ def sample_poisson(key, rates, *, method: str = "fast"):
     k_small = _inverse_cdf_small(u, jnp.where(small, rates, 0.0))
     k_large = _cornish_fisher_large(u, jnp.where(small, EXACT_BELOW, rates))
     return jnp.where(small, k_small, k_large)
+
+
+@jax.custom_jvp
+def _normal_pathwise(counts, rates, normal_above):
+    return counts
+
+
+@_normal_pathwise.defjvp
+def _normal_pathwise_jvp(primals, tangents):
+    counts, rates, normal_above = primals
+    # The counts and the threshold carry no derivative: only the rates' tangent is propagated.
+    big = rates >= normal_above
+    safe = jnp.where(big, rates, 1.0)  # no 1/0 in the branch that `where` discards
+    factor = jnp.where(big, 0.5 + 0.5 * counts / safe, 1.0)
+    return counts, factor * tangents[1]
+
+
+@jax.custom_jvp
+def _straight_through(counts, rates):
+    return counts
+
+
+@_straight_through.defjvp
+def _straight_through_jvp(primals, tangents):
+    return primals[0], tangents[1]
+
+
+def poisson_pathwise(counts, rates, *, estimator: str = "normal", normal_above=NORMAL_ABOVE):
+    """Counts drawn from `rates`, given a surrogate derivative with respect to the rates (module docstring).
+
+    The values returned are `counts`, unchanged; only `jax.grad` / `jax.jvp` see a difference: d counts /
+    d rates is 1/2 + n / (2 lam) ("normal", where lam >= `normal_above`, else 1) or 1 ("straight-through").
+    Derivatives with respect to `counts` are dropped (they are draws).
+
+    Args:
+      counts: (...) counts drawn from `rates` (e.g. by `sample_poisson`).
+      rates: (...) non-negative rates, the same shape.
+      estimator: "normal" or "straight-through".
+      normal_above: photons per bin from which "normal" uses its variance term (> 0).
+    Returns:
+      (...) the counts, with the chosen derivative with respect to the rates.
+    """
+    counts, rates = jnp.asarray(counts), jnp.asarray(rates)
+    if counts.shape != rates.shape:
+        raise ValueError(f"poisson_pathwise: counts {counts.shape} and rates {rates.shape} must have the same shape")
+    if estimator not in PATHWISE_ESTIMATORS:
+        raise ValueError(f"poisson_pathwise: estimator must be one of {PATHWISE_ESTIMATORS}, got {estimator!r}")
+    if estimator == "straight-through":
+        return _straight_through(counts, rates)
+    if not normal_above > 0:
+        raise ValueError(f"poisson_pathwise: normal_above must be > 0 photons, got {normal_above}")
+    return _normal_pathwise(counts, rates, jnp.asarray(normal_above, rates.dtype))

@@ -25,7 +25,7 @@ import numpy as np
 
 from ._checks import is_concrete, require_hr_pair
 from .config import DEFAULT_MEAN_SIGNAL, SensorConfig
-from .poisson import sample_poisson
+from .poisson import PATHWISE_ESTIMATORS, poisson_pathwise, sample_poisson
 
 
 def planar_to_radial(z, sensor: SensorConfig = SensorConfig()):
@@ -296,6 +296,7 @@ def simulate_histograms(
     snr,
     mean_signal=DEFAULT_MEAN_SIGNAL,
     sampler: str = "fast",
+    gradient: str | None = None,
 ):
     """Poisson photon counts drawn from `expected_histograms` (one draw per LR pixel and bin).
 
@@ -304,10 +305,17 @@ def simulate_histograms(
       depth, intensity, snr, mean_signal: as in `expected_histograms`.
       sampler: "fast" (exact below 24 photons per bin, Cornish-Fisher above; see `jaxsr.poisson`) or
         "exact" (`jax.random.poisson`, about 4x slower on CPU).
+      gradient: None (the default: a draw has no derivative, so gradients stop at the rates), "normal" or
+        "straight-through": a surrogate derivative of the counts with respect to the rates
+        (`jaxsr.poisson.poisson_pathwise`; "normal" is the normal approximation's pathwise derivative from
+        3 photons per bin, straight through below). The counts drawn are the same whatever `gradient` is.
     Returns:
       (..., H/scale, W/scale, K) counts, integers stored as floats so they feed the centre of mass directly;
-      all NaN where the rates are (traced, invalid scalars: see `expected_histograms`). Gradients flow
-      through nothing here: the draw is not differentiable.
+      all NaN where the rates are (traced, invalid scalars: see `expected_histograms`). With `gradient`,
+      differentiable (by that surrogate) in everything `expected_histograms` is.
     """
+    if gradient is not None and gradient not in PATHWISE_ESTIMATORS:
+        raise ValueError(f"simulate_histograms: gradient must be None or one of {PATHWISE_ESTIMATORS}, got {gradient!r}")
     rates = expected_histograms(depth, intensity, sensor, snr=snr, mean_signal=mean_signal)
-    return sample_poisson(key, jax.lax.stop_gradient(rates), method=sampler)
+    counts = sample_poisson(key, jax.lax.stop_gradient(rates), method=sampler)
+    return counts if gradient is None else poisson_pathwise(counts, rates, estimator=gradient)

@@ -1,4 +1,4 @@
-"""Training: the Huber loss, the jitted train step (data simulated inside it), validation, and `fit`.
+"""Training: the jitted train step (data simulated inside it), validation, and `fit`.
 
 The data come from a source `make_batch(key) -> (windows, gt)` of `jaxsr.data` (default `scene_batches`), run
 inside the jitted step; a sequence-form model (`ModelConfig(temporal="sequence")`) trains on clips instead,
@@ -41,12 +41,12 @@ from .checkpoint import (
 from .config import ModelConfig, SensorConfig, TrainConfig
 from .data import scene_batches, scene_clips, validation_set
 from .inference import super_resolve
-from .metrics import psnr
+from .metrics import huber_loss, psnr
 from .model import Model, apply_model, apply_model_sequence_train, apply_model_train, init_model, sequence_radius
 from .optim import AdamState, adam_init, adam_update, step_decay
 
 __all__ = [
-    "huber_loss",
+    "huber_loss",  # defined in jaxsr.metrics, the training loss
     "lr_schedule",
     "make_train_step",
     "evaluate",
@@ -54,19 +54,6 @@ __all__ = [
     "data_mesh",
     "fit",
 ]
-
-
-def huber_loss(pred, gt, *, delta: float = 0.01, axis=None):
-    """Mean Huber loss (the paper's Eq. 3, Keras's `Huber`): per pixel e = pred - gt,
-    0.5 e^2 if |e| <= delta else delta (|e| - delta / 2), averaged over `axis`.
-
-    pred, gt: arrays of the same shape, e.g. (B, H, W). axis: None (every pixel: a scalar) or the axes to
-    average over, e.g. (-2, -1) for one loss per frame (B,). Returns the mean over `axis`.
-    """
-    e = jnp.abs(pred - gt)
-    # min(e, delta) written once gives both branches: the quadratic part and the linear excess beyond delta
-    quad = jnp.minimum(e, delta)
-    return jnp.mean(0.5 * quad**2 + delta * (e - quad), axis=axis)
 
 
 def data_mesh(devices=None) -> Mesh:

@@ -11,9 +11,10 @@ PACKAGE = Path(__file__).resolve().parents[1] / "jaxsr"
 
 # Layers of the top-level modules, from the bottom. `scenes` is a subpackage; its modules have their own order.
 LAYERS = [
-    {"_checks", "_files", "config", "runtime", "optim", "metrics", "stats", "layers", "poisson", "temporal", "baselines"},
+    {"_checks", "_files", "config", "runtime", "optim", "metrics", "stats", "layers", "poisson", "temporal",
+     "baselines"},
     {"sensor", "peaks", "model"},
-    {"scenes", "io", "checkpoint", "recon", "streaming", "gates", "timetags"},
+    {"scenes", "io", "checkpoint", "recon", "streaming", "gates", "timetags", "pipeline"},
     {"previews", "recordings", "data", "inference", "adaptive"},
     {"train"},
     {"cli"},
