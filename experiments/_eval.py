@@ -74,15 +74,21 @@ def _frame_scores(sr, gt):
     return jaxsr.psnr(sr, gt), jaxsr.ssim(sr, gt)
 
 
-def score(sr, gt, *, chunk: int = 50) -> tuple[float, float]:
-    """Mean PSNR (dB) and SSIM over frames of sr against gt (T, H, W), both normalised; sr is clipped to
+def frame_scores(sr, gt, *, chunk: int = 50) -> tuple[np.ndarray, np.ndarray]:
+    """Per-frame PSNR (dB) and SSIM, each (T,), of sr against gt (T, H, W), both normalised; sr is clipped to
     [0, 1] as a user would display it."""
     p, s = [], []
     for i in range(0, len(gt), chunk):
         a, b = _frame_scores(jnp.clip(jnp.asarray(sr[i:i + chunk]), 0, 1), jnp.asarray(gt[i:i + chunk]))
         p.append(np.asarray(a))
         s.append(np.asarray(b))
-    return float(np.mean(np.concatenate(p))), float(np.mean(np.concatenate(s)))
+    return np.concatenate(p), np.concatenate(s)
+
+
+def score(sr, gt, *, chunk: int = 50) -> tuple[float, float]:
+    """Mean PSNR (dB) and SSIM over frames (see `frame_scores`)."""
+    p, s = frame_scores(sr, gt, chunk=chunk)
+    return float(np.mean(p)), float(np.mean(s))
 
 
 def frames_per_second(fn, n_frames: int, *, min_time: float = 3.0) -> float:

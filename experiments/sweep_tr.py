@@ -19,26 +19,37 @@ import argparse
 import time
 from pathlib import Path
 
+import jax
 import numpy as np
 
 import jaxsr
 from jaxsr.config import PRESETS, SensorConfig
 from jaxsr.runtime import enable_compilation_cache
 
-from _eval import (FPS_NOTE, PAPER_BICUBIC, PAPER_TABLE1, SCENE_LABELS, TEST_SCENES, bicubic_fps, get_model,
-                   model_fps, score, test_clips)
+from _eval import (FPS_NOTE, PAPER_BICUBIC, PAPER_TABLE1, SCENE_LABELS, TEST_SCENES, bicubic_fps, frame_scores,
+                   get_model, model_fps, score, test_clips)
 from _report import header, markdown_table, write_atomic
 
 WEIGHTS = Path(jaxsr.__file__).parent / "weights"
+# Frames per bootstrap block: consecutive frames of a test scene score alike (the scene changes slowly, the
+# noise does not), so intervals resample runs of frames (jaxsr.paired_interval)
+BLOCK = 10
 
 
-def evaluate_tr(model, clips) -> dict:
-    """PSNR and SSIM per scene of one model."""
-    out = {}
+def evaluate_tr(model, clips) -> tuple[dict, np.ndarray]:
+    """Mean PSNR and SSIM per scene of one model, and its per-frame PSNR (scenes, frames)."""
+    means, frames = {}, []
     for name, clip in clips.items():
-        sr = jaxsr.super_resolve(model, clip.lr)
-        out[name] = score(sr, clip.gt)
-    return out
+        p, s = frame_scores(jaxsr.super_resolve(model, clip.lr), clip.gt)
+        means[name] = (float(p.mean()), float(s.mean()))
+        frames.append(p)
+    return means, np.stack(frames)
+
+
+def difference(a, b, seed: int = 0) -> str:
+    """Mean PSNR difference a - b (per-frame PSNR, scenes x frames) with its 95 % block-bootstrap interval."""
+    iv = jaxsr.paired_interval(jax.random.key(seed), a, b, block=min(BLOCK, a.shape[-1]))
+    return f"{float(iv.mean):+.2f} [{float(iv.low):+.2f}, {float(iv.high):+.2f}]"
 
 
 def bicubic_row(clips, scale) -> dict:
@@ -130,9 +141,9 @@ def main():
         t0 = time.time()
         model, card = get_model(tr, pretrained=pretrained, preset=preset, runs=Path(args.runs),
                                 scale=args.scale, quick=args.quick, progress=not args.no_progress)
-        scores = evaluate_tr(model, clips)
+        scores, frames_psnr = evaluate_tr(model, clips)
         fps = model_fps(model, clip0, min_time=min_time)
-        rows[tr] = {"scores": scores, "fps": fps, "card": card}
+        rows[tr] = {"scores": scores, "frames": frames_psnr, "fps": fps, "card": card}
         print(f"TR{tr}: " + ", ".join(f"{SCENE_LABELS[n]} {p:.2f} dB / {s:.3f}" for n, (p, s) in scores.items())
               + f", {fps:.1f} frames/s ({time.time() - t0:.0f} s)", flush=True)
     seq_rows = {}  # the bundled sequence-form models (tr<N>-seq), scored the same way
@@ -140,7 +151,8 @@ def main():
         path = WEIGHTS / f"tr{tr}-seq.npz"
         if path.exists():
             model = jaxsr.load_model(path)
-            seq_rows[tr] = {"scores": evaluate_tr(model, clips), "fps": model_fps(model, clip0, min_time=min_time),
+            scores, frames_psnr = evaluate_tr(model, clips)
+            seq_rows[tr] = {"scores": scores, "frames": frames_psnr, "fps": model_fps(model, clip0, min_time=min_time),
                             "card": jaxsr.read_metadata(path).get("card", {})}
             print(f"TR{tr}-seq: {np.mean([p for p, _ in seq_rows[tr]['scores'].values()]):.2f} dB mean, "
                   f"{seq_rows[tr]['fps']:.1f} frames/s", flush=True)
@@ -177,6 +189,7 @@ def main():
               f"of {r['card'].get('train_config', {}).get('batch_size', '?')} clips, "
               f"{r['card'].get('wall_time_s', 0) / 60:.0f} min training" for tr, r in seq_rows.items()]
     text += "\nTraining of each model (from its card):\n\n" + "\n".join(cards) + "\n"
+    text += "\n" + differences(rows, seq_rows) + "\n"
     text += "\n" + claims(rows, bicubic) + "\n"
     text += f"\nPlots: `{base.name}.png` (PSNR and SSIM against TR), `{base.name}_pareto.png` (PSNR against frames/s).\n"
     write_atomic(f"{base}.md", text)
@@ -189,6 +202,19 @@ def csv_row(label, scores, fps):
     return ",".join([label, *(f"{scores[n][i]:.4f}" for n in TEST_SCENES for i in (0, 1)), f"{fps:.2f}"]) + "\n"
 
 
+def differences(rows, seq_rows) -> str:
+    """Every TR against TR0 and each sequence-form model against the windowed one of its TR, with intervals."""
+    lines = [f"Differences in mean PSNR over the three scenes (dB), with 95 % intervals from a paired bootstrap over "
+             f"blocks of {BLOCK} frames (`jaxsr.paired_interval`; each scene resampled on its own). They say how "
+             "much the frames chosen move a difference, not how much another training run would: for that, "
+             "results/seed_spread.md (three TR0 seeds).", ""]
+    if 0 in rows:
+        lines += [f"- TR{tr} - TR0: {difference(r['frames'], rows[0]['frames'])}" for tr, r in rows.items() if tr]
+    lines += [f"- TR{tr}-seq - TR{tr}: {difference(r['frames'], rows[tr]['frames'])}"
+              for tr, r in seq_rows.items() if tr in rows]
+    return "\n".join(lines)
+
+
 def claims(rows, bicubic) -> str:
     """The paper's claims about this table, checked on the numbers above (not asserted)."""
     lines = ["Paper claims, measured:"]
@@ -198,8 +224,12 @@ def claims(rows, bicubic) -> str:
                  f"{min(margins):.2f} dB -> {'holds' if min(margins) >= 4 else 'does not hold'}")
     if 0 in rows and 4 in rows:
         gain = [rows[4]["scores"][n][0] - rows[0]["scores"][n][0] for n in TEST_SCENES]
+        iv = jaxsr.paired_interval(jax.random.key(0), rows[4]["frames"], rows[0]["frames"],
+                                   block=min(BLOCK, rows[0]["frames"].shape[-1]))
+        verdict = ("holds beyond the frame interval" if iv.low >= 0.5 else "holds on the mean only, inside the "
+                   "frame interval" if iv.mean >= 0.5 else "does not hold")
         lines.append(f"- TR4 - TR0 >= 0.5 dB: {', '.join(f'{g:+.2f}' for g in gain)} dB per scene (mean "
-                     f"{np.mean(gain):+.2f}) -> {'holds' if np.mean(gain) >= 0.5 else 'does not hold'} on average")
+                     f"{np.mean(gain):+.2f}, 95 % interval [{float(iv.low):+.2f}, {float(iv.high):+.2f}]) -> {verdict}")
     trs = sorted(rows)
     mean = [np.mean([rows[tr]["scores"][n][0] for n in TEST_SCENES]) for tr in trs]
     rising = all(b >= a - 0.05 for a, b in zip(mean, mean[1:]))
