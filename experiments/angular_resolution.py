@@ -26,7 +26,7 @@ from jaxsr.config import DEFAULT_MEAN_SIGNAL, SensorConfig
 from jaxsr.runtime import enable_compilation_cache
 
 from _eval import SCENE_LABELS, TEST_SCENES, add_model_args, load_tr, score, simulate_clip, weights_source
-from _report import header, markdown_table, write_atomic
+from _report import hand_written_tail, header, markdown_table, write_atomic
 
 NATIVE = SensorConfig()
 
@@ -181,6 +181,7 @@ def main():
     text += markdown_table(["setting", "method", *(SCENE_LABELS[n] for n in TEST_SCENES)], scene_rows)
     text += "\nSeconds per setting (render, simulate, super-resolve, score): " + ", ".join(
         f"{s.label} {seconds[s]:.0f}" for s in SETTINGS) + "\n"
+    text += hand_written_tail(args.out, "## Reading")
     write_atomic(args.out, text)
     print(f"wrote {args.out} ({time.time() - started:.0f} s)")
 
