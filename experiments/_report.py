@@ -7,6 +7,7 @@ import os
 import platform
 import sys
 import time
+from pathlib import Path
 
 import jax
 
@@ -78,6 +79,14 @@ def _steal_line() -> str:
 def write_atomic(path: str, text: str) -> None:
     """Write text to path atomically, replacing the previous result file."""
     write_text_atomic(path, text)
+
+
+def hand_written_tail(path, marker: str) -> str:
+    """The commentary written by hand at the end of an earlier results file, from the line `marker` on ('' if
+    none): a script that regenerates the file appends it, so a re-run keeps the reading (check it still holds)."""
+    text = Path(path).read_text() if Path(path).is_file() else ""
+    i = text.find(marker)
+    return "\n" + text[i:] if i >= 0 else ""
 
 
 def markdown_table(columns, rows) -> str:
