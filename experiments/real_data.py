@@ -203,8 +203,9 @@ def main():
     text += markdown_table(["method", "flicker"], fl)
     text += ("\nThe script also writes real_data.png (LR | bicubic | TR0 | TR4 | TR4 sequence; tower_sub: the "
              "subsample) and real_data_strip.png "
-             "(the video, frames 40-47) beside this file; they are pictures of third-party data and are not "
-             "committed (.gitignore): run the command to see them.\n")
+             "(the video, frames 40-47) beside this file: ![frames](real_data.png) ![video strip](real_data_strip.png) "
+             "(pictures of the third-party recordings named above, shown as results; the recordings themselves are not "
+             "part of the project: README 'Real recordings' says where each comes from).\n")
     n_sub = round(args.fraction * tags.time.size)
     text += (f"\ntower, all photons against a {args.fraction:.0%} subsample ({n_sub} of {tags.time.size} photons, "
              f"drawn without replacement with seed {args.seed}; {n_sub / (lr.shape[1] * lr.shape[2]):.2f} per pixel), "
