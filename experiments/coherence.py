@@ -44,6 +44,15 @@ def plot(path, counts):
     plt.close(fig)
 
 
+def walkers_at(fps: float, frames: int, *, seed: int = 0):
+    """The static-camera walkers sequence sampled at about `fps` (every round(100 / fps)-th frame of the 100 FPS
+    sequence), simulated with noise seed `seed`: (Clip, the sampled sequence)."""
+    step = int(round(100 / fps))
+    seq = test_sequence("walkers_100fps", n_frames=frames * step)
+    seq = seq._replace(depth=seq.depth[::step], intensity=seq.intensity[::step], fps=100.0 / step)
+    return simulate_clip(jax.random.key(seed), seq), seq
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=100)
@@ -54,10 +63,7 @@ def main():
     args = parser.parse_args()
     started = time.time()
     enable_compilation_cache()
-    step = int(round(100 / args.fps))
-    seq = test_sequence("walkers_100fps", n_frames=args.frames * step)
-    seq = seq._replace(depth=seq.depth[::step], intensity=seq.intensity[::step], fps=100.0 / step)
-    clip = simulate_clip(jax.random.key(args.seed), seq)
+    clip, seq = walkers_at(args.fps, args.frames, seed=args.seed)
     outputs = {"bicubic": np.asarray(jaxsr.bicubic(clip.lr, scale=4))}
     outputs.update({f"TR{tr}": jaxsr.super_resolve(load_tr(tr, args.weights), clip.lr) for tr in args.trs})
     rows, counts = [], {}

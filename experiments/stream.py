@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import time
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -25,10 +24,10 @@ import jaxsr
 from jaxsr.checkpoint import resolve_model_path
 from jaxsr.model import flops_per_frame
 from jaxsr.runtime import enable_compilation_cache
-from jaxsr.scenes import test_sequence
 
-from _eval import FPS_NOTE, SCENE_LABELS, TEST_SCENES, model_fps, score, simulate_clip, test_clips
+from _eval import FPS_NOTE, SCENE_LABELS, TEST_SCENES, model_fps, score, test_clips
 from _report import header, markdown_table, write_atomic
+from coherence import walkers_at
 from fps_study import RATES, walkers_clip
 
 KINDS = ("window", "window weights, sequence form", "sequence-trained")
@@ -42,13 +41,6 @@ def models_of(tr: int) -> dict | None:
         return None
     return dict(zip(KINDS, (jaxsr.load_model(f"tr{tr}"), jaxsr.load_model(f"tr{tr}", temporal="sequence"),
                             jaxsr.load_model(f"tr{tr}-seq"))))
-
-
-def coherence_clip(frames: int, fps: float = 25.0):
-    step = int(round(100 / fps))
-    seq = test_sequence("walkers_100fps", n_frames=frames * step)
-    seq = seq._replace(depth=seq.depth[::step], intensity=seq.intensity[::step], fps=100.0 / step)
-    return simulate_clip(jax.random.key(0), seq)
 
 
 def tc(sr, gt) -> float:
@@ -91,7 +83,7 @@ def main():
     clips = test_clips(args.frames)
     clip0 = clips[TEST_SCENES[0]]
     walkers = {fps: walkers_clip(fps, args.fps_frames, t0=0.0, seed=0, sensor=sensor)[0] for fps in RATES}
-    still = coherence_clip(100)
+    still, _ = walkers_at(25.0, 100)
 
     rows, rate_rows, points = [], [], []
     tr0 = jaxsr.load_model("tr0")
