@@ -4,12 +4,13 @@
 
 Each TR: the `bundle` preset (batch 4, 16 x 32 LR crops, 5 epochs, the rate cut for the last, patience 3, 3 x 16
 validation frames) in the sequence form, on rendered clips of 2R + 8 frames (`scene_clips`, loss on the 8 frames
-whose receptive field lies inside). Its length is set by time, not steps: the windowed model's card says how long
-its training took (`wall_time_s`); the script measures the sequence step here (the fastest of 3 steps after
-compilation, on one device, so neither load from other work nor the faster sharded step of the run shortens it) and trains for that time divided by the step
-time, rounded up to whole epochs of 4-clip steps. The sequence models therefore get at least the windowed model's
-training time (more where this machine is loaded, since the budget counts steps). Runs are resumable: run the
-same command again after an interruption. Bundle the results with `bundle_weights.py --form sequence`.
+whose receptive field lies inside). Its length is set by time, not steps: the script times the windowed and the
+sequence train step here, interleaved (the fastest of 3 steps of each after compilation, one device), and gives
+the sequence model the windowed bundle's 1280 steps times the ratio of the two step times, rounded up to whole
+epochs: the same training time as the windowed model of its TR, measured as a ratio on one machine in one run,
+so that load from other work cancels. (TR4's run of 2026-11-23 was planned by an earlier rule, its step time
+against the windowed card's wall time on another machine; its plan.json and card record it.) Runs are
+resumable: run the same command again after an interruption. Bundle them with `bundle_weights.py --form sequence`.
 """
 
 from __future__ import annotations
@@ -26,31 +27,45 @@ import jax.numpy as jnp
 
 import jaxsr
 from jaxsr.checkpoint import read_metadata
-from jaxsr.config import PRESETS, SensorConfig
-from jaxsr.data import scene_clips
+from jaxsr.config import PRESETS
+from jaxsr.data import scene_batches, scene_clips
 from jaxsr.model import init_model
 from jaxsr.optim import adam_init
 from jaxsr.train import fit, make_train_step
 
-from _report import machine
+from _report import machine, write_atomic
 
 WEIGHTS = Path(jaxsr.__file__).parent / "weights"
 EPOCHS = 5
 
 
-def step_seconds(model_cfg, train_cfg, make_batch, repeats: int = 3) -> float:
-    """The fastest of `repeats` train steps after one compiling call (the step fit then reuses: same configs
-    and data source hit `make_train_step`'s cache)."""
+def _probe(model_cfg, train_cfg):
+    """A compiled train step of `model_cfg` on its default data, with fresh weights: a callable running one step."""
+    make_batch = scene_clips(train_cfg.clip_length(model_cfg), train_cfg) if model_cfg.temporal == "sequence" else \
+        scene_batches(model_cfg.tr, train_cfg)
     step = make_train_step(model_cfg, train_cfg, make_batch)
     params, state = init_model(jax.random.key(0), model_cfg)
-    opt = adam_init(params)
-    times = []
-    for i in range(repeats + 1):
+    carry = [params, state, adam_init(params)]
+
+    def run(i):
         t0 = time.perf_counter()
-        params, state, opt, metrics = step(params, state, opt, jax.random.key(i), jnp.int32(i))
+        *carry[:], metrics = step(*carry, jax.random.key(i), jnp.int32(i))
         jax.block_until_ready(metrics)
-        times.append(time.perf_counter() - t0)
-    return min(times[1:])
+        return time.perf_counter() - t0
+
+    run(0)  # compiles
+    return run
+
+
+def step_seconds(tr: int, repeats: int = 3) -> dict:
+    """The fastest of `repeats` train steps of each form of TR`tr` on the bundle preset, timed in turn."""
+    probe = dataclasses.replace(PRESETS["bundle"], examples_per_epoch=PRESETS["bundle"].batch_size)
+    runs = {form: _probe(jaxsr.ModelConfig(tr=tr, temporal=form), probe) for form in ("window", "sequence")}
+    times = {form: [] for form in runs}
+    for i in range(1, repeats + 1):
+        for form, run in runs.items():
+            times[form].append(run(i))
+    return {form: min(t) for form, t in times.items()}
 
 
 def plan(tr: int, run: Path) -> dict:
@@ -58,16 +73,14 @@ def plan(tr: int, run: Path) -> dict:
     path = run / "plan.json"
     if path.exists():
         return json.loads(path.read_text())
-    window_s = read_metadata(WEIGHTS / f"tr{tr}.npz")["card"]["wall_time_s"]
-    model_cfg = jaxsr.ModelConfig(tr=tr, temporal="sequence")
-    base = PRESETS["bundle"]
-    probe = dataclasses.replace(base, examples_per_epoch=base.batch_size)
-    step_s = step_seconds(model_cfg, probe, scene_clips(probe.clip_length(model_cfg), probe, sensor=SensorConfig()))
-    steps_per_epoch = math.ceil(window_s / step_s / EPOCHS)
-    record = {"tr": tr, "window_wall_time_s": window_s, "sequence_step_s": step_s,
+    window_steps = read_metadata(WEIGHTS / f"tr{tr}.npz")["card"]["steps"]
+    seconds = step_seconds(tr)
+    steps_per_epoch = math.ceil(window_steps * seconds["window"] / seconds["sequence"] / EPOCHS)
+    record = {"tr": tr, "rule": "windowed steps x window step / sequence step, timed in one run",
+              "window_steps": window_steps, "window_step_s": seconds["window"], "sequence_step_s": seconds["sequence"],
               "steps_per_epoch": steps_per_epoch, "epochs": EPOCHS, "machine": machine()}
     run.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(record, indent=1))
+    write_atomic(str(path), json.dumps(record, indent=1))
     return record
 
 
@@ -80,8 +93,7 @@ def main():
     for tr in args.trs:
         run = Path(args.runs) / f"tr{tr}"
         p = plan(tr, run)
-        print(f"TR{tr}: windowed model trained {p['window_wall_time_s']:.0f} s; sequence step {p['sequence_step_s']:.2f} s "
-              f"-> {p['epochs']} x {p['steps_per_epoch']} steps", flush=True)
+        print(f"TR{tr}: {json.dumps(p)}", flush=True)
         model_cfg = jaxsr.ModelConfig(tr=tr, temporal="sequence")
         train_cfg = dataclasses.replace(PRESETS["bundle"], examples_per_epoch=4 * p["steps_per_epoch"], epochs=EPOCHS)
         resume = (run / "last.npz").exists()
