@@ -30,6 +30,7 @@ __all__ = [
     "conv2d",
     "conv2d_transpose",
     "init_conv2d",
+    "init_from_normals",
     "prelu",
     "max_pool2",
 ]
@@ -281,14 +282,38 @@ def depth_to_space(x, scale: int):
 # kernels, the conventions of `torch.nn.Conv2d` / `tf.nn.conv2d` in the NHWC layout.
 
 
-def init_conv2d(key, kernel: int, cin: int, cout: int, *, dtype=jnp.float32) -> dict:
+def init_from_normals(key, build):
+    """Initial parameters from one flat standard-normal draw: `build(normal)` returns the params pytree, calling
+    `normal(shape)` for each random array. `build` is traced twice (to learn the shapes, then to slice the draw),
+    so XLA compiles one random kernel instead of one per shape (dozens of threefry kernels took ~30 s).
+    Returns build's pytree."""
+    shapes = []
+
+    def record(shape):
+        shapes.append(tuple(shape))
+        return jnp.zeros(shape, jnp.float32)
+
+    jax.eval_shape(lambda: build(record))
+    sizes = [math.prod(s) for s in shapes]
+    flat = jax.random.normal(key, (sum(sizes),), jnp.float32)
+    starts = iter(zip(shapes, [sum(sizes[:i]) for i in range(len(sizes))]))
+
+    def take(shape):
+        want, start = next(starts)
+        assert tuple(shape) == want, "build must ask for the same shapes in the same order"
+        return flat[start : start + math.prod(want)].reshape(want)
+
+    return build(take)
+
+
+def init_conv2d(normal, kernel: int, cin: int, cout: int) -> dict:
     """He-normal (Kaiming, fan-in) kernel and zero bias: {"w": (k, k, cin, cout), "b": (cout,)}.
 
-    The init RBPN's published code uses (`torch.nn.init.kaiming_normal_`). Returns the dict.
+    normal: shape -> standard normals (see `init_from_normals`). The init RBPN's published code uses
+    (`torch.nn.init.kaiming_normal_`). Returns the dict.
     """
     std = math.sqrt(2.0 / (kernel * kernel * cin))
-    w = std * jax.random.normal(key, (kernel, kernel, cin, cout), dtype)
-    return {"w": w, "b": jnp.zeros((cout,), dtype)}
+    return {"w": std * normal((kernel, kernel, cin, cout)), "b": jnp.zeros((cout,), jnp.float32)}
 
 
 def conv2d(params, x, *, stride: int = 1, padding: int | None = None):
