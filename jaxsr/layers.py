@@ -27,6 +27,12 @@ __all__ = [
     "neighbourhoods",
     "dynamic_upsample",
     "depth_to_space",
+    "conv2d",
+    "conv2d_transpose",
+    "init_conv2d",
+    "init_from_normals",
+    "prelu",
+    "max_pool2",
 ]
 
 
@@ -270,3 +276,83 @@ def depth_to_space(x, scale: int):
     n = len(lead)
     perm = (*range(n), n, n + 2, n + 1, n + 3, n + 4)  # (..., h, dy, w, dx, c)
     return x.transpose(perm).reshape(*lead, h * r, w * r, c)
+
+
+# --- 2D layers of the learned baselines (HistNet, RBPN / iSeeBetter): (B, H, W, C) activations, (kh, kw, cin, cout)
+# kernels, the conventions of `torch.nn.Conv2d` / `tf.nn.conv2d` in the NHWC layout.
+
+
+def init_from_normals(key, build):
+    """Initial parameters from one flat standard-normal draw: `build(normal)` returns the params pytree, calling
+    `normal(shape)` for each random array. `build` is traced twice (to learn the shapes, then to slice the draw),
+    so XLA compiles one random kernel instead of one per shape (dozens of threefry kernels took ~30 s).
+    Returns build's pytree."""
+    shapes = []
+
+    def record(shape):
+        shapes.append(tuple(shape))
+        return jnp.zeros(shape, jnp.float32)
+
+    jax.eval_shape(lambda: build(record))
+    sizes = [math.prod(s) for s in shapes]
+    flat = jax.random.normal(key, (sum(sizes),), jnp.float32)
+    starts = iter(zip(shapes, [sum(sizes[:i]) for i in range(len(sizes))]))
+
+    def take(shape):
+        want, start = next(starts)
+        assert tuple(shape) == want, "build must ask for the same shapes in the same order"
+        return flat[start : start + math.prod(want)].reshape(want)
+
+    return build(take)
+
+
+def init_conv2d(normal, kernel: int, cin: int, cout: int) -> dict:
+    """He-normal (Kaiming, fan-in) kernel and zero bias: {"w": (k, k, cin, cout), "b": (cout,)}.
+
+    normal: shape -> standard normals (see `init_from_normals`). The init RBPN's published code uses
+    (`torch.nn.init.kaiming_normal_`). Returns the dict.
+    """
+    std = math.sqrt(2.0 / (kernel * kernel * cin))
+    return {"w": std * normal((kernel, kernel, cin, cout)), "b": jnp.zeros((cout,), jnp.float32)}
+
+
+def conv2d(params, x, *, stride: int = 1, padding: int | None = None):
+    """2D convolution (cross-correlation) of x (B, H, W, Cin) by params {"w": (k, k, Cin, Cout), "b": (Cout,)}.
+
+    Zero padding of `padding` pixels on every side (default (k - 1) // 2, "same" for odd k at stride 1).
+    Returns (B, (H + 2p - k) // stride + 1, (W + 2p - k) // stride + 1, Cout).
+    """
+    k = params["w"].shape[0]
+    p = (k - 1) // 2 if padding is None else padding
+    y = jax.lax.conv_general_dilated(x, params["w"], (stride, stride), ((p, p), (p, p)),
+                                     dimension_numbers=("NHWC", "HWIO", "NHWC"))
+    return y + params["b"]
+
+
+def conv2d_transpose(params, x, *, stride: int, padding: tuple[int, int]):
+    """Transposed ("de-") convolution: x (B, H, W, Cin) dilated by `stride`, then convolved with
+    params {"w": (k, k, Cin, Cout), "b": (Cout,)}; `padding` (lo, hi) is `torch`'s / TF's padding p seen from
+    the output: the dilated input is padded by k - 1 - p_lo before and k - 1 - p_hi after.
+
+    torch `ConvTranspose2d(k, s, p)` is padding (p, p) (output s (H - 1) - 2p + k); TF's 'SAME' 3x3 stride 2
+    is (0, 1) (output 2H). The kernel is not flipped: it is learned, so that is only a re-parametrisation.
+    Returns (B, H', W', Cout).
+    """
+    k = params["w"].shape[0]
+    lo, hi = padding
+    pads = ((k - 1 - lo, k - 1 - hi),) * 2
+    y = jax.lax.conv_general_dilated(x, params["w"], (1, 1), pads, lhs_dilation=(stride, stride),
+                                     dimension_numbers=("NHWC", "HWIO", "NHWC"))
+    return y + params["b"]
+
+
+def prelu(a, x):
+    """PReLU with one learned slope `a` (a scalar, torch's default `num_parameters=1`): max(x, 0) + a min(x, 0).
+    x: (...) any shape; returns the same shape."""
+    return jnp.where(x >= 0, x, a * x)
+
+
+def max_pool2(x):
+    """2x2 max pooling with stride 2: (B, H, W, C) -> (B, H // 2, W // 2, C) (H, W even)."""
+    b, h, w, c = x.shape
+    return x.reshape(b, h // 2, 2, w // 2, 2, c).max(axis=(2, 4))

@@ -35,6 +35,7 @@ NO_ARRAYS = {
     "gate_warnings": "a Gate and a DepthScale -> sentences",
     "gate_of_tags": "TimeTags -> a Gate",
     "read_time_tags": "a path -> TimeTags",
+    "init_adam_pair": "two params pytrees -> two optimiser states",
 }
 # A whole shape tuple of short dimension names or numbers: (..., H, W), (B, 2tr+1, h, w), (T,), (N, h*r, w*r).
 _DIM = r"(\.\.\.|[A-Za-z0-9_*+/-]{1,10})"

@@ -12,11 +12,11 @@ PACKAGE = Path(__file__).resolve().parents[1] / "jaxsr"
 # Layers of the top-level modules, from the bottom. `scenes` is a subpackage; its modules have their own order.
 LAYERS = [
     {"_checks", "_files", "config", "runtime", "optim", "metrics", "stats", "layers", "poisson", "temporal",
-     "baselines"},
-    {"sensor", "peaks", "model"},
-    {"scenes", "io", "checkpoint", "recon", "streaming", "gates", "timetags", "pipeline"},
+     "baselines", "flow"},
+    {"sensor", "peaks", "model", "rbpn"},
+    {"scenes", "io", "checkpoint", "recon", "streaming", "gates", "timetags", "pipeline", "histnet"},
     {"previews", "recordings", "data", "inference", "adaptive"},
-    {"train"},
+    {"train", "baseline_training"},
     {"cli"},
 ]
 SCENES_ORDER = ["primitives", "draws", "pose", "raycast", "objects", "layouts", "sequences", "test_sets"]
