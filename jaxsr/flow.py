@@ -19,11 +19,13 @@ import functools
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 __all__ = ["optical_flow", "warp"]
 
-# the binomial 5-tap approximation of a Gaussian (Burt & Adelson's pyramid kernel)
-_BINOMIAL = jnp.array([1.0, 4.0, 6.0, 4.0, 1.0]) / 16.0
+# the binomial 5-tap approximation of a Gaussian (Burt & Adelson's pyramid kernel); NumPy, so that importing
+# jaxsr starts no JAX backend (`use_cpu_cores` must come first)
+_BINOMIAL = np.array([1.0, 4.0, 6.0, 4.0, 1.0], np.float32) / 16.0
 
 
 def _separable(img, taps):

@@ -44,6 +44,14 @@ def test_use_cpu_cores_sets_the_device_count_once(xla_flags, expected):
     assert proc.stdout.split()[-3:] == expected.split()
 
 
+def test_importing_jaxsr_starts_no_backend():
+    """The device count can only be set before JAX's backend starts, so no module may make an array at import."""
+    script = "import jax, jaxsr; jax.config.update('jax_num_cpu_devices', 3); print(jax.local_device_count())"
+    env = dict(os.environ, XLA_FLAGS="", JAX_PLATFORMS="cpu")
+    proc = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0 and proc.stdout.split()[-1:] == ["3"], proc.stderr[-2000:]
+
+
 def test_use_cpu_cores_rejects_a_bad_count():
     with pytest.raises(ValueError, match="n must be >= 1"):
         use_cpu_cores(n=0)
