@@ -139,9 +139,9 @@ def test_conv3d_forward_backward(benchmark, impl):
 # one device and with the batch split over both cores as `fit` does. Interleaved rounds, so that a background
 # load slows every variant alike; the network's forward pass at inference (BN from running statistics,
 # `compiler_options`, same batch and crops) is timed in the same rounds as the reference arithmetic rate.
-def _today_batches(depth, intensity, tr, train_cfg, sensor=SensorConfig()):
+def _today_batches(depth, intensity, tr, train_cfg):
     """`sequence_batches` as it was before issue 14: the whole clip simulated, then a random crop kept."""
-    frames = 2 * tr + 1
+    frames, sensor = 2 * tr + 1, SensorConfig()
 
     def example(key):
         k_start, k_snr, k_sig, k_noise, k_crop = jax.random.split(key, 5)

@@ -13,7 +13,8 @@ records. The sources:
 
 Both draw a frame SNR and a mean signal log-uniformly per example, calibrate the sensor over the whole clip,
 simulate photon histograms (`simulate_histograms`) and extract centre-of-mass depth; with a `patch`, the photons
-are drawn for a random LR patch only (the distribution of a `random_crop` of the whole clip's, for less work). `validation_set` builds the fixed validation windows from the named validation sequences.
+are drawn for a random LR patch only (the distribution of a `random_crop` of the whole clip's, for less work).
+`validation_set` builds the fixed validation windows from the named validation sequences.
 """
 
 from __future__ import annotations
@@ -25,8 +26,8 @@ import jax.numpy as jnp
 
 from .config import SensorConfig, TrainConfig
 from .peaks import centre_of_mass
-from .scenes import test_sequences, training_clip
 from .poisson import sample_poisson
+from .scenes import test_sequences, training_clip
 from .sensor import calibrate, calibrated_rates, normalise_depth, simulate_histograms
 from .temporal import windows as temporal_windows
 
