@@ -2,7 +2,8 @@
 form's output frames/s against its clip length, the data pipeline on its own, and the three conv3d
 implementations side by side.
 
-    pytest benchmarks/bench_train.py --benchmark-only            (about 3 min on 2 CPU cores)
+    pytest benchmarks/bench_train.py --benchmark-only            (about 5 min on 2 CPU cores)
+    pytest benchmarks/bench_train.py --benchmark-only -k today_vs_new -s   (the step against issue 14's baseline)
 
 The train-step benchmarks draw windows from a fixed synthetic HR sequence with `sequence_batches` (sensor
 simulation + centre of mass inside the step, no scene rendering), so they time the network and the sensor
@@ -12,6 +13,7 @@ example is a clip of L = 2R + K frames that trains K outputs: `frames_per_s` = b
 """
 
 import dataclasses
+import time
 
 import jax
 import jax.numpy as jnp
@@ -19,11 +21,14 @@ import numpy as np
 import pytest
 
 from jaxsr.config import PRESETS, ModelConfig, SensorConfig
-from jaxsr.data import scene_batches, sequence_batches, sequence_clips
+from jaxsr.data import log_uniform, random_crop, scene_batches, sequence_batches, sequence_clips
 from jaxsr.layers import conv3d_native, conv3d_stacked, conv3d_taps
-from jaxsr.model import init_model
+from jaxsr.model import apply_model, flops_per_frame, init_model
 from jaxsr.optim import adam_init
-from jaxsr.train import make_train_step
+from jaxsr.peaks import centre_of_mass
+from jaxsr.runtime import compiler_options
+from jaxsr.sensor import normalise_depth, simulate_histograms
+from jaxsr.train import data_mesh, make_train_step
 
 CPU = PRESETS["cpu"]
 
@@ -127,3 +132,84 @@ def test_conv3d_forward_backward(benchmark, impl):
     g = jax.jit(jax.grad(lambda x, w: jnp.sum(f(x, w, padding=_PAD) ** 2), argnums=(0, 1)))
     jax.block_until_ready(g(_X, _W))
     benchmark.pedantic(lambda: jax.block_until_ready(g(_X, _W)), rounds=5, iterations=1)
+
+
+# Issue 14: today's step (the data source as it was on 2026-11-22: every example's whole 32 x 64 clip
+# simulated, then cropped; one device) beside the new one (photons drawn for the crop only, `jaxsr.data`), on
+# one device and with the batch split over both cores as `fit` does. Interleaved rounds, so that a background
+# load slows every variant alike; the network's forward pass at inference (BN from running statistics,
+# `compiler_options`, same batch and crops) is timed in the same rounds as the reference arithmetic rate.
+def _today_batches(depth, intensity, tr, train_cfg):
+    """`sequence_batches` as it was before issue 14: the whole clip simulated, then a random crop kept."""
+    frames, sensor = 2 * tr + 1, SensorConfig()
+
+    def example(key):
+        k_start, k_snr, k_sig, k_noise, k_crop = jax.random.split(key, 5)
+        s = jax.random.randint(k_start, (), 0, depth.shape[0] - frames + 1)
+        d = jax.lax.dynamic_slice(depth, (s, 0, 0), (frames, *depth.shape[1:]))
+        a = jax.lax.dynamic_slice(intensity, (s, 0, 0), (frames, *depth.shape[1:]))
+        snr = log_uniform(k_snr, *train_cfg.snr_range)
+        mean_signal = log_uniform(k_sig, *train_cfg.mean_signal_range)
+        counts = simulate_histograms(k_noise, d, a, sensor, snr=snr, mean_signal=mean_signal)
+        clip, gt = random_crop(k_crop, centre_of_mass(counts, sensor), normalise_depth(d, sensor),
+                               train_cfg.patch, sensor.scale)
+        return clip, gt[tr]
+
+    return lambda key: jax.vmap(example)(jax.random.split(key, train_cfg.batch_size))
+
+
+def _step_variants(tr):
+    """{name: (step function, its first arguments)} for today's and the new train step."""
+    cfg = ModelConfig(tr=tr)
+    depth, intensity = (jnp.asarray(a) for a in _hr_sequence())
+    params, state = init_model(jax.random.key(0), cfg)
+    args = (params, state, adam_init(params))
+    new = sequence_batches(depth, intensity, tr, CPU)
+    variants = {
+        "today": (make_train_step(cfg, CPU, _today_batches(depth, intensity, tr, CPU), mesh=None), args),
+        "new-1-device": (make_train_step(cfg, CPU, new, mesh=None), args),
+    }
+    if jax.device_count() > 1 and CPU.batch_size % jax.device_count() == 0:
+        mesh = data_mesh()
+        replicated = jax.device_put(args, jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec()))
+        variants[f"new-{jax.device_count()}-devices"] = (make_train_step(cfg, CPU, new, mesh=mesh), replicated)
+    return cfg, variants
+
+
+@pytest.mark.benchmark(group="train_step_today_vs_new")
+@pytest.mark.parametrize("tr", [0, 4])
+def test_train_step_today_vs_new(benchmark, tr):
+    cfg, variants = _step_variants(tr)
+    windows, _ = jax.jit(sequence_batches(*_hr_sequence(), tr, CPU))(jax.random.key(0))
+    params, state, _ = variants["today"][1]
+    infer = jax.jit(lambda p, s, w: apply_model(p, s, w, cfg), compiler_options=compiler_options())
+    carry = {k: [*a, 0] for k, (_, a) in variants.items()}
+    times = {k: [] for k in [*variants, "inference"]}
+
+    def one_round():
+        for name, (step_fn, _) in variants.items():
+            p, s, o, i = carry[name]
+            t0 = time.perf_counter()
+            p, s, o, m = step_fn(p, s, o, jax.random.key(i), i)
+            jax.block_until_ready(m)
+            times[name].append(time.perf_counter() - t0)
+            carry[name] = [p, s, o, i + 1]
+        t0 = time.perf_counter()
+        jax.block_until_ready(infer(params, state, windows))
+        times["inference"].append(time.perf_counter() - t0)
+
+    one_round()  # compile
+    for v in times.values():
+        v.clear()
+    benchmark.pedantic(one_round, rounds=4 if tr else 10, iterations=1)
+    # the network's FLOPs per example: forward only at inference, forward + backward (3x) in training
+    flops = flops_per_frame(cfg, CPU.patch)
+    for name, ts in times.items():
+        mean = float(np.mean(ts))
+        info = {"step_s": mean, "examples_per_s": CPU.batch_size / mean,
+                "gflop_per_s": (1 if name == "inference" else 3) * flops * CPU.batch_size / mean / 1e9}
+        benchmark.extra_info[name] = info
+        print(f"TR{tr} {name:16s} {1e3 * mean:8.1f} ms/step  {info['examples_per_s']:6.2f} examples/s  "
+              f"{info['gflop_per_s']:6.1f} GFLOP/s")
+    benchmark.extra_info["speed_up"] = {k: float(np.mean(times["today"]) / np.mean(v)) for k, v in times.items()}
+    benchmark.extra_info["patch"] = CPU.patch

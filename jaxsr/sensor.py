@@ -287,6 +287,18 @@ def expected_histograms(
     return alpha * signal_hist + (beta / sensor.bins) * a_sum[..., None]
 
 
+def calibrated_rates(depth, intensity, alpha, beta, sensor: SensorConfig = SensorConfig()):
+    """The rates of `expected_histograms` with given scale factors, for any (..., h*scale, w*scale) HR window.
+
+    alpha, beta: from `calibrate` over a whole clip; depth, intensity: a window of it aligned to the LR grid
+    (no shape check against `sensor.hr_shape`, traced values follow `expected_histograms`' rules). Rates of a
+    window equal that window of the whole clip's rates, so a training crop can be simulated alone.
+    Returns (..., h, w, K) rates (photons).
+    """
+    signal_hist, _, a_sum = _photon_terms(depth, intensity, sensor)
+    return alpha * signal_hist + (beta / sensor.bins) * a_sum[..., None]
+
+
 def simulate_histograms(
     key,
     depth,

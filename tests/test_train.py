@@ -24,7 +24,7 @@ from jaxsr.metrics import psnr
 from jaxsr.model import apply_model, init_model
 from jaxsr.optim import adam_init, adam_update, step_decay
 from jaxsr.scenes import test_sequences
-from jaxsr.sensor import normalise_depth
+from jaxsr.sensor import calibrate, calibrated_rates, expected_histograms, normalise_depth
 from jaxsr.train import evaluate, fit, huber_loss, lr_schedule
 
 # momentum 0.9: running BN statistics settle within the few dozen steps of these runs (0.99 needs hundreds)
@@ -136,6 +136,38 @@ def test_random_crop_is_aligned():
     w, g = random_crop(jax.random.key(3), lr, hr, (4, 6), 4)
     assert w.shape == (1, 4, 6) and g.shape == (16, 24)
     np.testing.assert_array_equal(jnp.repeat(jnp.repeat(w[0], 4, 0), 4, 1), g)
+
+
+def test_patch_rates_are_the_crop_of_the_whole_clips():
+    """A training patch is simulated alone (`calibrated_rates` with the whole clip's calibration): its rates
+    must be that window of `expected_histograms` of the whole clip (the reference, computed whole)."""
+    sensor = SensorConfig()
+    h, w = sensor.hr_shape
+    rng = np.random.default_rng(0)
+    depth = rng.uniform(2.0, 40.0, (2, h, w)).astype(np.float32)
+    depth[:, : h // 4] = np.inf  # some sky, so that the calibration differs from the patch's own
+    intensity = rng.uniform(0.0, 1.0, (2, h, w)).astype(np.float32)
+    full = expected_histograms(depth, intensity, sensor, snr=0.7, mean_signal=3.0)
+    alpha, beta = calibrate(depth, intensity, sensor, snr=0.7, mean_signal=3.0)
+    y0, x0, ph, pw, r = 5, 9, 16, 32, sensor.scale
+    win = (slice(None), slice(y0 * r, (y0 + ph) * r), slice(x0 * r, (x0 + pw) * r))
+    part = calibrated_rates(depth[win], intensity[win], alpha, beta, sensor)
+    np.testing.assert_allclose(part, full[:, y0 : y0 + ph, x0 : x0 + pw], rtol=1e-5, atol=1e-7)
+
+
+def test_patch_batches_align_lr_with_gt():
+    """With a patch, the LR windows are drawn for the crop whose GT they return: at a high photon count the
+    centre of mass of each LR pixel is its HR block's normalised depth (a shift by one LR pixel would not be)."""
+    sensor = SensorConfig()
+    h, w = sensor.lr_shape
+    rng = np.random.default_rng(1)
+    blocks = rng.uniform(3.0, 30.0, (3, h, w)).astype(np.float32)  # one depth per LR pixel, 3 frames
+    depth = np.repeat(np.repeat(blocks, sensor.scale, 1), sensor.scale, 2)
+    cfg = dataclasses.replace(PRESETS["cpu"], batch_size=3, snr_range=(1e3, 1e3), mean_signal_range=(1e4, 1e4))
+    windows, gt = jax.jit(sequence_batches(depth, np.ones_like(depth), 1, cfg, sensor=sensor))(jax.random.key(2))
+    assert windows.shape == (3, 3, *cfg.patch) and gt.shape == (3, cfg.patch[0] * 4, cfg.patch[1] * 4)
+    err = np.abs(np.asarray(windows[:, 1]) - np.asarray(gt[:, ::4, ::4]))
+    assert np.median(err) < 0.01, np.median(err)
 
 
 # What the scaled-down presets may change (config.PRESETS: "sized so that ...", "scaled down with the epochs"):
