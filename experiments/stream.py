@@ -26,11 +26,12 @@ from jaxsr.model import flops_per_frame
 from jaxsr.runtime import enable_compilation_cache
 
 from _eval import FPS_NOTE, SCENE_LABELS, TEST_SCENES, model_fps, score, test_clips
-from _report import header, markdown_table, write_atomic
+from _report import hand_written_tail, header, markdown_table, write_atomic
 from coherence import walkers_at
 from fps_study import RATES, walkers_clip
 
 KINDS = ("window", "window weights, sequence form", "sequence-trained")
+HAND_WRITTEN = "## Reading"  # the hand-written section at the end of the results file, kept on re-runs
 
 
 def models_of(tr: int) -> dict | None:
@@ -125,6 +126,7 @@ def main():
              f"{points[0][1]:.1f} frames/s.\n\n## Frame-rate study (walkers, {args.fps_frames} frames per rate, PSNR dB)\n\n")
     text += markdown_table(["TR", "model"] + [f"{r:g} FPS" for r in RATES], rate_rows)
     text += f"\nPlot: `{args.out.split('/')[-1]}.png` (mean PSNR against frames/s).\n"
+    text += hand_written_tail(f"{args.out}.md", HAND_WRITTEN)
     write_atomic(f"{args.out}.md", text)
     plot(f"{args.out}.png", points)
     print(f"wrote {args.out}.md, .png ({time.time() - started:.0f} s)")
