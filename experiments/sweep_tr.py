@@ -185,16 +185,17 @@ def main():
     cards = [f"- TR{tr}: {r['card'].get('steps', '?')} steps, {r['card'].get('examples', '?')} examples, "
              f"{r['card'].get('wall_time_s', 0) / 60:.0f} min training on {r['card'].get('hardware', {}).get('backend', '?')}"
              for tr, r in rows.items()]
-    cards += [f"- TR{tr}-seq (the sequence form, `jaxsr.load_model('tr{tr}-seq')`): {r['card'].get('steps', '?')} steps "
-              f"of {r['card'].get('train_config', {}).get('batch_size', '?')} clips, "
+    cards += [f"- TR{tr}-seq (the sequence form, `jaxsr.load_model('tr{tr}-seq')`): {r['card'].get('steps', '?')} "
+              f"steps of {r['card'].get('train_config', {}).get('batch_size', '?')} clips, "
               f"{r['card'].get('wall_time_s', 0) / 60:.0f} min training" for tr, r in seq_rows.items()]
     text += "\nTraining of each model (from its card):\n\n" + "\n".join(cards) + "\n"
-    text += "\n" + differences(rows, seq_rows) + "\n"
-    text += "\n" + claims(rows, bicubic) + "\n"
+    checked = differences(rows, seq_rows) + "\n\n" + claims(rows, bicubic)
+    text += "\n" + checked + "\n"
     text += f"\nPlots: `{base.name}.png` (PSNR and SSIM against TR), `{base.name}_pareto.png` (PSNR against frames/s).\n"
     write_atomic(f"{base}.md", text)
     write_atomic(f"{base}.csv", csv)
     plot(f"{base}.png", rows, bicubic, fps_bicubic, seq_rows)
+    print("\n" + markdown_table(columns, table + paper) + "\n" + checked)
     print(f"wrote {base}.md, .csv, .png ({time.time() - started:.0f} s)")
 
 
