@@ -12,6 +12,7 @@ import numpy as np
 
 import jaxsr
 from jaxsr import scenes
+from jaxsr.checkpoint import resolve_model_path
 from jaxsr.config import DEFAULT_MEAN_SIGNAL, PRESETS, ModelConfig, SensorConfig, TrainConfig
 from jaxsr.data import sequence_batches
 from jaxsr.inference import super_resolve, super_resolve_histograms
@@ -174,6 +175,14 @@ def load_tr(tr: int, weights=None):
         if path.is_file():
             return jaxsr.load_model(path)
     raise SystemExit(f"no TR{tr} weights in {folder} (expected tr{tr}.npz or tr{tr}/best.npz)")
+
+
+def bundled(name: str) -> Path | None:
+    """The file of the bundled weights `name` (e.g. "tr4-seq"), or None where they are not bundled."""
+    try:
+        return resolve_model_path(name)
+    except FileNotFoundError:
+        return None
 
 
 def weights_source(weights) -> str:

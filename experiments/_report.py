@@ -89,6 +89,15 @@ def hand_written_tail(path, marker: str) -> str:
     return "\n" + text[i:] if i >= 0 else ""
 
 
+def save_figure(fig, path, *, dpi: int = 120) -> None:
+    """Lay out a matplotlib figure, write it to `path` and free it."""
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
+
+
 def markdown_table(columns, rows) -> str:
     """A GitHub markdown table from column names and rows of already formatted cells."""
     lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]

@@ -22,7 +22,7 @@ from jaxsr.runtime import enable_compilation_cache
 from jaxsr.scenes import test_sequence
 
 from _eval import add_model_args, load_tr, score, simulate_clip, weights_source
-from _report import header, markdown_table, write_atomic
+from _report import header, markdown_table, save_figure, write_atomic
 
 EPS = (1 / 255, 0.01, 0.05)
 
@@ -39,9 +39,7 @@ def plot(path, counts):
     ax.set_xlabel("frame pair t, t + 1")
     ax.set_ylabel("Tc_t (flickering static pixels, eps = 0.01)")
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def walkers_at(fps: float, frames: int, *, seed: int = 0):

@@ -155,7 +155,7 @@ def findings(land, free, bic, runs, com_rows, n_draws, tol=0.1):
     found = [(label, sigma, value) for label, sigma, _, _, value in runs if label.startswith("noisy")]
     near = sig[land[d] >= land[d].max() - tol]
     inside = all(near.min() - 0.05 <= sigma <= near.max() + 0.05 for _, sigma, _ in found)
-    text += (f"- BFGS on the noisy objective (fixed draws, the \"normal\" surrogate gradient) ended at "
+    text += ("- BFGS on the noisy objective (fixed draws, the \"normal\" surrogate gradient) ended at "
              + ", ".join(f"{sigma:.3f} bins ({value:.2f} dB, {label[6:]})" for label, sigma, value in found)
              + f": {'inside' if inside else 'outside'} the grid's plateau at SNR {DESIGN_SNR} ({near.min():g}-"
              f"{near.max():g} bins within {tol} dB of the best, {land[d].max():.2f} dB). See the gradient check "

@@ -21,12 +21,11 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxsr
-from jaxsr.checkpoint import resolve_model_path
 from jaxsr.model import flops_per_frame
 from jaxsr.runtime import enable_compilation_cache
 
-from _eval import FPS_NOTE, SCENE_LABELS, TEST_SCENES, model_fps, score, test_clips
-from _report import hand_written_tail, header, markdown_table, write_atomic
+from _eval import FPS_NOTE, SCENE_LABELS, TEST_SCENES, bundled, model_fps, score, test_clips
+from _report import hand_written_tail, header, markdown_table, save_figure, write_atomic
 from coherence import walkers_at
 from fps_study import RATES, walkers_clip
 
@@ -36,9 +35,7 @@ HAND_WRITTEN = "## Reading"  # the hand-written section at the end of the result
 
 def models_of(tr: int) -> dict | None:
     """The three models of one TR (see the module docstring), or None where trN-seq is not bundled."""
-    try:
-        resolve_model_path(f"tr{tr}-seq")
-    except FileNotFoundError:
+    if bundled(f"tr{tr}-seq") is None:
         return None
     return dict(zip(KINDS, (jaxsr.load_model(f"tr{tr}"), jaxsr.load_model(f"tr{tr}", temporal="sequence"),
                             jaxsr.load_model(f"tr{tr}-seq"))))
@@ -66,9 +63,7 @@ def plot(path, points):
     ax.set_xlabel("frames/s on this machine (end to end)")
     ax.set_ylabel("mean PSNR over the 3 test scenes (dB)")
     ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def main():
@@ -101,7 +96,7 @@ def main():
             flops = flops_per_frame(model.config) / 1e9
             rates = [score(jaxsr.super_resolve(model, walkers[r].lr), walkers[r].gt)[0] for r in RATES]
             coherence = tc(jaxsr.super_resolve(model, still.lr), still.gt)
-            card = jaxsr.read_metadata(resolve_model_path(f"tr{tr}-seq" if kind == KINDS[2] else f"tr{tr}"))["card"]
+            card = jaxsr.read_metadata(bundled(f"tr{tr}-seq" if kind == KINDS[2] else f"tr{tr}"))["card"]
             mean = float(np.mean([s[0] for s in scores.values()]))
             rows.append([f"TR{tr}", kind] + [f"{scores[n][0]:.2f} / {scores[n][1]:.3f}" for n in TEST_SCENES]
                         + [f"{mean:.2f}", f"{coherence:.0f}", f"{fps:.1f}", f"{flops:.1f}",

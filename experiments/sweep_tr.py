@@ -26,11 +26,10 @@ import jaxsr
 from jaxsr.config import PRESETS, SensorConfig
 from jaxsr.runtime import enable_compilation_cache
 
-from _eval import (FPS_NOTE, PAPER_BICUBIC, PAPER_TABLE1, SCENE_LABELS, TEST_SCENES, bicubic_fps, frame_scores,
+from _eval import (FPS_NOTE, PAPER_BICUBIC, PAPER_TABLE1, SCENE_LABELS, TEST_SCENES, bicubic_fps, bundled, frame_scores,
                    get_model, model_fps, score, test_clips)
-from _report import header, markdown_table, write_atomic
+from _report import header, markdown_table, save_figure, write_atomic
 
-WEIGHTS = Path(jaxsr.__file__).parent / "weights"
 # Frames per bootstrap block: consecutive frames of a test scene score alike (the scene changes slowly, the
 # noise does not), so intervals resample runs of frames (jaxsr.paired_interval)
 BLOCK = 10
@@ -46,9 +45,12 @@ def evaluate_tr(model, clips) -> tuple[dict, np.ndarray]:
     return means, np.stack(frames)
 
 
-def difference(a, b, seed: int = 0) -> str:
+def interval(a, b, seed: int = 0):
     """Mean PSNR difference a - b (per-frame PSNR, scenes x frames) with its 95 % block-bootstrap interval."""
-    iv = jaxsr.paired_interval(jax.random.key(seed), a, b, block=min(BLOCK, a.shape[-1]))
+    return jaxsr.paired_interval(jax.random.key(seed), a, b, block=min(BLOCK, a.shape[-1]))
+
+
+def _fmt(iv) -> str:
     return f"{float(iv.mean):+.2f} [{float(iv.low):+.2f}, {float(iv.high):+.2f}]"
 
 
@@ -80,9 +82,7 @@ def plot(path, rows, bicubic, fps_bicubic, seq_rows=None):
         ax.set_ylabel(label)
         ax.set_xticks(trs)
     axes[0].legend(fontsize=8, title="dotted: bicubic", title_fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    save_figure(fig, path)
 
     fig, ax = plt.subplots(figsize=(5, 3.6))
     pts = [(rows[tr]["fps"], np.mean([rows[tr]["scores"][n][0] for n in TEST_SCENES])) for tr in trs]
@@ -100,9 +100,7 @@ def plot(path, rows, bicubic, fps_bicubic, seq_rows=None):
     ax.set_xlabel("frames/s on this machine (end to end)")
     ax.set_ylabel("mean PSNR over the 3 scenes (dB)")
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(str(path).replace(".png", "_pareto.png"), dpi=120)
-    plt.close(fig)
+    save_figure(fig, str(path).replace(".png", "_pareto.png"))
 
 
 def main():
@@ -148,8 +146,8 @@ def main():
               + f", {fps:.1f} frames/s ({time.time() - t0:.0f} s)", flush=True)
     seq_rows = {}  # the bundled sequence-form models (tr<N>-seq), scored the same way
     for tr in trs if pretrained else ():
-        path = WEIGHTS / f"tr{tr}-seq.npz"
-        if path.exists():
+        path = bundled(f"tr{tr}-seq")
+        if path is not None:
             model = jaxsr.load_model(path)
             scores, frames_psnr = evaluate_tr(model, clips)
             seq_rows[tr] = {"scores": scores, "frames": frames_psnr, "fps": model_fps(model, clip0, min_time=min_time),
@@ -189,7 +187,8 @@ def main():
               f"steps of {r['card'].get('train_config', {}).get('batch_size', '?')} clips, "
               f"{r['card'].get('wall_time_s', 0) / 60:.0f} min training" for tr, r in seq_rows.items()]
     text += "\nTraining of each model (from its card):\n\n" + "\n".join(cards) + "\n"
-    checked = differences(rows, seq_rows) + "\n\n" + claims(rows, bicubic)
+    vs_tr0 = {tr: interval(r["frames"], rows[0]["frames"]) for tr, r in rows.items() if tr} if 0 in rows else {}
+    checked = differences(rows, seq_rows, vs_tr0) + "\n\n" + claims(rows, bicubic, vs_tr0)
     text += "\n" + checked + "\n"
     text += f"\nPlots: `{base.name}.png` (PSNR and SSIM against TR), `{base.name}_pareto.png` (PSNR against frames/s).\n"
     write_atomic(f"{base}.md", text)
@@ -203,20 +202,19 @@ def csv_row(label, scores, fps):
     return ",".join([label, *(f"{scores[n][i]:.4f}" for n in TEST_SCENES for i in (0, 1)), f"{fps:.2f}"]) + "\n"
 
 
-def differences(rows, seq_rows) -> str:
-    """Every TR against TR0 and each sequence-form model against the windowed one of its TR, with intervals."""
+def differences(rows, seq_rows, vs_tr0) -> str:
+    """Every TR against TR0 (`vs_tr0`: TR -> interval) and each sequence-form model against the windowed one of its TR, with intervals."""
     lines = [f"Differences in mean PSNR over the three scenes (dB), with 95 % intervals from a paired bootstrap over "
              f"blocks of {BLOCK} frames (`jaxsr.paired_interval`; each scene resampled on its own). They say how "
              "much the frames chosen move a difference, not how much another training run would: for that, "
              "results/seed_spread.md (three TR0 seeds).", ""]
-    if 0 in rows:
-        lines += [f"- TR{tr} - TR0: {difference(r['frames'], rows[0]['frames'])}" for tr, r in rows.items() if tr]
-    lines += [f"- TR{tr}-seq - TR{tr}: {difference(r['frames'], rows[tr]['frames'])}"
+    lines += [f"- TR{tr} - TR0: {_fmt(iv)}" for tr, iv in vs_tr0.items()]
+    lines += [f"- TR{tr}-seq - TR{tr}: {_fmt(interval(r['frames'], rows[tr]['frames']))}"
               for tr, r in seq_rows.items() if tr in rows]
     return "\n".join(lines)
 
 
-def claims(rows, bicubic) -> str:
+def claims(rows, bicubic, vs_tr0) -> str:
     """The paper's claims about this table, checked on the numbers above (not asserted)."""
     lines = ["Paper claims, measured:"]
     low_snr = [n for n in TEST_SCENES[:2]]
@@ -225,8 +223,7 @@ def claims(rows, bicubic) -> str:
                  f"{min(margins):.2f} dB -> {'holds' if min(margins) >= 4 else 'does not hold'}")
     if 0 in rows and 4 in rows:
         gain = [rows[4]["scores"][n][0] - rows[0]["scores"][n][0] for n in TEST_SCENES]
-        iv = jaxsr.paired_interval(jax.random.key(0), rows[4]["frames"], rows[0]["frames"],
-                                   block=min(BLOCK, rows[0]["frames"].shape[-1]))
+        iv = vs_tr0[4]
         verdict = ("holds beyond the frame interval" if iv.low >= 0.5 else "holds on the mean only, inside the "
                    "frame interval" if iv.mean >= 0.5 else "does not hold")
         lines.append(f"- TR4 - TR0 >= 0.5 dB: {', '.join(f'{g:+.2f}' for g in gain)} dB per scene (mean "

@@ -26,24 +26,20 @@ import jax
 import jax.numpy as jnp
 
 import jaxsr
-from jaxsr.checkpoint import read_metadata
+from jaxsr.checkpoint import read_metadata, resolve_model_path
 from jaxsr.config import PRESETS
-from jaxsr.data import scene_batches, scene_clips
 from jaxsr.model import init_model
 from jaxsr.optim import adam_init
-from jaxsr.train import fit, make_train_step
+from jaxsr.train import default_data, fit, make_train_step
 
 from _report import machine, write_atomic
 
-WEIGHTS = Path(jaxsr.__file__).parent / "weights"
 EPOCHS = 5
 
 
 def _probe(model_cfg, train_cfg):
     """A compiled train step of `model_cfg` on its default data, with fresh weights: a callable running one step."""
-    make_batch = scene_clips(train_cfg.clip_length(model_cfg), train_cfg) if model_cfg.temporal == "sequence" else \
-        scene_batches(model_cfg.tr, train_cfg)
-    step = make_train_step(model_cfg, train_cfg, make_batch)
+    step = make_train_step(model_cfg, train_cfg, default_data(model_cfg, train_cfg))
     params, state = init_model(jax.random.key(0), model_cfg)
     carry = [params, state, adam_init(params)]
 
@@ -73,7 +69,7 @@ def plan(tr: int, run: Path) -> dict:
     path = run / "plan.json"
     if path.exists():
         return json.loads(path.read_text())
-    window_steps = read_metadata(WEIGHTS / f"tr{tr}.npz")["card"]["steps"]
+    window_steps = read_metadata(resolve_model_path(f"tr{tr}"))["card"]["steps"]
     seconds = step_seconds(tr)
     steps_per_epoch = math.ceil(window_steps * seconds["window"] / seconds["sequence"] / EPOCHS)
     record = {"tr": tr, "rule": "windowed steps x window step / sequence step, timed in one run",

@@ -314,8 +314,10 @@ def _initial_weights(k_init, model_cfg: ModelConfig, init) -> tuple[dict, dict]:
     return jax.tree_util.tree_map(jnp.asarray, (model.params, model.state))
 
 
-def _default_data(model_cfg: ModelConfig, train_cfg: TrainConfig, sensor: SensorConfig):
-    """Rendered scenes: windows of 2tr+1 frames (window form) or clips of `train_cfg.clip_length` frames."""
+def default_data(model_cfg: ModelConfig, train_cfg: TrainConfig, sensor: SensorConfig = SensorConfig()):
+    """`fit`'s data source when none is given: rendered scenes, as windows of 2tr+1 frames (window form,
+    `scene_batches`) or clips of `train_cfg.clip_length` frames (sequence form, `scene_clips`).
+    Returns make_batch: key -> (inputs, gt) of that source."""
     if model_cfg.temporal == "sequence":
         return scene_clips(train_cfg.clip_length(model_cfg), train_cfg, sensor=sensor)
     return scene_batches(model_cfg.tr, train_cfg, sensor=sensor)
@@ -469,7 +471,7 @@ def fit(
     root = jax.random.key(train_cfg.seed)
     k_init, k_data, k_val = (jax.random.fold_in(root, i) for i in range(3))
     if make_batch is None:
-        make_batch = _default_data(model_cfg, train_cfg, sensor)
+        make_batch = default_data(model_cfg, train_cfg, sensor)
     if data_description is None:
         data_description = getattr(make_batch, "description", "user-supplied make_batch")
     if validation is None:
