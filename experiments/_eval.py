@@ -86,6 +86,21 @@ def frame_scores(sr, gt, *, chunk: int = 50) -> tuple[np.ndarray, np.ndarray]:
     return np.concatenate(p), np.concatenate(s)
 
 
+# Frames per bootstrap block: consecutive frames of a video score alike (the scene changes slowly, the noise does
+# not), so intervals resample runs of frames (jaxsr.paired_interval)
+BLOCK = 10
+
+
+def interval(a, b, seed: int = 0):
+    """Mean score difference a - b (per-frame scores, (T,) or (scenes, T)) with its 95 % block-bootstrap
+    interval."""
+    return jaxsr.paired_interval(jax.random.key(seed), a, b, block=min(BLOCK, np.shape(a)[-1]))
+
+
+def format_interval(iv) -> str:
+    return f"{float(iv.mean):+.2f} [{float(iv.low):+.2f}, {float(iv.high):+.2f}]"
+
+
 def score(sr, gt, *, chunk: int = 50) -> tuple[float, float]:
     """Mean PSNR (dB) and SSIM over frames (see `frame_scores`)."""
     p, s = frame_scores(sr, gt, chunk=chunk)

@@ -19,20 +19,15 @@ import argparse
 import time
 from pathlib import Path
 
-import jax
 import numpy as np
 
 import jaxsr
 from jaxsr.config import PRESETS, SensorConfig
 from jaxsr.runtime import enable_compilation_cache
 
-from _eval import (FPS_NOTE, PAPER_BICUBIC, PAPER_TABLE1, SCENE_LABELS, TEST_SCENES, bicubic_fps, bundled, frame_scores,
-                   get_model, model_fps, score, test_clips)
+from _eval import (BLOCK, FPS_NOTE, PAPER_BICUBIC, PAPER_TABLE1, SCENE_LABELS, TEST_SCENES, bicubic_fps, bundled,
+                   format_interval, frame_scores, get_model, interval, model_fps, score, test_clips)
 from _report import header, markdown_table, save_figure, write_atomic
-
-# Frames per bootstrap block: consecutive frames of a test scene score alike (the scene changes slowly, the
-# noise does not), so intervals resample runs of frames (jaxsr.paired_interval)
-BLOCK = 10
 
 
 def evaluate_tr(model, clips) -> tuple[dict, np.ndarray]:
@@ -43,15 +38,6 @@ def evaluate_tr(model, clips) -> tuple[dict, np.ndarray]:
         means[name] = (float(p.mean()), float(s.mean()))
         frames.append(p)
     return means, np.stack(frames)
-
-
-def interval(a, b, seed: int = 0):
-    """Mean PSNR difference a - b (per-frame PSNR, scenes x frames) with its 95 % block-bootstrap interval."""
-    return jaxsr.paired_interval(jax.random.key(seed), a, b, block=min(BLOCK, a.shape[-1]))
-
-
-def _fmt(iv) -> str:
-    return f"{float(iv.mean):+.2f} [{float(iv.low):+.2f}, {float(iv.high):+.2f}]"
 
 
 def bicubic_row(clips, scale) -> dict:
@@ -208,8 +194,8 @@ def differences(rows, seq_rows, vs_tr0) -> str:
              f"blocks of {BLOCK} frames (`jaxsr.paired_interval`; each scene resampled on its own). They say how "
              "much the frames chosen move a difference, not how much another training run would: for that, "
              "results/seed_spread.md (three TR0 seeds).", ""]
-    lines += [f"- TR{tr} - TR0: {_fmt(iv)}" for tr, iv in vs_tr0.items()]
-    lines += [f"- TR{tr}-seq - TR{tr}: {_fmt(interval(r['frames'], rows[tr]['frames']))}"
+    lines += [f"- TR{tr} - TR0: {format_interval(iv)}" for tr, iv in vs_tr0.items()]
+    lines += [f"- TR{tr}-seq - TR{tr}: {format_interval(interval(r['frames'], rows[tr]['frames']))}"
               for tr, r in seq_rows.items() if tr in rows]
     return "\n".join(lines)
 
