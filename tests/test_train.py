@@ -193,7 +193,7 @@ def test_paper_preset_follows_the_paper():
     assert (cfg.huber_delta, cfg.epochs, cfg.patience) == (0.01, 100, 5)
 
 
-@pytest.mark.parametrize("name", ["cpu", "bundle"])
+@pytest.mark.parametrize("name", ["cpu", "bundle", "long"])
 def test_scaled_presets_change_only_the_amount_of_training(name):
     cfg, paper = PRESETS[name], PRESETS["paper"]
     differ = {f.name for f in dataclasses.fields(TrainConfig) if getattr(cfg, f.name) != getattr(paper, f.name)}
