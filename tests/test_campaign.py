@@ -19,7 +19,8 @@ def _write(root, seed, tr, val_losses, val_psnr=None):
     run = campaign.run_dir(root, seed, tr)
     run.mkdir(parents=True, exist_ok=True)
     psnr = val_psnr or [20.0 + i for i in range(len(val_losses))]
-    lines = [json.dumps({"epoch": i + 1, "val_loss": v, "val_psnr": p}) for i, (v, p) in enumerate(zip(val_losses, psnr))]
+    lines = [json.dumps({"epoch": i + 1, "val_loss": v, "val_psnr": p})
+             for i, (v, p) in enumerate(zip(val_losses, psnr, strict=True))]
     (run / "metrics.jsonl").write_text("".join(line + "\n" for line in lines))
 
 
