@@ -3,6 +3,7 @@ under 0.05 dB, each with its training card; writes experiments/results/weights.m
 
     python experiments/bundle_weights.py --runs runs/bundle [--trs 0 1 2 3 4] [--checkpoint select] [--force]
     python experiments/bundle_weights.py --form sequence --runs runs/bundle-seq --trs 1 2 3 4 [--force]
+    python experiments/bundle_weights.py --runs runs/campaign/s0 --trained-with "python experiments/campaign.py"
 
 The window-form models come from `jaxsr train --tr N --preset bundle --out runs/bundle/trN` and are bundled as
 tr<N>.npz (results/weights.md); the sequence-form models from `experiments/train_sequence_bundle.py` and are
@@ -41,6 +42,26 @@ def mean_psnr(model, clips):
     return float(np.mean([score(jaxsr.super_resolve(model, c.lr), c.gt)[0] for c in clips]))
 
 
+def schedule(args) -> str:
+    """The training command of the runs, without the TR."""
+    if args.trained_with:
+        return args.trained_with
+    return ("jaxsr train --preset bundle" if args.form == "window" else
+            "experiments/train_sequence_bundle.py (the bundle preset in the sequence form, clips of 2R + 8 frames, "
+            "as long as the windowed model of its TR trained: see that script)")
+
+
+def describe(tc: dict) -> str:
+    """The training schedule of a card's train_config, in words."""
+    steps = tc["examples_per_epoch"] // tc["batch_size"]
+    return (f"batch {tc['batch_size']}, {tc['patch'][0]} x {tc['patch'][1]} LR crops of freshly rendered random "
+            f"scenes, SNR {tc['snr_range'][0]:g}-{tc['snr_range'][1]:g}, {tc['mean_signal_range'][0]:g}-"
+            f"{tc['mean_signal_range'][1]:g} signal photons, up to {tc['epochs']} epochs of {steps} steps, Adam "
+            f"{tc['lr']:g} cut by {tc['lr_decay']:g} every {tc['decay_epochs']} epochs, early stopping after "
+            f"{tc['patience']} epochs; validation on {len(tc['val_sequences'])} x {tc['val_frames']} frames of the "
+            "validation sequences")
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", default="runs/bundle", help="folder with tr<N>/best.npz")
@@ -51,6 +72,8 @@ def main():
                         "validation frames)")
     parser.add_argument("--form", choices=["window", "sequence"], default="window",
                         help="the runs' temporal form: window -> tr<N>.npz, sequence -> tr<N>-seq.npz")
+    parser.add_argument("--trained-with", default=None,
+                        help="the command that trained the runs, for the cards (default: the bundle's, per form)")
     parser.add_argument("--force", action="store_true", help="replace existing bundled weights")
     args = parser.parse_args()
     started = time.time()
@@ -73,8 +96,9 @@ def main():
             reduced = mean_psnr(half, clips)
         cost = full - reduced
         dtype = "float16" if cost < MAX_COST_DB else "float32"
-        trained_with = (f"jaxsr train --tr {tr} --preset bundle --out {run}" if args.form == "window" else
-                        f"python experiments/train_sequence_bundle.py --trs {tr} --runs {args.runs}")
+        trained_with = args.trained_with or (
+            f"jaxsr train --tr {tr} --preset bundle --out {run}" if args.form == "window" else
+            f"python experiments/train_sequence_bundle.py --trs {tr} --runs {args.runs}")
         card = dict(card, trained_with=trained_with,
                     checkpoint={"file": f"{chosen}.npz", "rule": args.checkpoint,
                                 "validation_psnr_db": {k: round(v, 3) for k, v in val_psnr.items()}},
@@ -92,15 +116,11 @@ def main():
     total = sum(p.stat().st_size for p in WEIGHTS.glob("*.npz"))
     form = args.form
     text = header(f"Bundled weights (jaxsr/weights), {form} form", started)
-    text += (("Each model trained with `jaxsr train --preset bundle`" if form == "window" else
-              "Each model trained with `experiments/train_sequence_bundle.py` (the `bundle` preset in the sequence "
-              "form, clips of 2R + 8 frames, as long as the windowed model of its TR trained: see that script)") +
-             " (batch 4, 16 x 32 LR crops of freshly rendered random scenes, SNR 0.5-8, 7-28 signal photons, Adam 1e-3 cut to 1e-4 for the last epoch; "
-             "validation on 3 x 16 frames of the validation sequences). Card columns: the best epoch's validation PSNR "
-             "and bicubic's on the same frames, from the training card. 'val PSNR best / last': mean over "
-             f"{', '.join(VALIDATION)} ({args.frames} frames each, other noise) of the two checkpoints of the run; "
-             f"rule `--checkpoint {args.checkpoint}` picks the bundled one. float16 cost: float32 minus float16 PSNR "
-             "of the bundled one on the same frames.\n\n")
+    text += (f"Each model trained with `{schedule(args)}`: {describe(card['train_config'])}. Card columns: "
+             "the best epoch's validation PSNR and bicubic's on the same frames, from the training card. 'val PSNR "
+             f"best / last': mean over {', '.join(VALIDATION)} ({args.frames} frames each, other noise) of the two "
+             f"checkpoints of the run; rule `--checkpoint {args.checkpoint}` picks the bundled one. float16 cost: "
+             "float32 minus float16 PSNR of the bundled one on the same frames.\n\n")
     text += markdown_table(["model", "checkpoint", "steps", "examples", "train min", "card val PSNR",
                             "card bicubic", "val PSNR best / last", "float16 cost dB", "stored", "MB"], rows)
     text += f"\nAll bundled weights together: {total / 2**20:.1f} MB.\n"
