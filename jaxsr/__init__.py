@@ -72,6 +72,7 @@ from .metrics import ssim_global as ssim_global
 from .metrics import temporal_coherence as temporal_coherence
 from .stats import Interval as Interval
 from .stats import paired_interval as paired_interval
+from .stats import ratio_interval as ratio_interval
 from .peaks import centre_of_mass as centre_of_mass
 from .peaks import maximum_likelihood_depth as maximum_likelihood_depth
 from .pipeline import pipeline_metric as pipeline_metric

@@ -39,11 +39,34 @@ def _block_indices(key, frames: int, block: int, n_resamples: int):
 
 
 @functools.partial(jax.jit, static_argnames=("block", "n_resamples"))
-def _resampled_means(key, diff, block: int, n_resamples: int):
-    """(n_resamples,) statistics: each row of diff (S, T) block-resampled on its own, then the mean of row means."""
-    keys = jax.random.split(key, diff.shape[0])
-    per_row = jax.vmap(lambda k, d: d[_block_indices(k, d.shape[0], block, n_resamples)].mean(-1))(keys, diff)
-    return per_row.mean(0)
+def _resampled_means(key, x, block: int, n_resamples: int):
+    """(..., n_resamples) statistics of x (..., S, T): each of the S rows block-resampled on its own, with the
+    same indices for every leading entry (paired methods stay paired), then the mean of the row means."""
+    keys = jax.random.split(key, x.shape[-2])
+    per_row = jax.vmap(lambda k, d: d[..., _block_indices(k, d.shape[-1], block, n_resamples)].mean(-1),
+                       in_axes=(0, -2), out_axes=-2)(keys, x)
+    return per_row.mean(-2)
+
+
+def _paired(name, a, b, block, level):
+    """a and b as float32 (S, T) arrays, checked."""
+    a, b = jnp.asarray(a, jnp.float32), jnp.asarray(b, jnp.float32)
+    if a.shape != b.shape or a.ndim not in (1, 2) or a.shape[-1] < 1:
+        raise ValueError(f"{name}: expected a and b of one shape (T,) or (S, T), got {a.shape} and {b.shape}")
+    if not 1 <= block <= a.shape[-1]:
+        raise ValueError(f"{name}: block must be in 1..T = {a.shape[-1]} frames, got {block}")
+    if not 0 < level < 1:
+        raise ValueError(f"{name}: level must be in (0, 1), got {level}")
+    a, b = a.reshape(-1, a.shape[-1]), b.reshape(-1, b.shape[-1])
+    if not bool(jnp.all(jnp.isfinite(a)) & jnp.all(jnp.isfinite(b))):
+        raise ValueError(f"{name}: scores must be finite (a frame scored inf or NaN: e.g. PSNR of an exact "
+                         "output; clip or drop such frames first)")
+    return a, b
+
+
+def _percentiles(stats, level):
+    tail = 100 * (1 - level) / 2
+    return jnp.percentile(stats, jnp.array([tail, 100 - tail]))
 
 
 def paired_interval(key, a, b, *, level: float = 0.95, block: int = 10, n_resamples: int = 4000) -> Interval:
@@ -58,18 +81,25 @@ def paired_interval(key, a, b, *, level: float = 0.95, block: int = 10, n_resamp
     Raises ValueError for shapes that differ or are not (T,) / (S, T), non-finite scores, block not in
     1..T, or level not in (0, 1).
     """
-    a, b = jnp.asarray(a, jnp.float32), jnp.asarray(b, jnp.float32)
-    if a.shape != b.shape or a.ndim not in (1, 2) or a.shape[-1] < 1:
-        raise ValueError(f"paired_interval: expected a and b of one shape (T,) or (S, T), got {a.shape} and {b.shape}")
-    if not 1 <= block <= a.shape[-1]:
-        raise ValueError(f"paired_interval: block must be in 1..T = {a.shape[-1]} frames, got {block}")
-    if not 0 < level < 1:
-        raise ValueError(f"paired_interval: level must be in (0, 1), got {level}")
-    diff = (a - b).reshape(-1, a.shape[-1])
-    if not bool(jnp.all(jnp.isfinite(diff))):
-        raise ValueError("paired_interval: scores must be finite (a frame scored inf or NaN: e.g. PSNR of an exact "
-                         "output; clip or drop such frames first)")
-    stats = _resampled_means(key, diff, block, n_resamples)
-    tail = 100 * (1 - level) / 2
-    low, high = jnp.percentile(stats, jnp.array([tail, 100 - tail]))
+    a, b = _paired("paired_interval", a, b, block, level)
+    diff = a - b
+    low, high = _percentiles(_resampled_means(key, diff, block, n_resamples), level)
     return Interval(diff.mean(-1).mean(), low, high)
+
+
+def ratio_interval(key, a, b, *, level: float = 0.95, block: int = 10, n_resamples: int = 4000) -> Interval:
+    """The ratio of mean scores mean(a) / mean(b) and its paired block-bootstrap interval (as `paired_interval`,
+    for statistics compared as ratios: e.g. TR0's temporal artefacts against TR4's, "about twice").
+
+    a, b: (T,) or (S, T) per-frame scores of two methods on the same frames, b's mean positive; with S
+    sequences, the ratio of the means over sequences of per-sequence means. Both are resampled with the same
+    blocks. Returns an `Interval` (ratio, low, high); a resample in which b's mean is 0 makes the bound inf.
+    Raises ValueError as `paired_interval`, and when b's mean is not positive.
+    """
+    a, b = _paired("ratio_interval", a, b, block, level)
+    mean_b = b.mean(-1).mean()
+    if not bool(mean_b > 0):
+        raise ValueError(f"ratio_interval: b's mean must be positive, got {float(mean_b)}")
+    means = _resampled_means(key, jnp.stack([a, b]), block, n_resamples)
+    low, high = _percentiles(means[0] / means[1], level)
+    return Interval(a.mean(-1).mean() / mean_b, low, high)

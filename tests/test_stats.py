@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxsr import paired_interval
+from jaxsr import paired_interval, ratio_interval
 from jaxsr.stats import _resampled_means
 
 
@@ -79,3 +79,27 @@ def test_sequences_are_resampled_apart_and_averaged():
 def test_bad_input_is_refused(a, b, kw, match):
     with pytest.raises(ValueError, match=match):
         paired_interval(jax.random.key(0), a, b, **kw)
+
+
+def test_an_exact_ratio_has_no_width():
+    b = np.random.default_rng(6).uniform(50, 150, 60)
+    got = ratio_interval(jax.random.key(7), 2 * b, b, block=5)
+    np.testing.assert_allclose([got.mean, got.low, got.high], 2.0, rtol=1e-5)
+
+
+def test_the_ratio_interval_matches_the_delta_method():
+    """Independent frames, a ~ 200 +- 10 and b ~ 100 +- 10 over 400 frames: the ratio of means is near 2 with
+    standard error sqrt(var_a + r^2 var_b) / (mean_b sqrt(T)) = sqrt(100 + 400) / (100 * 20)."""
+    rng = np.random.default_rng(8)
+    a, b = rng.normal(200, 10, 400), rng.normal(100, 10, 400)
+    got = ratio_interval(jax.random.key(9), a, b, block=1, n_resamples=8000)
+    assert float(got.mean) == pytest.approx(a.mean() / b.mean(), rel=1e-5)
+    half = 1.96 * np.sqrt(a.var() + (a.mean() / b.mean()) ** 2 * b.var()) / (b.mean() * np.sqrt(400))
+    assert float(got.high - got.low) == pytest.approx(2 * half, rel=0.1)
+
+
+def test_a_ratio_to_a_zero_mean_is_refused():
+    with pytest.raises(ValueError, match="positive"):
+        ratio_interval(jax.random.key(0), np.ones(5), np.zeros(5), block=1)
+    with pytest.raises(ValueError, match="one shape"):
+        ratio_interval(jax.random.key(0), np.ones(5), np.ones(4), block=1)
