@@ -67,7 +67,7 @@ def moving_share(depth):
 
 
 def test_walkers_have_people_in_sight_at_every_time_the_study_uses():
-    scene, fps = scenes.test_scene("walkers_100fps")
+    scene, _ = scenes.test_scene("walkers_100fps")
     n = n_walkers()
     moving = np.linalg.norm(np.asarray(scene.cylinders.motion.velocity[:PERSON_CYLINDERS * n]), axis=-1)
     assert np.allclose(moving, 4.3 / 3.6, rtol=1e-5), "every walker walks at the paper's 4.3 km/h"

@@ -199,12 +199,12 @@ def _road(d: Draws, *, n_vehicles=(2, 6), truck=None, traffic="free", lane_kmh=(
     lane_x = d.uniform("lane_x", -45.0, 45.0, (2,))
     if traffic == "free":
         x = jnp.repeat(lane_x, 3) + jnp.tile(jnp.arange(3) * 30.0, 2) + d.uniform("vehicle_x", -4, 4, (6,))
-        extra = dict(wrap_half=45.0)
+        extra = {"wrap_half": 45.0}
     else:
         offset, wrap_half, length_u = _queues(d, lane[::3], kind.reshape(2, 3), queue_gap)
         forward = jnp.array([[1.0], [-1.0]])  # the near lane drives along +X, the far one along -X
         x = (lane_x[:, None] / 45.0 * wrap_half[:, None] + forward * offset).ravel()
-        extra = dict(wrap_half=jnp.repeat(wrap_half, 3), length_u=length_u.ravel())
+        extra = {"wrap_half": jnp.repeat(wrap_half, 3), "length_u": length_u.ravel()}
     out.add(many(vehicle, d, "vehicles", 6, _bases(x, lane), heading, speed, kind=kind,
                  active=jnp.arange(6) < n_veh, **extra))
     parked = jnp.stack([d.uniform("parked_x", -6.0, 6.0), jnp.array(0.0), z_near - 3.0])
