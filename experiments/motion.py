@@ -35,7 +35,7 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
-from _report import header, markdown_table, write_atomic
+from _report import hand_written_tail, header, markdown_table, write_atomic
 from fps_study import RATES
 
 from jaxsr.config import SensorConfig
@@ -57,6 +57,7 @@ CLIP_FRAMES = 3
 FIRST_SEED = 500
 QUANTILES = (0.05, 0.25, 0.5, 0.75, 0.95)
 SENSOR = SensorConfig()
+READING = "## Reading"  # the hand-written commentary at the end of the results file, kept by a re-run
 
 _render = jax.jit(render_sequence, static_argnames=("sensor",))
 _render_clips = jax.jit(jax.vmap(lambda s, t: render_sequence(s, t, sensor=SENSOR)))
@@ -255,6 +256,7 @@ def main():
         text += (f"\nMedian ratio of the in-view motion to the shift the sampler drew: before {drawn_ratio(b):.2f} "
                  f"(it drew `mean_lr_shift` at the clip's first frame, objects beside the frame included), after "
                  f"{drawn_ratio(a):.2f} (it draws `in_view_lr_shift` at the middle frame).\n")
+    text += hand_written_tail(f"{args.out}.md", READING)
     write_atomic(f"{args.out}.md", text)
     print(text)
 

@@ -171,6 +171,10 @@ def test_seen_primitives_sees_only_what_is_in_front_and_in_the_frame():
     assert seen[0] and not seen[1] and not seen[2] and seen.sum() == 1
     moved = scene._replace(boxes=scene.boxes._replace(centre=scene.boxes.centre.at[0, 0].set(-20.0)))
     assert np.asarray(_seen(moved, 0.0))[1], "box 1 is seen once box 0 is out of the way"
+    wide = moved.boxes._replace(half=moved.boxes.half.at[1].set(jnp.array([5.0, 0.1])))
+    at = lambda z: moved._replace(boxes=wide._replace(centre=wide.centre.at[1, 2].set(z)))
+    assert np.asarray(_seen(at(SENSOR.d_max - 5.0), 0.0))[1]
+    assert not np.asarray(_seen(at(SENSOR.d_max + 5.0), 0.0)).any(), "beyond the range gate, nothing is in sight"
 
 
 def test_in_view_shift_counts_only_what_is_in_sight():

@@ -303,15 +303,17 @@ def render(scene: Scene, t, *, sensor: SensorConfig = SensorConfig(), tiles=DEFA
 
 
 def seen_primitives(scene: Scene, t, *, sensor: SensorConfig = SensorConfig(), stride: int = 8):
-    """Which primitives are in sight at time `t` (s): those that are the nearest hit, in front of the ground, on
-    at least one ray of a grid through every `stride`-th HR pixel centre (stride 8: 16 x 32 rays, about 2 % of a
-    render's work). A primitive in the frame but hidden behind a wall is not seen; one thinner than the grid
-    spacing may be missed.
+    """Which primitives are in sight at time `t` (s): those that are the nearest hit, in front of the ground and
+    within the sensor's range (radial depth <= `sensor.d_max`), on at least one ray of a grid through every
+    `stride`-th HR pixel centre (stride 8: 16 x 32 rays, about 2 % of a render's work). A primitive in the frame
+    but hidden behind a wall, or beyond the range gate, is not seen; one thinner than the grid spacing may be
+    missed.
 
     Args: scene (Scene), t (s, scalar), stride (static int). Returns (N_BOXES + N_CYLINDERS + N_ELLIPSOIDS,)
     bool, in the order boxes, cylinders, ellipsoids (that of `pose_all`'s groups)."""
-    dx, dy, _ = pixel_rays(sensor, tilt=scene.camera.tilt)
-    dx, dy = dx[stride // 2::stride], dy[stride // 2::stride]
+    dx, dy, norm = pixel_rays(sensor, tilt=scene.camera.tilt)
+    grid = (slice(stride // 2, None, stride),) * 2
+    dx, dy, norm = dx[grid[1]], dy[grid[0]], norm[grid]
     groups, _, _ = pose_all(scene, jnp.asarray(t, jnp.float32))
     z = jnp.full((dy.shape[0], dx.shape[0]), _INF)
     index = jnp.zeros(z.shape, jnp.int32)
@@ -322,7 +324,7 @@ def seen_primitives(scene: Scene, t, *, sensor: SensorConfig = SensorConfig(), s
         z, index = jnp.where(closer, t_min, z), jnp.where(closer, i_min + offset, index)
         offset += group.params.shape[0]
     t_gnd = jnp.where(dy < 0, -scene.camera.position[1] / jnp.where(dy < 0, dy, -1.0), _INF)[:, None]
-    hit = jnp.isfinite(z) & (z < t_gnd)
+    hit = (z < t_gnd) & (z * norm <= sensor.d_max)  # z is planar depth; z * norm the radial range
     # Rays that hit nothing but the ground or the sky count in an extra bin, dropped.
     return jnp.bincount(jnp.where(hit, index, offset).ravel(), length=offset + 1)[:offset] > 0
 

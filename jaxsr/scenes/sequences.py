@@ -2,7 +2,8 @@
 
 Motion is in physical units: speeds in m/s (drawn in km/h), times in seconds, frame rates in frames per second;
 the shift per frame in LR pixels of an object at depth z moving across the view at speed v is
-v / (fps z) * focal_px / scale (`mean_lr_shift`).
+v / (fps z) * focal_px / scale (`mean_lr_shift`; `in_view_lr_shift` counts only the objects in sight). Training
+clips are drawn so that the motion they are drawn for is in sight (`training_scene`).
 """
 
 from __future__ import annotations
@@ -104,8 +105,9 @@ def in_view_lr_shift(scene: Scene, fps, *, sensor: SensorConfig = SensorConfig()
     return _mean_moving(speed, in_frame & seen_primitives(scene, t, sensor=sensor, stride=stride), fps)
 
 
-# Times tried per drawn scene for one at which something in sight moves; with none at any of them, a moving-camera
-# draw is used instead (measured: in 2000 draws, ...).
+# Times tried per drawn scene for one at which something in sight moves (a person crossing a street is in view for
+# a small part of the 10 s); with none at any of them, a moving-camera draw is used instead. How often a clip still
+# shows no motion: experiments/results/motion.md.
 N_TIMES = 8
 
 
