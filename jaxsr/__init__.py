@@ -87,6 +87,7 @@ from .runtime import enable_compilation_cache as enable_compilation_cache
 from .runtime import use_cpu_cores as use_cpu_cores
 from .scenes import Scene as Scene
 from .scenes import render as render
+from .scenes import in_view_lr_shift as in_view_lr_shift
 from .scenes import mean_lr_shift as mean_lr_shift
 from .scenes import sample_scene as sample_scene
 from .scenes import sequence as sequence

@@ -199,8 +199,8 @@ def test_training_clips_span_the_paper_shift_range():
     keys = jax.random.split(jax.random.key(0), 32)
 
     def shift(k):
-        scene, fps, t0 = scenes.training_scene(k)
-        return scenes.mean_lr_shift(scene, fps, t=t0), fps
+        scene, fps, t = scenes.training_scene(k)
+        return scenes.in_view_lr_shift(scene, fps, t=t), fps
 
     shifts, fps = (np.asarray(a) for a in jax.jit(jax.vmap(shift))(keys))
     inside = (fps > 1.0) & (fps < 2000.0)  # where the fps clip did not bind

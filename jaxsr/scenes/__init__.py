@@ -8,7 +8,8 @@ The modules, from the bottom up:
 - `draws`: random numbers keyed by name, so that no new draw can shift another;
 - `objects`: people, cyclists, vehicles, buildings, trees, poles and furniture;
 - `layouts`: streets, roads, courtyards and walkers, their cameras, and `sample_scene`;
-- `sequences`: `sequence`, `mean_lr_shift` (motion in LR pixels per frame) and the training clips;
+- `sequences`: `sequence`, `mean_lr_shift` and `in_view_lr_shift` (motion in LR pixels per frame: of what is
+  near the frame, of what is in sight) and the training clips;
 - `test_sets`: the fixed, stored test and validation scenes (`test_sequences`).
 
 `windows` and `change_frame_rate` (from `jaxsr.temporal`) are re-exported here as part of the scenes API.
@@ -33,7 +34,9 @@ from .primitives import Motion as Motion
 from .primitives import Scene as Scene
 from .raycast import render as render
 from .raycast import render_sequence as render_sequence
+from .raycast import seen_primitives as seen_primitives
 from .raycast import tile_overflow as tile_overflow
+from .sequences import in_view_lr_shift as in_view_lr_shift
 from .sequences import mean_lr_shift as mean_lr_shift
 from .sequences import sequence as sequence
 from .sequences import training_clip as training_clip

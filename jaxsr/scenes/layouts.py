@@ -33,6 +33,7 @@ from .objects import (
     texture,
     tree,
     vehicle,
+    vehicle_length,
     wall,
 )
 from .primitives import Boxes, Camera, Cylinders, Ellipsoids, Ground, Scene
@@ -49,13 +50,25 @@ KINDS = ("street", "road", "courtyard", "walkers")
 # Camera and ground
 
 
+# A static camera's view, for layouts that keep moving objects in it: the default sensor's half field of view
+# (`SensorConfig.fov_deg` = 30) and the largest yaw `_camera` draws.
+HALF_FOV = math.radians(15.0)
+MAX_YAW = 0.15
+PERSON_HALF_LENGTH = 0.45  # m: a walking person's extent along the heading (swinging legs), each way
+
+
+def _edge_of_view(z):
+    """X (m) beyond which nothing at depth z (m) is in sight of any static camera of `_camera`, either side."""
+    return z * jnp.tan(HALF_FOV + MAX_YAW)
+
+
 def _camera(d: Draws, mode, *, height_range=(1.5, 2.0), tilt_range=(0.03, 0.12), speed_range=(0.5, 8.0)):
     """Static camera, or ('moving') one translating sideways along X with a slow pan; 'random': 35 % moving."""
     moving = {"static": jnp.array(False), "moving": jnp.array(True)}.get(mode)
     if moving is None:
         moving = d.coin("moving", 0.35)
     speed = d.uniform("speed", *speed_range) * jnp.where(d.coin("leftwards", 0.5), 1.0, -1.0)
-    yaw = d.uniform("yaw", -0.15, 0.15)
+    yaw = d.uniform("yaw", -MAX_YAW, MAX_YAW)
     yaw_rate = jnp.where(moving, d.uniform("yaw_rate", -0.05, 0.05), 0.0)
     return Camera(jnp.stack([jnp.array(0.0), d.uniform("height", *height_range), jnp.array(0.0)]),
                   jnp.stack([jnp.where(moving, speed, 0.0), jnp.array(0.0), jnp.array(0.0)]),
@@ -141,22 +154,59 @@ def _street(d: Draws, *, n_people=(2, 5), n_cyclists=(0, 2)):
     return out, _ground(d.child("ground"), "paving")
 
 
-def _road(d: Draws, *, n_vehicles=(2, 6), truck=None):
-    """A road across the view: two lanes of traffic (cars, vans, trucks at 10-60 km/h) at 8-20 m, a parked car,
-    pedestrians on the far pavement, trees and poles, buildings and a fence behind."""
+def _queues(d: Draws, lane_z, kind, gap_range):
+    """Two lanes of queued traffic, 3 vehicles each, nose to tail.
+
+    lane_z (2,) m; kind (2, 3) vehicle kinds, lane by lane, front to back. Each vehicle draws its length and the
+    gap behind it (`gap_range`, m); the lane wraps with the period of its queue (the lengths and gaps), so the
+    spacing holds for ever. Where that period would let a wrap show to a static camera (`_edge_of_view` plus
+    half the lane's longest vehicle and 0.1 m, each way), the gaps are stretched alike until it does not.
+    Returns the offsets along the lane (2, 3) m, front vehicle at 0 and the others behind it (negative), the
+    lanes' wrap half-periods (2,) m and the length quantiles (2, 3) (`vehicle_length`)."""
+    length_u = d.uniform("queue_length", shape=(2, 3))
+    length = vehicle_length(kind, length_u)
+    gap = d.uniform("queue_gap", *gap_range, (2, 3))
+    hidden_half = _edge_of_view(lane_z) + length.max(-1) / 2 + 0.1
+    gap = gap + jnp.maximum(2 * hidden_half - jnp.sum(length + gap, -1), 0.0)[:, None] / 3
+    wrap_half = jnp.sum(length + gap, -1) / 2
+    behind = length[:, :-1] / 2 + gap[:, :-1] + length[:, 1:] / 2  # centre to centre, each to the one behind
+    offset = -jnp.concatenate([jnp.zeros((2, 1)), jnp.cumsum(behind, -1)], -1)
+    return offset, wrap_half, length_u
+
+
+def _road(d: Draws, *, n_vehicles=(2, 6), truck=None, traffic="free", lane_kmh=(10.0, 60.0), queue_gap=(2.0, 4.0)):
+    """A road across the view: two lanes of traffic (cars, vans, trucks) at 8-20 m, a parked car, pedestrians
+    on the far pavement, trees and poles, buildings and a fence behind.
+
+    traffic (static): "free": three vehicles per lane 30 m apart (+-4 m), flows at `lane_kmh` (10-60 km/h), so
+    the view (5-10 m wide at these depths) is often empty of traffic. "queue": congested traffic, each lane a
+    queue of three vehicles nose to tail with gaps drawn in `queue_gap` m (`_queues`); with gaps below the width
+    of the view at the near lane (4.3 m at 8 m), its queue keeps a vehicle in view at every time, the far lane
+    one most of the time. With 2-4 m gaps, 7-9 m from front to front, and 10-25 km/h, vehicles follow 1-3 s
+    apart: a busy street in slow traffic.
+    """
+    if traffic not in ("free", "queue"):
+        raise ValueError(f"road: traffic must be 'free' or 'queue', got {traffic!r}")
     out = parts()
     z_near = d.uniform("near_lane_z", 8.0, 14.0)
     n_veh = jnp.maximum(d.count("n_vehicles", *n_vehicles), 1)
     lane = jnp.repeat(jnp.stack([z_near, z_near + 3.5]), 3)
     heading = jnp.repeat(jnp.array([0.0, math.pi]), 3)
-    speed = jnp.repeat(d.uniform("lane_kmh", 10.0, 60.0, (2,)) * KMH, 3)  # one flow per lane: vehicles keep spacing
-    x = (jnp.repeat(d.uniform("lane_x", -45.0, 45.0, (2,)), 3) + jnp.tile(jnp.arange(3) * 30.0, 2)
-         + d.uniform("vehicle_x", -4, 4, (6,)))
+    speed = jnp.repeat(d.uniform("lane_kmh", *lane_kmh, (2,)) * KMH, 3)  # one flow per lane: vehicles keep spacing
     kind = jnp.where(d.coin("is_truck", 0.15, (6,)), 2, jnp.where(d.coin("is_van", 0.25, (6,)), 1, 0))
     if truck is not None:
         kind = kind.at[0].set(2 if truck else 0)
+    lane_x = d.uniform("lane_x", -45.0, 45.0, (2,))
+    if traffic == "free":
+        x = jnp.repeat(lane_x, 3) + jnp.tile(jnp.arange(3) * 30.0, 2) + d.uniform("vehicle_x", -4, 4, (6,))
+        extra = {"wrap_half": 45.0}
+    else:
+        offset, wrap_half, length_u = _queues(d, lane[::3], kind.reshape(2, 3), queue_gap)
+        forward = jnp.array([[1.0], [-1.0]])  # the near lane drives along +X, the far one along -X
+        x = (lane_x[:, None] / 45.0 * wrap_half[:, None] + forward * offset).ravel()
+        extra = {"wrap_half": jnp.repeat(wrap_half, 3), "length_u": length_u.ravel()}
     out.add(many(vehicle, d, "vehicles", 6, _bases(x, lane), heading, speed, kind=kind,
-                 active=jnp.arange(6) < n_veh, wrap_half=45.0))
+                 active=jnp.arange(6) < n_veh, **extra))
     parked = jnp.stack([d.uniform("parked_x", -6.0, 6.0), jnp.array(0.0), z_near - 3.0])
     out.add(vehicle(d.child("parked"), parked, 0.0, jnp.array(0.0), kind=0, active=d.coin("parked_present", 0.5)))
     out.add(many(person, d, "people", 2, _bases(d.uniform("people_x", -10.0, 10.0, (2,)),
@@ -216,18 +266,38 @@ def _courtyard(d: Draws, *, n_people=(0, 2)):
     return out, _ground(d.child("ground"), "paving")
 
 
-def _walkers(d: Draws, *, depth=9.0, speed_kmh=4.3, n_people=(3, 5)):
-    """The frame-rate study: people walking across the view at `speed_kmh` and about `depth` m, in front of a
-    wall and buildings."""
+def _walkers(d: Draws, *, depth=9.0, speed_kmh=4.3, n_lanes=4, lane_gap=1.0):
+    """The frame-rate study: a stream of people walking across the view at `speed_kmh`, both ways, in `n_lanes`
+    lanes `lane_gap` m apart centred on `depth` m (each +-0.15 m), in front of a wall, trees and buildings.
+
+    The paper's sequence has people in view throughout, and its slowest rate (1 FPS) spans 48 s of walking,
+    57 m at 4.3 km/h; a group of walkers would leave the 4.8 m wide view at 9 m within seconds. So each lane is a
+    stream: two people half a wrap period W apart, with W the smallest wrap that stays out of sight of any static
+    camera (`_edge_of_view` plus half a person's length and 0.1 m). At these depths W is below the width of the
+    view (2 z tan 15 deg, from 3.9 m at 7.35 m), so at every time, not just the frames of one sequence, each lane
+    has at least one person whose centre is in the frame: `n_lanes` people at least, more when a lane's second
+    person is also in view, some partly hidden while passing people of a nearer lane. Adjacent lanes walk in
+    opposite directions, as people do on a busy pavement; 1 m apart, people in adjacent lanes never touch. All
+    walk at the paper's one speed, so the spacing holds for ever; the people differ in height, clothes and gait
+    phase. With a moving camera (a fallback of the training sampler) the wraps are not kept out of sight.
+    """
+    max_lanes = 4  # 2 people each: 40 of the 44 cylinders, the 2 trees take 2 more
+    if not 1 <= n_lanes <= max_lanes:
+        raise ValueError(f"walkers: n_lanes must be 1 to {max_lanes}, got {n_lanes}")
+    nearest = depth - lane_gap * (n_lanes - 1) / 2 - 0.15
+    if 2 * nearest * math.tan(HALF_FOV) <= nearest * math.tan(HALF_FOV + MAX_YAW) + PERSON_HALF_LENGTH + 0.1:
+        raise ValueError(f"walkers: lanes from {nearest:.2f} m are too near for a stream that keeps people in view")
     out = parts()
-    max_people = 5
-    np_ = d.count("n_people", *n_people)
-    spacing = 24.0 / max_people
-    x = -12.0 + spacing * jnp.arange(max_people) + d.uniform("people_x", -1.0, 1.0, (max_people,))
-    z = depth + d.uniform("people_dz", -0.6, 0.6, (max_people,))
-    heading = jnp.where(jnp.arange(max_people) % 2 == 0, 0.0, math.pi)
-    out.add(many(person, d, "people", max_people, _bases(x, z), heading, jnp.asarray(speed_kmh * KMH, jnp.float32),
-                 active=jnp.arange(max_people) < np_, wrap_half=12.0))
+    lane_z = (depth + lane_gap * (jnp.arange(n_lanes) - (n_lanes - 1) / 2)
+              + d.uniform("lane_dz", -0.15, 0.15, (n_lanes,)))
+    wrap_half = _edge_of_view(lane_z) + PERSON_HALF_LENGTH + 0.1
+    rightwards = (jnp.arange(n_lanes) + d.coin("first_lane_rightwards", 0.5)) % 2 == 1
+    # Two people per lane, W apart; the lane's phase anywhere in its period.
+    x = (d.uniform("lane_phase", -1.0, 1.0, (n_lanes,))[:, None] + jnp.array([0.0, 1.0])) * wrap_half[:, None]
+    per_person = lambda a: jnp.repeat(a, 2)
+    out.add(many(person, d, "people", 2 * n_lanes, _bases(x.ravel(), per_person(lane_z)),
+                 per_person(jnp.where(rightwards, 0.0, math.pi)), jnp.asarray(speed_kmh * KMH, jnp.float32),
+                 wrap_half=per_person(wrap_half)))
     out.add(wall(jnp.stack([jnp.array(0.0), jnp.array(0.0), d.uniform("wall_z", 16.0, 22.0)]), jnp.array([40.0, 0.2]),
                  d.uniform("wall_height", 2.0, 3.5), 0.0, d.uniform("wall_reflectivity", 0.3, 0.8),
                  texture(d.uniform("wall_period", 0.3, 1.5), 0.5, 0.3, 0.0)))

@@ -18,7 +18,7 @@ from .draws import Draws
 from .primitives import Boxes, Cylinders, Ellipsoids, Motion
 
 __all__ = ["KMH", "Parts", "bench", "block", "buildings", "cyclist", "many", "parts", "person", "planter", "pole",
-           "table", "texture", "tree", "vehicle", "wall"]
+           "table", "texture", "tree", "vehicle", "vehicle_length", "wall"]
 
 KMH = 1.0 / 3.6  # m/s per km/h
 STATIC_WRAP = 80.0  # m: static objects recycle around a sideways-moving camera beyond this distance
@@ -185,15 +185,26 @@ def cyclist(d: Draws, base, heading, speed, *, active=True, wrap_half=40.0) -> P
     return parts(boxes=[frame], cylinders=[cyl], ellipsoids=[ell])
 
 
-def vehicle(d: Draws, base, heading, speed, *, kind=0, active=True, wrap_half=45.0) -> Parts:
-    """A car (kind 0), van (1) or truck (2): body and cabin boxes and up to three wheel pairs (each one ellipsoid
-    spanning the track). `kind` may be traced. 2 boxes + 3 ellipsoids."""
+def _by_kind(kind, car, van, truck):
+    """The value for a car (kind 0), van (1) or truck (2); kind may be traced."""
+    return jnp.select([kind == 0, kind == 1], [jnp.asarray(car, jnp.float32), jnp.asarray(van, jnp.float32)],
+                      jnp.asarray(truck, jnp.float32))
+
+
+def vehicle_length(kind, u):
+    """Length (m) of a car (kind 0: 3.8-4.8 m), van (1: 4.8-5.6 m) or truck (2: 7-9.5 m) at the quantile u in
+    [0, 1) of its range."""
     kind = jnp.asarray(kind)
-    pick = lambda car, van, truck: jnp.select([kind == 0, kind == 1], [jnp.asarray(car, jnp.float32),
-                                                                       jnp.asarray(van, jnp.float32)],
-                                              jnp.asarray(truck, jnp.float32))
-    u_length = d.uniform("length")
-    length = pick(3.8 + 1.0 * u_length, 4.8 + 0.8 * u_length, 7.0 + 2.5 * u_length)
+    return _by_kind(kind, 3.8 + 1.0 * u, 4.8 + 0.8 * u, 7.0 + 2.5 * u)
+
+
+def vehicle(d: Draws, base, heading, speed, *, kind=0, active=True, wrap_half=45.0, length_u=None) -> Parts:
+    """A car (kind 0), van (1) or truck (2): body and cabin boxes and up to three wheel pairs (each one ellipsoid
+    spanning the track). `kind` may be traced. `length_u`: the quantile of its length (`vehicle_length`), drawn
+    here if None (a layout that spaces vehicles by their lengths draws it). 2 boxes + 3 ellipsoids."""
+    kind = jnp.asarray(kind)
+    pick = lambda car, van, truck: _by_kind(kind, car, van, truck)
+    length = vehicle_length(kind, d.uniform("length") if length_u is None else length_u)
     width = pick(1.8, 2.0, 2.5)
     # Body: car and van lower body; truck cargo box.
     body_len = pick(length, length, length - 2.4)
