@@ -56,24 +56,35 @@ def _card(path) -> dict:
     return {"steps": card["steps"], "minutes": card["wall_time_s"] / 60, "val_psnr": card["validation"]["psnr"]}
 
 
-def arms(tr: int, runs: Path) -> dict:
-    """Each arm's sequence-form model and the training behind it: name -> (Model, [card per training stage])."""
+ARMS = ("scratch", "half + half", "window as is", "window + fine-tune")
+
+
+def arms(tr: int, runs: Path, names=ARMS) -> dict:
+    """Each arm's sequence-form model and the training behind it: name -> (Model, [card per training stage]),
+    for the arms in `names` (training only those)."""
     seq_cfg = jaxsr.ModelConfig(tr=tr, temporal="sequence")
-    window_cfg = jaxsr.ModelConfig(tr=tr)
-    scratch = bundled(f"tr{tr}-seq")
+    scratch, window = bundled(f"tr{tr}-seq"), bundled(f"tr{tr}")
     if scratch is None:
         raise SystemExit(f"no bundled tr{tr}-seq: train it first (experiments/train_sequence_bundle.py --trs {tr})")
     seq_steps = jaxsr.read_metadata(scratch)["card"]["steps"]
-    window_steps = jaxsr.read_metadata(bundled(f"tr{tr}"))["card"]["steps"]
-    half_window = _train(runs / "window-half", window_cfg, window_steps // 2)
-    half_seq = _train(runs / "sequence-half", seq_cfg, seq_steps // 2, init=half_window)
-    fine = _train(runs / "window-fine-tuned", seq_cfg, seq_steps, init=bundled(f"tr{tr}"))
-    return {
-        "scratch": (jaxsr.load_model(scratch), [_card(scratch)]),
-        "half + half": (jaxsr.load_model(half_seq), [_card(half_window), _card(half_seq)]),
-        "window as is": (jaxsr.load_model(f"tr{tr}", temporal="sequence"), [_card(bundled(f"tr{tr}"))]),
-        "window + fine-tune": (jaxsr.load_model(fine), [_card(bundled(f"tr{tr}")), _card(fine)]),
+
+    def half_and_half():
+        window_steps = jaxsr.read_metadata(window)["card"]["steps"]
+        half_window = _train(runs / "window-half", jaxsr.ModelConfig(tr=tr), window_steps // 2)
+        half_seq = _train(runs / "sequence-half", seq_cfg, seq_steps // 2, init=half_window)
+        return jaxsr.load_model(half_seq), [_card(half_window), _card(half_seq)]
+
+    def fine_tuned():
+        fine = _train(runs / "window-fine-tuned", seq_cfg, seq_steps, init=window)
+        return jaxsr.load_model(fine), [_card(window), _card(fine)]
+
+    build = {
+        "scratch": lambda: (jaxsr.load_model(scratch), [_card(scratch)]),
+        "half + half": half_and_half,
+        "window as is": lambda: (jaxsr.load_model(f"tr{tr}", temporal="sequence"), [_card(window)]),
+        "window + fine-tune": fine_tuned,
     }
+    return {name: build[name]() for name in names}
 
 
 def main():
@@ -81,11 +92,12 @@ def main():
     parser.add_argument("--tr", type=int, default=1)
     parser.add_argument("--runs", default="runs/finetune-seq")
     parser.add_argument("--frames", type=int, default=100, help="frames scored per test scene (default 100)")
+    parser.add_argument("--arms", nargs="+", choices=ARMS, default=list(ARMS), help="the arms to run (default all)")
     parser.add_argument("--out", default="experiments/results/finetune_sequence.md")
     args = parser.parse_args()
     started = time.time()
     jaxsr.use_cpu_cores()
-    models = arms(args.tr, Path(args.runs) / f"tr{args.tr}")
+    models = arms(args.tr, Path(args.runs) / f"tr{args.tr}", args.arms)
     clips = test_clips(args.frames)
     rows = []
     for name, (model, cards) in models.items():
@@ -98,7 +110,7 @@ def main():
         print(*rows[-1], flush=True)
 
     text = header(f"Fine-tuning into the sequence form against training it from scratch (TR{args.tr})", started)
-    text += (f"All four models run in the sequence form (TR{args.tr}, R = {3 + args.tr}); the arms are described in "
+    text += (f"All the models run in the sequence form (TR{args.tr}, R = {3 + args.tr}); the arms are described in "
              "the script's docstring. Steps and minutes per training stage from the cards (windowed bundle cards "
              "were written on another machine, results/weights.md; minutes depend on the load, the equal-time rule "
              "uses step times measured in one run: experiments/train_sequence_bundle.py). val PSNR: the "
