@@ -40,7 +40,7 @@ CPU = PRESETS["cpu"]
 def _hr_sequence(frames=12, seed=0):
     """A street-like synthetic HR sequence: a ground ramp, boxes moving 1 LR px/frame, sky on top."""
     h, w = SensorConfig().hr_shape
-    yy, xx = np.mgrid[:h, :w]
+    yy = np.mgrid[:h, :w][0]
     rng = np.random.default_rng(seed)
     depth = np.empty((frames, h, w), np.float32)
     for t in range(frames):
