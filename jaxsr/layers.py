@@ -210,9 +210,10 @@ def default_conv3d_impl(backend: str | None = None) -> str:
 def conv3d(x, w, b=None, *, padding="same", impl: str = "auto"):
     """3D convolution of (B, T, H, W, Cin) by (kt, kh, kw, Cin, Cout) weights, plus bias.
 
-    `impl`: "native", "taps", "stacked" or "auto"; all give the same result. "auto" is "native" off CPU and,
-    on CPU, "stacked" where `stacked_use` >= `STACKED_MIN_USE`, else "taps". A 1x1x1 kernel is a matrix
-    product whatever `impl` says. See `conv3d_native` for `padding`.
+    `impl`: "native", "taps", "stacked", "stacked-taps-grad" or "auto"; all give the same result. "auto" is
+    "native" off CPU and, on CPU, the stacked forward where `stacked_use` >= `STACKED_MIN_USE` (with the taps'
+    gradients, "stacked-taps-grad", unless `STACKED_GRADIENT` says "stacked"), else "taps". A 1x1x1 kernel is a
+    matrix product whatever `impl` says. See `conv3d_native` for `padding`.
     """
     if x.ndim != 5 or w.ndim != 5 or x.shape[-1] != w.shape[3]:
         raise ValueError(
