@@ -234,7 +234,7 @@ def conv3d(x, w, b=None, *, padding="same", impl: str = "auto"):
         return conv3d_stacked(x, w, b, padding=padding)
     if impl == "stacked-taps-grad":
         return conv3d_stacked_taps_grad(x, w, b, padding=padding)
-    raise ValueError(f"conv3d: impl must be 'auto', 'native', 'taps' or 'stacked', got {impl!r}")
+    raise ValueError(f"conv3d: impl must be one of {', '.join(map(repr, CONV3D_IMPLS))}, got {impl!r}")
 
 
 def init_batch_norm(channels: int, *, dtype=jnp.float32) -> tuple[dict, dict]:
