@@ -3,7 +3,8 @@ form's output frames/s against its clip length, the data pipeline on its own, an
 implementations side by side.
 
     pytest benchmarks/bench_train.py --benchmark-only            (about 5 min on 2 CPU cores)
-    pytest benchmarks/bench_train.py --benchmark-only -k today_vs_new -s   (the step against issue 14's baseline)
+    pytest benchmarks/bench_train.py --benchmark-only -k today_vs_new -s   (windowed TR0/TR4 and sequence TR4:
+        the step of issue 14's baseline, of main, and the new one, in one run)
 
 The train-step benchmarks draw windows from a fixed synthetic HR sequence with `sequence_batches` (sensor
 simulation + centre of mass inside the step, no scene rendering), so they time the network and the sensor
@@ -12,7 +13,9 @@ examples/s = batch_size / (mean step time); pytest-benchmark reports the step ti
 example is a clip of L = 2R + K frames that trains K outputs: `frames_per_s` = batch_size K / (mean step time).
 """
 
+import contextlib
 import dataclasses
+import functools
 import time
 
 import jax
@@ -20,10 +23,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxsr.config import PRESETS, ModelConfig, SensorConfig
+from jaxsr import layers
+from jaxsr.config import DEFAULT_CLIP_OUTPUTS, PRESETS, ModelConfig, SensorConfig
 from jaxsr.data import log_uniform, random_crop, scene_batches, sequence_batches, sequence_clips
 from jaxsr.layers import conv3d_native, conv3d_stacked, conv3d_taps
-from jaxsr.model import apply_model, flops_per_frame, init_model
+from jaxsr.model import apply_model, apply_model_sequence, flops_per_frame, init_model, sequence_radius
 from jaxsr.optim import adam_init
 from jaxsr.peaks import centre_of_mass
 from jaxsr.runtime import compiler_options
@@ -36,7 +40,7 @@ CPU = PRESETS["cpu"]
 def _hr_sequence(frames=12, seed=0):
     """A street-like synthetic HR sequence: a ground ramp, boxes moving 1 LR px/frame, sky on top."""
     h, w = SensorConfig().hr_shape
-    yy, xx = np.mgrid[:h, :w]
+    yy = np.mgrid[:h, :w][0]
     rng = np.random.default_rng(seed)
     depth = np.empty((frames, h, w), np.float32)
     for t in range(frames):
@@ -134,14 +138,19 @@ def test_conv3d_forward_backward(benchmark, impl):
     benchmark.pedantic(lambda: jax.block_until_ready(g(_X, _W)), rounds=5, iterations=1)
 
 
-# Issue 14: today's step (the data source as it was on 2026-11-22: every example's whole 32 x 64 clip
-# simulated, then cropped; one device) beside the new one (photons drawn for the crop only, `jaxsr.data`), on
-# one device and with the batch split over both cores as `fit` does. Interleaved rounds, so that a background
-# load slows every variant alike; the network's forward pass at inference (BN from running statistics,
-# `compiler_options`, same batch and crops) is timed in the same rounds as the reference arithmetic rate.
-def _today_batches(depth, intensity, tr, train_cfg):
-    """`sequence_batches` as it was before issue 14: the whole clip simulated, then a random crop kept."""
-    frames, sensor = 2 * tr + 1, SensorConfig()
+# Issue 14 part 2 and issue 15's sequence step: three train steps timed in interleaved rounds of one run, so that a
+# background load slows them alike (only the ratios carry over to another machine):
+# - "issue-14": the step of 2026-11-22, every example's whole 32 x 64 clip simulated, then cropped; the gradients
+#   of the layers `conv3d(impl="auto")` stacks taken through the stacked form; one device;
+# - "main": the step of 2026-11-23 (photons drawn for the crop only, `jaxsr.data`), still stacked gradients;
+# - "new": main's data, the stacked layers' gradients through their temporal taps (`layers.STACKED_GRADIENT`),
+#   on one device and with the batch split over both cores as devices (what `fit(mesh="auto")` does).
+# The network's forward pass at inference (BN from running statistics, `compiler_options`, same inputs) is timed
+# in the same rounds as the reference arithmetic rate.
+def _issue14_clips(depth, intensity, frames, train_cfg):
+    """The data source of 2026-11-22: each clip of `frames` frames simulated whole, then a random crop kept.
+    Returns make_batch: key -> (clips (B, frames, h, w), gt (B, frames, H, W))."""
+    sensor = SensorConfig()
 
     def example(key):
         k_start, k_snr, k_sig, k_noise, k_crop = jax.random.split(key, 5)
@@ -151,65 +160,101 @@ def _today_batches(depth, intensity, tr, train_cfg):
         snr = log_uniform(k_snr, *train_cfg.snr_range)
         mean_signal = log_uniform(k_sig, *train_cfg.mean_signal_range)
         counts = simulate_histograms(k_noise, d, a, sensor, snr=snr, mean_signal=mean_signal)
-        clip, gt = random_crop(k_crop, centre_of_mass(counts, sensor), normalise_depth(d, sensor),
-                               train_cfg.patch, sensor.scale)
-        return clip, gt[tr]
+        return random_crop(k_crop, centre_of_mass(counts, sensor), normalise_depth(d, sensor), train_cfg.patch,
+                           sensor.scale)
 
     return lambda key: jax.vmap(example)(jax.random.split(key, train_cfg.batch_size))
 
 
-def _step_variants(tr):
-    """{name: (step function, its first arguments)} for today's and the new train step."""
-    cfg = ModelConfig(tr=tr)
-    depth, intensity = (jnp.asarray(a) for a in _hr_sequence())
+def _centre_gt(make_clips, tr):
+    def make_batch(key):
+        clips, gt = make_clips(key)
+        return clips, gt[:, tr]
+
+    return make_batch
+
+
+@contextlib.contextmanager
+def _stacked_gradient(how):
+    """`layers.STACKED_GRADIENT` set to `how` while a step is traced (jit traces at the first call)."""
+    old, layers.STACKED_GRADIENT = layers.STACKED_GRADIENT, how
+    try:
+        yield
+    finally:
+        layers.STACKED_GRADIENT = old
+
+
+def _form_setup(form, tr):
+    """(model config, train config, HR depth and intensity, frames per example, supervised frames per example)."""
+    if form == "window":
+        return ModelConfig(tr=tr), CPU, _hr_sequence(), 2 * tr + 1, 1
+    cfg = ModelConfig(tr=tr, temporal="sequence")
+    train_cfg = dataclasses.replace(CPU, clip_frames=2 * sequence_radius(cfg) + DEFAULT_CLIP_OUTPUTS)
+    return cfg, train_cfg, _hr_sequence(train_cfg.clip_frames + 2), train_cfg.clip_frames, DEFAULT_CLIP_OUTPUTS
+
+
+def _step_variants(form, tr):
+    """{name: (compiled-on-first-call step, its first arguments, STACKED_GRADIENT)} of the three steps."""
+    cfg, train_cfg, hr, frames, _ = _form_setup(form, tr)
+    depth, intensity = (jnp.asarray(a) for a in hr)
     params, state = init_model(jax.random.key(0), cfg)
     args = (params, state, adam_init(params))
-    new = sequence_batches(depth, intensity, tr, CPU)
-    variants = {
-        "today": (make_train_step(cfg, CPU, _today_batches(depth, intensity, tr, CPU), mesh=None), args),
-        "new-1-device": (make_train_step(cfg, CPU, new, mesh=None), args),
-    }
-    if jax.device_count() > 1 and CPU.batch_size % jax.device_count() == 0:
+    old = _issue14_clips(depth, intensity, frames, train_cfg)
+    new = sequence_clips(depth, intensity, frames, train_cfg)
+    if form == "window":  # the centre frame's ground truth only
+        old, new = (_centre_gt(f, tr) for f in (old, new))
+
+    def step(make_batch, mesh=None):  # a new make_batch function per variant: its own jitted step
+        return make_train_step(cfg, train_cfg, lambda key: make_batch(key), mesh=mesh)
+
+    variants = {"issue-14": (step(old), args, "stacked"), "main": (step(new), args, "stacked"),
+                "new-1-device": (step(new), args, "taps")}
+    if jax.device_count() > 1 and train_cfg.batch_size % jax.device_count() == 0:
         mesh = data_mesh()
         replicated = jax.device_put(args, jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec()))
-        variants[f"new-{jax.device_count()}-devices"] = (make_train_step(cfg, CPU, new, mesh=mesh), replicated)
-    return cfg, variants
+        variants[f"new-{jax.device_count()}-devices"] = (step(new, mesh), replicated, "taps")
+    return cfg, train_cfg, variants, jax.jit(new)(jax.random.key(0))[0]
 
 
 @pytest.mark.benchmark(group="train_step_today_vs_new")
-@pytest.mark.parametrize("tr", [0, 4])
-def test_train_step_today_vs_new(benchmark, tr):
-    cfg, variants = _step_variants(tr)
-    windows, _ = jax.jit(sequence_batches(*_hr_sequence(), tr, CPU))(jax.random.key(0))
-    params, state, _ = variants["today"][1]
-    infer = jax.jit(lambda p, s, w: apply_model(p, s, w, cfg), compiler_options=compiler_options())
-    carry = {k: [*a, 0] for k, (_, a) in variants.items()}
+@pytest.mark.parametrize("form, tr", [("window", 0), ("window", 4), ("sequence", 4)])
+def test_train_step_today_vs_new(benchmark, form, tr):
+    cfg, train_cfg, variants, inputs = _step_variants(form, tr)
+    params, state, _ = variants["main"][1]
+    forward = apply_model if form == "window" else functools.partial(apply_model_sequence, padding="valid")
+    infer = jax.jit(lambda p, s, x: forward(p, s, x, cfg), compiler_options=compiler_options())
+    carry = {k: [*a, 0] for k, (_, a, _) in variants.items()}
     times = {k: [] for k in [*variants, "inference"]}
 
     def one_round():
-        for name, (step_fn, _) in variants.items():
+        for name, (step_fn, _, how) in variants.items():
             p, s, o, i = carry[name]
-            t0 = time.perf_counter()
-            p, s, o, m = step_fn(p, s, o, jax.random.key(i), i)
-            jax.block_until_ready(m)
-            times[name].append(time.perf_counter() - t0)
+            with _stacked_gradient(how):  # matters at the first call only, when the step is traced
+                t0 = time.perf_counter()
+                p, s, o, m = step_fn(p, s, o, jax.random.key(i), i)
+                jax.block_until_ready(m)
+                times[name].append(time.perf_counter() - t0)
             carry[name] = [p, s, o, i + 1]
         t0 = time.perf_counter()
-        jax.block_until_ready(infer(params, state, windows))
+        jax.block_until_ready(infer(params, state, inputs))
         times["inference"].append(time.perf_counter() - t0)
 
     one_round()  # compile
     for v in times.values():
         v.clear()
     benchmark.pedantic(one_round, rounds=4 if tr else 10, iterations=1)
-    # the network's FLOPs per example: forward only at inference, forward + backward (3x) in training
-    flops = flops_per_frame(cfg, CPU.patch)
-    for name, ts in times.items():
-        mean = float(np.mean(ts))
-        info = {"step_s": mean, "examples_per_s": CPU.batch_size / mean,
-                "gflop_per_s": (1 if name == "inference" else 3) * flops * CPU.batch_size / mean / 1e9}
+    _, _, _, frames, outputs = _form_setup(form, tr)
+    # the network's FLOPs per supervised frame: forward only at inference, forward + backward (3x) in training
+    clip = {} if form == "window" else {"clip_frames": frames}
+    flops = flops_per_frame(cfg, train_cfg.patch, **clip) * outputs * train_cfg.batch_size
+    best = {k: min(ts) for k, ts in times.items()}  # the fastest round: the least disturbed by other work
+    for name, t in best.items():
+        info = {"step_s": t, "examples_per_s": train_cfg.batch_size / t,
+                "frames_per_s": train_cfg.batch_size * outputs / t,
+                "gflop_per_s": (1 if name == "inference" else 3) * flops / t / 1e9,
+                "speed_up_vs_issue_14": best["issue-14"] / t, "speed_up_vs_main": best["main"] / t}
         benchmark.extra_info[name] = info
-        print(f"TR{tr} {name:16s} {1e3 * mean:8.1f} ms/step  {info['examples_per_s']:6.2f} examples/s  "
-              f"{info['gflop_per_s']:6.1f} GFLOP/s")
-    benchmark.extra_info["speed_up"] = {k: float(np.mean(times["today"]) / np.mean(v)) for k, v in times.items()}
-    benchmark.extra_info["patch"] = CPU.patch
+        print(f"{form} TR{tr} {name:16s} {1e3 * t:8.1f} ms/step  {info['examples_per_s']:6.2f} examples/s  "
+              f"{info['frames_per_s']:6.2f} frames/s  {info['gflop_per_s']:6.1f} GFLOP/s  x{info['speed_up_vs_issue_14']:.2f} "
+              f"vs issue-14  x{info['speed_up_vs_main']:.2f} vs main")
+    benchmark.extra_info["patch"] = train_cfg.patch

@@ -8,31 +8,33 @@ Nothing here is jitted: jit the function that calls them.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import jax
 import jax.numpy as jnp
 
 __all__ = [
-    "conv3d",
-    "conv3d_native",
-    "conv3d_taps",
-    "conv3d_stacked",
-    "stacked_use",
-    "default_conv3d_impl",
     "CONV3D_IMPLS",
-    "glorot_limit",
-    "init_batch_norm",
     "batch_norm",
-    "neighbourhoods",
-    "dynamic_upsample",
-    "depth_to_space",
     "conv2d",
     "conv2d_transpose",
+    "conv3d",
+    "conv3d_native",
+    "conv3d_stacked",
+    "conv3d_stacked_taps_grad",
+    "conv3d_taps",
+    "default_conv3d_impl",
+    "depth_to_space",
+    "dynamic_upsample",
+    "glorot_limit",
+    "init_batch_norm",
     "init_conv2d",
     "init_from_normals",
-    "prelu",
     "max_pool2",
+    "neighbourhoods",
+    "prelu",
+    "stacked_use",
 ]
 
 
@@ -151,12 +153,47 @@ def conv3d_stacked(x, w, b=None, *, padding="same"):
     return y if b is None else y + b
 
 
+def conv3d_stacked_taps_grad(x, w, b=None, *, padding="same"):
+    """The same 3D convolution, `conv3d_stacked` forward and `conv3d_taps`' gradients (for training).
+
+    The stacked form's forward is the faster one where most of its products are used, but its gradients
+    (a 3 Cout-channel input gradient over every input frame and a weight gradient of 3 Cout channels) cost
+    more than the taps' in XLA:CPU: on TR4's layers the taps' forward + backward ran 1.15-1.4x faster.
+    Same arguments and result as `conv3d_native`; gradients equal to float rounding.
+    """
+    y = _stacked_taps_grad(x, w, _pads(padding, w.shape[:3]))
+    return y if b is None else y + b
+
+
+@functools.partial(jax.custom_vjp, nondiff_argnums=(2,))
+def _stacked_taps_grad(x, w, pads):
+    return conv3d_stacked(x, w, padding=pads)
+
+
+def _stacked_taps_grad_fwd(x, w, pads):
+    return conv3d_stacked(x, w, padding=pads), (x, w)
+
+
+def _stacked_taps_grad_bwd(pads, residuals, g):
+    # the taps' primal output is not used, so XLA drops its forward convolutions
+    _, vjp = jax.vjp(lambda x, w: conv3d_taps(x, w, padding=pads), *residuals)
+    return vjp(g)
+
+
+_stacked_taps_grad.defvjp(_stacked_taps_grad_fwd, _stacked_taps_grad_bwd)
+
+
 # The ways `conv3d` can run a convolution; all give the same result (to float rounding).
-CONV3D_IMPLS = ("auto", "native", "taps", "stacked")
+CONV3D_IMPLS = ("auto", "native", "taps", "stacked", "stacked-taps-grad")
 
 # `conv3d(impl="auto")` on CPU stacks the temporal taps of a layer when at least this share of the stacked
 # products is used (`stacked_use`); below it the taps are convolved one by one.
 STACKED_MIN_USE = 0.7
+
+# How the layers that `conv3d(impl="auto")` stacks take their gradients: "taps" (`conv3d_stacked_taps_grad`,
+# the default: faster in training on XLA:CPU, experiments/results/train_speed.md) or "stacked" (the stacked
+# form's own, as before 2026-11-23). Read when a function is traced; the forward pass is the same either way.
+STACKED_GRADIENT = "taps"
 
 
 def default_conv3d_impl(backend: str | None = None) -> str:
@@ -173,9 +210,10 @@ def default_conv3d_impl(backend: str | None = None) -> str:
 def conv3d(x, w, b=None, *, padding="same", impl: str = "auto"):
     """3D convolution of (B, T, H, W, Cin) by (kt, kh, kw, Cin, Cout) weights, plus bias.
 
-    `impl`: "native", "taps", "stacked" or "auto"; all give the same result. "auto" is "native" off CPU and,
-    on CPU, "stacked" where `stacked_use` >= `STACKED_MIN_USE`, else "taps". A 1x1x1 kernel is a matrix
-    product whatever `impl` says. See `conv3d_native` for `padding`.
+    `impl`: "native", "taps", "stacked", "stacked-taps-grad" or "auto"; all give the same result. "auto" is
+    "native" off CPU and, on CPU, the stacked forward where `stacked_use` >= `STACKED_MIN_USE` (with the taps'
+    gradients, "stacked-taps-grad", unless `STACKED_GRADIENT` says "stacked"), else "taps". A 1x1x1 kernel is a
+    matrix product whatever `impl` says. See `conv3d_native` for `padding`.
     """
     if x.ndim != 5 or w.ndim != 5 or x.shape[-1] != w.shape[3]:
         raise ValueError(
@@ -187,14 +225,16 @@ def conv3d(x, w, b=None, *, padding="same", impl: str = "auto"):
     if impl == "auto":
         impl = default_conv3d_impl()
         if impl == "taps" and stacked_use(x.shape[1], padding, w.shape[0]) >= STACKED_MIN_USE:
-            impl = "stacked"
+            impl = "stacked-taps-grad" if STACKED_GRADIENT == "taps" else "stacked"
     if impl == "native":
         return conv3d_native(x, w, b, padding=padding)
     if impl == "taps":
         return conv3d_taps(x, w, b, padding=padding)
     if impl == "stacked":
         return conv3d_stacked(x, w, b, padding=padding)
-    raise ValueError(f"conv3d: impl must be 'auto', 'native', 'taps' or 'stacked', got {impl!r}")
+    if impl == "stacked-taps-grad":
+        return conv3d_stacked_taps_grad(x, w, b, padding=padding)
+    raise ValueError(f"conv3d: impl must be one of {', '.join(map(repr, CONV3D_IMPLS))}, got {impl!r}")
 
 
 def init_batch_norm(channels: int, *, dtype=jnp.float32) -> tuple[dict, dict]:

@@ -173,7 +173,8 @@ def apply_model(params, state, windows, cfg: ModelConfig, *, conv3d_impl: str = 
     Returns hr (B, H*r, W*r) normalised depth, neither clipped nor passed through an activation.
     conv3d_impl: how the 3x3x3 convolutions run, not what they compute (`jaxsr.layers.conv3d`): "auto" (the
     faster one on the current backend), "native" (one 3D convolution), "taps" (a sum of 2D convolutions over
-    the temporal taps) or "stacked" (the taps' kernels side by side in one 2D convolution).
+    the temporal taps), "stacked" (the taps' kernels side by side in one 2D convolution) or "stacked-taps-grad"
+    (the stacked forward with the taps' gradients, what "auto" trains with on CPU).
     """
     _check_inputs(windows, cfg, conv3d_impl, "apply_model")
     hr, _ = _forward(params, state, windows, cfg, train=False, impl=conv3d_impl)

@@ -11,6 +11,7 @@ from jaxsr.layers import (
     conv3d,
     conv3d_native,
     conv3d_stacked,
+    conv3d_stacked_taps_grad,
     conv3d_taps,
     default_conv3d_impl,
     depth_to_space,
@@ -52,7 +53,7 @@ def test_conv3d_implementations_match_loop(pads, t):
     if t + sum(pads[0]) < 3:
         pytest.skip("fewer padded frames than taps")
     ref = _conv3d_loop(x, w, pads)
-    for f in (conv3d_native, conv3d_taps, conv3d_stacked):
+    for f in (conv3d_native, conv3d_taps, conv3d_stacked, conv3d_stacked_taps_grad):
         np.testing.assert_allclose(f(x, w, padding=pads), ref, rtol=1e-4, atol=1e-4)
 
 
@@ -79,7 +80,7 @@ def test_conv3d_gradients_match_native(pads):
     x = jax.random.normal(jax.random.key(4), (1, 3, 4, 4, 2))
     w = jax.random.normal(jax.random.key(5), (3, 3, 3, 2, 3))
     g = [jax.grad(lambda x, w: jnp.sum(f(x, w, padding=pads) ** 2), argnums=(0, 1))(x, w)
-         for f in (conv3d_native, conv3d_taps, conv3d_stacked)]
+         for f in (conv3d_native, conv3d_taps, conv3d_stacked, conv3d_stacked_taps_grad)]
     for other in g[1:]:
         for a, b in zip(g[0], other):
             np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-3)

@@ -106,7 +106,8 @@ def test_bad_window_shape_raises():
         apply_model_train(params, state, jnp.zeros((2, 5, 4, 4)), cfg)
     # how to run is checked before anything runs, and the message lists the choices
     for f in (apply_model, apply_model_train):
-        with pytest.raises(ValueError, match=r"conv3d_impl must be one of 'auto', 'native', 'taps', 'stacked', got 'fft'"):
+        with pytest.raises(ValueError, match=r"conv3d_impl must be one of 'auto', 'native', 'taps', 'stacked', "
+                                             r"'stacked-taps-grad', got 'fft'"):
             f(params, state, jnp.zeros((2, 3, 4, 4)), cfg, conv3d_impl="fft")
 
 

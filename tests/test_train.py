@@ -21,7 +21,7 @@ from jaxsr.checkpoint import load_model, read_metadata
 from jaxsr.config import PRESETS, ModelConfig, SensorConfig, TrainConfig
 from jaxsr.data import random_crop, sequence_batches, validation_set
 from jaxsr.metrics import psnr
-from jaxsr.model import apply_model, init_model
+from jaxsr.model import apply_model, apply_model_train, init_model
 from jaxsr.optim import adam_init, adam_update, step_decay
 from jaxsr.scenes import test_sequences
 from jaxsr.sensor import calibrate, calibrated_rates, expected_histograms, normalise_depth
@@ -358,6 +358,32 @@ def test_sharded_equals_single_device():
     res = json.loads(proc.stdout.strip().splitlines()[-1])
     np.testing.assert_allclose(res["la"], res["lb"], rtol=1e-4)
     assert res["err"] < 1e-4, res
+
+
+@pytest.mark.slow  # two gradient compilations; tests/test_layers.py checks the layer's gradients fast
+def test_stacked_layers_gradients_through_the_taps_equal_the_stacked_ones(monkeypatch):
+    """`layers.STACKED_GRADIENT` ("taps", the faster one in training) changes how the gradients of the layers
+    that conv3d(impl="auto") stacks are computed, not what they are: the train loss's gradients agree with the
+    stacked form's own to float32 rounding (TR1's 3-frame "same" blocks are stacked on CPU)."""
+    from jaxsr import layers
+
+    windows, gt = toy_batches(1, 2)(jax.random.key(3))
+    params, state = init_model(jax.random.key(4), TINY)
+
+    def grads(how):
+        monkeypatch.setattr(layers, "STACKED_GRADIENT", how)
+
+        def loss(p):
+            return huber_loss(apply_model_train(p, state, windows, TINY)[0], gt)
+
+        return jax.tree_util.tree_leaves(jax.jit(jax.grad(loss))(params))
+
+    assert layers.stacked_use(3, "same") >= layers.STACKED_MIN_USE  # the stacked path is the one compared
+    new, old = grads("taps"), grads("stacked")
+    # biases before a batch norm have a gradient of exactly 0 (rounding noise ~1e-11): tolerance from the largest
+    scale = max(float(jnp.max(jnp.abs(b))) for b in old)
+    for a, b in zip(new, old):
+        np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-6 * scale)
 
 
 # --- data sources -----------------------------------------------------------------------------------------
