@@ -56,7 +56,7 @@ def plot(path, counts):
 def walkers_at(fps: float, frames: int, *, seed: int = 0):
     """The static-camera walkers sequence sampled at about `fps` (every round(100 / fps)-th frame of the 100 FPS
     sequence), simulated with noise seed `seed`: (Clip, the sampled sequence)."""
-    step = int(round(100 / fps))
+    step = round(100 / fps)
     seq = test_sequence("walkers_100fps", n_frames=frames * step)
     seq = seq._replace(depth=seq.depth[::step], intensity=seq.intensity[::step], fps=100.0 / step)
     return simulate_clip(jax.random.key(seed), seq), seq

@@ -2,6 +2,7 @@
 
     python experiments/train_baselines.py histnet [--runs runs/baselines] [--bundle]
     python experiments/train_baselines.py iseebetter [--runs runs/baselines] [--bundle]
+    python experiments/train_baselines.py report [--runs runs/baselines]    # experiments/results/train_baselines.md
 
 Data: the bundled TR models' (`bundle` preset: batch 4, 16 x 32 LR crops of freshly rendered training clips, SNR
 0.5-8, 7-28 signal photons; validation on the first 16 frames of the three validation sequences), in each
@@ -162,6 +163,69 @@ def bundle(name: str, run: Path, out: Path, p: dict) -> None:
           f"{card['float16_cost_db']:+.4f} dB")
 
 
+def gflops_per_frame(name: str, lr_shape=(32, 64)) -> float:
+    """GFLOP of one output frame of baseline `name` at `lr_shape` LR pixels, from XLA's cost analysis of the
+    forward pass (flow and histogram features included)."""
+    cfg = CONFIGS[name]
+    h, w = lr_shape
+    params = jax.eval_shape(lambda k: _init_train_state(k, name, cfg)["params"], jax.random.key(0))
+    if name == "histnet":
+        fn = lambda p, c, i: jaxsr.apply_histnet(p, c, i, cfg)
+        args = (jax.ShapeDtypeStruct((1, h, w, 16), jnp.float32), jax.ShapeDtypeStruct((1, 4 * h, 4 * w), jnp.float32))
+    else:
+        fn = lambda p, x: jaxsr.apply_rbpn(p, x, cfg)
+        args = (jax.ShapeDtypeStruct((1, cfg.frames, h, w), jnp.float32),)
+    cost = jax.jit(fn).lower(params, *args).cost_analysis()
+    cost = cost[0] if isinstance(cost, (list, tuple)) else cost
+    return cost["flops"] / 1e9
+
+
+def report(runs: Path, out: str) -> None:
+    """experiments/results/train_baselines.md: each run's plan, cost and validation PSNR per epoch."""
+    from _report import header, markdown_table
+
+    started = time.time()
+    rows, epochs = [], []
+    for name in CONFIGS:
+        run = runs / name
+        if not (run / "plan.json").is_file():
+            print(f"{name}: no run in {run}, left out")
+            continue
+        p = json.loads((run / "plan.json").read_text())
+        hist = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()] if (
+            run / "metrics.jsonl").is_file() else []
+        params = count_params(jax.eval_shape(lambda k, n=name: _init_train_state(k, n, CONFIGS[n])["params"],
+                                             jax.random.key(0)))
+        tr = p["comparable_tr"]
+        wall = hist[-1]["wall_time_s"] if hist else 0.0
+        best = min(hist, key=lambda r: r["val_loss"]) if hist else None
+        rows.append([name, ", ".join(f"{k} {v}" for k, v in p["config"].items() if k not in ("disc_widths",)),
+                     f"{params / 1e6:.2f} M", f"{gflops_per_frame(name):.1f}",
+                     f"TR{tr} ({jaxsr.model.flops_per_frame(jaxsr.ModelConfig(tr=tr)) / 1e9:.1f})",
+                     f"{p['tr_step_s']:.3f} / {p['baseline_step_s']:.3f}",
+                     f"{p['steps_per_epoch'] * p['epochs']}", f"{hist[-1]['step'] if hist else 0}",
+                     f"{wall / 60:.1f} ({wall * _cores() / 60:.0f})",
+                     f"{best['val_psnr']:.2f} (epoch {best['epoch']})" if best else "-"])
+        epochs += [[name, r["epoch"], r["step"], f"{r.get('train_loss', r.get('train_content', float('nan'))):.4g}",
+                    f"{r['val_loss']:.4g}", f"{r['val_psnr']:.2f}", f"{r['wall_time_s'] / 60:.1f}"] for r in hist]
+    text = header("Training the learned baselines (HistNet, iSeeBetter) on our data", started)
+    text += ("`experiments/train_baselines.py` (its docstring has the rule): each baseline gets the steps of the "
+             "bundled TR model of nearest cost per output frame times the ratio of the two train-step times, both "
+             "timed in turn in one run on the machine of the plan (so that load from other work cancels). Data: the "
+             "bundle preset (batch 4, 16 x 32 LR crops of rendered training clips, SNR 0.5-8); validation on 3 x 16 "
+             "frames of the validation sequences, each baseline's own content loss (HistNet L1, iSeeBetter MSE) "
+             "selecting the kept epoch. GFLOP per 32 x 64 frame: XLA's cost analysis of the forward pass; ours "
+             "`jaxsr.model.flops_per_frame`. Wall minutes on 2 CPU cores shared with other work (CPU-minutes = wall "
+             "x 2 cores in brackets).\n\n")
+    text += markdown_table(["baseline", "config", "parameters", "GFLOP/frame", "comparable (GFLOP/frame)",
+                            "step s: TR / baseline", "planned steps", "steps done", "wall min (CPU-min)",
+                            "best val PSNR dB"], rows)
+    text += "\nPer epoch:\n\n" + markdown_table(["baseline", "epoch", "step", "train loss", "val loss",
+                                                   "val PSNR dB", "wall min"], epochs)
+    write_atomic(out, text)
+    print(f"wrote {out}")
+
+
 def _cores() -> int:
     import os
 
@@ -170,11 +234,15 @@ def _cores() -> int:
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("name", choices=sorted(CONFIGS))
+    parser.add_argument("name", choices=[*sorted(CONFIGS), "report"])
     parser.add_argument("--runs", default="runs/baselines")
     parser.add_argument("--bundle", action="store_true", help="store the best weights in jaxsr/weights/<name>.npz")
     parser.add_argument("--weights-dir", default=str(Path(jaxsr.__file__).parent / "weights"))
+    parser.add_argument("--out", default="experiments/results/train_baselines.md", help="the report's file")
     args = parser.parse_args()
+    if args.name == "report":
+        report(Path(args.runs), args.out)
+        return
     run = Path(args.runs) / args.name
     p = plan(args.name, run)
     print(json.dumps(p), flush=True)
