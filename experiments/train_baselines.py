@@ -157,6 +157,7 @@ def bundle(name: str, run: Path, out: Path, p: dict) -> None:
     run_meta = read_metadata(run / "last.npz")["run"]  # the whole run; the card is the kept epoch's
     whole = {"steps": run_meta["step"], "epochs": run_meta["epoch"], "wall_time_s": run_meta["wall_time_s"],
              "planned_steps": p["steps_per_epoch"] * p["epochs"],
+             "finished": run_meta["epoch"] >= p["epochs"] or run_meta["bad_epochs"] >= train_cfg.patience,
              "cpu_minutes": round(run_meta["wall_time_s"] * _cores() / 60, 1),
              "cpu_minutes_note": f"wall time x {_cores()} cores; the cores were shared with other work"}
     card = dict(meta["card"], plan=p, run=whole, parameters=count_params(model.params),
@@ -209,7 +210,8 @@ def report(runs: Path, out: str) -> None:
                      f"{p['tr_step_s']:.3f} / {p['baseline_step_s']:.3f}",
                      f"{p['steps_per_epoch'] * p['epochs']}", f"{hist[-1]['step'] if hist else 0}",
                      f"{wall / 60:.1f} ({wall * _cores() / 60:.0f})",
-                     f"{best['val_psnr']:.2f} (epoch {best['epoch']})" if best else "-"])
+                     f"{best['val_psnr']:.2f} (epoch {best['epoch']})" if best else "-",
+                     _tr_card_psnr(tr)])
         epochs += [[name, r["epoch"], r["step"], f"{r.get('train_loss', r.get('train_content', float('nan'))):.4g}",
                     f"{r['val_loss']:.4g}", f"{r['val_psnr']:.2f}", f"{r['wall_time_s'] / 60:.1f}"] for r in hist]
     text = header("Training the learned baselines (HistNet, iSeeBetter) on our data", started)
@@ -218,16 +220,23 @@ def report(runs: Path, out: str) -> None:
              "timed in turn in one run on the machine of the plan (so that load from other work cancels). Data: the "
              "bundle preset (batch 4, 16 x 32 LR crops of rendered training clips, SNR 0.5-8); validation on 3 x 16 "
              "frames of the validation sequences, each baseline's own content loss (HistNet L1, iSeeBetter MSE) "
-             "selecting the kept epoch. GFLOP per 32 x 64 frame: XLA's cost analysis of the forward pass; ours "
+             "selecting the kept epoch (the same frames and noise as the TR models' validation, whose cards give "
+             "the last column). GFLOP per 32 x 64 frame: XLA's cost analysis of the forward pass; ours "
              "`jaxsr.model.flops_per_frame`. Wall minutes on 2 CPU cores shared with other work (CPU-minutes = wall "
              "x 2 cores in brackets).\n\n")
     text += markdown_table(["baseline", "config", "parameters", "GFLOP/frame", "comparable (GFLOP/frame)",
                             "step s: TR / baseline", "planned steps", "steps done", "wall min (CPU-min)",
-                            "best val PSNR dB"], rows)
+                            "best val PSNR dB", "TR card val PSNR (bicubic)"], rows)
     text += "\nPer epoch:\n\n" + markdown_table(["baseline", "epoch", "step", "train loss", "val loss",
                                                    "val PSNR dB", "wall min"], epochs)
     write_atomic(out, text)
     print(f"wrote {out}")
+
+
+def _tr_card_psnr(tr: int) -> str:
+    """The bundled TR model's validation PSNR and bicubic's on the same frames, from its card."""
+    v = read_metadata(resolve_model_path(f"tr{tr}"))["card"].get("validation", {})
+    return f"{v['psnr']:.2f} ({v['bicubic_psnr']:.2f})" if v.get("psnr") and v.get("bicubic_psnr") else "-"
 
 
 def _cores() -> int:
@@ -241,6 +250,9 @@ def main():
     parser.add_argument("name", choices=[*sorted(CONFIGS), "report"])
     parser.add_argument("--runs", default="runs/baselines")
     parser.add_argument("--bundle", action="store_true", help="store the best weights in jaxsr/weights/<name>.npz")
+    parser.add_argument("--bundle-only", action="store_true",
+                        help="bundle the best weights reached so far without training on (an unfinished run's card "
+                             "says how far it got; the same command without it resumes the run)")
     parser.add_argument("--weights-dir", default=str(Path(jaxsr.__file__).parent / "weights"))
     parser.add_argument("--out", default="experiments/results/train_baselines.md", help="the report's file")
     args = parser.parse_args()
@@ -251,9 +263,10 @@ def main():
     p = plan(args.name, run)
     print(json.dumps(p), flush=True)
     train_cfg = train_config(p["steps_per_epoch"])
-    fit_baseline(args.name, CONFIGS[args.name], train_cfg, out=run, resume=True, card_extra={"plan": p},
-                 callback=lambda r: print(json.dumps(r), flush=True))
-    if args.bundle:
+    if not args.bundle_only:
+        fit_baseline(args.name, CONFIGS[args.name], train_cfg, out=run, resume=True, card_extra={"plan": p},
+                     callback=lambda r: print(json.dumps(r), flush=True))
+    if args.bundle or args.bundle_only:
         bundle(args.name, run, Path(args.weights_dir) / f"{args.name}.npz", p)
 
 
