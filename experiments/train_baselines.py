@@ -190,13 +190,14 @@ def report(runs: Path, out: str) -> None:
     from _report import header, markdown_table
 
     started = time.time()
-    rows, epochs = [], []
+    rows, epochs, plans = [], [], {}
     for name in CONFIGS:
         run = runs / name
         if not (run / "plan.json").is_file():
             print(f"{name}: no run in {run}, left out")
             continue
         p = json.loads((run / "plan.json").read_text())
+        plans[name] = p
         hist = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()] if (
             run / "metrics.jsonl").is_file() else []
         params = count_params(jax.eval_shape(lambda k, n=name: _init_train_state(k, n, CONFIGS[n])["params"],
@@ -224,6 +225,11 @@ def report(runs: Path, out: str) -> None:
              "the last column). GFLOP per 32 x 64 frame: XLA's cost analysis of the forward pass; ours "
              "`jaxsr.model.flops_per_frame`. Wall minutes on 2 CPU cores shared with other work (CPU-minutes = wall "
              "x 2 cores in brackets).\n\n")
+    text += ("Runs: `python experiments/train_baselines.py NAME` (plan, then training; re-run to resume), then "
+             "`--bundle` (or `--bundle-only` for a run stopped early) for jaxsr/weights/NAME.npz. "
+             + " ".join(f"{n}: planned {pl['date']} on {pl['machine']}; the comparable TR's own training took "
+                        f"{pl['tr_card_wall_time_s'] / 60:.1f} wall minutes (its card, another machine and load)."
+                        for n, pl in plans.items()) + "\n\n")
     text += markdown_table(["baseline", "config", "parameters", "GFLOP/frame", "comparable (GFLOP/frame)",
                             "step s: TR / baseline", "planned steps", "steps done", "wall min (CPU-min)",
                             "best val PSNR dB", "TR card val PSNR (bicubic)"], rows)
