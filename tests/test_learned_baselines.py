@@ -276,7 +276,6 @@ def test_load_baseline_refuses_missing_and_mismatched_files(tmp_path):
         save_baseline(tmp_path / "x.npz", BaselineModel("duf", params, TINY_HISTNET))
 
 
-@pytest.mark.slow  # three short runs: ~30 s on 2 idle cores
 def test_fit_baseline_checkpoints_every_epoch_resumes_and_refuses_other_settings(tmp_path):
     from jaxsr.baseline_training import fit_baseline, load_baseline
 
