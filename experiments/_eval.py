@@ -46,6 +46,7 @@ class Clip:
     gt: np.ndarray
     fps: float
     snr: float
+    intensity: np.ndarray | None = None  # the HR intensity (T, H, W) in [0, 1], HistNet's guide image
 
 
 @jax.jit
@@ -61,7 +62,8 @@ def simulate_clip(key, seq, *, sensor: SensorConfig = SensorConfig(), snr=None,
     snr = seq.snr if snr is None else snr
     counts, lr, gt = _simulate(key, jnp.asarray(seq.depth), jnp.asarray(seq.intensity), sensor,
                                jnp.float32(snr), jnp.float32(mean_signal))
-    return Clip(name or seq.name, np.asarray(lr), np.asarray(counts), np.asarray(gt), float(seq.fps), float(snr))
+    return Clip(name or seq.name, np.asarray(lr), np.asarray(counts), np.asarray(gt), float(seq.fps), float(snr),
+                np.asarray(seq.intensity, np.float32))
 
 
 def test_clips(n_frames: int, *, seed: int = 0, sensor: SensorConfig = SensorConfig(), names=TEST_SCENES):
@@ -198,6 +200,79 @@ def bundled(name: str) -> Path | None:
         return resolve_model_path(name)
     except FileNotFoundError:
         return None
+
+
+# The learned baselines of the paper's Table 3, retrained on our data (experiments/train_baselines.py).
+BASELINE_LABELS = {"histnet": "HistNet (retrained here)", "iseebetter": "iSeeBetter (retrained here)"}
+
+
+def add_baseline_args(parser) -> None:
+    """--baselines and --baseline-weights, for the scripts that score the learned baselines (see `load_baselines`)."""
+    parser.add_argument("--baselines", nargs="*", default=list(BASELINE_LABELS), choices=list(BASELINE_LABELS),
+                        help="learned baselines to score (default both; none: --baselines with no name)")
+    parser.add_argument("--baseline-weights", default=None,
+                        help="folder holding <name>.npz or <name>/best.npz (e.g. runs/baselines; default: the "
+                             "bundled jaxsr/weights/<name>.npz)")
+
+
+def load_baselines(names, weights=None) -> tuple[dict, dict, list[str]]:
+    """The trained baselines that exist: ({label: BaselineModel}, {label: training card}, [a sentence for each one
+    skipped]). Absent weights skip the baseline with a message (printed too) instead of failing the experiment."""
+    models, cards, skipped = {}, {}, []
+    for name in names:
+        label = BASELINE_LABELS[name]
+        candidates = [name] if weights is None else [Path(weights) / f"{name}.npz", Path(weights) / name / "best.npz"]
+        path = next((c for c in candidates if weights is None or Path(c).is_file()), None)
+        try:
+            if path is None:
+                raise FileNotFoundError(f"no {name}.npz or {name}/best.npz in {weights}")
+            path = jaxsr.baseline_training.resolve_baseline_path(path)
+            models[label] = jaxsr.load_baseline(path)
+            cards[label] = jaxsr.read_metadata(path).get("card", {})
+        except FileNotFoundError as e:
+            skipped.append(f"{label}: skipped, no trained weights ({e})")
+            print(skipped[-1], flush=True)
+    return models, cards, skipped
+
+
+def run_baseline(model, clip: Clip) -> np.ndarray:
+    """A trained baseline on a clip: HistNet from its histograms and HR intensity, iSeeBetter from its
+    centre-of-mass frames. Returns (T, H, W) normalised depth, not clipped."""
+    if model.kind == "histnet":
+        return jaxsr.super_resolve_baseline(model, counts=clip.counts, intensity=clip.intensity)
+    return jaxsr.super_resolve_baseline(model, lr=clip.lr)
+
+
+def baseline_source(models: dict, cards: dict, skipped, weights) -> str:
+    """Sentences on the baselines: where their weights came from, their size and training (from their cards),
+    and which were skipped."""
+    text = ""
+    if models:
+        where = "the bundled weights (jaxsr/weights)" if weights is None else f"the weights in {weights}"
+        parts = []
+        for label, m in models.items():
+            card = cards.get(label, {})
+            plan = card.get("plan", {})
+            budget = (f", {card.get('steps')} steps of batch 4 (the budget of TR{plan['comparable_tr']}: "
+                      f"{plan['tr_steps']} x its step time / this step time)" if plan else "")
+            parts.append(f"{label}: {describe_baseline(m)}{budget}")
+        text += (f"Learned baselines from {where}, trained by `experiments/train_baselines.py` on our data "
+                 "(the VGG perceptual term of iSeeBetter's loss left out): " + "; ".join(parts) + ". ")
+    if skipped:
+        text += " ".join(s + "." for s in skipped) + " "
+    return text
+
+
+def describe_baseline(model) -> str:
+    """Architecture in a few words: configuration and parameter count."""
+    from jaxsr.model import count_params
+
+    c = model.config
+    n = count_params(model.params) / 1e6
+    if model.kind == "histnet":
+        return f"width {c.width}, {n:.2f} M parameters"
+    return (f"RBPN {c.frames} frames, base_filter {c.base_filter}, feat {c.feat}, {c.n_resblock} residual blocks, "
+            f"{n:.2f} M parameters")
 
 
 def weights_source(weights) -> str:

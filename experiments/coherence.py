@@ -1,11 +1,13 @@
-"""Temporal coherence (the paper's Tc, Eq. 2): flicker of TR0 against TR4 on a static-camera sequence of people.
+"""Temporal coherence (the paper's Tc, Eq. 2): flicker of TR0 against TR4 (and of the learned baselines HistNet and
+iSeeBetter, retrained on our data) on a static-camera sequence of people.
 
-    python experiments/coherence.py [--frames 100] [--fps 25] [--weights DIR]
+    python experiments/coherence.py [--frames 100] [--fps 25] [--weights DIR] [--baselines histnet iseebetter]
+                                    [--baseline-weights DIR]
 
 Tc_t counts pixels that are static in the ground truth (|GT_t+1 - GT_t| <= 1e-6) but change in the output by
 more than eps; the paper reports TR0 with about twice TR4's count. Since outputs are real numbers, the count
 depends on eps: it is reported at eps = 1/255, 0.01 and 0.05 of the depth range (`jaxsr.temporal_coherence`),
-for bicubic too. Sequence: `walkers_100fps` (static camera, four people walking at 9 m) sampled at --fps.
+for bicubic and the baselines (skipped with a message where they have no trained weights) too. Sequence: `walkers_100fps` (static camera, four people walking at 9 m) sampled at --fps.
 """
 
 from __future__ import annotations
@@ -16,13 +18,22 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
+from _eval import (
+    add_baseline_args,
+    add_model_args,
+    baseline_source,
+    load_baselines,
+    load_tr,
+    run_baseline,
+    score,
+    simulate_clip,
+    weights_source,
+)
+from _report import header, markdown_table, save_figure, write_atomic
 
 import jaxsr
 from jaxsr.runtime import enable_compilation_cache
 from jaxsr.scenes import test_sequence
-
-from _eval import add_model_args, load_tr, score, simulate_clip, weights_source
-from _report import header, markdown_table, save_figure, write_atomic
 
 EPS = (1 / 255, 0.01, 0.05)
 
@@ -45,7 +56,7 @@ def plot(path, counts):
 def walkers_at(fps: float, frames: int, *, seed: int = 0):
     """The static-camera walkers sequence sampled at about `fps` (every round(100 / fps)-th frame of the 100 FPS
     sequence), simulated with noise seed `seed`: (Clip, the sampled sequence)."""
-    step = int(round(100 / fps))
+    step = round(100 / fps)
     seq = test_sequence("walkers_100fps", n_frames=frames * step)
     seq = seq._replace(depth=seq.depth[::step], intensity=seq.intensity[::step], fps=100.0 / step)
     return simulate_clip(jax.random.key(seed), seq), seq
@@ -56,6 +67,7 @@ def main():
     parser.add_argument("--frames", type=int, default=100)
     parser.add_argument("--fps", type=float, default=25.0, help="frame rate sampled from the 100 FPS sequence")
     add_model_args(parser, trs=(0, 4))
+    add_baseline_args(parser)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", default="experiments/results/coherence")
     args = parser.parse_args()
@@ -64,6 +76,8 @@ def main():
     clip, seq = walkers_at(args.fps, args.frames, seed=args.seed)
     outputs = {"bicubic": np.asarray(jaxsr.bicubic(clip.lr, scale=4))}
     outputs.update({f"TR{tr}": jaxsr.super_resolve(load_tr(tr, args.weights), clip.lr) for tr in args.trs})
+    baselines, cards, skipped = load_baselines(args.baselines, args.baseline_weights)
+    outputs.update({label: run_baseline(model, clip) for label, model in baselines.items()})
     rows, counts = [], {}
     for method, sr in outputs.items():
         tcs = [jaxsr.temporal_coherence(jnp.asarray(sr), jnp.asarray(clip.gt), eps=e) for e in EPS]
@@ -79,7 +93,7 @@ def main():
     text += (f"Sequence `walkers_100fps` at {seq.fps:g} FPS (static camera), {args.frames} frames, SNR {clip.snr:g}; "
              f"models: {weights_source(args.weights)}. Cells: mean Tc_t over frame pairs (flickering static pixels "
              "per frame, of 128 x 256) and, in brackets, the share of static pixels that flicker; last column PSNR "
-             "(dB) / SSIM.\n\n")
+             "(dB) / SSIM. " + baseline_source(baselines, cards, skipped, args.baseline_weights) + "\n\n")
     text += markdown_table(["method"] + [f"Tc, eps = {e:.3g}" for e in EPS] + ["PSNR / SSIM"], rows)
     if ratio:
         text += ("\nTR0 / TR4 Tc ratio: " + ", ".join(f"{r:.2f} at eps {e:.3g}" for e, r in ratio.items())

@@ -1,30 +1,49 @@
 """Comparison with other methods (the paper's Table 3, Figs. 8-9): bicubic, Lanczos, maximum-likelihood depth +
-bicubic, a TV-regularised multi-frame reconstruction (optimistix), and ours at TR1 and TR4.
+bicubic, a TV-regularised multi-frame reconstruction (optimistix), the learned baselines HistNet and iSeeBetter
+retrained on our data, and ours at TR1 and TR4.
 
-    python experiments/compare.py [--frames 50] [--weights DIR]
+    python experiments/compare.py [--frames 50] [--weights DIR] [--baselines histnet iseebetter]
+                                  [--baseline-weights DIR]
 
-PSNR and SSIM per test scene, end-to-end frames/s on this machine (histograms in, HR depth out), a figure of
-example frames (LR input, every method, ground truth) and one of |SR - GT| error maps. iSeeBetter and HistNet,
-the paper's other two rows, are not reimplemented here (a separately trained RGB video network and a
-histogram network with an intensity guide); their rows are quoted from the paper only.
+PSNR and SSIM per test scene, end-to-end frames/s on this machine (histograms in, HR depth out), parameter
+counts, a figure of example frames (LR input, every method, ground truth) and one of |SR - GT| error maps.
+HistNet and iSeeBetter come from `experiments/train_baselines.py` (bundled jaxsr/weights/histnet.npz,
+iseebetter.npz, or --baseline-weights); a baseline without weights is skipped with a message. The paper's rows
+for them are kept, marked as the paper's.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from _eval import (
+    FPS_NOTE,
+    PAPER_BICUBIC,
+    PAPER_TABLE1,
+    SCENE_LABELS,
+    TEST_SCENES,
+    add_baseline_args,
+    add_model_args,
+    baseline_source,
+    frames_per_second,
+    load_baselines,
+    load_tr,
+    run_baseline,
+    score,
+    test_clips,
+    weights_source,
+)
+from _report import header, markdown_table, write_atomic
 
 import jaxsr
-from jaxsr.runtime import enable_compilation_cache
+from jaxsr.model import count_params
 from jaxsr.recon import tv_super_resolve
-
-from _eval import (FPS_NOTE, PAPER_BICUBIC, PAPER_TABLE1, SCENE_LABELS, TEST_SCENES, add_model_args, frames_per_second,
-                   load_tr, score, test_clips, weights_source)
-from _report import header, markdown_table, write_atomic
+from jaxsr.runtime import enable_compilation_cache
 
 PAPER_OTHERS = {
     "iSeeBetter (paper)": ((20.47, 0.784), (21.96, 0.837), (28.74, 0.843), 33.0),
@@ -38,26 +57,35 @@ def _com_then(counts):
     return jaxsr.centre_of_mass(counts, SENSOR)
 
 
-def methods(models):
-    """name -> function (counts (T, h, w, K), centre-of-mass depth (T, h, w)) -> HR (T, H, W) normalised."""
+def methods(models, baselines=None):
+    """name -> function (clip) -> HR (T, H, W) normalised; clip: an `_eval.Clip` (counts (T, h, w, K),
+    centre-of-mass depth lr (T, h, w), HR intensity (T, H, W)). baselines: {label: BaselineModel}."""
     up = jax.jit(lambda x: jaxsr.bicubic(x, scale=4))
     lanczos = jax.jit(lambda x: jaxsr.lanczos(x, scale=4))
     ml = jax.jit(lambda c: jaxsr.bicubic(jaxsr.maximum_likelihood_depth(c, SENSOR), scale=4))
     out = {
-        "bicubic": lambda counts, lr: np.asarray(up(lr)),
-        "Lanczos": lambda counts, lr: np.asarray(lanczos(lr)),
-        "ML + bicubic": lambda counts, lr: np.asarray(ml(counts)),
-        "TV multi-frame (TR1)": lambda counts, lr: np.asarray(tv_super_resolve(lr, scale=4, tr=1)),
+        "bicubic": lambda clip: np.asarray(up(clip.lr)),
+        "Lanczos": lambda clip: np.asarray(lanczos(clip.lr)),
+        "ML + bicubic": lambda clip: np.asarray(ml(clip.counts)),
+        "TV multi-frame (TR1)": lambda clip: np.asarray(tv_super_resolve(clip.lr, scale=4, tr=1)),
     }
+    for label, model in (baselines or {}).items():
+        out[label] = lambda clip, model=model: run_baseline(model, clip)
     for tr, model in models.items():
-        out[f"ours TR{tr}"] = lambda counts, lr, model=model: jaxsr.super_resolve(model, lr)
+        out[f"ours TR{tr}"] = lambda clip, model=model: jaxsr.super_resolve(model, clip.lr)
     return out
 
 
-def end_to_end_fps(fn, counts, *, min_time):
-    """Frames/s from histograms (centre of mass included), all frames of `counts` per call."""
-    counts = jnp.asarray(counts)
-    return frames_per_second(lambda: fn(counts, np.asarray(_com_then(counts))), counts.shape[0], min_time=min_time)
+def end_to_end_fps(fn, clip, *, frames: int = 16, min_time):
+    """Frames/s from histograms (centre of mass included in every call), the first `frames` frames of the clip
+    per call (HistNet also reads their HR intensity)."""
+    counts = jnp.asarray(clip.counts[:frames])
+
+    def call():
+        lr = np.asarray(_com_then(counts))
+        return fn(dataclasses.replace(clip, counts=counts, lr=lr, intensity=clip.intensity[:frames]))
+
+    return frames_per_second(call, frames, min_time=min_time)
 
 
 def figures(path_frames, path_errors, clips, outputs, frame):
@@ -98,6 +126,7 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=50, help="frames per test scene (default 50)")
     add_model_args(parser, trs=(1, 4))
+    add_baseline_args(parser)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--figure-frame", type=int, default=None, help="frame shown in the figures (default middle)")
     parser.add_argument("--out", default="experiments/results/compare")
@@ -105,24 +134,29 @@ def main():
     started = time.time()
     enable_compilation_cache()
     clips = test_clips(args.frames, seed=args.seed)
-    fns = methods({tr: load_tr(tr, args.weights) for tr in args.trs})
+    ours = {tr: load_tr(tr, args.weights) for tr in args.trs}
+    baselines, cards, skipped = load_baselines(args.baselines, args.baseline_weights)
+    fns = methods(ours, baselines)
+    params = {**{f"ours TR{tr}": count_params(m.params) for tr, m in ours.items()},
+              **{label: count_params(m.params) for label, m in baselines.items()}}
     outputs = {scene: {} for scene in clips}
     scores = {m: {} for m in fns}
     for m, fn in fns.items():
         for scene, clip in clips.items():
-            outputs[scene][m] = fn(clip.counts, clip.lr)
+            outputs[scene][m] = fn(clip)
             scores[m][scene] = score(outputs[scene][m], clip.gt)
         print(m, ", ".join(f"{SCENE_LABELS[s]} {p:.2f}/{q:.3f}" for s, (p, q) in scores[m].items()), flush=True)
-    counts16 = clips[TEST_SCENES[0]].counts[:16]
-    speed = {m: end_to_end_fps(fn, counts16, min_time=2.0) for m, fn in fns.items()}
+    speed = {m: end_to_end_fps(fn, clips[TEST_SCENES[0]], min_time=2.0) for m, fn in fns.items()}
 
-    fmt = lambda sc: [f"{sc[s][i]:.{2 if i == 0 else 3}f}" for s in TEST_SCENES for i in (0, 1)]  # noqa: E731
-    rows = [[m] + fmt(scores[m]) + [f"{speed[m]:.1f}"] for m in fns]
+    fmt = lambda sc: [f"{sc[s][i]:.{2 if i == 0 else 3}f}" for s in TEST_SCENES for i in (0, 1)]
+    mparams = lambda m: f"{params[m] / 1e6:.2f} M" if m in params else "-"
+    rows = [[m] + fmt(scores[m]) + [f"{speed[m]:.1f}", mparams(m)] for m in fns]
     quoted = {"bicubic (paper)": PAPER_BICUBIC, **PAPER_OTHERS,
               **{f"ours TR{tr} (paper)": PAPER_TABLE1[tr] for tr in args.trs}}
-    rows += [[m] + [f"{v:.{2 if i == 0 else 3}f}" for sc in vals[:3] for i, v in enumerate(sc)] + [f"{vals[3]:g}"]
+    rows += [[m] + [f"{v:.{2 if i == 0 else 3}f}" for sc in vals[:3] for i, v in enumerate(sc)] + [f"{vals[3]:g}", ""]
              for m, vals in quoted.items()]
-    columns = ["method"] + [f"{SCENE_LABELS[s]} {k}" for s in TEST_SCENES for k in ("PSNR", "SSIM")] + ["frames/s"]
+    columns = (["method"] + [f"{SCENE_LABELS[s]} {k}" for s in TEST_SCENES for k in ("PSNR", "SSIM")]
+               + ["frames/s", "parameters"])
     frame = args.frames // 2 if args.figure_frame is None else args.figure_frame
     text = header("Comparison with other methods (paper Table 3, Figs. 8-9)", started)
     text += (f"The first {args.frames} frames of each test scene (scenes 1-2 at SNR 1.3, scene 3 at SNR 3, "
@@ -132,7 +166,8 @@ def main():
              f"upscaling; ours with the {FPS_NOTE}); the paper's are on an RTX 2070. "
              "TV multi-frame: `jaxsr.recon.tv_super_resolve` "
              "(robust data term over 3 frames + smoothed TV, L-BFGS), defaults chosen on a validation sequence. "
-             "iSeeBetter and HistNet are quoted from the paper, not run here.\n\n")
+             + baseline_source(baselines, cards, skipped, args.baseline_weights)
+             + "Rows marked (paper) are quoted from the paper (its own data and GPU).\n\n")
     text += markdown_table(columns, rows)
     text += (f"\nFigures: `compare_frames.png` (frame {frame} of each scene, every method) and "
              f"`compare_errors.png` (|SR - GT| of the same frames).\n")

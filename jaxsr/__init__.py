@@ -9,7 +9,12 @@ from .adaptive import choose_tr as choose_tr
 from .adaptive import estimate_motion as estimate_motion
 from .baselines import bicubic as bicubic
 from .baselines import lanczos as lanczos
+from .baseline_training import BaselineModel as BaselineModel
+from .baseline_training import fit_baseline as fit_baseline
 from .baseline_training import histogram_batches as histogram_batches
+from .baseline_training import load_baseline as load_baseline
+from .baseline_training import save_baseline as save_baseline
+from .baseline_training import super_resolve_baseline as super_resolve_baseline
 from .baseline_training import init_adam_pair as init_adam_pair
 from .baseline_training import make_histnet_train_step as make_histnet_train_step
 from .baseline_training import make_iseebetter_train_step as make_iseebetter_train_step

@@ -36,6 +36,9 @@ NO_ARRAYS = {
     "gate_of_tags": "TimeTags -> a Gate",
     "read_time_tags": "a path -> TimeTags",
     "init_adam_pair": "two params pytrees -> two optimiser states",
+    "load_baseline": "a path or bundled name -> a BaselineModel",
+    "save_baseline": "a path and a BaselineModel",
+    "fit_baseline": "configs, a folder and a data source -> a BaselineModel and its history",
 }
 # A whole shape tuple of short dimension names or numbers: (..., H, W), (B, 2tr+1, h, w), (T,), (N, h*r, w*r).
 _DIM = r"(\.\.\.|[A-Za-z0-9_*+/-]{1,10})"

@@ -6,6 +6,7 @@ Parameter counts are checked against layer lists written out here from the publi
 traced (`jax.eval_shape`); the training tests use reduced widths."""
 
 import dataclasses
+import math
 
 import jax
 import jax.numpy as jnp
@@ -235,3 +236,100 @@ def test_histogram_batches_shapes():
     make_batch = jaxsr.histogram_batches(train_cfg)
     counts, intensity, gt = jax.eval_shape(make_batch, jax.random.PRNGKey(0))
     assert counts.shape == (2, 8, 16, 16) and intensity.shape == gt.shape == (2, 32, 64)
+
+
+# --- trained baselines: files, the fit loop, the training script's plan -------------------------------------------
+
+TINY_HISTNET = jaxsr.HistNetConfig(width=2)
+
+
+def tiny_validation():
+    counts, intensity, gt = fixed_histogram_batch()
+    return {"counts": counts, "intensity": intensity, "gt": gt, "names": ["fixed"]}
+
+
+def test_load_baseline_refuses_missing_and_mismatched_files(tmp_path):
+    from jaxsr.baseline_training import BaselineModel, load_baseline, save_baseline
+
+    with pytest.raises(FileNotFoundError, match="no trained baseline.*train_baselines.py"):
+        load_baseline(tmp_path / "nothing")
+    params = jaxsr.init_histnet(jax.random.PRNGKey(0), TINY_HISTNET)
+    path = save_baseline(tmp_path / "h.npz", BaselineModel("histnet", params, TINY_HISTNET), card={"steps": 3},
+                         storage_dtype="float16")
+    back = load_baseline(tmp_path / "h")  # without the suffix
+    assert back.kind == "histnet" and back.config == TINY_HISTNET
+    assert jax.tree_util.tree_all(jax.tree_util.tree_map(lambda a, b: bool(jnp.allclose(a, b, atol=1e-2)),
+                                                         back.params, params))
+    # the same arrays under a config of another width: every shape is checked
+    meta_cfg = dataclasses.replace(TINY_HISTNET, width=4)
+    wrong = save_baseline(tmp_path / "w.npz", BaselineModel("histnet", params, meta_cfg))
+    with pytest.raises(ValueError, match="shape"):
+        load_baseline(wrong)
+    jaxsr.save_model(tmp_path / "tr.npz", jaxsr.Model(*jaxsr.init_model(jax.random.PRNGKey(0), jaxsr.ModelConfig(tr=0)),
+                                                      jaxsr.ModelConfig(tr=0)))
+    with pytest.raises(ValueError, match="not hold a trained learned baseline"):
+        load_baseline(tmp_path / "tr.npz")
+    path.write_bytes(path.read_bytes()[:200])  # truncated
+    with pytest.raises(ValueError, match="truncated or corrupt"):
+        load_baseline(path)
+    with pytest.raises(ValueError, match="unknown baseline"):
+        save_baseline(tmp_path / "x.npz", BaselineModel("duf", params, TINY_HISTNET))
+
+
+def test_fit_baseline_checkpoints_every_epoch_resumes_and_refuses_other_settings(tmp_path):
+    from jaxsr.baseline_training import fit_baseline, load_baseline
+
+    batch = fixed_histogram_batch()
+    make_batch = lambda key: batch
+    cfg1 = dataclasses.replace(jaxsr.TrainConfig(), batch_size=2, examples_per_epoch=4, epochs=1, decay_epochs=1)
+    kw = {"make_batch": make_batch, "validation": tiny_validation(), "sensor": SMALL_SENSOR}
+    _, hist1 = fit_baseline("histnet", TINY_HISTNET, cfg1, out=tmp_path, **kw)
+    assert [r["step"] for r in hist1] == [2] and (tmp_path / "best.npz").is_file()
+    with pytest.raises(FileExistsError, match="resume"):
+        fit_baseline("histnet", TINY_HISTNET, cfg1, out=tmp_path, **kw)
+    # resuming with a larger epoch budget continues from step 2; an uninterrupted 2-epoch run gives the same
+    cfg2 = dataclasses.replace(cfg1, epochs=2)
+    _model, hist2 = fit_baseline("histnet", TINY_HISTNET, cfg2, out=tmp_path, resume=True, **kw)
+    _, straight = fit_baseline("histnet", TINY_HISTNET, cfg2, out=tmp_path / "straight", **kw)
+    assert [r["step"] for r in hist2] == [2, 4]
+    np.testing.assert_allclose([r["val_loss"] for r in hist2], [r["val_loss"] for r in straight], rtol=1e-5)
+    card = jaxsr.read_metadata(tmp_path / "best.npz")["card"]
+    assert card["steps"] == 4 and card["validation"]["frames"] == 2
+    assert load_baseline(tmp_path / "best.npz").kind == "histnet"
+    # finished: running again trains nothing
+    assert len(fit_baseline("histnet", TINY_HISTNET, cfg2, out=tmp_path, resume=True, **kw)[1]) == 2
+    with pytest.raises(ValueError, match="other settings.*lr"):
+        fit_baseline("histnet", TINY_HISTNET, dataclasses.replace(cfg2, lr=1e-2), out=tmp_path, resume=True, **kw)
+
+
+def _train_baselines_script():
+    import importlib.util
+    import sys
+    from pathlib import Path
+
+    folder = Path(__file__).resolve().parents[1] / "experiments"
+    sys.path.insert(0, str(folder))
+    try:
+        spec = importlib.util.spec_from_file_location("train_baselines", folder / "train_baselines.py")
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+    finally:
+        sys.path.remove(str(folder))
+    return module
+
+
+def test_train_baselines_plan_is_measured_once_and_read_back(tmp_path):
+    script = _train_baselines_script()
+    calls = []
+
+    def measure():
+        calls.append(1)
+        return {"tr": 0.2, "baseline": 0.5}
+
+    p = script.plan("histnet", tmp_path / "histnet", measure=measure)
+    assert p["steps_per_epoch"] == math.ceil(1280 * 0.2 / 0.5 / 5) and p["comparable_tr"] == 0
+    again = script.plan("histnet", tmp_path / "histnet", measure=measure)
+    assert again == p and len(calls) == 1  # resuming reads plan.json, it does not time again
+    assert script.train_config(p["steps_per_epoch"]).steps_per_epoch == p["steps_per_epoch"]
+    with pytest.raises(ValueError, match="positive"):
+        script.budget(1280, 0.2, 0.0)
