@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
 
 from jaxsr._files import write_text_atomic
 
@@ -103,3 +104,16 @@ def markdown_table(columns, rows) -> str:
     lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
     lines += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
     return "\n".join(lines) + "\n"
+
+
+def step_timer(step, carry: list):
+    """run(i) -> seconds of one call step(*carry, key i, i) of a compiled train step (the carry, a list of its
+    state, kept up to date), results waited for; compiles on creation."""
+    def run(i):
+        t0 = time.perf_counter()
+        *carry[:], metrics = step(*carry, jax.random.key(i), jnp.int32(i))
+        jax.block_until_ready(metrics)
+        return time.perf_counter() - t0
+
+    run(0)
+    return run

@@ -39,7 +39,7 @@ from pathlib import Path
 
 import jax
 import jax.numpy as jnp
-from _report import machine, write_atomic
+from _report import machine, step_timer, write_atomic
 
 import jaxsr
 from jaxsr.baseline_training import (
@@ -68,24 +68,13 @@ CONFIGS = {
 COMPARABLE = {"histnet": 0, "iseebetter": 2}  # the TR of nearest GFLOP per output frame (module docstring)
 
 
-def _timer(step, carry):
-    """run(i) -> seconds of one call of step on carry (kept up to date), results waited for."""
-    def run(i):
-        t0 = time.perf_counter()
-        *carry[:], metrics = step(*carry, jax.random.key(i), jnp.int32(i))
-        jax.block_until_ready(metrics)
-        return time.perf_counter() - t0
-    run(0)  # compiles
-    return run
-
-
 def tr_probe(tr: int):
     """One windowed TR`tr` train step on the bundle preset, fresh weights: run(i) -> seconds."""
     cfg = jaxsr.ModelConfig(tr=tr)
     probe = dataclasses.replace(PRESETS["bundle"], examples_per_epoch=PRESETS["bundle"].batch_size)
     step = make_train_step(cfg, probe, default_data(cfg, probe))
     params, state = init_model(jax.random.key(0), cfg)
-    return _timer(step, [params, state, adam_init(params)])
+    return step_timer(step, [params, state, adam_init(params)])
 
 
 def baseline_probe(name: str, train_cfg):
@@ -93,7 +82,7 @@ def baseline_probe(name: str, train_cfg):
     cfg = CONFIGS[name]
     step = baseline_train_step(name, cfg, train_cfg, default_baseline_data(name, cfg, train_cfg))
     ts = [_init_train_state(jax.random.key(0), name, cfg)]
-    return _timer(lambda t, key, i: step(t, key, i), ts)
+    return step_timer(lambda t, key, i: step(t, key, i), ts)
 
 
 def step_seconds(probes: dict, repeats: int = 3) -> dict:

@@ -19,11 +19,9 @@ import argparse
 import dataclasses
 import json
 import math
-import time
 from pathlib import Path
 
 import jax
-import jax.numpy as jnp
 
 import jaxsr
 from jaxsr.checkpoint import read_metadata, resolve_model_path
@@ -32,7 +30,7 @@ from jaxsr.model import init_model
 from jaxsr.optim import adam_init
 from jaxsr.train import default_data, fit, make_train_step
 
-from _report import machine, write_atomic
+from _report import machine, step_timer, write_atomic
 
 EPOCHS = 5
 
@@ -41,16 +39,7 @@ def _probe(model_cfg, train_cfg):
     """A compiled train step of `model_cfg` on its default data, with fresh weights: a callable running one step."""
     step = make_train_step(model_cfg, train_cfg, default_data(model_cfg, train_cfg))
     params, state = init_model(jax.random.key(0), model_cfg)
-    carry = [params, state, adam_init(params)]
-
-    def run(i):
-        t0 = time.perf_counter()
-        *carry[:], metrics = step(*carry, jax.random.key(i), jnp.int32(i))
-        jax.block_until_ready(metrics)
-        return time.perf_counter() - t0
-
-    run(0)  # compiles
-    return run
+    return step_timer(step, [params, state, adam_init(params)])
 
 
 def step_seconds(tr: int, repeats: int = 3) -> dict:
