@@ -43,20 +43,19 @@ def mean_psnr(model, clips):
 
 
 def schedule(args) -> str:
-    """The training command of the runs, without the TR."""
+    """The training command of the runs, without the TR, and what it is."""
     if args.trained_with:
-        return args.trained_with
-    return ("jaxsr train --preset bundle" if args.form == "window" else
-            "experiments/train_sequence_bundle.py (the bundle preset in the sequence form, clips of 2R + 8 frames, "
+        return f"`{args.trained_with}`"
+    return ("`jaxsr train --preset bundle`" if args.form == "window" else
+            "`experiments/train_sequence_bundle.py` (the bundle preset in the sequence form, clips of 2R + 8 frames, "
             "as long as the windowed model of its TR trained: see that script)")
 
 
 def describe(tc: dict) -> str:
     """The training schedule of a card's train_config, in words."""
-    steps = tc["examples_per_epoch"] // tc["batch_size"]
     return (f"batch {tc['batch_size']}, {tc['patch'][0]} x {tc['patch'][1]} LR crops of freshly rendered random "
             f"scenes, SNR {tc['snr_range'][0]:g}-{tc['snr_range'][1]:g}, {tc['mean_signal_range'][0]:g}-"
-            f"{tc['mean_signal_range'][1]:g} signal photons, up to {tc['epochs']} epochs of {steps} steps, Adam "
+            f"{tc['mean_signal_range'][1]:g} signal photons, up to {tc['epochs']} epochs, Adam "
             f"{tc['lr']:g} cut by {tc['lr_decay']:g} every {tc['decay_epochs']} epochs, early stopping after "
             f"{tc['patience']} epochs; validation on {len(tc['val_sequences'])} x {tc['val_frames']} frames of the "
             "validation sequences")
@@ -116,7 +115,7 @@ def main():
     total = sum(p.stat().st_size for p in WEIGHTS.glob("*.npz"))
     form = args.form
     text = header(f"Bundled weights (jaxsr/weights), {form} form", started)
-    text += (f"Each model trained with `{schedule(args)}`: {describe(card['train_config'])}. Card columns: "
+    text += (f"Each model trained with {schedule(args)}: {describe(card['train_config'])}. Card columns: "
              "the best epoch's validation PSNR and bicubic's on the same frames, from the training card. 'val PSNR "
              f"best / last': mean over {', '.join(VALIDATION)} ({args.frames} frames each, other noise) of the two "
              f"checkpoints of the run; rule `--checkpoint {args.checkpoint}` picks the bundled one. float16 cost: "
