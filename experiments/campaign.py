@@ -69,11 +69,17 @@ def gain_last_quarter(records: list[dict]) -> float | None:
     return max(psnr[start + 1:]) - max(psnr[:start + 1])
 
 
-def next_run(root: Path, cfg, only) -> tuple[int, int] | None:
-    """The unfinished run with the fewest epochs (ties: priority order), or None when all are done."""
-    open_runs = [(len(history(run_dir(root, s, tr))), i, (s, tr)) for i, (s, tr) in enumerate(RUNS)
-                 if (only is None or f"s{s}/tr{tr}" in only) and not finished(history(run_dir(root, s, tr)), cfg)]
-    return min(open_runs)[2] if open_runs else None
+def next_run(root: Path, cfg, only, skip=frozenset()) -> tuple[int, int] | None:
+    """The unfinished run with the fewest epochs (ties: priority order), among those in `only` (None: all) and
+    not in `skip`, or None when none is left."""
+    candidates = []
+    for i, (s, tr) in enumerate(RUNS):
+        if (only is not None and f"s{s}/tr{tr}" not in only) or (s, tr) in skip:
+            continue
+        records = history(run_dir(root, s, tr))
+        if not finished(records, cfg):
+            candidates.append((len(records), i, (s, tr)))
+    return min(candidates)[2] if candidates else None
 
 
 def _commit() -> str:
@@ -88,7 +94,8 @@ def train(root: Path, hours: float, only) -> None:
     cfg = PRESETS[PRESET]
     deadline = time.time() + 3600 * hours
     jaxsr.use_cpu_cores()
-    while (pick := next_run(root, cfg, only)) is not None:
+    stuck = set()  # runs fit found finished by a rule `finished` does not mirror
+    while (pick := next_run(root, cfg, only, stuck)) is not None:
         seed, tr = pick
         run = run_dir(root, seed, tr)
         records = history(run)
@@ -99,10 +106,11 @@ def train(root: Path, hours: float, only) -> None:
         t0 = time.time()
         fit(jaxsr.ModelConfig(tr=tr), dataclasses.replace(cfg, seed=seed, epochs=len(records) + 1), out=run,
             resume=bool(records), progress=False)
-        if len(history(run)) == len(records):  # fit found the run finished (a rule this script does not mirror)
-            only = {f"s{s}/tr{t}" for s, t in RUNS if (only is None or f"s{s}/tr{t}" in only)} - {f"s{seed}/tr{tr}"}
+        after = history(run)
+        if len(after) == len(records):
+            stuck.add(pick)
             continue
-        record = history(run)[-1]
+        record = after[-1]
         turn = {"run": f"s{seed}/tr{tr}", "epoch": record["epoch"], "val_psnr": record["val_psnr"],
                 "seconds": round(time.time() - t0, 1), "machine": machine(), "commit": _commit(),
                 "date": time.strftime("%Y-%m-%d %H:%M")}

@@ -30,6 +30,7 @@ def test_the_run_with_fewest_epochs_goes_next_in_priority_order(tmp_path):
         _write(tmp_path, seed, tr, [1.0])
     assert campaign.next_run(tmp_path, CFG, None) == campaign.RUNS[3]  # no epochs yet beats one
     assert campaign.next_run(tmp_path, CFG, {"s0/tr1", "s0/tr2"}) == (0, 1)
+    assert campaign.next_run(tmp_path, CFG, {"s0/tr1", "s0/tr2"}, skip={(0, 1)}) == (0, 2)
 
 
 def test_a_run_is_finished_by_its_epoch_budget_or_by_patience(tmp_path):
