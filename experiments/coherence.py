@@ -1,7 +1,7 @@
 """Temporal coherence (the paper's Tc, Eq. 2): flicker of TR0 against TR4 (and of the learned baselines HistNet and
 iSeeBetter, retrained on our data) on a static-camera sequence of people.
 
-    python experiments/coherence.py [--frames 100] [--fps 25] [--weights DIR] [--baselines histnet iseebetter]
+    python experiments/coherence.py [--frames 125] [--fps 25] [--weights DIR] [--baselines histnet iseebetter]
                                     [--baseline-weights DIR]
 
 Tc_t counts pixels that are static in the ground truth (|GT_t+1 - GT_t| <= 1e-6) but change in the output by more
@@ -22,6 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 from _eval import (
     BLOCK,
+    SEQUENCE_FRAMES,
     add_baseline_args,
     add_model_args,
     baseline_source,
@@ -67,7 +68,8 @@ def walkers_at(fps: float, frames: int, *, seed: int = 0):
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--frames", type=int, default=100)
+    parser.add_argument("--frames", type=int, default=None,
+                        help=f"frames at --fps (default: the whole {SEQUENCE_FRAMES}-frame sequence, 125 at 25 FPS)")
     parser.add_argument("--fps", type=float, default=25.0, help="frame rate sampled from the 100 FPS sequence")
     add_model_args(parser, trs=(0, 4))
     add_baseline_args(parser)
@@ -76,6 +78,7 @@ def main():
     args = parser.parse_args()
     started = time.time()
     enable_compilation_cache()
+    args.frames = args.frames or SEQUENCE_FRAMES // round(100 / args.fps)
     clip, seq = walkers_at(args.fps, args.frames, seed=args.seed)
     outputs = {"bicubic": np.asarray(jaxsr.bicubic(clip.lr, scale=4))}
     outputs.update({f"TR{tr}": jaxsr.super_resolve(load_tr(tr, args.weights), clip.lr) for tr in args.trs})

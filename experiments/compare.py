@@ -2,11 +2,12 @@
 bicubic, a TV-regularised multi-frame reconstruction (optimistix), the learned baselines HistNet and iSeeBetter
 retrained on our data, and ours at TR1 and TR4.
 
-    python experiments/compare.py [--frames 50] [--weights DIR] [--baselines histnet iseebetter]
+    python experiments/compare.py [--frames 100] [--weights DIR] [--baselines histnet iseebetter]
                                   [--baseline-weights DIR]
 
-PSNR and SSIM per test scene, end-to-end frames/s on this machine (histograms in, HR depth out), parameter
-counts, a figure of example frames (LR input, every method, ground truth) and one of |SR - GT| error maps.
+PSNR and SSIM per test scene (means over --frames frames spread evenly over its 500, as in sweep_tr.py),
+end-to-end frames/s on this machine (histograms in, HR depth out), parameter counts, a figure of example frames
+(LR input, every method, ground truth) and one of |SR - GT| error maps.
 HistNet and iSeeBetter come from `experiments/train_baselines.py` (bundled jaxsr/weights/histnet.npz,
 iseebetter.npz, or --baseline-weights); a baseline without weights is skipped with a message. The paper's rows
 for them are kept, marked as the paper's.
@@ -26,6 +27,7 @@ from _eval import (
     PAPER_BICUBIC,
     PAPER_TABLE1,
     SCENE_LABELS,
+    SEQUENCE_FRAMES,
     TEST_SCENES,
     add_baseline_args,
     add_model_args,
@@ -35,6 +37,7 @@ from _eval import (
     load_tr,
     run_baseline,
     score,
+    super_resolve_frames,
     test_clips,
     weights_source,
 )
@@ -57,22 +60,47 @@ def _com_then(counts):
     return jaxsr.centre_of_mass(counts, SENSOR)
 
 
+def per_frame(fn):
+    """A method that upscales each frame on its own: run on the scored frames only."""
+    return lambda clip: fn(clip.at(clip.scored))
+
+
+def over_sequence(fn):
+    """A method that reads neighbouring frames: run on the whole sequence, keep the scored frames."""
+    return lambda clip: fn(clip) if clip.scored is None else fn(clip)[clip.scored]
+
+
+def over_windows(fn, radius: int):
+    """A method whose frame t reads only frames t - radius .. t + radius (edge-replicated at the ends): run on the
+    scored frames' windows laid end to end, and keep each window's centre (it reads exactly its own window)."""
+
+    def run(clip):
+        if clip.scored is None:
+            return fn(clip)
+        frames = np.clip(clip.scored[:, None] + np.arange(-radius, radius + 1), 0, len(clip.gt) - 1)
+        return fn(clip.at(frames.reshape(-1)))[radius :: 2 * radius + 1]
+
+    return run
+
+
 def methods(models, baselines=None):
-    """name -> function (clip) -> HR (T, H, W) normalised; clip: an `_eval.Clip` (counts (T, h, w, K),
-    centre-of-mass depth lr (T, h, w), HR intensity (T, H, W)). baselines: {label: BaselineModel}."""
+    """name -> function (clip) -> HR (S, H, W) normalised, the clip's S scored frames (`Clip.scored`; None: all
+    its frames); clip: an `_eval.Clip` (counts (T, h, w, K), centre-of-mass depth lr (T, h, w), HR intensity
+    (T, H, W)). baselines: {label: BaselineModel}."""
     up = jax.jit(lambda x: jaxsr.bicubic(x, scale=4))
     lanczos = jax.jit(lambda x: jaxsr.lanczos(x, scale=4))
     ml = jax.jit(lambda c: jaxsr.bicubic(jaxsr.maximum_likelihood_depth(c, SENSOR), scale=4))
     out = {
-        "bicubic": lambda clip: np.asarray(up(clip.lr)),
-        "Lanczos": lambda clip: np.asarray(lanczos(clip.lr)),
-        "ML + bicubic": lambda clip: np.asarray(ml(clip.counts)),
-        "TV multi-frame (TR1)": lambda clip: np.asarray(tv_super_resolve(clip.lr, scale=4, tr=1)),
+        "bicubic": per_frame(lambda clip: np.asarray(up(clip.lr))),
+        "Lanczos": per_frame(lambda clip: np.asarray(lanczos(clip.lr))),
+        "ML + bicubic": per_frame(lambda clip: np.asarray(ml(clip.counts))),
+        "TV multi-frame (TR1)": over_windows(lambda clip: np.asarray(tv_super_resolve(clip.lr, scale=4, tr=1)), 1),
     }
-    for label, model in (baselines or {}).items():
-        out[label] = lambda clip, model=model: run_baseline(model, clip)
+    for label, model in (baselines or {}).items():  # HistNet upscales frame by frame, iSeeBetter reads neighbours
+        wrap = per_frame if model.kind == "histnet" else over_sequence
+        out[label] = wrap(lambda clip, model=model: run_baseline(model, clip))
     for tr, model in models.items():
-        out[f"ours TR{tr}"] = lambda clip, model=model: jaxsr.super_resolve(model, clip.lr)
+        out[f"ours TR{tr}"] = lambda clip, model=model: super_resolve_frames(model, clip.lr, clip.scored)
     return out
 
 
@@ -83,13 +111,14 @@ def end_to_end_fps(fn, clip, *, frames: int = 16, min_time):
 
     def call():
         lr = np.asarray(_com_then(counts))
-        return fn(dataclasses.replace(clip, counts=counts, lr=lr, intensity=clip.intensity[:frames]))
+        return fn(dataclasses.replace(clip, counts=counts, lr=lr, intensity=clip.intensity[:frames], scored=None))
 
     return frames_per_second(call, frames, min_time=min_time)
 
 
-def figures(path_frames, path_errors, clips, outputs, frame):
-    """Example frames (paper Fig. 8) and |SR - GT| error maps (Fig. 9), one row per scene."""
+def figures(path_frames, path_errors, clips, outputs, pos):
+    """Example frames (paper Fig. 8) and |SR - GT| error maps (Fig. 9), one row per scene: the scored frame at
+    position `pos` of the outputs."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -100,10 +129,12 @@ def figures(path_frames, path_errors, clips, outputs, frame):
         cols = (["LR (centre of mass)"] if not errors else []) + names + ([] if errors else ["ground truth"])
         fig, axes = plt.subplots(len(clips), len(cols), figsize=(2.3 * len(cols), 1.35 * len(clips)), squeeze=False)
         for row, (scene, clip) in enumerate(clips.items()):
-            gt = clip.gt[frame]
-            panels = [] if errors else [np.repeat(np.repeat(clip.lr[frame], 4, 0), 4, 1)]
+            shown = clip.at(clip.scored)
+            frame = pos if clip.scored is None else int(clip.scored[pos])
+            gt = shown.gt[pos]
+            panels = [] if errors else [np.repeat(np.repeat(shown.lr[pos], 4, 0), 4, 1)]
             for m in names:
-                sr = np.clip(outputs[scene][m][frame], 0, 1)
+                sr = np.clip(outputs[scene][m][pos], 0, 1)
                 panels.append(np.abs(sr - gt) if errors else sr)
             if not errors:
                 panels.append(gt)
@@ -124,16 +155,19 @@ def figures(path_frames, path_errors, clips, outputs, frame):
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--frames", type=int, default=50, help="frames per test scene (default 50)")
+    parser.add_argument("--frames", type=int, default=100,
+                        help=f"frames scored per test scene, spread evenly over its {SEQUENCE_FRAMES} (default 100; "
+                        f"{SEQUENCE_FRAMES}: all)")
     add_model_args(parser, trs=(1, 4))
     add_baseline_args(parser)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--figure-frame", type=int, default=None, help="frame shown in the figures (default middle)")
+    parser.add_argument("--figure-frame", type=int, default=None,
+                        help="frame shown in the figures: the scored frame nearest to it (default: the middle one)")
     parser.add_argument("--out", default="experiments/results/compare")
     args = parser.parse_args()
     started = time.time()
     enable_compilation_cache()
-    clips = test_clips(args.frames, seed=args.seed)
+    clips = test_clips(args.frames, seed=args.seed, spread=True)
     ours = {tr: load_tr(tr, args.weights) for tr in args.trs}
     baselines, cards, skipped = load_baselines(args.baselines, args.baseline_weights)
     fns = methods(ours, baselines)
@@ -144,7 +178,7 @@ def main():
     for m, fn in fns.items():
         for scene, clip in clips.items():
             outputs[scene][m] = fn(clip)
-            scores[m][scene] = score(outputs[scene][m], clip.gt)
+            scores[m][scene] = score(outputs[scene][m], clip.at(clip.scored).gt)
         print(m, ", ".join(f"{SCENE_LABELS[s]} {p:.2f}/{q:.3f}" for s, (p, q) in scores[m].items()), flush=True)
     speed = {m: end_to_end_fps(fn, clips[TEST_SCENES[0]], min_time=2.0) for m, fn in fns.items()}
 
@@ -157,9 +191,13 @@ def main():
              for m, vals in quoted.items()]
     columns = (["method"] + [f"{SCENE_LABELS[s]} {k}" for s in TEST_SCENES for k in ("PSNR", "SSIM")]
                + ["frames/s", "parameters"])
-    frame = args.frames // 2 if args.figure_frame is None else args.figure_frame
+    scored = clips[TEST_SCENES[0]].scored  # the same frames in every scene
+    pos = len(scored) // 2 if args.figure_frame is None else int(np.argmin(np.abs(scored - args.figure_frame)))
+    frame = int(scored[pos])
     text = header("Comparison with other methods (paper Table 3, Figs. 8-9)", started)
-    text += (f"The first {args.frames} frames of each test scene (scenes 1-2 at SNR 1.3, scene 3 at SNR 3, "
+    spread = "all" if len(scored) == SEQUENCE_FRAMES else f"{len(scored)} frames spread evenly over the"
+    text += (f"{spread.capitalize()} {SEQUENCE_FRAMES} frames of each test scene (scenes 1-2 at SNR 1.3, scene 3 "
+             "at SNR 3, "
              f"{jaxsr.DEFAULT_MEAN_SIGNAL:g} signal photons per LR pixel, noise seed {args.seed}); PSNR (dB) and "
              f"SSIM of the clipped output against the normalised ground truth. Ours: {weights_source(args.weights)}. "
              "frames/s: end to end on this machine (16 frames of histograms -> centre of mass or ML fit -> "
@@ -172,7 +210,7 @@ def main():
     text += (f"\nFigures: `compare_frames.png` (frame {frame} of each scene, every method) and "
              f"`compare_errors.png` (|SR - GT| of the same frames).\n")
     write_atomic(f"{args.out}.md", text)
-    figures(f"{args.out}_frames.png", f"{args.out}_errors.png", clips, outputs, frame)
+    figures(f"{args.out}_frames.png", f"{args.out}_errors.png", clips, outputs, pos)
     print(f"wrote {args.out}.md, _frames.png, _errors.png ({time.time() - started:.0f} s)")
 
 

@@ -1,12 +1,13 @@
 """Frame-rate study (the paper's Table 2 and Fig. 6): people walking at 4.3 km/h, 9 m away, captured at 1 to
 100 frames/s, super-resolved by TR0-TR4; and the validation of the scene-adaptive TR (`jaxsr.adaptive`).
 
-    python experiments/fps_study.py [--frames 48] [--weights DIR] [--write-table]
+    python experiments/fps_study.py [--frames 100] [--span 500] [--weights DIR] [--write-table]
 
-At each frame rate the walkers scene is rendered at times t0 + i / fps (the same scene, sampled as a camera at
-that rate would), simulated at SNR 1.3 and scored. The motion of the walkers is reported twice: exact, from
-the scene geometry (`mean_lr_shift`), and as `jaxsr.adaptive.estimate_motion` measures it from the noisy
-centre-of-mass frames. `--write-table` stores PSNR against estimated motion, with each TR's frames/s, as
+At each frame rate the walkers scene is rendered at times t0 + i / fps, i < --span (the same scene, sampled as a
+camera at that rate would: 500 frames are 5 s at 100 FPS and 500 s at 1 FPS), simulated at SNR 1.3 and scored
+on --frames frames spread evenly over them (the people's positions, and so the scores, change along the span).
+The motion of the walkers is reported twice: exact, from the scene geometry (`mean_lr_shift`), and as
+`jaxsr.adaptive.estimate_motion` measures it from the noisy centre-of-mass frames. `--write-table` stores PSNR against estimated motion, with each TR's frames/s, as
 jaxsr/weights/frame_rate_study.json, the table `choose_tr` reads.
 
 Validation of `choose_tr` (the auto row): the table comes from clips starting at t0 = 0 s with noise seed 0;
@@ -30,8 +31,8 @@ from jaxsr.runtime import enable_compilation_cache
 from jaxsr.scenes import render_sequence
 from jaxsr.scenes import TEST_SEQUENCES, mean_lr_shift, test_scene
 
-from _eval import (BLOCK, FPS_NOTE, Clip, add_model_args, format_interval, frame_scores, interval, load_tr, model_fps,
-                   score, simulate_clip, weights_source)
+from _eval import (BLOCK, FPS_NOTE, SEQUENCE_FRAMES, Clip, add_model_args, format_interval, frame_scores, interval,
+                   load_tr, model_fps, score, scored_frames, scored_output, simulate_clip, weights_source)
 from _report import header, markdown_table, write_atomic
 
 RATES = (1.0, 2.5, 5.0, 10.0, 20.0, 25.0, 50.0, 100.0)
@@ -44,14 +45,16 @@ PAPER_TABLE2 = {  # PSNR per TR at each frame rate (paper Table 2)
 _render = jax.jit(render_sequence, static_argnames=("sensor",))
 
 
-def walkers_clip(fps, n_frames, *, t0, seed, sensor) -> tuple[Clip, float]:
-    """The frame-rate study's scene at `fps` from time t0: the simulated clip and the exact mean motion."""
+def walkers_clip(fps, n_frames, *, t0, seed, sensor, n_scored=None) -> tuple[Clip, float]:
+    """The frame-rate study's scene at `fps` from time t0: the simulated clip (scoring `n_scored` frames spread
+    over it; None: all) and the exact mean motion."""
     scene, _ = test_scene("walkers_100fps")
     snr = TEST_SEQUENCES["walkers_100fps"][3]
     times = t0 + jnp.arange(n_frames, dtype=jnp.float32) / fps
     depth, intensity = _render(scene, times, sensor=sensor)
     record = SimpleNamespace(name=f"walkers_{fps:g}fps", depth=depth, intensity=intensity, fps=fps, snr=snr)
     clip = simulate_clip(jax.random.key(seed * 1000 + int(fps * 10)), record, sensor=sensor)
+    clip.scored = None if n_scored is None else scored_frames(n_scored, n_frames)
     return clip, float(mean_lr_shift(scene, fps, sensor=sensor, t=t0))
 
 
@@ -78,7 +81,10 @@ def plot(path, rates, psnr, ssim, auto=None):
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--frames", type=int, default=48, help="frames per frame rate (default 48)")
+    parser.add_argument("--frames", type=int, default=100, help="frames scored per frame rate (default 100)")
+    parser.add_argument("--span", type=int, default=SEQUENCE_FRAMES,
+                        help=f"frames rendered per frame rate, the scored ones spread over them (default "
+                        f"{SEQUENCE_FRAMES})")
     add_model_args(parser, trs=(0, 1, 2, 3, 4))
     parser.add_argument("--write-table", action="store_true", help="store the table choose_tr uses")
     parser.add_argument("--out", default="experiments/results/fps_study")
@@ -87,32 +93,34 @@ def main():
     enable_compilation_cache()
     sensor = jaxsr.SensorConfig()
     models = {tr: load_tr(tr, args.weights) for tr in args.trs}
+    span = max(args.span, args.frames)
 
     study, per_frame, held_out, motion, estimated = {}, {}, {}, {}, {}
     for fps in RATES:
-        clip, motion[fps] = walkers_clip(fps, args.frames, t0=0.0, seed=0, sensor=sensor)
+        clip, motion[fps] = walkers_clip(fps, span, t0=0.0, seed=0, sensor=sensor, n_scored=args.frames)
         estimated[fps] = estimate_motion(clip.lr)
-        held, _ = walkers_clip(fps, args.frames, t0=60.0, seed=1, sensor=sensor)
-        per_frame[fps] = {tr: frame_scores(jaxsr.super_resolve(m, clip.lr), clip.gt) for tr, m in models.items()}
+        held, _ = walkers_clip(fps, span, t0=60.0, seed=1, sensor=sensor, n_scored=args.frames)
+        per_frame[fps] = {tr: frame_scores(*scored_output(m, clip)) for tr, m in models.items()}
         study[fps] = {tr: (float(p.mean()), float(s.mean())) for tr, (p, s) in per_frame[fps].items()}
-        held_out[fps] = (held, {tr: score(jaxsr.super_resolve(m, held.lr), held.gt)[0] for tr, m in models.items()})
+        held_out[fps] = (held.lr, {tr: score(*scored_output(m, held))[0] for tr, m in models.items()})
+        speed_clip = held  # frames/s are measured on the last rate's held-out clip
         print(f"{fps:g} FPS: motion {motion[fps]:.2f} (estimated {estimated[fps].motion:.2f}) LR px/frame; "
               + ", ".join(f"TR{tr} {p:.2f}/{s:.3f}" for tr, (p, s) in study[fps].items()), flush=True)
 
-    speed = {tr: model_fps(m, held_out[RATES[-1]][0]) for tr, m in models.items()}
+    speed = {tr: model_fps(m, speed_clip) for tr, m in models.items()}
     table = {
         "motion": [estimated[f].motion for f in RATES],
         "psnr": {str(tr): [study[f][tr][0] for f in RATES] for tr in models},
         "fps": {str(tr): speed[tr] for tr in models},
-        "source": (f"experiments/fps_study.py --frames {args.frames}, {weights_source(args.weights)}, "
+        "source": (f"experiments/fps_study.py --frames {args.frames} --span {span}, {weights_source(args.weights)}, "
                    f"{time.strftime('%Y-%m-%d')}; motion as estimate_motion measures it, frames/s end to end, "
                    f"{FPS_NOTE}"),
     }
     # choose_tr on the held-out clips, with the table from the study clips
     auto = {}
     for fps in RATES:
-        held, scores = held_out[fps]
-        choice = choose_tr(held.lr, table=table)
+        held_lr, scores = held_out[fps]
+        choice = choose_tr(held_lr, table=table)
         auto[fps] = (choice.tr, scores[choice.tr], max(scores.values()), max(scores, key=scores.get))
 
     trs = sorted(models)
@@ -129,7 +137,8 @@ def main():
 
     text = header("Frame-rate study (paper Table 2, Fig. 6) and the scene-adaptive TR", started)
     text += (f"Scene `walkers_100fps` (people walking at 4.3 km/h about 9 m away, static camera, SNR 1.3), "
-             f"{args.frames} frames at each rate from t0 = 0 s; models: {weights_source(args.weights)}. "
+             f"{span} frames at each rate from t0 = 0 s, {args.frames} of them scored (spread evenly); models: "
+             f"{weights_source(args.weights)}. "
              "Cells: PSNR (dB) / SSIM, the best TR in bold. Motion: LR px per frame of the moving objects, exact "
              "(scene geometry) and estimated from the noisy centre-of-mass frames. Last column: the paper's PSNR "
              "for the same TRs.\n\n")
@@ -146,7 +155,8 @@ def main():
         if 0 in trs else {}
     if vs_tr0:
         text += (f"\n## Differences against TR0\n\nPSNR of each TR minus TR0's at each rate (dB), with 95 % intervals "
-                 f"from a paired bootstrap over blocks of {BLOCK} frames (`jaxsr.paired_interval`): how much the "
+                 f"from a paired bootstrap over blocks of {BLOCK} consecutive scored frames "
+                 "(`jaxsr.paired_interval`): how much the "
                  f"{args.frames} frames chosen move a difference, not how much another training run would (for "
                  "that: results/seed_spread.md).\n\n")
         text += markdown_table(["FPS"] + [f"TR{tr} - TR0" for tr in trs if tr],

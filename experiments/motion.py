@@ -35,6 +35,7 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
+from _eval import SEQUENCE_FRAMES
 from _report import hand_written_tail, header, markdown_table, write_atomic
 from fps_study import RATES
 
@@ -49,7 +50,8 @@ from jaxsr.scenes import (
     training_scene,
 )
 
-STUDY_FRAMES, STUDY_T0 = 48, (0.0, 60.0)  # fps_study.py: 48 frames per rate, from t0 = 0 s and (held out) 60 s
+# fps_study.py's frames per rate (its --span), from t0 = 0 s and (held out) 60 s
+STUDY_FRAMES, STUDY_T0 = SEQUENCE_FRAMES, (0.0, 60.0)
 CHANGED = ("walkers_100fps", "scene2_road")  # the sequences this change redrew
 MOVING_M = 0.01  # m of radial depth
 MOVING_NORM = 0.01  # normalised depth (temporal_use.py)

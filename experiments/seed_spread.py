@@ -15,31 +15,33 @@ from pathlib import Path
 
 import jaxsr
 
-from _eval import SCENE_LABELS, TEST_SCENES, score, test_clips
+from _eval import SCENE_LABELS, TEST_SCENES, score, scored_output, test_clips
 from _report import header, markdown_table, write_atomic
 
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("runs", nargs="+", help="training run folders (with best.npz and last.npz)")
-    parser.add_argument("--frames", type=int, default=100, help="frames per test scene (default 100)")
+    parser.add_argument("--frames", type=int, default=100,
+                        help="frames scored per test scene, spread over its 500 as in sweep_tr.py (default 100)")
     parser.add_argument("--out", default="experiments/results/seed_spread")
     args = parser.parse_args()
     started = time.time()
-    clips = test_clips(args.frames)
+    clips = test_clips(args.frames, spread=True)
     models = {f"bundled tr{tr}": jaxsr.load_model(f"tr{tr}") for tr in range(5)}
     for run in map(Path, args.runs):
         for name in ("best", "last"):
             models[f"{run.name} {name}"] = jaxsr.load_model(run / f"{name}.npz")
     rows = []
     for label, model in models.items():
-        scores = [score(jaxsr.super_resolve(model, clips[n].lr), clips[n].gt)[0] for n in TEST_SCENES]
+        scores = [score(*scored_output(model, clips[n]))[0] for n in TEST_SCENES]
         card = jaxsr.read_metadata(model_path(label, args.runs)).get("card", {})
         rows.append([label, f"TR{model.config.tr}", card.get("seed", "?"), card.get("steps", "?"),
                      *(f"{p:.2f}" for p in scores), f"{sum(scores) / len(scores):.2f}"])
         print(*rows[-1], flush=True)
     text = header("Training-to-training spread (test-scene PSNR)", started)
-    text += (f"The first {args.frames} frames of each test scene at its SNR, noise seed 0, as in sweep_tr.py; "
+    text += (f"{args.frames} frames spread evenly over the 500 of each test scene at its SNR, noise seed 0, as in "
+             "sweep_tr.py; "
              "PSNR (dB) of the clipped output, mean over frames.\n\n")
     text += markdown_table(["model", "TR", "seed", "steps", *(SCENE_LABELS[n] for n in TEST_SCENES), "mean"], rows)
     write_atomic(f"{args.out}.md", text)

@@ -7,8 +7,9 @@ Three models per TR: the bundled windowed model (trN, the paper's form), the sam
 form (trN in sequence form: no training, 2R frames of context more, edge padding at the sequence ends), and the
 bundled sequence-form model (trN-seq, trained in that form for as long as trN was; its card and
 results/weights_sequence.md say how long). A TR without trN-seq.npz is skipped. Everything is measured in one run
-on this machine: frames/s end to end from photon histograms, PSNR / SSIM as in `sweep_tr.py`, the frame-rate
-study's walkers at 1-100 FPS as in `fps_study.py`, and Tc at eps 0.01 as in `coherence.py` (walkers at 25 FPS).
+on this machine: frames/s end to end from photon histograms, PSNR / SSIM on the test scenes' first --frames
+frames and the frame-rate study's walkers at 1-100 FPS on their first --fps-frames (sweep_tr.py and fps_study.py
+spread theirs over 500 frames), and Tc at eps 0.01 as in `coherence.py` (walkers at 25 FPS).
 Writes experiments/results/stream.md and stream.png (PSNR against frames/s, with the windowed TR0).
 """
 
@@ -109,9 +110,11 @@ def main():
     text += (f"Models per TR: `trN` (window form, bundled), the same weights in the sequence form "
              "(`load_model('trN', temporal='sequence')`, not retrained) and `trN-seq` (trained in the sequence "
              "form for at least trN's training time: experiments/train_sequence_bundle.py, results/weights_sequence.md). "
-             f"Test scenes: first {args.frames} frames (as sweep_tr.py), cells PSNR (dB) / SSIM of the clipped output. "
-             "Tc: mean flickering static pixels per frame pair at eps 0.01, walkers at 25 FPS, 100 frames (as "
-             f"coherence.py; lower is steadier). frames/s: end to end from histograms, {FPS_NOTE}; the sequence form "
+             f"Test scenes: their first {args.frames} frames (sweep_tr.py spreads its frames over the whole sequence, "
+             "so the numbers differ from Table 1's), cells PSNR (dB) / SSIM of the clipped output. "
+             "Tc: mean flickering static pixels per frame pair at eps 0.01, walkers at 25 FPS, its first 100 "
+             f"frames (coherence.py scores all 125; lower is steadier). frames/s: end to end from histograms, "
+             f"{FPS_NOTE}; the sequence form "
              "runs chunks of 32 frames with 2R frames of overlap. GFLOP per output frame: `flops_per_frame` in the "
              "model's form. Training: steps / minutes from the card (the windowed cards were written on another "
              "machine: results/weights.md).\n\n")

@@ -6,9 +6,14 @@ frames/s on this machine, and plot the speed-accuracy trade.
     python experiments/sweep_tr.py --train paper     # the paper's schedule (a GPU)
     python experiments/sweep_tr.py --quick           # smoke run of the training pipeline (under 3 min)
     python experiments/sweep_tr.py --train cpu --scale 8   # the supplement's x8 study (LR 16 x 32 -> 128 x 256)
+    python experiments/sweep_tr.py --frames 500 --sequence-form   # every frame, and tr<N>-seq (results/sweep_tr.md)
 
-With the bundled weights, the sequence-form models that are bundled (tr<N>-seq) are scored beside the windowed
-ones and drawn in the speed-accuracy plot. Training runs go to runs/sweep_tr/<preset>/x<scale>/tr<N> and resume
+Scores are means over --frames frames spread evenly over each 500-frame test sequence (100 by default), not
+its first frames: the scenes change along it.
+
+With the bundled weights and --sequence-form, the sequence-form models that are bundled (tr<N>-seq) are scored
+beside the windowed ones and drawn in the speed-accuracy plot (each frame of theirs is computed with the whole
+sequence: about 1.5 minutes per model). Training runs go to runs/sweep_tr/<preset>/x<scale>/tr<N> and resume
 where they stopped; a finished run is loaded, not retrained. Writes experiments/results/sweep_tr[_x8][_<preset>|
 _quick].{md,csv,png} (the _pareto.png beside it: PSNR against frames/s).
 """
@@ -26,7 +31,8 @@ from jaxsr.config import PRESETS, SensorConfig
 from jaxsr.runtime import enable_compilation_cache
 
 from _eval import (BLOCK, FPS_NOTE, PAPER_BICUBIC, PAPER_TABLE1, SCENE_LABELS, TEST_SCENES, bicubic_fps, bundled,
-                   format_interval, frame_scores, get_model, interval, model_fps, score, test_clips)
+                   SEQUENCE_FRAMES, format_interval, frame_scores, get_model, interval, model_fps, score,
+                   scored_output, test_clips)
 from _report import header, markdown_table, save_figure, write_atomic
 
 
@@ -34,14 +40,15 @@ def evaluate_tr(model, clips) -> tuple[dict, np.ndarray]:
     """Mean PSNR and SSIM per scene of one model, and its per-frame PSNR (scenes, frames)."""
     means, frames = {}, []
     for name, clip in clips.items():
-        p, s = frame_scores(jaxsr.super_resolve(model, clip.lr), clip.gt)
+        p, s = frame_scores(*scored_output(model, clip))
         means[name] = (float(p.mean()), float(s.mean()))
         frames.append(p)
     return means, np.stack(frames)
 
 
 def bicubic_row(clips, scale) -> dict:
-    return {name: score(np.asarray(jaxsr.bicubic(c.lr, scale=scale)), c.gt) for name, c in clips.items()}
+    scored = {name: c.at(c.scored) for name, c in clips.items()}
+    return {name: score(np.asarray(jaxsr.bicubic(c.lr, scale=scale)), c.gt) for name, c in scored.items()}
 
 
 def pareto(points):
@@ -98,8 +105,11 @@ def main():
     parser.add_argument("--scale", type=int, default=4, choices=[4, 8], help="upscaling factor (default 4)")
     parser.add_argument("--trs", type=int, nargs="+", default=None, help="temporal radii (default 0 1 2 3 4)")
     parser.add_argument("--frames", type=int, default=None,
-                        help="frames scored per test scene, from the start (default 100; 8 with --quick)")
+                        help=f"frames scored per test scene, spread evenly over its {SEQUENCE_FRAMES} (default 100; "
+                        f"{SEQUENCE_FRAMES}: all; --quick: the first 8)")
     parser.add_argument("--seed", type=int, default=0, help="noise seed of the test data")
+    parser.add_argument("--sequence-form", action="store_true",
+                        help="also score the bundled sequence-form models (tr<N>-seq)")
     parser.add_argument("--runs", default="runs/sweep_tr", help="training folder (default runs/sweep_tr)")
     parser.add_argument("--results", default="experiments/results", help="where the tables and plots go")
     parser.add_argument("--no-progress", action="store_true")
@@ -115,7 +125,7 @@ def main():
     base = Path(args.results) / f"sweep_tr{suffix}"
     base.parent.mkdir(parents=True, exist_ok=True)
 
-    clips = test_clips(frames, seed=args.seed, sensor=sensor)
+    clips = test_clips(frames, seed=args.seed, sensor=sensor, spread=not args.quick)
     bicubic = bicubic_row(clips, args.scale)
     clip0 = clips[TEST_SCENES[0]]
     min_time = 1.0 if args.quick else 3.0
@@ -131,7 +141,7 @@ def main():
         print(f"TR{tr}: " + ", ".join(f"{SCENE_LABELS[n]} {p:.2f} dB / {s:.3f}" for n, (p, s) in scores.items())
               + f", {fps:.1f} frames/s ({time.time() - t0:.0f} s)", flush=True)
     seq_rows = {}  # the bundled sequence-form models (tr<N>-seq), scored the same way
-    for tr in trs if pretrained else ():
+    for tr in trs if pretrained and args.sequence_form else ():
         path = bundled(f"tr{tr}-seq")
         if path is not None:
             model = jaxsr.load_model(path)
@@ -155,11 +165,13 @@ def main():
     csv += "".join(csv_row(f"TR{tr}", r["scores"], r["fps"]) for tr, r in rows.items())
     csv += "".join(csv_row(f"TR{tr}-seq", r["scores"], r["fps"]) for tr, r in seq_rows.items())
 
+    scored = (f"the first {frames} frames" if args.quick else f"all {SEQUENCE_FRAMES} frames"
+              if frames >= SEQUENCE_FRAMES else f"{frames} frames spread evenly over the {SEQUENCE_FRAMES} frames")
     source = ("the bundled weights (jaxsr/weights)" if pretrained else
               "a 2-step smoke training (--quick: numbers are meaningless)" if args.quick else
               f"models trained here with the `{preset}` preset ({args.runs})")
     text = header(f"Temporal-radius sweep, x{args.scale} (paper Table 1, Fig. 5)", started)
-    text += (f"Models: {source}. Test data: the first {frames} frames of each test scene (scenes 1-2 at SNR 1.3, "
+    text += (f"Models: {source}. Test data: {scored} of each test scene (scenes 1-2 at SNR 1.3, "
              f"scene 3 at SNR 3, {jaxsr.DEFAULT_MEAN_SIGNAL:g} signal photons per LR pixel), noise seed {args.seed}; "
              "PSNR (dB) and SSIM of the clipped output against the normalised HR ground truth, averaged over frames. "
              f"frames/s: end to end (histograms -> centre of mass -> network), {FPS_NOTE}, on this machine; "
@@ -191,7 +203,8 @@ def csv_row(label, scores, fps):
 def differences(rows, seq_rows, vs_tr0) -> str:
     """Every TR against TR0 (`vs_tr0`: TR -> interval) and each sequence-form model against the windowed one of its TR, with intervals."""
     lines = [f"Differences in mean PSNR over the three scenes (dB), with 95 % intervals from a paired bootstrap over "
-             f"blocks of {BLOCK} frames (`jaxsr.paired_interval`; each scene resampled on its own). They say how "
+             f"blocks of {BLOCK} consecutive scored frames (`jaxsr.paired_interval`; each scene resampled on its "
+             "own). They say how "
              "much the frames chosen move a difference, not how much another training run would: for that, "
              "results/seed_spread.md (three TR0 seeds).", ""]
     lines += [f"- TR{tr} - TR0: {format_interval(iv)}" for tr, iv in vs_tr0.items()]

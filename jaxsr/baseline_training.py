@@ -32,7 +32,7 @@ from .config import SensorConfig, TrainConfig
 from .data import log_uniform, scene_batches, validation_set
 from .histnet import HistNetConfig, apply_histnet, init_histnet
 from .metrics import psnr
-from .optim import AdamState, adam_init, adam_update, step_decay
+from .optim import AdamState, adam_init, adam_update, lr_schedule
 from .rbpn import (
     RBPNConfig,
     apply_discriminator,
@@ -359,10 +359,8 @@ def _init_train_state(key, kind: str, cfg) -> dict:
     return {"params": g, "disc": d, "disc_state": d_state, "opt": g_opt, "disc_opt": d_opt}
 
 
-def baseline_schedule(train_cfg: TrainConfig):
-    """The learning rate step -> lr of a baseline's run: `train_cfg.lr` cut by `lr_decay` every `decay_epochs`
-    epochs of `steps_per_epoch` steps (as our networks' `jaxsr.train.lr_schedule`)."""
-    return step_decay(train_cfg.lr, factor=train_cfg.lr_decay, every=train_cfg.decay_epochs * train_cfg.steps_per_epoch)
+# The learning rate of a baseline's run: the same step decay as our networks' (`jaxsr.optim.lr_schedule`)
+baseline_schedule = lr_schedule
 
 
 def baseline_train_step(kind: str, cfg, train_cfg: TrainConfig, make_batch, sensor: SensorConfig = _SENSOR):

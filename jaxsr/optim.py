@@ -11,7 +11,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-__all__ = ["AdamState", "adam_init", "adam_update", "step_decay"]
+__all__ = ["AdamState", "adam_init", "adam_update", "lr_schedule", "step_decay"]
 
 
 class AdamState(NamedTuple):
@@ -65,3 +65,13 @@ def step_decay(lr0: float, *, factor: float, every: int):
         return lr0 * factor ** (jnp.asarray(step) // every).astype(jnp.float32)
 
     return schedule
+
+
+def lr_schedule(train_cfg):
+    """The learning rate of a `TrainConfig`'s run (our networks' and the baselines'): step -> lr (a scalar), step
+    the 0-based update index.
+
+    lr0 * lr_decay ** (step // (decay_epochs * steps_per_epoch)): constant within an epoch, cut exactly at
+    the first step of epochs decay_epochs + 1, 2 decay_epochs + 1, ... (1-based).
+    """
+    return step_decay(train_cfg.lr, factor=train_cfg.lr_decay, every=train_cfg.decay_epochs * train_cfg.steps_per_epoch)

@@ -43,11 +43,11 @@ from .data import scene_batches, scene_clips, validation_set
 from .inference import super_resolve
 from .metrics import huber_loss, psnr
 from .model import Model, apply_model, apply_model_sequence_train, apply_model_train, init_model, sequence_radius
-from .optim import AdamState, adam_init, adam_update, step_decay
+from .optim import AdamState, adam_init, adam_update, lr_schedule
 
 __all__ = [
     "huber_loss",  # defined in jaxsr.metrics, the training loss
-    "lr_schedule",
+    "lr_schedule",  # defined in jaxsr.optim, shared with the baselines' training
     "make_train_step",
     "evaluate",
     "evaluate_sequences",
@@ -60,15 +60,6 @@ def data_mesh(devices=None) -> Mesh:
     """A 1-D mesh with axis "data" over `devices` (default: all devices of all processes)."""
     devices = jax.devices() if devices is None else devices
     return Mesh(np.asarray(devices), ("data",))
-
-
-def lr_schedule(train_cfg: TrainConfig):
-    """The learning rate of the train step: step -> lr (a scalar), step the 0-based update index.
-
-    lr0 * lr_decay ** (step // (decay_epochs * steps_per_epoch)): constant within an epoch, cut exactly at
-    the first step of epochs decay_epochs + 1, 2 decay_epochs + 1, ... (1-based).
-    """
-    return step_decay(train_cfg.lr, factor=train_cfg.lr_decay, every=train_cfg.decay_epochs * train_cfg.steps_per_epoch)
 
 
 def make_train_step(model_cfg: ModelConfig, train_cfg: TrainConfig, make_batch, *, mesh: Mesh | None = None,

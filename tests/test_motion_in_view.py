@@ -21,10 +21,10 @@ H, W = SENSOR.hr_shape
 F = float(SENSOR.focal_px)
 PERSON_CYLINDERS = 5  # legs, arms, torso (`jaxsr.scenes.objects.person`); the walkers' people come first
 VEHICLE_BOXES = 2  # body and cabin (`jaxsr.scenes.objects.vehicle`); the road's six vehicles come first
-# The frame-rate study (experiments/fps_study.py): its rates, and 48 frames per rate from t0 = 0 s (the table)
-# and from t0 = 60 s (the held-out clips).
+# The frame-rate study (experiments/fps_study.py): its rates, and 500 frames per rate (its --span) from t0 = 0 s
+# (the table) and from t0 = 60 s (the held-out clips).
 STUDY_RATES = (1.0, 2.5, 5.0, 10.0, 20.0, 25.0, 50.0, 100.0)
-STUDY_FRAMES, STUDY_T0 = 48, (0.0, 60.0)
+STUDY_FRAMES, STUDY_T0 = 500, (0.0, 60.0)
 MOVING_DEPTH = 0.01  # m: a pixel moves when its depth (no return = d_max) changes by more than this
 
 

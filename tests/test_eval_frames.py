@@ -1,0 +1,55 @@
+"""The experiments' frame selection (experiments/_eval.py): scores spread over a whole test sequence, and the
+windowed models computed on those frames only, equal to the whole sequence's output there."""
+
+import dataclasses
+import sys
+from pathlib import Path
+
+import jax
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
+
+import _eval
+
+import jaxsr
+from jaxsr.model import Model, init_model
+
+SMALL = {"base": 8, "growth": 4, "head": 16, "filter_hidden": 16}
+
+
+def test_scored_frames_are_spread_evenly_over_the_whole_sequence():
+    idx = _eval.scored_frames(100, 500)
+    assert len(idx) == 100 and len(set(idx.tolist())) == 100
+    np.testing.assert_array_equal(np.diff(idx), 5)
+    assert idx[0] == 2 and idx[-1] == 497  # the middle of each share: both ends of the sequence are covered
+    np.testing.assert_array_equal(_eval.scored_frames(500, 500), np.arange(500))
+    np.testing.assert_array_equal(_eval.scored_frames(900, 500), np.arange(500))
+    assert _eval.scored_frames(3, 10).tolist() == [1, 5, 8]
+    with pytest.raises(ValueError, match="at least one frame"):
+        _eval.scored_frames(0, 500)
+
+
+@pytest.mark.parametrize("temporal", ["window", "sequence"])
+def test_super_resolve_frames_equals_the_whole_sequence_at_those_frames(temporal):
+    cfg = jaxsr.ModelConfig(tr=2, temporal=temporal, **SMALL)
+    model = Model(*init_model(jax.random.key(0), cfg), cfg)
+    lr = np.asarray(jax.random.uniform(jax.random.key(1), (13, 8, 12)), np.float32)
+    frames = np.array([0, 1, 6, 11, 12])  # both ends, where the windows are edge-replicated, and the middle
+    whole = jaxsr.super_resolve(model, lr)
+    part = _eval.super_resolve_frames(model, lr, frames, batch=2)  # a last, padded batch too
+    assert part.shape == (5, 32, 48)
+    np.testing.assert_allclose(part, whole[frames], atol=1e-5)
+    np.testing.assert_allclose(_eval.super_resolve_frames(model, lr), whole, atol=1e-6)
+
+
+def test_clip_at_keeps_the_chosen_frames_of_every_field():
+    t = 6
+    lr, counts, gt = np.arange(t * 2.0).reshape(t, 1, 2), np.zeros((t, 1, 2, 3)), np.arange(t * 8.0).reshape(t, 2, 4)
+    clip = _eval.Clip("x", lr, counts, gt, 10.0, 1.3, intensity=np.ones((t, 2, 4)), scored=np.array([1, 4]))
+    part = clip.at(clip.scored)
+    assert part.lr.shape == (2, 1, 2) and part.counts.shape == (2, 1, 2, 3) and part.intensity.shape == (2, 2, 4)
+    np.testing.assert_array_equal(part.gt, clip.gt[[1, 4]])
+    assert part.scored is None and clip.at(None) is clip
+    assert dataclasses.replace(clip, intensity=None).at([0]).intensity is None
