@@ -3,6 +3,7 @@ at a time across sessions; its learning curves and where each run stands.
 
     python experiments/campaign.py [--hours 2.5] [--runs runs/campaign] [--only s0/tr0 s0/tr4]
     python experiments/campaign.py --report      # experiments/results/campaign.md and campaign.png
+    python experiments/campaign.py --score       # test scenes: every TR against TR0, seed spread and frame interval
 
 Each run trains with the `long` preset (20 epochs x 512 steps of batch 4 = 10240 steps, 16 x 32 LR crops, the
 rate cut from 1e-3 to 1e-4 after epoch 10, early stopping after 6 epochs without a lower validation loss,
@@ -16,7 +17,10 @@ runs/campaign/turns.jsonl (run, epoch, wall time, machine, the code's git commit
 between sessions.
 
 A run counts as converged when its validation PSNR gained under 0.2 dB over the last quarter of its epochs
-(at least 4 epochs in); the report says which are.
+(at least 4 epochs in); the report says which are. `--score` scores each run's selected weights (best.npz) on
+the test scenes (--frames spread over each, as sweep_tr.py) and writes experiments/results/campaign_scores.md:
+every TR against TR0 with the spread over every pair of runs (seeds) and the frame interval, and whether the
+difference holds beyond both.
 """
 
 from __future__ import annotations
@@ -29,12 +33,12 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _eval import BLOCK, SCENE_LABELS, TEST_SCENES, format_interval, frame_scores, interval, scored_output, test_clips
+from _report import header, machine, markdown_table, save_figure, write_atomic
 
 import jaxsr
 from jaxsr.config import PRESETS
 from jaxsr.train import fit
-
-from _report import header, machine, markdown_table, save_figure, write_atomic
 
 PRESET = "long"
 # (seed, tr) in priority order: one seed of every TR, then the seed spread where the TR effects are smallest
@@ -120,6 +124,67 @@ def train(root: Path, hours: float, only) -> None:
     print("every run is finished")
 
 
+def tr_differences(scores: dict) -> dict:
+    """Every TR against TR0 from per-frame PSNR of the runs, scores[(seed, tr)]: (scenes, frames) on the same
+    frames. Returns {tr: {"mean": difference of the seed means (dB), "runs": (lowest, highest) difference over
+    every pair of a TR-k run and a TR0 run, "frames": the paired block-bootstrap interval (`_eval.interval`) of
+    the seed-averaged per-frame scores, "beyond": whether every pair and the frame interval lie on the same side of
+    0}} for each TR > 0 that has runs, when TR0 has."""
+    by_tr = {}
+    for (_, tr), frames in sorted(scores.items()):
+        by_tr.setdefault(tr, []).append(np.asarray(frames, np.float64))
+    if 0 not in by_tr:
+        return {}
+    base = by_tr[0]
+    out = {}
+    for tr, runs in by_tr.items():
+        if tr == 0:
+            continue
+        pairs = [float(a.mean(-1).mean() - b.mean(-1).mean()) for a in runs for b in base]
+        frames = interval(np.mean(runs, axis=0), np.mean(base, axis=0))
+        same_side = (min(pairs) > 0 and float(frames.low) > 0) or (max(pairs) < 0 and float(frames.high) < 0)
+        out[tr] = {"mean": float(np.mean(pairs)), "runs": (min(pairs), max(pairs)), "frames": frames,
+                   "beyond": same_side}
+    return out
+
+
+def score(root: Path, frames: int, out: str) -> None:
+    """Score every run's best.npz on the test scenes and write the TR differences (see `tr_differences`)."""
+    started = time.time()
+    clips = test_clips(frames, spread=True)
+    scores, rows = {}, []
+    for seed, tr in RUNS:
+        run = run_dir(root, seed, tr)
+        if not (run / "best.npz").exists():
+            continue
+        model = jaxsr.load_model(run / "best.npz")
+        scores[(seed, tr)] = np.stack([frame_scores(*scored_output(model, clips[n]))[0] for n in TEST_SCENES])
+        records = history(run)
+        per_scene = scores[(seed, tr)].mean(-1)
+        rows.append([f"s{seed}/tr{tr}", f"{records[-1]['step'] if records else '?'}",
+                     *(f"{p:.2f}" for p in per_scene), f"{per_scene.mean():.2f}"])
+        print(*rows[-1], flush=True)
+    if not scores:
+        raise SystemExit(f"no campaign runs with weights under {root}")
+    text = header("Training campaign: the TRs on the test scenes, with seed spread and frame intervals", started)
+    text += (f"Each run's selected weights (best.npz: lowest validation loss so far) under {root}, scored on {frames} "
+             "frames spread evenly over each 500-frame test scene (as sweep_tr.py); PSNR (dB). Steps: the run's "
+             "training so far (the campaign is not finished while runs say `training` in campaign.md).\n\n")
+    text += markdown_table(["run", "steps", *(SCENE_LABELS[n] for n in TEST_SCENES), "mean"], rows)
+    diffs = tr_differences(scores)
+    if diffs:
+        text += ("\nEvery TR against TR0, mean over the three scenes (dB): the difference of the seed means; its "
+                 "range over every pair of a TR-k run and a TR0 run (what retraining moves); and the 95 % paired "
+                 f"bootstrap interval over blocks of {BLOCK} consecutive scored frames of the seed-averaged scores "
+                 "(what the choice of frames moves). Beyond both: every pair and the interval on one side of 0.\n\n")
+        text += markdown_table(["TR - TR0", "difference", "over pairs of runs", "frame interval", "beyond both"],
+                               [[f"TR{tr} - TR0", f"{d['mean']:+.2f}", f"[{d['runs'][0]:+.2f}, {d['runs'][1]:+.2f}]",
+                                 format_interval(d["frames"]), "yes" if d["beyond"] else "no"]
+                                for tr, d in diffs.items()])
+    write_atomic(out, text)
+    print(text)
+
+
 def plot(path, curves):
     import matplotlib
 
@@ -175,11 +240,17 @@ def main():
     parser.add_argument("--hours", type=float, default=2.5, help="start no epoch that would end after this")
     parser.add_argument("--only", nargs="+", default=None, help="train only these runs (e.g. s0/tr0 s0/tr4)")
     parser.add_argument("--report", action="store_true", help="write the results table and plot, train nothing")
-    parser.add_argument("--out", default="experiments/results/campaign.md")
+    parser.add_argument("--score", action="store_true",
+                        help="score the runs on the test scenes (results/campaign_scores.md), train nothing")
+    parser.add_argument("--frames", type=int, default=100, help="with --score: frames scored per test scene")
+    parser.add_argument("--out", default=None, help="the results file (default experiments/results/campaign.md, "
+                        "with --score campaign_scores.md)")
     args = parser.parse_args()
     root = Path(args.runs)
-    if args.report:
-        report(root, args.out)
+    if args.score:
+        score(root, args.frames, args.out or "experiments/results/campaign_scores.md")
+    elif args.report:
+        report(root, args.out or "experiments/results/campaign.md")
     else:
         root.mkdir(parents=True, exist_ok=True)
         train(root, args.hours, set(args.only) if args.only else None)

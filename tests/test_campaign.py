@@ -1,10 +1,12 @@
-"""The training campaign's turn-taking (experiments/campaign.py): which run goes next, when one is finished, and
-the convergence measure, on fabricated metrics files (no training)."""
+"""The training campaign (experiments/campaign.py): which run goes next, when one is finished, and the
+convergence measure, on fabricated metrics files (no training); the TR differences' spread over runs and frame
+interval, on synthetic scores."""
 
 import json
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
@@ -49,3 +51,25 @@ def test_gain_over_the_last_quarter():
     assert campaign.gain_last_quarter([{"val_psnr": 20.0}] * 3) is None
     records = [{"val_psnr": p} for p in (20.0, 22.0, 23.0, 23.1, 23.0, 23.3, 23.2, 23.4)]
     assert campaign.gain_last_quarter(records) == pytest.approx(23.4 - 23.3)  # last 2 of 8 against the best before
+
+
+def test_tr_differences_give_the_spread_over_runs_and_the_frame_interval():
+    """Synthetic per-frame scores with a known answer: TR1 is TR0 + 1 dB frame by frame, seed for seed, with seed
+    offsets of 0, 0.1 and 0.2 dB; TR2 (one run) sits at the middle seed's level."""
+    rng = np.random.default_rng(0)
+    frames = 20.0 + rng.normal(0.0, 1.0, (3, 40))  # (scenes, frames): frame-to-frame variation, shared by all runs
+    scores = {(s, 0): frames + 0.1 * s for s in range(3)}
+    scores |= {(s, 1): frames + 0.1 * s + 1.0 for s in range(3)}
+    scores[(0, 2)] = frames + 0.1
+    diffs = campaign.tr_differences(scores)
+    assert sorted(diffs) == [1, 2]
+    one = diffs[1]
+    assert one["mean"] == pytest.approx(1.0)
+    assert one["runs"] == pytest.approx((0.8, 1.2))  # every pair of a TR1 run and a TR0 run
+    # the seed-averaged difference is the same in every frame, so every resample gives it
+    assert (float(one["frames"].low), float(one["frames"].high)) == pytest.approx((1.0, 1.0), abs=1e-4)
+    assert one["beyond"]
+    two = diffs[2]
+    assert two["mean"] == pytest.approx(0.0, abs=1e-9) and two["runs"] == pytest.approx((-0.1, 0.1))
+    assert not two["beyond"]  # the pairs straddle 0
+    assert campaign.tr_differences({(0, 1): frames}) == {}  # no TR0: nothing to compare with
