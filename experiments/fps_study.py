@@ -7,8 +7,9 @@ At each frame rate the walkers scene is rendered at times t0 + i / fps, i < --sp
 camera at that rate would: 500 frames are 5 s at 100 FPS and 500 s at 1 FPS), simulated at SNR 1.3 and scored
 on --frames frames spread evenly over them (the people's positions, and so the scores, change along the span).
 The motion of the walkers is reported twice: exact, from the scene geometry (`mean_lr_shift`), and as
-`jaxsr.adaptive.estimate_motion` measures it from the noisy centre-of-mass frames. `--write-table` stores PSNR against estimated motion, with each TR's frames/s, as
-jaxsr/weights/frame_rate_study.json, the table `choose_tr` reads.
+`jaxsr.adaptive.estimate_motion` measures it from the noisy centre-of-mass frames. `--write-table` stores PSNR
+against estimated motion, with each TR's frames/s, as jaxsr/weights/frame_rate_study.json, the table `choose_tr`
+reads.
 
 Validation of `choose_tr` (the auto row): the table comes from clips starting at t0 = 0 s with noise seed 0;
 auto is then scored on different clips (t0 = 60 s, seed 1), where it chooses from each clip's own
