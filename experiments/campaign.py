@@ -86,6 +86,16 @@ def next_run(root: Path, cfg, only, skip=frozenset()) -> tuple[int, int] | None:
     return min(candidates)[2] if candidates else None
 
 
+def expected_epoch_s(root: Path, seed: int, tr: int) -> float:
+    """How long the run's next epoch should take: its own last epoch, else the last epoch of another seed of the
+    same TR (the same work), else 0 (nothing known: the epoch starts whatever the deadline)."""
+    for s in [seed] + [s for s, t in RUNS if t == tr and s != seed]:
+        records = history(run_dir(root, s, tr))
+        if records:
+            return float(records[-1]["epoch_time_s"])
+    return 0.0
+
+
 def _commit() -> str:
     try:
         return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
@@ -103,7 +113,7 @@ def train(root: Path, hours: float, only) -> None:
         seed, tr = pick
         run = run_dir(root, seed, tr)
         records = history(run)
-        expected = records[-1]["epoch_time_s"] if records else 0.0  # its last epoch predicts the next
+        expected = expected_epoch_s(root, seed, tr)
         if time.time() + expected > deadline:
             print(f"s{seed}/tr{tr}: the next epoch (~{expected / 60:.0f} min) would end after --hours; stopping")
             return

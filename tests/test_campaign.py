@@ -73,3 +73,19 @@ def test_tr_differences_give_the_spread_over_runs_and_the_frame_interval():
     assert two["mean"] == pytest.approx(0.0, abs=1e-9) and two["runs"] == pytest.approx((-0.1, 0.1))
     assert not two["beyond"]  # the pairs straddle 0
     assert campaign.tr_differences({(0, 1): frames}) == {}  # no TR0: nothing to compare with
+
+
+def test_an_epoch_is_expected_to_last_as_the_runs_last_one_or_another_seeds_of_its_tr(tmp_path):
+    def write_times(seed, tr, times):
+        run = campaign.run_dir(tmp_path, seed, tr)
+        run.mkdir(parents=True, exist_ok=True)
+        (run / "metrics.jsonl").write_text("".join(json.dumps({"epoch": i + 1, "epoch_time_s": t}) + "\n"
+                                                   for i, t in enumerate(times)))
+
+    assert campaign.expected_epoch_s(tmp_path, 1, 0) == 0.0  # nothing trained yet
+    write_times(0, 0, [140.0, 130.0])
+    write_times(0, 1, [600.0])
+    assert campaign.expected_epoch_s(tmp_path, 0, 0) == 130.0  # its own last epoch
+    assert campaign.expected_epoch_s(tmp_path, 2, 0) == 130.0  # a first epoch: another seed of TR0
+    write_times(2, 0, [150.0])
+    assert campaign.expected_epoch_s(tmp_path, 2, 0) == 150.0
