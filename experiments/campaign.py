@@ -162,7 +162,7 @@ def score(root: Path, frames: int, out: str) -> None:
     """Score every run's best.npz on the test scenes and write the TR differences (see `tr_differences`)."""
     started = time.time()
     clips = test_clips(frames, spread=True)
-    scores, rows = {}, []
+    scores, rows, steps = {}, [], set()
     for seed, tr in RUNS:
         run = run_dir(root, seed, tr)
         if not (run / "best.npz").exists():
@@ -170,6 +170,7 @@ def score(root: Path, frames: int, out: str) -> None:
         model = jaxsr.load_model(run / "best.npz")
         scores[(seed, tr)] = np.stack([frame_scores(*scored_output(model, clips[n]))[0] for n in TEST_SCENES])
         records = history(run)
+        steps.add(records[-1]["step"] if records else None)
         per_scene = scores[(seed, tr)].mean(-1)
         rows.append([f"s{seed}/tr{tr}", f"{records[-1]['step'] if records else '?'}",
                      *(f"{p:.2f}" for p in per_scene), f"{per_scene.mean():.2f}"])
@@ -179,7 +180,9 @@ def score(root: Path, frames: int, out: str) -> None:
     text = header("Training campaign: the TRs on the test scenes, with seed spread and frame intervals", started)
     text += (f"Each run's selected weights (best.npz: lowest validation loss so far) under {root}, scored on {frames} "
              "frames spread evenly over each 500-frame test scene (as sweep_tr.py); PSNR (dB). Steps: the run's "
-             "training so far (the campaign is not finished while runs say `training` in campaign.md).\n\n")
+             "training so far (the campaign is not finished while runs say `training` in campaign.md)."
+             + (" **The runs differ in steps, so the differences below mix training length with TR: an interim "
+                "reading, not the campaign's result.**" if len(steps) > 1 else "") + "\n\n")
     text += markdown_table(["run", "steps", *(SCENE_LABELS[n] for n in TEST_SCENES), "mean"], rows)
     diffs = tr_differences(scores)
     if diffs:
