@@ -137,6 +137,17 @@ def scored_output(model, clip: Clip) -> tuple[np.ndarray, np.ndarray]:
     return super_resolve_frames(model, clip.lr, clip.scored), clip.gt if clip.scored is None else clip.gt[clip.scored]
 
 
+def scene_scores(model, clips: dict) -> tuple[dict, np.ndarray]:
+    """Mean PSNR and SSIM per scene of one model on the clips' scored frames, and its per-frame PSNR
+    (scenes, frames), scenes in the clips' order."""
+    means, frames = {}, []
+    for name, clip in clips.items():
+        p, s = frame_scores(*scored_output(model, clip))
+        means[name] = (float(p.mean()), float(s.mean()))
+        frames.append(p)
+    return means, np.stack(frames)
+
+
 @jax.jit
 def _frame_scores(sr, gt):
     return jaxsr.psnr(sr, gt), jaxsr.ssim(sr, gt)

@@ -33,7 +33,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from _eval import BLOCK, SCENE_LABELS, TEST_SCENES, format_interval, frame_scores, interval, scored_output, test_clips
+from _eval import BLOCK, SCENE_LABELS, TEST_SCENES, format_interval, interval, scene_scores, test_clips
 from _report import header, machine, markdown_table, save_figure, write_atomic
 
 import jaxsr
@@ -168,7 +168,7 @@ def score(root: Path, frames: int, out: str) -> None:
         if not (run / "best.npz").exists():
             continue
         model = jaxsr.load_model(run / "best.npz")
-        scores[(seed, tr)] = np.stack([frame_scores(*scored_output(model, clips[n]))[0] for n in TEST_SCENES])
+        scores[(seed, tr)] = scene_scores(model, clips)[1]  # (scenes, frames) in TEST_SCENES order
         records = history(run)
         steps.add(records[-1]["step"] if records else None)
         per_scene = scores[(seed, tr)].mean(-1)

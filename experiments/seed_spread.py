@@ -15,7 +15,7 @@ from pathlib import Path
 
 import jaxsr
 
-from _eval import SCENE_LABELS, TEST_SCENES, score, scored_output, test_clips
+from _eval import SCENE_LABELS, TEST_SCENES, scene_scores, test_clips
 from _report import header, markdown_table, write_atomic
 
 
@@ -34,7 +34,7 @@ def main():
             models[f"{run.name} {name}"] = jaxsr.load_model(run / f"{name}.npz")
     rows = []
     for label, model in models.items():
-        scores = [score(*scored_output(model, clips[n]))[0] for n in TEST_SCENES]
+        scores = [scene_scores(model, clips)[0][n][0] for n in TEST_SCENES]
         card = jaxsr.read_metadata(model_path(label, args.runs)).get("card", {})
         rows.append([label, f"TR{model.config.tr}", card.get("seed", "?"), card.get("steps", "?"),
                      *(f"{p:.2f}" for p in scores), f"{sum(scores) / len(scores):.2f}"])

@@ -31,19 +31,9 @@ from jaxsr.config import PRESETS, SensorConfig
 from jaxsr.runtime import enable_compilation_cache
 
 from _eval import (BLOCK, FPS_NOTE, PAPER_BICUBIC, PAPER_TABLE1, SCENE_LABELS, TEST_SCENES, bicubic_fps, bundled,
-                   SEQUENCE_FRAMES, format_interval, frame_scores, get_model, interval, model_fps, score,
-                   scored_output, test_clips)
+                   SEQUENCE_FRAMES, format_interval, get_model, interval, model_fps, scene_scores, score,
+                   test_clips)
 from _report import header, markdown_table, save_figure, write_atomic
-
-
-def evaluate_tr(model, clips) -> tuple[dict, np.ndarray]:
-    """Mean PSNR and SSIM per scene of one model, and its per-frame PSNR (scenes, frames)."""
-    means, frames = {}, []
-    for name, clip in clips.items():
-        p, s = frame_scores(*scored_output(model, clip))
-        means[name] = (float(p.mean()), float(s.mean()))
-        frames.append(p)
-    return means, np.stack(frames)
 
 
 def bicubic_row(clips, scale) -> dict:
@@ -135,7 +125,7 @@ def main():
         t0 = time.time()
         model, card = get_model(tr, pretrained=pretrained, preset=preset, runs=Path(args.runs),
                                 scale=args.scale, quick=args.quick, progress=not args.no_progress)
-        scores, frames_psnr = evaluate_tr(model, clips)
+        scores, frames_psnr = scene_scores(model, clips)
         fps = model_fps(model, clip0, min_time=min_time)
         rows[tr] = {"scores": scores, "frames": frames_psnr, "fps": fps, "card": card}
         print(f"TR{tr}: " + ", ".join(f"{SCENE_LABELS[n]} {p:.2f} dB / {s:.3f}" for n, (p, s) in scores.items())
@@ -145,7 +135,7 @@ def main():
         path = bundled(f"tr{tr}-seq")
         if path is not None:
             model = jaxsr.load_model(path)
-            scores, frames_psnr = evaluate_tr(model, clips)
+            scores, frames_psnr = scene_scores(model, clips)
             seq_rows[tr] = {"scores": scores, "frames": frames_psnr, "fps": model_fps(model, clip0, min_time=min_time),
                             "card": jaxsr.read_metadata(path).get("card", {})}
             print(f"TR{tr}-seq: {np.mean([p for p, _ in seq_rows[tr]['scores'].values()]):.2f} dB mean, "

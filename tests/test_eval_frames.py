@@ -53,3 +53,20 @@ def test_clip_at_keeps_the_chosen_frames_of_every_field():
     np.testing.assert_array_equal(part.gt, clip.gt[[1, 4]])
     assert part.scored is None and clip.at(None) is clip
     assert dataclasses.replace(clip, intensity=None).at([0]).intensity is None
+
+
+def test_scene_scores_are_the_per_frame_scores_of_the_scored_frames():
+    cfg = jaxsr.ModelConfig(tr=1, **SMALL)
+    model = Model(*init_model(jax.random.key(0), cfg), cfg)
+    keys = jax.random.split(jax.random.key(2), 4)
+    clips = {}
+    for i, name in enumerate(("a", "b")):
+        lr = np.asarray(jax.random.uniform(keys[2 * i], (10, 8, 12)), np.float32)
+        gt = np.asarray(jax.random.uniform(keys[2 * i + 1], (10, 32, 48)), np.float32)
+        clips[name] = _eval.Clip(name, lr, np.zeros((10, 8, 12, 2)), gt, 10.0, 1.3, scored=_eval.scored_frames(4, 10))
+    means, frames = _eval.scene_scores(model, clips)
+    assert frames.shape == (2, 4) and list(means) == ["a", "b"]
+    for row, clip in zip(frames, clips.values(), strict=True):
+        p, s = _eval.frame_scores(jaxsr.super_resolve(model, clip.lr)[clip.scored], clip.gt[clip.scored])
+        np.testing.assert_allclose(row, p, atol=1e-3)
+        assert means[clip.name] == pytest.approx((float(p.mean()), float(s.mean())), abs=1e-3)
