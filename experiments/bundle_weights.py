@@ -13,6 +13,9 @@ default) bundles whichever of best.npz (the epoch with the lowest validation los
 noise other than training's validation; never the test scenes). In a schedule as short as the bundle preset's,
 the training-time choice rests on 3 x 16 frames and on the Huber loss, which can disagree with PSNR. The
 float16 cost is measured on the same frames: the mean PSNR of the float32 model minus that of the float16 one.
+`--keep-better` (for runs that continue across sessions, such as the campaign's) lets the bundled model of each TR
+compete on the same frames: a run's model replaces it only when, as stored, it scores higher; otherwise the
+bundled file is left untouched and its row says so.
 """
 
 from __future__ import annotations
@@ -61,7 +64,18 @@ def describe(tc: dict) -> str:
             "validation sequences")
 
 
-def main():
+def kept_row(tr: int, target: Path, bundled: float, run: float) -> list:
+    """The weights.md row of a bundled model that `--keep-better` kept: its card, its PSNR against the run's."""
+    card = jaxsr.read_metadata(target)["card"]
+    val = card.get("validation", {})
+    return [f"TR{tr}", f"kept: bundled ({card.get('checkpoint', {}).get('file', '?')})", card["steps"],
+            card["examples"], f"{card['wall_time_s'] / 60:.0f}", f"{val.get('psnr', float('nan')):.2f}",
+            f"{val.get('bicubic_psnr', float('nan')):.2f}", f"bundled {bundled:.2f}, run {run:.2f}",
+            f"{card.get('storage', {}).get('psnr_cost_db', float('nan')):+.4f}",
+            card.get("storage", {}).get("dtype", "?"), f"{target.stat().st_size / 2**20:.1f}"]
+
+
+def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", default="runs/bundle", help="folder with tr<N>/best.npz")
     parser.add_argument("--trs", type=int, nargs="+", default=[0, 1, 2, 3, 4])
@@ -74,15 +88,17 @@ def main():
     parser.add_argument("--trained-with", default=None,
                         help="the command that trained the runs, for the cards (default: the bundle's, per form)")
     parser.add_argument("--force", action="store_true", help="replace existing bundled weights")
-    args = parser.parse_args()
+    parser.add_argument("--keep-better", action="store_true",
+                        help="replace a bundled model only by one that scores higher on the validation frames")
+    args = parser.parse_args(argv)
     started = time.time()
     seqs = scenes.test_sequences(n_frames=args.frames, names=VALIDATION)
     clips = [simulate_clip(jax.random.key(7000 + i), seqs[n]) for i, n in enumerate(VALIDATION)]
-    rows = []
+    rows, kept = [], []
     for tr in args.trs:
         target = WEIGHTS / f"tr{tr}{SUFFIX[args.form]}.npz"
-        if target.exists() and not args.force:
-            raise SystemExit(f"{target} exists; pass --force to replace it")
+        if target.exists() and not (args.force or args.keep_better):
+            raise SystemExit(f"{target} exists; pass --force to replace it (or --keep-better)")
         run = Path(args.runs) / f"tr{tr}"
         names = ["best", "last"] if args.checkpoint == "select" else [args.checkpoint]
         candidates = {name: jaxsr.load_model(run / f"{name}.npz") for name in names}
@@ -95,6 +111,14 @@ def main():
             reduced = mean_psnr(half, clips)
         cost = full - reduced
         dtype = "float16" if cost < MAX_COST_DB else "float32"
+        if args.keep_better and target.exists():
+            bundled = mean_psnr(jaxsr.load_model(target), clips)
+            stored = reduced if dtype == "float16" else full
+            if bundled >= stored:
+                rows.append(kept_row(tr, target, bundled, stored))
+                kept.append(tr)
+                print(*rows[-1], flush=True)
+                continue
         trained_with = args.trained_with or (
             f"jaxsr train --tr {tr} --preset bundle --out {run}" if args.form == "window" else
             f"python experiments/train_sequence_bundle.py --trs {tr} --runs {args.runs}")
@@ -112,6 +136,9 @@ def main():
                      " / ".join(f"{val_psnr.get(k, float('nan')):.2f}" for k in ("best", "last")),
                      f"{cost:+.4f}", dtype, f"{size:.1f}"])
         print(*rows[-1], flush=True)
+    if len(kept) == len(args.trs):
+        print("every bundled model kept; nothing written")
+        return
     total = sum(p.stat().st_size for p in WEIGHTS.glob("*.npz"))
     form = args.form
     text = header(f"Bundled weights (jaxsr/weights), {form} form", started)
@@ -120,6 +147,10 @@ def main():
              f"best / last': mean over {', '.join(VALIDATION)} ({args.frames} frames each, other noise) of the two "
              f"checkpoints of the run; rule `--checkpoint {args.checkpoint}` picks the bundled one. float16 cost: "
              "float32 minus float16 PSNR of the bundled one on the same frames.\n\n")
+    if kept:
+        text += (f"`--keep-better`: for {', '.join(f'TR{tr}' for tr in kept)} the bundled model scored at least as "
+                 f"high as the run's on the same frames (the run's in its 'val PSNR' column), so it was kept; its "
+                 "row is its own card's.\n\n")
     text += markdown_table(["model", "checkpoint", "steps", "examples", "train min", "card val PSNR",
                             "card bicubic", "val PSNR best / last", "float16 cost dB", "stored", "MB"], rows)
     text += f"\nAll bundled weights together: {total / 2**20:.1f} MB.\n"

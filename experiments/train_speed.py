@@ -5,7 +5,7 @@
 Runs `benchmarks/bench_train.py -k today_vs_new` (windowed TR0 and TR4, sequence-form TR4; the step of issue 14's
 baseline, of main before this change, and the new one on 1 and 2 devices, timed in interleaved rounds of one run)
 and writes its table to experiments/results/train_speed.md; the hand-written profile and reading at the end of
-that file (from "## Where the time goes") are kept on re-runs.
+that file (from "## Reading") are kept on re-runs.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from _report import hand_written_tail, header, markdown_table, write_atomic
 
 ROOT = Path(__file__).resolve().parent.parent
 OUT = ROOT / "experiments" / "results" / "train_speed.md"
-HAND_WRITTEN = "## Where the time goes"
+HAND_WRITTEN = "## Reading"
 
 
 def run_benchmark() -> list[dict]:
