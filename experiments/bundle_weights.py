@@ -111,8 +111,10 @@ def main(argv=None):
             reduced = mean_psnr(half, clips)
         cost = full - reduced
         dtype = "float16" if cost < MAX_COST_DB else "float32"
+        replaced = ""
         if args.keep_better and target.exists():
             bundled = mean_psnr(jaxsr.load_model(target), clips)
+            replaced = f" (replaced bundled {bundled:.2f})"
             stored = reduced if dtype == "float16" else full
             if bundled >= stored:
                 rows.append(kept_row(tr, target, bundled, stored))
@@ -133,7 +135,7 @@ def main(argv=None):
         rows.append([f"TR{tr}", f"{chosen} (epoch {card['epochs'] if chosen == 'last' else card['best_epoch'] + 1})",
                      card["steps"], card["examples"], f"{card['wall_time_s'] / 60:.0f}",
                      f"{val.get('psnr', float('nan')):.2f}", f"{val.get('bicubic_psnr', float('nan')):.2f}",
-                     " / ".join(f"{val_psnr.get(k, float('nan')):.2f}" for k in ("best", "last")),
+                     " / ".join(f"{val_psnr.get(k, float('nan')):.2f}" for k in ("best", "last")) + replaced,
                      f"{cost:+.4f}", dtype, f"{size:.1f}"])
         print(*rows[-1], flush=True)
     if len(kept) == len(args.trs):
