@@ -44,6 +44,7 @@ PRESET = "long"
 # (seed, tr) in priority order: one seed of every TR, then the seed spread where the TR effects are smallest
 RUNS = [(0, tr) for tr in range(5)] + [(s, tr) for s in (1, 2) for tr in range(3)]
 CONVERGED_DB = 0.2
+BEYOND = {True: "yes", False: "no", None: "one run each: retraining not measured"}
 
 
 def run_dir(root: Path, seed: int, tr: int) -> Path:
@@ -139,7 +140,8 @@ def tr_differences(scores: dict) -> dict:
     frames. Returns {tr: {"mean": difference of the seed means (dB), "runs": (lowest, highest) difference over
     every pair of a TR-k run and a TR0 run, "frames": the paired block-bootstrap interval (`_eval.interval`) of
     the seed-averaged per-frame scores, "beyond": whether every pair and the frame interval lie on the same side of
-    0}} for each TR > 0 that has runs, when TR0 has."""
+    0, None when there is a single pair (one run of each: retraining's spread is not measured)}} for each TR > 0
+    that has runs, when TR0 has."""
     by_tr = {}
     for (_, tr), frames in sorted(scores.items()):
         by_tr.setdefault(tr, []).append(np.asarray(frames, np.float64))
@@ -153,19 +155,21 @@ def tr_differences(scores: dict) -> dict:
         pairs = [float(a.mean(-1).mean() - b.mean(-1).mean()) for a in runs for b in base]
         frames = interval(np.mean(runs, axis=0), np.mean(base, axis=0))
         same_side = (min(pairs) > 0 and float(frames.low) > 0) or (max(pairs) < 0 and float(frames.high) < 0)
+        same_side = same_side if len(pairs) > 1 else None
         out[tr] = {"mean": float(np.mean(pairs)), "runs": (min(pairs), max(pairs)), "frames": frames,
                    "beyond": same_side}
     return out
 
 
-def score(root: Path, frames: int, out: str) -> None:
-    """Score every run's best.npz on the test scenes and write the TR differences (see `tr_differences`)."""
+def score(root: Path, frames: int, out: str, only=None) -> None:
+    """Score every run's best.npz (those in `only`; None: all) on the test scenes and write the TR differences
+    (see `tr_differences`)."""
     started = time.time()
     clips = test_clips(frames, spread=True)
     scores, rows, steps = {}, [], set()
     for seed, tr in RUNS:
         run = run_dir(root, seed, tr)
-        if not (run / "best.npz").exists():
+        if not (run / "best.npz").exists() or (only is not None and f"s{seed}/tr{tr}" not in only):
             continue
         model = jaxsr.load_model(run / "best.npz")
         scores[(seed, tr)] = scene_scores(model, clips)[1]  # (scenes, frames) in TEST_SCENES order
@@ -192,7 +196,7 @@ def score(root: Path, frames: int, out: str) -> None:
                  "(what the choice of frames moves). Beyond both: every pair and the interval on one side of 0.\n\n")
         text += markdown_table(["TR - TR0", "difference", "over pairs of runs", "frame interval", "beyond both"],
                                [[f"TR{tr} - TR0", f"{d['mean']:+.2f}", f"[{d['runs'][0]:+.2f}, {d['runs'][1]:+.2f}]",
-                                 format_interval(d["frames"]), "yes" if d["beyond"] else "no"]
+                                 format_interval(d["frames"]), BEYOND[d["beyond"]]]
                                 for tr, d in diffs.items()])
     write_atomic(out, text)
     print(text)
@@ -251,7 +255,7 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", default="runs/campaign")
     parser.add_argument("--hours", type=float, default=2.5, help="start no epoch that would end after this")
-    parser.add_argument("--only", nargs="+", default=None, help="train only these runs (e.g. s0/tr0 s0/tr4)")
+    parser.add_argument("--only", nargs="+", default=None, help="train (or score) only these runs (e.g. s0/tr0 s0/tr4)")
     parser.add_argument("--report", action="store_true", help="write the results table and plot, train nothing")
     parser.add_argument("--score", action="store_true",
                         help="score the runs on the test scenes (results/campaign_scores.md), train nothing")
@@ -261,7 +265,8 @@ def main():
     args = parser.parse_args()
     root = Path(args.runs)
     if args.score:
-        score(root, args.frames, args.out or "experiments/results/campaign_scores.md")
+        score(root, args.frames, args.out or "experiments/results/campaign_scores.md",
+              set(args.only) if args.only else None)
     elif args.report:
         report(root, args.out or "experiments/results/campaign.md")
     else:

@@ -73,6 +73,9 @@ def test_tr_differences_give_the_spread_over_runs_and_the_frame_interval():
     assert two["mean"] == pytest.approx(0.0, abs=1e-9) and two["runs"] == pytest.approx((-0.1, 0.1))
     assert not two["beyond"]  # the pairs straddle 0
     assert campaign.tr_differences({(0, 1): frames}) == {}  # no TR0: nothing to compare with
+    # one run of each TR: the frame interval alone cannot say the difference survives retraining
+    single = campaign.tr_differences({(0, 0): frames, (0, 1): frames + 1.0})[1]
+    assert single["runs"] == pytest.approx((1.0, 1.0)) and single["beyond"] is None
 
 
 def test_an_epoch_is_expected_to_last_as_the_runs_last_one_or_another_seeds_of_its_tr(tmp_path):
