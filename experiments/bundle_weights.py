@@ -64,15 +64,13 @@ def describe(tc: dict) -> str:
             "validation sequences")
 
 
-def kept_row(tr: int, target: Path, bundled: float, run: float) -> list:
-    """The weights.md row of a bundled model that `--keep-better` kept: its card, its PSNR against the run's."""
-    card = jaxsr.read_metadata(target)["card"]
-    val = card.get("validation", {})
-    return [f"TR{tr}", f"kept: bundled ({card.get('checkpoint', {}).get('file', '?')})", card["steps"],
-            card["examples"], f"{card['wall_time_s'] / 60:.0f}", f"{val.get('psnr', float('nan')):.2f}",
-            f"{val.get('bicubic_psnr', float('nan')):.2f}", f"bundled {bundled:.2f}, run {run:.2f}",
-            f"{card.get('storage', {}).get('psnr_cost_db', float('nan')):+.4f}",
-            card.get("storage", {}).get("dtype", "?"), f"{target.stat().st_size / 2**20:.1f}"]
+def card_row(tr: int, checkpoint: str, card: dict, val_psnr: str, target: Path) -> list:
+    """A weights.md row: the model's checkpoint label, its card's training and storage, the validation PSNR text."""
+    val, storage = card.get("validation", {}), card.get("storage", {})
+    return [f"TR{tr}", checkpoint, card["steps"], card["examples"], f"{card['wall_time_s'] / 60:.0f}",
+            f"{val.get('psnr', float('nan')):.2f}", f"{val.get('bicubic_psnr', float('nan')):.2f}", val_psnr,
+            f"{storage.get('psnr_cost_db', float('nan')):+.4f}", storage.get("dtype", "?"),
+            f"{target.stat().st_size / 2**20:.1f}"]
 
 
 def main(argv=None):
@@ -117,7 +115,9 @@ def main(argv=None):
             replaced = f" (replaced bundled {bundled:.2f})"
             stored = reduced if dtype == "float16" else full
             if bundled >= stored:
-                rows.append(kept_row(tr, target, bundled, stored))
+                kept_card = jaxsr.read_metadata(target)["card"]
+                rows.append(card_row(tr, f"kept: bundled ({kept_card.get('checkpoint', {}).get('file', '?')})",
+                                     kept_card, f"bundled {bundled:.2f}, run {stored:.2f}", target))
                 kept.append(tr)
                 print(*rows[-1], flush=True)
                 continue
@@ -130,13 +130,9 @@ def main(argv=None):
                     storage={"dtype": dtype, "psnr_cost_db": round(cost, 4),
                              "measured_on": f"{', '.join(VALIDATION)}, first {args.frames} frames"})
         save_model(target, model, card=card, storage_dtype=dtype)
-        size = target.stat().st_size / 2**20
-        val = card.get("validation", {})
-        rows.append([f"TR{tr}", f"{chosen} (epoch {card['epochs'] if chosen == 'last' else card['best_epoch'] + 1})",
-                     card["steps"], card["examples"], f"{card['wall_time_s'] / 60:.0f}",
-                     f"{val.get('psnr', float('nan')):.2f}", f"{val.get('bicubic_psnr', float('nan')):.2f}",
-                     " / ".join(f"{val_psnr.get(k, float('nan')):.2f}" for k in ("best", "last")) + replaced,
-                     f"{cost:+.4f}", dtype, f"{size:.1f}"])
+        rows.append(card_row(
+            tr, f"{chosen} (epoch {card['epochs'] if chosen == 'last' else card['best_epoch'] + 1})", card,
+            " / ".join(f"{val_psnr.get(k, float('nan')):.2f}" for k in ("best", "last")) + replaced, target))
         print(*rows[-1], flush=True)
     if len(kept) == len(args.trs):
         print("every bundled model kept; nothing written")
