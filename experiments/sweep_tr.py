@@ -24,10 +24,12 @@ import argparse
 import time
 from pathlib import Path
 
+import jax
 import numpy as np
 
 import jaxsr
-from jaxsr.config import PRESETS, SensorConfig
+from jaxsr.config import PRESETS, ModelConfig, SensorConfig
+from jaxsr.model import Model, init_model
 from jaxsr.runtime import enable_compilation_cache
 
 from _eval import (BLOCK, FPS_NOTE, PAPER_BICUBIC, PAPER_TABLE1, SCENE_LABELS, TEST_SCENES, bicubic_fps, bundled,
@@ -39,6 +41,13 @@ from _report import header, markdown_table, save_figure, write_atomic
 def bicubic_row(clips, scale) -> dict:
     scored = {name: c.at(c.scored) for name, c in clips.items()}
     return {name: score(np.asarray(jaxsr.bicubic(c.lr, scale=scale)), c.gt) for name, c in scored.items()}
+
+
+def untrained(scale: int) -> Model:
+    """TR0 with its initial weights: Glorot-small filter logits make every dynamic filter a near-uniform 5 x 5
+    average, so it upsamples a box-smoothed LR depth. The floor that training starts from."""
+    cfg = ModelConfig(tr=0, scale=scale)
+    return Model(*init_model(jax.random.key(0), cfg), cfg)
 
 
 def pareto(points):
@@ -120,6 +129,7 @@ def main():
     clip0 = clips[TEST_SCENES[0]]
     min_time = 1.0 if args.quick else 3.0
     fps_bicubic = bicubic_fps(clip0, sensor=sensor, min_time=min_time)
+    floor, floor_frames = scene_scores(untrained(args.scale), clips)
     rows = {}
     for tr in trs:
         t0 = time.time()
@@ -143,7 +153,7 @@ def main():
 
     cells = lambda sc: [f"{sc[n][i]:.{2 if i == 0 else 3}f}" for n in TEST_SCENES for i in (0, 1)]  # noqa: E731
     columns = ["method"] + [f"{SCENE_LABELS[n]} {m}" for n in TEST_SCENES for m in ("PSNR", "SSIM")] + ["frames/s"]
-    table = [["bicubic"] + cells(bicubic) + [f"{fps_bicubic:.0f}"]]
+    table = [["bicubic"] + cells(bicubic) + [f"{fps_bicubic:.0f}"], ["TR0 untrained"] + cells(floor) + ["as TR0"]]
     table += [[f"TR{tr}"] + cells(r["scores"]) + [f"{r['fps']:.1f}"] for tr, r in rows.items()]
     table += [[f"TR{tr}-seq"] + cells(r["scores"]) + [f"{r['fps']:.1f}"] for tr, r in seq_rows.items()]
     paper = [["bicubic (paper)"] + [f"{v:.{2 if i == 0 else 3}f}" for sc in PAPER_BICUBIC[:3] for i, v in
@@ -152,6 +162,7 @@ def main():
                                      enumerate(sc)] + [f"{PAPER_TABLE1[tr][3]}"] for tr in trs]
     csv = ",".join(["method", *[f"{n}_{m}" for n in TEST_SCENES for m in ("psnr", "ssim")], "fps"]) + "\n"
     csv += csv_row("bicubic", bicubic, fps_bicubic)
+    csv += csv_row("TR0_untrained", floor, rows[0]["fps"] if 0 in rows else float("nan"))
     csv += "".join(csv_row(f"TR{tr}", r["scores"], r["fps"]) for tr, r in rows.items())
     csv += "".join(csv_row(f"TR{tr}-seq", r["scores"], r["fps"]) for tr, r in seq_rows.items())
 
@@ -166,7 +177,9 @@ def main():
              "PSNR (dB) and SSIM of the clipped output against the normalised HR ground truth, averaged over frames. "
              f"frames/s: end to end (histograms -> centre of mass -> network), {FPS_NOTE}, on this machine; "
              "the paper's "
-             "are on an RTX 2070.\n\n")
+             "are on an RTX 2070. TR0 untrained: the network with its initial weights (every dynamic filter a "
+             "near-uniform 5 x 5 average, i.e. a box-smoothed LR depth upsampled): what smoothing alone gives, "
+             "and what training starts from.\n\n")
     text += markdown_table(columns, table + paper)
     cards = [f"- TR{tr}: {r['card'].get('steps', '?')} steps, {r['card'].get('examples', '?')} examples, "
              f"{r['card'].get('wall_time_s', 0) / 60:.0f} min training on {r['card'].get('hardware', {}).get('backend', '?')}"
@@ -176,7 +189,8 @@ def main():
               f"{r['card'].get('wall_time_s', 0) / 60:.0f} min training" for tr, r in seq_rows.items()]
     text += "\nTraining of each model (from its card):\n\n" + "\n".join(cards) + "\n"
     vs_tr0 = {tr: interval(r["frames"], rows[0]["frames"]) for tr, r in rows.items() if tr} if 0 in rows else {}
-    checked = differences(rows, seq_rows, vs_tr0) + "\n\n" + claims(rows, bicubic, vs_tr0)
+    bought = interval(rows[0]["frames"], floor_frames) if 0 in rows else None
+    checked = differences(rows, seq_rows, vs_tr0, bought) + "\n\n" + claims(rows, bicubic, vs_tr0)
     text += "\n" + checked + "\n"
     text += f"\nPlots: `{base.name}.png` (PSNR and SSIM against TR), `{base.name}_pareto.png` (PSNR against frames/s).\n"
     write_atomic(f"{base}.md", text)
@@ -190,13 +204,16 @@ def csv_row(label, scores, fps):
     return ",".join([label, *(f"{scores[n][i]:.4f}" for n in TEST_SCENES for i in (0, 1)), f"{fps:.2f}"]) + "\n"
 
 
-def differences(rows, seq_rows, vs_tr0) -> str:
-    """Every TR against TR0 (`vs_tr0`: TR -> interval) and each sequence-form model against the windowed one of its TR, with intervals."""
+def differences(rows, seq_rows, vs_tr0, bought=None) -> str:
+    """Every TR against TR0 (`vs_tr0`: TR -> interval), TR0 against its untrained self (`bought`) and each
+    sequence-form model against the windowed one of its TR, with intervals."""
     lines = [f"Differences in mean PSNR over the three scenes (dB), with 95 % intervals from a paired bootstrap over "
              f"blocks of {BLOCK} consecutive scored frames (`jaxsr.paired_interval`; each scene resampled on its "
              "own). They say how "
              "much the frames chosen move a difference, not how much another training run would: for that, "
              "results/seed_spread.md (three TR0 seeds).", ""]
+    if bought is not None:
+        lines.append(f"- TR0 - TR0 untrained (what training bought): {format_interval(bought)}")
     lines += [f"- TR{tr} - TR0: {format_interval(iv)}" for tr, iv in vs_tr0.items()]
     lines += [f"- TR{tr}-seq - TR{tr}: {format_interval(interval(r['frames'], rows[tr]['frames']))}"
               for tr, r in seq_rows.items() if tr in rows]
