@@ -176,15 +176,16 @@ def score(root: Path, frames: int, out: str, only=None) -> None:
         records = history(run)
         steps.add(records[-1]["step"] if records else None)
         per_scene = scores[(seed, tr)].mean(-1)
-        rows.append([f"s{seed}/tr{tr}", f"{records[-1]['step'] if records else '?'}",
+        selected = jaxsr.read_metadata(run / "best.npz").get("card", {}).get("steps", "?")
+        rows.append([f"s{seed}/tr{tr}", f"{selected} of {records[-1]['step'] if records else '?'}",
                      *(f"{p:.2f}" for p in per_scene), f"{per_scene.mean():.2f}"])
         print(*rows[-1], flush=True)
     if not scores:
         raise SystemExit(f"no campaign runs with weights under {root}")
     text = header("Training campaign: the TRs on the test scenes, with seed spread and frame intervals", started)
     text += (f"Each run's selected weights (best.npz: lowest validation loss so far) under {root}, scored on {frames} "
-             "frames spread evenly over each 500-frame test scene (as sweep_tr.py); PSNR (dB). Steps: the run's "
-             "training so far (the campaign is not finished while runs say `training` in campaign.md)."
+             "frames spread evenly over each 500-frame test scene (as sweep_tr.py); PSNR (dB). Steps: those of the "
+             "selected weights, of the run's training so far (the campaign is not finished while runs say `training` in campaign.md)."
              + (" **The runs differ in steps, so the differences below mix training length with TR: an interim "
                 "reading, not the campaign's result.**" if len(steps) > 1 else "") + "\n\n")
     text += markdown_table(["run", "steps", *(SCENE_LABELS[n] for n in TEST_SCENES), "mean"], rows)
