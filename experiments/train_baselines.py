@@ -8,7 +8,10 @@ Data: the bundled TR models' (`bundle` preset: batch 4, 16 x 32 LR crops of fres
 0.5-8, 7-28 signal photons; validation on the first 16 frames of the three validation sequences), in each
 baseline's form (`jaxsr.baseline_training.default_baseline_data`). Schedule: the bundle's 5 epochs, Adam 1e-3 cut
 to 1e-4 for the last epoch, patience 3, the best epoch's weights kept (validation loss: each baseline's own
-content loss, HistNet L1, iSeeBetter MSE).
+content loss, HistNet L1, iSeeBetter MSE). iSeeBetter follows its authors' recipe, a GAN started from a
+pre-trained generator: its first `PRETRAIN_EPOCHS` epochs train the RBPN generator alone on the MSE, the last one
+adds the discriminator and the adversarial term (at the cut rate 1e-4, the published one). A first run that had
+the GAN from the first step stayed below bicubic (its discriminator won early).
 
 Budget (the rule of `train_sequence_bundle.py`): the comparable bundled TR model trained 1280 steps of batch 4;
 the baseline gets 1280 x (TR step time / baseline step time) steps, rounded up to whole epochs, both steps timed
@@ -20,6 +23,9 @@ analysis of one 32 x 64 frame):
   GFLOP per frame including the flow) against TR2 (12.2 GFLOP), which reads the same 5-frame window. The
   published RBPN (12.7 M parameters, 7 frames) costs 567 GFLOP per frame, 20x TR4: at TR4's budget it would get
   about 60 steps.
+
+For iSeeBetter the baseline step time is the mean over the epochs of the generator-only and the GAN step times
+(each timed as above), so that both phases together cost the comparable TR's training.
 
 The plan (budget, timings, machine) is written once to runs/baselines/<name>/plan.json; run the same command
 again to resume an interrupted run. `--bundle` then stores the best weights in jaxsr/weights/<name>.npz
@@ -66,6 +72,7 @@ CONFIGS = {
     "iseebetter": jaxsr.RBPNConfig(base_filter=64, feat=16, n_resblock=2, frames=5),
 }
 COMPARABLE = {"histnet": 0, "iseebetter": 2}  # the TR of nearest GFLOP per output frame (module docstring)
+PRETRAIN_EPOCHS = {"histnet": 0, "iseebetter": EPOCHS - 1}  # generator-only epochs before the GAN (docstring)
 
 
 def tr_probe(tr: int):
@@ -77,10 +84,13 @@ def tr_probe(tr: int):
     return step_timer(step, [params, state, adam_init(params)])
 
 
-def baseline_probe(name: str, train_cfg):
-    """One train step of baseline `name` as the run takes it, fresh weights: run(i) -> seconds."""
+def baseline_probe(name: str, train_cfg, *, pretrain: bool = False):
+    """One train step of baseline `name` as the run takes it, fresh weights: run(i) -> seconds. pretrain: the
+    generator-only step of iSeeBetter's first epochs instead of the GAN step."""
     cfg = CONFIGS[name]
-    step = baseline_train_step(name, cfg, train_cfg, default_baseline_data(name, cfg, train_cfg))
+    pretrain_steps = 1 << 30 if pretrain else 0  # every timed step in the phase asked for
+    step = baseline_train_step(name, cfg, train_cfg, default_baseline_data(name, cfg, train_cfg),
+                               pretrain_steps=pretrain_steps)
     ts = [_init_train_state(jax.random.key(0), name, cfg)]
     return step_timer(lambda t, key, i: step(t, key, i), ts)
 
@@ -110,17 +120,23 @@ def plan(name: str, run: Path, *, measure=None) -> dict:
     tr = COMPARABLE[name]
     card = read_metadata(resolve_model_path(f"tr{tr}"))["card"]
     tr_steps = card["steps"]
+    pre = PRETRAIN_EPOCHS[name]
     if measure is None:
         train_cfg = train_config(1)
-        measure = lambda: step_seconds({"tr": tr_probe(tr), "baseline": baseline_probe(name, train_cfg)})
+        probes = {"tr": tr_probe(tr), "baseline": baseline_probe(name, train_cfg)}
+        if pre:
+            probes["generator"] = baseline_probe(name, train_cfg, pretrain=True)
+        measure = lambda: step_seconds(probes)
     seconds = measure()
+    mean_step = ((pre * seconds["generator"] if pre else 0.0) + (EPOCHS - pre) * seconds["baseline"]) / EPOCHS
     record = {
         "baseline": name, "config": dataclasses.asdict(CONFIGS[name]), "comparable_tr": tr,
-        "rule": f"TR{tr}'s {tr_steps} steps x TR{tr} step time / baseline step time (fastest of 3, timed in turn in "
-                "one run, one JAX device), rounded up to whole epochs",
+        "rule": f"TR{tr}'s {tr_steps} steps x TR{tr} step time / baseline step time (its mean over the epochs' "
+                "phases; each the fastest of 3, timed in turn in one run, one JAX device), rounded up to whole epochs",
         "tr_steps": tr_steps, "tr_step_s": seconds["tr"], "baseline_step_s": seconds["baseline"],
+        "pretrain_epochs": pre, "generator_step_s": seconds.get("generator"), "mean_step_s": mean_step,
         "tr_card_wall_time_s": card.get("wall_time_s"),
-        "steps_per_epoch": budget(tr_steps, seconds["tr"], seconds["baseline"]), "epochs": EPOCHS,
+        "steps_per_epoch": budget(tr_steps, seconds["tr"], mean_step), "epochs": EPOCHS,
         "machine": machine(), "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="minutes"),
     }
     run.mkdir(parents=True, exist_ok=True)
@@ -197,7 +213,7 @@ def report(runs: Path, out: str) -> None:
         rows.append([name, ", ".join(f"{k} {v}" for k, v in p["config"].items() if k not in ("disc_widths",)),
                      f"{params / 1e6:.2f} M", f"{gflops_per_frame(name):.1f}",
                      f"TR{tr} ({jaxsr.model.flops_per_frame(jaxsr.ModelConfig(tr=tr)) / 1e9:.1f})",
-                     f"{p['tr_step_s']:.3f} / {p['baseline_step_s']:.3f}",
+                     f"{p['tr_step_s']:.3f} / {p.get('mean_step_s', p['baseline_step_s']):.3f}",
                      f"{p['steps_per_epoch'] * p['epochs']}", f"{hist[-1]['step'] if hist else 0}",
                      f"{wall / 60:.1f} ({wall * _cores() / 60:.0f})",
                      f"{best['val_psnr']:.2f} (epoch {best['epoch']})" if best else "-",
@@ -260,6 +276,7 @@ def main():
     train_cfg = train_config(p["steps_per_epoch"])
     if not args.bundle_only:
         fit_baseline(args.name, CONFIGS[args.name], train_cfg, out=run, resume=True, card_extra={"plan": p},
+                     pretrain_epochs=p.get("pretrain_epochs", 0),
                      callback=lambda r: print(json.dumps(r), flush=True))
     if args.bundle or args.bundle_only:
         bundle(args.name, run, Path(args.weights_dir) / f"{args.name}.npz", p)

@@ -18,6 +18,7 @@ from .baseline_training import super_resolve_baseline as super_resolve_baseline
 from .baseline_training import init_adam_pair as init_adam_pair
 from .baseline_training import make_histnet_train_step as make_histnet_train_step
 from .baseline_training import make_iseebetter_train_step as make_iseebetter_train_step
+from .baseline_training import make_rbpn_train_step as make_rbpn_train_step
 from .checkpoint import load_model as load_model
 from .checkpoint import read_metadata as read_metadata
 from .checkpoint import save_model as save_model

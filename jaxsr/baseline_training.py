@@ -61,6 +61,7 @@ __all__ = [
     "load_baseline",
     "make_histnet_train_step",
     "make_iseebetter_train_step",
+    "make_rbpn_train_step",
     "resolve_baseline_path",
     "save_baseline",
     "super_resolve_baseline",
@@ -175,6 +176,27 @@ def make_iseebetter_train_step(cfg: RBPNConfig, make_batch, *, schedule, adversa
         metrics = {"d_loss": d_loss, "g_loss": g_loss, "content": parts["content"],
                    "adversarial": parts["adversarial"], "psnr": jnp.mean(psnr(jnp.clip(out, 0, 1), gt)), "lr": lr}
         return (g_params, d_params, d_state), (g_opt, d_opt), metrics
+
+    return jax.jit(step_fn, donate_argnums=(0, 1))
+
+
+def make_rbpn_train_step(cfg: RBPNConfig, make_batch, *, schedule):
+    """The jitted generator-only step of iSeeBetter's pre-training (RBPN trained on its content loss, MSE; the
+    iSeeBetter authors start the GAN from such a generator): step(g_params, g_opt, key, step) -> (g_params, g_opt,
+    metrics {"g_loss", "content", "psnr", "lr"}). make_batch and schedule as `make_iseebetter_train_step`.
+    """
+    def step_fn(g_params, g_opt, key, step):
+        windows, gt = make_batch(key)
+
+        def loss_fn(gp):
+            hr = apply_rbpn(gp, windows, cfg)
+            return jnp.mean((hr - gt) ** 2), hr
+
+        (content, hr), grads = jax.value_and_grad(loss_fn, has_aux=True)(g_params)
+        lr = schedule(step)
+        g_params, g_opt = adam_update(grads, g_opt, g_params, lr=lr, eps=1e-8)
+        return g_params, g_opt, {"g_loss": content, "content": content,
+                                 "psnr": jnp.mean(psnr(jnp.clip(hr, 0, 1), gt)), "lr": lr}
 
     return jax.jit(step_fn, donate_argnums=(0, 1))
 
@@ -363,18 +385,24 @@ def _init_train_state(key, kind: str, cfg) -> dict:
 baseline_schedule = lr_schedule
 
 
-def baseline_train_step(kind: str, cfg, train_cfg: TrainConfig, make_batch, sensor: SensorConfig = _SENSOR):
+def baseline_train_step(kind: str, cfg, train_cfg: TrainConfig, make_batch, sensor: SensorConfig = _SENSOR, *,
+                        pretrain_steps: int = 0):
     """One jitted train step of baseline `kind` on the dict of `_init_train_state`: run(train_state, key, step) ->
     (train_state, metrics). Cached, so a resumed or repeated run does not compile again. The dict's arrays are
-    donated: copy what must outlive the step (`jax.device_get`)."""
+    donated: copy what must outlive the step (`jax.device_get`). iSeeBetter: steps below `pretrain_steps` train
+    the generator alone on its content loss (`make_rbpn_train_step`; the discriminator waits), the rest are GAN
+    steps; `step` must then be a concrete integer (the phase is chosen in Python)."""
     _check_kind(kind, "baseline_train_step")
+    if pretrain_steps < 0 or (pretrain_steps and kind != "iseebetter"):
+        raise ValueError(f"baseline_train_step: pretrain_steps is iSeeBetter's (>= 0), got {pretrain_steps} for {kind}")
     # the step does not read the seed or the stopping rule: runs that differ only in those share one compilation
     return _baseline_train_step(kind, cfg, dataclasses.replace(train_cfg, seed=0, epochs=1, patience=1), make_batch,
-                                sensor)
+                                sensor, pretrain_steps)
 
 
 @functools.lru_cache(maxsize=8)
-def _baseline_train_step(kind: str, cfg, train_cfg: TrainConfig, make_batch, sensor: SensorConfig):
+def _baseline_train_step(kind: str, cfg, train_cfg: TrainConfig, make_batch, sensor: SensorConfig,
+                         pretrain_steps: int = 0):
     schedule = baseline_schedule(train_cfg)
     if kind == "histnet":
         step = make_histnet_train_step(cfg, make_batch, schedule=schedule, sensor=sensor)
@@ -384,8 +412,12 @@ def _baseline_train_step(kind: str, cfg, train_cfg: TrainConfig, make_batch, sen
             return {"params": params, "opt": opt}, metrics
         return run
     step = make_iseebetter_train_step(cfg, make_batch, schedule=schedule)
+    pretrain = make_rbpn_train_step(cfg, make_batch, schedule=schedule) if pretrain_steps else None
 
     def run(ts, key, i):
+        if pretrain is not None and int(i) < pretrain_steps:
+            g, g_opt, metrics = pretrain(ts["params"], ts["opt"], key, i)
+            return {**ts, "params": g, "opt": g_opt}, metrics
         (g, d, d_state), (g_opt, d_opt), metrics = step((ts["params"], ts["disc"], ts["disc_state"]),
                                                         (ts["opt"], ts["disc_opt"]), key, i)
         return {"params": g, "disc": d, "disc_state": d_state, "opt": g_opt, "disc_opt": d_opt}, metrics
@@ -404,16 +436,17 @@ def default_baseline_data(kind: str, cfg, train_cfg: TrainConfig, *, sensor: Sen
 BASELINE_RUN_FILES = ("metrics.jsonl", "last.npz", "best.npz")
 
 
-def _baseline_settings(kind: str, cfg, train_cfg: TrainConfig) -> dict:
+def _baseline_settings(kind: str, cfg, train_cfg: TrainConfig, pretrain_epochs: int = 0) -> dict:
     # JSON round trip: tuples become lists, as they read back from a file
     return json.loads(json.dumps({"baseline": kind, "config": config_to_dict(cfg),
-                                  "train_config": config_to_dict(train_cfg)}))
+                                  "train_config": config_to_dict(train_cfg), "pretrain_epochs": pretrain_epochs}))
 
 
 def _check_same_run(path: Path, saved: dict, wanted: dict) -> None:
     """ValueError naming each setting (but the epoch budget) in which the run at `path` differs from `wanted`."""
     def flat(s):
-        out = {"baseline": s["baseline"], **{f"config.{k}": v for k, v in s["config"].items()}}
+        out = {"baseline": s["baseline"], "pretrain_epochs": s.get("pretrain_epochs", 0),
+               **{f"config.{k}": v for k, v in s["config"].items()}}
         out.update({f"train.{k}": v for k, v in s["train_config"].items() if k != "epochs"})
         return out
 
@@ -425,7 +458,8 @@ def _check_same_run(path: Path, saved: dict, wanted: dict) -> None:
 
 
 def fit_baseline(kind: str, cfg, train_cfg: TrainConfig, *, out, make_batch=None, validation: dict | None = None,
-                 sensor: SensorConfig = _SENSOR, resume: bool = False, callback=None, card_extra: dict | None = None):
+                 sensor: SensorConfig = _SENSOR, resume: bool = False, callback=None, card_extra: dict | None = None,
+                 pretrain_epochs: int = 0):
     """Train a learned baseline as `jaxsr.fit` trains our networks; returns (best `BaselineModel`, history).
 
     Epochs of `train_cfg.steps_per_epoch` steps (rate `baseline_schedule`), each followed by validation
@@ -435,6 +469,7 @@ def fit_baseline(kind: str, cfg, train_cfg: TrainConfig, *, out, make_batch=None
     `metrics.jsonl`. `resume=True` continues from `last.npz` (refused if any setting but `epochs` differs); a
     folder holding a run is refused (FileExistsError) without it. make_batch: default `default_baseline_data`.
     callback(record) after each epoch's files are written; card_extra: entries added to the card (e.g. the budget).
+    pretrain_epochs (iSeeBetter): epochs of generator-only training on the content loss before the GAN epochs.
     """
     _check_kind(kind, "fit_baseline")
     if not isinstance(cfg, _CONFIGS[kind]):
@@ -449,7 +484,7 @@ def fit_baseline(kind: str, cfg, train_cfg: TrainConfig, *, out, make_batch=None
     make_batch = default_baseline_data(kind, cfg, train_cfg, sensor=sensor) if make_batch is None else make_batch
     if validation is None:
         validation = baseline_validation_set(k_val, kind, cfg, train_cfg, sensor=sensor)
-    settings = _baseline_settings(kind, cfg, train_cfg)
+    settings = _baseline_settings(kind, cfg, train_cfg, pretrain_epochs)
     state_t = jax.eval_shape(lambda k: _init_train_state(k, kind, cfg), jax.random.key(0))
     template = {"train": state_t, "best": state_t["params"],
                 "key": jax.eval_shape(lambda: jax.random.key_data(jax.random.key(0)))}
@@ -471,8 +506,8 @@ def fit_baseline(kind: str, cfg, train_cfg: TrainConfig, *, out, make_batch=None
         best = jax.device_get(ts["params"])
         run = {"epoch": 0, "step": 0, "best_loss": math.inf, "best_epoch": -1, "bad_epochs": 0, "wall_time_s": 0.0,
                "history": []}
-    step_fn = baseline_train_step(kind, cfg, train_cfg, make_batch, sensor)
     spe = train_cfg.steps_per_epoch
+    step_fn = baseline_train_step(kind, cfg, train_cfg, make_batch, sensor, pretrain_steps=pretrain_epochs * spe)
     while run["bad_epochs"] < train_cfg.patience and run["epoch"] < train_cfg.epochs:
         t0 = time.perf_counter()
         sums = {}
@@ -502,7 +537,8 @@ def fit_baseline(kind: str, cfg, train_cfg: TrainConfig, *, out, make_batch=None
                              "host": platform.platform(), "jax": jax.__version__},
                 "validation": {"sequences": list(validation.get("names", [])), "frames": int(validation["gt"].shape[0]),
                                "loss": run["best_loss"], "psnr": run["history"][run["best_epoch"]]["val_psnr"]},
-                "train_config": settings["train_config"], "seed": train_cfg.seed, **(card_extra or {})}
+                "train_config": settings["train_config"], "seed": train_cfg.seed,
+                **({"pretrain_epochs": pretrain_epochs} if pretrain_epochs else {}), **(card_extra or {})}
         # best first, then last: a kill between the two resumes from the previous epoch and rewrites both
         if run["best_epoch"] == run["epoch"] - 1:
             save_baseline(out / "best.npz", BaselineModel(kind, best, cfg), card=card)

@@ -327,9 +327,46 @@ def test_train_baselines_plan_is_measured_once_and_read_back(tmp_path):
         return {"tr": 0.2, "baseline": 0.5}
 
     p = script.plan("histnet", tmp_path / "histnet", measure=measure)
-    assert p["steps_per_epoch"] == math.ceil(1280 * 0.2 / 0.5 / 5) and p["comparable_tr"] == 0
+    assert p["steps_per_epoch"] == math.ceil(p["tr_steps"] * 0.2 / 0.5 / 5) and p["comparable_tr"] == 0
     again = script.plan("histnet", tmp_path / "histnet", measure=measure)
     assert again == p and len(calls) == 1  # resuming reads plan.json, it does not time again
     assert script.train_config(p["steps_per_epoch"]).steps_per_epoch == p["steps_per_epoch"]
     with pytest.raises(ValueError, match="positive"):
         script.budget(1280, 0.2, 0.0)
+
+
+def test_iseebetter_plan_prices_its_generator_only_epochs_at_their_own_step_time(tmp_path):
+    script = _train_baselines_script()
+    p = script.plan("iseebetter", tmp_path / "iseebetter",
+                    measure=lambda: {"tr": 0.2, "baseline": 0.5, "generator": 0.25})
+    pre = script.PRETRAIN_EPOCHS["iseebetter"]
+    assert 0 < pre < script.EPOCHS and p["pretrain_epochs"] == pre and p["comparable_tr"] == 2
+    mean = (pre * 0.25 + (script.EPOCHS - pre) * 0.5) / script.EPOCHS
+    assert p["mean_step_s"] == pytest.approx(mean)
+    assert p["steps_per_epoch"] == math.ceil(p["tr_steps"] * 0.2 / mean / script.EPOCHS)  # TR2's card steps
+
+
+def test_iseebetter_pretraining_moves_the_generator_alone_then_the_gan_starts():
+    from jaxsr.baseline_training import _init_train_state, baseline_train_step
+
+    cfg = jaxsr.RBPNConfig(base_filter=8, feat=4, n_resblock=1, frames=3, disc_widths=(4, 4), disc_hidden=8,
+                           flow_levels=2, flow_iterations=2)
+    windows = jax.random.uniform(jax.random.PRNGKey(0), (2, 3, 8, 16))
+    gt = jax.image.resize(windows[:, 1], (2, 32, 64), "linear")
+    train_cfg = dataclasses.replace(jaxsr.TrainConfig(), batch_size=2, examples_per_epoch=2, patch=(8, 16))
+    step = baseline_train_step("iseebetter", cfg, train_cfg, lambda key: (windows, gt), pretrain_steps=3)
+    ts = _init_train_state(jax.random.PRNGKey(1), "iseebetter", cfg)
+    disc0 = jax.device_get(ts["disc"])
+    content = []
+    for i in range(3):
+        ts, m = step(ts, jax.random.PRNGKey(0), jnp.int32(i))
+        content.append(float(m["content"]))
+        assert "d_loss" not in m  # no discriminator step while pre-training
+    assert content[-1] < content[0], content
+    leaves = lambda t: jax.tree_util.tree_leaves(jax.device_get(t))  # noqa: E731
+    assert all(np.array_equal(a, b) for a, b in zip(leaves(ts["disc"]), leaves(disc0)))
+    ts, m = step(ts, jax.random.PRNGKey(0), jnp.int32(3))
+    assert np.isfinite(float(m["d_loss"]))
+    assert not all(np.array_equal(a, b) for a, b in zip(leaves(ts["disc"]), leaves(disc0)))
+    with pytest.raises(ValueError, match="pretrain_steps"):
+        baseline_train_step("histnet", jaxsr.HistNetConfig(width=4), train_cfg, lambda key: None, pretrain_steps=2)
