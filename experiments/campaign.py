@@ -109,6 +109,7 @@ def train(root: Path, hours: float, only) -> None:
     cfg = PRESETS[PRESET]
     deadline = time.time() + 3600 * hours
     jaxsr.use_cpu_cores()
+    commit = _commit()  # the code this process runs, not whatever is checked out when an epoch ends
     stuck = set()  # runs fit found finished by a rule `finished` does not mirror
     while (pick := next_run(root, cfg, only, stuck)) is not None:
         seed, tr = pick
@@ -127,7 +128,7 @@ def train(root: Path, hours: float, only) -> None:
             continue
         record = after[-1]
         turn = {"run": f"s{seed}/tr{tr}", "epoch": record["epoch"], "val_psnr": record["val_psnr"],
-                "seconds": round(time.time() - t0, 1), "machine": machine(), "commit": _commit(),
+                "seconds": round(time.time() - t0, 1), "machine": machine(), "commit": commit,
                 "date": time.strftime("%Y-%m-%d %H:%M")}
         with open(root / "turns.jsonl", "a") as f:
             f.write(json.dumps(turn) + "\n")
