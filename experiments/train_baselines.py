@@ -63,7 +63,8 @@ from jaxsr.checkpoint import read_metadata, resolve_model_path
 from jaxsr.config import PRESETS
 from jaxsr.model import count_params, init_model
 from jaxsr.optim import adam_init
-from jaxsr.train import default_data, make_train_step
+from jaxsr.data import validation_set
+from jaxsr.train import default_data, evaluate, make_train_step
 
 EPOCHS = 5
 TR_STEPS = 1280  # the bundled windowed models' steps (their cards)
@@ -195,41 +196,40 @@ def report(runs: Path, out: str) -> None:
     from _report import header, markdown_table
 
     started = time.time()
-    rows, epochs, plans = [], [], {}
+    rows, epochs, plans, from_card = [], [], {}, []
     for name in CONFIGS:
-        run = runs / name
-        if not (run / "plan.json").is_file():
-            print(f"{name}: no run in {run}, left out")
+        p, hist, whole = run_record(runs / name, Path(jaxsr.__file__).parent / "weights" / f"{name}.npz")
+        if p is None:
+            print(f"{name}: no run in {runs / name} and no bundled weights, left out")
             continue
-        p = json.loads((run / "plan.json").read_text())
         plans[name] = p
-        hist = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()] if (
-            run / "metrics.jsonl").is_file() else []
+        if hist is None:
+            from_card.append(name)
         params = count_params(jax.eval_shape(lambda k, n=name: _init_train_state(k, n, CONFIGS[n])["params"],
                                              jax.random.key(0)))
         tr = p["comparable_tr"]
-        wall = hist[-1]["wall_time_s"] if hist else 0.0
-        best = min(hist, key=lambda r: r["val_loss"]) if hist else None
         rows.append([name, ", ".join(f"{k} {v}" for k, v in p["config"].items() if k not in ("disc_widths",)),
                      f"{params / 1e6:.2f} M", f"{gflops_per_frame(name):.1f}",
                      f"TR{tr} ({jaxsr.model.flops_per_frame(jaxsr.ModelConfig(tr=tr)) / 1e9:.1f})",
                      f"{p['tr_step_s']:.3f} / {p.get('mean_step_s', p['baseline_step_s']):.3f}",
-                     f"{p['steps_per_epoch'] * p['epochs']}", f"{hist[-1]['step'] if hist else 0}",
-                     f"{wall / 60:.1f} ({wall * _cores() / 60:.0f})",
-                     f"{best['val_psnr']:.2f} (epoch {best['epoch']})" if best else "-",
-                     _tr_card_psnr(tr)])
+                     f"{p['steps_per_epoch'] * p['epochs']}", f"{whole['steps']}",
+                     f"{whole['wall_time_s'] / 60:.1f} ({whole['wall_time_s'] * _cores() / 60:.0f})",
+                     f"{whole['best_psnr']:.2f} (epoch {whole['best_epoch']})", tr_on_same_frames(tr, p)])
         epochs += [[name, r["epoch"], r["step"], f"{r.get('train_loss', r.get('train_content', float('nan'))):.4g}",
-                    f"{r['val_loss']:.4g}", f"{r['val_psnr']:.2f}", f"{r['wall_time_s'] / 60:.1f}"] for r in hist]
+                    f"{r['val_loss']:.4g}", f"{r['val_psnr']:.2f}", f"{r['wall_time_s'] / 60:.1f}"]
+                   for r in hist or ()]
     text = header("Training the learned baselines (HistNet, iSeeBetter) on our data", started)
     text += ("`experiments/train_baselines.py` (its docstring has the rule): each baseline gets the steps of the "
              "bundled TR model of nearest cost per output frame times the ratio of the two train-step times, both "
              "timed in turn in one run on the machine of the plan (so that load from other work cancels). Data: the "
              "bundle preset (batch 4, 16 x 32 LR crops of rendered training clips, SNR 0.5-8); validation on 3 x 16 "
              "frames of the validation sequences, each baseline's own content loss (HistNet L1, iSeeBetter MSE) "
-             "selecting the kept epoch (the same frames and noise as the TR models' validation, whose cards give "
-             "the last column). GFLOP per 32 x 64 frame: XLA's cost analysis of the forward pass; ours "
+             "selecting the kept epoch. iSeeBetter (since 2026-11-24): its first epochs (`pretrain_epochs` in the "
+             "plan) train the generator alone on the MSE, the last adds the GAN, and its step time is the mean "
+             "over the phases. GFLOP per 32 x 64 frame: XLA's cost analysis of the forward pass; ours "
              "`jaxsr.model.flops_per_frame`. Wall minutes on 2 CPU cores shared with other work (CPU-minutes = wall "
-             "x 2 cores in brackets).\n\n")
+             "x 2 cores in brackets). Last column: the bundled TR model of comparable cost and bicubic on the same "
+             "validation frames and noise, measured when this report was written.\n\n")
     text += ("Runs: `python experiments/train_baselines.py NAME` (plan, then training; re-run to resume), then "
              "`--bundle` (or `--bundle-only` for a run stopped early) for jaxsr/weights/NAME.npz. "
              + " ".join(f"{n}: planned {pl['date']} on {pl['machine']}; the comparable TR's own training took "
@@ -237,17 +237,43 @@ def report(runs: Path, out: str) -> None:
                         for n, pl in plans.items()) + "\n\n")
     text += markdown_table(["baseline", "config", "parameters", "GFLOP/frame", "comparable (GFLOP/frame)",
                             "step s: TR / baseline", "planned steps", "steps done", "wall min (CPU-min)",
-                            "best val PSNR dB", "TR card val PSNR (bicubic)"], rows)
+                            "best val PSNR dB", "bundled TR val PSNR (bicubic)"], rows)
+    if from_card:
+        text += (f"\n{', '.join(from_card)}: trained on another machine (its run folder is not here); its row is "
+                 "read from the bundled file's card, its per-epoch rows are in the git history of this report.\n")
     text += "\nPer epoch:\n\n" + markdown_table(["baseline", "epoch", "step", "train loss", "val loss",
                                                    "val PSNR dB", "wall min"], epochs)
     write_atomic(out, text)
     print(f"wrote {out}")
 
 
-def _tr_card_psnr(tr: int) -> str:
-    """The bundled TR model's validation PSNR and bicubic's on the same frames, from its card."""
-    v = read_metadata(resolve_model_path(f"tr{tr}"))["card"].get("validation", {})
-    return f"{v['psnr']:.2f} ({v['bicubic_psnr']:.2f})" if v.get("psnr") and v.get("bicubic_psnr") else "-"
+def run_record(run: Path, bundled: Path):
+    """(plan, per-epoch history or None, {"steps", "wall_time_s", "best_psnr", "best_epoch"}) of a baseline's run:
+    from its folder when it is here, else from the bundled file's card (history None); (None, None, None) when
+    neither exists."""
+    if (run / "plan.json").is_file():
+        hist = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()] if (
+            run / "metrics.jsonl").is_file() else []
+        best = min(hist, key=lambda r: r["val_loss"]) if hist else {"val_psnr": float("nan"), "epoch": 0}
+        return json.loads((run / "plan.json").read_text()), hist, {
+            "steps": hist[-1]["step"] if hist else 0, "wall_time_s": hist[-1]["wall_time_s"] if hist else 0.0,
+            "best_psnr": best["val_psnr"], "best_epoch": best["epoch"]}
+    if not bundled.is_file():
+        return None, None, None
+    card = read_metadata(bundled)["card"]
+    return card["plan"], None, {"steps": card["run"]["steps"], "wall_time_s": card["run"]["wall_time_s"],
+                                "best_psnr": card["validation"]["psnr"], "best_epoch": card["best_epoch"] + 1}
+
+
+def tr_on_same_frames(tr: int, p: dict) -> str:
+    """The bundled TR model's and bicubic's mean PSNR on the baseline's validation frames (`fit_baseline`'s key and
+    frames for the plan's training config), measured now: "28.17 (22.53)"."""
+    train_cfg = train_config(p["steps_per_epoch"])
+    val = validation_set(jax.random.fold_in(jax.random.key(train_cfg.seed), 2), tr, train_cfg)
+    model = jaxsr.load_model(f"tr{tr}")
+    ours = evaluate(model.params, model.state, val["windows"], val["gt"], model.config)["psnr"]
+    bicubic = float(jnp.mean(jaxsr.psnr(jnp.clip(jaxsr.bicubic(val["lr"], scale=4), 0, 1), val["gt"])))
+    return f"{ours:.2f} ({bicubic:.2f})"
 
 
 def _cores() -> int:
