@@ -44,7 +44,7 @@ PRESET = "long"
 # (seed, tr) in priority order: one seed of every TR, then the seed spread where the TR effects are smallest
 RUNS = [(0, tr) for tr in range(5)] + [(s, tr) for s in (1, 2) for tr in range(3)]
 CONVERGED_DB = 0.2
-BEYOND = {True: "yes", False: "no", None: "one run each: retraining not measured"}
+BEYOND = {True: "yes", False: "no", None: "one run of a side: its retraining not measured"}
 
 
 def run_dir(root: Path, seed: int, tr: int) -> Path:
@@ -141,8 +141,8 @@ def tr_differences(scores: dict) -> dict:
     frames. Returns {tr: {"mean": difference of the seed means (dB), "runs": (lowest, highest) difference over
     every pair of a TR-k run and a TR0 run, "frames": the paired block-bootstrap interval (`_eval.interval`) of
     the seed-averaged per-frame scores, "beyond": whether every pair and the frame interval lie on the same side of
-    0, None when there is a single pair (one run of each: retraining's spread is not measured)}} for each TR > 0
-    that has runs, when TR0 has."""
+    0, None when TR-k or TR0 has a single run (that side's retraining spread is not measured, so no range of pairs
+    can cover it)}} for each TR > 0 that has runs, when TR0 has."""
     by_tr = {}
     for (_, tr), frames in sorted(scores.items()):
         by_tr.setdefault(tr, []).append(np.asarray(frames, np.float64))
@@ -156,7 +156,7 @@ def tr_differences(scores: dict) -> dict:
         pairs = [float(a.mean(-1).mean() - b.mean(-1).mean()) for a in runs for b in base]
         frames = interval(np.mean(runs, axis=0), np.mean(base, axis=0))
         same_side = (min(pairs) > 0 and float(frames.low) > 0) or (max(pairs) < 0 and float(frames.high) < 0)
-        same_side = same_side if len(pairs) > 1 else None
+        same_side = same_side if len(runs) > 1 and len(base) > 1 else None
         out[tr] = {"mean": float(np.mean(pairs)), "runs": (min(pairs), max(pairs)), "frames": frames,
                    "beyond": same_side}
     return out

@@ -55,14 +55,15 @@ def test_gain_over_the_last_quarter():
 
 def test_tr_differences_give_the_spread_over_runs_and_the_frame_interval():
     """Synthetic per-frame scores with a known answer: TR1 is TR0 + 1 dB frame by frame, seed for seed, with seed
-    offsets of 0, 0.1 and 0.2 dB; TR2 (one run) sits at the middle seed's level."""
+    offsets of 0, 0.1 and 0.2 dB; TR2 (two runs) sits at the middle seed's level; TR3 (one run) 1.5 dB above."""
     rng = np.random.default_rng(0)
     frames = 20.0 + rng.normal(0.0, 1.0, (3, 40))  # (scenes, frames): frame-to-frame variation, shared by all runs
     scores = {(s, 0): frames + 0.1 * s for s in range(3)}
     scores |= {(s, 1): frames + 0.1 * s + 1.0 for s in range(3)}
-    scores[(0, 2)] = frames + 0.1
+    scores[(0, 2)] = scores[(1, 2)] = frames + 0.1
+    scores[(0, 3)] = frames + 1.5
     diffs = campaign.tr_differences(scores)
-    assert sorted(diffs) == [1, 2]
+    assert sorted(diffs) == [1, 2, 3]
     one = diffs[1]
     assert one["mean"] == pytest.approx(1.0)
     assert one["runs"] == pytest.approx((0.8, 1.2))  # every pair of a TR1 run and a TR0 run
@@ -71,7 +72,9 @@ def test_tr_differences_give_the_spread_over_runs_and_the_frame_interval():
     assert one["beyond"]
     two = diffs[2]
     assert two["mean"] == pytest.approx(0.0, abs=1e-9) and two["runs"] == pytest.approx((-0.1, 0.1))
-    assert not two["beyond"]  # the pairs straddle 0
+    assert two["beyond"] is False  # the pairs straddle 0
+    # one TR3 run: every pair and the frame interval are above 0, but TR3's own retraining spread is unmeasured
+    assert diffs[3]["runs"][0] > 0 and float(diffs[3]["frames"].low) > 0 and diffs[3]["beyond"] is None
     assert campaign.tr_differences({(0, 1): frames}) == {}  # no TR0: nothing to compare with
     # one run of each TR: the frame interval alone cannot say the difference survives retraining
     single = campaign.tr_differences({(0, 0): frames, (0, 1): frames + 1.0})[1]
