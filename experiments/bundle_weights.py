@@ -105,14 +105,13 @@ def main(argv=None):
                         help="replace a bundled model only by one that scores higher on the validation frames")
     args = parser.parse_args(argv)
     started = time.time()
-    for tr in args.trs:
-        target = WEIGHTS / f"tr{tr}{SUFFIX[args.form]}.npz"
+    targets = {tr: WEIGHTS / f"tr{tr}{SUFFIX[args.form]}.npz" for tr in args.trs}
+    for target in targets.values():  # refuse before the validation frames are rendered
         if target.exists() and not (args.force or args.keep_better):
             raise SystemExit(f"{target} exists; pass --force to replace it (or --keep-better)")
     clips = validation_clips(args.frames)
     rows, kept = [], []
-    for tr in args.trs:
-        target = WEIGHTS / f"tr{tr}{SUFFIX[args.form]}.npz"
+    for tr, target in targets.items():
         run = Path(args.runs) / f"tr{tr}"
         names = ["best", "last"] if args.checkpoint == "select" else [args.checkpoint]
         candidates = {name: jaxsr.load_model(run / f"{name}.npz") for name in names}
@@ -158,8 +157,8 @@ def main(argv=None):
     text = header(f"Bundled weights (jaxsr/weights), {form} form", started)
     text += (f"Each model trained with {schedule(args)}: {describe(card['train_config'])}. Card columns: "
              "the best epoch's validation PSNR and bicubic's on the same frames, from the training card. 'val PSNR "
-             f"best / last': mean over {', '.join(VALIDATION)} (the first {args.frames} frames of each, other noise) of the two "
-             f"checkpoints of the run; rule `--checkpoint {args.checkpoint}` picks the bundled one. float16 cost: "
+             f"best / last': mean over {', '.join(VALIDATION)} (the first {args.frames} frames of each, other noise) "
+             f"of the two checkpoints of the run; rule `--checkpoint {args.checkpoint}` picks the bundled one. float16 cost: "
              "float32 minus float16 PSNR of the bundled one on the same frames.\n\n")
     if kept:
         text += (f"`--keep-better`: for {', '.join(f'TR{tr}' for tr in kept)} the bundled model scored at least as "

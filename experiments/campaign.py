@@ -186,7 +186,8 @@ def score(root: Path, frames: int, out: str, only=None) -> None:
     text = header("Training campaign: the TRs on the test scenes, with seed spread and frame intervals", started)
     text += (f"Each run's selected weights (best.npz: lowest validation loss so far) under {root}, scored on {frames} "
              "frames spread evenly over each 500-frame test scene (as sweep_tr.py); PSNR (dB). Steps: those of the "
-             "selected weights, of the run's training so far (the campaign is not finished while runs say `training` in campaign.md)."
+             "selected weights, of the run's training so far (the campaign is not finished while runs say `training` "
+             "in campaign.md)."
              + (" **The runs differ in steps, so the differences below mix training length with TR: an interim "
                 "reading, not the campaign's result.**" if len(steps) > 1 else "") + "\n\n")
     text += markdown_table(["run", "steps", *(SCENE_LABELS[n] for n in TEST_SCENES), "mean"], rows)
