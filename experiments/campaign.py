@@ -17,7 +17,7 @@ runs/campaign/turns.jsonl (run, epoch, wall time, machine, the code's git commit
 between sessions.
 
 A run counts as converged when its validation PSNR gained under 0.2 dB over the last quarter of its epochs
-(at least 4 epochs in); the report says which are. `--score` scores each run's selected weights (best.npz) on
+(at least 8 epochs in, so that the quarter is not a single noisy epoch); the report says which are. `--score` scores each run's selected weights (best.npz) on
 the test scenes (--frames spread over each, as sweep_tr.py) and writes experiments/results/campaign_scores.md:
 every TR against TR0 with the spread over every pair of runs (seeds) and the frame interval, and whether the
 difference holds beyond both.
@@ -44,6 +44,9 @@ PRESET = "long"
 # (seed, tr) in priority order: one seed of every TR, then the seed spread where the TR effects are smallest
 RUNS = [(0, tr) for tr in range(5)] + [(s, tr) for s in (1, 2) for tr in range(3)]
 CONVERGED_DB = 0.2
+# A quarter of fewer epochs is one epoch, and one epoch that loses validation PSNR (it varies by a few tenths of a
+# dB from epoch to epoch) would read as converged: the last quarter holds at least two epochs.
+MIN_EPOCHS_CONVERGED = 8
 BEYOND = {True: "yes", False: "no", None: "one run of a side: its retraining not measured"}
 
 
@@ -66,8 +69,8 @@ def finished(records: list[dict], cfg) -> bool:
 
 
 def gain_last_quarter(records: list[dict]) -> float | None:
-    """Validation PSNR gained over the last quarter of the epochs so far (None before 4 epochs)."""
-    if len(records) < 4:
+    """Validation PSNR gained over the last quarter of the epochs so far (None before `MIN_EPOCHS_CONVERGED`)."""
+    if len(records) < MIN_EPOCHS_CONVERGED:
         return None
     psnr = [r["val_psnr"] for r in records]
     start = len(psnr) - max(1, len(psnr) // 4) - 1
@@ -245,7 +248,7 @@ def report(root: Path, out: str) -> None:
              f"frames) under {root}, trained in turns across sessions (`python experiments/campaign.py`; each "
              "turn's machine and commit in turns.jsonl). Minutes: training wall time so far (sessions and "
              f"machines mixed). Gain: validation PSNR gained over the last quarter of the epochs so far; under "
-             f"{CONVERGED_DB} dB counts as converged.\n\n")
+             f"{CONVERGED_DB} dB counts as converged (from epoch {MIN_EPOCHS_CONVERGED}).\n\n")
     text += markdown_table(["run", "steps", "minutes", "val PSNR now", "best val PSNR", "gain, last quarter",
                             "bicubic", "state"], rows)
     text += f"\nPlot: `{Path(out).stem}.png`.\n"
