@@ -329,8 +329,12 @@ def baseline_source(models: dict, cards: dict, skipped, weights) -> str:
         for label, m in models.items():
             card = cards.get(label, {})
             plan = card.get("plan", {})
-            budget = (f", {card.get('steps')} steps of batch 4 (the budget of TR{plan['comparable_tr']}: "
-                      f"{plan['tr_steps']} x its step time / this step time)" if plan else "")
+            budget = ""
+            if plan:
+                total = plan["steps_per_epoch"] * plan["epochs"]
+                kept = "" if card.get("steps") == total else " (the epoch early stopping kept)"
+                budget = (f", {card.get('steps')} steps of batch 4{kept} of a budget of {total}, that of "
+                          f"TR{plan['comparable_tr']}: {plan['tr_steps']} x its step time / this step time")
             parts.append(f"{label}: {describe_baseline(m)}{budget}")
         text += (f"Learned baselines from {where}, trained by `experiments/train_baselines.py` on our data "
                  "(the VGG perceptual term of iSeeBetter's loss left out): " + "; ".join(parts) + ". ")

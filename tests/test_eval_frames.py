@@ -70,3 +70,18 @@ def test_scene_scores_are_the_per_frame_scores_of_the_scored_frames():
         p, s = _eval.frame_scores(jaxsr.super_resolve(model, clip.lr)[clip.scored], clip.gt[clip.scored])
         np.testing.assert_allclose(row, p, atol=1e-3)
         assert means[clip.name] == pytest.approx((float(p.mean()), float(s.mean())), abs=1e-3)
+
+
+def test_baseline_source_tells_kept_steps_from_the_budget():
+    """The bundled baselines' sentence: the steps of the kept checkpoint, and the budget when early stopping kept
+    fewer (it read as if the kept steps were the budget)."""
+    models, cards, skipped = _eval.load_baselines(["histnet"])
+    card = cards["histnet"]
+    plan = card["plan"]
+    text = _eval.baseline_source(models, cards, skipped, None)
+    assert f"{card['steps']} steps of batch 4" in text
+    assert f"a budget of {plan['steps_per_epoch'] * plan['epochs']}" in text
+    kept = card["steps"] < plan["steps_per_epoch"] * plan["epochs"]
+    assert ("early stopping kept" in text) == kept
+    full = {"histnet": {**card, "steps": plan["steps_per_epoch"] * plan["epochs"]}}
+    assert "early stopping kept" not in _eval.baseline_source(models, full, skipped, None)
