@@ -76,12 +76,13 @@ def test_baseline_source_tells_kept_steps_from_the_budget():
     """The bundled baselines' sentence: the steps of the kept checkpoint, and the budget when early stopping kept
     fewer (it read as if the kept steps were the budget)."""
     models, cards, skipped = _eval.load_baselines(["histnet"])
-    card = cards["histnet"]
+    label = _eval.BASELINE_LABELS["histnet"]
+    card = cards[label]
     plan = card["plan"]
     text = _eval.baseline_source(models, cards, skipped, None)
     assert f"{card['steps']} steps of batch 4" in text
     assert f"a budget of {plan['steps_per_epoch'] * plan['epochs']}" in text
     kept = card["steps"] < plan["steps_per_epoch"] * plan["epochs"]
     assert ("early stopping kept" in text) == kept
-    full = {"histnet": {**card, "steps": plan["steps_per_epoch"] * plan["epochs"]}}
+    full = {label: {**card, "steps": plan["steps_per_epoch"] * plan["epochs"]}}
     assert "early stopping kept" not in _eval.baseline_source(models, full, skipped, None)
