@@ -35,6 +35,7 @@ from .model import apply_model_sequence as apply_model_sequence
 from .model import apply_model_sequence_train as apply_model_sequence_train
 from .model import apply_model_train as apply_model_train
 from .model import count_params as count_params
+from .model import grow_tr as grow_tr
 from .model import init_model as init_model
 from .flow import optical_flow as optical_flow
 from .flow import warp as warp

@@ -39,6 +39,7 @@ __all__ = [
     "spatial_radius",
     "count_params",
     "flops_per_frame",
+    "grow_tr",
 ]
 
 
@@ -99,6 +100,41 @@ def _init_model(key, cfg: ModelConfig) -> tuple[dict, dict]:
     params["residual"] = {"conv1": convs[("residual", None, "conv1")], "conv2": convs[("residual", None, "conv2")]}
     params["filter"] = {"conv1": convs[("filter", None, "conv1")], "conv2": convs[("filter", None, "conv2")]}
     return params, state
+
+
+def grow_tr(model: "Model", tr: int, key) -> "Model":
+    """A warm start for a larger temporal radius: the network of radius `tr` (>= model's) that starts from a
+    trained `model`'s function.
+
+    The stem, the 3 + model.tr blocks, the head's residual and filter branches and all BN state are carried
+    over; the added blocks are drawn as `init_model(key, ...)` draws them, and the head convolution's weights
+    on their features are zero (their head BN fresh), so the added blocks change nothing until training moves
+    those weights. In the sequence form the grown network computes the trained one's output exactly (cropped
+    by the added radius at each end); in the window form nearly, since its wider window shows real frames where
+    the trained one's temporally padded blocks read zeros. Same scale, widths and form as `model`.
+    """
+    cfg = model.config
+    if tr < cfg.tr:
+        raise ValueError(f"grow_tr: tr must be >= the model's {cfg.tr}, got {tr}")
+    new_cfg = dataclasses.replace(cfg, tr=tr)
+    fresh, fresh_state = init_model(key, new_cfg)
+    n = len(model.params["blocks"])
+    old_head, new_head = model.params["head"], fresh["head"]
+    f_old = old_head["conv"]["w"].shape[-2]
+
+    def extend(old, new):  # per-channel BN leaves: the trained channels, then the fresh ones
+        return jnp.concatenate([old, new[f_old:]])
+
+    w_new = new_head["conv"]["w"]
+    head = {
+        "bn": jax.tree_util.tree_map(extend, old_head["bn"], new_head["bn"]),
+        "conv": {"w": jnp.zeros_like(w_new).at[..., :f_old, :].set(old_head["conv"]["w"]),
+                 "b": old_head["conv"]["b"]},
+    }
+    params = {**model.params, "blocks": list(model.params["blocks"]) + fresh["blocks"][n:], "head": head}
+    state = {"blocks": list(model.state["blocks"]) + fresh_state["blocks"][n:],
+             "head": {"bn": jax.tree_util.tree_map(extend, model.state["head"]["bn"], fresh_state["head"]["bn"])}}
+    return Model(params, state, new_cfg)
 
 
 def count_params(params) -> int:

@@ -42,7 +42,8 @@ from .config import ModelConfig, SensorConfig, TrainConfig
 from .data import scene_batches, scene_clips, validation_set
 from .inference import super_resolve
 from .metrics import huber_loss, psnr
-from .model import Model, apply_model, apply_model_sequence_train, apply_model_train, init_model, sequence_radius
+from .model import (Model, apply_model, apply_model_sequence_train, apply_model_train, grow_tr, init_model,
+                    sequence_radius)
 from .optim import AdamState, adam_init, adam_update, lr_schedule
 
 __all__ = [
@@ -292,10 +293,13 @@ def _check_resumable(path: Path, meta: dict, settings: dict):
 def _initial_weights(k_init, model_cfg: ModelConfig, init) -> tuple[dict, dict]:
     """(params, state) to start from: drawn with `k_init`, or those of `init` (a `Model` or a checkpoint
     path), which must have `model_cfg`'s architecture (its temporal form may differ: fine-tuning a windowed
-    model into the sequence form)."""
+    model into the sequence form) or that of a smaller TR (a warm start: `grow_tr` to `model_cfg.tr`, the
+    added blocks drawn with `k_init`)."""
     if init is None:
         return init_model(k_init, model_cfg)
     model = init if isinstance(init, Model) else load_model(init)
+    if model.config.tr < model_cfg.tr:
+        model = grow_tr(model, model_cfg.tr, k_init)
     if dataclasses.replace(model.config, temporal=model_cfg.temporal) != model_cfg:
         differ = [k for k, v in config_to_dict(model_cfg).items()
                   if k != "temporal" and getattr(model.config, k) != v]
@@ -445,8 +449,9 @@ def fit(
     The network trains in `model_cfg.temporal`'s form: windows, or clips of `train_cfg.clip_length(model_cfg)`
     frames (default data `scene_clips`; validation on whole edge-padded sequences, `evaluate_sequences`).
     init: start from these weights instead of random ones (a `Model` or a checkpoint path, the same
-    architecture in either temporal form: e.g. a windowed model fine-tuned into the sequence form); recorded
-    in the training card, ignored when resuming.
+    architecture in either temporal form: e.g. a windowed model fine-tuned into the sequence form; or a smaller
+    TR, grown to this one by `jaxsr.grow_tr`: a warm start from its function); recorded in the training card,
+    ignored when resuming.
     """
     if model_cfg.scale != sensor.scale:
         raise ValueError(f"fit: model scale {model_cfg.scale} differs from sensor scale {sensor.scale}")

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from jaxsr.config import ModelConfig
-from jaxsr.model import Model, apply_model, apply_model_train, count_params, flops_per_frame, init_model
+from jaxsr.model import (Model, apply_model, apply_model_sequence, apply_model_train, count_params,
+                         flops_per_frame, grow_tr, init_model)
 from jaxsr.temporal import windows as temporal_windows
 
 TINY = dict(base=8, growth=4, head=16, filter_hidden=16)
@@ -147,3 +148,42 @@ def test_flops_per_frame_matches_xla(tr):
     cost = apply_jit.lower(params, state, x, cfg, conv3d_impl="taps").compile().cost_analysis()
     cost = cost[0] if isinstance(cost, list) else cost
     assert flops_per_frame(cfg) == pytest.approx(cost["flops"], rel=0.03)
+
+
+def _trained_like(cfg, seed):
+    """Random weights with non-trivial BN state and head BN, standing in for a trained model."""
+    params, state = init_model(jax.random.key(seed), cfg)
+    leaves, tree = jax.tree_util.tree_flatten(state)
+    keys = jax.random.split(jax.random.key(seed + 100), len(leaves))
+    state = jax.tree_util.tree_unflatten(tree, [x + 0.1 * jnp.abs(jax.random.normal(k, x.shape))
+                                                for x, k in zip(leaves, keys)])
+    return Model(params, state, cfg)
+
+
+def test_grow_tr_has_the_larger_networks_shapes_and_refuses_to_shrink():
+    cfg = ModelConfig(tr=0, **TINY)
+    grown = grow_tr(_trained_like(cfg, 0), 2, jax.random.key(1))
+    ref = init_model(jax.random.key(2), ModelConfig(tr=2, **TINY))
+    assert grown.config == ModelConfig(tr=2, **TINY)
+    assert jax.tree_util.tree_structure((grown.params, grown.state)) == jax.tree_util.tree_structure(ref)
+    assert [x.shape for x in jax.tree_util.tree_leaves((grown.params, grown.state))] == \
+        [x.shape for x in jax.tree_util.tree_leaves(ref)]
+    with pytest.raises(ValueError, match="tr must be >= the model's 2"):
+        grow_tr(grown, 1, jax.random.key(3))
+
+
+def test_grow_tr_starts_from_the_trained_function_in_the_sequence_form():
+    """The added block's features reach the head through zero weights: the grown TR1 computes the TR0's output
+    exactly, cropped by the added radius (1 frame) at each end."""
+    cfg = ModelConfig(tr=0, temporal="sequence", **TINY)
+    small = _trained_like(cfg, 0)
+    grown = grow_tr(small, 1, jax.random.key(1))
+    lr = jax.random.uniform(jax.random.key(4), (2, 12, 6, 8))
+    out_small = apply_model_sequence(small.params, small.state, lr, cfg, padding="valid")
+    out_grown = apply_model_sequence(grown.params, grown.state, lr, grown.config, padding="valid")
+    np.testing.assert_allclose(out_grown, out_small[:, 1:-1], atol=1e-5)
+    # the new block is live: moving the head's zero weights changes the output
+    w = grown.params["head"]["conv"]["w"]
+    moved = {**grown.params, "head": {**grown.params["head"], "conv": {**grown.params["head"]["conv"],
+                                                                          "w": w + 0.1 * (w == 0)}}}
+    assert not np.allclose(apply_model_sequence(moved, grown.state, lr, grown.config, padding="valid"), out_grown)

@@ -246,10 +246,18 @@ def test_fit_in_the_sequence_form_fine_tunes_a_windowed_model(tmp_path):
     assert load_model(tmp_path / "a" / "best.npz").config.temporal == "sequence"
     assert read_metadata(tmp_path / "a" / "best.npz")["card"]["init"] == str(init)
     assert np.isfinite(hist[0]["val_loss"]) and hist[0]["val_psnr"] > 0
-    # another architecture cannot be the starting point
-    with pytest.raises(ValueError, match=r"architecture differs from the model to train: tr 0 \(training 1\)"):
-        fit(dataclasses.replace(cfg, tr=1), train, out=tmp_path / "c", make_batch=toy_clips(clip + 2, 2),
-            validation=val, progress=False, init=init)
+    # a smaller TR is grown (`grow_tr`: its weights carried over, the added block drawn); a larger one or another
+    # width cannot be the starting point
+    grown, _ = fit(dataclasses.replace(cfg, tr=1), train, out=tmp_path / "c", make_batch=toy_clips(clip + 2, 2),
+                   validation=val, progress=False, init=init)
+    np.testing.assert_array_equal(grown.params["stem"]["w"], windowed.params["stem"]["w"])
+    assert len(grown.params["blocks"]) == len(windowed.params["blocks"]) + 1
+    with pytest.raises(ValueError, match=r"architecture differs from the model to train: tr 1 \(training 0\)"):
+        fit(cfg, train, out=tmp_path / "d", make_batch=toy_clips(clip, 2), validation=val, progress=False,
+            init=tmp_path / "c" / "best.npz")
+    with pytest.raises(ValueError, match=r"architecture differs from the model to train: growth"):
+        fit(dataclasses.replace(cfg, tr=1, growth=cfg.growth + 1), train, out=tmp_path / "e",
+            make_batch=toy_clips(clip + 2, 2), validation=val, progress=False, init=init)
 
 
 @pytest.mark.slow  # about a minute on 2 busy cores
