@@ -110,7 +110,7 @@ def main(argv=None):
         if target.exists() and not (args.force or args.keep_better):
             raise SystemExit(f"{target} exists; pass --force to replace it (or --keep-better)")
     clips = validation_clips(args.frames)
-    rows, kept = [], []
+    rows, kept, epochs = [], [], []  # epochs: each bundled model's run length (its card's train_config)
     for tr, target in targets.items():
         run = Path(args.runs) / f"tr{tr}"
         names = ["best", "last"] if args.checkpoint == "select" else [args.checkpoint]
@@ -131,6 +131,7 @@ def main(argv=None):
             stored = reduced if dtype == "float16" else full
             if bundled >= stored:
                 kept_card = jaxsr.read_metadata(target)["card"]
+                epochs.append(kept_card["train_config"]["epochs"])
                 rows.append(card_row(tr, f"kept: bundled ({kept_card.get('checkpoint', {}).get('file', '?')})",
                                      kept_card, f"bundled {bundled:.2f}, run {stored:.2f}", target))
                 kept.append(tr)
@@ -145,6 +146,7 @@ def main(argv=None):
                     storage={"dtype": dtype, "psnr_cost_db": round(cost, 4),
                              "measured_on": f"{', '.join(VALIDATION)}, first {args.frames} frames"})
         save_model(target, model, card=card, storage_dtype=dtype)
+        epochs.append(card["train_config"]["epochs"])
         rows.append(card_row(
             tr, f"{chosen} (epoch {card['epochs'] if chosen == 'last' else card['best_epoch'] + 1})", card,
             " / ".join(f"{val_psnr.get(k, float('nan')):.2f}" for k in ("best", "last")) + replaced, target))
@@ -155,7 +157,9 @@ def main(argv=None):
     total = sum(p.stat().st_size for p in WEIGHTS.glob("*.npz"))
     form = args.form
     text = header(f"Bundled weights (jaxsr/weights), {form} form", started)
-    text += (f"Each model trained with {schedule(args)}: {describe(card['train_config'])}. Card columns: "
+    kept_note = " (a model kept from before: the command on its own card)" if kept else ""
+    text += (f"Each model trained with {schedule(args)}{kept_note}: "
+             f"{describe(dict(card['train_config'], epochs=max(epochs)))}. Card columns: "
              "the best epoch's validation PSNR and bicubic's on the same frames, from the training card. 'val PSNR "
              f"best / last': mean over {', '.join(VALIDATION)} (the first {args.frames} frames of each, other noise) "
              f"of the two checkpoints of the run; rule `--checkpoint {args.checkpoint}` picks the bundled one. float16 cost: "
