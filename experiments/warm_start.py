@@ -102,7 +102,7 @@ def main():
 
     small = jaxsr.load_model(init)
     k_init = jax.random.fold_in(jax.random.key(args.seed), 0)  # fit's key for initial weights, as fit grows
-    grown = jaxsr.grow_tr(small, args.tr, k_init)
+    grown = jaxsr.grow_tr(k_init, small, args.tr)
     starts = {"TR k": start_psnr(small, cfg), "grown": start_psnr(grown, cfg),
               "random": start_psnr(jaxsr.Model(*init_model(k_init, grown.config), grown.config), cfg)}
     card = jaxsr.read_metadata(init).get("card", {})

@@ -102,16 +102,17 @@ def _init_model(key, cfg: ModelConfig) -> tuple[dict, dict]:
     return params, state
 
 
-def grow_tr(model: "Model", tr: int, key) -> "Model":
+def grow_tr(key, model: "Model", tr: int) -> "Model":
     """A warm start for a larger temporal radius: the network of radius `tr` (>= model's) that starts from a
     trained `model`'s function.
 
     The stem, the 3 + model.tr blocks, the head's residual and filter branches and all BN state are carried
-    over; the added blocks are drawn as `init_model(key, ...)` draws them, and the head convolution's weights
+    over; the added blocks are drawn from `key` as `init_model` draws them, and the head convolution's weights
     on their features are zero (their head BN fresh), so the added blocks change nothing until training moves
     those weights. In the sequence form the grown network computes the trained one's output exactly (cropped
     by the added radius at each end); in the window form nearly, since its wider window shows real frames where
-    the trained one's temporally padded blocks read zeros. Same scale, widths and form as `model`.
+    the trained one's temporally padded blocks read zeros. Returns the grown `Model` (same scale, widths and form
+    as `model`).
     """
     cfg = model.config
     if tr < cfg.tr:

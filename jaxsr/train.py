@@ -299,7 +299,7 @@ def _initial_weights(k_init, model_cfg: ModelConfig, init) -> tuple[dict, dict]:
         return init_model(k_init, model_cfg)
     model = init if isinstance(init, Model) else load_model(init)
     if model.config.tr < model_cfg.tr:
-        model = grow_tr(model, model_cfg.tr, k_init)
+        model = grow_tr(k_init, model, model_cfg.tr)
     if dataclasses.replace(model.config, temporal=model_cfg.temporal) != model_cfg:
         differ = [k for k, v in config_to_dict(model_cfg).items()
                   if k != "temporal" and getattr(model.config, k) != v]

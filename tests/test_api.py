@@ -39,6 +39,7 @@ NO_ARRAYS = {
     "load_baseline": "a path or bundled name -> a BaselineModel",
     "save_baseline": "a path and a BaselineModel",
     "fit_baseline": "configs, a folder and a data source -> a BaselineModel and its history",
+    "grow_tr": "a key, a Model and a TR -> a Model",
 }
 # A whole shape tuple of short dimension names or numbers: (..., H, W), (B, 2tr+1, h, w), (T,), (N, h*r, w*r).
 _DIM = r"(\.\.\.|[A-Za-z0-9_*+/-]{1,10})"

@@ -162,14 +162,14 @@ def _trained_like(cfg, seed):
 
 def test_grow_tr_has_the_larger_networks_shapes_and_refuses_to_shrink():
     cfg = ModelConfig(tr=0, **TINY)
-    grown = grow_tr(_trained_like(cfg, 0), 2, jax.random.key(1))
+    grown = grow_tr(jax.random.key(1), _trained_like(cfg, 0), 2)
     ref = init_model(jax.random.key(2), ModelConfig(tr=2, **TINY))
     assert grown.config == ModelConfig(tr=2, **TINY)
     assert jax.tree_util.tree_structure((grown.params, grown.state)) == jax.tree_util.tree_structure(ref)
     assert [x.shape for x in jax.tree_util.tree_leaves((grown.params, grown.state))] == \
         [x.shape for x in jax.tree_util.tree_leaves(ref)]
     with pytest.raises(ValueError, match="tr must be >= the model's 2"):
-        grow_tr(grown, 1, jax.random.key(3))
+        grow_tr(jax.random.key(3), grown, 1)
 
 
 def test_grow_tr_starts_from_the_trained_function_in_the_sequence_form():
@@ -177,7 +177,7 @@ def test_grow_tr_starts_from_the_trained_function_in_the_sequence_form():
     exactly, cropped by the added radius (1 frame) at each end."""
     cfg = ModelConfig(tr=0, temporal="sequence", **TINY)
     small = _trained_like(cfg, 0)
-    grown = grow_tr(small, 1, jax.random.key(1))
+    grown = grow_tr(jax.random.key(1), small, 1)
     lr = jax.random.uniform(jax.random.key(4), (2, 12, 6, 8))
     out_small = apply_model_sequence(small.params, small.state, lr, cfg, padding="valid")
     out_grown = apply_model_sequence(grown.params, grown.state, lr, grown.config, padding="valid")
