@@ -17,8 +17,9 @@ runs/campaign/turns.jsonl (run, epoch, wall time, machine, the code's git commit
 between sessions.
 
 A run counts as converged when its validation PSNR gained under 0.2 dB over the last quarter of its epochs
-(at least 8 epochs in, so that the quarter is not a single noisy epoch); the report says which are. `--score` scores each run's selected weights (best.npz) on
-the test scenes (--frames spread over each, as sweep_tr.py) and writes experiments/results/campaign_scores.md:
+(at least 8 epochs in, so that the quarter is not a single noisy epoch); the report says which are. `--score`
+scores each run's selected weights (best.npz) on the test scenes (--frames spread over each, as sweep_tr.py) and
+writes experiments/results/campaign_scores.md:
 every TR against TR0 with the spread over every pair of runs (seeds) and the frame interval, and whether the
 difference holds beyond both.
 """

@@ -70,6 +70,14 @@ def variant_dir(runs: Path, seed: int, tr: int, lr: float | None) -> Path:
     return runs / f"s{seed}" / name
 
 
+def rates_run(runs: Path, seed: int, tr: int) -> list:
+    """The learning rates of the warm runs of `tr` under `runs` (None: the preset's first), from their folders."""
+    base = variant_dir(runs, seed, tr, None).name
+    rates = [None if d.name == base else float(d.name[len(base) + 3:])
+             for d in (runs / f"s{seed}").glob(f"{base}*") if d.is_dir()]
+    return sorted(rates, key=lambda v: -1.0 if v is None else v)
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--tr", type=int, required=True, help="the TR to train (grown from the campaign's TR - 1)")
@@ -108,9 +116,8 @@ def main():
     card = jaxsr.read_metadata(init).get("card", {})
     small_epoch = card.get("best_epoch", -1) + 1  # the card counts epochs from 0
     scratch = {r["epoch"]: r for r in history(scratch_run)}
-    variants = {lr: history(variant_dir(Path(args.runs), args.seed, args.tr, lr))
-                for lr in sorted({None, args.lr}, key=lambda v: -1.0 if v is None else v)}
-    variants = {lr: h for lr, h in variants.items() if h}
+    variants = {lr: h for lr in rates_run(Path(args.runs), args.seed, args.tr)
+                if (h := history(variant_dir(Path(args.runs), args.seed, args.tr, lr)))}
     label = {lr: f"warm, lr {preset.lr if lr is None else lr:g}" for lr in variants}
     epochs = sorted({r["epoch"] for h in variants.values() for r in h})
     rows = [["0 (start)", "0", f"{starts['random']:.2f}"]

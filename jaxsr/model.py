@@ -102,7 +102,7 @@ def _init_model(key, cfg: ModelConfig) -> tuple[dict, dict]:
     return params, state
 
 
-def grow_tr(key, model: "Model", tr: int) -> "Model":
+def grow_tr(key, model: Model, tr: int) -> Model:
     """A warm start for a larger temporal radius: the network of radius `tr` (>= model's) that starts from a
     trained `model`'s function.
 
