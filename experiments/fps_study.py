@@ -178,7 +178,7 @@ def tr0_best_verdict(best, vs_tr0) -> str:
     frame intervals (every other TR's difference to TR0 below zero with its whole interval)."""
     if any(b != 0 for b in best.values()):
         return "does not hold"
-    beyond = {f: bool(vs_tr0) and all(iv.high < 0 for iv in vs_tr0[f].values()) for f in best}
+    beyond = {f: bool(vs_tr0.get(f)) and all(iv.high < 0 for iv in vs_tr0[f].values()) for f in best}
     if all(beyond.values()):
         return "holds beyond the frame intervals"
     if not any(beyond.values()):

@@ -73,8 +73,12 @@ def variant_dir(runs: Path, seed: int, tr: int, lr: float | None) -> Path:
 def rates_run(runs: Path, seed: int, tr: int) -> list:
     """The learning rates of the warm runs of `tr` under `runs` (None: the preset's first), from their folders."""
     base = variant_dir(runs, seed, tr, None).name
-    rates = [None if d.name == base else float(d.name[len(base) + 3:])
-             for d in (runs / f"s{seed}").glob(f"{base}*") if d.is_dir()]
+    rates = [None] if (runs / f"s{seed}" / base).is_dir() else []
+    for d in (runs / f"s{seed}").glob(f"{base}-lr*"):
+        try:
+            rates.append(float(d.name[len(base) + 3:]))
+        except ValueError:  # not a folder this script made
+            continue
     return sorted(rates, key=lambda v: -1.0 if v is None else v)
 
 
@@ -91,6 +95,8 @@ def main():
     args = parser.parse_args()
     if args.tr < 1:
         parser.error("--tr must be >= 1 (TR0 has no smaller TR to grow from)")
+    if args.lr is not None and not args.lr > 0:
+        parser.error(f"--lr must be > 0, got {args.lr}")
     started = time.time()
     jaxsr.use_cpu_cores()
     small_run = run_dir(Path(args.campaign), args.seed, args.tr - 1)
@@ -103,7 +109,7 @@ def main():
         out.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(small_run / "best.npz", init)
     preset = PRESETS[PRESET]
-    cfg = dataclasses.replace(preset, seed=args.seed, epochs=args.epochs, lr=args.lr or preset.lr)
+    cfg = dataclasses.replace(preset, seed=args.seed, epochs=args.epochs, lr=preset.lr if args.lr is None else args.lr)
     done = history(out)
     if len(done) < args.epochs:
         fit(jaxsr.ModelConfig(tr=args.tr), cfg, out=out, resume=bool(done), init=init, progress=False)

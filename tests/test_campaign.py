@@ -50,6 +50,7 @@ def test_a_run_is_finished_by_its_epoch_budget_or_by_patience(tmp_path):
 def test_gain_over_the_last_quarter():
     assert campaign.gain_last_quarter([{"val_psnr": 20.0}] * 3) is None
     # one epoch that loses PSNR at epoch 4 is noise, not convergence: no verdict before 8 epochs
+    assert campaign.gain_last_quarter([{"val_psnr": p} for p in (20.0, 22.0, 24.0, 23.5)]) is None
     assert campaign.gain_last_quarter([{"val_psnr": p} for p in (20.0, 22.0, 24.0, 23.5, 25.0, 26.0, 27.0)]) is None
     records = [{"val_psnr": p} for p in (20.0, 22.0, 23.0, 23.1, 23.0, 23.3, 23.2, 23.4)]
     assert campaign.gain_last_quarter(records) == pytest.approx(23.4 - 23.3)  # last 2 of 8 against the best before

@@ -25,3 +25,5 @@ def test_tr0_best_verdict_says_at_which_rates_it_holds_beyond_the_intervals():
     assert fps_study.tr0_best_verdict(tr0_best, {1.0: {1: touching}, 2.5: {1: touching}}) \
         == "holds on the means only, inside the intervals"
     assert fps_study.tr0_best_verdict({1.0: 0, 2.5: 1}, {}) == "does not hold"
+    # TR0 alone (no other TR to compare) is not "beyond the intervals"
+    assert fps_study.tr0_best_verdict(tr0_best, {}) == "holds on the means only, inside the intervals"

@@ -151,12 +151,13 @@ def test_flops_per_frame_matches_xla(tr):
 
 
 def _trained_like(cfg, seed):
-    """Random weights with non-trivial BN state and head BN, standing in for a trained model."""
+    """Random weights with every leaf moved off its initial value (BN scales and shifts, biases, running
+    statistics), standing in for a trained model."""
     params, state = init_model(jax.random.key(seed), cfg)
-    leaves, tree = jax.tree_util.tree_flatten(state)
+    leaves, tree = jax.tree_util.tree_flatten((params, state))
     keys = jax.random.split(jax.random.key(seed + 100), len(leaves))
-    state = jax.tree_util.tree_unflatten(tree, [x + 0.1 * jnp.abs(jax.random.normal(k, x.shape))
-                                                for x, k in zip(leaves, keys)])
+    params, state = jax.tree_util.tree_unflatten(tree, [x + 0.1 * jnp.abs(jax.random.normal(k, x.shape))
+                                                        for x, k in zip(leaves, keys)])
     return Model(params, state, cfg)
 
 

@@ -40,8 +40,8 @@ def add_parser(subparsers):
                    help="with --temporal sequence: LR frames per training clip, at least 2(3+TR)+1 "
                    "(default: 2(3+TR) + jaxsr.config.DEFAULT_CLIP_OUTPUTS)")
     p.add_argument("--init", default=None,
-                   help="start from these weights (tr0..tr4 or a checkpoint of the same widths and scale, in "
-                   "either form): the same TR, e.g. to fine-tune a windowed model into the sequence form, or a "
+                   help="start from these weights (tr0..tr4 or a checkpoint of the same architecture but for its "
+                   "TR, in either form): the same TR, e.g. to fine-tune a windowed model into the sequence form, or a "
                    "smaller one, grown to --tr (jaxsr.grow_tr: a warm start from its function)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
