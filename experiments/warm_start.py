@@ -18,11 +18,11 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import shutil
 import time
 from pathlib import Path
 
-import jax
 from _eval import BLOCK, SCENE_LABELS, TEST_SCENES, format_interval, interval, scene_scores, test_clips
 from _report import header, markdown_table, write_atomic
 from campaign import PRESET, history, run_dir
@@ -31,13 +31,18 @@ import jaxsr
 from jaxsr.config import PRESETS
 from jaxsr.data import validation_set
 from jaxsr.model import init_model
-from jaxsr.train import evaluate, fit
+from jaxsr.train import evaluate, fit, run_keys
+
+
+@functools.cache
+def fit_validation(tr: int, train_cfg) -> dict:
+    """The validation windows `fit` uses for a run of `tr` with `train_cfg` (rendered once per TR)."""
+    return validation_set(run_keys(train_cfg.seed)[2], tr, train_cfg)
 
 
 def start_psnr(model, train_cfg) -> float:
     """Validation PSNR (dB) of `model` before any training step, on the frames `fit` validates on."""
-    k_val = jax.random.fold_in(jax.random.key(train_cfg.seed), 2)  # fit's validation key
-    val = validation_set(k_val, model.config.tr, train_cfg)
+    val = fit_validation(model.config.tr, train_cfg)
     return evaluate(model.params, model.state, val["windows"], val["gt"], model.config)["psnr"]
 
 
@@ -48,8 +53,7 @@ def test_scene_section(frames: int, checkpoints: dict) -> str:
     rows, per_frame = [], {}
     for label, path in checkpoints.items():
         means, per_frame[label] = scene_scores(jaxsr.load_model(path), clips)
-        card = jaxsr.read_metadata(path).get("card", {})
-        steps = (card.get("best_epoch", -1) + 1) * PRESETS[PRESET].steps_per_epoch
+        steps = jaxsr.read_metadata(path).get("card", {}).get("steps", "?")  # the checkpoint's own steps
         rows.append([label, str(steps), *(f"{means[n][0]:.2f}" for n in TEST_SCENES),
                      f"{per_frame[label].mean(-1).mean():.2f}"])
     start, scratch = list(per_frame)[:2]
@@ -115,12 +119,11 @@ def main():
         fit(jaxsr.ModelConfig(tr=args.tr), cfg, out=out, resume=bool(done), init=init, progress=False)
 
     small = jaxsr.load_model(init)
-    k_init = jax.random.fold_in(jax.random.key(args.seed), 0)  # fit's key for initial weights, as fit grows
+    k_init = run_keys(args.seed)[0]  # the key fit grew the added block with
     grown = jaxsr.grow_tr(k_init, small, args.tr)
     starts = {"TR k": start_psnr(small, cfg), "grown": start_psnr(grown, cfg),
               "random": start_psnr(jaxsr.Model(*init_model(k_init, grown.config), grown.config), cfg)}
     card = jaxsr.read_metadata(init).get("card", {})
-    small_epoch = card.get("best_epoch", -1) + 1  # the card counts epochs from 0
     scratch = {r["epoch"]: r for r in history(scratch_run)}
     variants = {lr: h for lr in rates_run(Path(args.runs), args.seed, args.tr)
                 if (h := history(variant_dir(Path(args.runs), args.seed, args.tr, lr)))}
@@ -143,8 +146,8 @@ def main():
              f"and the same validation frames (3 x {cfg.val_frames}; validation PSNR in dB, in brackets the "
              f"difference to the run from scratch at the same step). From scratch: the campaign's run "
              f"{scratch_run} (random weights, lr {preset.lr:g}). Warm: `fit(init=...)` of TR{args.tr - 1}'s "
-             f"best.npz of the campaign at the time (copied to init.npz in the run folder: epoch {small_epoch}, "
-             f"{small_epoch * cfg.steps_per_epoch} steps, {card.get('wall_time_s', 0) / 60:.0f} min of training on "
+             f"best.npz of the campaign at the time (copied to init.npz in the run folder: "
+             f"{card.get('steps', '?')} steps, {card.get('wall_time_s', 0) / 60:.0f} min of training on "
              f"its card; its own validation PSNR {starts['TR k']:.2f} dB), grown by `jaxsr.grow_tr` with the "
              f"scratch run's key for the added block, into {out.parent}/. Row 0 is before any step (the grown "
              f"network reads real frames where TR{args.tr - 1}'s padded blocks read zeros, hence the change from "

@@ -45,6 +45,7 @@ from .rbpn import (
 from .scenes import test_sequences, training_clip
 from .sensor import normalise_depth, simulate_histograms
 from .temporal import windows as temporal_windows
+from .train import run_keys
 
 __all__ = [
     "BASELINES",
@@ -479,8 +480,7 @@ def fit_baseline(kind: str, cfg, train_cfg: TrainConfig, *, out, make_batch=None
     if held and not resume:
         raise FileExistsError(f"{out} holds a training run ({', '.join(held)}); pass resume=True to continue it")
     out.mkdir(parents=True, exist_ok=True)
-    root = jax.random.key(train_cfg.seed)
-    k_init, k_data, k_val = (jax.random.fold_in(root, i) for i in range(3))
+    k_init, k_data, k_val = run_keys(train_cfg.seed)  # as `fit` derives them
     make_batch = default_baseline_data(kind, cfg, train_cfg, sensor=sensor) if make_batch is None else make_batch
     if validation is None:
         validation = baseline_validation_set(k_val, kind, cfg, train_cfg, sensor=sensor)

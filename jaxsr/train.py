@@ -52,6 +52,7 @@ __all__ = [
     "make_train_step",
     "evaluate",
     "evaluate_sequences",
+    "run_keys",
     "data_mesh",
     "fit",
 ]
@@ -290,6 +291,13 @@ def _check_resumable(path: Path, meta: dict, settings: dict):
         )
 
 
+def run_keys(seed: int):
+    """The keys `fit` derives from `TrainConfig.seed`: (initial weights, training data, validation noise); scripts
+    that reproduce a run's start (e.g. its validation frames or a grown network's added blocks) use these."""
+    root = jax.random.key(seed)
+    return tuple(jax.random.fold_in(root, i) for i in range(3))
+
+
 def _initial_weights(k_init, model_cfg: ModelConfig, init) -> tuple[dict, dict]:
     """(params, state) to start from: drawn with `k_init`, or those of `init` (a `Model` or a checkpoint
     path), which must have `model_cfg`'s architecture (its temporal form may differ: fine-tuning a windowed
@@ -464,8 +472,7 @@ def fit(
                               "continue it or overwrite=True (--force) to start a new one in its place")
     out.mkdir(parents=True, exist_ok=True)
     mesh = _choose_mesh(mesh, train_cfg.batch_size)
-    root = jax.random.key(train_cfg.seed)
-    k_init, k_data, k_val = (jax.random.fold_in(root, i) for i in range(3))
+    k_init, k_data, k_val = run_keys(train_cfg.seed)
     if make_batch is None:
         make_batch = default_data(model_cfg, train_cfg, sensor)
     if data_description is None:

@@ -20,11 +20,12 @@ from jaxsr.model import (
     apply_model_sequence,
     apply_model_sequence_train,
     flops_per_frame,
+    grow_tr,
     init_model,
     sequence_radius,
 )
 from jaxsr.streaming import stream_init, stream_step
-from jaxsr.train import fit, sequence_loss
+from jaxsr.train import fit, run_keys, sequence_loss
 
 TINY = {"base": 8, "growth": 4, "head": 16, "filter_hidden": 16}
 seq_jit = jax.jit(apply_model_sequence, static_argnums=3, static_argnames=("padding", "conv3d_impl"))
@@ -251,6 +252,10 @@ def test_fit_in_the_sequence_form_fine_tunes_a_windowed_model(tmp_path):
     grown, _ = fit(dataclasses.replace(cfg, tr=1), train, out=tmp_path / "c", make_batch=toy_clips(clip + 2, 2),
                    validation=val, progress=False, init=init)
     np.testing.assert_array_equal(grown.params["stem"]["w"], windowed.params["stem"]["w"])
+    # lr 0: the weights are those fit grew, with the key `run_keys` names for the initial weights
+    expect = grow_tr(run_keys(train.seed)[0], windowed, 1)
+    for a, b in zip(jax.tree_util.tree_leaves(grown.params), jax.tree_util.tree_leaves(expect.params)):
+        np.testing.assert_array_equal(a, b)
     assert len(grown.params["blocks"]) == len(windowed.params["blocks"]) + 1
     with pytest.raises(ValueError, match=r"architecture differs from the model to train: tr 1 \(training 0\)"):
         fit(cfg, train, out=tmp_path / "d", make_batch=toy_clips(clip, 2), validation=val, progress=False,
