@@ -29,9 +29,9 @@ from campaign import PRESET, history, run_dir
 
 import jaxsr
 from jaxsr.config import PRESETS
-from jaxsr.data import validation_set
+from jaxsr.data import run_keys, validation_set
 from jaxsr.model import init_model
-from jaxsr.train import evaluate, fit, run_keys
+from jaxsr.train import evaluate, fit
 
 
 @functools.cache

@@ -29,7 +29,7 @@ import numpy as np
 from ._files import write_text_atomic
 from .checkpoint import config_from_dict, config_to_dict, load_tree, read_metadata, resolve_model_path, save_tree
 from .config import SensorConfig, TrainConfig
-from .data import log_uniform, scene_batches, validation_set
+from .data import log_uniform, run_keys, scene_batches, validation_set
 from .histnet import HistNetConfig, apply_histnet, init_histnet
 from .metrics import psnr
 from .optim import AdamState, adam_init, adam_update, lr_schedule
@@ -45,7 +45,6 @@ from .rbpn import (
 from .scenes import test_sequences, training_clip
 from .sensor import normalise_depth, simulate_histograms
 from .temporal import windows as temporal_windows
-from .train import run_keys
 
 __all__ = [
     "BASELINES",

@@ -33,6 +33,7 @@ from .temporal import windows as temporal_windows
 
 __all__ = [
     "log_uniform",
+    "run_keys",
     "random_crop",
     "scene_batches",
     "scene_clips",
@@ -43,6 +44,13 @@ __all__ = [
 
 _SCENES = "jaxsr.scenes.training_clip -> simulate_histograms -> centre_of_mass"  # the default data, described
 _SENSOR = SensorConfig()  # the default sensor
+
+
+def run_keys(seed: int):
+    """The keys `fit` derives from `TrainConfig.seed`: (initial weights, training data, validation noise); scripts
+    that reproduce a run's start (e.g. its validation frames or a grown network's added blocks) use these."""
+    root = jax.random.key(seed)
+    return tuple(jax.random.fold_in(root, i) for i in range(3))
 
 
 def log_uniform(key, lo: float, hi: float, shape=()):

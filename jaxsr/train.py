@@ -39,7 +39,7 @@ from .checkpoint import (
     save_tree,
 )
 from .config import ModelConfig, SensorConfig, TrainConfig
-from .data import scene_batches, scene_clips, validation_set
+from .data import run_keys, scene_batches, scene_clips, validation_set
 from .inference import super_resolve
 from .metrics import huber_loss, psnr
 from .model import (Model, apply_model, apply_model_sequence_train, apply_model_train, grow_tr, init_model,
@@ -52,7 +52,6 @@ __all__ = [
     "make_train_step",
     "evaluate",
     "evaluate_sequences",
-    "run_keys",
     "data_mesh",
     "fit",
 ]
@@ -289,13 +288,6 @@ def _check_resumable(path: Path, meta: dict, settings: dict):
             f"fit: cannot resume {str(path)!r}: it was trained with other settings: "
             + ", ".join(f"{k} {saved.get(k)!r} (now {wanted.get(k)!r})" for k in differ)
         )
-
-
-def run_keys(seed: int):
-    """The keys `fit` derives from `TrainConfig.seed`: (initial weights, training data, validation noise); scripts
-    that reproduce a run's start (e.g. its validation frames or a grown network's added blocks) use these."""
-    root = jax.random.key(seed)
-    return tuple(jax.random.fold_in(root, i) for i in range(3))
 
 
 def _initial_weights(k_init, model_cfg: ModelConfig, init) -> tuple[dict, dict]:

@@ -13,6 +13,7 @@ import pytest
 from jaxsr import cli
 from jaxsr.checkpoint import load_model, model_info, read_metadata, resolve_model_path, save_model
 from jaxsr.config import ModelConfig, TrainConfig
+from jaxsr.data import run_keys
 from jaxsr.inference import Stream, iter_super_resolve, super_resolve
 from jaxsr.model import (
     Model,
@@ -25,7 +26,7 @@ from jaxsr.model import (
     sequence_radius,
 )
 from jaxsr.streaming import stream_init, stream_step
-from jaxsr.train import fit, run_keys, sequence_loss
+from jaxsr.train import fit, sequence_loss
 
 TINY = {"base": 8, "growth": 4, "head": 16, "filter_hidden": 16}
 seq_jit = jax.jit(apply_model_sequence, static_argnums=3, static_argnames=("padding", "conv3d_impl"))
