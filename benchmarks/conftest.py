@@ -18,7 +18,8 @@ def run_compiled(benchmark, fn, *args, rounds=5, iterations=1, items=1):
     )
     if benchmark.stats is not None:  # None when benchmarks are disabled
         benchmark.extra_info["items_per_s"] = items / benchmark.stats.stats.mean
-        benchmark.extra_info["device"] = f"{jax.local_device_count()} x {jax.devices()[0]}"
+        benchmark.extra_info["device"] = (f"{jax.local_device_count()} x {jax.devices()[0]} "
+                                          f"({jax.devices()[0].device_kind}, JAX {jax.__version__})")
     return result
 
 

@@ -70,7 +70,8 @@ def schedule(args) -> str:
 
 def describe(tc: dict) -> str:
     """The training schedule of a card's train_config, in words."""
-    return (f"batch {tc['batch_size']}, {tc['patch'][0]} x {tc['patch'][1]} LR crops of freshly rendered random "
+    crops = "whole 32 x 64 LR frames" if tc["patch"] is None else f"{tc['patch'][0]} x {tc['patch'][1]} LR crops"
+    return (f"batch {tc['batch_size']}, {crops} of freshly rendered random "
             f"scenes, SNR {tc['snr_range'][0]:g}-{tc['snr_range'][1]:g}, {tc['mean_signal_range'][0]:g}-"
             f"{tc['mean_signal_range'][1]:g} signal photons, up to {tc['epochs']} epochs, Adam "
             f"{tc['lr']:g} cut by {tc['lr_decay']:g} every {tc['decay_epochs']} epochs, early stopping after "

@@ -166,9 +166,9 @@ def tr_differences(scores: dict) -> dict:
     return out
 
 
-def score(root: Path, frames: int, out: str, only=None) -> None:
+def score(root: Path, frames: int, out: str, only=None, *, title: str = "Training campaign") -> None:
     """Score every run's best.npz (those in `only`; None: all) on the test scenes and write the TR differences
-    (see `tr_differences`)."""
+    (see `tr_differences`) under `title`."""
     started = time.time()
     clips = test_clips(frames, spread=True)
     scores, rows, steps = {}, [], set()
@@ -187,11 +187,10 @@ def score(root: Path, frames: int, out: str, only=None) -> None:
         print(*rows[-1], flush=True)
     if not scores:
         raise SystemExit(f"no campaign runs with weights under {root}")
-    text = header("Training campaign: the TRs on the test scenes, with seed spread and frame intervals", started)
+    text = header(f"{title}: the TRs on the test scenes, with seed spread and frame intervals", started)
     text += (f"Each run's selected weights (best.npz: lowest validation loss so far) under {root}, scored on {frames} "
              "frames spread evenly over each 500-frame test scene (as sweep_tr.py); PSNR (dB). Steps: those of the "
-             "selected weights, of the run's training so far (the campaign is not finished while runs say `training` "
-             "in campaign.md)."
+             "selected weights, of the run's training so far (not finished while its report says `training`)."
              + (" **The runs differ in steps, so the differences below mix training length with TR: an interim "
                 "reading, not the campaign's result.**" if len(steps) > 1 else "") + "\n\n")
     text += markdown_table(["run", "steps", *(SCENE_LABELS[n] for n in TEST_SCENES), "mean"], rows)
@@ -209,7 +208,7 @@ def score(root: Path, frames: int, out: str, only=None) -> None:
     print(text)
 
 
-def plot(path, curves):
+def plot(path, curves, val_frames: int):
     import matplotlib
 
     matplotlib.use("Agg")
@@ -219,14 +218,18 @@ def plot(path, curves):
     for name, (steps, psnr) in curves.items():
         ax.plot(steps, psnr, "o-" if name.startswith("s0/") else ".--", ms=3, label=name)
     ax.set_xlabel("training steps (batch 4)")
-    ax.set_ylabel("validation PSNR (dB, 3 x 64 frames)")
+    ax.set_ylabel(f"validation PSNR (dB, 3 x {val_frames} frames)")
     ax.legend(fontsize=7, ncol=2)
     save_figure(fig, path)
 
 
-def report(root: Path, out: str) -> None:
+def report(root: Path, out: str, *, preset: str = PRESET, title: str = "Training campaign",
+           how: str = "trained in turns across sessions (`python experiments/campaign.py`; each turn's machine and "
+                      "commit in turns.jsonl)") -> None:
+    """The learning curves of the runs under `root` (trained with `preset`, as `how` says): a table of where
+    each stands and a plot."""
     started = time.time()
-    cfg = PRESETS[PRESET]
+    cfg = PRESETS[preset]
     rows, curves = [], {}
     for seed, tr in RUNS:
         records = history(run_dir(root, seed, tr))
@@ -242,19 +245,18 @@ def report(root: Path, out: str) -> None:
                      f"{records[-1]['val_psnr']:.2f}", f"{best['val_psnr']:.2f} (epoch {best['epoch']})",
                      "-" if gain is None else f"{gain:+.2f}", f"{records[-1]['val_bicubic_psnr']:.2f}", state])
     if not rows:
-        raise SystemExit(f"no campaign runs under {root}: start them with `python experiments/campaign.py`")
-    text = header("Training campaign: learning curves of the long runs", started)
-    text += (f"Runs of the `{PRESET}` preset ({cfg.epochs} epochs x {cfg.steps_per_epoch} steps, batch "
+        raise SystemExit(f"no runs under {root}")
+    text = header(f"{title}: learning curves", started)
+    text += (f"Runs of the `{preset}` preset ({cfg.epochs} epochs x {cfg.steps_per_epoch} steps, batch "
              f"{cfg.batch_size}, rate cut after epoch {cfg.decay_epochs}, validation on 3 x {cfg.val_frames} "
-             f"frames) under {root}, trained in turns across sessions (`python experiments/campaign.py`; each "
-             "turn's machine and commit in turns.jsonl). Minutes: training wall time so far (sessions and "
+             f"frames) under {root}, {how}. Minutes: training wall time so far (sessions and "
              f"machines mixed). Gain: validation PSNR gained over the last quarter of the epochs so far; under "
              f"{CONVERGED_DB} dB counts as converged (from epoch {MIN_EPOCHS_CONVERGED}).\n\n")
     text += markdown_table(["run", "steps", "minutes", "val PSNR now", "best val PSNR", "gain, last quarter",
                             "bicubic", "state"], rows)
     text += f"\nPlot: `{Path(out).stem}.png`.\n"
     write_atomic(out, text)
-    plot(str(Path(out).with_suffix(".png")), curves)
+    plot(str(Path(out).with_suffix(".png")), curves, cfg.val_frames)
     print(text)
 
 

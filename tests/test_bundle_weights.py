@@ -2,6 +2,7 @@
 the validation frames, and a kept bundled file is left byte for byte (a session that trained less than the bundle
 must not make the product worse)."""
 
+import dataclasses
 import shutil
 import sys
 from pathlib import Path
@@ -61,3 +62,9 @@ def test_a_worse_bundled_model_is_replaced_by_the_run(workspace):
     bundle_weights.main([*ARGS, "--keep-better"])
     assert jaxsr.read_metadata(target)["card"]["trained_with"] == "a test"
     assert "| TR0 |" in (tmp_path / "experiments" / "results" / "weights.md").read_text()
+
+
+def test_the_schedule_is_described_for_crops_and_whole_frames():
+    for preset, crops in (("bundle", "16 x 32 LR crops"), ("paper", "whole 32 x 64 LR frames")):
+        text = bundle_weights.describe(dataclasses.asdict(jaxsr.PRESETS[preset]))
+        assert text.startswith(f"batch 4, {crops} of freshly rendered") and "3 x " in text

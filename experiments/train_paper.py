@@ -1,0 +1,119 @@
+"""The `paper` preset on an accelerator: every TR trained with the paper's schedule (15500 full-frame examples per
+epoch, batch 4, the rate x0.1 every 10 epochs, patience 5, validation on 3 x 500 frames), for as many of its 100
+epochs as a lease affords.
+
+    python experiments/train_paper.py --probe                      # each TR's train step: compile and step time
+    python experiments/train_paper.py --epochs 6 [--tr 0 1 2 3 4] [--seeds 0] [--runs runs/paper]
+    python experiments/train_paper.py --report     # experiments/results/paper_runs.md and .png: learning curves
+    python experiments/train_paper.py --score      # experiments/results/paper_scores.md: the test scenes
+
+Every (seed, TR) trains in its own process, all at once, so that one run's compilation, validation and checkpoint
+writing overlap the others' steps on the shared device (each process gets an equal share of its memory). Every
+run stops at the same `--epochs`, so the TRs compare at equal steps; runs are resumable (the same command with a
+larger --epochs continues them, `fit(resume=True)`), and each epoch's best.npz carries its training card (steps,
+device, JAX version). On 2 CPU cores an epoch of TR4 takes about 2.5 hours: this is for a GPU; CPU sessions train
+with `campaign.py`, whose report and scoring these reuse. Bundle the result with
+`bundle_weights.py --runs runs/paper/s0`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import re
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import jax
+
+import jaxsr
+from jaxsr.config import PRESETS
+from jaxsr.data import run_keys
+from jaxsr.model import init_model
+from jaxsr.optim import adam_init
+from jaxsr.train import default_data, fit, make_train_step
+
+from campaign import report, score
+
+PRESET = "paper"
+
+
+def probe(trs, steps: int) -> None:
+    """Print each TR's train step at the preset: compilation (first call) and the mean of `steps` steps."""
+    cfg = PRESETS[PRESET]
+    print(f"backend {jax.default_backend()}, {jax.devices()[0].device_kind}, jax {jax.__version__}", flush=True)
+    for tr in trs:
+        model_cfg = jaxsr.ModelConfig(tr=tr)
+        step_fn = make_train_step(model_cfg, cfg, default_data(model_cfg, cfg))
+        params, state = init_model(jax.random.key(0), model_cfg)
+        carry = (params, state, adam_init(params))
+        key = run_keys(0)[1]
+        t0 = time.perf_counter()
+        *carry, metrics = step_fn(*carry, jax.random.fold_in(key, 0), 0)
+        jax.block_until_ready(metrics)
+        compile_s = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        for s in range(1, steps + 1):
+            *carry, metrics = step_fn(*carry, jax.random.fold_in(key, s), s)
+        jax.block_until_ready(metrics)
+        step_s = (time.perf_counter() - t0) / steps
+        print(f"TR{tr}: compile + first step {compile_s:.1f} s, step {1e3 * step_s:.1f} ms "
+              f"(epoch of {cfg.steps_per_epoch} steps ~{cfg.steps_per_epoch * step_s:.0f} s), "
+              f"loss {float(metrics['loss']):.4f}", flush=True)
+
+
+def train_one(root: Path, seed: int, tr: int, epochs: int) -> None:
+    run = root / f"s{seed}" / f"tr{tr}"
+    fit(jaxsr.ModelConfig(tr=tr), dataclasses.replace(PRESETS[PRESET], seed=seed, epochs=epochs), out=run,
+        resume=(run / "last.npz").exists(), progress=False,
+        callback=lambda r: print(f"s{seed}/tr{tr} epoch {r['epoch']}: val PSNR {r['val_psnr']:.2f}, "
+                                 f"{r['epoch_time_s']:.0f} s", flush=True))
+
+
+def train_all(root: Path, seeds, trs, epochs: int) -> None:
+    """One process per run, each with an equal share of the device's memory; waits for all."""
+    runs = [(s, tr) for s in seeds for tr in trs]
+    env = dict(os.environ, XLA_PYTHON_CLIENT_MEM_FRACTION=f"{0.9 / len(runs):.3f}")
+    procs = [subprocess.Popen([sys.executable, __file__, "--one", f"s{s}/tr{tr}", "--epochs", str(epochs),
+                               "--runs", str(root)], env=env) for s, tr in runs]
+    failed = [f"s{s}/tr{tr}" for (s, tr), p in zip(runs, procs) if p.wait() != 0]
+    if failed:
+        raise SystemExit(f"runs failed: {', '.join(failed)} (their finished epochs are kept; run again to resume)")
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--probe", action="store_true", help="time each TR's train step and exit")
+    ap.add_argument("--probe-steps", type=int, default=50)
+    ap.add_argument("--epochs", type=int, default=PRESETS[PRESET].epochs,
+                    help="train every run to this many epochs (of the preset's 100)")
+    ap.add_argument("--tr", type=int, nargs="+", default=list(range(5)), choices=range(5))
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0])
+    ap.add_argument("--runs", type=Path, default=Path("runs/paper"))
+    ap.add_argument("--report", action="store_true", help="write the learning curves, train nothing")
+    ap.add_argument("--score", action="store_true", help="score the runs on the test scenes, train nothing")
+    ap.add_argument("--frames", type=int, default=100, help="with --score: frames scored per test scene")
+    ap.add_argument("--one", help=argparse.SUPPRESS)  # "s<seed>/tr<k>": the child process of one run
+    args = ap.parse_args(argv)
+    if args.probe:
+        probe(args.tr, args.probe_steps)
+    elif args.report:
+        report(args.runs, "experiments/results/paper_runs.md", preset=PRESET, title="The paper preset",
+               how="one process per run on a shared accelerator (`python experiments/train_paper.py`; each run's "
+                   "device in its card)")
+    elif args.score:
+        score(args.runs, args.frames, "experiments/results/paper_scores.md", title="The paper preset")
+    elif args.one:
+        match = re.fullmatch(r"s(\d+)/tr([0-4])", args.one)
+        if match is None:
+            ap.error(f"--one: expected s<seed>/tr<0-4>, got {args.one!r}")
+        train_one(args.runs, int(match[1]), int(match[2]), args.epochs)
+    else:
+        train_all(args.runs, args.seeds, args.tr, args.epochs)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,66 @@
+"""The accelerator driver of the paper preset (experiments/train_paper.py): one child process per run with an
+equal share of device memory, failures named, the child's run argument checked; a resumed run continues (slow:
+it trains a tiny stand-in of the preset on the CPU)."""
+
+import dataclasses
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
+
+import train_paper  # noqa: E402
+from jaxsr.config import PRESETS  # noqa: E402
+
+
+class _FakeProcess:
+    def __init__(self, args, env, fail):
+        self.args, self.env, self.code = args, env, 1 if fail else 0
+
+    def wait(self):
+        return self.code
+
+
+def _launches(monkeypatch, fail=()):
+    launched = []
+
+    def popen(args, env):
+        launched.append(_FakeProcess(args, env, args[args.index("--one") + 1] in fail))
+        return launched[-1]
+
+    monkeypatch.setattr(train_paper.subprocess, "Popen", popen)
+    return launched
+
+
+def test_one_process_per_run_each_with_an_equal_share_of_memory(monkeypatch, tmp_path):
+    launched = _launches(monkeypatch)
+    train_paper.train_all(tmp_path, [0, 1], [0, 4], epochs=3)
+    assert [p.args[p.args.index("--one") + 1] for p in launched] == ["s0/tr0", "s0/tr4", "s1/tr0", "s1/tr4"]
+    assert all(p.args[p.args.index("--epochs") + 1] == "3" for p in launched)
+    assert {p.env["XLA_PYTHON_CLIENT_MEM_FRACTION"] for p in launched} == {"0.225"}
+
+
+def test_failed_runs_are_named(monkeypatch, tmp_path):
+    _launches(monkeypatch, fail={"s0/tr4"})
+    with pytest.raises(SystemExit, match="s0/tr4") as err:
+        train_paper.train_all(tmp_path, [0], [0, 4], epochs=1)
+    assert "s0/tr0" not in str(err.value)
+
+
+@pytest.mark.parametrize("one", ["0/4", "s0/tr5", "s0-tr1", "s/tr1"])
+def test_a_malformed_run_argument_is_refused(one, capsys):
+    with pytest.raises(SystemExit):
+        train_paper.main(["--one", one, "--epochs", "1"])
+    assert "expected s<seed>/tr<0-4>" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_a_run_resumes_to_more_epochs(monkeypatch, tmp_path):
+    tiny = dataclasses.replace(PRESETS["paper"], examples_per_epoch=4, patch=(16, 32), val_frames=2)
+    monkeypatch.setitem(train_paper.PRESETS, "paper", tiny)
+    train_paper.train_one(tmp_path, 0, 0, epochs=1)
+    train_paper.train_one(tmp_path, 0, 0, epochs=2)
+    records = [json.loads(line) for line in (tmp_path / "s0" / "tr0" / "metrics.jsonl").read_text().splitlines()]
+    assert [r["epoch"] for r in records] == [1, 2] and records[-1]["step"] == 2
