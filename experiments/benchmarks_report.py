@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import shlex
 import subprocess
 import sys
 import tempfile
@@ -74,14 +73,15 @@ def recorded_elsewhere(path: Path, machine: str | None, command: str | None) -> 
     info = data.get("machine_info", {})
     return (
         f"# Benchmarks (pytest-benchmark), recorded on another machine\n\n"
-        f"- source: `{path.name}` (pytest-benchmark JSON), rendered by `python {shlex.join(sys.argv)}`\n"
+        f"- source: `{path.name}` (pytest-benchmark JSON), rendered by "
+        f"`python experiments/benchmarks_report.py --json {path.name} ...`\n"
         + (f"- recorded with: `{command}`\n" if command else "")
         + f"- machine: {machine or info.get('cpu', {}).get('brand_raw', '?') + ' host'}; JAX devices "
         f"{', '.join(devices)}; Python {info.get('python_version', '?')}\n"
         f"- date: {data.get('datetime', '?')[:10]}\n\n"
-        "Steady state after compilation, float32 (the backend's default precision). Inference: HR frames/s, 16 "
-        "frames of 32 x 64 per call (`[tr-batch]`), or 32 frames end to end from histograms in the window and "
-        "sequence forms (`test_forms_from_histograms`). GFLOP/s: `flops_per_frame` per second.\n\n"
+        "Steady state after compilation, float32 (the backend's default precision). Items/s as each suite "
+        "counts them (the module docstrings of benchmarks/: e.g. HR frames/s for inference, examples/s for "
+        "training steps). GFLOP/s: `flops_per_frame` per second.\n\n"
         + table(results)
     )
 
@@ -92,14 +92,18 @@ def main():
     ap.add_argument("--json", type=Path, help="report this pytest-benchmark JSON instead of running the suites")
     ap.add_argument("--machine", help="with --json: the machine it ran on, where the JSON does not say (GPU model)")
     ap.add_argument("--recorded-with", help="with --json: the command that recorded it")
-    ap.add_argument("--out", default=str(ROOT / "experiments/results/benchmarks.md"))
+    ap.add_argument("--out", help="the report (default experiments/results/benchmarks.md; required with --json)")
     args = ap.parse_args()
+    if args.json and (args.k or args.out is None):
+        ap.error("--json renders a recorded report: give --out (not the CPU report's file) and no -k expression")
+    if not args.json and (args.machine or args.recorded_with):
+        ap.error("--machine and --recorded-with describe a --json report")
     if args.json:
         write_atomic(args.out, recorded_elsewhere(args.json, args.machine, args.recorded_with))
         return
     started = time.time()
     results = run_suites(args.k)
-    write_atomic(args.out, header("Benchmarks (pytest-benchmark)", started) + CPU_NOTE + table(results))
+    write_atomic(args.out or str(ROOT / "experiments/results/benchmarks.md"), header("Benchmarks (pytest-benchmark)", started) + CPU_NOTE + table(results))
 
 
 if __name__ == "__main__":

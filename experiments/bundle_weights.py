@@ -70,7 +70,7 @@ def schedule(args) -> str:
 
 def describe(tc: dict) -> str:
     """The training schedule of a card's train_config, in words."""
-    crops = "whole 32 x 64 LR frames" if tc["patch"] is None else f"{tc['patch'][0]} x {tc['patch'][1]} LR crops"
+    crops = "whole LR frames" if tc["patch"] is None else f"{tc['patch'][0]} x {tc['patch'][1]} LR crops"
     return (f"batch {tc['batch_size']}, {crops} of freshly rendered random "
             f"scenes, SNR {tc['snr_range'][0]:g}-{tc['snr_range'][1]:g}, {tc['mean_signal_range'][0]:g}-"
             f"{tc['mean_signal_range'][1]:g} signal photons, up to {tc['epochs']} epochs, Adam "
@@ -150,7 +150,7 @@ def main(argv=None):
         epochs.append(card["train_config"]["epochs"])
         rows.append(card_row(
             tr, f"{chosen} (epoch {card['epochs'] if chosen == 'last' else card['best_epoch'] + 1})", card,
-            " / ".join(f"{val_psnr.get(k, float('nan')):.2f}" for k in ("best", "last")) + replaced, target))
+            " / ".join(f"{val_psnr[k]:.2f}" if k in val_psnr else "-" for k in ("best", "last")) + replaced, target))
         print(*rows[-1], flush=True)
     if len(kept) == len(args.trs):
         print("every bundled model kept; nothing written")

@@ -48,6 +48,9 @@ CONVERGED_DB = 0.2
 # A quarter of fewer epochs is one epoch, and one epoch that loses validation PSNR (it varies by a few tenths of a
 # dB from epoch to epoch) would read as converged: the last quarter holds at least two epochs.
 MIN_EPOCHS_CONVERGED = 8
+# How the campaign's runs were trained, for its report (other drivers, e.g. train_paper.py, say their own)
+CAMPAIGN_HOW = ("trained in turns across sessions (`python experiments/campaign.py`; each turn's machine and commit in "
+                "turns.jsonl). Minutes: training wall time so far (sessions and machines mixed)")
 BEYOND = {True: "yes", False: "no", None: "one run of a side: its retraining not measured"}
 
 
@@ -186,13 +189,13 @@ def score(root: Path, frames: int, out: str, only=None, *, title: str = "Trainin
                      *(f"{p:.2f}" for p in per_scene), f"{per_scene.mean():.2f}"])
         print(*rows[-1], flush=True)
     if not scores:
-        raise SystemExit(f"no campaign runs with weights under {root}")
+        raise SystemExit(f"{title}: no runs with weights (best.npz) under {root}")
     text = header(f"{title}: the TRs on the test scenes, with seed spread and frame intervals", started)
     text += (f"Each run's selected weights (best.npz: lowest validation loss so far) under {root}, scored on {frames} "
              "frames spread evenly over each 500-frame test scene (as sweep_tr.py); PSNR (dB). Steps: those of the "
              "selected weights, of the run's training so far (not finished while its report says `training`)."
              + (" **The runs differ in steps, so the differences below mix training length with TR: an interim "
-                "reading, not the campaign's result.**" if len(steps) > 1 else "") + "\n\n")
+                "reading, not a result of training to the end.**" if len(steps) > 1 else "") + "\n\n")
     text += markdown_table(["run", "steps", *(SCENE_LABELS[n] for n in TEST_SCENES), "mean"], rows)
     diffs = tr_differences(scores)
     if diffs:
@@ -208,7 +211,7 @@ def score(root: Path, frames: int, out: str, only=None, *, title: str = "Trainin
     print(text)
 
 
-def plot(path, curves, val_frames: int):
+def plot(path, curves, cfg):
     import matplotlib
 
     matplotlib.use("Agg")
@@ -217,17 +220,25 @@ def plot(path, curves, val_frames: int):
     fig, ax = plt.subplots(figsize=(6.5, 4))
     for name, (steps, psnr) in curves.items():
         ax.plot(steps, psnr, "o-" if name.startswith("s0/") else ".--", ms=3, label=name)
-    ax.set_xlabel("training steps (batch 4)")
-    ax.set_ylabel(f"validation PSNR (dB, 3 x {val_frames} frames)")
+    ax.set_xlabel(f"training steps (batch {cfg.batch_size})")
+    ax.set_ylabel(f"validation PSNR (dB, 3 x {cfg.val_frames} frames)")
     ax.legend(fontsize=7, ncol=2)
     save_figure(fig, path)
 
 
+def trained_on(run: Path) -> str:
+    """The device a run trained on, from its best.npz card ("?" without one)."""
+    if not (run / "best.npz").exists():
+        return "?"
+    hardware = jaxsr.read_metadata(run / "best.npz").get("card", {}).get("hardware", {})
+    return f"{hardware.get('device_kind', '?')}, JAX {hardware.get('jax', '?')}"
+
+
 def report(root: Path, out: str, *, preset: str = PRESET, title: str = "Training campaign",
-           how: str = "trained in turns across sessions (`python experiments/campaign.py`; each turn's machine and "
-                      "commit in turns.jsonl)") -> None:
-    """The learning curves of the runs under `root` (trained with `preset`, as `how` says): a table of where
-    each stands and a plot."""
+           how: str = CAMPAIGN_HOW) -> None:
+    """The learning curves of the runs under `root` (trained with `preset`; `how`: how they were trained and
+    what the minutes column means): a table of where each stands, the device each trained on (this report's
+    header names the machine that wrote it), and a plot."""
     started = time.time()
     cfg = PRESETS[preset]
     rows, curves = [], {}
@@ -243,20 +254,21 @@ def report(root: Path, out: str, *, preset: str = PRESET, title: str = "Training
             "" if gain is None else ", converged" if gain < CONVERGED_DB else ", still gaining")
         rows.append([name, f"{records[-1]['step']}", f"{records[-1]['wall_time_s'] / 60:.0f}",
                      f"{records[-1]['val_psnr']:.2f}", f"{best['val_psnr']:.2f} (epoch {best['epoch']})",
-                     "-" if gain is None else f"{gain:+.2f}", f"{records[-1]['val_bicubic_psnr']:.2f}", state])
+                     "-" if gain is None else f"{gain:+.2f}", f"{records[-1]['val_bicubic_psnr']:.2f}", state,
+                     trained_on(run_dir(root, seed, tr))])
     if not rows:
-        raise SystemExit(f"no runs under {root}")
+        raise SystemExit(f"{title}: no runs under {root} (none of {', '.join(f's{s}/tr{t}' for s, t in RUNS)})")
     text = header(f"{title}: learning curves", started)
     text += (f"Runs of the `{preset}` preset ({cfg.epochs} epochs x {cfg.steps_per_epoch} steps, batch "
              f"{cfg.batch_size}, rate cut after epoch {cfg.decay_epochs}, validation on 3 x {cfg.val_frames} "
-             f"frames) under {root}, {how}. Minutes: training wall time so far (sessions and "
-             f"machines mixed). Gain: validation PSNR gained over the last quarter of the epochs so far; under "
-             f"{CONVERGED_DB} dB counts as converged (from epoch {MIN_EPOCHS_CONVERGED}).\n\n")
+             f"frames) under {root}, {how}. Gain: validation PSNR gained over the last quarter of the epochs so far; under "
+             f"{CONVERGED_DB} dB counts as converged (from epoch {MIN_EPOCHS_CONVERGED}). The machine above wrote "
+             "this report; each run's training device is in its last column (from its card).\n\n")
     text += markdown_table(["run", "steps", "minutes", "val PSNR now", "best val PSNR", "gain, last quarter",
-                            "bicubic", "state"], rows)
+                            "bicubic", "state", "trained on"], rows)
     text += f"\nPlot: `{Path(out).stem}.png`.\n"
     write_atomic(out, text)
-    plot(str(Path(out).with_suffix(".png")), curves, cfg.val_frames)
+    plot(str(Path(out).with_suffix(".png")), curves, cfg)
     print(text)
 
 

@@ -9,11 +9,12 @@ epochs as a lease affords.
 
 Every (seed, TR) trains in its own process, all at once, so that one run's compilation, validation and checkpoint
 writing overlap the others' steps on the shared device (each process gets an equal share of its memory). Every
-run stops at the same `--epochs`, so the TRs compare at equal steps; runs are resumable (the same command with a
-larger --epochs continues them, `fit(resume=True)`), and each epoch's best.npz carries its training card (steps,
-device, JAX version). On 2 CPU cores an epoch of TR4 takes about 2.5 hours: this is for a GPU; CPU sessions train
-with `campaign.py`, whose report and scoring these reuse. Bundle the result with
-`bundle_weights.py --runs runs/paper/s0`.
+run stops at the same `--epochs` (unless early stopping ends it sooner), so the TRs compare at equal steps; runs
+are resumable (the same command with a larger --epochs continues them from last.npz, `fit(resume=True)`), and
+best.npz, rewritten whenever an epoch lowers the validation loss, carries its training card (steps, device, JAX
+version). This is for a GPU: on 2 CPU cores TR0's step takes 0.55 s (`--probe`), 36 minutes an epoch, and TR4's
+about ten times as long; CPU sessions train with `campaign.py`, whose report and scoring these reuse (its runs:
+seed 0 of every TR, seeds 1-2 of TR0-TR2). Bundle the result with `bundle_weights.py --runs runs/paper/s0`.
 """
 
 from __future__ import annotations
@@ -36,7 +37,7 @@ from jaxsr.model import init_model
 from jaxsr.optim import adam_init
 from jaxsr.train import default_data, fit, make_train_step
 
-from campaign import report, score
+from campaign import RUNS, report, score
 
 PRESET = "paper"
 
@@ -67,36 +68,47 @@ def probe(trs, steps: int) -> None:
 
 def train_one(root: Path, seed: int, tr: int, epochs: int) -> None:
     run = root / f"s{seed}" / f"tr{tr}"
+    # resume=True also starts a run afresh: fit resumes only from a last.npz (a run killed between its first
+    # best.npz and last.npz then starts over instead of being refused)
     fit(jaxsr.ModelConfig(tr=tr), dataclasses.replace(PRESETS[PRESET], seed=seed, epochs=epochs), out=run,
-        resume=(run / "last.npz").exists(), progress=False,
+        resume=True, progress=False,
         callback=lambda r: print(f"s{seed}/tr{tr} epoch {r['epoch']}: val PSNR {r['val_psnr']:.2f}, "
                                  f"{r['epoch_time_s']:.0f} s", flush=True))
 
 
-def train_all(root: Path, seeds, trs, epochs: int) -> None:
-    """One process per run, each with an equal share of the device's memory; waits for all."""
-    runs = [(s, tr) for s in seeds for tr in trs]
+def train_all(root: Path, runs, epochs: int) -> None:
+    """One process per (seed, tr) in `runs`, each with an equal share of the device's memory; waits for all (and
+    stops them if this process is stopped). This process never touches the device: JAX would take 75 % of its
+    memory here before the children start."""
     env = dict(os.environ, XLA_PYTHON_CLIENT_MEM_FRACTION=f"{0.9 / len(runs):.3f}")
-    procs = [subprocess.Popen([sys.executable, __file__, "--one", f"s{s}/tr{tr}", "--epochs", str(epochs),
-                               "--runs", str(root)], env=env) for s, tr in runs]
-    failed = [f"s{s}/tr{tr}" for (s, tr), p in zip(runs, procs) if p.wait() != 0]
+    procs = []
+    try:
+        for s, tr in runs:
+            procs.append(subprocess.Popen([sys.executable, __file__, "--one", f"s{s}/tr{tr}", "--epochs", str(epochs),
+                                           "--runs", str(root)], env=env))
+        failed = [f"s{s}/tr{tr}" for (s, tr), p in zip(runs, procs) if p.wait() != 0]
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.terminate()
     if failed:
         raise SystemExit(f"runs failed: {', '.join(failed)} (their finished epochs are kept; run again to resume)")
 
 
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--probe", action="store_true", help="time each TR's train step and exit")
+    mode = ap.add_mutually_exclusive_group()
+    mode.add_argument("--probe", action="store_true", help="time each TR's train step and exit")
     ap.add_argument("--probe-steps", type=int, default=50)
     ap.add_argument("--epochs", type=int, default=PRESETS[PRESET].epochs,
                     help="train every run to this many epochs (of the preset's 100)")
     ap.add_argument("--tr", type=int, nargs="+", default=list(range(5)), choices=range(5))
     ap.add_argument("--seeds", type=int, nargs="+", default=[0])
     ap.add_argument("--runs", type=Path, default=Path("runs/paper"))
-    ap.add_argument("--report", action="store_true", help="write the learning curves, train nothing")
-    ap.add_argument("--score", action="store_true", help="score the runs on the test scenes, train nothing")
+    mode.add_argument("--report", action="store_true", help="write the learning curves, train nothing")
+    mode.add_argument("--score", action="store_true", help="score the runs on the test scenes, train nothing")
     ap.add_argument("--frames", type=int, default=100, help="with --score: frames scored per test scene")
-    ap.add_argument("--one", help=argparse.SUPPRESS)  # "s<seed>/tr<k>": the child process of one run
+    mode.add_argument("--one", help=argparse.SUPPRESS)  # "s<seed>/tr<k>": the child process of one run
     args = ap.parse_args(argv)
     if args.probe:
         probe(args.tr, args.probe_steps)
@@ -112,7 +124,14 @@ def main(argv=None) -> None:
             ap.error(f"--one: expected s<seed>/tr<0-4>, got {args.one!r}")
         train_one(args.runs, int(match[1]), int(match[2]), args.epochs)
     else:
-        train_all(args.runs, args.seeds, args.tr, args.epochs)
+        runs = [(s, tr) for s in sorted(set(args.seeds)) for tr in sorted(set(args.tr))]
+        unknown = [f"s{s}/tr{tr}" for s, tr in runs if (s, tr) not in RUNS]
+        if unknown:
+            ap.error(f"{', '.join(unknown)}: not among the runs the report and scoring read "
+                     f"({', '.join(f's{s}/tr{t}' for s, t in RUNS)})")
+        if args.epochs < 1:
+            ap.error(f"--epochs must be >= 1, got {args.epochs}")
+        train_all(args.runs, runs, args.epochs)
 
 
 if __name__ == "__main__":

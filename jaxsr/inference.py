@@ -37,6 +37,10 @@ from .streaming import stream_init, stream_step
 # Frames per device and batch when `batch_size=None`: on XLA:CPU larger batches are no faster per frame
 # (benchmarks/bench_inference.py), and one frame per device keeps the latency of a stream low.
 DEFAULT_BATCH_SIZE = 1
+# The same on an accelerator, whose kernels one 32 x 64 frame leaves mostly idle: on an H100, 8 frames per call
+# ran 2.5-5.8x the frames/s of one (TR0 2516 against 581, TR4 1412 against 404;
+# experiments/results/benchmarks_gpu_h100.md).
+DEFAULT_ACCELERATOR_BATCH_SIZE = 8
 # Output frames per compiled call of a sequence-form model when `batch_size=None` (fewer for a shorter array):
 # a chunk computes 2R frames more than it returns, so longer chunks waste less. 32 frames from histograms in
 # one chunk (TR4: 46 LR frames) ran 1.1-1.2x faster than `Stream`'s per-frame step (a `lax.scan` of that step
@@ -79,10 +83,12 @@ def _infer_chunk():
 
 
 def _default_batch_size(frames, sequence_form: bool) -> int:
-    """Frames per compiled call when the caller gives none: one per local device (window form), or a chunk of
-    `DEFAULT_SEQUENCE_CHUNK` but no longer than `frames` when it has a length (sequence form)."""
+    """Frames per compiled call when the caller gives none: per local device `DEFAULT_BATCH_SIZE` on CPU or
+    `DEFAULT_ACCELERATOR_BATCH_SIZE` on an accelerator (window form), or a chunk of `DEFAULT_SEQUENCE_CHUNK` but
+    no longer than `frames` when it has a length (sequence form)."""
     if not sequence_form:
-        return DEFAULT_BATCH_SIZE * jax.local_device_count()
+        per_device = DEFAULT_BATCH_SIZE if jax.default_backend() == "cpu" else DEFAULT_ACCELERATOR_BATCH_SIZE
+        return per_device * jax.local_device_count()
     n = len(frames) if hasattr(frames, "__len__") else DEFAULT_SEQUENCE_CHUNK
     return max(1, min(n, DEFAULT_SEQUENCE_CHUNK))
 
@@ -125,8 +131,9 @@ def iter_super_resolve(model: Model, frames: Iterable, *, batch_size: int | None
     t + R, R = `model.config.input_radius` (tr for the window form, 3 + tr for the sequence form),
     edge-replicated at both ends of the stream (as `jaxsr.temporal.windows`), so frame t is yielded once frame
     t + R has arrived (or the stream has ended), `batch_size` at a time. batch_size: frames per compiled call
-    (None: `DEFAULT_BATCH_SIZE` per local device, split over the local devices when they divide it; sequence
-    form: `DEFAULT_SEQUENCE_CHUNK`, or the length of a shorter list or array). conv3d_impl: how the
+    (None: `DEFAULT_BATCH_SIZE` per local device, `DEFAULT_ACCELERATOR_BATCH_SIZE` on an accelerator, split
+    over the local devices when they divide it; sequence form: `DEFAULT_SEQUENCE_CHUNK`, or the length of a
+    shorter list or array). conv3d_impl: how the
     convolutions run (see `apply_model`). tile: the largest side, in LR pixels, of the spatial tiles a larger
     frame is cut into (`tile_spans`: margins of the network's receptive radius, `jaxsr.model.spatial_radius`, so
     the output equals the whole frame's to float rounding), bounding device memory whatever the frame size; None

@@ -1,6 +1,6 @@
 """experiments/bundle_weights.py --keep-better: a run's model replaces a bundled one only when it scores higher on
 the validation frames, and a kept bundled file is left byte for byte (a session that trained less than the bundle
-must not make the product worse)."""
+must not make the product worse); how a card's training schedule is described."""
 
 import dataclasses
 import shutil
@@ -65,6 +65,6 @@ def test_a_worse_bundled_model_is_replaced_by_the_run(workspace):
 
 
 def test_the_schedule_is_described_for_crops_and_whole_frames():
-    for preset, crops in (("bundle", "16 x 32 LR crops"), ("paper", "whole 32 x 64 LR frames")):
+    for preset, crops in (("bundle", "16 x 32 LR crops"), ("paper", "whole LR frames")):
         text = bundle_weights.describe(dataclasses.asdict(jaxsr.PRESETS[preset]))
         assert text.startswith(f"batch 4, {crops} of freshly rendered") and "3 x " in text

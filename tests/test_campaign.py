@@ -98,3 +98,18 @@ def test_an_epoch_is_expected_to_last_as_the_runs_last_one_or_another_seeds_of_i
     assert campaign.expected_epoch_s(tmp_path, 2, 0) == 130.0  # a first epoch: another seed of TR0
     write_times(2, 0, [150.0])
     assert campaign.expected_epoch_s(tmp_path, 2, 0) == 150.0
+
+
+def test_the_report_describes_the_preset_and_how_the_runs_trained(tmp_path):
+    run = campaign.run_dir(tmp_path, 0, 4)
+    run.mkdir(parents=True)
+    records = [{"epoch": e, "step": 3875 * e, "wall_time_s": 60.0 * e, "val_loss": 1.0 / e, "val_psnr": 20.0 + e,
+                "val_bicubic_psnr": 13.0} for e in (1, 2)]
+    (run / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
+    out = tmp_path / "paper_runs.md"
+    campaign.report(tmp_path, str(out), preset="paper", title="The paper preset", how="on a lent device")
+    text = out.read_text()
+    assert text.startswith("# The paper preset: learning curves")
+    assert "100 epochs x 3875 steps" in text and "3 x 500 frames" in text and "on a lent device" in text
+    assert "| s0/tr4 | 7750 | 2 | 22.00 | 22.00 (epoch 2) | - | 13.00 | training | ? |" in text
+    assert (tmp_path / "paper_runs.png").exists()

@@ -18,9 +18,19 @@ from jaxsr.config import PRESETS  # noqa: E402
 class _FakeProcess:
     def __init__(self, args, env, fail):
         self.args, self.env, self.code = args, env, 1 if fail else 0
+        self.done = self.terminated = False
 
     def wait(self):
+        if self.code == "interrupt":  # the parent is stopped while waiting for this child
+            raise KeyboardInterrupt
+        self.done = True
         return self.code
+
+    def poll(self):
+        return self.code if self.done else None
+
+    def terminate(self):
+        self.terminated = True
 
 
 def _launches(monkeypatch, fail=()):
@@ -36,17 +46,31 @@ def _launches(monkeypatch, fail=()):
 
 def test_one_process_per_run_each_with_an_equal_share_of_memory(monkeypatch, tmp_path):
     launched = _launches(monkeypatch)
-    train_paper.train_all(tmp_path, [0, 1], [0, 4], epochs=3)
-    assert [p.args[p.args.index("--one") + 1] for p in launched] == ["s0/tr0", "s0/tr4", "s1/tr0", "s1/tr4"]
-    assert all(p.args[p.args.index("--epochs") + 1] == "3" for p in launched)
+    train_paper.main(["--epochs", "3", "--seeds", "1", "0", "0", "--tr", "1", "0", "--runs", str(tmp_path)])
     assert {p.env["XLA_PYTHON_CLIENT_MEM_FRACTION"] for p in launched} == {"0.225"}
+    # each child, run as launched, trains its own run: (root, seed, tr, epochs)
+    trained = []
+    monkeypatch.setattr(train_paper, "train_one", lambda *a: trained.append(a))
+    for p in launched:
+        assert p.args[1] == train_paper.__file__
+        train_paper.main(p.args[2:])
+    assert trained == [(tmp_path, s, tr, 3) for s in (0, 1) for tr in (0, 1)]
 
 
 def test_failed_runs_are_named(monkeypatch, tmp_path):
     _launches(monkeypatch, fail={"s0/tr4"})
     with pytest.raises(SystemExit, match="s0/tr4") as err:
-        train_paper.train_all(tmp_path, [0], [0, 4], epochs=1)
+        train_paper.train_all(tmp_path, [(0, 0), (0, 4)], epochs=1)
     assert "s0/tr0" not in str(err.value)
+
+
+@pytest.mark.parametrize("args, says", [(["--seeds", "3"], "s3/tr0"), (["--seeds", "1", "--tr", "4"], "s1/tr4"),
+                                        (["--epochs", "0"], "--epochs must be >= 1")])
+def test_runs_the_report_cannot_read_and_empty_budgets_are_refused(args, says, monkeypatch, capsys):
+    launched = _launches(monkeypatch)
+    with pytest.raises(SystemExit):
+        train_paper.main(args)
+    assert says in capsys.readouterr().err and not launched
 
 
 @pytest.mark.parametrize("one", ["0/4", "s0/tr5", "s0-tr1", "s/tr1"])
@@ -64,3 +88,19 @@ def test_a_run_resumes_to_more_epochs(monkeypatch, tmp_path):
     train_paper.train_one(tmp_path, 0, 0, epochs=2)
     records = [json.loads(line) for line in (tmp_path / "s0" / "tr0" / "metrics.jsonl").read_text().splitlines()]
     assert [r["epoch"] for r in records] == [1, 2] and records[-1]["step"] == 2
+
+
+def test_children_are_stopped_with_their_parent(monkeypatch, tmp_path):
+    launched = _launches(monkeypatch)
+    original = train_paper.subprocess.Popen
+
+    def popen(args, env):
+        p = original(args, env)
+        if args[args.index("--one") + 1] == "s0/tr1":
+            p.code = "interrupt"
+        return p
+
+    monkeypatch.setattr(train_paper.subprocess, "Popen", popen)
+    with pytest.raises(KeyboardInterrupt):
+        train_paper.train_all(tmp_path, [(0, 0), (0, 1), (0, 2)], epochs=1)
+    assert [p.terminated for p in launched] == [False, True, True]
