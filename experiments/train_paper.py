@@ -114,8 +114,8 @@ def main(argv=None) -> None:
         probe(args.tr, args.probe_steps)
     elif args.report:
         report(args.runs, "experiments/results/paper_runs.md", preset=PRESET, title="The paper preset",
-               how="one process per run on a shared accelerator (`python experiments/train_paper.py`; each run's "
-                   "device in its card)")
+               how="one process per run on a shared accelerator (`python experiments/train_paper.py`). Minutes: "
+                   "each run's wall time beside the others on the one device, not its cost alone")
     elif args.score:
         score(args.runs, args.frames, "experiments/results/paper_scores.md", title="The paper preset")
     elif args.one:
