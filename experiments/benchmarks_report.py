@@ -103,7 +103,8 @@ def main():
         return
     started = time.time()
     results = run_suites(args.k)
-    write_atomic(args.out or str(ROOT / "experiments/results/benchmarks.md"), header("Benchmarks (pytest-benchmark)", started) + CPU_NOTE + table(results))
+    text = header("Benchmarks (pytest-benchmark)", started) + CPU_NOTE + table(results)
+    write_atomic(args.out or str(ROOT / "experiments/results/benchmarks.md"), text)
 
 
 if __name__ == "__main__":

@@ -261,7 +261,8 @@ def report(root: Path, out: str, *, preset: str = PRESET, title: str = "Training
     text = header(f"{title}: learning curves", started)
     text += (f"Runs of the `{preset}` preset ({cfg.epochs} epochs x {cfg.steps_per_epoch} steps, batch "
              f"{cfg.batch_size}, rate cut after epoch {cfg.decay_epochs}, validation on 3 x {cfg.val_frames} "
-             f"frames) under {root}, {how}. Gain: validation PSNR gained over the last quarter of the epochs so far; under "
+             f"frames) under {root}, {how}. Gain: validation PSNR gained over the last quarter of the epochs so "
+             "far; under "
              f"{CONVERGED_DB} dB counts as converged (from epoch {MIN_EPOCHS_CONVERGED}). The machine above wrote "
              "this report; each run's training device is in its last column (from its card).\n\n")
     text += markdown_table(["run", "steps", "minutes", "val PSNR now", "best val PSNR", "gain, last quarter",

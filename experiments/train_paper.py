@@ -29,41 +29,32 @@ import time
 from pathlib import Path
 
 import jax
+from _report import step_timer
+from campaign import RUNS, report, score
 
 import jaxsr
 from jaxsr.config import PRESETS
-from jaxsr.data import run_keys
 from jaxsr.model import init_model
 from jaxsr.optim import adam_init
 from jaxsr.train import default_data, fit, make_train_step
-
-from campaign import RUNS, report, score
 
 PRESET = "paper"
 
 
 def probe(trs, steps: int) -> None:
-    """Print each TR's train step at the preset: compilation (first call) and the mean of `steps` steps."""
+    """Print each TR's train step at the preset: compilation (with the first step) and the mean of `steps` steps."""
     cfg = PRESETS[PRESET]
     print(f"backend {jax.default_backend()}, {jax.devices()[0].device_kind}, jax {jax.__version__}", flush=True)
     for tr in trs:
         model_cfg = jaxsr.ModelConfig(tr=tr)
-        step_fn = make_train_step(model_cfg, cfg, default_data(model_cfg, cfg))
         params, state = init_model(jax.random.key(0), model_cfg)
-        carry = (params, state, adam_init(params))
-        key = run_keys(0)[1]
         t0 = time.perf_counter()
-        *carry, metrics = step_fn(*carry, jax.random.fold_in(key, 0), 0)
-        jax.block_until_ready(metrics)
+        run = step_timer(make_train_step(model_cfg, cfg, default_data(model_cfg, cfg)),
+                         [params, state, adam_init(params)])
         compile_s = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        for s in range(1, steps + 1):
-            *carry, metrics = step_fn(*carry, jax.random.fold_in(key, s), s)
-        jax.block_until_ready(metrics)
-        step_s = (time.perf_counter() - t0) / steps
+        step_s = sum(run(i) for i in range(1, steps + 1)) / steps
         print(f"TR{tr}: compile + first step {compile_s:.1f} s, step {1e3 * step_s:.1f} ms "
-              f"(epoch of {cfg.steps_per_epoch} steps ~{cfg.steps_per_epoch * step_s:.0f} s), "
-              f"loss {float(metrics['loss']):.4f}", flush=True)
+              f"(epoch of {cfg.steps_per_epoch} steps ~{cfg.steps_per_epoch * step_s:.0f} s)", flush=True)
 
 
 def train_one(root: Path, seed: int, tr: int, epochs: int) -> None:

@@ -112,8 +112,8 @@ def grow_tr(key, model: Model, tr: int) -> Model:
     those weights. In the sequence form the grown network computes the trained one's output exactly (cropped
     by the added radius at each end); in the window form nearly, since its wider window shows real frames where
     the trained one's temporally padded blocks read zeros (for a windowed TR0, whose window is one frame, the
-    outer temporal taps of those blocks never saw anything but zeros and are still at their initial values). Returns the grown `Model` (same scale, widths and form
-    as `model`).
+    outer temporal taps of those blocks never saw anything but zeros and are still at their initial values).
+    Returns the grown `Model` (same scale, widths and form as `model`).
     """
     cfg = model.config
     if tr < cfg.tr:
