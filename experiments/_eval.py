@@ -311,6 +311,47 @@ def load_baselines(names, weights=None) -> tuple[dict, dict, list[str]]:
     return models, cards, skipped
 
 
+# Ours at the learned baselines' budgets: the TR model whose training steps set each baseline's budget
+# (`train_baselines.py`'s plan), as it was bundled then (the same files as jaxsr/weights at 43a44b3 and 090f946,
+# so git stores them once). Since 2026-11-24 the bundle has been trained far longer (on a GPU), so the bundled rows
+# no longer compare at equal compute; these rows do.
+BUDGET_WEIGHTS = Path(__file__).with_name("budget_weights")
+
+
+def load_budget_models(cards: dict, folder=BUDGET_WEIGHTS) -> tuple[dict, list[str]]:
+    """Our TR model at each baseline's training budget: ({label: Model}, [a sentence for each one skipped]).
+
+    cards: {baseline label: training card} (`load_baselines`); a card's `plan` names the TR and its steps that set
+    the baseline's budget. folder/tr<N>.npz must hold that TR trained for exactly those steps (its own card says):
+    another checkpoint would compare at another budget, so it is refused. A missing file skips the row."""
+    models, skipped = {}, []
+    for base_label, card in cards.items():
+        plan = card.get("plan")
+        if not plan:
+            continue
+        tr, steps, name = plan["comparable_tr"], plan["tr_steps"], base_label.split(" (")[0]
+        label, path = f"ours TR{tr}, {name}'s budget ({steps} steps)", Path(folder) / f"tr{tr}.npz"
+        if not path.is_file():
+            skipped.append(f"{label}: skipped, no {path}")
+            print(skipped[-1], flush=True)
+            continue
+        got = jaxsr.read_metadata(path).get("card", {}).get("steps")
+        if got != steps:
+            raise SystemExit(f"{path}: a TR{tr} model trained for {got} steps, but {name}'s budget was set by TR{tr} "
+                             f"at {steps} steps; put that model there (or point --budget-weights elsewhere)")
+        models[label] = jaxsr.load_model(path)
+    return models, skipped
+
+
+def budget_source(models: dict, skipped, folder) -> str:
+    """Sentences on the rows of ours at the baselines' budgets: where from, and which were skipped."""
+    text = ""
+    if models:
+        text += ("Rows \"ours TRk, <baseline>'s budget\": the TR model whose training steps set that baseline's "
+                 f"budget, as bundled then (16 x 32 LR crops, 2 CPU cores; {folder}). ")
+    return text + "".join(s + ". " for s in skipped)
+
+
 def run_baseline(model, clip: Clip) -> np.ndarray:
     """A trained baseline on a clip: HistNet from its histograms and HR intensity, iSeeBetter from its
     centre-of-mass frames. Returns (T, H, W) normalised depth, not clipped."""

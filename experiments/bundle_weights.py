@@ -36,12 +36,13 @@ import numpy as np
 import jaxsr
 from jaxsr import scenes
 from jaxsr.checkpoint import save_model
+from jaxsr.config import TrainConfig
 
 from _eval import scene_scores, simulate_clip
 from _report import header, markdown_table, write_atomic
 
 WEIGHTS = Path(jaxsr.__file__).parent / "weights"
-VALIDATION = ("val1_street", "val2_road", "val3_courtyard")
+VALIDATION = TrainConfig().val_sequences
 MAX_COST_DB = 0.05
 SUFFIX = {"window": "", "sequence": "-seq"}  # bundled file names: tr4.npz, tr4-seq.npz
 

@@ -1,16 +1,19 @@
 """Comparison with other methods (the paper's Table 3, Figs. 8-9): bicubic, Lanczos, maximum-likelihood depth +
 bicubic, a TV-regularised multi-frame reconstruction (optimistix), the learned baselines HistNet and iSeeBetter
-retrained on our data, and ours at TR1 and TR4.
+retrained on our data, ours at TR1 and TR4 (the bundle), and ours at each baseline's training budget.
 
     python experiments/compare.py [--frames 100] [--weights DIR] [--baselines histnet iseebetter]
-                                  [--baseline-weights DIR]
+                                  [--baseline-weights DIR] [--budget-weights DIR|none]
 
 PSNR and SSIM per test scene (means over --frames frames spread evenly over its 500, as in sweep_tr.py),
 end-to-end frames/s on this machine (histograms in, HR depth out), parameter counts, a figure of example frames
 (LR input, every method, ground truth) and one of |SR - GT| error maps.
 HistNet and iSeeBetter come from `experiments/train_baselines.py` (bundled jaxsr/weights/histnet.npz,
 iseebetter.npz, or --baseline-weights); a baseline without weights is skipped with a message. The paper's rows
-for them are kept, marked as the paper's.
+for them are kept, marked as the paper's. Each baseline's budget is the steps of the TR model of comparable cost
+bundled when it was planned, times their step-time ratio (its card); the bundle has since trained far longer, so
+experiments/budget_weights keeps those TR models, scored as "ours TRk, <baseline>'s budget": the rows at equal
+compute.
 """
 
 from __future__ import annotations
@@ -30,10 +33,13 @@ from _eval import (
     SEQUENCE_FRAMES,
     TEST_SCENES,
     add_baseline_args,
+    BUDGET_WEIGHTS,
     add_model_args,
     baseline_source,
+    budget_source,
     frames_per_second,
     load_baselines,
+    load_budget_models,
     load_tr,
     run_baseline,
     score,
@@ -83,10 +89,11 @@ def over_windows(fn, radius: int):
     return run
 
 
-def methods(models, baselines=None):
+def methods(models, baselines=None, budget=None):
     """name -> function (clip) -> HR (S, H, W) normalised, the clip's S scored frames (`Clip.scored`; None: all
     its frames); clip: an `_eval.Clip` (counts (T, h, w, K), centre-of-mass depth lr (T, h, w), HR intensity
-    (T, H, W)). baselines: {label: BaselineModel}."""
+    (T, H, W)). models: {tr: Model}; baselines: {label: BaselineModel}; budget: {label: Model}, ours at the
+    baselines' budgets."""
     up = jax.jit(lambda x: jaxsr.bicubic(x, scale=4))
     lanczos = jax.jit(lambda x: jaxsr.lanczos(x, scale=4))
     ml = jax.jit(lambda c: jaxsr.bicubic(jaxsr.maximum_likelihood_depth(c, SENSOR), scale=4))
@@ -99,8 +106,9 @@ def methods(models, baselines=None):
     for label, model in (baselines or {}).items():  # HistNet upscales frame by frame, iSeeBetter reads neighbours
         wrap = per_frame if model.kind == "histnet" else over_sequence
         out[label] = wrap(lambda clip, model=model: run_baseline(model, clip))
-    for tr, model in models.items():
-        out[f"ours TR{tr}"] = lambda clip, model=model: super_resolve_frames(model, clip.lr, clip.scored)
+    ours = {**(budget or {}), **{f"ours TR{tr}": model for tr, model in models.items()}}
+    for label, model in ours.items():
+        out[label] = lambda clip, model=model: super_resolve_frames(model, clip.lr, clip.scored)
     return out
 
 
@@ -160,6 +168,9 @@ def main():
                         f"{SEQUENCE_FRAMES}: all)")
     add_model_args(parser, trs=(1, 4))
     add_baseline_args(parser)
+    parser.add_argument("--budget-weights", default=None,
+                        help="folder of tr<N>.npz: ours at each baseline's training budget (default "
+                             "experiments/budget_weights; 'none' leaves those rows out)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--figure-frame", type=int, default=None,
                         help="frame shown in the figures: the scored frame nearest to it (default: the middle one)")
@@ -170,9 +181,11 @@ def main():
     clips = test_clips(args.frames, seed=args.seed, spread=True)
     ours = {tr: load_tr(tr, args.weights) for tr in args.trs}
     baselines, cards, skipped = load_baselines(args.baselines, args.baseline_weights)
-    fns = methods(ours, baselines)
+    budget_folder = BUDGET_WEIGHTS if args.budget_weights is None else args.budget_weights
+    budget, budget_skipped = ({}, []) if budget_folder == "none" else load_budget_models(cards, budget_folder)
+    fns = methods(ours, baselines, budget)
     params = {**{f"ours TR{tr}": count_params(m.params) for tr, m in ours.items()},
-              **{label: count_params(m.params) for label, m in baselines.items()}}
+              **{label: count_params(m.params) for label, m in {**baselines, **budget}.items()}}
     outputs = {scene: {} for scene in clips}
     scores = {m: {} for m in fns}
     for m, fn in fns.items():
@@ -205,6 +218,7 @@ def main():
              "TV multi-frame: `jaxsr.recon.tv_super_resolve` "
              "(robust data term over 3 frames + smoothed TV, L-BFGS), defaults chosen on a validation sequence. "
              + baseline_source(baselines, cards, skipped, args.baseline_weights)
+             + budget_source(budget, budget_skipped, args.budget_weights or "experiments/budget_weights")
              + "Rows marked (paper) are quoted from the paper (its own data and GPU).\n\n")
     text += markdown_table(columns, rows)
     text += (f"\nFigures: `compare_frames.png` (frame {frame} of each scene, every method) and "

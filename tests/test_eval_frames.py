@@ -86,3 +86,22 @@ def test_baseline_source_tells_kept_steps_from_the_budget():
     assert ("early stopping kept" in text) == kept
     full = {label: {**card, "steps": plan["steps_per_epoch"] * plan["epochs"]}}
     assert "early stopping kept" not in _eval.baseline_source(models, full, skipped, None)
+
+
+def test_budget_models_match_the_bundled_baselines_plans():
+    # each bundled baseline's budget was set from a TR model's steps: experiments/budget_weights holds exactly it
+    _, cards, _ = _eval.load_baselines(list(_eval.BASELINE_LABELS))
+    models, skipped = _eval.load_budget_models(cards)
+    assert not skipped and len(models) == len(cards)
+    for label, card in cards.items():
+        tr, steps = card["plan"]["comparable_tr"], card["plan"]["tr_steps"]
+        assert models[f"ours TR{tr}, {label.split(' (')[0]}'s budget ({steps} steps)"].config.tr == tr
+
+
+def test_budget_models_refuse_another_checkpoint_and_skip_a_missing_one(tmp_path):
+    card = {"plan": {"comparable_tr": 0, "tr_steps": 999}}
+    with pytest.raises(SystemExit, match="trained for 1280 steps, but HistNet's budget was set by TR0 at 999"):
+        _eval.load_budget_models({"HistNet (retrained here)": card})
+    models, skipped = _eval.load_budget_models({"HistNet (retrained here)": card}, tmp_path)
+    assert models == {} and "skipped" in skipped[0]
+    assert _eval.load_budget_models({"HistNet (retrained here)": {}}) == ({}, [])  # no plan: no row

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from jaxsr import scenes
+from jaxsr.config import PRESETS
 
 T = 8  # frames rendered per sequence (the renderer compiled for the other scene tests)
 
@@ -31,6 +32,11 @@ PINNED = {
         [7.79277897, 0, 0.471930802, 8.66818333, 0, 0.449263185]),
     "val3_courtyard": ("1df148d32a31a0a4",
         [9.03281593, 0, 0.301124305, 9.02857208, 0, 0.300740302]),
+    # val4_street and val5_courtyard added 2026-11-24 (static-camera validation, issue 14)
+    "val4_street": ("03c72d73f76a603a",
+        [23.2554569, 0.0453491211, 0.365278065, 23.2469559, 0.0483398438, 0.364586443]),
+    "val5_courtyard": ("2bf2535d9621bdc5",
+        [7.74489927, 0, 0.380185008, 7.74489927, 0, 0.380185008]),
     "walkers_100fps": ("ba2edb6dfe82661f",
         [14.3427868, 0, 0.437799394, 14.421834, 0, 0.439501792]),
 }
@@ -85,6 +91,17 @@ def test_freeze_writes_atomically_and_redraws_only_what_is_named(tmp_path):
     drawn = scenes.draw_test_scene("val2_road")
     np.testing.assert_array_equal(after["val2_road/boxes/centre"], np.asarray(drawn.boxes.centre))
     assert [p.name for p in tmp_path.iterdir()] == ["scenes.npz"]  # no temporary file left behind
+
+
+@pytest.mark.parametrize("preset", sorted(PRESETS))
+def test_validation_sequences_keep_the_camera_still(preset):
+    # a moving camera leaves the modelled scene within 500 frames (val1_street: 31 % of its pixels end beyond the
+    # depth range), and model selection on those frames scores a scene unlike the test scenes
+    names = PRESETS[preset].val_sequences
+    assert names and set(names) <= set(scenes.TEST_SEQUENCES)
+    for name in names:
+        camera = scenes.test_scene(name)[0].camera
+        assert not np.any(np.asarray(camera.velocity)) and float(camera.yaw_rate) == 0.0, name
 
 
 if __name__ == "__main__":
