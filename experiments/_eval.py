@@ -226,6 +226,17 @@ def quick_config() -> TrainConfig:
     return dataclasses.replace(PRESETS["cpu"], batch_size=2, examples_per_epoch=4, epochs=1, val_frames=2)
 
 
+def as_started(run: Path, train_cfg):
+    """`train_cfg` with the validation sequences the run in folder `run` started with, so that it resumes: runs
+    begun before 2026-11-24 validate on val1_street and val3_courtyard, and `fit` refuses to resume a run under
+    other settings. A new run (no last.npz) gets `train_cfg` as it is."""
+    last = Path(run) / "last.npz"
+    if not last.is_file():
+        return train_cfg
+    saved = jaxsr.read_metadata(last).get("train_config", {}).get("val_sequences")
+    return train_cfg if saved is None else dataclasses.replace(train_cfg, val_sequences=tuple(saved))
+
+
 def get_model(tr: int, *, pretrained: bool, preset: str, runs: Path, scale: int = 4, quick: bool = False,
               progress: bool = True):
     """The bundled weights (`pretrained`), or a model trained with `preset` into runs/x{scale}/tr{tr}
@@ -244,8 +255,8 @@ def get_model(tr: int, *, pretrained: bool, preset: str, runs: Path, scale: int 
         train_cfg = quick_config()
         seq = scenes.test_sequence("val1_street", n_frames=2 * tr + 3, sensor=sensor)
         make_batch = sequence_batches(seq.depth, seq.intensity, tr, train_cfg, sensor=sensor)
-    model, history = jaxsr.fit(cfg, train_cfg, out=out, make_batch=make_batch, sensor=sensor, resume=True,
-                               progress=progress)
+    model, history = jaxsr.fit(cfg, as_started(out, train_cfg), out=out, make_batch=make_batch, sensor=sensor,
+                               resume=True, progress=progress)
     card = jaxsr.read_metadata(out / "last.npz").get("card", {})
     return model, card
 
@@ -348,7 +359,7 @@ def budget_source(models: dict, skipped, folder) -> str:
     text = ""
     if models:
         text += ("Rows \"ours TRk, <baseline>'s budget\": the TR model whose training steps set that baseline's "
-                 f"budget, as bundled then (16 x 32 LR crops, 2 CPU cores; {folder}). ")
+                 f"budget, as bundled then ({folder}; each file's card, `jaxsr info FILE`, says how it trained). ")
     return text + "".join(s + ". " for s in skipped)
 
 

@@ -9,12 +9,13 @@ The window-form models come from `jaxsr train --tr N --preset bundle --out runs/
 tr<N>.npz (results/weights.md); the sequence-form models from `experiments/train_sequence_bundle.py` and are
 bundled as tr<N>-seq.npz (`jaxsr.load_model("tr4-seq")`; results/weights_sequence.md). `--checkpoint select` (the
 default) bundles whichever of best.npz (the epoch with the lowest validation loss during training) and last.npz
-(the final epoch) has the higher mean PSNR on the three validation sequences (their first --frames frames,
-64 by default, with noise other than training's validation; never the test scenes). Not frames spread over their
-500 as the test scenes are scored: two of the three have a moving camera that leaves the modelled scene (val1 has
+(the final epoch) has the higher mean PSNR on the presets' three validation sequences (their first --frames
+frames, 64 by default, with noise other than training's validation; never the test scenes). Until 2026-11-24 those
+were val1_street, val2_road and val3_courtyard, two of which move the camera out of the modelled scene (val1 has
 31 % of its pixels beyond the depth range over 500 frames and bicubic falls from 20.5 dB on its first 8 frames to
-6-8 dB after frame 200), so only their first 64-80 frames are like the test scenes (no pixel beyond the range in
-val1's first 80). In a schedule as short as the bundle preset's, the training-time choice rests on
+6-8 dB after frame 200), so only their first 64-80 frames were like the test scenes; since then they are
+val4_street, val2_road and val5_courtyard, all with static cameras. In a schedule as short as the bundle
+preset's, the training-time choice rests on
 3 x 16 frames and on the Huber loss, which can disagree with PSNR. The
 float16 cost is measured on the same frames: the mean PSNR of the float32 model minus that of the float16 one.
 `--keep-better` (for runs that continue across sessions, such as the campaign's) lets the bundled model of each TR

@@ -34,7 +34,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from _eval import BLOCK, SCENE_LABELS, TEST_SCENES, format_interval, interval, scene_scores, test_clips
+from _eval import BLOCK, SCENE_LABELS, TEST_SCENES, as_started, format_interval, interval, scene_scores, test_clips
 from _report import header, machine, markdown_table, save_figure, write_atomic
 
 import jaxsr
@@ -127,8 +127,8 @@ def train(root: Path, hours: float, only) -> None:
             print(f"s{seed}/tr{tr}: the next epoch (~{expected / 60:.0f} min) would end after --hours; stopping")
             return
         t0 = time.time()
-        fit(jaxsr.ModelConfig(tr=tr), dataclasses.replace(cfg, seed=seed, epochs=len(records) + 1), out=run,
-            resume=bool(records), progress=False)
+        fit(jaxsr.ModelConfig(tr=tr), as_started(run, dataclasses.replace(cfg, seed=seed, epochs=len(records) + 1)),
+            out=run, resume=bool(records), progress=False)
         after = history(run)
         if len(after) == len(records):
             stuck.add(pick)

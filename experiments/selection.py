@@ -38,10 +38,12 @@ VALIDATIONS = {"old": ("val1_street", "val2_road", "val3_courtyard"),
 def card_of(path: Path) -> dict:
     """seed, steps and epoch of a checkpoint: a model's card, or a train state's run record."""
     meta = jaxsr.read_metadata(path)
-    card = meta.get("card", {})
-    run = meta.get("run", {})
-    return {"seed": card.get("seed", meta.get("train_config", {}).get("seed")),
-            "steps": run.get("step", card.get("steps")), "epoch": run.get("epoch", card.get("best_epoch"))}
+    card, run = meta.get("card", {}), meta.get("run")
+    seed = card.get("seed", meta.get("train_config", {}).get("seed"))
+    if run is not None:  # a train state: the epochs done so far (1-based, as metrics.jsonl counts them)
+        return {"seed": seed, "steps": run.get("step"), "epoch": run.get("epoch")}
+    best = card.get("best_epoch")  # a model's card counts its selected epoch from 0
+    return {"seed": seed, "steps": card.get("steps"), "epoch": None if best is None else best + 1}
 
 
 def validation_scores(model, val_frames: int, cache: dict) -> dict:
@@ -74,6 +76,8 @@ def main():
     cache, rows, found = {}, [], []
     for path in args.checkpoints:
         model = jaxsr.load_model(path)
+        if model.config.temporal != "window":
+            parser.error(f"{path}: a {model.config.temporal}-form model; this script validates the window form")
         info = card_of(path)
         val = validation_scores(model, args.val_frames, cache)
         means, frames = scene_scores(model, clips)
