@@ -98,19 +98,19 @@ def main():
                             *(f"{v} validation loss / PSNR" for v in VALIDATIONS),
                             *(SCENE_LABELS[n] for n in TEST_SCENES), "test mean"], rows)
     picks = []
-    for tr in sorted({c["tr"] for c in found}):
-        group = [c for c in found if c["tr"] == tr]
+    for tr, seed in sorted({(c["tr"], c["seed"]) for c in found}):  # one run: the choice fit makes
+        group = [c for c in found if (c["tr"], c["seed"]) == (tr, seed)]
         if len(group) < 2:
             continue
         best = max(group, key=lambda c: c["test"])
         for v in VALIDATIONS:
             pick = min(group, key=lambda c: c["val"][v][0])
-            picks.append([f"TR{tr}", v, str(pick["path"]), f"{pick['test']:.2f}", str(best["path"]),
-                          f"{pick['test'] - best['test']:+.2f}"])
+            picks.append([f"TR{tr} s{seed}", v, f"epoch {pick['epoch']}", f"{pick['test']:.2f}",
+                          f"epoch {best['epoch']}", f"{pick['test'] - best['test']:+.2f}"])
     if picks:
-        text += ("\nWhat each validation's lowest loss picks among the checkpoints of a TR, and what that pick loses "
-                 "on the test scenes against their best (0: it picked the best):\n\n")
-        text += markdown_table(["TR", "validation", "picks", "its test mean", "test best", "pick - best"], picks)
+        text += ("\nWhat each validation's lowest loss picks among the checkpoints of a run (TR and seed), and what "
+                 "that pick loses on the test scenes against the run's best there (0: it picked the best):\n\n")
+        text += markdown_table(["run", "validation", "picks", "its test mean", "test best", "pick - best"], picks)
     pairs = [[f"TR{a['tr']}", str(a["steps"]), f"s{a['seed']} - s{b['seed']}",
               format_interval(interval(a["frames"], b["frames"]))]
              for a, b in itertools.combinations(found, 2)
