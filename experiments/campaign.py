@@ -182,9 +182,9 @@ def score(root: Path, frames: int, out: str, only=None, *, title: str = "Trainin
         model = jaxsr.load_model(run / "best.npz")
         scores[(seed, tr)] = scene_scores(model, clips)[1]  # (scenes, frames) in TEST_SCENES order
         records = history(run)
-        steps.add(records[-1]["step"] if records else None)
         per_scene = scores[(seed, tr)].mean(-1)
         selected = jaxsr.read_metadata(run / "best.npz").get("card", {}).get("steps", "?")
+        steps.add(selected)  # the scored weights' steps: what the TR differences below compare at
         rows.append([f"s{seed}/tr{tr}", f"{selected} of {records[-1]['step'] if records else '?'}",
                      *(f"{p:.2f}" for p in per_scene), f"{per_scene.mean():.2f}"])
         print(*rows[-1], flush=True)
@@ -194,8 +194,8 @@ def score(root: Path, frames: int, out: str, only=None, *, title: str = "Trainin
     text += (f"Each run's selected weights (best.npz: lowest validation loss so far) under {root}, scored on {frames} "
              "frames spread evenly over each 500-frame test scene (as sweep_tr.py); PSNR (dB). Steps: those of the "
              "selected weights, of the run's training so far (not finished while its report says `training`)."
-             + (" **The runs differ in steps, so the differences below mix training length with TR: an interim "
-                "reading, not a result of training to the end.**" if len(steps) > 1 else "") + "\n\n")
+             + (" **The selected weights differ in steps, so the differences below mix training length with TR: "
+                "an interim reading, not a result of training to the end.**" if len(steps) > 1 else "") + "\n\n")
     text += markdown_table(["run", "steps", *(SCENE_LABELS[n] for n in TEST_SCENES), "mean"], rows)
     diffs = tr_differences(scores)
     if diffs:
