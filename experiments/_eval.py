@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import os
 import time
 from pathlib import Path
 
@@ -20,6 +21,7 @@ from jaxsr.config import DEFAULT_MEAN_SIGNAL, PRESETS, ModelConfig, SensorConfig
 from jaxsr.data import sequence_batches
 from jaxsr.inference import super_resolve, super_resolve_histograms
 from jaxsr.runtime import compiler_options
+from jaxsr.train import resume_config
 
 # The host's cores as CPU devices, before any JAX operation: training and `super_resolve` split batches over
 # them, as `jaxsr upscale` and `jaxsr train` do.
@@ -226,17 +228,6 @@ def quick_config() -> TrainConfig:
     return dataclasses.replace(PRESETS["cpu"], batch_size=2, examples_per_epoch=4, epochs=1, val_frames=2)
 
 
-def as_started(run: Path, train_cfg):
-    """`train_cfg` with the validation sequences the run in folder `run` started with, so that it resumes: runs
-    begun before 2026-11-24 validate on val1_street and val3_courtyard, and `fit` refuses to resume a run under
-    other settings. A new run (no last.npz) gets `train_cfg` as it is."""
-    last = Path(run) / "last.npz"
-    if not last.is_file():
-        return train_cfg
-    saved = jaxsr.read_metadata(last).get("train_config", {}).get("val_sequences")
-    return train_cfg if saved is None else dataclasses.replace(train_cfg, val_sequences=tuple(saved))
-
-
 def get_model(tr: int, *, pretrained: bool, preset: str, runs: Path, scale: int = 4, quick: bool = False,
               progress: bool = True):
     """The bundled weights (`pretrained`), or a model trained with `preset` into runs/x{scale}/tr{tr}
@@ -255,7 +246,7 @@ def get_model(tr: int, *, pretrained: bool, preset: str, runs: Path, scale: int 
         train_cfg = quick_config()
         seq = scenes.test_sequence("val1_street", n_frames=2 * tr + 3, sensor=sensor)
         make_batch = sequence_batches(seq.depth, seq.intensity, tr, train_cfg, sensor=sensor)
-    model, history = jaxsr.fit(cfg, as_started(out, train_cfg), out=out, make_batch=make_batch, sensor=sensor,
+    model, history = jaxsr.fit(cfg, resume_config(out, train_cfg), out=out, make_batch=make_batch, sensor=sensor,
                                resume=True, progress=progress)
     card = jaxsr.read_metadata(out / "last.npz").get("card", {})
     return model, card
@@ -359,7 +350,8 @@ def budget_source(models: dict, skipped, folder) -> str:
     text = ""
     if models:
         text += ("Rows \"ours TRk, <baseline>'s budget\": the TR model whose training steps set that baseline's "
-                 f"budget, as bundled then ({folder}; each file's card, `jaxsr info FILE`, says how it trained). ")
+                 f"budget, as bundled then ({os.path.relpath(folder)}; each file's card, `jaxsr info FILE`, says "
+                 "how it trained). ")
     return text + "".join(s + ". " for s in skipped)
 
 

@@ -34,12 +34,12 @@ import time
 from pathlib import Path
 
 import numpy as np
-from _eval import BLOCK, SCENE_LABELS, TEST_SCENES, as_started, format_interval, interval, scene_scores, test_clips
+from _eval import BLOCK, SCENE_LABELS, TEST_SCENES, format_interval, interval, scene_scores, test_clips
 from _report import header, machine, markdown_table, save_figure, write_atomic
 
 import jaxsr
 from jaxsr.config import PRESETS
-from jaxsr.train import fit
+from jaxsr.train import fit, resume_config
 
 PRESET = "long"
 # (seed, tr) in priority order: one seed of every TR, then the seed spread where the TR effects are smallest
@@ -127,7 +127,7 @@ def train(root: Path, hours: float, only) -> None:
             print(f"s{seed}/tr{tr}: the next epoch (~{expected / 60:.0f} min) would end after --hours; stopping")
             return
         t0 = time.time()
-        fit(jaxsr.ModelConfig(tr=tr), as_started(run, dataclasses.replace(cfg, seed=seed, epochs=len(records) + 1)),
+        fit(jaxsr.ModelConfig(tr=tr), resume_config(run, dataclasses.replace(cfg, seed=seed, epochs=len(records) + 1)),
             out=run, resume=bool(records), progress=False)
         after = history(run)
         if len(after) == len(records):

@@ -181,7 +181,7 @@ def main():
     clips = test_clips(args.frames, seed=args.seed, spread=True)
     ours = {tr: load_tr(tr, args.weights) for tr in args.trs}
     baselines, cards, skipped = load_baselines(args.baselines, args.baseline_weights)
-    budget_folder = BUDGET_WEIGHTS if args.budget_weights is None else args.budget_weights
+    budget_folder = args.budget_weights or BUDGET_WEIGHTS
     budget, budget_skipped = ({}, []) if budget_folder == "none" else load_budget_models(cards, budget_folder)
     fns = methods(ours, baselines, budget)
     params = {**{f"ours TR{tr}": count_params(m.params) for tr, m in ours.items()},
@@ -218,7 +218,7 @@ def main():
              "TV multi-frame: `jaxsr.recon.tv_super_resolve` "
              "(robust data term over 3 frames + smoothed TV, L-BFGS), defaults chosen on a validation sequence. "
              + baseline_source(baselines, cards, skipped, args.baseline_weights)
-             + budget_source(budget, budget_skipped, args.budget_weights or "experiments/budget_weights")
+             + budget_source(budget, budget_skipped, budget_folder)
              + "Rows marked (paper) are quoted from the paper (its own data and GPU).\n\n")
     text += markdown_table(columns, rows)
     text += (f"\nFigures: `compare_frames.png` (frame {frame} of each scene, every method) and "

@@ -24,15 +24,15 @@ from pathlib import Path
 import numpy as np
 
 import jaxsr
-from jaxsr.config import PRESETS
+from jaxsr.config import PRESETS, TrainConfig
 from jaxsr.data import run_keys, validation_set
 from jaxsr.train import evaluate
 
 from _eval import SCENE_LABELS, TEST_SCENES, format_interval, interval, scene_scores, test_clips
 from _report import header, markdown_table, write_atomic
 
-VALIDATIONS = {"old": ("val1_street", "val2_road", "val3_courtyard"),
-               "new": ("val4_street", "val2_road", "val5_courtyard")}
+VALIDATIONS = {"old": ("val1_street", "val2_road", "val3_courtyard"),  # the presets' until 2026-11-24
+               "new": TrainConfig().val_sequences}
 
 
 def card_of(path: Path) -> dict:

@@ -29,7 +29,6 @@ import time
 from pathlib import Path
 
 import jax
-from _eval import as_started
 from _report import step_timer
 from campaign import RUNS, report, score
 
@@ -37,7 +36,7 @@ import jaxsr
 from jaxsr.config import PRESETS
 from jaxsr.model import init_model
 from jaxsr.optim import adam_init
-from jaxsr.train import default_data, fit, make_train_step
+from jaxsr.train import default_data, fit, make_train_step, resume_config
 
 PRESET = "paper"
 
@@ -62,7 +61,7 @@ def train_one(root: Path, seed: int, tr: int, epochs: int) -> None:
     run = root / f"s{seed}" / f"tr{tr}"
     # resume=True also starts a run afresh: fit resumes only from a last.npz (a run killed between its first
     # best.npz and last.npz then starts over instead of being refused)
-    fit(jaxsr.ModelConfig(tr=tr), as_started(run, dataclasses.replace(PRESETS[PRESET], seed=seed, epochs=epochs)),
+    fit(jaxsr.ModelConfig(tr=tr), resume_config(run, dataclasses.replace(PRESETS[PRESET], seed=seed, epochs=epochs)),
         out=run, resume=True, progress=False,
         callback=lambda r: print(f"s{seed}/tr{tr} epoch {r['epoch']}: val PSNR {r['val_psnr']:.2f}, "
                                  f"{r['epoch_time_s']:.0f} s", flush=True))

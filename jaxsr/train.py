@@ -54,6 +54,7 @@ __all__ = [
     "evaluate_sequences",
     "data_mesh",
     "fit",
+    "resume_config",
 ]
 
 
@@ -288,6 +289,18 @@ def _check_resumable(path: Path, meta: dict, settings: dict):
             f"fit: cannot resume {str(path)!r}: it was trained with other settings: "
             + ", ".join(f"{k} {saved.get(k)!r} (now {wanted.get(k)!r})" for k in differ)
         )
+
+
+def resume_config(out, train_cfg: TrainConfig) -> TrainConfig:
+    """`train_cfg` with the validation sequences of the run saved in folder `out`, so that `fit(resume=True)`
+    continues it: runs begun before 2026-11-24 validate on val1_street and val3_courtyard, which the presets
+    dropped, and fit refuses to resume under other settings. Every other setting is left for fit to check. A
+    folder without a run (no last.npz) gives `train_cfg` unchanged."""
+    last = Path(out) / "last.npz"
+    if not last.is_file():
+        return train_cfg
+    saved = read_metadata(last).get("train_config", {}).get("val_sequences")
+    return train_cfg if saved is None else dataclasses.replace(train_cfg, val_sequences=tuple(saved))
 
 
 def _initial_weights(k_init, model_cfg: ModelConfig, init) -> tuple[dict, dict]:

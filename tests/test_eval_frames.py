@@ -14,8 +14,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
 import _eval
 
 import jaxsr
-from jaxsr.checkpoint import save_tree
-from jaxsr.config import PRESETS
 from jaxsr.model import Model, init_model
 
 SMALL = {"base": 8, "growth": 4, "head": 16, "filter_hidden": 16}
@@ -108,14 +106,3 @@ def test_budget_models_refuse_another_checkpoint_and_skip_a_missing_one(tmp_path
     assert models == {} and "skipped" in skipped[0]
     assert _eval.load_budget_models({"HistNet (retrained here)": {}}) == ({}, [])  # no plan: no row
 
-
-def test_a_run_resumes_with_the_validation_it_started_with(tmp_path):
-    # runs begun before the presets' validation changed keep theirs (fit refuses other settings); new runs get
-    # today's
-    cfg = PRESETS["paper"]
-    assert _eval.as_started(tmp_path, cfg) is cfg
-    old = ["val1_street", "val2_road", "val3_courtyard"]
-    save_tree(tmp_path / "last.npz", {"x": np.zeros(1)},
-              {"kind": "train_state", "train_config": {"val_sequences": old}})
-    resumed = _eval.as_started(tmp_path, cfg)
-    assert resumed.val_sequences == tuple(old) and dataclasses.replace(resumed, val_sequences=cfg.val_sequences) == cfg

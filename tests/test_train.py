@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from jax.test_util import check_grads
 
-from jaxsr.checkpoint import load_model, read_metadata
+from jaxsr.checkpoint import load_model, read_metadata, save_tree
 from jaxsr.config import PRESETS, ModelConfig, SensorConfig, TrainConfig
 from jaxsr.data import random_crop, sequence_batches, validation_set
 from jaxsr.metrics import psnr
@@ -25,7 +25,7 @@ from jaxsr.model import apply_model, apply_model_train, init_model
 from jaxsr.optim import adam_init, adam_update, step_decay
 from jaxsr.scenes import test_sequences
 from jaxsr.sensor import calibrate, calibrated_rates, expected_histograms, normalise_depth
-from jaxsr.train import evaluate, fit, huber_loss, lr_schedule
+from jaxsr.train import evaluate, fit, huber_loss, lr_schedule, resume_config
 
 # momentum 0.9: running BN statistics settle within the few dozen steps of these runs (0.99 needs hundreds)
 TINY = ModelConfig(tr=1, base=8, growth=4, head=16, filter_hidden=16, bn_momentum=0.9)
@@ -460,3 +460,15 @@ def test_train_command_end_to_end(tmp_path):
                  "--resume"]) == 0
     lines = (out / "metrics.jsonl").read_text().splitlines()
     assert len(lines) == 2
+
+
+def test_a_run_resumes_with_the_validation_it_started_with(tmp_path):
+    # runs begun before the presets' validation changed keep theirs (fit refuses other settings); new runs get
+    # today's
+    cfg = PRESETS["paper"]
+    assert resume_config(tmp_path, cfg) is cfg
+    old = ["val1_street", "val2_road", "val3_courtyard"]
+    save_tree(tmp_path / "last.npz", {"x": np.zeros(1)},
+              {"kind": "train_state", "train_config": {"val_sequences": old}})
+    resumed = resume_config(tmp_path, cfg)
+    assert resumed.val_sequences == tuple(old) and dataclasses.replace(resumed, val_sequences=cfg.val_sequences) == cfg

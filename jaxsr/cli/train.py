@@ -11,7 +11,7 @@ from .. import io
 from .._files import removing_new_folder
 from ..config import PRESETS, TEMPORAL_FORMS, ModelConfig, SensorConfig
 from ..data import sequence_batches, sequence_clips
-from ..train import fit
+from ..train import fit, resume_config
 from ._args import int_range, seed
 
 # The network has 3 + TR blocks over windows of 2TR+1 frames, so memory and compute grow with TR; the paper
@@ -77,6 +77,7 @@ def run(args) -> int:
         raise FileExistsError(f"{args.out} is a file; --out is a folder")
     make_batch = _sequence_data(args.data, args.tr, cfg, sensor, clip) if args.data else None
     with removing_new_folder(args.out):  # a run that fails or is stopped before its first epoch leaves no folder
+        cfg = resume_config(args.out, cfg) if args.resume else cfg  # a run keeps the validation it began with
         _, history = fit(model_cfg, cfg, out=args.out, make_batch=make_batch, sensor=sensor, resume=args.resume,
                          overwrite=args.force, progress=not args.no_progress, init=args.init)
     best = min(history, key=lambda r: r["val_loss"]) if history else None
