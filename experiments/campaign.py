@@ -38,6 +38,7 @@ from _eval import BLOCK, SCENE_LABELS, TEST_SCENES, format_interval, interval, s
 from _report import header, machine, markdown_table, save_figure, write_atomic
 
 import jaxsr
+from jaxsr.checkpoint import save_model
 from jaxsr.config import PRESETS
 from jaxsr.train import fit, resume_config
 
@@ -183,9 +184,9 @@ def score(root: Path, frames: int, out: str, only=None, *, title: str = "Trainin
         scores[(seed, tr)] = scene_scores(model, clips)[1]  # (scenes, frames) in TEST_SCENES order
         records = history(run)
         per_scene = scores[(seed, tr)].mean(-1)
-        selected = jaxsr.read_metadata(run / "best.npz").get("card", {}).get("steps", "?")
+        selected = selected_steps(run)
         steps.add(selected)  # the scored weights' steps: what the TR differences below compare at
-        rows.append([f"s{seed}/tr{tr}", f"{selected} of {records[-1]['step'] if records else '?'}",
+        rows.append([f"s{seed}/tr{tr}", f"{selected} of {records[-1]['step']}" if records else f"{selected}",
                      *(f"{p:.2f}" for p in per_scene), f"{per_scene.mean():.2f}"])
         print(*rows[-1], flush=True)
     if not scores:
@@ -193,7 +194,8 @@ def score(root: Path, frames: int, out: str, only=None, *, title: str = "Trainin
     text = header(f"{title}: the TRs on the test scenes, with seed spread and frame intervals", started)
     text += (f"Each run's selected weights (best.npz: lowest validation loss so far) under {root}, scored on {frames} "
              "frames spread evenly over each 500-frame test scene (as sweep_tr.py); PSNR (dB). Steps: those of the "
-             "selected weights, of the run's training so far (not finished while its report says `training`)."
+             "selected weights, of the run's training so far (not finished while its report says `training`; "
+             "a single number: the run's learning curve was not kept)."
              + (" **The selected weights differ in steps, so the differences below mix training length with TR: "
                 "an interim reading, not a result of training to the end.**" if len(steps) > 1 else "") + "\n\n")
     text += markdown_table(["run", "steps", *(SCENE_LABELS[n] for n in TEST_SCENES), "mean"], rows)
@@ -222,8 +224,56 @@ def plot(path, curves, cfg):
         ax.plot(steps, psnr, "o-" if name.startswith("s0/") else ".--", ms=3, label=name)
     ax.set_xlabel(f"training steps (batch {cfg.batch_size})")
     ax.set_ylabel(f"validation PSNR (dB, 3 x {cfg.val_frames} frames)")
-    ax.legend(fontsize=7, ncol=2)
+    if curves:  # runs kept without their curves have no line
+        ax.legend(fontsize=7, ncol=2)
     save_figure(fig, path)
+
+
+def selected_steps(run: Path) -> int | None:
+    """The steps of a run's selected weights (its best.npz card), None without them."""
+    return jaxsr.read_metadata(run / "best.npz").get("card", {}).get("steps") if (run / "best.npz").exists() else None
+
+
+def keep(root: Path, dest: Path, *, force: bool = False) -> list[str]:
+    """Copy each run's selected weights (best.npz, stored as float16 with its card) and learning curve
+    (metrics.jsonl) from `root` into `dest`, in the same layout, so that scoring and the report can be re-run from
+    a clone of the project (run folders are not committed). A kept copy is replaced only by later weights of the
+    run (more steps), or with `force`. Returns the runs copied."""
+    copied = []
+    for seed, tr in RUNS:
+        run, target = run_dir(root, seed, tr), run_dir(dest, seed, tr)
+        steps, kept_steps = selected_steps(run), selected_steps(target)
+        if steps is None or (kept_steps is not None and steps <= kept_steps and not force):
+            if steps is not None and steps < kept_steps:
+                print(f"s{seed}/tr{tr}: the kept copy has later weights ({kept_steps} steps, here {steps}); "
+                      "left as it is (force to replace it)")
+            continue
+        card = dict(jaxsr.read_metadata(run / "best.npz").get("card", {}),
+                    storage={"dtype": "float16", "kept_from": str(run)})
+        save_model(target / "best.npz", jaxsr.load_model(run / "best.npz"), card=card, storage_dtype="float16")
+        if (run / "metrics.jsonl").exists():
+            write_atomic(str(target / "metrics.jsonl"), (run / "metrics.jsonl").read_text())
+        copied.append(f"s{seed}/tr{tr}")
+        print(f"kept s{seed}/tr{tr} ({steps} steps) in {target}", flush=True)
+    return copied
+
+
+def validated_on(run: Path) -> str:
+    """The validation sequences a run selected its weights on, from its best.npz card ("?" without one)."""
+    if not (run / "best.npz").exists():
+        return "?"
+    names = jaxsr.read_metadata(run / "best.npz").get("card", {}).get("train_config", {}).get("val_sequences", ["?"])
+    return ", ".join(n.split("_")[0] for n in names)
+
+
+def _row_without_curve(name: str, run: Path) -> list:
+    """A report row for a run kept without its learning curve: its selected weights' card."""
+    card = jaxsr.read_metadata(run / "best.npz").get("card", {})
+    val, best = card.get("validation", {}), card.get("best_epoch")
+    return [name, f"{card.get('steps', '?')}", "-", "-",
+            f"{val['psnr']:.2f} (epoch {best + 1})" if "psnr" in val and best is not None else "-", "-",
+            f"{val['bicubic_psnr']:.2f}" if "bicubic_psnr" in val else "-", "weights kept, curve not",
+            validated_on(run), trained_on(run)]
 
 
 def trained_on(run: Path) -> str:
@@ -243,10 +293,11 @@ def report(root: Path, out: str, *, preset: str = PRESET, title: str = "Training
     cfg = PRESETS[preset]
     rows, curves = [], {}
     for seed, tr in RUNS:
-        records = history(run_dir(root, seed, tr))
+        records, name = history(run_dir(root, seed, tr)), f"s{seed}/tr{tr}"
         if not records:
+            if (run_dir(root, seed, tr) / "best.npz").exists():
+                rows.append(_row_without_curve(name, run_dir(root, seed, tr)))
             continue
-        name = f"s{seed}/tr{tr}"
         curves[name] = ([r["step"] for r in records], [r["val_psnr"] for r in records])
         best = max(records, key=lambda r: r["val_psnr"])
         gain = gain_last_quarter(records)
@@ -255,7 +306,7 @@ def report(root: Path, out: str, *, preset: str = PRESET, title: str = "Training
         rows.append([name, f"{records[-1]['step']}", f"{records[-1]['wall_time_s'] / 60:.0f}",
                      f"{records[-1]['val_psnr']:.2f}", f"{best['val_psnr']:.2f} (epoch {best['epoch']})",
                      "-" if gain is None else f"{gain:+.2f}", f"{records[-1]['val_bicubic_psnr']:.2f}", state,
-                     trained_on(run_dir(root, seed, tr))])
+                     validated_on(run_dir(root, seed, tr)), trained_on(run_dir(root, seed, tr))])
     if not rows:
         raise SystemExit(f"{title}: no runs under {root} (none of {', '.join(f's{s}/tr{t}' for s, t in RUNS)})")
     text = header(f"{title}: learning curves", started)
@@ -264,9 +315,11 @@ def report(root: Path, out: str, *, preset: str = PRESET, title: str = "Training
              f"frames) under {root}, {how}. Gain: validation PSNR gained over the last quarter of the epochs so "
              "far; under "
              f"{CONVERGED_DB} dB counts as converged (from epoch {MIN_EPOCHS_CONVERGED}). The machine above wrote "
-             "this report; each run's training device is in its last column (from its card).\n\n")
+             "this report; each run's validation sequences and training device are in its last columns (from its "
+             "card): validation PSNR compares only between runs validated on the same sequences. A run whose "
+             "learning curve was not kept shows its selected weights' card.\n\n")
     text += markdown_table(["run", "steps", "minutes", "val PSNR now", "best val PSNR", "gain, last quarter",
-                            "bicubic", "state", "trained on"], rows)
+                            "bicubic", "state", "validation", "trained on"], rows)
     text += f"\nPlot: `{Path(out).stem}.png`.\n"
     write_atomic(out, text)
     plot(str(Path(out).with_suffix(".png")), curves, cfg)

@@ -4,6 +4,7 @@ epochs as a lease affords.
 
     python experiments/train_paper.py --probe                      # each TR's train step: compile and step time
     python experiments/train_paper.py --epochs 6 [--tr 0 1 2 3 4] [--seeds 0] [--runs runs/paper]
+    python experiments/train_paper.py --keep       # the runs' selected weights and curves into paper_weights/
     python experiments/train_paper.py --report     # experiments/results/paper_runs.md and .png: learning curves
     python experiments/train_paper.py --score      # experiments/results/paper_scores.md: the test scenes
 
@@ -12,9 +13,12 @@ writing overlap the others' steps on the shared device (each process gets an equ
 run stops at the same `--epochs` (unless early stopping ends it sooner), so the TRs compare at equal steps; runs
 are resumable (the same command with a larger --epochs continues them from last.npz, `fit(resume=True)`), and
 best.npz, rewritten whenever an epoch lowers the validation loss, carries its training card (steps, device, JAX
-version). This is for a GPU: on 2 CPU cores TR0's step takes 0.55 s (`--probe`), 36 minutes an epoch, and TR4's
-about ten times as long; CPU sessions train with `campaign.py`, whose report and scoring these reuse (its runs:
-seed 0 of every TR, seeds 1-2 of TR0-TR2). Bundle the result with `bundle_weights.py --runs runs/paper/s0`.
+version). Run folders are not committed: `--keep` copies each run's best.npz (float16) and metrics.jsonl into
+experiments/paper_weights/, which `--report` and `--score` read by default, so that the results can be re-made
+from a clone. This is for a GPU: on 2 CPU cores (as two devices, as `--probe` and each run use them) TR0's step
+took 0.58 s and its epoch 38 minutes on 2026-11-24's EPYC, TR1's step 1.7 s on one device (about 110 minutes an
+epoch), TR4's several times that. CPU sessions train with `campaign.py`, whose report and scoring these reuse (its
+runs: seed 0 of every TR, seeds 1-2 of TR0-TR2). Bundle the result with `bundle_weights.py --runs runs/paper/s0`.
 """
 
 from __future__ import annotations
@@ -30,26 +34,32 @@ from pathlib import Path
 
 import jax
 from _report import step_timer
-from campaign import RUNS, report, score
+from campaign import RUNS, keep, report, score
 
 import jaxsr
 from jaxsr.config import PRESETS
 from jaxsr.model import init_model
 from jaxsr.optim import adam_init
-from jaxsr.train import default_data, fit, make_train_step, resume_config
+from jaxsr.train import data_mesh, default_data, fit, make_train_step, resume_config
 
 PRESET = "paper"
+# The runs' selected weights and learning curves, committed (float16), which --score and --report read by default:
+# run folders are not committed and are lost with the machine that trained them.
+KEPT = Path(__file__).with_name("paper_weights")
 
 
 def probe(trs, steps: int) -> None:
-    """Print each TR's train step at the preset: compilation (with the first step) and the mean of `steps` steps."""
+    """Print each TR's train step at the preset, as `fit` runs it (the batch split over the devices when there are
+    several that divide it): compilation (with the first step) and the mean of `steps` steps."""
     cfg = PRESETS[PRESET]
-    print(f"backend {jax.default_backend()}, {jax.devices()[0].device_kind}, jax {jax.__version__}", flush=True)
+    n = jaxsr.use_cpu_cores()  # as train_one
+    mesh = data_mesh() if n > 1 and cfg.batch_size % n == 0 else None
+    print(f"backend {jax.default_backend()}, {n} x {jax.devices()[0].device_kind}, jax {jax.__version__}", flush=True)
     for tr in trs:
         model_cfg = jaxsr.ModelConfig(tr=tr)
         params, state = init_model(jax.random.key(0), model_cfg)
         t0 = time.perf_counter()
-        run = step_timer(make_train_step(model_cfg, cfg, default_data(model_cfg, cfg)),
+        run = step_timer(make_train_step(model_cfg, cfg, default_data(model_cfg, cfg), mesh=mesh),
                          [params, state, adam_init(params)])
         compile_s = time.perf_counter() - t0
         step_s = sum(run(i) for i in range(1, steps + 1)) / steps
@@ -59,6 +69,9 @@ def probe(trs, steps: int) -> None:
 
 def train_one(root: Path, seed: int, tr: int, epochs: int) -> None:
     run = root / f"s{seed}" / f"tr{tr}"
+    # a CPU host's cores as devices, over which fit splits each batch (TR0 at this preset: 0.58 s a step on two
+    # cores as two devices, 0.78 s as one, 2026-11-24); on an accelerator this changes nothing
+    jaxsr.use_cpu_cores()
     # resume=True also starts a run afresh: fit resumes only from a last.npz (a run killed between its first
     # best.npz and last.npz then starts over instead of being refused)
     fit(jaxsr.ModelConfig(tr=tr), resume_config(run, dataclasses.replace(PRESETS[PRESET], seed=seed, epochs=epochs)),
@@ -95,18 +108,28 @@ def main(argv=None) -> None:
                     help="train every run to this many epochs (of the preset's 100)")
     ap.add_argument("--tr", type=int, nargs="+", default=list(range(5)), choices=range(5))
     ap.add_argument("--seeds", type=int, nargs="+", default=[0])
-    ap.add_argument("--runs", type=Path, default=Path("runs/paper"))
+    ap.add_argument("--runs", type=Path, default=None,
+                    help=f"the runs' folder (default runs/paper; with --score and --report {KEPT.name}/)")
     mode.add_argument("--report", action="store_true", help="write the learning curves, train nothing")
     mode.add_argument("--score", action="store_true", help="score the runs on the test scenes, train nothing")
+    mode.add_argument("--keep", action="store_true",
+                      help=f"copy the runs' selected weights (float16) and learning curves into {KEPT.name}/")
+    ap.add_argument("--force", action="store_true", help="with --keep: replace kept copies with earlier weights")
     ap.add_argument("--frames", type=int, default=100, help="with --score: frames scored per test scene")
     mode.add_argument("--one", help=argparse.SUPPRESS)  # "s<seed>/tr<k>": the child process of one run
     args = ap.parse_args(argv)
+    if args.runs is None:
+        args.runs = KEPT if args.score or args.report else Path("runs/paper")
     if args.probe:
         probe(args.tr, args.probe_steps)
     elif args.report:
         report(args.runs, "experiments/results/paper_runs.md", preset=PRESET, title="The paper preset",
-               how="one process per run on a shared accelerator (`python experiments/train_paper.py`). Minutes: "
-                   "each run's wall time beside the others on the one device, not its cost alone")
+               how="one process per run (`python experiments/train_paper.py`), all at once on one accelerator or "
+                   "one at a time on a CPU host (see the last column). Minutes: each run's wall time, beside the "
+                   "others where they shared a device, not its cost alone")
+    elif args.keep:
+        if not keep(args.runs, KEPT, force=args.force):
+            print(f"nothing new to keep from {args.runs}")
     elif args.score:
         score(args.runs, args.frames, "experiments/results/paper_scores.md", title="The paper preset")
     elif args.one:

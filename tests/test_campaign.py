@@ -6,12 +6,15 @@ import json
 import sys
 from pathlib import Path
 
+import jax
 import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
 
 import campaign  # noqa: E402
+import jaxsr  # noqa: E402
+from jaxsr.checkpoint import save_model  # noqa: E402
 from jaxsr.config import PRESETS  # noqa: E402
 
 CFG = PRESETS[campaign.PRESET]
@@ -111,5 +114,43 @@ def test_the_report_describes_the_preset_and_how_the_runs_trained(tmp_path):
     text = out.read_text()
     assert text.startswith("# The paper preset: learning curves")
     assert "100 epochs x 3875 steps" in text and "3 x 500 frames" in text and "on a lent device" in text
-    assert "| s0/tr4 | 7750 | 2 | 22.00 | 22.00 (epoch 2) | - | 13.00 | training | ? |" in text
+    assert "| s0/tr4 | 7750 | 2 | 22.00 | 22.00 (epoch 2) | - | 13.00 | training | ? | ? |" in text
     assert (tmp_path / "paper_runs.png").exists()
+
+
+def _select(run, steps):
+    """A run's best.npz: a small model whose card says it was selected at `steps`, validated on val4, val2, val5."""
+    cfg = jaxsr.ModelConfig(base=8, growth=4, head=8, filter_hidden=8)
+    params, state = jaxsr.init_model(jax.random.key(steps), cfg)
+    card = {"steps": steps, "best_epoch": 1, "validation": {"psnr": 27.5, "bicubic_psnr": 13.4},
+            "train_config": {"val_sequences": ["val4_street", "val2_road", "val5_courtyard"]}}
+    save_model(run / "best.npz", jaxsr.Model(params, state, cfg), card=card)
+
+
+def test_keep_copies_the_selected_weights_as_float16_and_never_replaces_later_ones(tmp_path):
+    root, dest = tmp_path / "runs", tmp_path / "kept"
+    run, kept = campaign.run_dir(root, 2, 0), campaign.run_dir(dest, 2, 0)
+    _write(root, 2, 0, [1.0, 0.5])
+    _select(run, 200)
+    assert campaign.keep(root, dest) == ["s2/tr0"]
+    meta = jaxsr.read_metadata(kept / "best.npz")
+    assert meta["storage_dtype"] == "float16" and meta["card"]["steps"] == 200
+    assert meta["card"]["storage"]["kept_from"] == str(run)
+    assert (kept / "metrics.jsonl").read_text() == (run / "metrics.jsonl").read_text()
+    stored, copied = jaxsr.load_model(run / "best.npz"), jaxsr.load_model(kept / "best.npz")
+    for a, b in zip(jax.tree.leaves(stored), jax.tree.leaves(copied), strict=True):
+        np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-3, atol=1e-4)
+    assert campaign.keep(root, dest) == []  # nothing newer
+    _select(run, 100)  # the run trained again and selected earlier weights: the kept copy stays
+    assert campaign.keep(root, dest) == [] and campaign.selected_steps(kept) == 200
+    assert campaign.keep(root, dest, force=True) == ["s2/tr0"] and campaign.selected_steps(kept) == 100
+
+
+def test_the_report_shows_a_run_kept_without_its_curve_from_its_card(tmp_path):
+    run = campaign.run_dir(tmp_path, 0, 3)
+    run.mkdir(parents=True)
+    _select(run, 7750)
+    out = tmp_path / "paper_runs.md"
+    campaign.report(tmp_path, str(out), preset="paper", title="The paper preset", how="on a lent device")
+    assert ("| s0/tr3 | 7750 | - | - | 27.50 (epoch 2) | - | 13.40 | weights kept, curve not | val4, val2, val5 | "
+            in out.read_text())

@@ -104,3 +104,14 @@ def test_children_are_stopped_with_their_parent(monkeypatch, tmp_path):
     with pytest.raises(KeyboardInterrupt):
         train_paper.train_all(tmp_path, [(0, 0), (0, 1), (0, 2)], epochs=1)
     assert [p.terminated for p in launched] == [False, True, True]
+
+
+@pytest.mark.parametrize("mode, target", [("--score", "score"), ("--report", "report"), ("--keep", "keep")])
+def test_score_and_report_read_the_kept_runs_and_keep_writes_them(mode, target, monkeypatch):
+    called = []
+    monkeypatch.setattr(train_paper, target, lambda root, *a, **k: called.append((root, *a)) or ["s0/tr0"])
+    train_paper.main([mode])
+    assert called[0][0] == (Path("runs/paper") if mode == "--keep" else train_paper.KEPT)
+    if mode == "--keep":
+        assert called[0][1] == train_paper.KEPT
+    assert train_paper.KEPT.name == "paper_weights" and (train_paper.KEPT / "s0" / "tr4" / "best.npz").exists()
