@@ -5,6 +5,11 @@ The public API is re-exported here; see README.md and DESIGN.md for the pipeline
 
 __version__ = "0.1.0"
 
+# before any module below can start JAX's CPU backend: XLA reads its flags then (see runtime.limit_cpu_fusions)
+from .runtime import guard_cpu_fusions as _guard_cpu_fusions
+
+_guard_cpu_fusions()
+
 from .adaptive import choose_tr as choose_tr
 from .adaptive import estimate_motion as estimate_motion
 from .baselines import bicubic as bicubic
@@ -91,6 +96,7 @@ from .optim import step_decay as step_decay
 from .recon import tv_super_resolve as tv_super_resolve
 from .runtime import compiler_options as compiler_options
 from .runtime import enable_compilation_cache as enable_compilation_cache
+from .runtime import limit_cpu_fusions as limit_cpu_fusions
 from .runtime import use_cpu_cores as use_cpu_cores
 from .scenes import Scene as Scene
 from .scenes import render as render

@@ -13,7 +13,7 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 
-__all__ = ["MAX_CPU_DEVICES", "use_cpu_cores", "compiler_options", "enable_compilation_cache"]
+__all__ = ["MAX_CPU_DEVICES", "use_cpu_cores", "compiler_options", "enable_compilation_cache", "limit_cpu_fusions"]
 
 # `use_cpu_cores` exposes at most this many: the speed-up was measured on 2 cores only.
 MAX_CPU_DEVICES = 8
@@ -22,6 +22,49 @@ MAX_CPU_DEVICES = 8
 # (240 GFLOP/s); TR4 inference went from 4.6 to 7.0 frames/s on one device (benchmarks/compare_torch.py).
 # The empty list turns YNNPACK fusions off.
 _CPU_OPTIONS = {"xla_cpu_experimental_ynn_fusion_type": ""}
+
+
+# XLA:CPU's YNNPACK element-wise and reduction fusions crash the process (SIGSEGV) on an x86 host without AVX-512:
+# a 2-core AMD EPYC with AVX2 only, JAX 0.10.2 (2026-11-24), running the vmapped gradient of `pipeline_metric`
+# over two or more sensors (tests/test_pipeline.py), with either fusion type alone; with YNNPACK kept to dots and
+# convolutions it runs. Hosts with AVX-512 ran the whole suite with XLA's defaults (sessions before 2026-11-24).
+_YNN_OPTION = "xla_cpu_experimental_ynn_fusion_type"
+_YNN_WITHOUT_AVX512 = "individual_dot,individual_convolution"
+
+
+def limit_cpu_fusions(xla_flags: str, cpu_flags) -> str:
+    """The XLA_FLAGS a host should run with: returns `xla_flags` plus YNNPACK fusions limited to dots and
+    convolutions when the host is x86 without AVX-512 (see the note above `_YNN_OPTION`), `xla_flags` unchanged on
+    other hosts or when it sets that option already (the user's choice stands).
+
+    cpu_flags: the host's CPU feature names (/proc/cpuinfo's "flags"), None when unknown (then unchanged). Pure:
+    `import jaxsr` applies it to the environment (`guard_cpu_fusions`)."""
+    x86_without_avx512 = cpu_flags is not None and "sse2" in cpu_flags and "avx512f" not in cpu_flags
+    if not x86_without_avx512 or _YNN_OPTION in xla_flags:
+        return xla_flags
+    return f"{xla_flags} --{_YNN_OPTION}={_YNN_WITHOUT_AVX512}".strip()
+
+
+def _host_cpu_flags() -> frozenset | None:
+    """The CPU feature names of /proc/cpuinfo's first "flags" line (x86 Linux), None elsewhere."""
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("flags"):
+                    return frozenset(line.split(":", 1)[1].split())
+    except OSError:
+        pass
+    return None
+
+
+def guard_cpu_fusions() -> None:
+    """Apply `limit_cpu_fusions` to this process's XLA_FLAGS. XLA reads them when JAX's CPU backend starts, so this
+    works only before the first JAX computation: `import jaxsr` calls it; code that ran JAX before importing jaxsr
+    on such a host should set the option in XLA_FLAGS itself."""
+    flags = os.environ.get("XLA_FLAGS", "")
+    limited = limit_cpu_fusions(flags, _host_cpu_flags())
+    if limited != flags:
+        os.environ["XLA_FLAGS"] = limited
 
 
 def use_cpu_cores(*, n: int | None = None) -> int:

@@ -32,6 +32,7 @@ NO_ARRAYS = {
     "load_model": "a path or bundled name -> a Model",
     "save_model": "a path and a Model",
     "use_cpu_cores": "a device count",
+    "limit_cpu_fusions": "XLA flags and CPU feature names -> XLA flags",
     "gate_warnings": "a Gate and a DepthScale -> sentences",
     "gate_of_tags": "TimeTags -> a Gate",
     "read_time_tags": "a path -> TimeTags",

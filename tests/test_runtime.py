@@ -10,7 +10,7 @@ import pytest
 
 from jaxsr.config import ModelConfig
 from jaxsr.model import apply_model, init_model
-from jaxsr.runtime import compiler_options, enable_compilation_cache, use_cpu_cores
+from jaxsr.runtime import compiler_options, enable_compilation_cache, limit_cpu_fusions, use_cpu_cores
 
 
 def test_compilation_cache_folder(tmp_path, monkeypatch):
@@ -50,6 +50,22 @@ def test_importing_jaxsr_starts_no_backend():
     env = dict(os.environ, XLA_FLAGS="", JAX_PLATFORMS="cpu")
     proc = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0 and proc.stdout.split()[-1:] == ["3"], proc.stderr[-2000:]
+
+
+AVX2_ONLY = frozenset("fpu sse sse2 avx avx2 fma".split())
+LIMITED = "--xla_cpu_experimental_ynn_fusion_type=individual_dot,individual_convolution"
+
+
+@pytest.mark.parametrize("xla_flags, cpu_flags, expected", [
+    ("", AVX2_ONLY, LIMITED),  # x86 without AVX-512: YNNPACK kept to dots and convolutions
+    ("--xla_force_host_platform_device_count=2", AVX2_ONLY, "--xla_force_host_platform_device_count=2 " + LIMITED),
+    ("", AVX2_ONLY | {"avx512f", "avx512bw"}, ""),  # AVX-512: XLA's defaults
+    ("", frozenset({"fp", "asimd"}), ""),  # not x86
+    ("", None, ""),  # unknown host
+    ("--xla_cpu_experimental_ynn_fusion_type=", AVX2_ONLY, "--xla_cpu_experimental_ynn_fusion_type="),  # the user's
+])
+def test_ynnpack_fusions_are_limited_only_on_x86_without_avx512(xla_flags, cpu_flags, expected):
+    assert limit_cpu_fusions(xla_flags, cpu_flags) == expected
 
 
 def test_use_cpu_cores_rejects_a_bad_count():
