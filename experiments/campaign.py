@@ -186,6 +186,7 @@ def score(root: Path, frames: int, out: str, only=None, *, title: str = "Trainin
         per_scene = scores[(seed, tr)].mean(-1)
         selected = selected_steps(run)
         steps.add(selected)  # the scored weights' steps: what the TR differences below compare at
+        selected = "?" if selected is None else selected
         rows.append([f"s{seed}/tr{tr}", f"{selected} of {records[-1]['step']}" if records else f"{selected}",
                      *(f"{p:.2f}" for p in per_scene), f"{per_scene.mean():.2f}"])
         print(*rows[-1], flush=True)
@@ -243,18 +244,20 @@ def keep(root: Path, dest: Path, *, force: bool = False) -> list[str]:
     for seed, tr in RUNS:
         run, target = run_dir(root, seed, tr), run_dir(dest, seed, tr)
         steps, kept_steps = selected_steps(run), selected_steps(target)
-        if steps is None or (kept_steps is not None and steps <= kept_steps and not force):
-            if steps is not None and steps < kept_steps:
-                print(f"s{seed}/tr{tr}: the kept copy has later weights ({kept_steps} steps, here {steps}); "
-                      "left as it is (force to replace it)")
+        if steps is None:
             continue
-        card = dict(jaxsr.read_metadata(run / "best.npz").get("card", {}),
-                    storage={"dtype": "float16", "kept_from": str(run)})
-        save_model(target / "best.npz", jaxsr.load_model(run / "best.npz"), card=card, storage_dtype="float16")
-        if (run / "metrics.jsonl").exists():
+        if force or kept_steps is None or steps > kept_steps:
+            card = jaxsr.read_metadata(run / "best.npz").get("card", {})
+            card = dict(card, storage={**card.get("storage", {}), "dtype": "float16", "kept_from": str(run)})
+            save_model(target / "best.npz", jaxsr.load_model(run / "best.npz"), card=card, storage_dtype="float16")
+            copied.append(f"s{seed}/tr{tr}")
+            print(f"kept s{seed}/tr{tr} ({steps} steps) in {target}", flush=True)
+        elif steps < kept_steps:
+            print(f"s{seed}/tr{tr}: the kept copy has later weights ({kept_steps} steps, here {steps}); left as it "
+                  "is (force to replace it)")
+        # the curve goes on past the selected epoch: kept whenever it is longer than the kept one
+        if len(history(run)) > len(history(target)) or (force and history(run)):
             write_atomic(str(target / "metrics.jsonl"), (run / "metrics.jsonl").read_text())
-        copied.append(f"s{seed}/tr{tr}")
-        print(f"kept s{seed}/tr{tr} ({steps} steps) in {target}", flush=True)
     return copied
 
 

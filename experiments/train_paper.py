@@ -45,7 +45,7 @@ from jaxsr.train import data_mesh, default_data, fit, make_train_step, resume_co
 PRESET = "paper"
 # The runs' selected weights and learning curves, committed (float16), which --score and --report read by default:
 # run folders are not committed and are lost with the machine that trained them.
-KEPT = Path(__file__).with_name("paper_weights")
+KEPT = Path("experiments/paper_weights")  # from the project's root, as the results files
 
 
 def probe(trs, steps: int) -> None:
@@ -114,7 +114,7 @@ def main(argv=None) -> None:
     mode.add_argument("--score", action="store_true", help="score the runs on the test scenes, train nothing")
     mode.add_argument("--keep", action="store_true",
                       help=f"copy the runs' selected weights (float16) and learning curves into {KEPT.name}/")
-    ap.add_argument("--force", action="store_true", help="with --keep: replace kept copies with earlier weights")
+    ap.add_argument("--force", action="store_true", help="with --keep: replace kept copies even by earlier or the same weights")
     ap.add_argument("--frames", type=int, default=100, help="with --score: frames scored per test scene")
     mode.add_argument("--one", help=argparse.SUPPRESS)  # "s<seed>/tr<k>": the child process of one run
     args = ap.parse_args(argv)
@@ -124,9 +124,9 @@ def main(argv=None) -> None:
         probe(args.tr, args.probe_steps)
     elif args.report:
         report(args.runs, "experiments/results/paper_runs.md", preset=PRESET, title="The paper preset",
-               how="one process per run (`python experiments/train_paper.py`), all at once on one accelerator or "
-                   "one at a time on a CPU host (see the last column). Minutes: each run's wall time, beside the "
-                   "others where they shared a device, not its cost alone")
+               how="one process per run (`python experiments/train_paper.py`), on an accelerator shared by the "
+                   "runs or on a CPU host (see the last column). Minutes: each run's wall time, beside the others "
+                   "where they shared a device, not its cost alone")
     elif args.keep:
         if not keep(args.runs, KEPT, force=args.force):
             print(f"nothing new to keep from {args.runs}")

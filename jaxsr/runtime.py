@@ -7,7 +7,9 @@ right after `import jax`; pass `compiler_options()` to `jax.jit` around code tha
 from __future__ import annotations
 
 import functools
+import importlib.metadata
 import os
+import re
 from pathlib import Path
 
 import jax
@@ -27,9 +29,12 @@ _CPU_OPTIONS = {"xla_cpu_experimental_ynn_fusion_type": ""}
 # XLA:CPU's YNNPACK element-wise and reduction fusions crash the process (SIGSEGV) on an x86 host without AVX-512:
 # a 2-core AMD EPYC with AVX2 only, JAX 0.10.2 (2026-11-24), running the vmapped gradient of `pipeline_metric`
 # over two or more sensors (tests/test_pipeline.py), with either fusion type alone; with YNNPACK kept to dots and
-# convolutions it runs. Hosts with AVX-512 ran the whole suite with XLA's defaults (sessions before 2026-11-24).
+# convolutions it runs. Hosts with AVX-512 ran the whole suite with XLA's defaults on the same JAX (sessions of
+# 2026-11-21 to 23): the instruction set is the difference seen, not an established cause. Older jaxlibs may not
+# know the option, and XLA aborts on an unknown flag, so it is set only from the version where it was seen.
 _YNN_OPTION = "xla_cpu_experimental_ynn_fusion_type"
 _YNN_WITHOUT_AVX512 = "individual_dot,individual_convolution"
+_YNN_SINCE = (0, 10, 2)  # the jaxlib that crashed, and knows the option
 
 
 def limit_cpu_fusions(xla_flags: str, cpu_flags) -> str:
@@ -57,10 +62,20 @@ def _host_cpu_flags() -> frozenset | None:
     return None
 
 
+def _jaxlib_version() -> tuple:
+    """The installed jaxlib's (major, minor, patch), (0,) when unknown."""
+    try:
+        return tuple(int(x) for x in re.findall(r"\d+", importlib.metadata.version("jaxlib"))[:3])
+    except importlib.metadata.PackageNotFoundError:
+        return (0,)
+
+
 def guard_cpu_fusions() -> None:
     """Apply `limit_cpu_fusions` to this process's XLA_FLAGS. XLA reads them when JAX's CPU backend starts, so this
     works only before the first JAX computation: `import jaxsr` calls it; code that ran JAX before importing jaxsr
     on such a host should set the option in XLA_FLAGS itself."""
+    if _jaxlib_version() < _YNN_SINCE:
+        return
     flags = os.environ.get("XLA_FLAGS", "")
     limited = limit_cpu_fusions(flags, _host_cpu_flags())
     if limited != flags:

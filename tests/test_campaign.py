@@ -141,6 +141,8 @@ def test_keep_copies_the_selected_weights_as_float16_and_never_replaces_later_on
     for a, b in zip(jax.tree.leaves(stored), jax.tree.leaves(copied), strict=True):
         np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-3, atol=1e-4)
     assert campaign.keep(root, dest) == []  # nothing newer
+    _write(root, 2, 0, [1.0, 0.5, 0.6])  # an epoch past the selected one: the curve is kept, the weights stay
+    assert campaign.keep(root, dest) == [] and len(campaign.history(kept)) == 3
     _select(run, 100)  # the run trained again and selected earlier weights: the kept copy stays
     assert campaign.keep(root, dest) == [] and campaign.selected_steps(kept) == 200
     assert campaign.keep(root, dest, force=True) == ["s2/tr0"] and campaign.selected_steps(kept) == 100

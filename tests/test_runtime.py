@@ -52,7 +52,21 @@ def test_importing_jaxsr_starts_no_backend():
     assert proc.returncode == 0 and proc.stdout.split()[-1:] == ["3"], proc.stderr[-2000:]
 
 
-AVX2_ONLY = frozenset("fpu sse sse2 avx avx2 fma".split())
+def test_importing_jaxsr_limits_the_fusions_as_the_host_needs():
+    """In a fresh process with no XLA_FLAGS: after `import jaxsr` they are what `limit_cpu_fusions` gives this host
+    (on a host with AVX-512 or a jaxlib before the option: none), and flags the user set stay first."""
+    script = ("import os, jaxsr; from jaxsr import runtime as r; "
+              "print(repr(os.environ.get('XLA_FLAGS', ''))); "
+              "print(repr(r.limit_cpu_fusions('--xla_cpu_enable_fast_math=false', r._host_cpu_flags()) "
+              "if r._jaxlib_version() >= r._YNN_SINCE else '--xla_cpu_enable_fast_math=false'))")
+    env = dict(os.environ, XLA_FLAGS="--xla_cpu_enable_fast_math=false", JAX_PLATFORMS="cpu")
+    proc = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    got, expected = proc.stdout.split("\n")[-3:-1]
+    assert got == expected and got.startswith("'--xla_cpu_enable_fast_math=false")
+
+
+AVX2_ONLY = {"fpu", "sse", "sse2", "avx", "avx2", "fma"}
 LIMITED = "--xla_cpu_experimental_ynn_fusion_type=individual_dot,individual_convolution"
 
 
