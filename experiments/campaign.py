@@ -230,9 +230,14 @@ def plot(path, curves, cfg):
     save_figure(fig, path)
 
 
+def selected_card(run: Path) -> dict | None:
+    """The training card of a run's selected weights (best.npz), None without them."""
+    return jaxsr.read_metadata(run / "best.npz").get("card", {}) if (run / "best.npz").exists() else None
+
+
 def selected_steps(run: Path) -> int | None:
-    """The steps of a run's selected weights (its best.npz card), None without them."""
-    return jaxsr.read_metadata(run / "best.npz").get("card", {}).get("steps") if (run / "best.npz").exists() else None
+    """The steps of a run's selected weights, None without them."""
+    return (selected_card(run) or {}).get("steps")
 
 
 def keep(root: Path, dest: Path, *, force: bool = False) -> list[str]:
@@ -243,11 +248,11 @@ def keep(root: Path, dest: Path, *, force: bool = False) -> list[str]:
     copied = []
     for seed, tr in RUNS:
         run, target = run_dir(root, seed, tr), run_dir(dest, seed, tr)
-        steps, kept_steps = selected_steps(run), selected_steps(target)
+        card, kept_steps = selected_card(run), selected_steps(target)
+        steps = (card or {}).get("steps")
         if steps is None:
             continue
         if force or kept_steps is None or steps > kept_steps:
-            card = jaxsr.read_metadata(run / "best.npz").get("card", {})
             card = dict(card, storage={**card.get("storage", {}), "dtype": "float16", "kept_from": str(run)})
             save_model(target / "best.npz", jaxsr.load_model(run / "best.npz"), card=card, storage_dtype="float16")
             copied.append(f"s{seed}/tr{tr}")
@@ -256,22 +261,21 @@ def keep(root: Path, dest: Path, *, force: bool = False) -> list[str]:
             print(f"s{seed}/tr{tr}: the kept copy has later weights ({kept_steps} steps, here {steps}); left as it "
                   "is (force to replace it)")
         # the curve goes on past the selected epoch: kept whenever it is longer than the kept one
-        if len(history(run)) > len(history(target)) or (force and history(run)):
+        curve = history(run)
+        if len(curve) > len(history(target)) or (force and curve):
             write_atomic(str(target / "metrics.jsonl"), (run / "metrics.jsonl").read_text())
     return copied
 
 
 def validated_on(run: Path) -> str:
     """The validation sequences a run selected its weights on, from its best.npz card ("?" without one)."""
-    if not (run / "best.npz").exists():
-        return "?"
-    names = jaxsr.read_metadata(run / "best.npz").get("card", {}).get("train_config", {}).get("val_sequences", ["?"])
+    names = (selected_card(run) or {}).get("train_config", {}).get("val_sequences", ["?"])
     return ", ".join(n.split("_")[0] for n in names)
 
 
 def _row_without_curve(name: str, run: Path) -> list:
     """A report row for a run kept without its learning curve: its selected weights' card."""
-    card = jaxsr.read_metadata(run / "best.npz").get("card", {})
+    card = selected_card(run)
     val, best = card.get("validation", {}), card.get("best_epoch")
     return [name, f"{card.get('steps', '?')}", "-", "-",
             f"{val['psnr']:.2f} (epoch {best + 1})" if "psnr" in val and best is not None else "-", "-",
@@ -281,9 +285,10 @@ def _row_without_curve(name: str, run: Path) -> list:
 
 def trained_on(run: Path) -> str:
     """The device a run trained on, from its best.npz card ("?" without one)."""
-    if not (run / "best.npz").exists():
+    card = selected_card(run)
+    if card is None:
         return "?"
-    hardware = jaxsr.read_metadata(run / "best.npz").get("card", {}).get("hardware", {})
+    hardware = card.get("hardware", {})
     return f"{hardware.get('device_kind', '?')}, JAX {hardware.get('jax', '?')}"
 
 

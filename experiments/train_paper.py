@@ -33,6 +33,8 @@ import time
 from pathlib import Path
 
 import jax
+from jax.sharding import NamedSharding
+from jax.sharding import PartitionSpec as P
 from _report import step_timer
 from campaign import RUNS, keep, report, score
 
@@ -48,19 +50,25 @@ PRESET = "paper"
 KEPT = Path("experiments/paper_weights")  # from the project's root, as the results files
 
 
+def replicated(tree, mesh):
+    """`tree` placed as `fit` places the carry of a sharded step (a copy on every device), so that the timed steps
+    do not compile again for their own outputs' placement; as it is without a mesh."""
+    return tree if mesh is None else jax.device_put(tree, NamedSharding(mesh, P()))
+
+
 def probe(trs, steps: int) -> None:
     """Print each TR's train step at the preset, as `fit` runs it (the batch split over the devices when there are
     several that divide it): compilation (with the first step) and the mean of `steps` steps."""
     cfg = PRESETS[PRESET]
     n = jaxsr.use_cpu_cores()  # as train_one
-    mesh = data_mesh() if n > 1 and cfg.batch_size % n == 0 else None
+    mesh = data_mesh() if n > 1 and cfg.batch_size % n == 0 else None  # fit's choice
     print(f"backend {jax.default_backend()}, {n} x {jax.devices()[0].device_kind}, jax {jax.__version__}", flush=True)
     for tr in trs:
         model_cfg = jaxsr.ModelConfig(tr=tr)
         params, state = init_model(jax.random.key(0), model_cfg)
         t0 = time.perf_counter()
         run = step_timer(make_train_step(model_cfg, cfg, default_data(model_cfg, cfg), mesh=mesh),
-                         [params, state, adam_init(params)])
+                         list(replicated((params, state, adam_init(params)), mesh)))
         compile_s = time.perf_counter() - t0
         step_s = sum(run(i) for i in range(1, steps + 1)) / steps
         print(f"TR{tr}: compile + first step {compile_s:.1f} s, step {1e3 * step_s:.1f} ms "
@@ -114,7 +122,8 @@ def main(argv=None) -> None:
     mode.add_argument("--score", action="store_true", help="score the runs on the test scenes, train nothing")
     mode.add_argument("--keep", action="store_true",
                       help=f"copy the runs' selected weights (float16) and learning curves into {KEPT.name}/")
-    ap.add_argument("--force", action="store_true", help="with --keep: replace kept copies even by earlier or the same weights")
+    ap.add_argument("--force", action="store_true",
+                    help="with --keep: replace kept copies even by earlier or the same weights")
     ap.add_argument("--frames", type=int, default=100, help="with --score: frames scored per test scene")
     mode.add_argument("--one", help=argparse.SUPPRESS)  # "s<seed>/tr<k>": the child process of one run
     args = ap.parse_args(argv)
