@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import hashlib
 import json
 import subprocess
 import time
@@ -170,18 +171,53 @@ def tr_differences(scores: dict) -> dict:
     return out
 
 
+def digest(*parts: bytes) -> str:
+    """A short content fingerprint (sha256) of byte strings."""
+    h = hashlib.sha256()
+    for part in parts:
+        h.update(part)
+    return h.hexdigest()[:16]
+
+
+def data_digest(clips: dict) -> str:
+    """The fingerprint of scored test data: every frame's LR depth (the windows read them) and the scored frames'
+    truth, so that a change of the scenes or the simulation invalidates scores computed on the old data."""
+    return digest(*(b for name, clip in clips.items()
+                    for b in (name.encode(), np.asarray(clip.scored).tobytes(), np.asarray(clip.lr).tobytes(),
+                              np.asarray(clip.gt[clip.scored]).tobytes())))
+
+
+def cached_frame_scores(cache: dict, name: str, weights: Path, data: str, compute) -> np.ndarray:
+    """A run's per-frame PSNR (scenes, frames), rounded to 1e-4 dB: from `cache` (name -> entry, updated in place)
+    when its entry was computed from the same weights file and test data, else `compute()`d and entered."""
+    key = {"weights": digest(weights.read_bytes()), "data": data}
+    entry = cache.get(name)
+    if entry is not None and {k: entry.get(k) for k in key} == key:
+        return np.asarray(entry["psnr"], np.float64)
+    frames = np.round(np.asarray(compute(), np.float64), 4)
+    cache[name] = dict(key, psnr=frames.tolist())
+    return frames
+
+
 def score(root: Path, frames: int, out: str, only=None, *, title: str = "Training campaign") -> None:
     """Score every run's best.npz (those in `only`; None: all) on the test scenes and write the TR differences
-    (see `tr_differences`) under `title`."""
+    (see `tr_differences`) under `title`. Per-frame scores are kept beside `out` (.json) and reused for weights
+    and test data that have not changed, so adding a run scores that run only."""
     started = time.time()
     clips = test_clips(frames, spread=True)
+    data = data_digest(clips)
+    cache_path = Path(out).with_suffix(".json")
+    cache = json.loads(cache_path.read_text()) if cache_path.exists() else {}
     scores, rows, steps = {}, [], set()
     for seed, tr in RUNS:
         run = run_dir(root, seed, tr)
         if not (run / "best.npz").exists() or (only is not None and f"s{seed}/tr{tr}" not in only):
             continue
-        model = jaxsr.load_model(run / "best.npz")
-        scores[(seed, tr)] = scene_scores(model, clips)[1]  # (scenes, frames) in TEST_SCENES order
+        # (scenes, frames) in TEST_SCENES order
+        scores[(seed, tr)] = cached_frame_scores(
+            cache, f"s{seed}/tr{tr}", run / "best.npz", data,
+            lambda run=run: scene_scores(jaxsr.load_model(run / "best.npz"), clips)[1])
+        write_atomic(str(cache_path), json.dumps(cache))  # after each run: an interrupted scoring keeps the rest
         records = history(run)
         per_scene = scores[(seed, tr)].mean(-1)
         selected = selected_steps(run)
@@ -194,7 +230,8 @@ def score(root: Path, frames: int, out: str, only=None, *, title: str = "Trainin
         raise SystemExit(f"{title}: no runs with weights (best.npz) under {root}")
     text = header(f"{title}: the TRs on the test scenes, with seed spread and frame intervals", started)
     text += (f"Each run's selected weights (best.npz: lowest validation loss so far) under {root}, scored on {frames} "
-             "frames spread evenly over each 500-frame test scene (as sweep_tr.py); PSNR (dB). Steps: those of the "
+             "frames spread evenly over each 500-frame test scene (as sweep_tr.py); PSNR (dB), per frame in "
+             f"{cache_path.name} (reused while a run's weights and the test data are unchanged). Steps: those of the "
              "selected weights, of the run's training so far (not finished while its report says `training`; "
              "a single number: the run's learning curve was not kept)."
              + (" **The selected weights differ in steps, so the differences below mix training length with TR: "

@@ -156,3 +156,41 @@ def test_the_report_shows_a_run_kept_without_its_curve_from_its_card(tmp_path):
     campaign.report(tmp_path, str(out), preset="paper", title="The paper preset", how="on a lent device")
     assert ("| s0/tr3 | 7750 | - | - | 27.50 (epoch 2) | - | 13.40 | weights kept, curve not | val4, val2, val5 | "
             in out.read_text())
+
+
+def test_per_frame_scores_are_reused_only_for_the_same_weights_and_test_data(tmp_path):
+    weights = tmp_path / "best.npz"
+    weights.write_bytes(b"weights one")
+    calls = []
+
+    def compute(value):
+        def run():
+            calls.append(value)
+            return np.full((3, 4), value + 1e-6)
+        return run
+
+    cache = {}
+    first = campaign.cached_frame_scores(cache, "s0/tr0", weights, "data-a", compute(25.0))
+    np.testing.assert_array_equal(first, np.full((3, 4), 25.0))  # rounded to 1e-4 dB, as stored
+    cache = json.loads(json.dumps(cache))  # what the file holds
+    again = campaign.cached_frame_scores(cache, "s0/tr0", weights, "data-a", compute(26.0))
+    assert calls == [25.0] and np.array_equal(again, first)
+    assert campaign.cached_frame_scores(cache, "s0/tr0", weights, "data-b", compute(26.0))[0, 0] == 26.0
+    weights.write_bytes(b"weights two")  # retrained: scored again
+    assert campaign.cached_frame_scores(cache, "s0/tr0", weights, "data-b", compute(27.0))[0, 0] == 27.0
+    assert calls == [25.0, 26.0, 27.0] and cache["s0/tr0"]["psnr"][0][0] == 27.0
+
+
+def test_the_data_digest_changes_with_the_scored_frames_and_the_lr_depth():
+    from _eval import Clip
+
+    rng = np.random.default_rng(0)
+    lr, gt = rng.random((6, 2, 2), np.float32), rng.random((6, 8, 8), np.float32)
+
+    def clips(lr=lr, scored=(0, 3)):
+        return {"a": Clip("a", lr, None, gt, 25.0, 1.3, scored=np.array(scored))}
+
+    base = campaign.data_digest(clips())
+    assert campaign.data_digest(clips()) == base
+    assert campaign.data_digest(clips(scored=(0, 4))) != base
+    assert campaign.data_digest(clips(lr=lr + 1e-3)) != base
