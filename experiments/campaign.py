@@ -19,7 +19,8 @@ between sessions.
 A run counts as converged when its validation PSNR gained under 0.2 dB over the last quarter of its epochs
 (at least 8 epochs in, so that the quarter is not a single noisy epoch); the report says which are. `--score`
 scores each run's selected weights (best.npz) on the test scenes (--frames spread over each, as sweep_tr.py) and
-writes experiments/results/campaign_scores.md:
+writes experiments/results/campaign_scores.md (per-frame scores in campaign_scores.json, reused for runs whose
+weights did not change, `_score_cache.py`):
 every TR against TR0 with the spread over every pair of runs (seeds) and the frame interval, and whether the
 difference holds beyond both.
 """
@@ -28,7 +29,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import hashlib
 import json
 import subprocess
 import time
@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 from _eval import BLOCK, SCENE_LABELS, TEST_SCENES, format_interval, interval, scene_scores, test_clips
 from _report import header, machine, markdown_table, save_figure, write_atomic
+from _score_cache import cached_frame_scores, code_digest, data_digest, read_cache, weights_digest, write_cache
 
 import jaxsr
 from jaxsr.checkpoint import save_model
@@ -171,72 +172,50 @@ def tr_differences(scores: dict) -> dict:
     return out
 
 
-def digest(*parts: bytes) -> str:
-    """A short content fingerprint (sha256) of byte strings."""
-    h = hashlib.sha256()
-    for part in parts:
-        h.update(part)
-    return h.hexdigest()[:16]
-
-
-def data_digest(clips: dict) -> str:
-    """The fingerprint of scored test data: every frame's LR depth (the windows read them) and the scored frames'
-    truth, so that a change of the scenes or the simulation invalidates scores computed on the old data."""
-    return digest(*(b for name, clip in clips.items()
-                    for b in (name.encode(), np.asarray(clip.scored).tobytes(), np.asarray(clip.lr).tobytes(),
-                              np.asarray(clip.gt[clip.scored]).tobytes())))
-
-
-def cached_frame_scores(cache: dict, name: str, weights: Path, data: str, compute) -> np.ndarray:
-    """A run's per-frame PSNR (scenes, frames), rounded to 1e-4 dB: from `cache` (name -> entry, updated in place)
-    when its entry was computed from the same weights file and test data, else `compute()`d and entered."""
-    key = {"weights": digest(weights.read_bytes()), "data": data}
-    entry = cache.get(name)
-    if entry is not None and {k: entry.get(k) for k in key} == key:
-        return np.asarray(entry["psnr"], np.float64)
-    frames = np.round(np.asarray(compute(), np.float64), 4)
-    cache[name] = dict(key, psnr=frames.tolist())
-    return frames
-
-
 def score(root: Path, frames: int, out: str, only=None, *, title: str = "Training campaign") -> None:
     """Score every run's best.npz (those in `only`; None: all) on the test scenes and write the TR differences
-    (see `tr_differences`) under `title`. Per-frame scores are kept beside `out` (.json) and reused for weights
-    and test data that have not changed, so adding a run scores that run only."""
+    (see `tr_differences`) under `title`. Per-frame scores are kept beside `out` (.json) and reused while a run's
+    weights, the test data and the scoring code are unchanged (`_score_cache`), so adding a run scores that run
+    only."""
     started = time.time()
     clips = test_clips(frames, spread=True)
-    data = data_digest(clips)
+    shape = (len(clips), frames)
+    data, code = data_digest(clips), code_digest()
     cache_path = Path(out).with_suffix(".json")
-    cache = json.loads(cache_path.read_text()) if cache_path.exists() else {}
+    cache = read_cache(cache_path)
     scores, rows, steps = {}, [], set()
     for seed, tr in RUNS:
         run = run_dir(root, seed, tr)
         if not (run / "best.npz").exists() or (only is not None and f"s{seed}/tr{tr}" not in only):
             continue
+        name, key = f"s{seed}/tr{tr}", {"weights": weights_digest(run / "best.npz"), "data": data, "code": code}
         # (scenes, frames) in TEST_SCENES order
-        scores[(seed, tr)] = cached_frame_scores(
-            cache, f"s{seed}/tr{tr}", run / "best.npz", data,
-            lambda run=run: scene_scores(jaxsr.load_model(run / "best.npz"), clips)[1])
-        write_atomic(str(cache_path), json.dumps(cache))  # after each run: an interrupted scoring keeps the rest
+        scores[(seed, tr)], computed = cached_frame_scores(
+            cache, name, key, shape, lambda run=run: scene_scores(jaxsr.load_model(run / "best.npz"), clips)[1])
+        if computed:
+            write_cache(cache_path, cache)  # after each run: an interrupted scoring keeps the others' scores
         records = history(run)
         per_scene = scores[(seed, tr)].mean(-1)
         selected = selected_steps(run)
         steps.add(selected)  # the scored weights' steps: what the TR differences below compare at
         selected = "?" if selected is None else selected
-        rows.append([f"s{seed}/tr{tr}", f"{selected} of {records[-1]['step']}" if records else f"{selected}",
-                     *(f"{p:.2f}" for p in per_scene), f"{per_scene.mean():.2f}"])
+        rows.append([name, f"{selected} of {records[-1]['step']}" if records else f"{selected}",
+                     *(f"{p:.2f}" for p in per_scene), f"{per_scene.mean():.2f}",
+                     "now" if computed else cache[name]["date"]])
         print(*rows[-1], flush=True)
     if not scores:
         raise SystemExit(f"{title}: no runs with weights (best.npz) under {root}")
     text = header(f"{title}: the TRs on the test scenes, with seed spread and frame intervals", started)
     text += (f"Each run's selected weights (best.npz: lowest validation loss so far) under {root}, scored on {frames} "
-             "frames spread evenly over each 500-frame test scene (as sweep_tr.py); PSNR (dB), per frame in "
-             f"{cache_path.name} (reused while a run's weights and the test data are unchanged). Steps: those of the "
+             f"frames spread evenly over each 500-frame test scene (as sweep_tr.py); PSNR (dB), per frame in "
+             f"{cache_path.name}. Scored: now, or when the scores reused from there were computed (on the machine "
+             "that file names; reused while the run's weights, the test data, the scoring code and the JAX version "
+             "are unchanged). Steps: those of the "
              "selected weights, of the run's training so far (not finished while its report says `training`; "
              "a single number: the run's learning curve was not kept)."
              + (" **The selected weights differ in steps, so the differences below mix training length with TR: "
                 "an interim reading, not a result of training to the end.**" if len(steps) > 1 else "") + "\n\n")
-    text += markdown_table(["run", "steps", *(SCENE_LABELS[n] for n in TEST_SCENES), "mean"], rows)
+    text += markdown_table(["run", "steps", *(SCENE_LABELS[n] for n in TEST_SCENES), "mean", "scored"], rows)
     diffs = tr_differences(scores)
     if diffs:
         text += ("\nEvery TR against TR0, mean over the three scenes (dB): the difference of the seed means; its "

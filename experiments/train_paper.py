@@ -6,7 +6,7 @@ epochs as a lease affords.
     python experiments/train_paper.py --epochs 6 [--tr 0 1 2 3 4] [--seeds 0] [--runs runs/paper]
     python experiments/train_paper.py --keep       # the runs' selected weights and curves into paper_weights/
     python experiments/train_paper.py --report     # experiments/results/paper_runs.md and .png: learning curves
-    python experiments/train_paper.py --score      # experiments/results/paper_scores.md: the test scenes
+    python experiments/train_paper.py --score      # experiments/results/paper_scores.md: the test scenes (500 frames)
 
 Every (seed, TR) trains in its own process, all at once, so that one run's compilation, validation and checkpoint
 writing overlap the others' steps on the shared device (each process gets an equal share of its memory). Every
@@ -33,10 +33,10 @@ import time
 from pathlib import Path
 
 import jax
-from jax.sharding import NamedSharding
-from jax.sharding import PartitionSpec as P
 from _report import step_timer
 from campaign import RUNS, keep, report, score
+from jax.sharding import NamedSharding
+from jax.sharding import PartitionSpec as P
 
 import jaxsr
 from jaxsr.config import PRESETS
@@ -52,7 +52,7 @@ KEPT = Path("experiments/paper_weights")  # from the project's root, as the resu
 
 def replicated(tree, mesh):
     """`tree` placed as `fit` places the carry of a sharded step (a copy on every device), so that the timed steps
-    do not compile again for their own outputs' placement; as it is without a mesh."""
+    do not compile again for their own outputs' placement; returned unchanged when `mesh` is None."""
     return tree if mesh is None else jax.device_put(tree, NamedSharding(mesh, P()))
 
 
@@ -124,7 +124,8 @@ def main(argv=None) -> None:
                       help=f"copy the runs' selected weights (float16) and learning curves into {KEPT.name}/")
     ap.add_argument("--force", action="store_true",
                     help="with --keep: replace kept copies even by earlier or the same weights")
-    ap.add_argument("--frames", type=int, default=100, help="with --score: frames scored per test scene")
+    ap.add_argument("--frames", type=int, default=500,
+                    help="with --score: frames scored per test scene (spread evenly over its 500)")
     mode.add_argument("--one", help=argparse.SUPPRESS)  # "s<seed>/tr<k>": the child process of one run
     args = ap.parse_args(argv)
     if args.runs is None:

@@ -1,6 +1,7 @@
 """The training campaign (experiments/campaign.py): which run goes next, when one is finished, and the
 convergence measure, on fabricated metrics files (no training); the TR differences' spread over runs and frame
-interval, on synthetic scores."""
+interval, on synthetic scores; the per-frame score cache (experiments/_score_cache.py) and scoring with it, on
+fake scores."""
 
 import json
 import sys
@@ -12,8 +13,10 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
 
+import _score_cache  # noqa: E402
 import campaign  # noqa: E402
 import jaxsr  # noqa: E402
+from _eval import Clip  # noqa: E402
 from jaxsr.checkpoint import save_model  # noqa: E402
 from jaxsr.config import PRESETS  # noqa: E402
 
@@ -118,9 +121,10 @@ def test_the_report_describes_the_preset_and_how_the_runs_trained(tmp_path):
     assert (tmp_path / "paper_runs.png").exists()
 
 
-def _select(run, steps):
-    """A run's best.npz: a small model whose card says it was selected at `steps`, validated on val4, val2, val5."""
-    cfg = jaxsr.ModelConfig(base=8, growth=4, head=8, filter_hidden=8)
+def _select(run, steps, tr=0):
+    """A run's best.npz: a small TR-`tr` model whose card says it was selected at `steps`, validated on val4, val2,
+    val5."""
+    cfg = jaxsr.ModelConfig(tr=tr, base=8, growth=4, head=8, filter_hidden=8)
     params, state = jaxsr.init_model(jax.random.key(steps), cfg)
     card = {"steps": steps, "best_epoch": 1, "validation": {"psnr": 27.5, "bicubic_psnr": 13.4},
             "train_config": {"val_sequences": ["val4_street", "val2_road", "val5_courtyard"]}}
@@ -158,39 +162,82 @@ def test_the_report_shows_a_run_kept_without_its_curve_from_its_card(tmp_path):
             in out.read_text())
 
 
-def test_per_frame_scores_are_reused_only_for_the_same_weights_and_test_data(tmp_path):
-    weights = tmp_path / "best.npz"
-    weights.write_bytes(b"weights one")
+
+def test_scoring_reuses_the_kept_per_frame_scores_and_scores_only_a_new_or_retrained_run(tmp_path, monkeypatch):
+    scored = []
+
+    def fake_scene_scores(model, clips):  # a TR-dependent score, so that the table tells runs apart
+        scored.append(model.config.tr)
+        return {}, np.full((3, 4), 25.0 + model.config.tr)
+
+    clips = {n: Clip(n, np.zeros((4, 2, 2), np.float32), None, np.zeros((4, 8, 8), np.float32), 25.0, 1.3,
+                     scored=np.arange(4)) for n in ("a", "b", "c")}
+    monkeypatch.setattr(campaign, "test_clips", lambda frames, spread: clips)
+    monkeypatch.setattr(campaign, "scene_scores", fake_scene_scores)
+    root, out = tmp_path / "runs", tmp_path / "scores.md"
+    for seed, tr, steps in ((0, 0, 100), (0, 1, 100)):
+        run = campaign.run_dir(root, seed, tr)
+        run.mkdir(parents=True)
+        _select(run, steps, tr=tr)
+    campaign.score(root, 4, str(out))
+    assert sorted(scored) == [0, 1] and "| s0/tr1 | 100 | 26.00 | 26.00 | 26.00 | 26.00 | now |" in out.read_text()
+    campaign.score(root, 4, str(out))  # nothing changed: nothing scored, the table the same from the kept scores
+    assert sorted(scored) == [0, 1] and "| s0/tr1 | 100 | 26.00 | 26.00 | 26.00 | 26.00 | 20" in out.read_text()
+    _select(campaign.run_dir(root, 0, 1), 200, tr=1)  # retrained: its weights file changed
+    run = campaign.run_dir(root, 1, 0)
+    run.mkdir(parents=True)
+    _select(run, 100)  # a new run
+    campaign.score(root, 4, str(out))
+    assert sorted(scored) == [0, 0, 1, 1]
+    assert set(json.loads(out.with_suffix(".json").read_text())) == {"s0/tr0", "s0/tr1", "s1/tr0"}
+
+
+def test_a_cached_score_is_used_only_for_the_same_key_and_shape(tmp_path):
+    key = {"weights": "w1", "data": "d1", "code": "c1"}
     calls = []
 
     def compute(value):
-        def run():
-            calls.append(value)
-            return np.full((3, 4), value + 1e-6)
-        return run
+        return lambda: calls.append(value) or np.full((3, 4), value + 1e-6)
 
     cache = {}
-    first = campaign.cached_frame_scores(cache, "s0/tr0", weights, "data-a", compute(25.0))
-    np.testing.assert_array_equal(first, np.full((3, 4), 25.0))  # rounded to 1e-4 dB, as stored
+    first, computed = _score_cache.cached_frame_scores(cache, "s0/tr0", key, (3, 4), compute(25.0))
+    assert computed and np.array_equal(first, np.full((3, 4), 25.0))  # rounded to 1e-4 dB, as stored
     cache = json.loads(json.dumps(cache))  # what the file holds
-    again = campaign.cached_frame_scores(cache, "s0/tr0", weights, "data-a", compute(26.0))
-    assert calls == [25.0] and np.array_equal(again, first)
-    assert campaign.cached_frame_scores(cache, "s0/tr0", weights, "data-b", compute(26.0))[0, 0] == 26.0
-    weights.write_bytes(b"weights two")  # retrained: scored again
-    assert campaign.cached_frame_scores(cache, "s0/tr0", weights, "data-b", compute(27.0))[0, 0] == 27.0
-    assert calls == [25.0, 26.0, 27.0] and cache["s0/tr0"]["psnr"][0][0] == 27.0
+    again, computed = _score_cache.cached_frame_scores(cache, "s0/tr0", key, (3, 4), compute(26.0))
+    assert not computed and calls == [25.0] and np.array_equal(again, first)
+    for changed, value in (({"weights": "w2"}, 26.0), ({"data": "d2"}, 27.0), ({"code": "c2"}, 28.0)):
+        key = dict(key, **changed)
+        assert _score_cache.cached_frame_scores(cache, "s0/tr0", key, (3, 4), compute(value))[0][0, 0] == value
+    assert calls == [25.0, 26.0, 27.0, 28.0]
+    # scores kept for another frame count are not reused: computed again (here of the wrong shape: a loud error)
+    with pytest.raises(ValueError, match=r"shape \(3, 5\)"):
+        _score_cache.cached_frame_scores(cache, "s0/tr0", key, (3, 5), compute(29.0))
+    assert calls[-1] == 29.0
 
 
-def test_the_data_digest_changes_with_the_scored_frames_and_the_lr_depth():
-    from _eval import Clip
+def test_an_unreadable_cache_is_ignored_with_a_warning(tmp_path, capsys):
+    path = tmp_path / "scores.json"
+    assert _score_cache.read_cache(path) == {}
+    path.write_text('{"s0/tr0": {"weights"')  # cut short
+    assert _score_cache.read_cache(path) == {} and "ignoring the unreadable score cache" in capsys.readouterr().out
+    path.write_text('["not", "a", "cache"]')
+    assert _score_cache.read_cache(path) == {}
+    _score_cache.write_cache(path, {"s0/tr1": {"psnr": [[1.0]]}, "s0/tr0": {"psnr": [[2.0]]}})
+    assert _score_cache.read_cache(path) == {"s0/tr0": {"psnr": [[2.0]]}, "s0/tr1": {"psnr": [[1.0]]}}
+    assert len(path.read_text().splitlines()) == 4  # one run a line
 
+
+def test_the_data_digest_changes_with_the_scored_data_only():
     rng = np.random.default_rng(0)
     lr, gt = rng.random((6, 2, 2), np.float32), rng.random((6, 8, 8), np.float32)
 
-    def clips(lr=lr, scored=(0, 3)):
-        return {"a": Clip("a", lr, None, gt, 25.0, 1.3, scored=np.array(scored))}
+    def digest(lr=lr, gt=gt, scored=(0, 3)):
+        return _score_cache.data_digest({"a": Clip("a", lr, None, gt, 25.0, 1.3, scored=np.array(scored))})
 
-    base = campaign.data_digest(clips())
-    assert campaign.data_digest(clips()) == base
-    assert campaign.data_digest(clips(scored=(0, 4))) != base
-    assert campaign.data_digest(clips(lr=lr + 1e-3)) != base
+    base = digest()
+    assert digest() == base
+    assert digest(scored=(0, 4)) != base
+    assert digest(lr=lr + 1e-3) != base
+    assert digest(gt=np.where(np.arange(6)[:, None, None] == 3, gt + 1e-3, gt)) != base  # a scored frame's truth
+    assert digest(gt=np.where(np.arange(6)[:, None, None] == 1, gt + 1e-3, gt)) == base  # an unscored one's
+    assert _score_cache.digest(b"ab", b"c") != _score_cache.digest(b"a", b"bc")
