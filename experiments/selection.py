@@ -29,8 +29,10 @@ from jaxsr.data import run_keys, validation_set
 from jaxsr.train import evaluate
 
 from _eval import SCENE_LABELS, TEST_SCENES, format_interval, interval, scene_scores, test_clips
-from _report import header, markdown_table, write_atomic
+from _report import hand_written_tail, header, markdown_table, write_atomic
 
+# A section written by hand at the end of the results file (e.g. the rows of runs whose checkpoints are gone): kept
+HAND_WRITTEN = "## Earlier runs"
 VALIDATIONS = {"old": ("val1_street", "val2_road", "val3_courtyard"),  # the presets' until 2026-11-24
                "new": TrainConfig().val_sequences}
 
@@ -121,6 +123,7 @@ def main():
                  "blocks of scored frames (what the choice of frames moves; the difference itself is what "
                  "retraining moves):\n\n")
         text += markdown_table(["TR", "steps", "seeds", "difference [frame interval]"], pairs)
+    text += hand_written_tail(f"{args.out}.md", HAND_WRITTEN)
     write_atomic(f"{args.out}.md", text)
     print(text)
 
