@@ -74,7 +74,7 @@ def cached_frame_scores(cache: dict, name: str, key: dict, shape: tuple, compute
     from `cache` (name -> entry, updated in place) when its entry has the same `key` (fingerprints: `KEY`) and
     shape, else `compute()`d and entered with the machine and date."""
     entry = cache.get(name, {})
-    if {k: entry.get(k) for k in KEY} == {k: key[k] for k in KEY} and np.shape(entry.get("psnr")) == tuple(shape):
+    if all(entry.get(k) == key[k] for k in KEY) and np.shape(entry.get("psnr")) == tuple(shape):
         return np.asarray(entry["psnr"], np.float64), False
     frames = np.round(np.asarray(compute(), np.float64), 4)
     if frames.shape != tuple(shape):

@@ -35,14 +35,12 @@ from pathlib import Path
 import jax
 from _report import step_timer
 from campaign import RUNS, keep, report, score
-from jax.sharding import NamedSharding
-from jax.sharding import PartitionSpec as P
 
 import jaxsr
 from jaxsr.config import PRESETS
 from jaxsr.model import init_model
 from jaxsr.optim import adam_init
-from jaxsr.train import data_mesh, default_data, fit, make_train_step, resume_config
+from jaxsr.train import choose_mesh, default_data, fit, make_train_step, replicate, resume_config
 
 PRESET = "paper"
 # The runs' selected weights and learning curves, committed (float16), which --score and --report read by default:
@@ -50,25 +48,19 @@ PRESET = "paper"
 KEPT = Path("experiments/paper_weights")  # from the project's root, as the results files
 
 
-def replicated(tree, mesh):
-    """`tree` placed as `fit` places the carry of a sharded step (a copy on every device), so that the timed steps
-    do not compile again for their own outputs' placement; returned unchanged when `mesh` is None."""
-    return tree if mesh is None else jax.device_put(tree, NamedSharding(mesh, P()))
-
-
 def probe(trs, steps: int) -> None:
     """Print each TR's train step at the preset, as `fit` runs it (the batch split over the devices when there are
     several that divide it): compilation (with the first step) and the mean of `steps` steps."""
     cfg = PRESETS[PRESET]
     n = jaxsr.use_cpu_cores()  # as train_one
-    mesh = data_mesh() if n > 1 and cfg.batch_size % n == 0 else None  # fit's choice
+    mesh = choose_mesh("auto", cfg.batch_size)  # as fit chooses
     print(f"backend {jax.default_backend()}, {n} x {jax.devices()[0].device_kind}, jax {jax.__version__}", flush=True)
     for tr in trs:
         model_cfg = jaxsr.ModelConfig(tr=tr)
         params, state = init_model(jax.random.key(0), model_cfg)
         t0 = time.perf_counter()
         run = step_timer(make_train_step(model_cfg, cfg, default_data(model_cfg, cfg), mesh=mesh),
-                         list(replicated((params, state, adam_init(params)), mesh)))
+                         list(replicate((params, state, adam_init(params)), mesh)))
         compile_s = time.perf_counter() - t0
         step_s = sum(run(i) for i in range(1, steps + 1)) / steps
         print(f"TR{tr}: compile + first step {compile_s:.1f} s, step {1e3 * step_s:.1f} ms "

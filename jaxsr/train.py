@@ -53,6 +53,8 @@ __all__ = [
     "evaluate",
     "evaluate_sequences",
     "data_mesh",
+    "choose_mesh",
+    "replicate",
     "fit",
     "resume_config",
 ]
@@ -248,13 +250,20 @@ def _train_state_template(model_cfg: ModelConfig):
     }
 
 
-def _choose_mesh(mesh, batch_size: int) -> Mesh | None:
+def choose_mesh(mesh, batch_size: int) -> Mesh | None:
     """`fit`'s mesh argument resolved: "auto" shards over all devices when there are several that divide the
     batch evenly."""
     if mesh != "auto":
         return mesh
     n = jax.device_count()
     return data_mesh() if n > 1 and batch_size % n == 0 else None
+
+
+def replicate(tree, mesh: Mesh | None):
+    """`tree` with a copy on every device of `mesh`, as a sharded train step expects its carry (params, state,
+    Adam state: the step shards only the batch), so that its first calls do not compile again for another
+    placement; unchanged when `mesh` is None."""
+    return tree if mesh is None else jax.device_put(tree, NamedSharding(mesh, P()))
 
 
 def _bicubic_psnr(validation: dict, scale: int) -> float | None:
@@ -476,7 +485,7 @@ def fit(
         raise FileExistsError(f"{out} holds a training run ({', '.join(held)}); pass resume=True (--resume) to "
                               "continue it or overwrite=True (--force) to start a new one in its place")
     out.mkdir(parents=True, exist_ok=True)
-    mesh = _choose_mesh(mesh, train_cfg.batch_size)
+    mesh = choose_mesh(mesh, train_cfg.batch_size)
     k_init, k_data, k_val = run_keys(train_cfg.seed)
     if make_batch is None:
         make_batch = default_data(model_cfg, train_cfg, sensor)
@@ -491,9 +500,8 @@ def fit(
     ts, run = _start_or_resume(out / "last.npz", model_cfg, train_cfg, settings, k_init=k_init, k_data=k_data,
                                resume=resume, init=init)
     step_fn = make_train_step(model_cfg, train_cfg, make_batch, mesh=mesh, conv3d_impl=conv3d_impl)
-    if mesh is not None:  # replicated over the mesh; the train step shards only the batch
-        params, state, opt = jax.device_put((ts.params, ts.state, ts.opt), NamedSharding(mesh, P()))
-        ts = ts._replace(params=params, state=state, opt=opt)
+    params, state, opt = replicate((ts.params, ts.state, ts.opt), mesh)
+    ts = ts._replace(params=params, state=state, opt=opt)
 
     spe = train_cfg.steps_per_epoch
     while not run.finished and run.epoch < train_cfg.epochs:
