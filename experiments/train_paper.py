@@ -11,7 +11,8 @@ epochs as a lease affords.
 Every (seed, TR) trains in its own process, all at once, so that one run's compilation, validation and checkpoint
 writing overlap the others' steps on the shared device (each process gets an equal share of its memory). Every
 run stops at the same `--epochs` (unless early stopping ends it sooner), so the TRs compare at equal steps; runs
-are resumable (the same command with a larger --epochs continues them from last.npz, `fit(resume=True)`), and
+are resumable (the same command, or one with a larger --epochs, continues them from last.npz, `fit(resume=True)`;
+last.npz is also written every 10 minutes inside an epoch, so a stopped run loses at most that much), and
 best.npz, rewritten whenever an epoch lowers the validation loss, carries its training card (steps, device, JAX
 version). Run folders are not committed: `--keep` copies each run's best.npz (float16) and metrics.jsonl into
 experiments/paper_weights/, which `--report` and `--score` read by default, so that the results can be re-made

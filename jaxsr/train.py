@@ -3,9 +3,10 @@
 The data come from a source `make_batch(key) -> (windows, gt)` of `jaxsr.data` (default `scene_batches`), run
 inside the jitted step; a sequence-form model (`ModelConfig(temporal="sequence")`) trains on clips instead,
 `make_batch(key) -> (clips (B, L, h, w), gt (B, L, H, W))` (default `scene_clips`), with the loss on the L - 2R
-frames whose inputs lie inside the clip and BN statistics over the clip. `fit` runs epochs of `TrainConfig.steps_per_epoch` steps with step decay, validates with
-BN in inference mode, logs to `metrics.jsonl`, writes `best.npz` (a `Model`) and `last.npz` (everything needed
-to resume) after every epoch, and stops early. Data parallelism: pass a `jax.sharding.Mesh` with a "data"
+frames whose inputs lie inside the clip and BN statistics over the clip. `fit` runs epochs of
+`TrainConfig.steps_per_epoch` steps with step decay, validates with BN in inference mode, logs to `metrics.jsonl`,
+writes `best.npz` (a `Model`) and `last.npz` (everything needed to resume) after every epoch and every
+`checkpoint_every_s` seconds inside one, and stops early. Data parallelism: pass a `jax.sharding.Mesh` with a "data"
 axis (default: all devices); the batch is split over it and the parameters are replicated.
 """
 
@@ -223,14 +224,19 @@ class _TrainState(NamedTuple):
 
 @dataclasses.dataclass(frozen=True)
 class _Run:
-    """Where a run stands after `epoch` epochs; saved as the "run" metadata of `last.npz`.
+    """Where a run stands after `epoch` finished epochs and `step` steps; saved as the "run" metadata of `last.npz`.
 
     best_loss / best_epoch (0-based, -1 before the first) / bad_epochs (epochs since the best) drive early
-    stopping; history holds the per-epoch records of `metrics.jsonl`.
+    stopping; history holds the per-epoch records of `metrics.jsonl`. A checkpoint written inside epoch
+    `epoch` (0-based) has step > epoch * steps_per_epoch, with the sums of that epoch's train loss and PSNR so
+    far and its training time in epoch_sums / epoch_train_s, so that the resumed epoch logs what an uninterrupted
+    one would.
     """
 
     epoch: int = 0
     step: int = 0
+    epoch_sums: tuple = (0.0, 0.0)
+    epoch_train_s: float = 0.0
     best_loss: float = math.inf
     best_epoch: int = -1
     bad_epochs: int = 0
@@ -355,35 +361,50 @@ def _start_or_resume(last_path: Path, model_cfg: ModelConfig, train_cfg: TrainCo
                      jax.random.wrap_key_data(tree["key"]))
     saved = meta["run"]
     # A run that used up its epoch budget continues when given more; an early-stopped run stays stopped.
-    run = _Run(**dict(saved, history=tuple(saved["history"]), finished=saved["bad_epochs"] >= train_cfg.patience))
+    run = _Run(**dict(saved, history=tuple(saved["history"]), epoch_sums=tuple(saved.get("epoch_sums", (0.0, 0.0))),
+                      finished=saved["bad_epochs"] >= train_cfg.patience))
     return ts, run
 
 
-def _run_epoch(step_fn, ts: _TrainState, epoch: int, train_cfg: TrainConfig, *, progress: bool):
-    """`steps_per_epoch` train steps of epoch `epoch` (0-based) with a progress bar.
+def _run_epoch(step_fn, ts: _TrainState, run: _Run, train_cfg: TrainConfig, *, progress: bool,
+               save=None, every_s: float | None = None):
+    """The remaining train steps of epoch `run.epoch` (0-based; all `steps_per_epoch` of them unless `run` was
+    saved inside it) with a progress bar. save(ts, run) is called with the run so far whenever `every_s`
+    seconds have passed since the epoch began or since the last save (never when `every_s` is None).
 
-    Returns (the new train state, {"loss", "psnr": means over the epoch's steps, "lr": the last step's rate}).
+    Returns (the new train state, {"loss", "psnr": means over the epoch's steps, "lr": the last step's rate,
+    "train_s": the epoch's training time, from its start in an earlier process if resumed inside it}).
     """
     from tqdm.auto import tqdm  # late: only training needs it
 
     spe = train_cfg.steps_per_epoch
     params, state, opt = ts.params, ts.state, ts.opt
-    sums = {"loss": 0.0, "psnr": 0.0}
+    loss_sum, psnr_sum = run.epoch_sums
     lr = None
-    bar = tqdm(total=spe, desc=f"epoch {epoch + 1}/{train_cfg.epochs}", disable=not progress, leave=False)
-    for i in range(spe):
-        step = epoch * spe + i
+    done = run.step - run.epoch * spe
+    t0 = t_saved = time.perf_counter()
+    bar = tqdm(total=spe, initial=done, desc=f"epoch {run.epoch + 1}/{train_cfg.epochs}", disable=not progress,
+               leave=False)
+    for i in range(done, spe):
+        step = run.epoch * spe + i
         t_step = time.perf_counter()
         params, state, opt, m = step_fn(params, state, opt, jax.random.fold_in(ts.key, step), step)
         m = {k: float(v) for k, v in jax.device_get(m).items()}
-        sums["loss"] += m["loss"]
-        sums["psnr"] += m["psnr"]
+        loss_sum += m["loss"]
+        psnr_sum += m["psnr"]
         lr = m["lr"]
         bar.set_postfix(loss=f"{m['loss']:.2e}", psnr=f"{m['psnr']:.2f}", lr=f"{lr:.0e}",
                         ex_s=f"{train_cfg.batch_size / (time.perf_counter() - t_step):.1f}")
         bar.update()
+        now = time.perf_counter()
+        if save is not None and every_s is not None and i + 1 < spe and now - t_saved >= every_s:
+            save(ts._replace(params=params, state=state, opt=opt),
+                 dataclasses.replace(run, step=step + 1, epoch_sums=(loss_sum, psnr_sum),
+                                     epoch_train_s=run.epoch_train_s + now - t0))
+            t_saved = time.perf_counter()
     bar.close()
-    means = {"loss": sums["loss"] / spe, "psnr": sums["psnr"] / spe, "lr": lr}
+    means = {"loss": loss_sum / spe, "psnr": psnr_sum / spe, "lr": lr,
+             "train_s": run.epoch_train_s + time.perf_counter() - t0}
     return ts._replace(params=params, state=state, opt=opt), means
 
 
@@ -428,13 +449,18 @@ def _training_card(run: _Run, *, train_cfg: TrainConfig, settings: dict, sensor:
 RUN_FILES = ("metrics.jsonl", "last.npz", "best.npz")  # what `fit` writes into its folder
 
 
+def _save_last(out: Path, ts: _TrainState, run: _Run, settings: dict, card: dict):
+    """`last.npz`: everything a resume needs (written atomically), at an epoch's end or inside an epoch."""
+    tree = {"params": ts.params, "state": ts.state, "opt": ts.opt, "best": ts.best, "key": jax.random.key_data(ts.key)}
+    save_tree(out / "last.npz", tree, dict(settings, kind="train_state", run=dataclasses.asdict(run), card=card))
+
+
 def _write_checkpoints(out: Path, ts: _TrainState, run: _Run, model_cfg: ModelConfig, settings: dict, card: dict):
     """`best.npz` (when this epoch is the best), `last.npz` and `metrics.jsonl`, each written atomically."""
     # best first, then last: a kill between the two resumes from the previous epoch and rewrites both.
     if run.best_epoch == run.epoch - 1:
         save_model(out / "best.npz", Model(ts.best["params"], ts.best["state"], model_cfg), card=card)
-    tree = {"params": ts.params, "state": ts.state, "opt": ts.opt, "best": ts.best, "key": jax.random.key_data(ts.key)}
-    save_tree(out / "last.npz", tree, dict(settings, kind="train_state", run=dataclasses.asdict(run), card=card))
+    _save_last(out, ts, run, settings, card)
     write_text_atomic(out / "metrics.jsonl", "".join(json.dumps(r) + "\n" for r in run.history))
 
 
@@ -454,13 +480,16 @@ def fit(
     data_description: str | None = None,
     conv3d_impl: str = "auto",
     init=None,
+    checkpoint_every_s: float | None = 600.0,
 ):
     """Train a network; returns (best `Model`, history: list of per-epoch records).
 
     out: folder for `metrics.jsonl` (one JSON record per epoch), `best.npz` (the best model so far, with its
     training card; `jaxsr.load_model` reads it) and `last.npz` (params, BN state, Adam state, RNG key, step,
-    epoch, best-so-far weights and early-stopping counters), all written every epoch. `resume=True` continues
-    from `last.npz` and gives the same result as an uninterrupted run (bit-identical on the same machine).
+    epoch, best-so-far weights and early-stopping counters), all written every epoch; `last.npz` also inside
+    an epoch every `checkpoint_every_s` seconds of training (None: at epochs' ends only), so that a killed run
+    loses at most that much. `resume=True` continues from `last.npz`, at an epoch's end or inside one, and gives
+    the same result as an uninterrupted run (bit-identical on the same machine).
     A folder that already holds a run (any of `RUN_FILES`) is refused (FileExistsError) unless `resume` or
     `overwrite` (start a new run whose epochs replace the old files as they are written) is given.
     make_batch: the data source (default `jaxsr.data.scene_batches`); validation: a dict from
@@ -503,28 +532,36 @@ def fit(
     params, state, opt = replicate((ts.params, ts.state, ts.opt), mesh)
     ts = ts._replace(params=params, state=state, opt=opt)
 
+    def card_of(run: _Run) -> dict:
+        return _training_card(run, train_cfg=train_cfg, settings=settings, sensor=sensor, validation=validation,
+                              bicubic_psnr=val_bicubic, data=data_description)
+
+    def save_inside_epoch(ts: _TrainState, run: _Run):
+        # the card counts the steps and time so far; the run keeps the epoch's time apart until the epoch ends
+        _save_last(out, ts, run, settings, card_of(dataclasses.replace(run, wall_time_s=run.wall_time_s
+                                                                         + run.epoch_train_s)))
+
     spe = train_cfg.steps_per_epoch
     while not run.finished and run.epoch < train_cfg.epochs:
-        t0 = time.perf_counter()
-        ts, train = _run_epoch(step_fn, ts, run.epoch, train_cfg, progress=progress)
-        train_time = time.perf_counter() - t0
+        t0, before = time.perf_counter(), run.epoch_train_s  # before: training time in an earlier process
+        ts, train = _run_epoch(step_fn, ts, run, train_cfg, progress=progress, save=save_inside_epoch,
+                               every_s=checkpoint_every_s)
         val = _validate(ts, validation, model_cfg, train_cfg, conv3d_impl)
-        run = dataclasses.replace(run, epoch=run.epoch + 1, step=(run.epoch + 1) * spe)
+        run = dataclasses.replace(run, epoch=run.epoch + 1, step=(run.epoch + 1) * spe, epoch_sums=(0.0, 0.0),
+                                  epoch_train_s=0.0)
         record = {
             "epoch": run.epoch, "step": run.step, "lr": train["lr"],
             "train_loss": train["loss"], "train_psnr": train["psnr"],
             "val_loss": val["loss"], "val_psnr": val["psnr"], "val_bicubic_psnr": val_bicubic,
-            "examples_per_s": spe * train_cfg.batch_size / train_time,
-            "epoch_time_s": time.perf_counter() - t0,
+            "examples_per_s": spe * train_cfg.batch_size / train["train_s"],
+            "epoch_time_s": before + time.perf_counter() - t0,
         }
         run, ts = _early_stopping(run, ts, val["loss"], train_cfg)
-        record["wall_time_s"] = run.wall_time_s + time.perf_counter() - t0
+        record["wall_time_s"] = run.wall_time_s + record["epoch_time_s"]
         run = dataclasses.replace(run, wall_time_s=record["wall_time_s"], history=(*run.history, record))
         if progress:
             print(json.dumps(record))
-        card = _training_card(run, train_cfg=train_cfg, settings=settings, sensor=sensor, validation=validation,
-                              bicubic_psnr=val_bicubic, data=data_description)
-        _write_checkpoints(out, ts, run, model_cfg, settings, card)
+        _write_checkpoints(out, ts, run, model_cfg, settings, card_of(run))
         if callback is not None:
             callback(record)
     best = jax.tree_util.tree_map(jnp.asarray, ts.best)

@@ -99,6 +99,8 @@ CASES = {
     "train --data .npy": (lambda p: np.save(p / "d.npy", np.zeros(3)),
                           ["train", "--data", "d.npy", "--out", "run"], ["expected an .npz"]),
     "train --tr 99": (None, ["train", "--tr", "99", "--out", "run"], ["--tr", "from 0 to 8", "memory"]),
+    "train --checkpoint-minutes -1": (None, ["train", "--checkpoint-minutes", "-1", "--out", "run"],
+                                      ["--checkpoint-minutes", "minutes >= 0"]),
     "simulate --frames 0": (None, ["simulate", "--frames", "0", "--out", "S"], ["--frames", ">= 1"]),
     # options checked before the work
     "upscale --preview exists": (lambda p: (np.save(p / "in.npy", np.full((3, 32, 64), 0.5, np.float32)),

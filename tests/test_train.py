@@ -317,6 +317,46 @@ def test_kill_and_resume_equals_uninterrupted(tmp_path):
             progress=False, resume=True)
 
 
+def test_a_run_killed_inside_an_epoch_resumes_from_its_last_checkpoint(tmp_path, monkeypatch):
+    """checkpoint_every_s=0 writes last.npz after every step; a kill just after the one inside epoch 2 (step 5 of
+    3 steps an epoch) resumes there and ends bit-identical to the uninterrupted run, logging the same epochs."""
+    import jaxsr.train as train_mod
+
+    cfg = tiny_train_cfg(examples_per_epoch=12, epochs=3, decay_epochs=1, patience=3)
+    spe = cfg.steps_per_epoch
+    val = toy_validation(TINY.tr, n=4)
+    make_batch = toy_batches(TINY.tr, 4)
+    ref, ref_hist = fit(TINY, cfg, out=tmp_path / "a", make_batch=make_batch, validation=val, progress=False)
+
+    real_save, saved_steps = train_mod._save_last, []
+
+    def save_then_kill(out, ts, run, settings, card):
+        real_save(out, ts, run, settings, card)
+        saved_steps.append(run.step)
+        if run.step == spe + 2:
+            raise Killed
+
+    monkeypatch.setattr(train_mod, "_save_last", save_then_kill)
+    with pytest.raises(Killed):
+        fit(TINY, cfg, out=tmp_path / "b", make_batch=make_batch, validation=val, progress=False,
+            checkpoint_every_s=0)
+    # inside epoch 1 after steps 1 and 2, its end (3), inside epoch 2 after step 4, 5: killed
+    assert saved_steps == [1, 2, spe, spe + 1, spe + 2]
+    meta = read_metadata(tmp_path / "b" / "last.npz")
+    assert meta["run"]["step"] == spe + 2 and meta["run"]["epoch"] == 1 and meta["card"]["steps"] == spe + 2
+    assert meta["run"]["epoch_sums"][0] > 0 and meta["run"]["epoch_train_s"] > 0
+    monkeypatch.setattr(train_mod, "_save_last", real_save)
+    got, hist = fit(TINY, cfg, out=tmp_path / "b", make_batch=make_batch, validation=val, progress=False,
+                    resume=True, checkpoint_every_s=None)
+    for a, b in zip(jax.tree_util.tree_leaves(ref), jax.tree_util.tree_leaves(got)):
+        np.testing.assert_array_equal(a, b)
+    strip = lambda h: [{k: v for k, v in r.items() if "time" not in k and "per_s" not in k} for r in h]
+    assert strip(hist) == strip(ref_hist)  # the resumed epoch's train loss and PSNR are over all its steps
+    assert hist[1]["epoch_time_s"] > meta["run"]["epoch_train_s"]
+    last_b = read_metadata(tmp_path / "b" / "last.npz")["run"]
+    assert last_b["step"] == 3 * spe and last_b["epoch_sums"] == [0.0, 0.0] and last_b["epoch_train_s"] == 0.0
+
+
 _SHARDED_SCRIPT = textwrap.dedent(
     """
     import os, sys, json

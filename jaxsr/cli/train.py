@@ -43,6 +43,9 @@ def add_parser(subparsers):
                    help="start from these weights (tr0..tr4 or a checkpoint of the same architecture but for its "
                    "TR, in either form): the same TR, e.g. to fine-tune a windowed model into the sequence form, or a "
                    "smaller one, grown to --tr (jaxsr.grow_tr: a warm start from its function)")
+    p.add_argument("--checkpoint-minutes", type=float, default=10.0,
+                   help="also write OUT/last.npz inside an epoch every this many minutes of training, so that a "
+                   "stopped run resumes (--resume) with at most that much lost (default 10; 0: every step)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -73,13 +76,16 @@ def run(args) -> int:
     sensor = SensorConfig() if args.scale == 4 else SensorConfig(scale=args.scale)
     model_cfg = ModelConfig(tr=args.tr, scale=args.scale, temporal=args.temporal)
     clip = cfg.clip_length(model_cfg) if args.temporal == "sequence" else None  # checked before any work
+    if not args.checkpoint_minutes >= 0:  # also refuses NaN
+        raise ValueError(f"--checkpoint-minutes {args.checkpoint_minutes}: expected a number of minutes >= 0")
     if Path(args.out).exists() and not Path(args.out).is_dir():
         raise FileExistsError(f"{args.out} is a file; --out is a folder")
     make_batch = _sequence_data(args.data, args.tr, cfg, sensor, clip) if args.data else None
     with removing_new_folder(args.out):  # a run that fails or is stopped before its first epoch leaves no folder
         cfg = resume_config(args.out, cfg) if args.resume else cfg  # a run keeps the validation it began with
         _, history = fit(model_cfg, cfg, out=args.out, make_batch=make_batch, sensor=sensor, resume=args.resume,
-                         overwrite=args.force, progress=not args.no_progress, init=args.init)
+                         overwrite=args.force, progress=not args.no_progress, init=args.init,
+                         checkpoint_every_s=60 * args.checkpoint_minutes)
     best = min(history, key=lambda r: r["val_loss"]) if history else None
     if best:
         print(f"best epoch {best['epoch']}: val loss {best['val_loss']:.3e}, val PSNR {best['val_psnr']:.2f} dB "
