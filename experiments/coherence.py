@@ -2,14 +2,15 @@
 iSeeBetter, retrained on our data) on a static-camera sequence of people.
 
     python experiments/coherence.py [--frames 125] [--fps 25] [--weights DIR] [--baselines histnet iseebetter]
-                                    [--baseline-weights DIR]
+                                    [--baseline-weights DIR] [--seed-runs CHECKPOINT ...]
 
 Tc_t counts pixels that are static in the ground truth (|GT_t+1 - GT_t| <= 1e-6) but change in the output by more
 than eps; the paper reports TR0 with about twice TR4's count. Since outputs are real numbers, the count depends on
 eps: it is reported at eps = 1/255, 0.01 and 0.05 of the depth range (`jaxsr.temporal_coherence`), for bicubic and
 the baselines (skipped with a message where they have no trained weights) too. Sequence: `walkers_100fps` (static
 camera, a stream of people walking at 4.3 km/h in four lanes 7.5-10.5 m away) sampled at --fps. The TR0 / TR4 ratio
-comes with a paired block-bootstrap interval over frame pairs (`jaxsr.ratio_interval`).
+comes with a paired block-bootstrap interval over frame pairs (`jaxsr.ratio_interval`); with `--seed-runs`
+(other trainings of TR0 or TR4), for every pair of a TR0 run and a TR4 run.
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ from _eval import (
     weights_source,
 )
 from _report import header, markdown_table, save_figure, write_atomic
+from _seeds import add_seed_run_args, load_seed_runs, seed_summary
 
 import jaxsr
 from jaxsr.runtime import enable_compilation_cache
@@ -57,6 +59,14 @@ def plot(path, counts):
     save_figure(fig, path)
 
 
+def ratio_intervals(sr_a, sr_b, gt, block: int) -> dict:
+    """{eps: TR a's Tc over TR b's with its paired block-bootstrap interval over frame pairs} (`jaxsr.ratio_interval`)."""
+    counts = [[jaxsr.temporal_coherence(jnp.asarray(sr), jnp.asarray(gt), eps=e).counts for e in EPS]
+              for sr in (sr_a, sr_b)]
+    return {e: jaxsr.ratio_interval(jax.random.key(0), counts[0][i], counts[1][i], block=block)
+            for i, e in enumerate(EPS)}
+
+
 def walkers_at(fps: float, frames: int, *, seed: int = 0):
     """The static-camera walkers sequence sampled at about `fps` (every round(100 / fps)-th frame of the 100 FPS
     sequence), simulated with noise seed `seed`: (Clip, the sampled sequence)."""
@@ -74,6 +84,7 @@ def main():
     add_model_args(parser, trs=(0, 4))
     add_baseline_args(parser)
     parser.add_argument("--seed", type=int, default=0)
+    add_seed_run_args(parser)
     parser.add_argument("--out", default="experiments/results/coherence")
     args = parser.parse_args()
     started = time.time()
@@ -82,6 +93,8 @@ def main():
     clip, seq = walkers_at(args.fps, args.frames, seed=args.seed)
     outputs = {"bicubic": np.asarray(jaxsr.bicubic(clip.lr, scale=4))}
     outputs.update({f"TR{tr}": jaxsr.super_resolve(load_tr(tr, args.weights), clip.lr) for tr in args.trs})
+    seed_runs = load_seed_runs(args.seed_runs)
+    outputs.update({f"TR{m.config.tr} ({name})": jaxsr.super_resolve(m, clip.lr) for name, m in seed_runs.items()})
     baselines, cards, skipped = load_baselines(args.baselines, args.baseline_weights)
     outputs.update({label: run_baseline(model, clip) for label, model in baselines.items()})
     rows, counts = [], {}
@@ -92,12 +105,11 @@ def main():
         rows.append([method] + [f"{float(tc.mean):.0f} ({100 * float(tc.flicker_fraction):.2f} %)" for tc in tcs]
                     + [f"{p:.2f} / {s:.3f}"])
         print(method, rows[-1][1:], flush=True)
-    ratio = {}
-    if {"TR0", "TR4"} <= outputs.keys():  # per frame pair, TR0's count over TR4's, resampled in blocks of pairs
-        pairs = {m: [jaxsr.temporal_coherence(jnp.asarray(outputs[m]), jnp.asarray(clip.gt), eps=e).counts
-                     for e in EPS] for m in ("TR0", "TR4")}
-        ratio = {e: jaxsr.ratio_interval(jax.random.key(0), pairs["TR0"][i], pairs["TR4"][i],
-                                         block=min(BLOCK, args.frames - 1)) for i, e in enumerate(EPS)}
+    block = min(BLOCK, args.frames - 1)
+    runs = {tr: [m for m in outputs if m == f"TR{tr}" or m.startswith(f"TR{tr} (")] for tr in (0, 4)}
+    # per frame pair, a TR0 run's count over a TR4 run's, resampled in blocks of pairs; every pair of runs
+    ratios = {(a, b): ratio_intervals(outputs[a], outputs[b], clip.gt, block) for a in runs[0] for b in runs[4]}
+    ratio = ratios.get(("TR0", "TR4"), {})
     text = header("Temporal coherence Tc: TR0 against TR4 (paper Eq. 2)", started)
     text += (f"Sequence `walkers_100fps` at {seq.fps:g} FPS (static camera), {args.frames} frames, SNR {clip.snr:g}; "
              f"models: {weights_source(args.weights)}. Cells: mean Tc_t over frame pairs (flickering static pixels "
@@ -113,6 +125,15 @@ def main():
                  + ", ".join(f"{float(r.mean):.2f} [{float(r.low):.2f}, {float(r.high):.2f}] at eps {e:.3g}"
                              for e, r in ratio.items())
                  + f". Paper: about 2 -> {verdict} at eps 0.01 (taken as 1.5-3).\n")
+    if len(ratios) > 1:
+        text += (f"\nAgainst retraining ({seed_summary(seed_runs)}): the ratio at eps 0.01 for every pair of a TR0 run "
+                 "and a TR4 run, with its frame interval:\n\n")
+        text += markdown_table(["TR0 run", "TR4 run", "TR0 / TR4 Tc at eps 0.01"],
+                               [[a, b, f"{float(r[0.01].mean):.2f} [{float(r[0.01].low):.2f}, {float(r[0.01].high):.2f}]"]
+                                for (a, b), r in ratios.items()])
+        inside = [1.5 <= float(r[0.01].low) and float(r[0.01].high) <= 3 for r in ratios.values()]
+        text += ("\n-> " + ("holds beyond the frame interval for every pair of runs" if all(inside) else
+                            f"beyond the frame interval for {sum(inside)} of {len(inside)} pairs of runs") + ".\n")
     write_atomic(f"{args.out}.md", text)
     plot(f"{args.out}.png", counts)
     print(f"wrote {args.out}.md, .png ({time.time() - started:.0f} s)")

@@ -2,6 +2,7 @@
 100 frames/s, super-resolved by TR0-TR4; and the validation of the scene-adaptive TR (`jaxsr.adaptive`).
 
     python experiments/fps_study.py [--frames 100] [--span 500] [--weights DIR] [--write-table]
+                                    [--seed-runs CHECKPOINT ...]
 
 At each frame rate the walkers scene is rendered at times t0 + i / fps, i < --span (the same scene, sampled as a
 camera at that rate would: 500 frames are 5 s at 100 FPS and 500 s at 1 FPS), simulated at SNR 1.3 and scored
@@ -14,6 +15,10 @@ reads.
 Validation of `choose_tr` (the auto row): the table comes from clips starting at t0 = 0 s with noise seed 0;
 auto is then scored on different clips (t0 = 60 s, seed 1), where it chooses from each clip's own
 centre-of-mass frames and is compared with the best fixed TR on those clips.
+
+`--seed-runs` scores other trainings of a TR (e.g. TR0's seeds 1 and 2) on the same clips: each TR difference is
+then also given over every pair of runs, so that a claim can be read against retraining as well as against the
+choice of frames.
 """
 
 from __future__ import annotations
@@ -35,6 +40,7 @@ from jaxsr.scenes import TEST_SEQUENCES, mean_lr_shift, test_scene
 from _eval import (BLOCK, FPS_NOTE, SEQUENCE_FRAMES, Clip, add_model_args, format_interval, frame_scores, interval,
                    load_tr, model_fps, score, scored_frames, scored_output, simulate_clip, weights_source)
 from _report import header, markdown_table, write_atomic
+from _seeds import add_seed_run_args, format_pairs, load_seed_runs, pairs_differences, seed_summary
 
 RATES = (1.0, 2.5, 5.0, 10.0, 20.0, 25.0, 50.0, 100.0)
 PAPER_TABLE2 = {  # PSNR per TR at each frame rate (paper Table 2)
@@ -88,21 +94,24 @@ def main():
                         f"{SEQUENCE_FRAMES})")
     add_model_args(parser, trs=(0, 1, 2, 3, 4))
     parser.add_argument("--write-table", action="store_true", help="store the table choose_tr uses")
+    add_seed_run_args(parser)
     parser.add_argument("--out", default="experiments/results/fps_study")
     args = parser.parse_args()
     started = time.time()
     enable_compilation_cache()
     sensor = jaxsr.SensorConfig()
     models = {tr: load_tr(tr, args.weights) for tr in args.trs}
+    seed_runs = load_seed_runs(args.seed_runs)
     span = max(args.span, args.frames)
 
-    study, per_frame, held_out, motion, estimated = {}, {}, {}, {}, {}
+    study, per_frame, held_out, motion, estimated, seed_frames = {}, {}, {}, {}, {}, {}
     for fps in RATES:
         clip, motion[fps] = walkers_clip(fps, span, t0=0.0, seed=0, sensor=sensor, n_scored=args.frames)
         estimated[fps] = estimate_motion(clip.lr)
         held, _ = walkers_clip(fps, span, t0=60.0, seed=1, sensor=sensor, n_scored=args.frames)
         per_frame[fps] = {tr: frame_scores(*scored_output(m, clip)) for tr, m in models.items()}
         study[fps] = {tr: (float(p.mean()), float(s.mean())) for tr, (p, s) in per_frame[fps].items()}
+        seed_frames[fps] = {name: frame_scores(*scored_output(m, clip))[0] for name, m in seed_runs.items()}
         held_out[fps] = (held.lr, {tr: score(*scored_output(m, held))[0] for tr, m in models.items()})
         speed_clip = held  # frames/s are measured on the last rate's held-out clip
         print(f"{fps:g} FPS: motion {motion[fps]:.2f} (estimated {estimated[fps].motion:.2f}) LR px/frame; "
@@ -163,6 +172,9 @@ def main():
         text += markdown_table(["FPS"] + [f"TR{tr} - TR0" for tr in trs if tr],
                                [[f"{f:g}"] + [format_interval(iv) for iv in vs_tr0[f].values()] for f in RATES])
     text += "\n" + claims(study, trs, vs_tr0) + "\n"
+    if seed_runs:
+        text += seed_section(per_frame, seed_frames, {n: m.config.tr for n, m in seed_runs.items()}, trs,
+                             seed_summary(seed_runs))
     write_atomic(f"{args.out}.md", text)
     write_atomic(f"{args.out}.json", json.dumps(table, indent=1) + "\n")
     plot(f"{args.out}.png", list(RATES), {tr: [study[f][tr][0] for f in RATES] for tr in trs},
@@ -171,6 +183,39 @@ def main():
         write_atomic(str(STUDY_TABLE), json.dumps(table, indent=1) + "\n")
         print("wrote", STUDY_TABLE)
     print(f"wrote {args.out}.md, .json, .png ({time.time() - started:.0f} s)")
+
+
+def seed_section(per_frame, seed_frames, seed_tr, trs, summary) -> str:
+    """The TR differences at each rate over every pair of runs (the studied models and the --seed-runs), and the
+    two claims read against them."""
+    diffs = {f: pairs_differences({tr: per_frame[f][tr][0] for tr in trs}, seed_frames[f], seed_tr)
+             for f in RATES}
+    others = [tr for tr in trs if tr]
+    text = ("\n## Against retraining: other runs of the same TRs\n\nThe same clips scored by other trainings "
+            f"({summary}). Each TR minus TR0 (dB): the difference of the run means and, in brackets, its lowest and "
+            "highest over every pair of a TR-k run and a TR0 run.\n\n")
+    rows = [[f"{f:g}"] + [format_pairs(diffs[f][tr]) if tr in diffs[f] else "" for tr in others] for f in RATES]
+    text += markdown_table(["FPS"] + [f"TR{tr} - TR0" for tr in others], rows)
+    text += "\nThe claims against every pair of runs:\n"
+    text += "- at 1-2.5 FPS TR0 is best: " + "; ".join(
+        f"{f:g} FPS: {tr0_best_over_pairs(diffs[f])}" for f in (1.0, 2.5)) + "\n"
+    fast = {f: diffs[f][4]["runs"][0] for f in RATES if f >= 20 and 4 in diffs[f]}
+    if fast:
+        text += ("- TR4 - TR0 >= 0.5 dB at >= 20 FPS, lowest over pairs: "
+                 + ", ".join(f"{f:g} FPS {lo:+.2f}" for f, lo in fast.items())
+                 + (" -> holds for every pair" if min(fast.values()) >= 0.5 else " -> not for every pair") + "\n")
+    return text
+
+
+def tr0_best_over_pairs(diffs: dict) -> str:
+    """Whether TR0 is best at one rate against retraining, from `pairs_differences`: every other TR below every
+    TR0 run (holds), some TR above every TR0 run (does not hold), or neither (depends on the run)."""
+    above = [tr for tr, d in diffs.items() if d["runs"][0] > 0]
+    if above:
+        return f"{', '.join(f'TR{tr}' for tr in above)} above every TR0 run -> does not hold"
+    if all(d["runs"][1] < 0 for d in diffs.values()):
+        return "every other TR below every TR0 run -> holds"
+    return "no TR above every TR0 run, not every TR below -> depends on the runs"
 
 
 def tr0_best_verdict(best, vs_tr0) -> str:
