@@ -45,8 +45,8 @@ def _train(out: Path, model_cfg, steps: int, *, init=None):
     if steps % EPOCHS:
         raise ValueError(f"{steps} steps do not split into {EPOCHS} epochs")
     train_cfg = dataclasses.replace(PRESETS["bundle"], examples_per_epoch=4 * steps // EPOCHS, epochs=EPOCHS)
-    resume = (out / "last.npz").exists()
-    fit(model_cfg, train_cfg, out=out, resume=resume, progress=False, init=init,
+    # resume=True starts afresh (from init) in an empty folder
+    fit(model_cfg, train_cfg, out=out, resume=True, progress=False, init=init,
         callback=lambda r: print(out.name, json.dumps({k: r[k] for k in ("epoch", "val_psnr")}), flush=True))
     return out / "best.npz"
 

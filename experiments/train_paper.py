@@ -11,8 +11,8 @@ epochs as a lease affords.
 Every (seed, TR) trains in its own process, all at once, so that one run's compilation, validation and checkpoint
 writing overlap the others' steps on the shared device (each process gets an equal share of its memory). Every
 run stops at the same `--epochs` (unless early stopping ends it sooner), so the TRs compare at equal steps; runs
-are resumable (the same command, or one with a larger --epochs, continues them from last.npz, `fit(resume=True)`;
-last.npz is also written every 10 minutes inside an epoch, so a stopped run loses at most that much), and
+are resumable (the same command, or one with a larger --epochs, continues them, `fit(resume=True)`: from last.npz
+at an epoch's end or resume.npz, written every 10 minutes inside an epoch, so a stopped run loses at most that), and
 best.npz, rewritten whenever an epoch lowers the validation loss, carries its training card (steps, device, JAX
 version). Run folders are not committed: `--keep` copies each run's best.npz (float16) and metrics.jsonl into
 experiments/paper_weights/, which `--report` and `--score` read by default, so that the results can be re-made
@@ -73,8 +73,8 @@ def train_one(root: Path, seed: int, tr: int, epochs: int) -> None:
     # a CPU host's cores as devices, over which fit splits each batch (TR0 at this preset: 0.58 s a step on two
     # cores as two devices, 0.78 s as one, 2026-11-24); on an accelerator this changes nothing
     jaxsr.use_cpu_cores()
-    # resume=True also starts a run afresh: fit resumes only from a last.npz (a run killed between its first
-    # best.npz and last.npz then starts over instead of being refused)
+    # resume=True also starts a run afresh: fit resumes only from a saved train state (last.npz or resume.npz; a
+    # run killed between its first best.npz and last.npz then starts over instead of being refused)
     fit(jaxsr.ModelConfig(tr=tr), resume_config(run, dataclasses.replace(PRESETS[PRESET], seed=seed, epochs=epochs)),
         out=run, resume=True, progress=False,
         callback=lambda r: print(f"s{seed}/tr{tr} epoch {r['epoch']}: val PSNR {r['val_psnr']:.2f}, "

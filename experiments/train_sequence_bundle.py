@@ -81,8 +81,7 @@ def main():
         print(f"TR{tr}: {json.dumps(p)}", flush=True)
         model_cfg = jaxsr.ModelConfig(tr=tr, temporal="sequence")
         train_cfg = dataclasses.replace(PRESETS["bundle"], examples_per_epoch=4 * p["steps_per_epoch"], epochs=EPOCHS)
-        resume = (run / "last.npz").exists()
-        fit(model_cfg, train_cfg, out=run, resume=resume, progress=False,
+        fit(model_cfg, train_cfg, out=run, resume=True, progress=False,  # an empty folder starts afresh
             callback=lambda r: print(json.dumps({k: r[k] for k in ("epoch", "train_loss", "val_loss", "val_psnr")}),
                                      flush=True))
 

@@ -5,9 +5,10 @@ inside the jitted step; a sequence-form model (`ModelConfig(temporal="sequence")
 `make_batch(key) -> (clips (B, L, h, w), gt (B, L, H, W))` (default `scene_clips`), with the loss on the L - 2R
 frames whose inputs lie inside the clip and BN statistics over the clip. `fit` runs epochs of
 `TrainConfig.steps_per_epoch` steps with step decay, validates with BN in inference mode, logs to `metrics.jsonl`,
-writes `best.npz` (a `Model`) and `last.npz` (everything needed to resume) after every epoch and every
-`checkpoint_every_s` seconds inside one, and stops early. Data parallelism: pass a `jax.sharding.Mesh` with a "data"
-axis (default: all devices); the batch is split over it and the parameters are replicated.
+writes `best.npz` (a `Model`) and `last.npz` (everything needed to resume) after every epoch, `resume.npz` (the
+same, inside an epoch) every `checkpoint_every_s` seconds of training, and stops early. Data parallelism: pass a
+`jax.sharding.Mesh` with a "data" axis (default: all devices); the batch is split over it and the parameters are
+replicated.
 """
 
 from __future__ import annotations
@@ -224,18 +225,19 @@ class _TrainState(NamedTuple):
 
 @dataclasses.dataclass(frozen=True)
 class _Run:
-    """Where a run stands after `epoch` finished epochs and `step` steps; saved as the "run" metadata of `last.npz`.
+    """Where a run stands after `epoch` finished epochs and `step` steps; saved as the "run" metadata of `last.npz`
+    (at an epoch's end) and `resume.npz` (inside one).
 
     best_loss / best_epoch (0-based, -1 before the first) / bad_epochs (epochs since the best) drive early
-    stopping; history holds the per-epoch records of `metrics.jsonl`. A checkpoint written inside epoch
-    `epoch` (0-based) has step > epoch * steps_per_epoch, with the sums of that epoch's train loss and PSNR so
-    far and its training time in epoch_sums / epoch_train_s, so that the resumed epoch logs what an uninterrupted
-    one would.
+    stopping; history holds the per-epoch records of `metrics.jsonl`. Inside epoch `epoch` (0-based: step >
+    epoch * steps_per_epoch), the sums of its train loss and PSNR so far and its training time are kept, so that
+    the resumed epoch logs what an uninterrupted one would; they are 0 at an epoch's end.
     """
 
     epoch: int = 0
     step: int = 0
-    epoch_sums: tuple = (0.0, 0.0)
+    epoch_loss_sum: float = 0.0
+    epoch_psnr_sum: float = 0.0
     epoch_train_s: float = 0.0
     best_loss: float = math.inf
     best_epoch: int = -1
@@ -310,11 +312,11 @@ def resume_config(out, train_cfg: TrainConfig) -> TrainConfig:
     """`train_cfg` with the validation sequences of the run saved in folder `out`, so that `fit(resume=True)`
     continues it: runs begun before 2026-11-24 validate on val1_street and val3_courtyard, which the presets
     dropped, and fit refuses to resume under other settings. Every other setting is left for fit to check. A
-    folder without a run (no last.npz) gives `train_cfg` unchanged."""
-    last = Path(out) / "last.npz"
-    if not last.is_file():
+    folder without a run (no last.npz or resume.npz) gives `train_cfg` unchanged."""
+    saved_run = _latest_state(Path(out))
+    if saved_run is None:
         return train_cfg
-    saved = read_metadata(last).get("train_config", {}).get("val_sequences")
+    saved = read_metadata(saved_run).get("train_config", {}).get("val_sequences")
     return train_cfg if saved is None else dataclasses.replace(train_cfg, val_sequences=tuple(saved))
 
 
@@ -346,23 +348,31 @@ def default_data(model_cfg: ModelConfig, train_cfg: TrainConfig, sensor: SensorC
     return scene_batches(model_cfg.tr, train_cfg, sensor=sensor)
 
 
-def _start_or_resume(last_path: Path, model_cfg: ModelConfig, train_cfg: TrainConfig, settings: dict, *,
+def _latest_state(out: Path) -> Path | None:
+    """The train state to resume the run in folder `out` from: `resume.npz` (inside an epoch) when it is ahead of
+    `last.npz` (an epoch's end; ahead of it when a kill fell between writing it and removing resume.npz), None
+    when neither exists."""
+    saved = [p for p in (out / "last.npz", out / RESUME_FILE) if p.is_file()]
+    return max(saved, key=lambda p: read_metadata(p).get("run", {}).get("step", 0), default=None)
+
+
+def _start_or_resume(out: Path, model_cfg: ModelConfig, train_cfg: TrainConfig, settings: dict, *,
                      k_init, k_data, resume: bool, init=None) -> tuple[_TrainState, _Run]:
-    """The run saved in `last_path` when resuming from an existing file, else a fresh one (weights from
-    `init` or drawn with `k_init`, data from `k_data`)."""
-    if not (resume and last_path.is_file()):
+    """The run saved in folder `out` (`_latest_state`) when resuming one, else a fresh one (weights from `init` or
+    drawn with `k_init`, data from `k_data`)."""
+    path = _latest_state(out) if resume else None
+    if path is None:
         params, state = _initial_weights(k_init, model_cfg, init)
         best = jax.device_get({"params": params, "state": state})
         return _TrainState(params, state, adam_init(params), best, k_data), _Run()
-    _check_resumable(last_path, read_metadata(last_path), settings)
-    tree, meta = load_tree(last_path, _train_state_template(model_cfg))
+    _check_resumable(path, read_metadata(path), settings)
+    tree, meta = load_tree(path, _train_state_template(model_cfg))
     tree = jax.tree_util.tree_map(jnp.asarray, tree)
     ts = _TrainState(tree["params"], tree["state"], AdamState(*tree["opt"]), tree["best"],
                      jax.random.wrap_key_data(tree["key"]))
     saved = meta["run"]
     # A run that used up its epoch budget continues when given more; an early-stopped run stays stopped.
-    run = _Run(**dict(saved, history=tuple(saved["history"]), epoch_sums=tuple(saved.get("epoch_sums", (0.0, 0.0))),
-                      finished=saved["bad_epochs"] >= train_cfg.patience))
+    run = _Run(**dict(saved, history=tuple(saved["history"]), finished=saved["bad_epochs"] >= train_cfg.patience))
     return ts, run
 
 
@@ -370,7 +380,8 @@ def _run_epoch(step_fn, ts: _TrainState, run: _Run, train_cfg: TrainConfig, *, p
                save=None, every_s: float | None = None):
     """The remaining train steps of epoch `run.epoch` (0-based; all `steps_per_epoch` of them unless `run` was
     saved inside it) with a progress bar. save(ts, run) is called with the run so far whenever `every_s`
-    seconds have passed since the epoch began or since the last save (never when `every_s` is None).
+    seconds have passed since the epoch began or since the last save (never when `every_s` is None, nor after
+    the epoch's last step: the epoch's end is saved by the caller).
 
     Returns (the new train state, {"loss", "psnr": means over the epoch's steps, "lr": the last step's rate,
     "train_s": the epoch's training time, from its start in an earlier process if resumed inside it}).
@@ -379,7 +390,7 @@ def _run_epoch(step_fn, ts: _TrainState, run: _Run, train_cfg: TrainConfig, *, p
 
     spe = train_cfg.steps_per_epoch
     params, state, opt = ts.params, ts.state, ts.opt
-    loss_sum, psnr_sum = run.epoch_sums
+    loss_sum, psnr_sum = run.epoch_loss_sum, run.epoch_psnr_sum
     lr = None
     done = run.step - run.epoch * spe
     t0 = t_saved = time.perf_counter()
@@ -399,7 +410,7 @@ def _run_epoch(step_fn, ts: _TrainState, run: _Run, train_cfg: TrainConfig, *, p
         now = time.perf_counter()
         if save is not None and every_s is not None and i + 1 < spe and now - t_saved >= every_s:
             save(ts._replace(params=params, state=state, opt=opt),
-                 dataclasses.replace(run, step=step + 1, epoch_sums=(loss_sum, psnr_sum),
+                 dataclasses.replace(run, step=step + 1, epoch_loss_sum=loss_sum, epoch_psnr_sum=psnr_sum,
                                      epoch_train_s=run.epoch_train_s + now - t0))
             t_saved = time.perf_counter()
     bar.close()
@@ -446,22 +457,26 @@ def _training_card(run: _Run, *, train_cfg: TrainConfig, settings: dict, sensor:
     }
 
 
-RUN_FILES = ("metrics.jsonl", "last.npz", "best.npz")  # what `fit` writes into its folder
+RESUME_FILE = "resume.npz"  # the train state inside an epoch; last.npz keeps the last epoch's end
+RUN_FILES = ("metrics.jsonl", "last.npz", "best.npz", RESUME_FILE)  # what `fit` writes into its folder
 
 
-def _save_last(out: Path, ts: _TrainState, run: _Run, settings: dict, card: dict):
-    """`last.npz`: everything a resume needs (written atomically), at an epoch's end or inside an epoch."""
+def _save_state(path: Path, ts: _TrainState, run: _Run, settings: dict, card: dict):
+    """Everything a resume needs (params, BN and Adam state, best weights, RNG key, the run), written atomically."""
     tree = {"params": ts.params, "state": ts.state, "opt": ts.opt, "best": ts.best, "key": jax.random.key_data(ts.key)}
-    save_tree(out / "last.npz", tree, dict(settings, kind="train_state", run=dataclasses.asdict(run), card=card))
+    save_tree(path, tree, dict(settings, kind="train_state", run=dataclasses.asdict(run), card=card))
 
 
 def _write_checkpoints(out: Path, ts: _TrainState, run: _Run, model_cfg: ModelConfig, settings: dict, card: dict):
-    """`best.npz` (when this epoch is the best), `last.npz` and `metrics.jsonl`, each written atomically."""
-    # best first, then last: a kill between the two resumes from the previous epoch and rewrites both.
+    """At an epoch's end: `best.npz` (when this epoch is the best), `last.npz` and `metrics.jsonl`, each written
+    atomically; then `resume.npz` (inside this epoch) is removed."""
+    # best first, then last: a kill between the two resumes from the latest state inside this epoch (or the
+    # previous epoch's end) and rewrites both; resume.npz, behind last.npz once it is written, goes last.
     if run.best_epoch == run.epoch - 1:
         save_model(out / "best.npz", Model(ts.best["params"], ts.best["state"], model_cfg), card=card)
-    _save_last(out, ts, run, settings, card)
+    _save_state(out / "last.npz", ts, run, settings, card)
     write_text_atomic(out / "metrics.jsonl", "".join(json.dumps(r) + "\n" for r in run.history))
+    (out / RESUME_FILE).unlink(missing_ok=True)
 
 
 def fit(
@@ -486,12 +501,13 @@ def fit(
 
     out: folder for `metrics.jsonl` (one JSON record per epoch), `best.npz` (the best model so far, with its
     training card; `jaxsr.load_model` reads it) and `last.npz` (params, BN state, Adam state, RNG key, step,
-    epoch, best-so-far weights and early-stopping counters), all written every epoch; `last.npz` also inside
-    an epoch every `checkpoint_every_s` seconds of training (None: at epochs' ends only), so that a killed run
-    loses at most that much. `resume=True` continues from `last.npz`, at an epoch's end or inside one, and gives
-    the same result as an uninterrupted run (bit-identical on the same machine).
-    A folder that already holds a run (any of `RUN_FILES`) is refused (FileExistsError) unless `resume` or
-    `overwrite` (start a new run whose epochs replace the old files as they are written) is given.
+    epoch, best-so-far weights and early-stopping counters), all written every epoch; inside an epoch the same
+    state goes to `resume.npz` every `checkpoint_every_s` seconds of training (None: never), so that a killed
+    run loses at most that much (removed at the epoch's end). `resume=True` continues from the later of the two
+    (a folder with neither starts afresh) and gives the same result as an uninterrupted run (bit-identical on
+    the same machine). A folder that already holds a run (any of `RUN_FILES`) is refused (FileExistsError)
+    unless `resume` or `overwrite` (start a new run in its place: the old run's files are removed when the new
+    one first saves its state) is given.
     make_batch: the data source (default `jaxsr.data.scene_batches`); validation: a dict from
     `jaxsr.data.validation_set` (default: built from `jaxsr.scenes.test_sequences`). mesh: "auto" (all
     devices when there are more than one), None (no sharding) or a `Mesh` with a "data" axis. callback(record)
@@ -513,6 +529,8 @@ def fit(
     if held and not (resume or overwrite):
         raise FileExistsError(f"{out} holds a training run ({', '.join(held)}); pass resume=True (--resume) to "
                               "continue it or overwrite=True (--force) to start a new one in its place")
+    if not (checkpoint_every_s is None or checkpoint_every_s >= 0):  # also refuses NaN
+        raise ValueError(f"fit: checkpoint_every_s={checkpoint_every_s!r}; expected seconds >= 0, or None")
     out.mkdir(parents=True, exist_ok=True)
     mesh = choose_mesh(mesh, train_cfg.batch_size)
     k_init, k_data, k_val = run_keys(train_cfg.seed)
@@ -526,7 +544,7 @@ def fit(
     settings = _settings(model_cfg, train_cfg)
     if init is not None:
         settings["init"] = str(init) if not isinstance(init, Model) else "a Model passed to fit"
-    ts, run = _start_or_resume(out / "last.npz", model_cfg, train_cfg, settings, k_init=k_init, k_data=k_data,
+    ts, run = _start_or_resume(out, model_cfg, train_cfg, settings, k_init=k_init, k_data=k_data,
                                resume=resume, init=init)
     step_fn = make_train_step(model_cfg, train_cfg, make_batch, mesh=mesh, conv3d_impl=conv3d_impl)
     params, state, opt = replicate((ts.params, ts.state, ts.opt), mesh)
@@ -536,10 +554,18 @@ def fit(
         return _training_card(run, train_cfg=train_cfg, settings=settings, sensor=sensor, validation=validation,
                               bicubic_psnr=val_bicubic, data=data_description)
 
+    old_run = held if overwrite else []  # the replaced run's files, removed before the new run's first save
+
+    def forget_old_run():
+        for name in old_run:
+            (out / name).unlink(missing_ok=True)
+        old_run.clear()
+
     def save_inside_epoch(ts: _TrainState, run: _Run):
+        forget_old_run()
         # the card counts the steps and time so far; the run keeps the epoch's time apart until the epoch ends
-        _save_last(out, ts, run, settings, card_of(dataclasses.replace(run, wall_time_s=run.wall_time_s
-                                                                         + run.epoch_train_s)))
+        _save_state(out / RESUME_FILE, ts, run, settings,
+                    card_of(dataclasses.replace(run, wall_time_s=run.wall_time_s + run.epoch_train_s)))
 
     spe = train_cfg.steps_per_epoch
     while not run.finished and run.epoch < train_cfg.epochs:
@@ -547,8 +573,8 @@ def fit(
         ts, train = _run_epoch(step_fn, ts, run, train_cfg, progress=progress, save=save_inside_epoch,
                                every_s=checkpoint_every_s)
         val = _validate(ts, validation, model_cfg, train_cfg, conv3d_impl)
-        run = dataclasses.replace(run, epoch=run.epoch + 1, step=(run.epoch + 1) * spe, epoch_sums=(0.0, 0.0),
-                                  epoch_train_s=0.0)
+        run = dataclasses.replace(run, epoch=run.epoch + 1, step=(run.epoch + 1) * spe, epoch_loss_sum=0.0,
+                                  epoch_psnr_sum=0.0, epoch_train_s=0.0)
         record = {
             "epoch": run.epoch, "step": run.step, "lr": train["lr"],
             "train_loss": train["loss"], "train_psnr": train["psnr"],
@@ -561,6 +587,7 @@ def fit(
         run = dataclasses.replace(run, wall_time_s=record["wall_time_s"], history=(*run.history, record))
         if progress:
             print(json.dumps(record))
+        forget_old_run()
         _write_checkpoints(out, ts, run, model_cfg, settings, card_of(run))
         if callback is not None:
             callback(record)

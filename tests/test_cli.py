@@ -117,3 +117,14 @@ def test_runs_as_python_m_jaxsr_cli():
                           text=True, timeout=120, check=False)
     assert done.returncode == 0, done.stderr
     assert done.stdout.startswith("usage: jaxsr info")
+
+
+@pytest.mark.parametrize("minutes,seconds", [("0", 0.0), ("2.5", 150.0), ("inf", float("inf"))])
+def test_train_checkpoint_minutes_reach_fit_as_seconds(tmp_path, monkeypatch, minutes, seconds):
+    import jaxsr.cli.train as cli_train
+
+    got = {}
+    monkeypatch.setattr(cli_train, "fit", lambda *a, **kw: (got.update(kw), (None, []))[1])
+    assert cli.main(["train", "--tr", "0", "--out", str(tmp_path / "run"), "--no-progress",
+                     "--checkpoint-minutes", minutes]) == 0
+    assert got["checkpoint_every_s"] == seconds

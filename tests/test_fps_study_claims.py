@@ -4,11 +4,13 @@ frame intervals and against other runs (differences over pairs of runs), on synt
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
 
 import fps_study  # noqa: E402
+from _seeds import pairs_differences  # noqa: E402
 from jaxsr.stats import Interval  # noqa: E402
 
 
@@ -34,10 +36,6 @@ def test_tr0_best_verdict_says_at_which_rates_it_holds_beyond_the_intervals():
 def test_differences_over_pairs_of_runs_and_the_verdict_on_them():
     """Per-frame PSNR with known means: TR0 runs at 30.0 (main) and 30.4 (another seed), TR1 at 30.2, TR4 at
     30.6: TR1 - TR0 lies between the runs (-0.2 .. +0.2), TR4 is above both (+0.2 .. +0.6)."""
-    import numpy as np
-
-    from _seeds import pairs_differences
-
     frames = np.linspace(-0.05, 0.05, 20)
     main = {0: 30.0 + frames, 1: 30.2 + frames, 4: 30.6 + frames}
     d = pairs_differences(main, {"s1": 30.4 + frames}, {"s1": 0})
@@ -47,5 +45,6 @@ def test_differences_over_pairs_of_runs_and_the_verdict_on_them():
     assert fps_study.tr0_best_over_pairs(d) == "TR4 above every TR0 run -> does not hold"
     assert fps_study.tr0_best_over_pairs({1: d[1]}) == \
         "no TR above every TR0 run, not every TR below -> depends on the runs"
+    assert fps_study.tr0_best_over_pairs({}) == "no TR0 run and another TR to compare"
     below = pairs_differences({0: 30.0 + frames, 1: 29.5 + frames}, {"s1": 29.9 + frames}, {"s1": 0})
     assert fps_study.tr0_best_over_pairs(below) == "every other TR below every TR0 run -> holds"

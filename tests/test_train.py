@@ -252,11 +252,14 @@ class Killed(Exception):
 
 
 def _add_legacy_conv3d_impl(path):
-    """Rewrite a checkpoint's metadata as older jaxsr wrote it: `conv3d_impl` in the model config."""
+    """Rewrite a checkpoint's metadata as older jaxsr wrote it: `conv3d_impl` in the model config, no sums or time
+    of an unfinished epoch in the run."""
     with np.load(path) as data:
         arrays = {k: data[k] for k in data.files}
     meta = json.loads(str(arrays["__metadata__"]))
     meta["config"]["conv3d_impl"] = "auto"
+    for key in ("epoch_loss_sum", "epoch_psnr_sum", "epoch_train_s"):
+        del meta["run"][key]
     arrays["__metadata__"] = np.array(json.dumps(meta))
     np.savez(path, **arrays)
 
@@ -318,8 +321,9 @@ def test_kill_and_resume_equals_uninterrupted(tmp_path):
 
 
 def test_a_run_killed_inside_an_epoch_resumes_from_its_last_checkpoint(tmp_path, monkeypatch):
-    """checkpoint_every_s=0 writes last.npz after every step; a kill just after the one inside epoch 2 (step 5 of
-    3 steps an epoch) resumes there and ends bit-identical to the uninterrupted run, logging the same epochs."""
+    """checkpoint_every_s=0 saves the state after every step (resume.npz inside an epoch, last.npz at its end); a
+    run killed just after a save resumes there and ends bit-identical to the uninterrupted run, logging the same
+    epochs. Also a run started over an old one (overwrite) and killed inside its first epoch."""
     import jaxsr.train as train_mod
 
     cfg = tiny_train_cfg(examples_per_epoch=12, epochs=3, decay_epochs=1, patience=3)
@@ -327,34 +331,57 @@ def test_a_run_killed_inside_an_epoch_resumes_from_its_last_checkpoint(tmp_path,
     val = toy_validation(TINY.tr, n=4)
     make_batch = toy_batches(TINY.tr, 4)
     ref, ref_hist = fit(TINY, cfg, out=tmp_path / "a", make_batch=make_batch, validation=val, progress=False)
+    strip = lambda h: [{k: v for k, v in r.items() if "time" not in k and "per_s" not in k} for r in h]
+    real_save = train_mod._save_state
 
-    real_save, saved_steps = train_mod._save_last, []
+    def killed_at(step, saved):
+        def save_then_kill(path, ts, run, settings, card):
+            real_save(path, ts, run, settings, card)
+            saved.append((path.name, run.step))
+            if run.step == step:
+                raise Killed
+        return save_then_kill
 
-    def save_then_kill(out, ts, run, settings, card):
-        real_save(out, ts, run, settings, card)
-        saved_steps.append(run.step)
-        if run.step == spe + 2:
-            raise Killed
+    def resume_and_compare(out):
+        got, hist = fit(TINY, cfg, out=out, make_batch=make_batch, validation=val, progress=False, resume=True,
+                        checkpoint_every_s=None)
+        for a, b in zip(jax.tree_util.tree_leaves(ref), jax.tree_util.tree_leaves(got)):
+            np.testing.assert_array_equal(a, b)
+        assert strip(hist) == strip(ref_hist)  # a resumed epoch's train loss and PSNR are over all its steps
+        assert sorted(p.name for p in out.iterdir()) == ["best.npz", "last.npz", "metrics.jsonl"]
+        return hist
 
-    monkeypatch.setattr(train_mod, "_save_last", save_then_kill)
+    saved = []
+    monkeypatch.setattr(train_mod, "_save_state", killed_at(spe + 2, saved))
     with pytest.raises(Killed):
         fit(TINY, cfg, out=tmp_path / "b", make_batch=make_batch, validation=val, progress=False,
             checkpoint_every_s=0)
-    # inside epoch 1 after steps 1 and 2, its end (3), inside epoch 2 after step 4, 5: killed
-    assert saved_steps == [1, 2, spe, spe + 1, spe + 2]
-    meta = read_metadata(tmp_path / "b" / "last.npz")
+    # inside epoch 1 after steps 1 and 2, its end (3), inside epoch 2 after step 4, then 5: killed
+    assert saved == [("resume.npz", 1), ("resume.npz", 2), ("last.npz", spe), ("resume.npz", spe + 1),
+                     ("resume.npz", spe + 2)]
+    meta = read_metadata(tmp_path / "b" / "resume.npz")
     assert meta["run"]["step"] == spe + 2 and meta["run"]["epoch"] == 1 and meta["card"]["steps"] == spe + 2
-    assert meta["run"]["epoch_sums"][0] > 0 and meta["run"]["epoch_train_s"] > 0
-    monkeypatch.setattr(train_mod, "_save_last", real_save)
-    got, hist = fit(TINY, cfg, out=tmp_path / "b", make_batch=make_batch, validation=val, progress=False,
-                    resume=True, checkpoint_every_s=None)
-    for a, b in zip(jax.tree_util.tree_leaves(ref), jax.tree_util.tree_leaves(got)):
-        np.testing.assert_array_equal(a, b)
-    strip = lambda h: [{k: v for k, v in r.items() if "time" not in k and "per_s" not in k} for r in h]
-    assert strip(hist) == strip(ref_hist)  # the resumed epoch's train loss and PSNR are over all its steps
+    assert meta["run"]["epoch_loss_sum"] > 0 and meta["run"]["epoch_train_s"] > 0
+    assert read_metadata(tmp_path / "b" / "last.npz")["run"]["step"] == spe  # the epoch's end stays apart
+    monkeypatch.setattr(train_mod, "_save_state", real_save)
+    assert resume_config(tmp_path / "b", cfg) == cfg
+    hist = resume_and_compare(tmp_path / "b")
     assert hist[1]["epoch_time_s"] > meta["run"]["epoch_train_s"]
-    last_b = read_metadata(tmp_path / "b" / "last.npz")["run"]
-    assert last_b["step"] == 3 * spe and last_b["epoch_sums"] == [0.0, 0.0] and last_b["epoch_train_s"] == 0.0
+    last = read_metadata(tmp_path / "b" / "last.npz")["run"]
+    assert last["step"] == 3 * spe and last["epoch_loss_sum"] == last["epoch_train_s"] == 0.0
+
+    # a new run in place of an old one: the old run's files go at its first save, so a kill inside its first
+    # epoch leaves the new run's state only, and resuming continues the new run
+    saved = []
+    fit(TINY, dataclasses.replace(cfg, seed=1, epochs=1), out=tmp_path / "c", make_batch=make_batch, validation=val,
+        progress=False)
+    monkeypatch.setattr(train_mod, "_save_state", killed_at(2, saved))
+    with pytest.raises(Killed):
+        fit(TINY, cfg, out=tmp_path / "c", make_batch=make_batch, validation=val, progress=False, overwrite=True,
+            checkpoint_every_s=0)
+    assert sorted(p.name for p in (tmp_path / "c").iterdir()) == ["resume.npz"]
+    monkeypatch.setattr(train_mod, "_save_state", real_save)
+    resume_and_compare(tmp_path / "c")
 
 
 _SHARDED_SCRIPT = textwrap.dedent(

@@ -27,7 +27,7 @@ def add_parser(subparsers):
     p.add_argument("--preset", choices=sorted(PRESETS), default="cpu", help="training preset (see jaxsr.config.PRESETS)")
     p.add_argument("--out", required=True, help="output folder (metrics.jsonl, best.npz, last.npz)")
     again = p.add_mutually_exclusive_group()
-    again.add_argument("--resume", action="store_true", help="continue the run in OUT from OUT/last.npz")
+    again.add_argument("--resume", action="store_true", help="continue the run in OUT (from last.npz or resume.npz)")
     again.add_argument("--force", action="store_true", help="start a new run in OUT, replacing the run it holds")
     p.add_argument("--seed", type=seed, default=None, help="override the preset's seed (0..2^32-1)")
     p.add_argument("--epochs", type=int_range(1), default=None, help="override the preset's number of epochs")
@@ -44,8 +44,9 @@ def add_parser(subparsers):
                    "TR, in either form): the same TR, e.g. to fine-tune a windowed model into the sequence form, or a "
                    "smaller one, grown to --tr (jaxsr.grow_tr: a warm start from its function)")
     p.add_argument("--checkpoint-minutes", type=float, default=10.0,
-                   help="also write OUT/last.npz inside an epoch every this many minutes of training, so that a "
-                   "stopped run resumes (--resume) with at most that much lost (default 10; 0: every step)")
+                   help="save the train state inside an epoch (OUT/resume.npz) every this many minutes of training, so "
+                   "that a stopped run resumes (--resume) with at most that much lost (default 10; 0: every step; "
+                   "inf: never)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -81,7 +82,7 @@ def run(args) -> int:
     if Path(args.out).exists() and not Path(args.out).is_dir():
         raise FileExistsError(f"{args.out} is a file; --out is a folder")
     make_batch = _sequence_data(args.data, args.tr, cfg, sensor, clip) if args.data else None
-    with removing_new_folder(args.out):  # a run that fails or is stopped before its first epoch leaves no folder
+    with removing_new_folder(args.out):  # a run that fails or stops before its first save leaves no folder
         cfg = resume_config(args.out, cfg) if args.resume else cfg  # a run keeps the validation it began with
         _, history = fit(model_cfg, cfg, out=args.out, make_batch=make_batch, sensor=sensor, resume=args.resume,
                          overwrite=args.force, progress=not args.no_progress, init=args.init,
