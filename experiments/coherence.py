@@ -103,7 +103,8 @@ def main():
     outputs = {"bicubic": np.asarray(jaxsr.bicubic(clip.lr, scale=4))}
     outputs.update({f"TR{tr}": jaxsr.super_resolve(load_tr(tr, args.weights), clip.lr) for tr in args.trs})
     seed_runs = load_seed_runs(args.seed_runs)
-    outputs.update({f"TR{m.config.tr} ({name})": jaxsr.super_resolve(m, clip.lr) for name, m in seed_runs.items()})
+    seed_labels = {f"TR{m.config.tr} ({name})": m for name, m in seed_runs.items()}
+    outputs.update({label: jaxsr.super_resolve(m, clip.lr) for label, m in seed_labels.items()})
     baselines, cards, skipped = load_baselines(args.baselines, args.baseline_weights)
     outputs.update({label: run_baseline(model, clip) for label, model in baselines.items()})
     rows, counts = [], {}  # counts: per frame pair, at each of EPS
@@ -115,7 +116,8 @@ def main():
                     + [f"{p:.2f} / {s:.3f}"])
         print(method, rows[-1][1:], flush=True)
     block = min(BLOCK, args.frames - 1)
-    runs = {tr: [m for m in outputs if m == f"TR{tr}" or m.startswith(f"TR{tr} (")] for tr in (0, 4)}
+    runs = {tr: [f"TR{tr}"] * (tr in args.trs) + [label for label, m in seed_labels.items() if m.config.tr == tr]
+            for tr in (0, 4)}
     # per frame pair, a TR0 run's count over a TR4 run's, resampled in blocks of pairs; every pair of runs
     ratios = {(a, b): ratio_intervals(counts[a], counts[b], block) for a in runs[0] for b in runs[4]}
     ratio = ratios.get(("TR0", "TR4"), {})
