@@ -18,8 +18,10 @@ version). Run folders are not committed: `--keep` copies each run's best.npz (fl
 experiments/paper_weights/, which `--report` and `--score` read by default, so that the results can be re-made
 from a clone. This is for a GPU: on 2 CPU cores (as two devices, as `--probe` and each run use them) TR0's step
 took 0.58 s and its epoch 38 minutes on 2026-11-24's EPYC, TR1's step 1.7 s on one device (about 110 minutes an
-epoch), TR4's several times that. CPU sessions train with `campaign.py`, whose report and scoring these reuse (its
-runs: seed 0 of every TR, seeds 1-2 of TR0-TR2). Bundle the result with `bundle_weights.py --runs runs/paper/s0`.
+epoch), TR4's several times that; on one H100, eight runs at once (seeds 1-2 of TR1-TR4) took their 3 epochs in
+11-17 minutes each, 18 minutes in all (2026-11-24). CPU sessions train with `campaign.py`, whose report and scoring
+these reuse (its runs: seed 0 of every TR, then seeds 1-2 of TR0-TR2, then of TR3-TR4). Bundle the result with
+`bundle_weights.py --runs runs/paper/s0`.
 """
 
 from __future__ import annotations

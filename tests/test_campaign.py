@@ -27,7 +27,7 @@ def _write(root, seed, tr, val_losses, val_psnr=None):
     run = campaign.run_dir(root, seed, tr)
     run.mkdir(parents=True, exist_ok=True)
     psnr = val_psnr or [20.0 + i for i in range(len(val_losses))]
-    lines = [json.dumps({"epoch": i + 1, "val_loss": v, "val_psnr": p})
+    lines = [json.dumps({"epoch": i + 1, "step": 100 * (i + 1), "val_loss": v, "val_psnr": p})
              for i, (v, p) in enumerate(zip(val_losses, psnr, strict=True))]
     (run / "metrics.jsonl").write_text("".join(line + "\n" for line in lines))
 
@@ -88,6 +88,13 @@ def test_tr_differences_give_the_spread_over_runs_and_the_frame_interval():
     # one run of each TR: the frame interval alone cannot say the difference survives retraining
     single = campaign.tr_differences({(0, 0): frames, (0, 1): frames + 1.0})[1]
     assert single["runs"] == pytest.approx((1.0, 1.0)) and single["beyond"] is None
+    # step by step: TR2 (+0.1) lies 0.9-1.1 dB below the TR1 runs (+1.0 to +1.2), TR3 (one run) 1.4 dB above TR2
+    steps = campaign.tr_differences(scores, against_previous=True)
+    assert sorted(steps) == [1, 2, 3] and steps[1]["mean"] == pytest.approx(1.0)
+    assert steps[2]["mean"] == pytest.approx(-1.0) and steps[2]["runs"] == pytest.approx((-1.1, -0.9))
+    assert steps[2]["beyond"] and float(steps[2]["frames"].high) < 0
+    assert steps[3]["mean"] == pytest.approx(1.4) and steps[3]["beyond"] is None
+    assert 3 not in campaign.tr_differences({(0, 0): frames, (0, 3): frames}, against_previous=True)  # no TR2
 
 
 def test_an_epoch_is_expected_to_last_as_the_runs_last_one_or_another_seeds_of_its_tr(tmp_path):
@@ -190,6 +197,25 @@ def test_scoring_reuses_the_kept_per_frame_scores_and_scores_only_a_new_or_retra
     campaign.score(root, 4, str(out))
     assert sorted(scored) == [0, 0, 1, 1]
     assert set(json.loads(out.with_suffix(".json").read_text())) == {"s0/tr0", "s0/tr1", "s1/tr0"}
+
+
+def test_scoring_flags_runs_of_different_lengths_but_not_an_earlier_epoch_picked_by_validation(tmp_path,
+                                                                                                  monkeypatch):
+    clips = {n: Clip(n, np.zeros((4, 2, 2), np.float32), None, np.zeros((4, 8, 8), np.float32), 25.0, 1.3,
+                     scored=np.arange(4)) for n in ("a", "b", "c")}
+    monkeypatch.setattr(campaign, "test_clips", lambda frames, spread: clips)
+    monkeypatch.setattr(campaign, "scene_scores", lambda model, clips: ({}, np.full((3, 4), 25.0 + model.config.tr)))
+    root, out = tmp_path / "runs", tmp_path / "scores.md"
+    for seed, tr, val_losses in ((0, 0, [1.0, 0.5]), (0, 1, [1.0, 0.4, 0.6]), (1, 0, [1.0, 0.5]), (1, 1, [1.0, 0.5])):
+        _write(root, seed, tr, val_losses)  # 100 steps an epoch
+        _select(campaign.run_dir(root, seed, tr), 200, tr=tr)  # every run's weights from step 200
+    campaign.score(root, 4, str(out))
+    text = out.read_text()
+    assert "differ in training length" in text  # s0/tr1 trained 300 steps, the others 200
+    assert "earlier epoch's weights of s0/tr1 (200)" in text
+    _write(root, 0, 1, [1.0, 0.4])  # now every run trained 200 steps (100 an epoch), selected at its last
+    campaign.score(root, 4, str(out))
+    assert "differ in training length" not in out.read_text() and "earlier epoch" not in out.read_text()
 
 
 def test_a_cached_score_is_used_only_for_the_same_key_and_shape(tmp_path):

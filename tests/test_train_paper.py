@@ -64,7 +64,7 @@ def test_failed_runs_are_named(monkeypatch, tmp_path):
     assert "s0/tr0" not in str(err.value)
 
 
-@pytest.mark.parametrize("args, says", [(["--seeds", "3"], "s3/tr0"), (["--seeds", "1", "--tr", "4"], "s1/tr4"),
+@pytest.mark.parametrize("args, says", [(["--seeds", "3"], "s3/tr0"), (["--seeds", "3", "--tr", "4"], "s3/tr4"),
                                         (["--epochs", "0"], "--epochs must be >= 1")])
 def test_runs_the_report_cannot_read_and_empty_budgets_are_refused(args, says, monkeypatch, capsys):
     launched = _launches(monkeypatch)
