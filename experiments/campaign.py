@@ -46,7 +46,7 @@ from jaxsr.train import fit, resume_config
 
 PRESET = "long"
 # (seed, tr) in priority order: one seed of every TR, then the seed spread where the TR effects are smallest, then
-# that of the others (for the paper preset all were trained on a lent GPU)
+# that of TR3-TR4
 RUNS = ([(0, tr) for tr in range(5)] + [(s, tr) for s in (1, 2) for tr in range(3)]
         + [(s, tr) for s in (1, 2) for tr in (3, 4)])
 CONVERGED_DB = 0.2
@@ -229,19 +229,19 @@ def score(root: Path, frames: int, out: str, only=None, *, title: str = "Trainin
                  "range over every pair of a TR-k run and a TR0 run (what retraining moves); and the 95 % paired "
                  f"bootstrap interval over blocks of {BLOCK} consecutive scored frames of the seed-averaged scores "
                  "(what the choice of frames moves). Beyond both: every pair and the interval on one side of 0.\n\n")
-        text += differences_table(diffs, lambda tr: 0)
-    steps = tr_differences(scores, against_previous=True)
-    if any(tr > 1 for tr in steps):
+        text += differences_table(diffs)
+    rises = tr_differences(scores, against_previous=True)
+    if any(tr > 1 for tr in rises):
         text += "\nEach TR against the TR below it (does PSNR rise with every step of TR?), measured as above.\n\n"
-        text += differences_table(steps, lambda tr: tr - 1)
+        text += differences_table(rises, against_previous=True)
     write_atomic(out, text)
     print(text)
 
 
-def differences_table(diffs: dict, reference) -> str:
-    """`tr_differences`'s result as a markdown table; reference(tr): the TR each was compared with."""
+def differences_table(diffs: dict, *, against_previous: bool = False) -> str:
+    """`tr_differences(..., against_previous=against_previous)`'s result as a markdown table."""
     return markdown_table(["TRs", "difference", "over pairs of runs", "frame interval", "beyond both"],
-                          [[f"TR{tr} - TR{reference(tr)}", f"{d['mean']:+.2f}",
+                          [[f"TR{tr} - TR{tr - 1 if against_previous else 0}", f"{d['mean']:+.2f}",
                             f"[{d['runs'][0]:+.2f}, {d['runs'][1]:+.2f}]", format_interval(d["frames"]),
                             BEYOND[d["beyond"]]] for tr, d in diffs.items()])
 
