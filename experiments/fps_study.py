@@ -168,7 +168,7 @@ def main():
                  f"from a paired bootstrap over blocks of {BLOCK} consecutive scored frames "
                  "(`jaxsr.paired_interval`): how much the "
                  f"{args.frames} frames chosen move a difference, not how much another training run would (for "
-                 "that: results/campaign_scores.md, on the test scenes).\n\n")
+                 "that: --seed-runs).\n\n")
         text += markdown_table(["FPS"] + [f"TR{tr} - TR0" for tr in trs if tr],
                                [[f"{f:g}"] + [format_interval(iv) for iv in vs_tr0[f].values()] for f in RATES])
     text += "\n" + claims(study, trs, vs_tr0) + "\n"

@@ -211,7 +211,7 @@ def differences(rows, seq_rows, vs_tr0, bought=None) -> str:
              f"blocks of {BLOCK} consecutive scored frames (`jaxsr.paired_interval`; each scene resampled on its "
              "own). They say how "
              "much the frames chosen move a difference, not how much another training run would: for that, "
-             "results/campaign_scores.md (three seeds of TR0-TR2 in the training campaign).", ""]
+             "results/paper_scores.md (three seeds of every TR at the paper preset, all 500 frames).", ""]
     if bought is not None:
         lines.append(f"- TR0 - TR0 untrained (what training bought): {format_interval(bought)}")
     lines += [f"- TR{tr} - TR0: {format_interval(iv)}" for tr, iv in vs_tr0.items()]
