@@ -20,7 +20,7 @@ from a clone. This is for a GPU: on 2 CPU cores (as two devices, as `--probe` an
 took 0.58 s and its epoch 38 minutes on 2026-11-24's EPYC, TR1's step 1.7 s on one device (about 110 minutes an
 epoch), TR4's several times that; on one H100, eight runs at once (seeds 1-2 of TR1-TR4) took their 3 epochs in
 11-17 minutes each, 18 minutes in all (2026-11-24). CPU sessions train with `campaign.py`, whose report and scoring
-these reuse (its runs: seed 0 of every TR, then seeds 1-2 of TR0-TR2, then of TR3-TR4). Bundle the result with
+these reuse (its runs: seed 0 of every TR, then seeds 1-2 of TR0-TR2). Bundle the result with
 `bundle_weights.py --runs runs/paper/s0`.
 """
 
@@ -37,7 +37,7 @@ from pathlib import Path
 
 import jax
 from _report import step_timer
-from campaign import RUNS, keep, report, score
+from campaign import REPORTED_RUNS, keep, report, score
 
 import jaxsr
 from jaxsr.config import PRESETS
@@ -144,10 +144,10 @@ def main(argv=None) -> None:
         train_one(args.runs, int(match[1]), int(match[2]), args.epochs)
     else:
         runs = [(s, tr) for s in sorted(set(args.seeds)) for tr in sorted(set(args.tr))]
-        unknown = [f"s{s}/tr{tr}" for s, tr in runs if (s, tr) not in RUNS]
+        unknown = [f"s{s}/tr{tr}" for s, tr in runs if (s, tr) not in REPORTED_RUNS]
         if unknown:
             ap.error(f"{', '.join(unknown)}: not among the runs the report and scoring read "
-                     f"({', '.join(f's{s}/tr{t}' for s, t in RUNS)})")
+                     f"({', '.join(f's{s}/tr{t}' for s, t in REPORTED_RUNS)})")
         if args.epochs < 1:
             ap.error(f"--epochs must be >= 1, got {args.epochs}")
         train_all(args.runs, runs, args.epochs)

@@ -216,6 +216,13 @@ def test_scoring_flags_runs_of_different_lengths_but_not_an_earlier_epoch_picked
     _write(root, 0, 1, [1.0, 0.4])  # now every run trained 200 steps (100 an epoch), selected at its last
     campaign.score(root, 4, str(out))
     assert "differ in training length" not in out.read_text() and "earlier epoch" not in out.read_text()
+    for seed, tr in ((0, 0), (1, 0), (1, 1)):  # every run trained 300 steps; s0/tr1's validation picked step 200
+        _write(root, seed, tr, [1.0, 0.5, 0.4])
+        _select(campaign.run_dir(root, seed, tr), 300, tr=tr)
+    _write(root, 0, 1, [1.0, 0.4, 0.6])
+    campaign.score(root, 4, str(out))
+    text = out.read_text()
+    assert "differ in training length" not in text and "earlier epoch's weights of s0/tr1 (200)" in text
 
 
 def test_a_cached_score_is_used_only_for_the_same_key_and_shape(tmp_path):
