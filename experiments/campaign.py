@@ -202,8 +202,9 @@ def score(root: Path, frames: int, out: str, only=None, *, title: str = "Trainin
         selected = selected_steps(run)
         # what the TR differences below compare at: each run's training length (without a kept curve, that of its
         # selected weights), whose weights validation may have picked at an earlier epoch
-        if records or selected is not None:
-            trained.add(records[-1]["step"] if records else selected)
+        length = records[-1]["step"] if records else selected
+        if length is not None:
+            trained.add(length)
         if records and selected is not None and selected < records[-1]["step"]:
             earlier.append(f"{name} ({selected})")
         selected = "?" if selected is None else selected
@@ -258,9 +259,8 @@ def plot(path, curves, cfg):
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(6.5, 4))
-    for name, (steps, psnr) in curves.items():  # a colour per TR, a line style per seed
-        seed, tr = map(int, name[1:].split("/tr"))  # "s<seed>/tr<k>"
-        ax.plot(steps, psnr, ("o-", ".--", "x:")[seed % 3], color=f"C{tr}", ms=3, label=name)
+    for (seed, tr), (steps, psnr) in curves.items():  # a colour per TR, a line style per seed
+        ax.plot(steps, psnr, ("o-", ".--", "x:")[seed % 3], color=f"C{tr}", ms=3, label=f"s{seed}/tr{tr}")
     ax.set_xlabel(f"training steps (batch {cfg.batch_size})")
     ax.set_ylabel(f"validation PSNR (dB, 3 x {cfg.val_frames} frames)")
     if curves:  # runs kept without their curves have no line
@@ -344,7 +344,7 @@ def report(root: Path, out: str, *, preset: str = PRESET, title: str = "Training
             if (run_dir(root, seed, tr) / "best.npz").exists():
                 rows.append(_row_without_curve(name, run_dir(root, seed, tr)))
             continue
-        curves[name] = ([r["step"] for r in records], [r["val_psnr"] for r in records])
+        curves[(seed, tr)] = ([r["step"] for r in records], [r["val_psnr"] for r in records])
         best = max(records, key=lambda r: r["val_psnr"])
         gain = gain_last_quarter(records)
         state = ("finished" if finished(records, cfg) else "training") + (

@@ -170,6 +170,13 @@ def test_the_report_shows_a_run_kept_without_its_curve_from_its_card(tmp_path):
 
 
 
+def _fake_test_clips(monkeypatch):
+    """Three 4-frame test clips for campaign.score, whose scores the tests fake."""
+    clips = {n: Clip(n, np.zeros((4, 2, 2), np.float32), None, np.zeros((4, 8, 8), np.float32), 25.0, 1.3,
+                     scored=np.arange(4)) for n in ("a", "b", "c")}
+    monkeypatch.setattr(campaign, "test_clips", lambda frames, spread: clips)
+
+
 def test_scoring_reuses_the_kept_per_frame_scores_and_scores_only_a_new_or_retrained_run(tmp_path, monkeypatch):
     scored = []
 
@@ -177,9 +184,7 @@ def test_scoring_reuses_the_kept_per_frame_scores_and_scores_only_a_new_or_retra
         scored.append(model.config.tr)
         return {}, np.full((3, 4), 25.0 + model.config.tr)
 
-    clips = {n: Clip(n, np.zeros((4, 2, 2), np.float32), None, np.zeros((4, 8, 8), np.float32), 25.0, 1.3,
-                     scored=np.arange(4)) for n in ("a", "b", "c")}
-    monkeypatch.setattr(campaign, "test_clips", lambda frames, spread: clips)
+    _fake_test_clips(monkeypatch)
     monkeypatch.setattr(campaign, "scene_scores", fake_scene_scores)
     root, out = tmp_path / "runs", tmp_path / "scores.md"
     for seed, tr, steps in ((0, 0, 100), (0, 1, 100)):
@@ -201,9 +206,7 @@ def test_scoring_reuses_the_kept_per_frame_scores_and_scores_only_a_new_or_retra
 
 def test_scoring_flags_runs_of_different_lengths_but_not_an_earlier_epoch_picked_by_validation(tmp_path,
                                                                                                   monkeypatch):
-    clips = {n: Clip(n, np.zeros((4, 2, 2), np.float32), None, np.zeros((4, 8, 8), np.float32), 25.0, 1.3,
-                     scored=np.arange(4)) for n in ("a", "b", "c")}
-    monkeypatch.setattr(campaign, "test_clips", lambda frames, spread: clips)
+    _fake_test_clips(monkeypatch)
     monkeypatch.setattr(campaign, "scene_scores", lambda model, clips: ({}, np.full((3, 4), 25.0 + model.config.tr)))
     root, out = tmp_path / "runs", tmp_path / "scores.md"
     for seed, tr, val_losses in ((0, 0, [1.0, 0.5]), (0, 1, [1.0, 0.4, 0.6]), (1, 0, [1.0, 0.5]), (1, 1, [1.0, 0.5])):
