@@ -169,7 +169,6 @@ def test_the_report_shows_a_run_kept_without_its_curve_from_its_card(tmp_path):
             in out.read_text())
 
 
-
 def _fake_test_clips(monkeypatch):
     """Three 4-frame test clips for campaign.score, whose scores the tests fake."""
     clips = {n: Clip(n, np.zeros((4, 2, 2), np.float32), None, np.zeros((4, 8, 8), np.float32), 25.0, 1.3,
