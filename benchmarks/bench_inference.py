@@ -8,7 +8,7 @@ end from histograms: window (the paper), sequence (`super_resolve` of a sequence
 Run: pytest benchmarks/bench_inference.py --benchmark-enable      (about 3 min on 2 CPU cores)
 
 Weights are random (speed does not depend on them). 16 frames of 32 x 64 LR per call. `gflops_per_s` uses
-`jaxsr.model.flops_per_frame` (convolutions and the dynamic filter); `test_matmul_peak` measures the GFLOP/s of
+`jaxsr.nn.duf.flops_per_frame` (convolutions and the dynamic filter); `test_matmul_peak` measures the GFLOP/s of
 a large float32 matrix product, the practical ceiling for convolution-bound code on this XLA:CPU build.
 """
 
@@ -18,8 +18,8 @@ import numpy as np
 import pytest
 
 from jaxsr.config import ModelConfig, SensorConfig
-from jaxsr.inference import DEFAULT_BATCH_SIZE, Stream, iter_centre_of_mass, super_resolve, super_resolve_histograms
-from jaxsr.model import Model, apply_model, flops_per_frame, init_model
+from jaxsr.inference.super_resolve import DEFAULT_BATCH_SIZE, Stream, iter_centre_of_mass, super_resolve, super_resolve_histograms
+from jaxsr.nn.duf import Model, apply_model, flops_per_frame, init_model
 from jaxsr.runtime import compiler_options
 
 SENSOR = SensorConfig()

@@ -37,10 +37,10 @@ def test_stages(timed, stage):
     n = 64
     depth, intensity = scene_batch(n)
     rates = jaxsr.expected_histograms(depth, intensity, SENSOR, snr=1.3)
-    counts = jaxsr.sample_poisson(jax.random.key(2), rates)
+    counts = jaxsr.sensor.sample_poisson(jax.random.key(2), rates)
     fn, args = {
         "rates": (jax.jit(lambda d, i: jaxsr.expected_histograms(d, i, SENSOR, snr=1.3)), (depth, intensity)),
-        "poisson": (jax.jit(jaxsr.sample_poisson), (jax.random.key(3), rates)),
+        "poisson": (jax.jit(jaxsr.sensor.sample_poisson), (jax.random.key(3), rates)),
         "centre_of_mass": (jax.jit(lambda c: jaxsr.centre_of_mass(c, SENSOR)), (counts,)),
     }[stage]
     timed(fn, *args, items=n)

@@ -23,16 +23,16 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxsr import layers
+from jaxsr.nn import layers
 from jaxsr.config import DEFAULT_CLIP_OUTPUTS, PRESETS, ModelConfig, SensorConfig
-from jaxsr.data import log_uniform, random_crop, scene_batches, sequence_batches, sequence_clips
-from jaxsr.layers import conv3d_native, conv3d_stacked, conv3d_taps
-from jaxsr.model import apply_model, apply_model_sequence, flops_per_frame, init_model, sequence_radius
-from jaxsr.optim import adam_init
-from jaxsr.peaks import centre_of_mass
+from jaxsr.training.data import log_uniform, random_crop, scene_batches, sequence_batches, sequence_clips
+from jaxsr.nn.layers import conv3d_native, conv3d_stacked, conv3d_taps
+from jaxsr.nn.duf import apply_model, apply_model_sequence, flops_per_frame, init_model, sequence_radius
+from jaxsr.training.optim import adam_init
+from jaxsr.sensor.peaks import centre_of_mass
 from jaxsr.runtime import compiler_options
-from jaxsr.sensor import normalise_depth, simulate_histograms
-from jaxsr.train import data_mesh, make_train_step
+from jaxsr.sensor.forward import normalise_depth, simulate_histograms
+from jaxsr.training.loop import data_mesh, make_train_step
 
 CPU = PRESETS["cpu"]
 
@@ -142,7 +142,7 @@ def test_conv3d_forward_backward(benchmark, impl):
 # background load slows them alike (only the ratios carry over to another machine):
 # - "issue-14": the step of 2026-11-22, every example's whole 32 x 64 clip simulated, then cropped; the gradients
 #   of the layers `conv3d(impl="auto")` stacks taken through the stacked form; one device;
-# - "main": the step of 2026-11-23 (photons drawn for the crop only, `jaxsr.data`), still stacked gradients;
+# - "main": the step of 2026-11-23 (photons drawn for the crop only, `jaxsr.training.data`), still stacked gradients;
 # - "new": main's data, the stacked layers' gradients through their temporal taps (`layers.STACKED_GRADIENT`),
 #   on one device and with the batch split over both cores as devices (what `fit(mesh="auto")` does).
 # The network's forward pass at inference (BN from running statistics, `compiler_options`, same inputs) is timed

@@ -43,7 +43,7 @@ import jaxsr  # noqa: E402
 
 # JAX as users run it (`jaxsr upscale`): each core a CPU device, a batch split over them when they divide it.
 # Before any JAX operation.
-N_DEVICES = jaxsr.use_cpu_cores()
+N_DEVICES = jaxsr.runtime.use_cpu_cores()
 CORES = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
 
 from _report import header, markdown_table, write_atomic  # noqa: E402
@@ -141,7 +141,7 @@ def main(argv=None):
         f"Full-frame inference, LR {LR_SHAPE[0]}x{LR_SHAPE[1]} -> HR {LR_SHAPE[0] * 4}x{LR_SHAPE[1] * 4}, a random "
         f"sequence of {args.frames} frames, random weights. JAX: `jaxsr.super_resolve(model, lr_seq, batch_size=B)` "
         f"(XLA:CPU, {N_DEVICES} CPU devices over {CORES} cores: a batch divisible by {N_DEVICES} is split over them, "
-        f"as `jaxsr.use_cpu_cores` sets up; compiled with `jaxsr.compiler_options()` = {jaxsr.compiler_options()}; "
+        f"as `jaxsr.runtime.use_cpu_cores` sets up; compiled with `jaxsr.runtime.compiler_options()` = {jaxsr.runtime.compiler_options()}; "
         f"`conv3d_impl=\"auto\"`: temporal taps stacked where `stacked_use` >= 0.7). PyTorch {torch.__version__}: the port in "
         f"`benchmarks/torch_reference.py` (`torch_super_resolve`, eval mode, `torch.inference_mode()`, BN folded "
         f"into the preceding 1x1x1 convolution), `torch.set_num_threads({args.threads})`, oneDNN "

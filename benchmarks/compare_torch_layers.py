@@ -1,7 +1,7 @@
 """JAX vs PyTorch, layer by layer: where the time of one network window goes in each engine, on the same CPU.
 
 Times every dense block's three stages (BN-ReLU-1x1x1-BN-ReLU, the 3x3x3 convolution, the concatenation), for
-the same inputs, as jaxsr runs them (`conv3d(impl="auto")`, jitted with `jaxsr.compiler_options()`) and as the
+the same inputs, as jaxsr runs them (`conv3d(impl="auto")`, jitted with `jaxsr.runtime.compiler_options()`) and as the
 PyTorch port runs them (benchmarks/torch_reference.py, channels-last, per-tap oneDNN `conv2d`, BN folded),
 plus a 2048^2 matrix product in both as a reference for the machine's peak. Writes
 experiments/results/torch_layers.md.
@@ -30,7 +30,7 @@ import numpy as np
 from _report import header, markdown_table, write_atomic
 
 import jaxsr
-from jaxsr.layers import batch_norm, conv3d
+from jaxsr.nn.layers import batch_norm, conv3d
 
 LR_SHAPE = ct.LR_SHAPE
 
@@ -51,7 +51,7 @@ def parse_args(argv=None):
 
 def jax_timer(fn, *args):
     """(time one call, result) for fn jitted as `super_resolve` compiles."""
-    compiled = jax.jit(fn, compiler_options=jaxsr.compiler_options())
+    compiled = jax.jit(fn, compiler_options=jaxsr.runtime.compiler_options())
     result = jax.block_until_ready(compiled(*args))
 
     def once():
@@ -154,7 +154,7 @@ def main(argv=None):
     notes = (
         f"TR{args.tr} network, random weights, batch {args.batch}, LR {LR_SHAPE[0]}x{LR_SHAPE[1]}, every dense "
         f"block fed the same activations in both engines. JAX: `conv3d(impl=\"auto\")`, jitted with "
-        f"`jaxsr.compiler_options()` = {jaxsr.compiler_options()}, {jax.local_device_count()} CPU devices (this "
+        f"`jaxsr.runtime.compiler_options()` = {jaxsr.runtime.compiler_options()}, {jax.local_device_count()} CPU devices (this "
         f"runs on the first). PyTorch {torch.__version__}: `benchmarks/torch_reference.py`, channels-last, "
         f"per-tap oneDNN `conv2d`, BN folded into the 1x1x1 convolution, `torch.set_num_threads({args.threads})`. "
         f"Fastest of {args.rounds} interleaved rounds. **JAX / torch** is the ratio of times (< 1: JAX faster). "

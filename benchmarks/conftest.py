@@ -7,7 +7,7 @@ import jaxsr
 
 # As a user's run does (`jaxsr upscale`, the experiments): the host's cores as CPU devices, so that a batch of
 # frames is split over them. Must run before any JAX operation, hence at import of this conftest.
-N_DEVICES = jaxsr.use_cpu_cores()
+N_DEVICES = jaxsr.runtime.use_cpu_cores()
 
 
 def run_compiled(benchmark, fn, *args, rounds=5, iterations=1, items=1):

@@ -18,7 +18,7 @@ Variants (all give the same result; `compare_torch.py --sweep` times each, so to
   torch convolution.
 - `conv="native"`: one `F.conv3d` per 3D convolution (frames in the temporal zero padding are convolved);
   `conv="taps"`: a sum over the temporal taps of `F.conv2d` calls with time folded into the batch, skipping
-  taps that fall in the zero padding (as `jaxsr.layers.conv3d_taps` does; with one frame, tr = 0, that
+  taps that fall in the zero padding (as `jaxsr.nn.layers.conv3d_taps` does; with one frame, tr = 0, that
   saves 2 of 3 taps).
 - `fold_bn=True`: the second batch norm of each block follows a 1x1x1 convolution directly, so it is folded
   into that convolution's weights (a standard inference transformation; exact up to rounding).

@@ -16,16 +16,16 @@ from jax.sharding import PartitionSpec as P
 
 import jaxsr
 from jaxsr import scenes
-from jaxsr.checkpoint import resolve_model_path
+from jaxsr.io.checkpoint import resolve_model_path
 from jaxsr.config import DEFAULT_MEAN_SIGNAL, PRESETS, ModelConfig, SensorConfig, TrainConfig
-from jaxsr.data import sequence_batches
-from jaxsr.inference import super_resolve, super_resolve_histograms
+from jaxsr.training.data import sequence_batches
+from jaxsr.inference.super_resolve import super_resolve, super_resolve_histograms
 from jaxsr.runtime import compiler_options
-from jaxsr.train import resume_config
+from jaxsr.training.loop import resume_config
 
 # The host's cores as CPU devices, before any JAX operation: training and `super_resolve` split batches over
 # them, as `jaxsr upscale` and `jaxsr train` do.
-N_DEVICES = jaxsr.use_cpu_cores()
+N_DEVICES = jaxsr.runtime.use_cpu_cores()
 FPS_NOTE = f"default batch: one frame on each of {N_DEVICES} CPU cores as JAX devices"
 
 TEST_SCENES = ("scene1_street", "scene2_road", "scene3_courtyard")
@@ -304,8 +304,8 @@ def load_baselines(names, weights=None) -> tuple[dict, dict, list[str]]:
         try:
             if path is None:
                 raise FileNotFoundError(f"no {name}.npz or {name}/best.npz in {weights}")
-            path = jaxsr.baseline_training.resolve_baseline_path(path)
-            models[label] = jaxsr.load_baseline(path)
+            path = jaxsr.training.baselines.resolve_baseline_path(path)
+            models[label] = jaxsr.training.load_baseline(path)
             cards[label] = jaxsr.read_metadata(path).get("card", {})
         except FileNotFoundError as e:
             skipped.append(f"{label}: skipped, no trained weights ({e})")
@@ -359,8 +359,8 @@ def run_baseline(model, clip: Clip) -> np.ndarray:
     """A trained baseline on a clip: HistNet from its histograms and HR intensity, iSeeBetter from its
     centre-of-mass frames. Returns (T, H, W) normalised depth, not clipped."""
     if model.kind == "histnet":
-        return jaxsr.super_resolve_baseline(model, counts=clip.counts, intensity=clip.intensity)
-    return jaxsr.super_resolve_baseline(model, lr=clip.lr)
+        return jaxsr.training.super_resolve_baseline(model, counts=clip.counts, intensity=clip.intensity)
+    return jaxsr.training.super_resolve_baseline(model, lr=clip.lr)
 
 
 def baseline_source(models: dict, cards: dict, skipped, weights) -> str:
@@ -389,7 +389,7 @@ def baseline_source(models: dict, cards: dict, skipped, weights) -> str:
 
 def describe_baseline(model) -> str:
     """Architecture in a few words: configuration and parameter count."""
-    from jaxsr.model import count_params
+    from jaxsr.nn.duf import count_params
 
     c = model.config
     n = count_params(model.params) / 1e6

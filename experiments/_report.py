@@ -12,7 +12,7 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 
-from jaxsr._files import write_text_atomic
+from jaxsr.io.files import write_text_atomic
 
 
 def cpu_times() -> tuple[int, int] | None:

@@ -33,7 +33,7 @@ CPU_NOTE = (
     "(histograms simulated from HR depth + intensity, then centre of mass, batch of 64 frames), HR frames/s "
     "for rendering, examples/s for training steps (batch 4, cpu preset: 16 x 32 LR crops), HR frames/s for "
     "inference (16 frames of 32 x 64 per call; `super_resolve_histograms` includes the centre of mass). "
-    "The suites expose the host's cores as JAX CPU devices (`jaxsr.use_cpu_cores`, benchmarks/conftest.py), "
+    "The suites expose the host's cores as JAX CPU devices (`jaxsr.runtime.use_cpu_cores`, benchmarks/conftest.py), "
     "as `jaxsr upscale` does: `test_super_resolve[tr-None]` is the default batch, one frame per device, "
     "split over them; `[tr-1]` runs one frame at a time on one device; `[tr-8]` splits 8 frames. "
     "GFLOP/s: the network's convolutions and dynamic filter (`flops_per_frame`) per second; "

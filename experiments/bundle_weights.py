@@ -36,7 +36,7 @@ import numpy as np
 
 import jaxsr
 from jaxsr import scenes
-from jaxsr.checkpoint import save_model
+from jaxsr.io.checkpoint import save_model
 from jaxsr.config import TrainConfig
 
 from _eval import scene_scores, simulate_clip

@@ -77,7 +77,7 @@ def main():
     text += markdown_table(["mean signal"] + list(PAPER_BICUBIC) + ["RMS dB"], rows)
     text += "\n| paper (Table 3) | " + " | ".join(f"{p:.2f} / {s:.3f}" for p, s in PAPER_BICUBIC.values()) + " | |\n"
     text += f"\nClosest: mean_signal = {best} (RMS {np.sqrt(cost[best] / 3):.2f} dB); "
-    text += f"the package default is `DEFAULT_MEAN_SIGNAL = {jaxsr.DEFAULT_MEAN_SIGNAL}`.\n"
+    text += f"the package default is `DEFAULT_MEAN_SIGNAL = {jaxsr.config.DEFAULT_MEAN_SIGNAL}`.\n"
     write_atomic(args.out, text)
     print("closest:", best, "wrote", args.out)
 

@@ -40,9 +40,9 @@ from _report import header, machine, markdown_table, save_figure, write_atomic
 from _score_cache import cached_frame_scores, code_digest, data_digest, read_cache, weights_digest, write_cache
 
 import jaxsr
-from jaxsr.checkpoint import save_model
+from jaxsr.io.checkpoint import save_model
 from jaxsr.config import PRESETS
-from jaxsr.train import fit, resume_config
+from jaxsr.training.loop import fit, resume_config
 
 PRESET = "long"
 # The campaign's runs (seed, tr) in priority order: one seed of every TR, then the seed spread where the TR effects
@@ -122,7 +122,7 @@ def _commit() -> str:
 def train(root: Path, hours: float, only) -> None:
     cfg = PRESETS[PRESET]
     deadline = time.time() + 3600 * hours
-    jaxsr.use_cpu_cores()
+    jaxsr.runtime.use_cpu_cores()
     commit = _commit()  # the code this process runs, not whatever is checked out when an epoch ends
     stuck = set()  # runs fit found finished by a rule `finished` does not mirror
     while (pick := next_run(root, cfg, only, stuck)) is not None:

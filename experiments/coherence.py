@@ -9,7 +9,7 @@ than eps; the paper reports TR0 with about twice TR4's count. Since outputs are 
 eps: it is reported at eps = 1/255, 0.01 and 0.05 of the depth range (`jaxsr.temporal_coherence`), for bicubic and
 the baselines (skipped with a message where they have no trained weights) too. Sequence: `walkers_100fps` (static
 camera, a stream of people walking at 4.3 km/h in four lanes 7.5-10.5 m away) sampled at --fps. The TR0 / TR4 ratio
-comes with a paired block-bootstrap interval over frame pairs (`jaxsr.ratio_interval`); with `--seed-runs`
+comes with a paired block-bootstrap interval over frame pairs (`jaxsr.eval.ratio_interval`); with `--seed-runs`
 (other trainings of TR0 or TR4), for every pair of a TR0 run and a TR4 run.
 """
 
@@ -60,9 +60,9 @@ def plot(path, counts):
 
 
 def ratio_intervals(counts_a, counts_b, block: int) -> dict:
-    """{eps: a's Tc over b's with its paired block-bootstrap interval over frame pairs (`jaxsr.ratio_interval`)}
+    """{eps: a's Tc over b's with its paired block-bootstrap interval over frame pairs (`jaxsr.eval.ratio_interval`)}
     from the per-pair counts of two outputs at each of EPS."""
-    return {e: jaxsr.ratio_interval(jax.random.key(0), a, b, block=block) for e, a, b in zip(EPS, counts_a, counts_b)}
+    return {e: jaxsr.eval.ratio_interval(jax.random.key(0), a, b, block=block) for e, a, b in zip(EPS, counts_a, counts_b)}
 
 
 def ratio_verdict(iv) -> str:

@@ -50,8 +50,8 @@ from _eval import (
 from _report import header, markdown_table, write_atomic
 
 import jaxsr
-from jaxsr.model import count_params
-from jaxsr.recon import tv_super_resolve
+from jaxsr.nn.duf import count_params
+from jaxsr.baselines.tv import tv_super_resolve
 from jaxsr.runtime import enable_compilation_cache
 
 PAPER_OTHERS = {
@@ -211,11 +211,11 @@ def main():
     spread = "all" if len(scored) == SEQUENCE_FRAMES else f"{len(scored)} frames spread evenly over the"
     text += (f"{spread.capitalize()} {SEQUENCE_FRAMES} frames of each test scene (scenes 1-2 at SNR 1.3, scene 3 "
              "at SNR 3, "
-             f"{jaxsr.DEFAULT_MEAN_SIGNAL:g} signal photons per LR pixel, noise seed {args.seed}); PSNR (dB) and "
+             f"{jaxsr.config.DEFAULT_MEAN_SIGNAL:g} signal photons per LR pixel, noise seed {args.seed}); PSNR (dB) and "
              f"SSIM of the clipped output against the normalised ground truth. Ours: {weights_source(args.weights)}. "
              "frames/s: end to end on this machine (16 frames of histograms -> centre of mass or ML fit -> "
              f"upscaling; ours with the {FPS_NOTE}); the paper's are on an RTX 2070. "
-             "TV multi-frame: `jaxsr.recon.tv_super_resolve` "
+             "TV multi-frame: `jaxsr.baselines.tv.tv_super_resolve` "
              "(robust data term over 3 frames + smoothed TV, L-BFGS), defaults chosen on a validation sequence. "
              + baseline_source(baselines, cards, skipped, args.baseline_weights)
              + budget_source(budget, budget_skipped, budget_folder)

@@ -1,6 +1,6 @@
 """Centre of mass vs Poisson maximum likelihood: depth error against photon level and SNR.
 
-One surface per LR pixel at a random sub-bin position, lambda_k = S h_k(tau) + (S / SNR) / K (PHYSICS.md
+One surface per LR pixel at a random sub-bin position, lambda_k = S h_k(tau) + (S / SNR) / K (docs/sensor-model.md
 section 2 for a single pixel), Poisson counts, both extractors. Writes experiments/results/extraction.md.
 
     python experiments/extraction.py [--pixels 2000] [--seed 0]
@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxsr
-from jaxsr.sensor import irf_bin_weights
+from jaxsr.sensor.forward import irf_bin_weights
 
 from _report import header, markdown_table, write_atomic
 
@@ -29,7 +29,7 @@ def errors(key, sensor, signal, snr, n_pixels):
     k_tau, k_draw = jax.random.split(key)
     tau = jax.random.uniform(k_tau, (n_pixels,), minval=0.5, maxval=sensor.bins - 0.5)
     rates = signal * irf_bin_weights(tau, sensor) + signal / snr / sensor.bins
-    counts = jaxsr.sample_poisson(k_draw, rates, method="exact")
+    counts = jaxsr.sensor.sample_poisson(k_draw, rates, method="exact")
     com = jaxsr.centre_of_mass(counts, sensor) * sensor.bins
     ml, _, converged = jaxsr.maximum_likelihood_depth(counts, sensor, return_mask=True)
     bound = cramer_rao(sensor, signal, snr, tau)
@@ -37,7 +37,7 @@ def errors(key, sensor, signal, snr, n_pixels):
 
 
 def cramer_rao(sensor, signal, snr, tau):
-    """RMS over tau of the Cramer-Rao bound on tau (bins), PHYSICS.md section 4."""
+    """RMS over tau of the Cramer-Rao bound on tau (bins), docs/sensor-model.md, section 4."""
     d_h = jax.vmap(jax.jacfwd(lambda t: irf_bin_weights(t, sensor)))(tau)
     lam = signal * irf_bin_weights(tau, sensor) + signal / snr / sensor.bins
     fisher = jnp.sum((signal * d_h) ** 2 / lam, axis=-1)

@@ -31,7 +31,7 @@ import numpy as np
 
 import jaxsr
 from jaxsr.config import PRESETS
-from jaxsr.train import fit
+from jaxsr.training.loop import fit
 
 from _eval import SCENE_LABELS, TEST_SCENES, bundled, score, test_clips
 from _report import hand_written_tail, header, markdown_table, write_atomic
@@ -96,7 +96,7 @@ def main():
     parser.add_argument("--out", default="experiments/results/finetune_sequence.md")
     args = parser.parse_args()
     started = time.time()
-    jaxsr.use_cpu_cores()
+    jaxsr.runtime.use_cpu_cores()
     models = arms(args.tr, Path(args.runs) / f"tr{args.tr}", args.arms)
     clips = test_clips(args.frames)
     rows = []

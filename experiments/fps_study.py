@@ -1,5 +1,5 @@
 """Frame-rate study (the paper's Table 2 and Fig. 6): people walking at 4.3 km/h, 9 m away, captured at 1 to
-100 frames/s, super-resolved by TR0-TR4; and the validation of the scene-adaptive TR (`jaxsr.adaptive`).
+100 frames/s, super-resolved by TR0-TR4; and the validation of the scene-adaptive TR (`jaxsr.inference.adaptive`).
 
     python experiments/fps_study.py [--frames 100] [--span 500] [--weights DIR] [--write-table]
                                     [--seed-runs CHECKPOINT ...]
@@ -8,7 +8,7 @@ At each frame rate the walkers scene is rendered at times t0 + i / fps, i < --sp
 camera at that rate would: 500 frames are 5 s at 100 FPS and 500 s at 1 FPS), simulated at SNR 1.3 and scored
 on --frames frames spread evenly over them (the people's positions, and so the scores, change along the span).
 The motion of the walkers is reported twice: exact, from the scene geometry (`mean_lr_shift`), and as
-`jaxsr.adaptive.estimate_motion` measures it from the noisy centre-of-mass frames. `--write-table` stores PSNR
+`jaxsr.inference.adaptive.estimate_motion` measures it from the noisy centre-of-mass frames. `--write-table` stores PSNR
 against estimated motion, with each TR's frames/s, as jaxsr/weights/frame_rate_study.json, the table `choose_tr`
 reads.
 
@@ -32,7 +32,7 @@ import jax
 import jax.numpy as jnp
 
 import jaxsr
-from jaxsr.adaptive import STUDY_TABLE, choose_tr, estimate_motion
+from jaxsr.inference.adaptive import STUDY_TABLE, choose_tr, estimate_motion
 from jaxsr.runtime import enable_compilation_cache
 from jaxsr.scenes import render_sequence
 from jaxsr.scenes import TEST_SEQUENCES, mean_lr_shift, test_scene

@@ -40,7 +40,7 @@ RELIABLE_PEAK = 3
 def tags_to_lr(path, *, bins, time_unit_s, span=None):
     """Time tags -> (1, h, w) network depth, the gate spanning the photons seen; (lr, gate, scale, tags)."""
     tags = jaxsr.read_time_tags(path, time_unit_s=time_unit_s)
-    gate = jaxsr.gate_of_tags(tags, bins=bins)
+    gate = jaxsr.sensor.gate_of_tags(tags, bins=bins)
     scale = jaxsr.DepthScale.for_gate(gate, gate.length if span == "gate" else span)
     return tags_depth(tags, gate, scale), gate, scale, tags
 
@@ -48,7 +48,7 @@ def tags_to_lr(path, *, bins, time_unit_s, span=None):
 def tags_depth(tags, gate, scale):
     """(T, h, w) network depth of time tags: histograms over `gate`, centre of mass, `scale`."""
     counts = jaxsr.histogram_time_tags(tags, gate)
-    return np.asarray(jaxsr.to_network_depth(jaxsr.gate_depth(counts, gate), scale), np.float32)
+    return np.asarray(jaxsr.sensor.to_network_depth(jaxsr.sensor.gate_depth(counts, gate), scale), np.float32)
 
 
 def subsample_tags(tags, fraction: float, seed: int):
@@ -95,7 +95,7 @@ def main():
     ap.add_argument("--fraction", type=float, default=0.1, help="share of tower's photons in the subsample")
     ap.add_argument("--seed", type=int, default=0, help="seed of the tower photon subsample")
     args = ap.parse_args()
-    jaxsr.use_cpu_cores()
+    jaxsr.runtime.use_cpu_cores()
     started = time.time()
     data = Path(args.data)
     models = {name: jaxsr.load_model(m, temporal=form) for name, m, form in MODELS}
@@ -106,7 +106,7 @@ def main():
     notes.append(f"tower: {tags.time.size} photons over {tags.shape[0]} x {tags.shape[1]} pixels "
                  f"({tags.photons_per_pixel:.2f} per pixel), gate {gate.length:.2f} m in 16 bins of "
                  f"{gate.bin_width:.3f} m, network 0 at the gate start, span 35 m; warnings: "
-                 f"{jaxsr.gate_warnings(gate, scale) or 'none'}")
+                 f"{jaxsr.sensor.gate_warnings(gate, scale) or 'none'}")
     # the same gate and scale for the subsample, so its depth compares with the all-photon depth directly
     lr_sub = tags_depth(subsample_tags(tags, args.fraction, args.seed), gate, scale)
     peak = jaxsr.histogram_time_tags(tags, gate).max(axis=-1)
@@ -115,7 +115,7 @@ def main():
     notes.append(f"two_layer: {tags2.time.size} photons over {tags2.shape[0]} x {tags2.shape[1]} pixels "
                  f"({tags2.photons_per_pixel:.1f} per pixel), time unit unknown (a nominal 1 ps; the depth is "
                  "then relative), 16 bins over the photons' span mapped onto [0, 1]; warnings: "
-                 f"{jaxsr.gate_warnings(gate2, scale2) or 'none'}")
+                 f"{jaxsr.sensor.gate_warnings(gate2, scale2) or 'none'}")
     # tof_radar.mat: normalised ToF depth (no metric scale), (100, 64, 64)
     video = np.asarray(scipy.io.loadmat(str(data / "tof_radar.mat"))["ToF_radar"], np.float32)[: args.frames]
     video = np.clip(np.nan_to_num(video, nan=1.0), 0.0, 1.0)

@@ -25,8 +25,8 @@ import numpy as np
 
 import jaxsr
 from jaxsr.config import PRESETS, TrainConfig
-from jaxsr.data import run_keys, validation_set
-from jaxsr.train import evaluate
+from jaxsr.training.data import run_keys, validation_set
+from jaxsr.training.loop import evaluate
 
 from _eval import SCENE_LABELS, TEST_SCENES, format_interval, interval, scene_scores, test_clips
 from _report import hand_written_tail, header, markdown_table, write_atomic

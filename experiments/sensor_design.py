@@ -213,7 +213,7 @@ def main():
     parser.add_argument("--keys", type=int, default=4, help="photon draws averaged per grid point")
     parser.add_argument("--check-keys", type=int, default=64, help="draws for the surrogate-gradient check")
     parser.add_argument("--sequence", default="val1_street")
-    parser.add_argument("--budget", type=float, default=jaxsr.DEFAULT_MEAN_SIGNAL,
+    parser.add_argument("--budget", type=float, default=jaxsr.config.DEFAULT_MEAN_SIGNAL,
                         help="signal photons per LR pixel (the fixed photon budget)")
     parser.add_argument("--out", default="experiments/results/sensor_design")
     args = parser.parse_args()
@@ -222,7 +222,7 @@ def main():
 
     model = jaxsr.load_model("tr0")
     sensor = jaxsr.SensorConfig()
-    seq = jaxsr.test_sequences(n_frames=args.frames, names=[args.sequence])[args.sequence]
+    seq = jaxsr.scenes.test_sequences(n_frames=args.frames, names=[args.sequence])[args.sequence]
     depth, intensity = jnp.asarray(seq.depth), jnp.asarray(seq.intensity)
     keys = jax.random.split(jax.random.key(0), args.keys)
     noisy, noise_free, bicubic = score_fn(model, depth, intensity, sensor, keys, args.budget)

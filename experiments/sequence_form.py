@@ -25,10 +25,10 @@ from _eval import score, test_clips
 from _report import header, markdown_table, write_atomic
 
 import jaxsr
-from jaxsr.inference import DEFAULT_SEQUENCE_CHUNK, Stream, iter_centre_of_mass, super_resolve
-from jaxsr.model import apply_model, edge_pad_sequence, flops_per_frame, sequence_radius
+from jaxsr.inference.super_resolve import DEFAULT_SEQUENCE_CHUNK, Stream, iter_centre_of_mass, super_resolve
+from jaxsr.nn.duf import apply_model, edge_pad_sequence, flops_per_frame, sequence_radius
 from jaxsr.runtime import compiler_options
-from jaxsr.streaming import stream_init, stream_step
+from jaxsr.nn.streaming import stream_init, stream_step
 from jaxsr.temporal import windows as temporal_windows
 
 FORMS = ("window", "sequence", "stream (loop)", "stream (scan)")

@@ -22,7 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxsr
-from jaxsr.model import flops_per_frame
+from jaxsr.nn.duf import flops_per_frame
 from jaxsr.runtime import enable_compilation_cache
 
 from _eval import FPS_NOTE, SCENE_LABELS, TEST_SCENES, bundled, model_fps, score, test_clips

@@ -29,7 +29,7 @@ import numpy as np
 
 import jaxsr
 from jaxsr.config import PRESETS, ModelConfig, SensorConfig
-from jaxsr.model import Model, init_model
+from jaxsr.nn.duf import Model, init_model
 from jaxsr.runtime import enable_compilation_cache
 
 from _eval import (BLOCK, FPS_NOTE, PAPER_BICUBIC, PAPER_TABLE1, SCENE_LABELS, TEST_SCENES, bicubic_fps, bundled,
@@ -173,7 +173,7 @@ def main():
               f"models trained here with the `{preset}` preset ({args.runs})")
     text = header(f"Temporal-radius sweep, x{args.scale} (paper Table 1, Fig. 5)", started)
     text += (f"Models: {source}. Test data: {scored} of each test scene (scenes 1-2 at SNR 1.3, "
-             f"scene 3 at SNR 3, {jaxsr.DEFAULT_MEAN_SIGNAL:g} signal photons per LR pixel), noise seed {args.seed}; "
+             f"scene 3 at SNR 3, {jaxsr.config.DEFAULT_MEAN_SIGNAL:g} signal photons per LR pixel), noise seed {args.seed}; "
              "PSNR (dB) and SSIM of the clipped output against the normalised HR ground truth, averaged over frames. "
              f"frames/s: end to end (histograms -> centre of mass -> network), {FPS_NOTE}, on this machine; "
              "the paper's "

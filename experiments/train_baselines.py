@@ -6,7 +6,7 @@
 
 Data: the bundled TR models' (`bundle` preset: batch 4, 16 x 32 LR crops of freshly rendered training clips, SNR
 0.5-8, 7-28 signal photons; validation on the first 16 frames of the three validation sequences), in each
-baseline's form (`jaxsr.baseline_training.default_baseline_data`). Schedule: the bundle's 5 epochs, Adam 1e-3 cut
+baseline's form (`jaxsr.training.baselines.default_baseline_data`). Schedule: the bundle's 5 epochs, Adam 1e-3 cut
 to 1e-4 for the last epoch, patience 3, the best epoch's weights kept (validation loss: each baseline's own
 content loss, HistNet L1, iSeeBetter MSE). iSeeBetter follows its authors' recipe, a GAN started from a
 pre-trained generator: its first `PRETRAIN_EPOCHS` epochs train the RBPN generator alone on the MSE, the last one
@@ -30,7 +30,7 @@ For iSeeBetter the baseline step time is the mean over the epochs of the generat
 The plan (budget, timings, machine) is written once to runs/baselines/<name>/plan.json; run the same command
 again to resume an interrupted run. `--bundle` then stores the best weights in jaxsr/weights/<name>.npz
 (float16, with their training card and the float16 cost measured on the validation frames) for
-`jaxsr.load_baseline(name)`.
+`jaxsr.training.load_baseline(name)`.
 """
 
 from __future__ import annotations
@@ -48,7 +48,7 @@ import jax.numpy as jnp
 from _report import machine, step_timer, write_atomic
 
 import jaxsr
-from jaxsr.baseline_training import (
+from jaxsr.training.baselines import (
     BaselineModel,
     _init_train_state,  # the probe starts from fresh weights as the run does
     baseline_train_step,
@@ -59,18 +59,18 @@ from jaxsr.baseline_training import (
     load_baseline,
     save_baseline,
 )
-from jaxsr.checkpoint import read_metadata, resolve_model_path
+from jaxsr.io.checkpoint import read_metadata, resolve_model_path
 from jaxsr.config import PRESETS
-from jaxsr.model import count_params, init_model
-from jaxsr.optim import adam_init
-from jaxsr.data import validation_set
-from jaxsr.train import default_data, evaluate, make_train_step
+from jaxsr.nn.duf import count_params, init_model
+from jaxsr.training.optim import adam_init
+from jaxsr.training.data import validation_set
+from jaxsr.training.loop import default_data, evaluate, make_train_step
 
 EPOCHS = 5
 TR_STEPS = 1280  # the bundled windowed models' steps (their cards)
 CONFIGS = {
-    "histnet": jaxsr.HistNetConfig(width=16),
-    "iseebetter": jaxsr.RBPNConfig(base_filter=64, feat=16, n_resblock=2, frames=5),
+    "histnet": jaxsr.baselines.HistNetConfig(width=16),
+    "iseebetter": jaxsr.baselines.RBPNConfig(base_filter=64, feat=16, n_resblock=2, frames=5),
 }
 COMPARABLE = {"histnet": 0, "iseebetter": 2}  # the TR of nearest GFLOP per output frame (module docstring)
 PRETRAIN_EPOCHS = {"histnet": 0, "iseebetter": EPOCHS - 1}  # generator-only epochs before the GAN (docstring)
@@ -181,10 +181,10 @@ def gflops_per_frame(name: str, lr_shape=(32, 64)) -> float:
     h, w = lr_shape
     params = jax.eval_shape(lambda k: _init_train_state(k, name, cfg)["params"], jax.random.key(0))
     if name == "histnet":
-        fn = lambda p, c, i: jaxsr.apply_histnet(p, c, i, cfg)
+        fn = lambda p, c, i: jaxsr.baselines.apply_histnet(p, c, i, cfg)
         args = (jax.ShapeDtypeStruct((1, h, w, 16), jnp.float32), jax.ShapeDtypeStruct((1, 4 * h, 4 * w), jnp.float32))
     else:
-        fn = lambda p, x: jaxsr.apply_rbpn(p, x, cfg)
+        fn = lambda p, x: jaxsr.baselines.apply_rbpn(p, x, cfg)
         args = (jax.ShapeDtypeStruct((1, cfg.frames, h, w), jnp.float32),)
     cost = jax.jit(fn).lower(params, *args).cost_analysis()
     cost = cost[0] if isinstance(cost, (list, tuple)) else cost
@@ -210,7 +210,7 @@ def report(runs: Path, out: str) -> None:
         tr = p["comparable_tr"]
         rows.append([name, ", ".join(f"{k} {v}" for k, v in p["config"].items() if k not in ("disc_widths",)),
                      f"{params / 1e6:.2f} M", f"{gflops_per_frame(name):.1f}",
-                     f"TR{tr} ({jaxsr.model.flops_per_frame(jaxsr.ModelConfig(tr=tr)) / 1e9:.1f})",
+                     f"TR{tr} ({jaxsr.nn.duf.flops_per_frame(jaxsr.ModelConfig(tr=tr)) / 1e9:.1f})",
                      f"{p['tr_step_s']:.3f} / {p.get('mean_step_s', p['baseline_step_s']):.3f}",
                      f"{p['steps_per_epoch'] * p['epochs']}", f"{whole['steps']}",
                      f"{whole['wall_time_s'] / 60:.1f} ({whole['wall_time_s'] * _cores() / 60:.0f})",
@@ -227,7 +227,7 @@ def report(runs: Path, out: str) -> None:
              "selecting the kept epoch. iSeeBetter (since 2026-11-24): its first epochs (`pretrain_epochs` in the "
              "plan) train the generator alone on the MSE, the last adds the GAN, and its step time is the mean "
              "over the phases. GFLOP per 32 x 64 frame: XLA's cost analysis of the forward pass; ours "
-             "`jaxsr.model.flops_per_frame`. Wall minutes on 2 CPU cores shared with other work (CPU-minutes = wall "
+             "`jaxsr.nn.duf.flops_per_frame`. Wall minutes on 2 CPU cores shared with other work (CPU-minutes = wall "
              "x 2 cores in brackets). Last column: the bundled TR model of comparable cost and bicubic on the same "
              "validation frames and noise, measured when this report was written.\n\n")
     text += ("Runs: `python experiments/train_baselines.py NAME` (plan, then training; re-run to resume), then "

@@ -41,9 +41,9 @@ from campaign import REPORTED_RUNS, keep, report, score
 
 import jaxsr
 from jaxsr.config import PRESETS
-from jaxsr.model import init_model
-from jaxsr.optim import adam_init
-from jaxsr.train import choose_mesh, default_data, fit, make_train_step, replicate, resume_config
+from jaxsr.nn.duf import init_model
+from jaxsr.training.optim import adam_init
+from jaxsr.training.loop import choose_mesh, default_data, fit, make_train_step, replicate, resume_config
 
 PRESET = "paper"
 # The runs' selected weights and learning curves, committed (float16), which --score and --report read by default:
@@ -55,7 +55,7 @@ def probe(trs, steps: int) -> None:
     """Print each TR's train step at the preset, as `fit` runs it (the batch split over the devices when there are
     several that divide it): compilation (with the first step) and the mean of `steps` steps."""
     cfg = PRESETS[PRESET]
-    n = jaxsr.use_cpu_cores()  # as train_one
+    n = jaxsr.runtime.use_cpu_cores()  # as train_one
     mesh = choose_mesh("auto", cfg.batch_size)  # as fit chooses
     print(f"backend {jax.default_backend()}, {n} x {jax.devices()[0].device_kind}, jax {jax.__version__}", flush=True)
     for tr in trs:
@@ -74,7 +74,7 @@ def train_one(root: Path, seed: int, tr: int, epochs: int) -> None:
     run = root / f"s{seed}" / f"tr{tr}"
     # a CPU host's cores as devices, over which fit splits each batch (TR0 at this preset: 0.58 s a step on two
     # cores as two devices, 0.78 s as one, 2026-11-24); on an accelerator this changes nothing
-    jaxsr.use_cpu_cores()
+    jaxsr.runtime.use_cpu_cores()
     # resume=True also starts a run afresh: fit resumes only from a saved train state (last.npz or resume.npz; a
     # run killed between its first best.npz and last.npz then starts over instead of being refused)
     fit(jaxsr.ModelConfig(tr=tr), resume_config(run, dataclasses.replace(PRESETS[PRESET], seed=seed, epochs=epochs)),

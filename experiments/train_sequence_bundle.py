@@ -24,11 +24,11 @@ from pathlib import Path
 import jax
 
 import jaxsr
-from jaxsr.checkpoint import read_metadata, resolve_model_path
+from jaxsr.io.checkpoint import read_metadata, resolve_model_path
 from jaxsr.config import PRESETS
-from jaxsr.model import init_model
-from jaxsr.optim import adam_init
-from jaxsr.train import default_data, fit, make_train_step
+from jaxsr.nn.duf import init_model
+from jaxsr.training.optim import adam_init
+from jaxsr.training.loop import default_data, fit, make_train_step
 
 from _report import machine, step_timer, write_atomic
 
@@ -74,7 +74,7 @@ def main():
     parser.add_argument("--trs", type=int, nargs="+", default=[4, 1, 2, 3])
     parser.add_argument("--runs", default="runs/bundle-seq")
     args = parser.parse_args()
-    jaxsr.use_cpu_cores()  # both cores as devices, the batch split over them (as `jaxsr train` does)
+    jaxsr.runtime.use_cpu_cores()  # both cores as devices, the batch split over them (as `jaxsr train` does)
     for tr in args.trs:
         run = Path(args.runs) / f"tr{tr}"
         p = plan(tr, run)

@@ -61,8 +61,8 @@ def main():
         "(`sequence_clips`, no rendering). Steps: issue-14 = the step of 2026-11-22 (each example's whole clip "
         "simulated, then cropped; stacked layers' gradients through the stacked form; one device); main = the "
         "step before this change (photons drawn for the crop only); new = main's data with the stacked layers' "
-        "gradients through the temporal taps (`jaxsr.layers.STACKED_GRADIENT`), on one device and split over "
-        "both cores as devices (what `fit` does under `jaxsr.use_cpu_cores()`). inference = the forward pass "
+        "gradients through the temporal taps (`jaxsr.nn.layers.STACKED_GRADIENT`), on one device and split over "
+        "both cores as devices (what `fit` does under `jaxsr.runtime.use_cpu_cores()`). inference = the forward pass "
         "(BN from running statistics, `compiler_options()`) on the same inputs, the reference arithmetic rate. "
         "GFLOP/s = `flops_per_frame` x supervised frames (x 3 for forward + backward) / step time.\n\n"
     )

@@ -2,7 +2,7 @@
 
     python experiments/warm_start.py --tr 1 [--epochs 2] [--lr 1e-4] [--seed 0] [--campaign runs/campaign]
 
-`jaxsr.grow_tr` carries the trained TR k's stem, blocks and head into the TR k+1 network, draws the added block as
+`jaxsr.nn.grow_tr` carries the trained TR k's stem, blocks and head into the TR k+1 network, draws the added block as
 the campaign's TR k+1 run drew it (the same key) and gives the head zero weights on its features, so training
 starts from TR k's function. The grown network then trains with the campaign's preset and seed, so on exactly
 the data and validation frames of the campaign's run of TR k+1 from random weights (runs/campaign/s<seed>/tr<k+1>):
@@ -29,9 +29,9 @@ from campaign import PRESET, history, run_dir
 
 import jaxsr
 from jaxsr.config import PRESETS
-from jaxsr.data import run_keys, validation_set
-from jaxsr.model import init_model
-from jaxsr.train import evaluate, fit
+from jaxsr.training.data import run_keys, validation_set
+from jaxsr.nn.duf import init_model
+from jaxsr.training.loop import evaluate, fit
 
 
 @functools.cache
@@ -102,7 +102,7 @@ def main():
     if args.lr is not None and not args.lr > 0:
         parser.error(f"--lr must be > 0, got {args.lr}")
     started = time.time()
-    jaxsr.use_cpu_cores()
+    jaxsr.runtime.use_cpu_cores()
     small_run = run_dir(Path(args.campaign), args.seed, args.tr - 1)
     scratch_run = run_dir(Path(args.campaign), args.seed, args.tr)
     out = variant_dir(Path(args.runs), args.seed, args.tr, args.lr)
@@ -120,7 +120,7 @@ def main():
 
     small = jaxsr.load_model(init)
     k_init = run_keys(args.seed)[0]  # the key fit grew the added block with
-    grown = jaxsr.grow_tr(k_init, small, args.tr)
+    grown = jaxsr.nn.grow_tr(k_init, small, args.tr)
     starts = {"TR k": start_psnr(small, cfg), "grown": start_psnr(grown, cfg),
               "random": start_psnr(jaxsr.Model(*init_model(k_init, grown.config), grown.config), cfg)}
     card = jaxsr.read_metadata(init).get("card", {})
@@ -148,7 +148,7 @@ def main():
              f"{scratch_run} (random weights, lr {preset.lr:g}). Warm: `fit(init=...)` of TR{args.tr - 1}'s "
              f"best.npz of the campaign at the time (copied to init.npz in the run folder: "
              f"{card.get('steps', '?')} steps, {card.get('wall_time_s', 0) / 60:.0f} min of training on "
-             f"its card; its own validation PSNR {starts['TR k']:.2f} dB), grown by `jaxsr.grow_tr` with the "
+             f"its card; its own validation PSNR {starts['TR k']:.2f} dB), grown by `jaxsr.nn.grow_tr` with the "
              f"scratch run's key for the added block, into {out.parent}/. Row 0 is before any step (the grown "
              f"network reads real frames where TR{args.tr - 1}'s padded blocks read zeros, hence the change from "
              f"TR{args.tr - 1}'s own score). Equal steps are equal CPU time for the TR{args.tr} runs; counting "

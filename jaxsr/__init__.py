@@ -1,127 +1,114 @@
 """jaxsr: video super-resolution of single-photon (SPAD) lidar depth, in pure functional JAX.
 
-The public API is re-exported here; see README.md and DESIGN.md for the pipeline.
+The pipeline's stages are subpackages: `jaxsr.sensor` (histograms from depth, depth from histograms),
+`jaxsr.scenes` (procedural depth video), `jaxsr.nn` (the network), `jaxsr.baselines`, `jaxsr.training`,
+`jaxsr.inference`, `jaxsr.io` and `jaxsr.eval`. The names a user's script needs are here at the top level
+(`__all__`); everything else is imported from its subpackage.
 """
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 # before any module below can start JAX's CPU backend: XLA reads its flags then (see runtime.limit_cpu_fusions)
 from .runtime import guard_cpu_fusions as _guard_cpu_fusions
 
 _guard_cpu_fusions()
 
-from .adaptive import choose_tr as choose_tr
-from .adaptive import estimate_motion as estimate_motion
-from .baselines import bicubic as bicubic
-from .baselines import lanczos as lanczos
-from .baseline_training import BaselineModel as BaselineModel
-from .baseline_training import fit_baseline as fit_baseline
-from .baseline_training import histogram_batches as histogram_batches
-from .baseline_training import load_baseline as load_baseline
-from .baseline_training import save_baseline as save_baseline
-from .baseline_training import super_resolve_baseline as super_resolve_baseline
-from .baseline_training import init_adam_pair as init_adam_pair
-from .baseline_training import make_histnet_train_step as make_histnet_train_step
-from .baseline_training import make_iseebetter_train_step as make_iseebetter_train_step
-from .baseline_training import make_rbpn_train_step as make_rbpn_train_step
-from .checkpoint import load_model as load_model
-from .checkpoint import read_metadata as read_metadata
-from .checkpoint import save_model as save_model
-from .config import DEFAULT_MEAN_SIGNAL as DEFAULT_MEAN_SIGNAL
-from .config import DepthScale as DepthScale
-from .config import Gate as Gate
-from .config import PRESETS as PRESETS
-from .config import ModelConfig as ModelConfig
-from .config import SensorConfig as SensorConfig
-from .config import TrainConfig as TrainConfig
-from .model import Model as Model
-from .model import apply_model as apply_model
-from .model import apply_model_sequence as apply_model_sequence
-from .model import apply_model_sequence_train as apply_model_sequence_train
-from .model import apply_model_train as apply_model_train
-from .model import count_params as count_params
-from .model import grow_tr as grow_tr
-from .model import init_model as init_model
-from .flow import optical_flow as optical_flow
-from .flow import warp as warp
-from .histnet import HistNetConfig as HistNetConfig
-from .histnet import apply_histnet as apply_histnet
-from .histnet import apply_histnet_features as apply_histnet_features
-from .histnet import histnet_features as histnet_features
-from .histnet import init_histnet as init_histnet
-from .histnet import second_peak_depth as second_peak_depth
-from .rbpn import RBPNConfig as RBPNConfig
-from .rbpn import apply_discriminator as apply_discriminator
-from .rbpn import apply_rbpn as apply_rbpn
-from .rbpn import discriminator_loss as discriminator_loss
-from .rbpn import generator_loss as generator_loss
-from .rbpn import init_discriminator as init_discriminator
-from .rbpn import init_rbpn as init_rbpn
-from .rbpn import rbpn_flows as rbpn_flows
-from .rbpn import tv_loss as tv_loss
-from .gates import from_network_depth as from_network_depth
-from .gates import gate_depth as gate_depth
-from .gates import gate_warnings as gate_warnings
-from .gates import to_network_depth as to_network_depth
-from .inference import Stream as Stream
-from .inference import iter_super_resolve as iter_super_resolve
-from .inference import super_resolve as super_resolve
-from .inference import super_resolve_histograms as super_resolve_histograms
-from .io import read_airsim as read_airsim
-from .io import read_depth as read_depth
-from .io import read_histograms as read_histograms
-from .io import read_sequence as read_sequence
-from .io import write_depth as write_depth
-from .io import write_histograms as write_histograms
-from .io import write_sequence as write_sequence
-from .previews import write_comparison as write_comparison
-from .previews import write_preview as write_preview
-from .metrics import TemporalCoherence as TemporalCoherence
-from .metrics import huber_loss as huber_loss
-from .metrics import psnr as psnr
-from .metrics import ssim as ssim
-from .metrics import ssim_global as ssim_global
-from .metrics import temporal_coherence as temporal_coherence
-from .stats import Interval as Interval
-from .stats import paired_interval as paired_interval
-from .stats import ratio_interval as ratio_interval
-from .peaks import centre_of_mass as centre_of_mass
-from .peaks import maximum_likelihood_depth as maximum_likelihood_depth
-from .pipeline import pipeline_metric as pipeline_metric
-from .poisson import poisson_pathwise as poisson_pathwise
-from .poisson import sample_poisson as sample_poisson
-from .optim import adam_init as adam_init
-from .optim import adam_update as adam_update
-from .optim import step_decay as step_decay
-from .recon import tv_super_resolve as tv_super_resolve
-from .runtime import compiler_options as compiler_options
-from .runtime import enable_compilation_cache as enable_compilation_cache
-from .runtime import limit_cpu_fusions as limit_cpu_fusions
-from .runtime import use_cpu_cores as use_cpu_cores
-from .scenes import Scene as Scene
-from .scenes import render as render
-from .scenes import in_view_lr_shift as in_view_lr_shift
-from .scenes import mean_lr_shift as mean_lr_shift
-from .scenes import sample_scene as sample_scene
-from .scenes import sequence as sequence
-from .scenes import test_sequences as test_sequences
-from .scenes import training_clip as training_clip
-from .streaming import stream_init as stream_init
-from .streaming import stream_step as stream_step
-from .sensor import calibrate as calibrate
-from .sensor import denormalise_depth as denormalise_depth
-from .sensor import expected_histograms as expected_histograms
-from .sensor import normalise_depth as normalise_depth
-from .sensor import planar_to_radial as planar_to_radial
-from .sensor import simulate_histograms as simulate_histograms
-from .temporal import change_frame_rate as change_frame_rate
-from .temporal import windows as windows
-from .timetags import TimeTags as TimeTags
-from .timetags import gate_of_tags as gate_of_tags
-from .timetags import histogram_photons as histogram_photons
-from .timetags import histogram_time_tags as histogram_time_tags
-from .timetags import read_time_tags as read_time_tags
-from .timetags import time_tags_from_cells as time_tags_from_cells
-from .train import evaluate as evaluate
-from .train import fit as fit
-from .train import make_train_step as make_train_step
+import importlib as _importlib
+import warnings as _warnings
+
+from . import baselines, eval, inference, io, nn, scenes, sensor, training
+from .baselines import bicubic, lanczos, tv_super_resolve
+from .config import PRESETS, DepthScale, Gate, ModelConfig, SensorConfig, TrainConfig
+from .eval import paired_interval, psnr, ssim, ssim_global, temporal_coherence
+from .inference import Stream, choose_tr, iter_super_resolve, pipeline_metric, super_resolve, super_resolve_histograms
+from .io import (
+    load_model,
+    read_depth,
+    read_histograms,
+    read_metadata,
+    read_sequence,
+    save_model,
+    write_depth,
+    write_histograms,
+    write_preview,
+    write_sequence,
+)
+from .nn import Model, apply_model, apply_model_sequence, init_model
+from .sensor import (
+    TimeTags,
+    calibrate,
+    centre_of_mass,
+    denormalise_depth,
+    expected_histograms,
+    histogram_time_tags,
+    maximum_likelihood_depth,
+    normalise_depth,
+    read_time_tags,
+    simulate_histograms,
+)
+from .temporal import windows
+from .training import evaluate, fit
+
+__all__ = [
+    # the pipeline's stages
+    "sensor", "scenes", "nn", "baselines", "training", "inference", "io", "eval",
+    # configuration
+    "SensorConfig", "ModelConfig", "TrainConfig", "Gate", "DepthScale", "PRESETS",
+    # sensor: depth -> photons -> depth
+    "expected_histograms", "simulate_histograms", "calibrate", "normalise_depth", "denormalise_depth",
+    "centre_of_mass", "maximum_likelihood_depth", "TimeTags", "read_time_tags", "histogram_time_tags",
+    # the network and its files
+    "Model", "init_model", "apply_model", "apply_model_sequence", "load_model", "save_model", "read_metadata",
+    # super-resolution of recordings
+    "super_resolve", "super_resolve_histograms", "iter_super_resolve", "Stream", "choose_tr", "windows",
+    "pipeline_metric",
+    # training
+    "fit", "evaluate",
+    # baselines
+    "bicubic", "lanczos", "tv_super_resolve",
+    # files
+    "read_depth", "write_depth", "read_sequence", "write_sequence", "read_histograms", "write_histograms",
+    "write_preview",
+    # scores
+    "psnr", "ssim", "ssim_global", "temporal_coherence", "paired_interval",
+]
+
+# Names that were top-level before 0.2 and now live in a subpackage: they still work here, with a warning, for one
+# release.
+_MOVED = {
+    "jaxsr.config": ["DEFAULT_MEAN_SIGNAL"],
+    "jaxsr.runtime": ["compiler_options", "enable_compilation_cache", "limit_cpu_fusions", "use_cpu_cores"],
+    "jaxsr.temporal": ["change_frame_rate"],
+    "jaxsr.scenes": ["Scene", "render", "in_view_lr_shift", "mean_lr_shift", "sample_scene", "sequence",
+                     "test_sequences", "training_clip"],
+    "jaxsr.sensor": ["planar_to_radial", "poisson_pathwise", "sample_poisson", "gate_depth", "gate_warnings",
+                     "to_network_depth", "from_network_depth", "gate_of_tags", "histogram_photons",
+                     "time_tags_from_cells"],
+    "jaxsr.nn": ["apply_model_train", "apply_model_sequence_train", "count_params", "grow_tr", "stream_init",
+                 "stream_step"],
+    "jaxsr.baselines": ["optical_flow", "warp", "HistNetConfig", "apply_histnet", "apply_histnet_features",
+                        "histnet_features", "init_histnet", "second_peak_depth", "RBPNConfig", "apply_discriminator",
+                        "apply_rbpn", "discriminator_loss", "generator_loss", "init_discriminator", "init_rbpn",
+                        "rbpn_flows", "tv_loss"],
+    "jaxsr.training": ["BaselineModel", "fit_baseline", "histogram_batches", "load_baseline", "save_baseline",
+                       "super_resolve_baseline", "init_adam_pair", "make_histnet_train_step",
+                       "make_iseebetter_train_step", "make_rbpn_train_step", "adam_init", "adam_update",
+                       "step_decay", "make_train_step"],
+    "jaxsr.inference": ["estimate_motion"],
+    "jaxsr.io": ["read_airsim", "write_comparison"],
+    "jaxsr.eval": ["TemporalCoherence", "huber_loss", "Interval", "ratio_interval"],
+}
+_MOVED_FROM = {name: module for module, names in _MOVED.items() for name in names}
+
+
+def __getattr__(name):
+    module = _MOVED_FROM.get(name)
+    if module is None:
+        raise AttributeError(f"module 'jaxsr' has no attribute {name!r}")
+    _warnings.warn(f"jaxsr.{name} moved to {module}.{name}; the top-level name goes in the next release",
+                   DeprecationWarning, stacklevel=2)
+    return getattr(_importlib.import_module(module), name)
+
+
+def __dir__():
+    return sorted(__all__)

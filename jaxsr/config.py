@@ -10,7 +10,7 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 
-# Mean signal photons per LR pixel with a return (PHYSICS.md section 2). The paper does not give it; this is
+# Mean signal photons per LR pixel with a return (docs/sensor-model.md, section 2). The paper does not give it; this is
 # the level at which bicubic upsampling of centre-of-mass depth on our three test scenes comes closest to the
 # paper's bicubic row (RMS 1.2 dB; experiments/results/calibration.md).
 DEFAULT_MEAN_SIGNAL = 14.0
@@ -21,7 +21,7 @@ TRAIN_MEAN_SIGNAL_RANGE = (DEFAULT_MEAN_SIGNAL / 2, DEFAULT_MEAN_SIGNAL * 2)
 
 @dataclasses.dataclass(frozen=True)
 class SensorConfig:
-    """A SPAD direct time-of-flight sensor and its optics (PHYSICS.md sections 1-2).
+    """A SPAD direct time-of-flight sensor and its optics (docs/sensor-model.md, sections 1-2).
 
     Static (shape-defining): `hr_shape` (rows, cols of the HR frame), `scale` (HR pixels per LR pixel along
     each axis) and `bins` (histogram bins K). Leaves (physical, differentiable): `d_max` (m, the range gate and
@@ -76,7 +76,7 @@ jax.tree_util.register_dataclass(
 MIN_LR_SIDE = 4
 # Metres of radial range per second of round-trip time: r = c t / 2.
 METRES_PER_SECOND = 299_792_458.0 / 2
-# The range the bundled models were trained on: radial 0 .. 35 m as normalised depth 0 .. 1 (PHYSICS.md).
+# The range the bundled models were trained on: radial 0 .. 35 m as normalised depth 0 .. 1 (docs/sensor-model.md).
 TRAINED_RANGE_M = 35.0
 
 
@@ -162,7 +162,7 @@ TEMPORAL_FORMS = ("window", "sequence")
 
 @dataclasses.dataclass(frozen=True)
 class ModelConfig:
-    """The 3+TR-block dynamic-upsampling-filter network (DESIGN.md "The network"). All fields are static.
+    """The 3+TR-block dynamic-upsampling-filter network (docs/network.md). All fields are static.
 
     `tr` is the temporal radius: the network sees 2*tr+1 LR frames and has 3 + tr blocks. `scale` is the
     upsampling factor r (4, or 8 as in the paper's supplement). `base` (stem channels, 64), `growth` (channels
@@ -172,7 +172,7 @@ class ModelConfig:
     pixel is completed: "edge" (replicate; the default, a deviation from DUF's zero padding, because a zero
     means "depth 0", the nearest possible return) or "zero" (DUF). The config describes what the network
     computes and goes into checkpoints; how it runs (`conv3d_impl`) is an argument of `apply_model`.
-    `temporal` is the form the network was trained in (DESIGN.md "The network"): "window" (the paper: each
+    `temporal` is the form the network was trained in (docs/network.md): "window" (the paper: each
     output from its own window of 2*tr+1 frames, the first `same_blocks` blocks temporally padded) or
     "sequence" (every block temporally valid, run once over a whole edge-padded sequence: output t from frames
     t-R .. t+R, R = `input_radius` = same_blocks + tr). Both forms have the same parameters.
@@ -232,7 +232,7 @@ DEFAULT_CLIP_OUTPUTS = 8
 
 @dataclasses.dataclass(frozen=True)
 class TrainConfig:
-    """Everything that affects a training run's result (DESIGN.md "Training"); it goes into the checkpoint.
+    """Everything that affects a training run's result (docs/training.md); it goes into the checkpoint.
 
     Optimisation: Huber loss with `huber_delta`; hand-written Adam (`lr`, `adam_b1`, `adam_b2`, `adam_eps`,
     Keras's epsilon placement and default 1e-7); step decay of the rate by `lr_decay` every `decay_epochs`

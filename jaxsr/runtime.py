@@ -107,7 +107,7 @@ def use_cpu_cores(*, n: int | None = None) -> int:
 def compiler_options() -> dict:
     """XLA compiler options under which the network's inference runs fastest on the default backend.
 
-    `jax.jit(f, compiler_options=jaxsr.compiler_options())`; `super_resolve` uses them. On CPU: XLA's own
+    `jax.jit(f, compiler_options=jaxsr.runtime.compiler_options())`; `super_resolve` uses them. On CPU: XLA's own
     convolutions instead of YNNPACK (see `_CPU_OPTIONS`); elsewhere, or on an XLA that does not know the option,
     {} (the defaults). Not for training: the TR4 train step ran 1.8x slower with them (its gradient
     convolutions are faster in YNNPACK). Probed once per process, by compiling a one-element function (this

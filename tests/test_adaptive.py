@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from jaxsr.adaptive import SEARCH_RADIUS, choose_tr, estimate_motion, load_study
+from jaxsr.inference.adaptive import SEARCH_RADIUS, choose_tr, estimate_motion, load_study
 
 
 def _blocks(v, *, frames=32, angle=0.0, noise=0.05, seed=0):

@@ -1,4 +1,4 @@
-"""Conventions every public function follows (DESIGN.md "Public API", STYLE.md)."""
+"""Conventions every public function follows (docs/api-conventions.md)."""
 
 import inspect
 import re
@@ -12,10 +12,12 @@ CONFIG_PARAMS = {"sensor", "cfg", "config", "gate", "scale"}
 
 
 def public_functions():
-    for name in sorted(n for n in dir(jaxsr) if not n.startswith("_")):
-        obj = getattr(jaxsr, name)
-        if inspect.isfunction(obj):
-            yield name, obj
+    """The top level's public functions and those that left it for a subpackage (still reachable there)."""
+    import importlib
+
+    found = {name: getattr(jaxsr, name) for name in jaxsr.__all__}
+    found.update({name: getattr(importlib.import_module(module), name) for name, module in jaxsr._MOVED_FROM.items()})
+    yield from sorted((name, obj) for name, obj in found.items() if inspect.isfunction(obj))
 
 
 # Public functions whose docstrings state no array shape, each with what it takes instead: no arrays, or pytrees

@@ -6,7 +6,7 @@ import pytest
 from PIL import Image
 
 import jaxsr
-from jaxsr.baselines import keys_cubic, resampling_matrix
+from jaxsr.baselines.interpolation import keys_cubic, resampling_matrix
 
 
 def pil_resize(img, scale, method):

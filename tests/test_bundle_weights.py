@@ -15,8 +15,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
 import bundle_weights  # noqa: E402
 
 import jaxsr  # noqa: E402
-from jaxsr.checkpoint import resolve_model_path, save_model  # noqa: E402
-from jaxsr.model import Model  # noqa: E402
+from jaxsr.io.checkpoint import resolve_model_path, save_model  # noqa: E402
+from jaxsr.nn.duf import Model  # noqa: E402
 
 ARGS = ["--runs", "runs", "--trs", "0", "--frames", "2", "--trained-with", "a test"]
 

@@ -17,7 +17,7 @@ import _score_cache  # noqa: E402
 import campaign  # noqa: E402
 import jaxsr  # noqa: E402
 from _eval import Clip  # noqa: E402
-from jaxsr.checkpoint import save_model  # noqa: E402
+from jaxsr.io.checkpoint import save_model  # noqa: E402
 from jaxsr.config import PRESETS  # noqa: E402
 
 CFG = PRESETS[campaign.PRESET]

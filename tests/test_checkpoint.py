@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import jaxsr
-from jaxsr.checkpoint import (
+from jaxsr.io.checkpoint import (
     FORMAT_VERSION,
     flatten_tree,
     load_model,
@@ -20,7 +20,7 @@ from jaxsr.checkpoint import (
     save_tree,
 )
 from jaxsr.config import ModelConfig
-from jaxsr.model import Model, init_model
+from jaxsr.nn.duf import Model, init_model
 
 CFG = ModelConfig(tr=1, base=8, growth=4, head=16, filter_hidden=16)
 
@@ -130,7 +130,7 @@ def test_not_a_checkpoint(tmp_path):
 def test_an_npy_file_is_not_a_checkpoint(tmp_path):
     """np.load gives an .npy's array itself (no archive); that is a clear ValueError, not a TypeError."""
     np.save(tmp_path / "x.npy", np.zeros(3))
-    for read in (load_model, read_metadata, jaxsr.checkpoint.model_info):
+    for read in (load_model, read_metadata, jaxsr.io.checkpoint.model_info):
         with pytest.raises(ValueError, match="single .npy array, not an .npz checkpoint"):
             read(tmp_path / "x.npy")
 

@@ -22,9 +22,9 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from jaxsr import io
-from jaxsr.checkpoint import save_model
+from jaxsr.io.checkpoint import save_model
 from jaxsr.config import ModelConfig
-from jaxsr.model import Model, init_model
+from jaxsr.nn.duf import Model, init_model
 
 ROOT = Path(__file__).resolve().parents[1]
 ENV = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), *filter(None, [os.environ.get("PYTHONPATH")])]))
@@ -210,7 +210,7 @@ def test_a_finished_run_is_refused_then_replaced_with_force(tmp_path):
 
 
 def test_nan_in_a_metres_array_is_no_return(tmp_path, model_path):
-    """NaN in radial metres means no return (PHYSICS.md, README), in arrays as in image frames: upscaled, not
+    """NaN in radial metres means no return (docs/sensor-model.md), in arrays as in image frames: upscaled, not
     refused."""
     depth = np.full((2, 32, 64), 8.0, np.float32)
     depth[:, :, 40:] = np.nan

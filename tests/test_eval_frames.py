@@ -14,7 +14,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
 import _eval
 
 import jaxsr
-from jaxsr.model import Model, init_model
+from jaxsr.nn.duf import Model, init_model
 
 SMALL = {"base": 8, "growth": 4, "head": 16, "filter_hidden": 16}
 

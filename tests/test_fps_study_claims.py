@@ -11,7 +11,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
 
 import fps_study  # noqa: E402
 from _seeds import pairs_differences  # noqa: E402
-from jaxsr.stats import Interval  # noqa: E402
+from jaxsr.eval.stats import Interval  # noqa: E402
 
 
 def _iv(mean, low, high):

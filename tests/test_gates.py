@@ -1,4 +1,4 @@
-"""Histograms over any gate (jaxsr.gates): range on the gate's grid, the explicit metres <-> network scale, and
+"""Histograms over any gate (jaxsr.sensor.gates): range on the gate's grid, the explicit metres <-> network scale, and
 the warnings for what the models never saw."""
 
 import jax
@@ -6,16 +6,16 @@ import numpy as np
 import pytest
 
 from jaxsr.config import METRES_PER_SECOND, TRAINED_RANGE_M, DepthScale, Gate, SensorConfig
-from jaxsr.gates import from_network_depth, gate_depth, gate_warnings, to_network_depth
-from jaxsr.peaks import centre_of_mass
-from jaxsr.sensor import irf_bin_weights, normalise_depth
+from jaxsr.sensor.gates import from_network_depth, gate_depth, gate_warnings, to_network_depth
+from jaxsr.sensor.peaks import centre_of_mass
+from jaxsr.sensor.forward import irf_bin_weights, normalise_depth
 
 # Jitted (the gate is a pytree, its bin count static): one compilation per shape instead of op-by-op dispatch.
 gate_depth_jit = jax.jit(gate_depth, static_argnames=("window", "return_mask"))
 
 
 def synthetic_histogram(range_m, gate, *, signal=500.0, background=2.0):
-    """Noise-free counts of one surface at `range_m` over `gate` (Gaussian IRF of sigma 0.4 bins, PHYSICS.md)."""
+    """Noise-free counts of one surface at `range_m` over `gate` (Gaussian IRF of sigma 0.4 bins, docs/sensor-model.md)."""
     tau = (range_m - gate.start) / gate.bin_width
     h = np.asarray(irf_bin_weights(np.float32(tau), SensorConfig(bins=gate.bins)))
     return (signal * h + background).astype(np.float32)

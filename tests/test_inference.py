@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 from jaxsr.config import ModelConfig, SensorConfig
-from jaxsr.inference import iter_centre_of_mass, iter_super_resolve, super_resolve, super_resolve_histograms
-from jaxsr.model import Model, apply_model, init_model
-from jaxsr.peaks import centre_of_mass
+from jaxsr.inference.super_resolve import iter_centre_of_mass, iter_super_resolve, super_resolve, super_resolve_histograms
+from jaxsr.nn.duf import Model, apply_model, init_model
+from jaxsr.sensor.peaks import centre_of_mass
 
 TINY = dict(base=8, growth=4, head=16, filter_hidden=16)
 apply_jit = jax.jit(apply_model, static_argnums=3)
@@ -130,7 +130,7 @@ _SHARDED_SCRIPT = textwrap.dedent(
     """
     import sys, json
     import jax, numpy as np
-    from jaxsr.inference import _batch_sharding, _infer_chunk, super_resolve
+    from jaxsr.inference.super_resolve import _batch_sharding, _infer_chunk, super_resolve
     from jaxsr.runtime import use_cpu_cores
     assert use_cpu_cores(n=2) == 2
     assert _batch_sharding(4) is not None and _batch_sharding(3) is None and _batch_sharding(1) is None
@@ -161,7 +161,7 @@ def test_batches_split_over_devices_equal_the_window_loop():
 
 
 def test_the_default_batch_fills_an_accelerator_and_keeps_one_frame_per_cpu_device(monkeypatch):
-    from jaxsr import inference
+    from jaxsr.inference import super_resolve as inference
 
     frames = np.zeros((40, 32, 64), np.float32)
     on_cpu = inference._default_batch_size(frames, sequence_form=False)

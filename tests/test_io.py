@@ -168,7 +168,7 @@ def _airsim_folder(tmp_path, planar, gray, stamps):
 
 def test_read_airsim_converts_planar_to_radial(tmp_path):
     from jaxsr.config import SensorConfig
-    from jaxsr.sensor import planar_to_radial
+    from jaxsr.sensor.forward import planar_to_radial
 
     sensor = SensorConfig()
     h, w = sensor.hr_shape
@@ -198,7 +198,7 @@ class Stop(KeyboardInterrupt):
 def test_atomic_writes_leave_nothing_when_interrupted(tmp_path):
     """Ctrl-C (or SIGTERM turned into it by the `jaxsr` command) inside an atomic write removes the temporary
     file or folder; a folder's files appear under its name only once the block completes."""
-    from jaxsr._files import atomic_folder, atomic_path
+    from jaxsr.io.files import atomic_folder, atomic_path
 
     with pytest.raises(Stop), atomic_path(tmp_path / "a.npy") as tmp:
         tmp.write_bytes(b"half")

@@ -6,7 +6,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxsr.layers import (
+from jaxsr.nn.layers import (
     batch_norm,
     conv3d,
     conv3d_native,

@@ -15,7 +15,7 @@ import pytest
 
 import jaxsr
 from jaxsr.config import SensorConfig
-from jaxsr.model import count_params
+from jaxsr.nn.duf import count_params
 
 
 def conv(k, cin, cout):
@@ -46,7 +46,7 @@ def histnet_published(width=64):
 
 @pytest.mark.parametrize("width", [64, 16])
 def test_histnet_parameter_count_matches_the_published_layers(width):
-    params = jax.eval_shape(lambda k: jaxsr.init_histnet(k, jaxsr.HistNetConfig(width=width)), jax.random.PRNGKey(0))
+    params = jax.eval_shape(lambda k: jaxsr.baselines.init_histnet(k, jaxsr.baselines.HistNetConfig(width=width)), jax.random.PRNGKey(0))
     assert count_params(params) == histnet_published(width)
     if width == 64:
         assert count_params(params) == 45_473_025
@@ -75,9 +75,9 @@ def srgan_discriminator_published(channels=3):
 
 @pytest.mark.parametrize("channels", [3, 1])
 def test_rbpn_and_discriminator_parameter_counts_match_the_published_layers(channels):
-    cfg = jaxsr.RBPNConfig(channels=channels)
-    g = jax.eval_shape(lambda k: jaxsr.init_rbpn(k, cfg), jax.random.PRNGKey(0))
-    d = jax.eval_shape(lambda k: jaxsr.init_discriminator(k, cfg)[0], jax.random.PRNGKey(0))
+    cfg = jaxsr.baselines.RBPNConfig(channels=channels)
+    g = jax.eval_shape(lambda k: jaxsr.baselines.init_rbpn(k, cfg), jax.random.PRNGKey(0))
+    d = jax.eval_shape(lambda k: jaxsr.baselines.init_discriminator(k, cfg)[0], jax.random.PRNGKey(0))
     assert count_params(g) == rbpn_published(channels)
     assert count_params(d) == srgan_discriminator_published(channels)
     if channels == 3:  # the published code's count (Haris et al. quote 12.2 M for RBPN)
@@ -88,32 +88,32 @@ def test_rbpn_and_discriminator_parameter_counts_match_the_published_layers(chan
 
 
 def test_histnet_shapes():
-    cfg = jaxsr.HistNetConfig()
-    params = jax.eval_shape(lambda k: jaxsr.init_histnet(k, cfg), jax.random.PRNGKey(0))
+    cfg = jaxsr.baselines.HistNetConfig()
+    params = jax.eval_shape(lambda k: jaxsr.baselines.init_histnet(k, cfg), jax.random.PRNGKey(0))
     counts = jax.ShapeDtypeStruct((2, 32, 64, 16), jnp.float32)
     intensity = jax.ShapeDtypeStruct((2, 128, 256), jnp.float32)
-    feats = jax.eval_shape(lambda c: jaxsr.histnet_features(c, cfg), counts)
+    feats = jax.eval_shape(lambda c: jaxsr.baselines.histnet_features(c, cfg), counts)
     assert {k: v.shape for k, v in feats.items()} == {
         "d1": (2, 128, 256), "d2": (2, 128, 256), "pool1": (2, 64, 128), "pool2": (2, 32, 64),
         "pool3": (2, 16, 32), "pool4": (2, 8, 16)}
-    out = jax.eval_shape(lambda p, c, i: jaxsr.apply_histnet(p, c, i, cfg), params, counts, intensity)
+    out = jax.eval_shape(lambda p, c, i: jaxsr.baselines.apply_histnet(p, c, i, cfg), params, counts, intensity)
     assert out.shape == (2, 128, 256)
     with pytest.raises(ValueError, match="divisible by 4"):
-        jaxsr.histnet_features(jnp.zeros((1, 30, 64, 16)), cfg)
+        jaxsr.baselines.histnet_features(jnp.zeros((1, 30, 64, 16)), cfg)
 
 
 def test_rbpn_and_discriminator_shapes():
-    cfg = jaxsr.RBPNConfig()
-    g = jax.eval_shape(lambda k: jaxsr.init_rbpn(k, cfg), jax.random.PRNGKey(0))
-    dp, ds = jax.eval_shape(lambda k: jaxsr.init_discriminator(k, cfg), jax.random.PRNGKey(0))
+    cfg = jaxsr.baselines.RBPNConfig()
+    g = jax.eval_shape(lambda k: jaxsr.baselines.init_rbpn(k, cfg), jax.random.PRNGKey(0))
+    dp, ds = jax.eval_shape(lambda k: jaxsr.baselines.init_discriminator(k, cfg), jax.random.PRNGKey(0))
     windows = jax.ShapeDtypeStruct((2, 7, 32, 64), jnp.float32)
-    assert jax.eval_shape(lambda w: jaxsr.rbpn_flows(w, cfg), windows).shape == (2, 6, 32, 64, 2)
-    hr = jax.eval_shape(lambda p, w: jaxsr.apply_rbpn(p, w, cfg), g, windows)
+    assert jax.eval_shape(lambda w: jaxsr.baselines.rbpn_flows(w, cfg), windows).shape == (2, 6, 32, 64, 2)
+    hr = jax.eval_shape(lambda p, w: jaxsr.baselines.apply_rbpn(p, w, cfg), g, windows)
     assert hr.shape == (2, 128, 256)
-    logits, _ = jax.eval_shape(lambda p, s, x: jaxsr.apply_discriminator(p, s, x, cfg, train=True), dp, ds, hr)
+    logits, _ = jax.eval_shape(lambda p, s, x: jaxsr.baselines.apply_discriminator(p, s, x, cfg, train=True), dp, ds, hr)
     assert logits.shape == (2,)
     with pytest.raises(ValueError, match="expected windows"):
-        jaxsr.apply_rbpn(g, jnp.zeros((2, 5, 32, 64)), cfg)
+        jaxsr.baselines.apply_rbpn(g, jnp.zeros((2, 5, 32, 64)), cfg)
 
 
 # --- the flow estimator -----------------------------------------------------------------------------------------
@@ -135,7 +135,7 @@ def test_flow_recovers_a_known_shift_to_a_tenth_of_a_pixel():
     shifts = [(1.3, -0.7), (3.4, 2.2), (0.0, 0.0)]
     centre = np.stack([texture((0, 0))] * len(shifts))
     neighbour = np.stack([texture(s) for s in shifts])
-    flow = np.asarray(jaxsr.optical_flow(centre, neighbour))
+    flow = np.asarray(jaxsr.baselines.optical_flow(centre, neighbour))
     assert flow.shape == (3, 32, 64, 2)
     for f, s in zip(flow, shifts):
         inner = f[6:-6, 6:-6]  # away from the border, where part of the match leaves the frame
@@ -153,21 +153,21 @@ def test_second_peak_depth_finds_the_weaker_return():
     hist[:, 3] += 60.0  # the first return, bin 3
     hist[0, 11] += 30.0  # a second return in the first pixel only
     first = np.asarray(jaxsr.centre_of_mass(jnp.asarray(hist), sensor))
-    second = np.asarray(jaxsr.second_peak_depth(jnp.asarray(hist), sensor=sensor))
+    second = np.asarray(jaxsr.baselines.second_peak_depth(jnp.asarray(hist), sensor=sensor))
     np.testing.assert_allclose(first, 3.5 / 16, atol=1e-6)
     np.testing.assert_allclose(second, [11.5 / 16, 1.0], atol=1e-6)  # none in pixel 2: no return
 
 
 def test_gan_losses_closed_forms():
     x = jnp.arange(8.0)[None, None, :] * 0.1 * jnp.ones((2, 4, 8))  # a ramp of slope 0.1 along x
-    np.testing.assert_allclose(jaxsr.tv_loss(x), 2 * 0.1**2, rtol=1e-5)
+    np.testing.assert_allclose(jaxsr.baselines.tv_loss(x), 2 * 0.1**2, rtol=1e-5)
     zeros = jnp.zeros((2,))
-    np.testing.assert_allclose(jaxsr.discriminator_loss(zeros, zeros), 2 * np.log(2), rtol=1e-6)
-    loss, parts = jaxsr.generator_loss(x, x, zeros)
+    np.testing.assert_allclose(jaxsr.baselines.discriminator_loss(zeros, zeros), 2 * np.log(2), rtol=1e-6)
+    loss, parts = jaxsr.baselines.generator_loss(x, x, zeros)
     np.testing.assert_allclose(parts["adversarial"], np.log(2), rtol=1e-6)
     np.testing.assert_allclose(loss, 1e-3 * np.log(2) + 2e-8 * 2 * 0.1**2, rtol=1e-5)
     # a discriminator sure the fake is real costs the generator nothing adversarially
-    assert float(jaxsr.generator_loss(x, x, jnp.full((2,), 30.0))[1]["adversarial"]) < 1e-12
+    assert float(jaxsr.baselines.generator_loss(x, x, jnp.full((2,), 30.0))[1]["adversarial"]) < 1e-12
 
 
 # --- a few training steps lower the loss on a fixed batch ----------------------------------------------------------
@@ -189,22 +189,22 @@ def fixed_histogram_batch():
 
 def test_histnet_output_is_the_first_peak_depth_plus_the_residual():
     """With the last conv zeroed the network returns D1, the upsampled centre of mass of the LR histograms."""
-    cfg = jaxsr.HistNetConfig(width=2)
+    cfg = jaxsr.baselines.HistNetConfig(width=2)
     counts, intensity, _ = fixed_histogram_batch()
-    params = jaxsr.init_histnet(jax.random.PRNGKey(1), cfg)
+    params = jaxsr.baselines.init_histnet(jax.random.PRNGKey(1), cfg)
     params["out"] = jax.tree_util.tree_map(jnp.zeros_like, params["out"])
-    out = jax.jit(lambda p: jaxsr.apply_histnet(p, counts, intensity, cfg, sensor=SMALL_SENSOR))(params)
+    out = jax.jit(lambda p: jaxsr.baselines.apply_histnet(p, counts, intensity, cfg, sensor=SMALL_SENSOR))(params)
     lr = jax.jit(jaxsr.centre_of_mass)(counts, SMALL_SENSOR)
     np.testing.assert_allclose(np.asarray(out), np.repeat(np.repeat(np.asarray(lr), 4, 1), 4, 2), atol=1e-6)
 
 
 @pytest.mark.slow
 def test_histnet_training_steps_lower_the_loss():
-    cfg = jaxsr.HistNetConfig(width=4)
+    cfg = jaxsr.baselines.HistNetConfig(width=4)
     batch = fixed_histogram_batch()
-    step = jaxsr.make_histnet_train_step(cfg, lambda key: batch, schedule=lambda s: 1e-3, sensor=SMALL_SENSOR)
-    params = jaxsr.init_histnet(jax.random.PRNGKey(1), cfg)
-    opt = jaxsr.adam_init(params)
+    step = jaxsr.training.make_histnet_train_step(cfg, lambda key: batch, schedule=lambda s: 1e-3, sensor=SMALL_SENSOR)
+    params = jaxsr.baselines.init_histnet(jax.random.PRNGKey(1), cfg)
+    opt = jaxsr.training.adam_init(params)
     losses = []
     for i in range(6):
         params, opt, m = step(params, opt, jax.random.PRNGKey(0), i)
@@ -214,14 +214,14 @@ def test_histnet_training_steps_lower_the_loss():
 
 @pytest.mark.slow
 def test_iseebetter_training_steps_lower_the_content_loss():
-    cfg = jaxsr.RBPNConfig(base_filter=8, feat=4, n_resblock=1, frames=3, disc_widths=(4, 4), disc_hidden=8,
+    cfg = jaxsr.baselines.RBPNConfig(base_filter=8, feat=4, n_resblock=1, frames=3, disc_widths=(4, 4), disc_hidden=8,
                            flow_levels=2, flow_iterations=2)
     windows = jax.random.uniform(jax.random.PRNGKey(0), (2, 3, 8, 16))
     gt = jax.image.resize(windows[:, 1], (2, 32, 64), "linear")
-    step = jaxsr.make_iseebetter_train_step(cfg, lambda key: (windows, gt), schedule=lambda s: 1e-3)
-    g = jaxsr.init_rbpn(jax.random.PRNGKey(2), cfg)
-    d, d_state = jaxsr.init_discriminator(jax.random.PRNGKey(3), cfg)
-    nets, opts = (g, d, d_state), jaxsr.init_adam_pair(g, d)
+    step = jaxsr.training.make_iseebetter_train_step(cfg, lambda key: (windows, gt), schedule=lambda s: 1e-3)
+    g = jaxsr.baselines.init_rbpn(jax.random.PRNGKey(2), cfg)
+    d, d_state = jaxsr.baselines.init_discriminator(jax.random.PRNGKey(3), cfg)
+    nets, opts = (g, d, d_state), jaxsr.training.init_adam_pair(g, d)
     content = []
     for i in range(6):
         nets, opts, m = step(nets, opts, jax.random.PRNGKey(0), i)
@@ -233,14 +233,14 @@ def test_iseebetter_training_steps_lower_the_content_loss():
 @pytest.mark.slow  # tracing the scene renderer alone takes ~6 s
 def test_histogram_batches_shapes():
     train_cfg = dataclasses.replace(jaxsr.TrainConfig(), batch_size=2, patch=(8, 16))
-    make_batch = jaxsr.histogram_batches(train_cfg)
+    make_batch = jaxsr.training.histogram_batches(train_cfg)
     counts, intensity, gt = jax.eval_shape(make_batch, jax.random.PRNGKey(0))
     assert counts.shape == (2, 8, 16, 16) and intensity.shape == gt.shape == (2, 32, 64)
 
 
 # --- trained baselines: files, the fit loop, the training script's plan -------------------------------------------
 
-TINY_HISTNET = jaxsr.HistNetConfig(width=2)
+TINY_HISTNET = jaxsr.baselines.HistNetConfig(width=2)
 
 
 def tiny_validation():
@@ -249,11 +249,11 @@ def tiny_validation():
 
 
 def test_load_baseline_refuses_missing_and_mismatched_files(tmp_path):
-    from jaxsr.baseline_training import BaselineModel, load_baseline, save_baseline
+    from jaxsr.training.baselines import BaselineModel, load_baseline, save_baseline
 
     with pytest.raises(FileNotFoundError, match="no trained baseline.*train_baselines.py"):
         load_baseline(tmp_path / "nothing")
-    params = jaxsr.init_histnet(jax.random.PRNGKey(0), TINY_HISTNET)
+    params = jaxsr.baselines.init_histnet(jax.random.PRNGKey(0), TINY_HISTNET)
     path = save_baseline(tmp_path / "h.npz", BaselineModel("histnet", params, TINY_HISTNET), card={"steps": 3},
                          storage_dtype="float16")
     back = load_baseline(tmp_path / "h")  # without the suffix
@@ -277,7 +277,7 @@ def test_load_baseline_refuses_missing_and_mismatched_files(tmp_path):
 
 
 def test_fit_baseline_checkpoints_every_epoch_resumes_and_refuses_other_settings(tmp_path):
-    from jaxsr.baseline_training import fit_baseline, load_baseline
+    from jaxsr.training.baselines import fit_baseline, load_baseline
 
     batch = fixed_histogram_batch()
     make_batch = lambda key: batch
@@ -347,9 +347,9 @@ def test_iseebetter_plan_prices_its_generator_only_epochs_at_their_own_step_time
 
 
 def test_iseebetter_pretraining_moves_the_generator_alone_then_the_gan_starts():
-    from jaxsr.baseline_training import _init_train_state, baseline_train_step
+    from jaxsr.training.baselines import _init_train_state, baseline_train_step
 
-    cfg = jaxsr.RBPNConfig(base_filter=8, feat=4, n_resblock=1, frames=3, disc_widths=(4, 4), disc_hidden=8,
+    cfg = jaxsr.baselines.RBPNConfig(base_filter=8, feat=4, n_resblock=1, frames=3, disc_widths=(4, 4), disc_hidden=8,
                            flow_levels=2, flow_iterations=2)
     windows = jax.random.uniform(jax.random.PRNGKey(0), (2, 3, 8, 16))
     gt = jax.image.resize(windows[:, 1], (2, 32, 64), "linear")
@@ -369,4 +369,4 @@ def test_iseebetter_pretraining_moves_the_generator_alone_then_the_gan_starts():
     assert np.isfinite(float(m["d_loss"]))
     assert not all(np.array_equal(a, b) for a, b in zip(leaves(ts["disc"]), leaves(disc0)))
     with pytest.raises(ValueError, match="pretrain_steps"):
-        baseline_train_step("histnet", jaxsr.HistNetConfig(width=4), train_cfg, lambda key: None, pretrain_steps=2)
+        baseline_train_step("histnet", jaxsr.baselines.HistNetConfig(width=4), train_cfg, lambda key: None, pretrain_steps=2)

@@ -1,4 +1,4 @@
-"""Metrics against scikit-image and closed forms (PHYSICS.md section 5)."""
+"""Metrics against scikit-image and closed forms (docs/sensor-model.md, section 5)."""
 
 import jax
 import jax.numpy as jnp

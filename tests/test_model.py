@@ -1,4 +1,4 @@
-"""The network: parameter counts of DESIGN.md, shapes for TR0-4 and scale 8, BN modes, hand-set weights."""
+"""The network: parameter counts of docs/network.md, shapes for TR0-4 and scale 8, BN modes, hand-set weights."""
 
 import jax
 import jax.numpy as jnp
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from jaxsr.config import ModelConfig
-from jaxsr.model import (Model, apply_model, apply_model_sequence, apply_model_train, count_params,
+from jaxsr.nn.duf import (Model, apply_model, apply_model_sequence, apply_model_train, count_params,
                          flops_per_frame, grow_tr, init_model)
 from jaxsr.temporal import windows as temporal_windows
 

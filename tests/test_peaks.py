@@ -1,4 +1,4 @@
-"""Centre of mass and maximum-likelihood depth extraction (PHYSICS.md section 3)."""
+"""Centre of mass and maximum-likelihood depth extraction (docs/sensor-model.md, section 3)."""
 
 import jax
 import jax.numpy as jnp
@@ -8,7 +8,7 @@ from jax.test_util import check_grads
 from scipy.special import ndtr
 
 import jaxsr
-from jaxsr.peaks import default_window
+from jaxsr.sensor.peaks import default_window
 
 CFG = jaxsr.SensorConfig()
 K = CFG.bins
@@ -22,7 +22,7 @@ def irf_histogram(tau, sigma=0.4, signal=1.0, background=0.0):
 
 
 def reference_com(n, w=1):
-    """PHYSICS.md section 3, one pixel at a time."""
+    """docs/sensor-model.md, section 3, one pixel at a time."""
     out = []
     for h in np.asarray(n, np.float64):
         b = np.median(h)
@@ -39,7 +39,7 @@ def test_noise_free_bias_under_002_bins():
     est = np.asarray(jaxsr.centre_of_mass(irf_histogram(tau), CFG)) * K
     err = est - tau
     assert abs(err.mean()) < 0.02
-    assert np.sqrt(np.mean(err**2)) < 0.02  # PHYSICS.md: about 0.01 bins RMS
+    assert np.sqrt(np.mean(err**2)) < 0.02  # docs/sensor-model.md: about 0.01 bins RMS
 
 
 def test_background_subtraction_removes_shrink_to_mid_range():
@@ -169,7 +169,7 @@ def test_maximum_likelihood_handles_empty_pixels_and_vmap():
 
 @pytest.mark.parametrize("k", [16, 15, 8])
 def test_median_of_bins_equals_numpy_median_with_ties(k):
-    from jaxsr.peaks import median_of_bins
+    from jaxsr.sensor.peaks import median_of_bins
 
     rng = np.random.default_rng(6)
     x = rng.integers(0, 4, (500, k)).astype(np.float32)  # many ties

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import jaxsr
-from jaxsr.poisson import NORMAL_ABOVE, poisson_pathwise, sample_poisson
+from jaxsr.sensor.poisson import NORMAL_ABOVE, poisson_pathwise, sample_poisson
 
 # Small enough that compiling a gradient through the whole pipeline takes seconds: x2, 8 bins, one dense block.
 SMALL = jaxsr.SensorConfig(hr_shape=(8, 16), scale=2, bins=8)

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from jaxsr.poisson import EXACT_BELOW, sample_poisson
+from jaxsr.sensor.poisson import EXACT_BELOW, sample_poisson
 
 
 @pytest.mark.parametrize("lam", [0.0, 0.05, 1.0, 4.0, 12.0, EXACT_BELOW - 0.5, EXACT_BELOW, 60.0, 1e4])

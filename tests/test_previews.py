@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from jaxsr import io, previews
+from jaxsr import io
+from jaxsr.io import previews
 
 
 def depth_frame(h=32, w=64, seed=0):

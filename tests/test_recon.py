@@ -1,4 +1,4 @@
-"""TV-regularised multi-frame super-resolution baseline (jaxsr.recon): properties on closed-form scenes.
+"""TV-regularised multi-frame super-resolution baseline (jaxsr.baselines.tv): properties on closed-form scenes.
 
 Every test reuses a few (shape, static option) combinations, so the suite compiles the solver only a handful
 of times.
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import jaxsr
-from jaxsr.recon import block_mean, charbonnier, smoothed_tv, tv_super_resolve
+from jaxsr.baselines.tv import block_mean, charbonnier, smoothed_tv, tv_super_resolve
 
 T, H, W, SCALE = 5, 8, 12, 4  # LR sequence shared by most tests (HR 32 x 48)
 

@@ -12,7 +12,7 @@ import pytest
 from jaxsr import scenes
 from jaxsr.config import SensorConfig
 from jaxsr.scenes import Boxes, Cylinders, Ellipsoids, Motion, test_sets, tile_overflow
-from jaxsr.sensor import planar_to_radial
+from jaxsr.sensor.forward import planar_to_radial
 
 SENSOR = SensorConfig()
 H, W = SENSOR.hr_shape

@@ -9,7 +9,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
 
 import selection  # noqa: E402
-from jaxsr.checkpoint import save_tree  # noqa: E402
+from jaxsr.io.checkpoint import save_tree  # noqa: E402
 from jaxsr.config import PRESETS, TrainConfig  # noqa: E402
 
 

@@ -1,4 +1,4 @@
-"""Conformance of the sensor model with PHYSICS.md sections 1-2, against a slow float64 NumPy reference."""
+"""Conformance of the sensor model with docs/sensor-model.md, sections 1-2, against a slow float64 NumPy reference."""
 
 import dataclasses
 import math
@@ -10,13 +10,13 @@ import pytest
 from jax.test_util import check_grads
 
 import jaxsr
-from jaxsr import sensor as sensor_mod
+from jaxsr.sensor import forward as sensor_mod
 
 SMALL = jaxsr.SensorConfig(hr_shape=(16, 24), scale=4)
 
 
 def reference_rates(depth, intensity, cfg, snr, mean_signal):
-    """PHYSICS.md section 2 written out pixel by pixel, float64, no vectorisation tricks."""
+    """docs/sensor-model.md, section 2 written out pixel by pixel, float64, no vectorisation tricks."""
     K, s = cfg.bins, cfg.scale
     H, W = depth.shape[-2:]
     lead = depth.shape[:-2]
@@ -128,7 +128,7 @@ def test_poisson_mean_and_variance_over_keys():
 def test_planar_to_radial_closed_form():
     cfg = jaxsr.SensorConfig()
     z = np.full(cfg.hr_shape, 10.0)
-    r = np.asarray(jaxsr.planar_to_radial(z, cfg))
+    r = np.asarray(jaxsr.sensor.planar_to_radial(z, cfg))
     f = (cfg.hr_shape[1] / 2) / math.tan(math.radians(15))
     assert f == pytest.approx(477.7, abs=0.05)
     # corner pixel centre (0.5, 0.5): offsets (0.5 - 128, 0.5 - 64)
@@ -136,7 +136,7 @@ def test_planar_to_radial_closed_form():
     assert r[0, 0] == pytest.approx(want, rel=1e-6)
     assert r.min() > 10.0 and r.min() == pytest.approx(10 * math.sqrt(1 + 2 * (0.5 / f) ** 2), rel=1e-6)
     # vertical FoV 15.25 deg: the ray through the top edge
-    assert math.degrees(2 * math.atan(64 / f)) == pytest.approx(15.25, abs=0.02)  # PHYSICS.md rounds 15.26
+    assert math.degrees(2 * math.atan(64 / f)) == pytest.approx(15.25, abs=0.02)  # the docs round 15.26
 
 
 def test_normalise_depth_conventions():

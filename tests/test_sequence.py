@@ -1,4 +1,4 @@
-"""The sequence form of the network (DESIGN.md "The network"): its definition (a window loop of the same weights,
+"""The sequence form of the network (docs/network.md): its definition (a window loop of the same weights,
 ends included), the stream, inference in the model's form, checkpoints of either form, training, FLOPs and bad
 input."""
 
@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 
 from jaxsr import cli
-from jaxsr.checkpoint import load_model, model_info, read_metadata, resolve_model_path, save_model
+from jaxsr.io.checkpoint import load_model, model_info, read_metadata, resolve_model_path, save_model
 from jaxsr.config import ModelConfig, TrainConfig
-from jaxsr.data import run_keys
-from jaxsr.inference import Stream, iter_super_resolve, super_resolve
-from jaxsr.model import (
+from jaxsr.training.data import run_keys
+from jaxsr.inference.super_resolve import Stream, iter_super_resolve, super_resolve
+from jaxsr.nn.duf import (
     Model,
     apply_model,
     apply_model_sequence,
@@ -25,8 +25,8 @@ from jaxsr.model import (
     init_model,
     sequence_radius,
 )
-from jaxsr.streaming import stream_init, stream_step
-from jaxsr.train import fit, sequence_loss
+from jaxsr.nn.streaming import stream_init, stream_step
+from jaxsr.training.loop import fit, sequence_loss
 
 TINY = {"base": 8, "growth": 4, "head": 16, "filter_hidden": 16}
 seq_jit = jax.jit(apply_model_sequence, static_argnums=3, static_argnames=("padding", "conv3d_impl"))
@@ -202,7 +202,7 @@ def test_sequence_loss_gradients_are_finite_and_those_of_the_window_loop():
 
 def toy_clips(frames, batch, *, lr_shape=(8, 16), scale=4, noise=0.1):
     """Clips of a rectangle at a random depth before a far wall, drifting one LR pixel per frame; LR = its 4x4
-    block mean plus Gaussian noise; gt per frame. Pure and jittable, like `jaxsr.data.scene_clips`."""
+    block mean plus Gaussian noise; gt per frame. Pure and jittable, like `jaxsr.training.data.scene_clips`."""
     hh, ww = lr_shape[0] * scale, lr_shape[1] * scale
     yy, xx = jnp.mgrid[:hh, :ww]
 

@@ -5,8 +5,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxsr import paired_interval, ratio_interval
-from jaxsr.stats import _resampled_means
+from jaxsr import paired_interval
+from jaxsr.eval import ratio_interval
+from jaxsr.eval.stats import _resampled_means
 
 
 def ar1(key, n_series, frames, phi, sigma=1.0):

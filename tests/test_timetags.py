@@ -1,4 +1,4 @@
-"""Photon time tags (jaxsr.timetags): readers for .mat cell arrays and .npz tables, histogramming in JAX against
+"""Photon time tags (jaxsr.sensor.timetags): readers for .mat cell arrays and .npz tables, histogramming in JAX against
 NumPy's `histogram`, and every bad input refused with a message."""
 
 import numpy as np
@@ -6,7 +6,7 @@ import pytest
 import scipy.io
 
 from jaxsr.config import METRES_PER_SECOND, Gate
-from jaxsr.timetags import gate_of_tags, histogram_time_tags, read_time_tags, time_tags_from_cells
+from jaxsr.sensor.timetags import gate_of_tags, histogram_time_tags, read_time_tags, time_tags_from_cells
 
 PS = 1e-12
 GATE = Gate.from_time(12, 100 * PS, 5000 * PS)  # 12 bins of 100 ps from 5000 ps

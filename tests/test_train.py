@@ -1,6 +1,6 @@
 """Training: Huber's closed form, Adam and the decay boundary by hand, the presets' schedules, a short run that
 learns, bit-identical resume (also from a checkpoint of an older version), sharded == unsharded, and the data
-sources and validation set of `jaxsr.data`."""
+sources and validation set of `jaxsr.training.data`."""
 
 import dataclasses
 import json
@@ -17,15 +17,15 @@ import numpy as np
 import pytest
 from jax.test_util import check_grads
 
-from jaxsr.checkpoint import load_model, read_metadata, save_tree
+from jaxsr.io.checkpoint import load_model, read_metadata, save_tree
 from jaxsr.config import PRESETS, ModelConfig, SensorConfig, TrainConfig
-from jaxsr.data import random_crop, sequence_batches, validation_set
-from jaxsr.metrics import psnr
-from jaxsr.model import apply_model, apply_model_train, init_model
-from jaxsr.optim import adam_init, adam_update, step_decay
+from jaxsr.training.data import random_crop, sequence_batches, validation_set
+from jaxsr.eval.metrics import psnr
+from jaxsr.nn.duf import apply_model, apply_model_train, init_model
+from jaxsr.training.optim import adam_init, adam_update, step_decay
 from jaxsr.scenes import test_sequences
-from jaxsr.sensor import calibrate, calibrated_rates, expected_histograms, normalise_depth
-from jaxsr.train import evaluate, fit, huber_loss, lr_schedule, resume_config
+from jaxsr.sensor.forward import calibrate, calibrated_rates, expected_histograms, normalise_depth
+from jaxsr.training.loop import evaluate, fit, huber_loss, lr_schedule, resume_config
 
 # momentum 0.9: running BN statistics settle within the few dozen steps of these runs (0.99 needs hundreds)
 TINY = ModelConfig(tr=1, base=8, growth=4, head=16, filter_hidden=16, bn_momentum=0.9)
@@ -225,7 +225,7 @@ def test_train_config_refuses_inconsistent_settings(change, message):
 # --- fitting ----------------------------------------------------------------------------------------------
 
 def test_short_run_learns_and_beats_bicubic(tmp_path):
-    from jaxsr.baselines import bicubic
+    from jaxsr.baselines.interpolation import bicubic
 
     cfg = tiny_train_cfg(epochs=3, examples_per_epoch=400)
     val = toy_validation(TINY.tr)
@@ -324,7 +324,7 @@ def test_a_run_killed_inside_an_epoch_resumes_from_its_last_checkpoint(tmp_path,
     """checkpoint_every_s=0 saves the state after every step (resume.npz inside an epoch, last.npz at its end); a
     run killed just after a save resumes there and ends bit-identical to the uninterrupted run, logging the same
     epochs. Also a run started over an old one (overwrite) and killed inside its first epoch."""
-    import jaxsr.train as train_mod
+    import jaxsr.training.loop as train_mod
 
     cfg = tiny_train_cfg(examples_per_epoch=12, epochs=3, decay_epochs=1, patience=3)
     spe = cfg.steps_per_epoch
@@ -391,9 +391,9 @@ _SHARDED_SCRIPT = textwrap.dedent(
     import jax, numpy as np
     sys.path.insert(0, {tests!r})
     from test_train import TINY, toy_batches, tiny_train_cfg
-    from jaxsr.model import init_model
-    from jaxsr.optim import adam_init
-    from jaxsr.train import data_mesh, make_train_step
+    from jaxsr.nn.duf import init_model
+    from jaxsr.training.optim import adam_init
+    from jaxsr.training.loop import data_mesh, make_train_step
     assert jax.device_count() == 2, jax.devices()
     cfg = tiny_train_cfg()
     make_batch = toy_batches(TINY.tr, cfg.batch_size)
@@ -432,7 +432,7 @@ def test_stacked_layers_gradients_through_the_taps_equal_the_stacked_ones(monkey
     """`layers.STACKED_GRADIENT` ("taps", the faster one in training) changes how the gradients of the layers
     that conv3d(impl="auto") stacks are computed, not what they are: the train loss's gradients agree with the
     stacked form's own to float32 rounding (TR1's 3-frame "same" blocks are stacked on CPU)."""
-    from jaxsr import layers
+    from jaxsr.nn import layers
 
     windows, gt = toy_batches(1, 2)(jax.random.key(3))
     params, state = init_model(jax.random.key(4), TINY)

@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 
 from jaxsr import cli, io
-from jaxsr.checkpoint import save_model
+from jaxsr.io.checkpoint import save_model
 from jaxsr.config import ModelConfig, SensorConfig
-from jaxsr.inference import super_resolve
-from jaxsr.model import Model, init_model
-from jaxsr.peaks import centre_of_mass
-from jaxsr.sensor import normalise_depth
+from jaxsr.inference.super_resolve import super_resolve
+from jaxsr.nn.duf import Model, init_model
+from jaxsr.sensor.peaks import centre_of_mass
+from jaxsr.sensor.forward import normalise_depth
 
 TINY = dict(base=8, growth=4, head=16, filter_hidden=16)
 SENSOR = SensorConfig()
@@ -41,13 +41,13 @@ def upscale(*args):
 
 
 def expected(model_path, lr):
-    from jaxsr.checkpoint import load_model
+    from jaxsr.io.checkpoint import load_model
 
     return np.clip(super_resolve(load_model(model_path), lr), 0, 1)
 
 
 def to_metres(n):
-    """Clipped normalised output -> metres: 1.0 is no return (PHYSICS.md), anything below is n * d_max."""
+    """Clipped normalised output -> metres: 1.0 is no return (docs/sensor-model.md), anything below is n * d_max."""
     return np.where(n >= 1.0, np.inf, n * float(SENSOR.d_max))
 
 
@@ -128,7 +128,7 @@ def test_bad_input_is_a_clear_error(tmp_path, model_path, capsys, make, args, me
 @pytest.mark.parametrize("kind,units", [("m", []), ("m", ["--units", "m"]), ("normalised", []),
                                         ("normalised", ["--units", "normalised"])])
 def test_nan_is_no_return_in_either_unit(tmp_path, model_path, metres, kind, units):
-    """NaN depth is "no return" (README, PHYSICS.md), in metres (like inf) and normalised (like 1.0), with the
+    """NaN depth is "no return" (docs/sensor-model.md), in metres (like inf) and normalised (like 1.0), with the
     units given or guessed: the output equals that of the same recording with the no-return code."""
     coded = metres if kind == "m" else np.asarray(normalise_depth(metres))  # rows :4 are no return
     holes = coded.copy()
@@ -161,8 +161,8 @@ def test_info(model_path, capsys):
 
 def test_auto_model_uses_choose_tr_and_the_bundled_weights(tmp_path, capsys):
     """--model auto: the TR that `choose_tr` picks from the recording, run with that TR's bundled weights."""
-    from jaxsr.adaptive import choose_tr
-    from jaxsr.checkpoint import load_model
+    from jaxsr.inference.adaptive import choose_tr
+    from jaxsr.io.checkpoint import load_model
 
     # a near wall sweeping 3 LR px per frame across a far background: fast motion
     lr = np.full((6, 32, 64), 0.8, np.float32)

@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 
 from jaxsr import cli
-from jaxsr.checkpoint import load_model, save_model
+from jaxsr.io.checkpoint import load_model, save_model
 from jaxsr.config import DepthScale, Gate, ModelConfig
-from jaxsr.gates import from_network_depth, gate_depth, to_network_depth
-from jaxsr.inference import super_resolve
-from jaxsr.model import Model, init_model
-from jaxsr.timetags import histogram_time_tags, read_time_tags
+from jaxsr.sensor.gates import from_network_depth, gate_depth, to_network_depth
+from jaxsr.inference.super_resolve import super_resolve
+from jaxsr.nn.duf import Model, init_model
+from jaxsr.sensor.timetags import histogram_time_tags, read_time_tags
 
 TINY = dict(base=8, growth=4, head=16, filter_hidden=16)
 

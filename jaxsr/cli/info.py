@@ -1,11 +1,11 @@
 """`jaxsr info`: describe a model (bundled weights or a checkpoint): config, parameters, FLOPs per frame and its
-training card, as text or JSON (`jaxsr.checkpoint.model_info`)."""
+training card, as text or JSON (`jaxsr.io.checkpoint.model_info`)."""
 
 from __future__ import annotations
 
 import json
 
-from ..checkpoint import model_info
+from ..io.checkpoint import model_info
 
 
 def add_parser(subparsers):

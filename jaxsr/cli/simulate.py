@@ -17,14 +17,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import io
-from .._files import atomic_folder
-from ..baselines import bicubic
+from ..io.files import atomic_folder
+from ..baselines.interpolation import bicubic
 from ..config import DEFAULT_MEAN_SIGNAL, SensorConfig
-from ..metrics import psnr, ssim
-from ..peaks import centre_of_mass
-from ..previews import write_comparison, write_gray_preview, write_preview
+from ..eval.metrics import psnr, ssim
+from ..sensor.peaks import centre_of_mass
+from ..io.previews import write_comparison, write_gray_preview, write_preview
 from ..scenes import sequence
-from ..sensor import normalise_depth, simulate_histograms
+from ..sensor.forward import normalise_depth, simulate_histograms
 from ._args import int_range, positive_float, seed
 
 OUTPUTS = ("histograms.npz", "com_depth.npy", "gt_depth.npy", "preview_gt.png", "preview_com.png",

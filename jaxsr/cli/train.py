@@ -1,4 +1,4 @@
-"""`jaxsr train`: train a super-resolution network with `jaxsr.train.fit` on a preset, on rendered scenes (the
+"""`jaxsr train`: train a super-resolution network with `jaxsr.training.loop.fit` on a preset, on rendered scenes (the
 default) or on HR sequences from an .npz (--data); writes OUT/metrics.jsonl, OUT/best.npz and OUT/last.npz.
 A folder that already holds a run is refused unless --resume (continue it) or --force (start over)."""
 
@@ -8,10 +8,10 @@ import dataclasses
 from pathlib import Path
 
 from .. import io
-from .._files import removing_new_folder
+from ..io.files import removing_new_folder
 from ..config import PRESETS, TEMPORAL_FORMS, ModelConfig, SensorConfig
-from ..data import sequence_batches, sequence_clips
-from ..train import fit, resume_config
+from ..training.data import sequence_batches, sequence_clips
+from ..training.loop import fit, resume_config
 from ._args import int_range, seed
 
 # The network has 3 + TR blocks over windows of 2TR+1 frames, so memory and compute grow with TR; the paper
@@ -42,7 +42,7 @@ def add_parser(subparsers):
     p.add_argument("--init", default=None,
                    help="start from these weights (tr0..tr4 or a checkpoint of the same architecture but for its "
                    "TR, in either form): the same TR, e.g. to fine-tune a windowed model into the sequence form, or a "
-                   "smaller one, grown to --tr (jaxsr.grow_tr: a warm start from its function)")
+                   "smaller one, grown to --tr (jaxsr.nn.grow_tr: a warm start from its function)")
     p.add_argument("--checkpoint-minutes", type=float, default=10.0,
                    help="save the train state inside an epoch (OUT/resume.npz) every this many minutes of training, so "
                    "that a stopped run resumes (--resume) with at most that much lost (default 10; 0: every step; "

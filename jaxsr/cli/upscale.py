@@ -1,6 +1,6 @@
 """`jaxsr upscale`: super-resolve a recording (depth or histograms) with a trained model, streaming.
 
-Frames stream from the input through the model to the output (see `jaxsr.recordings`), so a long recording
+Frames stream from the input through the model to the output (see `jaxsr.io.recordings`), so a long recording
 needs memory for a batch, not for the whole sequence (an .npz output holds the result; an .npy output is
 written through a memory map). Everything is
 checked before the model runs: the options, the output and preview paths, the model, and every input frame
@@ -21,15 +21,15 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from .. import io
-from .._files import atomic_folder, atomic_path
-from ..adaptive import resolve_model
-from ..checkpoint import load_model, resolve_model_path
+from ..io.files import atomic_folder, atomic_path
+from ..inference.adaptive import resolve_model
+from ..io.checkpoint import load_model, resolve_model_path
 from ..config import METRES_PER_SECOND, TRAINED_RANGE_M, DepthScale, Gate, SensorConfig
-from ..gates import gate_warnings
-from ..inference import iter_centre_of_mass, iter_super_resolve
-from ..timetags import TIME_TAG_FORMATS, gate_of_tags, read_time_tags
-from ..previews import write_comparison
-from ..recordings import (
+from ..sensor.gates import gate_warnings
+from ..inference.super_resolve import iter_centre_of_mass, iter_super_resolve
+from ..sensor.timetags import TIME_TAG_FORMATS, gate_of_tags, read_time_tags
+from ..io.previews import write_comparison
+from ..io.recordings import (
     ARRAY_FORMATS,
     check_frames,
     check_output,

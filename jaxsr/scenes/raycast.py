@@ -12,7 +12,7 @@ import jax
 import jax.numpy as jnp
 
 from ..config import SensorConfig
-from ..sensor import pixel_rays
+from ..sensor.forward import pixel_rays
 from .pose import BOX, CYL, ELL, NEAR, Group, pose_all, project_bounds
 from .primitives import Scene
 

@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._files import atomic_path
+from ..io.files import atomic_path
 from ..config import SensorConfig
 from .layouts import empty_scene, sample_scene
 from .raycast import render_sequence

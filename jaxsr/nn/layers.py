@@ -1,7 +1,7 @@
 """Layers of the dynamic-upsampling-filter network, as pure functions of arrays.
 
 Layout: activations are (B, T, H, W, C) (channels last); convolution weights are (kt, kh, kw, cin, cout).
-Convolution kernels are drawn by `jaxsr.model.init_model` (Glorot uniform, bound `glorot_limit`, in one flat
+Convolution kernels are drawn by `jaxsr.nn.duf.init_model` (Glorot uniform, bound `glorot_limit`, in one flat
 draw); batch norm has `init_batch_norm` and explicit running statistics (`state`) with a `train` flag.
 Nothing here is jitted: jit the function that calls them.
 """

@@ -2,7 +2,7 @@
 any supported layout, stream their frames as LR normalised depth, and bring network output back to the
 recording's units.
 
-A recording is an .npy array, an .npz from `jaxsr.io.write_sequence` / `write_histograms`, or a folder or glob
+A recording is an .npy array, an .npz from `jaxsr.io.formats.write_sequence` / `write_histograms`, or a folder or glob
 pattern of depth frames (EXR, PFM, TIFF, 16-bit PNG). Frames stream one by one where the format allows (image
 frames, or an .npy read through a memory map), so a long recording needs memory for a batch, not for the whole
 sequence. Units: "m" (radial metres, inf = no return) or "normalised" ([0, 1], 1 = no return); NaN is no
@@ -16,12 +16,12 @@ from pathlib import Path
 
 import numpy as np
 
-from . import io
-from ._checks import NORMALISED_SLACK, require_normalised_depth
-from .config import MIN_LR_SIDE, DepthScale, Gate, SensorConfig
-from .gates import from_network_depth, to_network_depth
-from .sensor import normalise_depth
-from .timetags import histogram_time_tags
+from . import formats as io
+from ..checks import NORMALISED_SLACK, require_normalised_depth
+from ..config import MIN_LR_SIDE, DepthScale, Gate, SensorConfig
+from ..sensor.gates import from_network_depth, to_network_depth
+from ..sensor.forward import normalise_depth
+from ..sensor.timetags import histogram_time_tags
 
 __all__ = ["ARRAY_FORMATS", "FRAME_FORMATS", "Recording", "check_frames", "check_output", "check_preview",
            "gate_frames", "guess_units", "normalised_frames", "open_recording", "time_tag_recording", "to_units"]
@@ -188,7 +188,7 @@ def gate_frames(com_frames, gate: Gate, scale: DepthScale):
 
 
 def time_tag_recording(tags, gate: Gate, *, outside: str = "error") -> Recording:
-    """A recording of photon counts histogrammed from `jaxsr.timetags.TimeTags` over `gate`
+    """A recording of photon counts histogrammed from `jaxsr.sensor.timetags.TimeTags` over `gate`
     (`histogram_time_tags`): kind "histograms", frames (h, w, gate.bins)."""
     counts = histogram_time_tags(tags, gate, outside=outside)
     return Recording("histograms", counts.shape[0], counts.shape[1:], lambda: iter(counts), tags.source, array=counts)
@@ -272,8 +272,8 @@ def check_preview(spec, *, force: bool, output=None) -> Path:
 
 def to_units(hr, units: str, scale: DepthScale = DepthScale()):
     """Network output (H, W), normalised and unclipped -> the recording's units: "normalised" (clipped to
-    [0, 1]) or "m" (radial metres offset + n * span, inf for no return: `jaxsr.gates.from_network_depth`; with
-    the default scale `jaxsr.sensor.denormalise_depth`). Returns (H, W)."""
+    [0, 1]) or "m" (radial metres offset + n * span, inf for no return: `jaxsr.sensor.gates.from_network_depth`; with
+    the default scale `jaxsr.sensor.forward.denormalise_depth`). Returns (H, W)."""
     if units == "normalised":
         return np.clip(hr, 0.0, 1.0)
     return np.asarray(from_network_depth(hr, scale), np.float32)

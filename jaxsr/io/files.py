@@ -68,7 +68,7 @@ def atomic_folder(path):
     it, replacing files of the same name), creating missing parent folders only then. Any exception,
     KeyboardInterrupt included, removes the temporary folder, so a partial folder never looks complete.
 
-    The caller decides beforehand whether `path` may be written into (`jaxsr.recordings.check_output`).
+    The caller decides beforehand whether `path` may be written into (`jaxsr.io.recordings.check_output`).
     Raises FileExistsError if `path` is a file.
     """
     path = Path(path)

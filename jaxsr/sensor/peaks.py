@@ -1,6 +1,6 @@
 """Depth extraction from photon histograms: centre of mass, and a Poisson maximum-likelihood fit.
 
-Implements PHYSICS.md section 3. Both work per LR pixel on the last (bins) axis and accept any leading
+Implements docs/sensor-model.md, section 3. Both work per LR pixel on the last (bins) axis and accept any leading
 axes. Depth is returned normalised (tau / K in [0, 1], bin-centre convention); pixels without a usable
 return are 1.0 ("no return", the same value the ground truth uses for sky).
 
@@ -18,8 +18,8 @@ import jax.scipy.special
 import numpy as np
 import optimistix as optx
 
-from ._checks import is_concrete, require_bins
-from .config import SensorConfig
+from ..checks import is_concrete, require_bins
+from ..config import SensorConfig
 
 NO_RETURN = 1.0
 

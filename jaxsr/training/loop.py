@@ -1,6 +1,6 @@
 """Training: the jitted train step (data simulated inside it), validation, and `fit`.
 
-The data come from a source `make_batch(key) -> (windows, gt)` of `jaxsr.data` (default `scene_batches`), run
+The data come from a source `make_batch(key) -> (windows, gt)` of `jaxsr.training.data` (default `scene_batches`), run
 inside the jitted step; a sequence-form model (`ModelConfig(temporal="sequence")`) trains on clips instead,
 `make_batch(key) -> (clips (B, L, h, w), gt (B, L, H, W))` (default `scene_clips`), with the loss on the L - 2R
 frames whose inputs lie inside the clip and BN statistics over the clip. `fit` runs epochs of
@@ -28,9 +28,9 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
-from ._files import write_text_atomic
-from .baselines import bicubic
-from .checkpoint import (
+from ..io.files import write_text_atomic
+from ..baselines.interpolation import bicubic
+from ..io.checkpoint import (
     config_from_dict,
     config_to_dict,
     load_model,
@@ -40,17 +40,17 @@ from .checkpoint import (
     save_model,
     save_tree,
 )
-from .config import ModelConfig, SensorConfig, TrainConfig
+from ..config import ModelConfig, SensorConfig, TrainConfig
 from .data import run_keys, scene_batches, scene_clips, validation_set
-from .inference import super_resolve
-from .metrics import huber_loss, psnr
-from .model import (Model, apply_model, apply_model_sequence_train, apply_model_train, grow_tr, init_model,
+from ..inference.super_resolve import super_resolve
+from ..eval.metrics import huber_loss, psnr
+from ..nn.duf import (Model, apply_model, apply_model_sequence_train, apply_model_train, grow_tr, init_model,
                     sequence_radius)
 from .optim import AdamState, adam_init, adam_update, lr_schedule
 
 __all__ = [
-    "huber_loss",  # defined in jaxsr.metrics, the training loss
-    "lr_schedule",  # defined in jaxsr.optim, shared with the baselines' training
+    "huber_loss",  # defined in jaxsr.eval.metrics, the training loss
+    "lr_schedule",  # defined in jaxsr.training.optim, shared with the baselines' training
     "make_train_step",
     "evaluate",
     "evaluate_sequences",
@@ -508,8 +508,8 @@ def fit(
     the same machine). A folder that already holds a run (any of `RUN_FILES`) is refused (FileExistsError)
     unless `resume` or `overwrite` (start a new run in its place: the old run's files are removed when the new
     one first saves its state) is given.
-    make_batch: the data source (default `jaxsr.data.scene_batches`); validation: a dict from
-    `jaxsr.data.validation_set` (default: built from `jaxsr.scenes.test_sequences`). mesh: "auto" (all
+    make_batch: the data source (default `jaxsr.training.data.scene_batches`); validation: a dict from
+    `jaxsr.training.data.validation_set` (default: built from `jaxsr.scenes.test_sequences`). mesh: "auto" (all
     devices when there are more than one), None (no sharding) or a `Mesh` with a "data" axis. callback(record)
     is called after each epoch's checkpoint is written. conv3d_impl: how the network's convolutions run (see
     `apply_model`; not saved, a run may resume with another). Everything random follows `train_cfg.seed`.
@@ -517,7 +517,7 @@ def fit(
     frames (default data `scene_clips`; validation on whole edge-padded sequences, `evaluate_sequences`).
     init: start from these weights instead of random ones (a `Model` or a checkpoint path, the same
     architecture in either temporal form: e.g. a windowed model fine-tuned into the sequence form; or a smaller
-    TR, grown to this one by `jaxsr.grow_tr`: a warm start from its function); recorded in the training card,
+    TR, grown to this one by `jaxsr.nn.grow_tr`: a warm start from its function); recorded in the training card,
     ignored when resuming.
     """
     if model_cfg.scale != sensor.scale:

@@ -41,7 +41,7 @@ def require_bins(name, counts, sensor):
 def require_normalised_depth(name, frame):
     """Check LR normalised depth on the host and return it as float32 NumPy, ready for the network.
 
-    NaN is "no return" and becomes 1.0 (PHYSICS.md; as in `normalise_depth` and `denormalise_depth`); values
+    NaN is "no return" and becomes 1.0 (docs/sensor-model.md; as in `normalise_depth` and `denormalise_depth`); values
     within `NORMALISED_SLACK` of [0, 1] are clipped to it; anything else (depth in metres, negated depth, +-inf)
     raises a ValueError that names the range seen and how to normalise metres.
     """

@@ -11,7 +11,7 @@ tr: each chunk of `batch_size + 2R` frames goes through `apply_model_sequence` (
 overlapping by 2R frames. `Stream` takes live input one frame at a time instead, with a latency of R frames.
 
 With several devices (e.g. the host's cores exposed as CPU devices by `use_cpu_cores`), each batch of windows is
-split over them (a sequence chunk runs on one device, its convolutions on all cores). The compiled call uses `jaxsr.compiler_options()` (on CPU, XLA's own convolutions, which keep both
+split over them (a sequence chunk runs on one device, its convolutions on all cores). The compiled call uses `jaxsr.runtime.compiler_options()` (on CPU, XLA's own convolutions, which keep both
 cores busy on one frame; benchmarks/bench_inference.py::test_network_tr4_one_window).
 """
 
@@ -27,12 +27,12 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
-from ._checks import require_normalised_depth
-from .config import MIN_LR_SIDE, SensorConfig
-from .model import Model, apply_model, apply_model_sequence, sequence_radius, spatial_radius
-from .peaks import centre_of_mass
-from .runtime import compiler_options
-from .streaming import stream_init, stream_step
+from ..checks import require_normalised_depth
+from ..config import MIN_LR_SIDE, SensorConfig
+from ..nn.duf import Model, apply_model, apply_model_sequence, sequence_radius, spatial_radius
+from ..sensor.peaks import centre_of_mass
+from ..runtime import compiler_options
+from ..nn.streaming import stream_init, stream_step
 
 # Frames per device and batch when `batch_size=None`: on XLA:CPU larger batches are no faster per frame
 # (benchmarks/bench_inference.py), and one frame per device keeps the latency of a stream low.
@@ -135,7 +135,7 @@ def iter_super_resolve(model: Model, frames: Iterable, *, batch_size: int | None
     over the local devices when they divide it; sequence form: `DEFAULT_SEQUENCE_CHUNK`, or the length of a
     shorter list or array). conv3d_impl: how the convolutions run (see `apply_model`). tile: the largest side,
     in LR pixels, of the spatial tiles a larger frame is cut into (`tile_spans`: margins of the network's
-    receptive radius, `jaxsr.model.spatial_radius`, so the output equals the whole frame's to float rounding),
+    receptive radius, `jaxsr.nn.duf.spatial_radius`, so the output equals the whole frame's to float rounding),
     bounding device memory whatever the frame size; None runs whole frames. Any frame size h, w >= `MIN_LR_SIDE` runs, compiled once per size; the bundled models were
     trained on 32 x 64 frames of a 30 deg field of view (README "Frame size").
     Yields (h r, w r) float32 NumPy arrays of HR normalised depth (unclipped network output). NaN is read as
@@ -288,7 +288,7 @@ def super_resolve_histograms(model: Model, counts, sensor: SensorConfig = Sensor
     Depth is extracted by centre of mass (`jaxsr.centre_of_mass` with `sensor`, K = `sensor.bins` over the
     sensor's gate [0, d_max): the normalised depth is tau / K), then `super_resolve`d, streaming (see
     `iter_super_resolve`; `batch_size`, `conv3d_impl` and `tile` as there). Any h, w >= `MIN_LR_SIDE`; for
-    histograms over another gate, see `jaxsr.Gate` and `jaxsr.gate_depth`."""
+    histograms over another gate, see `jaxsr.Gate` and `jaxsr.sensor.gate_depth`."""
     counts = np.asarray(counts)
     if counts.ndim != 4:
         raise ValueError(f"super_resolve_histograms: expected counts (T, h, w, {sensor.bins}), got shape "
@@ -314,7 +314,7 @@ class Stream:
     """Live super-resolution in the sequence form: push LR frames one at a time, get each HR frame R frames later.
 
     `push(frame)` takes an (h, w) LR normalised depth frame and returns the (h r, w r) HR frame of R frames
-    earlier (R = 3 + tr, `jaxsr.model.sequence_radius`), or None during the first R frames; `flush()` ends the
+    earlier (R = 3 + tr, `jaxsr.nn.duf.sequence_radius`), or None during the first R frames; `flush()` ends the
     stream and returns the last min(T, R) HR frames (a list), after which the next `push` starts a new stream.
     The ends are edge-replicated, so the frames equal `super_resolve` of a sequence-form model (and
     `apply_model_sequence`) to float32 rounding. Memory is a fixed set of per-layer buffers (`stream_init`),

@@ -21,7 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .checkpoint import load_model
+from ..io.checkpoint import load_model
 
 STUDY_TABLE = Path(__file__).parent / "weights" / "frame_rate_study.json"
 SEARCH_RADIUS = 6  # LR px: block matching searches shifts up to this far

@@ -1,12 +1,12 @@
 """Train steps of the learned baselines (HistNet, iSeeBetter) and the data source HistNet needs.
 
-- iSeeBetter takes LR depth windows like our network: `jaxsr.data.scene_batches(tr=cfg.frames // 2, train_cfg)`
+- iSeeBetter takes LR depth windows like our network: `jaxsr.training.data.scene_batches(tr=cfg.frames // 2, train_cfg)`
   (or `sequence_batches`) feeds `make_iseebetter_train_step` as it is.
 - HistNet takes the LR photon histograms and the HR intensity of one frame: `histogram_batches` renders
   `jaxsr.scenes.training_clip` scenes (one frame), simulates histograms with the same SNR / mean-signal ranges and
   crops as `scene_batches`, and returns (counts, HR intensity, HR normalised depth).
 
-Each step is one jitted function: data simulated inside it, forward, loss, gradients, `jaxsr.optim.adam_update`
+Each step is one jitted function: data simulated inside it, forward, loss, gradients, `jaxsr.training.optim.adam_update`
 with lr = schedule(step) (iSeeBetter / RBPN: Adam lr 1e-4, /10 at half the epochs; HistNet's code: Adam or
 proximal Adagrad, L1 loss).
 """
@@ -26,14 +26,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._files import write_text_atomic
-from .checkpoint import config_from_dict, config_to_dict, load_tree, read_metadata, resolve_model_path, save_tree
-from .config import SensorConfig, TrainConfig
+from ..io.files import write_text_atomic
+from ..io.checkpoint import config_from_dict, config_to_dict, load_tree, read_metadata, resolve_model_path, save_tree
+from ..config import SensorConfig, TrainConfig
 from .data import log_uniform, run_keys, scene_batches, validation_set
-from .histnet import HistNetConfig, apply_histnet, init_histnet
-from .metrics import psnr
+from ..baselines.histnet import HistNetConfig, apply_histnet, init_histnet
+from ..eval.metrics import psnr
 from .optim import AdamState, adam_init, adam_update, lr_schedule
-from .rbpn import (
+from ..baselines.rbpn import (
     RBPNConfig,
     apply_discriminator,
     apply_rbpn,
@@ -42,9 +42,9 @@ from .rbpn import (
     init_discriminator,
     init_rbpn,
 )
-from .scenes import test_sequences, training_clip
-from .sensor import normalise_depth, simulate_histograms
-from .temporal import windows as temporal_windows
+from ..scenes import test_sequences, training_clip
+from ..sensor.forward import normalise_depth, simulate_histograms
+from ..temporal import windows as temporal_windows
 
 __all__ = [
     "BASELINES",
@@ -112,7 +112,7 @@ def make_histnet_train_step(cfg: HistNetConfig, make_batch, *, schedule, sensor:
     """The jitted HistNet train step: step(params, opt_state, key, step) -> (params, opt_state, metrics).
 
     make_batch: key -> (counts (B, h, w, K), intensity (B, H, W), gt (B, H, W)), e.g. `histogram_batches`;
-    schedule: step -> lr (e.g. `jaxsr.step_decay(1e-4, factor=0.1, every=...)`). Loss: mean |hr - gt| (the
+    schedule: step -> lr (e.g. `jaxsr.training.step_decay(1e-4, factor=0.1, every=...)`). Loss: mean |hr - gt| (the
     published code's L1). Returns the step; metrics {"loss", "psnr" (prediction clipped to [0, 1]), "lr"}.
     """
     def step_fn(params, opt_state, key, step):
@@ -143,7 +143,7 @@ def make_iseebetter_train_step(cfg: RBPNConfig, make_batch, *, schedule, adversa
     """The jitted iSeeBetter train step (one discriminator update, then one generator update, as iSeeBetter).
 
     step((g_params, d_params, d_state), (g_opt, d_opt), key, step) -> (same, same, metrics).
-    make_batch: key -> (windows (B, frames, h, w), gt (B, h r, w r)), e.g. `jaxsr.data.scene_batches(cfg.frames //
+    make_batch: key -> (windows (B, frames, h, w), gt (B, h r, w r)), e.g. `jaxsr.training.data.scene_batches(cfg.frames //
     2, train_cfg)`; the flows are computed once per batch (`rbpn_flows`). schedule: step -> lr for both.
     Losses: `discriminator_loss`, `generator_loss` (MSE + adversarial + tv; no VGG term). Returns the step;
     metrics {"d_loss", "g_loss", "content", "adversarial", "psnr", "lr"}.
@@ -332,7 +332,7 @@ def super_resolve_baseline(model: BaselineModel, *, counts=None, intensity=None,
 
 
 def baseline_validation_set(key, kind: str, cfg, train_cfg: TrainConfig, *, sensor: SensorConfig = _SENSOR) -> dict:
-    """The validation frames of `jaxsr.data.validation_set` (the first `val_frames` of each validation sequence at
+    """The validation frames of `jaxsr.training.data.validation_set` (the first `val_frames` of each validation sequence at
     its own SNR, `val_mean_signal`, the same noise for the same key) with what each baseline reads: "counts"
     (N, h, w, K) and "intensity" (N, H, W) for HistNet, "windows" (N, frames, h, w) for iSeeBetter; plus "gt"
     (N, H, W), "lr" (N, h, w), "names", "lengths"."""
@@ -381,7 +381,7 @@ def _init_train_state(key, kind: str, cfg) -> dict:
     return {"params": g, "disc": d, "disc_state": d_state, "opt": g_opt, "disc_opt": d_opt}
 
 
-# The learning rate of a baseline's run: the same step decay as our networks' (`jaxsr.optim.lr_schedule`)
+# The learning rate of a baseline's run: the same step decay as our networks' (`jaxsr.training.optim.lr_schedule`)
 baseline_schedule = lr_schedule
 
 
@@ -426,7 +426,7 @@ def _baseline_train_step(kind: str, cfg, train_cfg: TrainConfig, make_batch, sen
 
 def default_baseline_data(kind: str, cfg, train_cfg: TrainConfig, *, sensor: SensorConfig = _SENSOR):
     """The data our networks train on, in each baseline's form: `histogram_batches` (HistNet) or
-    `jaxsr.data.scene_batches` with tr = frames // 2 (iSeeBetter); same clips, SNR and signal ranges, crops."""
+    `jaxsr.training.data.scene_batches` with tr = frames // 2 (iSeeBetter); same clips, SNR and signal ranges, crops."""
     _check_kind(kind, "default_baseline_data")
     if kind == "histnet":
         return histogram_batches(train_cfg, sensor=sensor)

@@ -23,7 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .config import METRES_PER_SECOND, Gate
+from ..config import METRES_PER_SECOND, Gate
 
 __all__ = ["TimeTags", "time_tags_from_cells", "read_time_tags", "histogram_photons", "histogram_time_tags",
            "gate_of_tags", "TIME_TAG_FORMATS"]

@@ -16,13 +16,13 @@ import functools
 import jax
 import jax.numpy as jnp
 
-from .config import DEFAULT_MEAN_SIGNAL, SensorConfig
-from .metrics import huber_loss, psnr
-from .model import Model, apply_model, apply_model_sequence
-from .peaks import centre_of_mass
-from .poisson import PATHWISE_ESTIMATORS
-from .sensor import _check_photon_args, expected_histograms, normalise_depth, simulate_histograms
-from .temporal import windows
+from ..config import DEFAULT_MEAN_SIGNAL, SensorConfig
+from ..eval.metrics import huber_loss, psnr
+from ..nn.duf import Model, apply_model, apply_model_sequence
+from ..sensor.peaks import centre_of_mass
+from ..sensor.poisson import PATHWISE_ESTIMATORS
+from ..sensor.forward import check_photon_args, expected_histograms, normalise_depth, simulate_histograms
+from ..temporal import windows
 
 METRICS = ("psnr", "huber")
 
@@ -101,7 +101,7 @@ def pipeline_metric(
     Returns:
       A scalar: the mean over the T frames of the chosen metric.
     """
-    depth, intensity = _check_photon_args("pipeline_metric", depth, intensity, sensor, snr, mean_signal)
+    depth, intensity = check_photon_args("pipeline_metric", depth, intensity, sensor, snr, mean_signal)
     if depth.ndim != 3:
         raise ValueError(f"pipeline_metric: depth and intensity must be sequences (T, H, W), got shape {depth.shape}")
     if not isinstance(model, Model):

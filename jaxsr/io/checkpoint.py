@@ -18,9 +18,9 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from ._files import atomic_path
-from .config import ModelConfig
-from .model import Model, count_params, flops_per_frame, init_model
+from .files import atomic_path
+from ..config import ModelConfig
+from ..nn.duf import Model, count_params, flops_per_frame, init_model
 
 __all__ = [
     "FORMAT_VERSION",
@@ -224,7 +224,7 @@ def resolve_model_path(path) -> Path:
 
 
 def load_model(path, *, temporal: str | None = None) -> Model:
-    """Load a `Model` pytree saved by `save_model` (or the model inside a training checkpoint of `jaxsr.train`).
+    """Load a `Model` pytree saved by `save_model` (or the model inside a training checkpoint of `jaxsr.training.loop`).
 
     `path` is a file, a file without its `.npz`, or the name of bundled weights ("tr4"). Every array is
     checked against the shapes `init_model` gives for the stored config; raises `ValueError` for a truncated

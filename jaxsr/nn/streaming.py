@@ -1,6 +1,6 @@
 """The sequence form of the network as a stream: one LR frame in, the HR frame R frames earlier out.
 
-Every block of the sequence form is temporally valid (DESIGN.md "The network", `model.apply_model_sequence`),
+Every block of the sequence form is temporally valid (docs/network.md, `model.apply_model_sequence`),
 so a block's output for frame m needs its input features of frames m-1, m and m+1 only. The stream keeps, per
 block, the skip features of the previous frame and the partial sums of its 3x3x3 convolution for the next two
 outputs (each new frame is convolved once with the three temporal taps' kernels side by side, and each tap is
@@ -9,7 +9,7 @@ pytree of fixed shape: memory does not grow with the length of the stream.
 
 Step n takes padded input frame n and returns the output whose centre is padded frame n - R, i.e. output
 n - 2R of the sequence; it is valid once n >= 2R (the first R + 1 steps feed the first frame, the edge
-padding). `jaxsr.inference.Stream` wraps this for live input. A `lax.scan` of the step over a whole sequence
+padding). `jaxsr.inference.super_resolve.Stream` wraps this for live input. A `lax.scan` of the step over a whole sequence
 ran no faster than a Python loop over the jitted step, and both slower than the sequence form in chunks
 (experiments/results/sequence_form.md), so whole sequences go through `apply_model_sequence` instead.
 """
@@ -18,9 +18,9 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from .config import ModelConfig
+from ..config import ModelConfig
 from .layers import CONV3D_IMPLS, conv3d
-from .model import _block_input, _head, _stem, sequence_radius
+from .duf import _block_input, _head, _stem, sequence_radius
 
 __all__ = ["stream_init", "stream_step"]
 

@@ -15,10 +15,10 @@ import lineax as lx
 import numpy as np
 import optimistix as optx
 
-from ._checks import is_concrete
-from .baselines import bicubic
-from .peaks import NO_RETURN
-from .temporal import windows
+from ..checks import is_concrete
+from .interpolation import bicubic
+from ..sensor.peaks import NO_RETURN
+from ..temporal import windows
 
 # Defaults, chosen on the validation sequence `val1_street` only (8 frames, its SNR, DEFAULT_MEAN_SIGNAL photons,
 # centre-of-mass depth; never on the test scenes): see `tv_super_resolve`'s docstring for the measurement.

@@ -24,12 +24,12 @@ import functools
 import jax
 import jax.numpy as jnp
 
-from .config import SensorConfig, TrainConfig
-from .peaks import centre_of_mass
-from .poisson import sample_poisson
-from .scenes import test_sequences, training_clip
-from .sensor import calibrate, calibrated_rates, normalise_depth, simulate_histograms
-from .temporal import windows as temporal_windows
+from ..config import SensorConfig, TrainConfig
+from ..sensor.peaks import centre_of_mass
+from ..sensor.poisson import sample_poisson
+from ..scenes import test_sequences, training_clip
+from ..sensor.forward import calibrate, calibrated_rates, normalise_depth, simulate_histograms
+from ..temporal import windows as temporal_windows
 
 __all__ = [
     "log_uniform",

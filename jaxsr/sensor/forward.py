@@ -1,6 +1,6 @@
 """SPAD direct time-of-flight forward model: HR radial depth + intensity -> LR photon histograms.
 
-Implements PHYSICS.md sections 1-2. Every function is pure and jit/vmap/grad compatible; the sensor
+Implements docs/sensor-model.md, sections 1-2. Every function is pure and jit/vmap/grad compatible; the sensor
 config is a pytree whose physical numbers are leaves. Eager calls validate shapes and values and raise a
 `ValueError` that says what was expected. Traced (under `jax.jit`, `vmap` or `grad`) only the shapes can be
 checked, and the values have these meanings instead (a bad pixel is read as a valid one and turns no other
@@ -23,8 +23,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._checks import is_concrete, require_hr_pair
-from .config import DEFAULT_MEAN_SIGNAL, SensorConfig
+from ..checks import is_concrete, require_hr_pair
+from ..config import DEFAULT_MEAN_SIGNAL, SensorConfig
 from .poisson import PATHWISE_ESTIMATORS, poisson_pathwise, sample_poisson
 
 
@@ -90,12 +90,12 @@ def normalise_depth(depth, sensor: SensorConfig = SensorConfig()):
 def denormalise_depth(norm, sensor: SensorConfig = SensorConfig()):
     """Normalised depth -> radial metres norm * d_max, with "no return" mapped to +inf.
 
-    The one threshold: no return is normalised 1.0 and above (PHYSICS.md: 1.0 is the no-return code, and
+    The one threshold: no return is normalised 1.0 and above (docs/sensor-model.md: 1.0 is the no-return code, and
     r > d_max lies past the range gate), and anything below 1.0 is a return, however close to 1 (0.999 ->
     34.965 m at d_max = 35 m). Network outputs are not clipped, but no margin below 1.0 would separate "far"
     from "nothing": training targets put a wall at 34.9 m at 0.997 and the sky at exactly 1.0, so a margin
     would turn real far returns into sky. Below 0 is clipped to 0 m. NaN is no return, as in
-    `normalise_depth` and `jaxsr.io.read_depth`. The inverse of `normalise_depth` for depths in [0, d_max);
+    `normalise_depth` and `jaxsr.io.formats.read_depth`. The inverse of `normalise_depth` for depths in [0, d_max);
     d_max itself normalises to 1.0 and so comes back as no return.
 
     Args:
@@ -202,7 +202,7 @@ def _levels_valid(sensor: SensorConfig, snr, mean_signal):
 
 
 def _calibrate_from_sums(s_sum, a_sum, sensor: SensorConfig, *, snr, mean_signal):
-    """alpha, beta from per-LR-pixel sums over everything passed (PHYSICS.md "Calibration"); both NaN when a
+    """alpha, beta from per-LR-pixel sums over everything passed (docs/sensor-model.md, "Calibration"); both NaN when a
     physical scalar is out of its domain (which only a traced call can reach)."""
     has_signal = s_sum > 0
     n_valid = jnp.sum(has_signal)
@@ -224,7 +224,7 @@ def _calibrate_from_sums(s_sum, a_sum, sensor: SensorConfig, *, snr, mean_signal
     return jnp.where(valid, alpha, jnp.nan), jnp.where(valid, beta, jnp.nan)
 
 
-def _check_photon_args(name, depth, intensity, sensor, snr, mean_signal):
+def check_photon_args(name, depth, intensity, sensor, snr, mean_signal):
     """Shapes always; values where concrete (eager). Traced values follow the rules in the module docstring."""
     depth, intensity = require_hr_pair(name, depth, intensity, sensor)
     # Value checks use NumPy so that they never create tracers inside a jit.
@@ -257,7 +257,7 @@ def calibrate(depth, intensity, sensor: SensorConfig = SensorConfig(), *, snr, m
       their domain raise `ValueError` eagerly; traced, they give the rules of the module docstring
       (invalid scalars: (NaN, NaN)).
     """
-    depth, intensity = _check_photon_args("calibrate", depth, intensity, sensor, snr, mean_signal)
+    depth, intensity = check_photon_args("calibrate", depth, intensity, sensor, snr, mean_signal)
     _, s_sum, a_sum = _photon_terms(depth, intensity, sensor)
     return _calibrate_from_sums(s_sum, a_sum, sensor, snr=snr, mean_signal=mean_signal)
 
@@ -281,7 +281,7 @@ def expected_histograms(
       (..., H/scale, W/scale, K) non-negative rates (photons); all NaN if, traced, `snr`, `mean_signal` or a
       sensor leaf is out of its domain (eagerly a `ValueError`).
     """
-    depth, intensity = _check_photon_args("expected_histograms", depth, intensity, sensor, snr, mean_signal)
+    depth, intensity = check_photon_args("expected_histograms", depth, intensity, sensor, snr, mean_signal)
     signal_hist, s_sum, a_sum = _photon_terms(depth, intensity, sensor)
     alpha, beta = _calibrate_from_sums(s_sum, a_sum, sensor, snr=snr, mean_signal=mean_signal)
     return alpha * signal_hist + (beta / sensor.bins) * a_sum[..., None]
@@ -315,11 +315,11 @@ def simulate_histograms(
     Args:
       key: a `jax.random` key.
       depth, intensity, snr, mean_signal: as in `expected_histograms`.
-      sampler: "fast" (exact below 24 photons per bin, Cornish-Fisher above; see `jaxsr.poisson`) or
+      sampler: "fast" (exact below 24 photons per bin, Cornish-Fisher above; see `jaxsr.sensor.poisson`) or
         "exact" (`jax.random.poisson`, about 4x slower on CPU).
       gradient: None (the default: a draw has no derivative, so gradients stop at the rates), "normal" or
         "straight-through": a surrogate derivative of the counts with respect to the rates
-        (`jaxsr.poisson.poisson_pathwise`; "normal" is the normal approximation's pathwise derivative from
+        (`jaxsr.sensor.poisson.poisson_pathwise`; "normal" is the normal approximation's pathwise derivative from
         3 photons per bin, straight through below). The counts drawn are the same whatever `gradient` is.
     Returns:
       (..., H/scale, W/scale, K) counts, integers stored as floats so they feed the centre of mass directly;

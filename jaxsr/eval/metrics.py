@@ -1,4 +1,4 @@
-"""Image and video quality metrics on normalised depth (PHYSICS.md section 5).
+"""Image and video quality metrics on normalised depth (docs/sensor-model.md, section 5).
 
 All take (..., H, W) frames with any leading axes and return one value per frame (or per transition for
 temporal coherence), so report the mean over frames yourself. Predictions are clipped to [0, 1] (the

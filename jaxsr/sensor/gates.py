@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from .config import TRAINED_RANGE_M, DepthScale, Gate, SensorConfig
+from ..config import TRAINED_RANGE_M, DepthScale, Gate, SensorConfig
 from .peaks import centre_of_mass
 
 __all__ = ["gate_depth", "to_network_depth", "from_network_depth", "gate_warnings"]
@@ -20,7 +20,7 @@ __all__ = ["gate_depth", "to_network_depth", "from_network_depth", "gate_warning
 def gate_depth(counts, gate: Gate = Gate(), *, window: int = 1, z: float = 0.0, return_mask: bool = False):
     """Centre-of-mass range of photon histograms over `gate`, in metres.
 
-    The centre of mass of PHYSICS.md section 3 (median background, +-`window` bins around the first maximum,
+    The centre of mass of docs/sensor-model.md, section 3 (median background, +-`window` bins around the first maximum,
     bin-centre convention) gives tau in bins; the range is gate.start + tau * gate.bin_width. With the default
     gate this is `centre_of_mass(counts) * 35 m`.
 

@@ -1,6 +1,6 @@
 """File formats: depth frames (EXR, PFM, TIFF, 16-bit PNG), NPY/NPZ sequences, AirSim recordings, histogram
 sequences, and plain images. OpenImageIO underneath for the image formats. Colour-mapped pictures of depth
-(previews, comparison strips) are drawn in `jaxsr.previews`.
+(previews, comparison strips) are drawn in `jaxsr.io.previews`.
 
 Conventions:
 - a depth frame is (H, W) float32 radial metres; no return is +inf (NaN is read as no return too);
@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._files import atomic_path
+from .files import atomic_path
 
 __all__ = [
     "DEPTH_FORMATS",
@@ -46,7 +46,7 @@ PNG_MAX_M = 65.535
 
 
 def _atomic(path, overwrite):
-    """Atomic write to `path` (see `jaxsr._files.atomic_path`)."""
+    """Atomic write to `path` (see `jaxsr.io.files.atomic_path`)."""
     return atomic_path(path, overwrite=overwrite)
 
 
@@ -379,7 +379,7 @@ def read_airsim(folder, *, sensor=None):
     """Read an AirSim recording folder: `airsim_rec.txt` (tab-separated, an `ImageFile` column listing each row's
     images separated by ';') and the images in `folder/images/` (or `folder/`).
 
-    Depth comes from the DepthPlanar (image type 1, converted to radial with `jaxsr.sensor.planar_to_radial`) or
+    Depth comes from the DepthPlanar (image type 1, converted to radial with `jaxsr.sensor.forward.planar_to_radial`) or
     DepthPerspective (type 2, already radial) PFM; intensity is the grayscale of the Scene image (type 0), or
     ones if there is none. Returns dict(depth (T, H, W) radial m, intensity (T, H, W) in [0, 1], timestamps (T,)
     seconds from the first frame, fps (median), files).
@@ -403,7 +403,7 @@ def read_airsim(folder, *, sensor=None):
         by_type = {_airsim_type(n): n for n in names}
         if _AIRSIM_DEPTH_PLANAR in by_type:
             d = read_depth(image_dir / by_type[_AIRSIM_DEPTH_PLANAR])
-            from .sensor import planar_to_radial
+            from ..sensor.forward import planar_to_radial
 
             d = np.asarray(planar_to_radial(d, sensor) if sensor is not None else planar_to_radial(d))
         elif _AIRSIM_DEPTH_PERSPECTIVE in by_type:

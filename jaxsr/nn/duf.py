@@ -1,4 +1,4 @@
-"""The 3+TR-block dynamic-upsampling-filter network (VSR-DUF adapted; DESIGN.md "The network").
+"""The 3+TR-block dynamic-upsampling-filter network (VSR-DUF adapted; docs/network.md).
 
 `init_model(key, cfg) -> (params, state)`, `apply_model(params, state, windows, cfg) -> hr` (BN in inference
 mode) and `apply_model_train(...) -> (hr, new_state)` (BN with batch statistics) are pure functions of nested
@@ -16,7 +16,7 @@ import math
 import jax
 import jax.numpy as jnp
 
-from .config import ModelConfig
+from ..config import ModelConfig
 from .layers import (
     CONV3D_IMPLS,
     batch_norm,
@@ -142,7 +142,7 @@ def grow_tr(key, model: Model, tr: int) -> Model:
 def count_params(params) -> int:
     """Number of scalars in a params pytree (weights, biases, BN scale and shift).
 
-    Returns an int; DESIGN.md: TR0 1,056,608 ... TR4 2,253,088 at the paper's widths.
+    Returns an int; docs/network.md: TR0 1,056,608 ... TR4 2,253,088 at the paper's widths.
     """
     return sum(math.prod(x.shape) for x in jax.tree_util.tree_leaves(params))
 
@@ -209,7 +209,7 @@ def apply_model(params, state, windows, cfg: ModelConfig, *, conv3d_impl: str = 
 
     windows: (B, 2*tr+1, H, W) LR normalised depth (0..1, 1 = no return), the centre frame at index tr.
     Returns hr (B, H*r, W*r) normalised depth, neither clipped nor passed through an activation.
-    conv3d_impl: how the 3x3x3 convolutions run, not what they compute (`jaxsr.layers.conv3d`): "auto" (the
+    conv3d_impl: how the 3x3x3 convolutions run, not what they compute (`jaxsr.nn.layers.conv3d`): "auto" (the
     faster one on the current backend), "native" (one 3D convolution), "taps" (a sum of 2D convolutions over
     the temporal taps), "stacked" (the taps' kernels side by side in one 2D convolution) or "stacked-taps-grad"
     (the stacked forward with the taps' gradients, what "auto" trains with on CPU).

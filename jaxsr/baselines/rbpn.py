@@ -14,7 +14,7 @@ Followed (read from the papers and their public PyTorch code, then written anew 
   (centre, neighbour, flow) channels instead of 3 and 8, and the output has 1 channel. No bicubic residual
   (RBPN's default `residual=False`).
 - Flow: RBPN/iSeeBetter ran pyflow (Liu's coarse-to-fine variational flow) as preprocessing; here the classical
-  pyramidal Lucas-Kanade of `jaxsr.flow.optical_flow`, computed inside `apply_rbpn` from the window (no gradient).
+  pyramidal Lucas-Kanade of `jaxsr.baselines.flow.optical_flow`, computed inside `apply_rbpn` from the window (no gradient).
 - Discriminator: SRGAN's (Ledig et al. 2017), as iSeeBetter's `SRGAN/model.py`: eight 3x3 convs 64, 64/2, 128,
   128/2, 256, 256/2, 512, 512/2 (/2 = stride 2), batch norm after all but the first, LeakyReLU 0.2, global
   average pooling, 1x1 convs 512 -> 1024 -> 1, sigmoid. Input 1 channel instead of 3. Batch norm with torch's
@@ -40,7 +40,7 @@ import jax
 import jax.numpy as jnp
 
 from .flow import optical_flow
-from .layers import batch_norm, conv2d, conv2d_transpose, init_batch_norm, init_conv2d, init_from_normals, prelu
+from ..nn.layers import batch_norm, conv2d, conv2d_transpose, init_batch_norm, init_conv2d, init_from_normals, prelu
 
 __all__ = [
     "RBPNConfig",
@@ -62,7 +62,7 @@ _BN = {"momentum": 0.9, "eps": 1e-5}  # torch BatchNorm2d defaults (momentum 0.1
 class RBPNConfig:
     """RBPN / iSeeBetter sizes. Defaults: the published ones (iSeeBetter's RBPN: base_filter 256, feat 64, 3
     stages, 5 residual blocks, 7 frames, x4). `channels` 1 (depth; RBPN had 3). Flow: `flow_levels`,
-    `flow_iterations` of `jaxsr.flow.optical_flow`. Discriminator widths: `disc_widths` (SRGAN: 64 .. 512) and
+    `flow_iterations` of `jaxsr.baselines.flow.optical_flow`. Discriminator widths: `disc_widths` (SRGAN: 64 .. 512) and
     `disc_hidden` (1024)."""
 
     channels: int = 1
@@ -201,7 +201,7 @@ def _neighbour_order(frames: int) -> list[int]:
 
 
 def rbpn_flows(windows, cfg: RBPNConfig = RBPNConfig()):
-    """Optical flow from the centre frame to each neighbour of each window (`jaxsr.flow.optical_flow`).
+    """Optical flow from the centre frame to each neighbour of each window (`jaxsr.baselines.flow.optical_flow`).
 
     windows: (B, frames, h, w) LR frames, centre at index frames // 2. Returns (B, frames - 1, h, w, 2), (u, v)
     in LR pixels, neighbours in the order t - r .. t - 1, t + 1 .. t + r.
@@ -215,7 +215,7 @@ def rbpn_flows(windows, cfg: RBPNConfig = RBPNConfig()):
 def apply_rbpn(params, windows, cfg: RBPNConfig = RBPNConfig(), *, flows=None):
     """The RBPN generator: LR windows -> HR centre frames.
 
-    windows: (B, frames, h, w) LR normalised depth (centre at frames // 2; e.g. `jaxsr.data.scene_batches` with
+    windows: (B, frames, h, w) LR normalised depth (centre at frames // 2; e.g. `jaxsr.training.data.scene_batches` with
     tr = frames // 2) or (B, frames, h, w, C) for C = cfg.channels > 1. flows: (B, frames - 1, h, w, 2) or None
     to compute them with `rbpn_flows`. Returns (B, h * scale, w * scale) ((B, H, W, C) for C > 1); not clipped.
     """

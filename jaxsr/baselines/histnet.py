@@ -31,7 +31,7 @@ Where we chose / deviated:
   activations); the transposed conv's kernel is not flipped (re-parametrisation). Loss L1 (the code's
   `--loss_type l1`).
 - The HR intensity: Ruget used the sum of the (simulated) HR histograms, min-max normalised; our data source gives
-  the rendered HR intensity in [0, 1] (see `jaxsr.baseline_training.histogram_batches`).
+  the rendered HR intensity in [0, 1] (see `jaxsr.training.baselines.histogram_batches`).
 - `width` scales every channel count (width 16: 2.8 M parameters, near TR4's 2.25 M) for CPU training.
 """
 
@@ -43,9 +43,9 @@ import functools
 import jax
 import jax.numpy as jnp
 
-from .config import SensorConfig
-from .layers import conv2d, conv2d_transpose, init_conv2d, init_from_normals, max_pool2
-from .peaks import centre_of_mass, median_of_bins
+from ..config import SensorConfig
+from ..nn.layers import conv2d, conv2d_transpose, init_conv2d, init_from_normals, max_pool2
+from ..sensor.peaks import centre_of_mass, median_of_bins
 
 __all__ = ["HistNetConfig", "histnet_features", "second_peak_depth", "init_histnet", "apply_histnet",
            "apply_histnet_features"]

@@ -1,16 +1,16 @@
 """Pictures of depth for people to look at: colour-mapped PNG previews, labelled comparison strips and grayscale
-previews of intensity. Drawn with matplotlib's colour maps and Agg renderer, written with `jaxsr.io.write_image`
+previews of intensity. Drawn with matplotlib's colour maps and Agg renderer, written with `jaxsr.io.formats.write_image`
 (atomic; no existing file is replaced unless `overwrite=True`). No return is black in every picture, distinct
-from every colour of the map. File formats for data (depth, histograms, sequences) are in `jaxsr.io`.
+from every colour of the map. File formats for data (depth, histograms, sequences) are in `jaxsr.io.formats`.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from .config import SensorConfig
-from .io import write_image
-from .sensor import denormalise_depth
+from ..config import SensorConfig
+from .formats import write_image
+from ..sensor.forward import denormalise_depth
 
 __all__ = ["write_comparison", "write_gray_preview", "write_preview"]
 
@@ -28,7 +28,7 @@ def _colourise(depth, d_max, cmap):
 
 
 def _to_metres(frame, d_max):
-    """(H, W) normalised [0, 1] -> metres, inf for no return (`jaxsr.sensor.denormalise_depth`)."""
+    """(H, W) normalised [0, 1] -> metres, inf for no return (`jaxsr.sensor.forward.denormalise_depth`)."""
     return np.asarray(denormalise_depth(frame, SensorConfig(d_max=d_max)), np.float32)
 
 
