@@ -32,7 +32,7 @@ from jaxsr.training.optim import adam_init
 from jaxsr.sensor.peaks import centre_of_mass
 from jaxsr.runtime import compiler_options
 from jaxsr.sensor.forward import normalise_depth, simulate_histograms
-from jaxsr.training.loop import data_mesh, make_train_step
+from jaxsr.training import data_mesh, make_train_step
 
 CPU = PRESETS["cpu"]
 

@@ -29,12 +29,9 @@ import argparse
 import os
 import sys
 import time
-from pathlib import Path
 
 # before torch is imported: sleeping rather than spinning OpenMP threads (see the docstring)
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
 
 import jax  # noqa: E402
 import numpy as np  # noqa: E402
@@ -46,7 +43,7 @@ import jaxsr  # noqa: E402
 N_DEVICES = jaxsr.runtime.use_cpu_cores()
 CORES = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
 
-from _report import header, markdown_table, write_atomic  # noqa: E402
+from jaxsr.eval.reports import header, markdown_table, write_atomic  # noqa: E402
 
 TORCH_MISSING = ("The JAX vs PyTorch comparisons need PyTorch, which is not a jaxsr dependency; install the CPU build with:\n"
                  "    pip install torch==2.13.0")

@@ -27,9 +27,9 @@ import compare_torch as ct
 import jax
 import jax.numpy as jnp
 import numpy as np
-from _report import header, markdown_table, write_atomic
 
 import jaxsr
+from jaxsr.eval.reports import header, markdown_table, write_atomic
 from jaxsr.nn.layers import batch_norm, conv3d
 
 LR_SHAPE = ct.LR_SHAPE

@@ -32,10 +32,25 @@ from jaxsr.config import PRESETS, ModelConfig, SensorConfig
 from jaxsr.nn.duf import Model, init_model
 from jaxsr.runtime import enable_compilation_cache
 
-from _eval import (BLOCK, FPS_NOTE, PAPER_BICUBIC, PAPER_TABLE1, SCENE_LABELS, TEST_SCENES, bicubic_fps, bundled,
-                   SEQUENCE_FRAMES, format_interval, get_model, interval, model_fps, scene_scores, score,
-                   test_clips)
-from _report import header, markdown_table, save_figure, write_atomic
+from jaxsr.eval.scoring import (
+    BLOCK,
+    FPS_NOTE,
+    PAPER_BICUBIC,
+    PAPER_TABLE1,
+    SCENE_LABELS,
+    TEST_SCENES,
+    bicubic_fps,
+    bundled,
+    SEQUENCE_FRAMES,
+    format_interval,
+    get_model,
+    interval,
+    model_fps,
+    scene_scores,
+    score,
+    test_clips,
+)
+from jaxsr.eval.reports import header, markdown_table, save_figure, write_atomic
 
 
 def bicubic_row(clips, scale) -> dict:

@@ -20,7 +20,15 @@ from . import baselines, eval, inference, io, nn, scenes, sensor, training
 from .baselines import bicubic, lanczos, tv_super_resolve
 from .config import PRESETS, DepthScale, Gate, ModelConfig, SensorConfig, TrainConfig
 from .eval import paired_interval, psnr, ssim, ssim_global, temporal_coherence
-from .inference import Stream, choose_tr, iter_super_resolve, pipeline_metric, super_resolve, super_resolve_histograms
+from .inference import (
+    Stream,
+    choose_tr,
+    iter_super_resolve,
+    pipeline_metric,
+    super_resolve,
+    super_resolve_histograms,
+    upscale,
+)
 from .io import (
     load_model,
     read_depth,
@@ -33,6 +41,7 @@ from .io import (
     write_preview,
     write_sequence,
 )
+from .io import simulate_recording
 from .nn import Model, apply_model, apply_model_sequence, init_model
 from .sensor import (
     TimeTags,
@@ -61,14 +70,14 @@ __all__ = [
     "Model", "init_model", "apply_model", "apply_model_sequence", "load_model", "save_model", "read_metadata",
     # super-resolution of recordings
     "super_resolve", "super_resolve_histograms", "iter_super_resolve", "Stream", "choose_tr", "windows",
-    "pipeline_metric",
+    "pipeline_metric", "upscale",
     # training
     "fit", "evaluate",
     # baselines
     "bicubic", "lanczos", "tv_super_resolve",
     # files
     "read_depth", "write_depth", "read_sequence", "write_sequence", "read_histograms", "write_histograms",
-    "write_preview",
+    "write_preview", "simulate_recording",
     # scores
     "psnr", "ssim", "ssim_global", "temporal_coherence", "paired_interval",
 ]

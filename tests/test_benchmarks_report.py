@@ -1,15 +1,12 @@
-"""experiments/benchmarks_report.py --json: a pytest-benchmark report recorded on another machine is rendered
+"""experiments/studies/benchmarks_report.py --json: a pytest-benchmark report recorded on another machine is rendered
 with that machine and date, never into the CPU report's file by default."""
 
 import json
 import sys
-from pathlib import Path
 
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
-
-import benchmarks_report  # noqa: E402
+import benchmarks_report  # experiments/studies (pytest's pythonpath)
 
 RECORDED = {
     "datetime": "2026-11-24T07:47:13",

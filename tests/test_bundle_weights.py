@@ -1,22 +1,18 @@
-"""experiments/bundle_weights.py --keep-better: a run's model replaces a bundled one only when it scores higher on
+"""experiments/paper/bundle_weights.py --keep-better: a run's model replaces a bundled one only when it scores higher on
 the validation frames, and a kept bundled file is left byte for byte (a session that trained less than the bundle
 must not make the product worse); how a card's training schedule is described."""
 
 import dataclasses
 import shutil
-import sys
-from pathlib import Path
 
 import jax
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
+import bundle_weights  # experiments/paper (pytest's pythonpath)
 
-import bundle_weights  # noqa: E402
-
-import jaxsr  # noqa: E402
-from jaxsr.io.checkpoint import resolve_model_path, save_model  # noqa: E402
-from jaxsr.nn.duf import Model  # noqa: E402
+import jaxsr
+from jaxsr.io.checkpoint import resolve_model_path, save_model
+from jaxsr.nn.duf import Model
 
 ARGS = ["--runs", "runs", "--trs", "0", "--frames", "2", "--trained-with", "a test"]
 

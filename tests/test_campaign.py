@@ -1,24 +1,21 @@
-"""The training campaign (experiments/campaign.py): which run goes next, when one is finished, and the
+"""The training campaign (experiments/paper/campaign.py): which run goes next, when one is finished, and the
 convergence measure, on fabricated metrics files (no training); the TR differences' spread over runs and frame
-interval, on synthetic scores; the per-frame score cache (experiments/_score_cache.py) and scoring with it, on
+interval, on synthetic scores; the per-frame score cache (jaxsr/eval/score_cache.py) and scoring with it, on
 fake scores."""
 
 import json
-import sys
-from pathlib import Path
 
 import jax
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
+import campaign  # experiments/paper (pytest's pythonpath)
 
-import _score_cache  # noqa: E402
-import campaign  # noqa: E402
-import jaxsr  # noqa: E402
-from _eval import Clip  # noqa: E402
-from jaxsr.io.checkpoint import save_model  # noqa: E402
-from jaxsr.config import PRESETS  # noqa: E402
+import jaxsr
+from jaxsr.config import PRESETS
+from jaxsr.eval import score_cache
+from jaxsr.eval.scoring import Clip
+from jaxsr.io.checkpoint import save_model
 
 CFG = PRESETS[campaign.PRESET]
 
@@ -235,30 +232,30 @@ def test_a_cached_score_is_used_only_for_the_same_key_and_shape(tmp_path):
         return lambda: calls.append(value) or np.full((3, 4), value + 1e-6)
 
     cache = {}
-    first, computed = _score_cache.cached_frame_scores(cache, "s0/tr0", key, (3, 4), compute(25.0))
+    first, computed = score_cache.cached_frame_scores(cache, "s0/tr0", key, (3, 4), compute(25.0))
     assert computed and np.array_equal(first, np.full((3, 4), 25.0))  # rounded to 1e-4 dB, as stored
     cache = json.loads(json.dumps(cache))  # what the file holds
-    again, computed = _score_cache.cached_frame_scores(cache, "s0/tr0", key, (3, 4), compute(26.0))
+    again, computed = score_cache.cached_frame_scores(cache, "s0/tr0", key, (3, 4), compute(26.0))
     assert not computed and calls == [25.0] and np.array_equal(again, first)
     for changed, value in (({"weights": "w2"}, 26.0), ({"data": "d2"}, 27.0), ({"code": "c2"}, 28.0)):
         key = dict(key, **changed)
-        assert _score_cache.cached_frame_scores(cache, "s0/tr0", key, (3, 4), compute(value))[0][0, 0] == value
+        assert score_cache.cached_frame_scores(cache, "s0/tr0", key, (3, 4), compute(value))[0][0, 0] == value
     assert calls == [25.0, 26.0, 27.0, 28.0]
     # scores kept for another frame count are not reused: computed again (here of the wrong shape: a loud error)
     with pytest.raises(ValueError, match=r"shape \(3, 5\)"):
-        _score_cache.cached_frame_scores(cache, "s0/tr0", key, (3, 5), compute(29.0))
+        score_cache.cached_frame_scores(cache, "s0/tr0", key, (3, 5), compute(29.0))
     assert calls[-1] == 29.0
 
 
 def test_an_unreadable_cache_is_ignored_with_a_warning(tmp_path, capsys):
     path = tmp_path / "scores.json"
-    assert _score_cache.read_cache(path) == {}
+    assert score_cache.read_cache(path) == {}
     path.write_text('{"s0/tr0": {"weights"')  # cut short
-    assert _score_cache.read_cache(path) == {} and "ignoring the unreadable score cache" in capsys.readouterr().out
+    assert score_cache.read_cache(path) == {} and "ignoring the unreadable score cache" in capsys.readouterr().out
     path.write_text('["not", "a", "cache"]')
-    assert _score_cache.read_cache(path) == {}
-    _score_cache.write_cache(path, {"s0/tr1": {"psnr": [[1.0]]}, "s0/tr0": {"psnr": [[2.0]]}})
-    assert _score_cache.read_cache(path) == {"s0/tr0": {"psnr": [[2.0]]}, "s0/tr1": {"psnr": [[1.0]]}}
+    assert score_cache.read_cache(path) == {}
+    score_cache.write_cache(path, {"s0/tr1": {"psnr": [[1.0]]}, "s0/tr0": {"psnr": [[2.0]]}})
+    assert score_cache.read_cache(path) == {"s0/tr0": {"psnr": [[2.0]]}, "s0/tr1": {"psnr": [[1.0]]}}
     assert len(path.read_text().splitlines()) == 4  # one run a line
 
 
@@ -267,7 +264,7 @@ def test_the_data_digest_changes_with_the_scored_data_only():
     lr, gt = rng.random((6, 2, 2), np.float32), rng.random((6, 8, 8), np.float32)
 
     def digest(lr=lr, gt=gt, scored=(0, 3)):
-        return _score_cache.data_digest({"a": Clip("a", lr, None, gt, 25.0, 1.3, scored=np.array(scored))})
+        return score_cache.data_digest({"a": Clip("a", lr, None, gt, 25.0, 1.3, scored=np.array(scored))})
 
     base = digest()
     assert digest() == base
@@ -275,4 +272,4 @@ def test_the_data_digest_changes_with_the_scored_data_only():
     assert digest(lr=lr + 1e-3) != base
     assert digest(gt=np.where(np.arange(6)[:, None, None] == 3, gt + 1e-3, gt)) != base  # a scored frame's truth
     assert digest(gt=np.where(np.arange(6)[:, None, None] == 1, gt + 1e-3, gt)) == base  # an unscored one's
-    assert _score_cache.digest(b"ab", b"c") != _score_cache.digest(b"a", b"bc")
+    assert score_cache.digest(b"ab", b"c") != score_cache.digest(b"a", b"bc")

@@ -111,7 +111,7 @@ def test_train_bad_values_are_errors_before_any_training(tmp_path, capsys, args,
 
 
 def test_runs_as_python_m_jaxsr_cli():
-    """`python -m jaxsr.cli` (experiments/startup.py runs the command so) reaches the same parser."""
+    """`python -m jaxsr.cli` (experiments/studies/startup.py runs the command so) reaches the same parser."""
     root = Path(__file__).resolve().parents[1]
     done = subprocess.run([sys.executable, "-m", "jaxsr.cli", "info", "--help"], cwd=root, capture_output=True,
                           text=True, timeout=120, check=False)

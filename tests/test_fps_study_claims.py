@@ -1,17 +1,13 @@
-"""The frame-rate study's verdicts on the paper's "TR0 is best at 1-2.5 FPS" (experiments/fps_study.py), against the
-frame intervals and against other runs (differences over pairs of runs), on synthetic data with a known answer."""
-
-import sys
-from pathlib import Path
+"""The frame-rate study's verdicts on the paper's "TR0 is best at 1-2.5 FPS" (experiments/paper/fps_study.py), against
+the frame intervals and against other runs (differences over pairs of runs), on synthetic data with a known answer."""
 
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
+import fps_study  # experiments/paper (pytest's pythonpath)
+from _seeds import pairs_differences
 
-import fps_study  # noqa: E402
-from _seeds import pairs_differences  # noqa: E402
-from jaxsr.eval.stats import Interval  # noqa: E402
+from jaxsr.eval.stats import Interval
 
 
 def _iv(mean, low, high):

@@ -128,18 +128,17 @@ def test_float_slack_is_clipped_and_nan_is_no_return():
 
 _SHARDED_SCRIPT = textwrap.dedent(
     """
-    import sys, json
+    import json
     import jax, numpy as np
     from jaxsr.inference.super_resolve import _batch_sharding, _infer_chunk, super_resolve
     from jaxsr.runtime import use_cpu_cores
     assert use_cpu_cores(n=2) == 2
     assert _batch_sharding(4) is not None and _batch_sharding(3) is None and _batch_sharding(1) is None
-    sys.path.insert(0, {tests!r})
     from test_inference import _loop, _model
     model = _model(2)
     seq = np.random.default_rng(3).uniform(0, 1, (7, 8, 12)).astype(np.float32)
     ref = _loop(model, seq)
-    errors = {{str(b): float(np.max(np.abs(super_resolve(model, seq, batch_size=b) - ref))) for b in (None, 4, 3)}}
+    errors = {str(b): float(np.max(np.abs(super_resolve(model, seq, batch_size=b) - ref))) for b in (None, 4, 3)}
     compiled = _infer_chunk()._cache_size()
     super_resolve(model, seq)  # the same shapes again: nothing recompiles
     assert _infer_chunk()._cache_size() == compiled == 3, compiled
@@ -153,8 +152,10 @@ def test_batches_split_over_devices_equal_the_window_loop():
     not; all three equal the one-window-at-a-time reference, the padded last batch included."""
     env = dict(os.environ, JAX_PLATFORMS="cpu")
     env.pop("XLA_FLAGS", None)
-    proc = subprocess.run([sys.executable, "-c", _SHARDED_SCRIPT.format(tests=str(Path(__file__).parent))],
-                          capture_output=True, text=True, env=env, timeout=300)
+    # the script imports test_inference: this folder on its path
+    env["PYTHONPATH"] = os.pathsep.join([str(Path(__file__).parent), *filter(None, [env.get("PYTHONPATH")])])
+    proc = subprocess.run([sys.executable, "-c", _SHARDED_SCRIPT], capture_output=True, text=True, env=env,
+                          timeout=300)
     assert proc.returncode == 0, proc.stderr[-3000:]
     errors = json.loads(proc.stdout.strip().splitlines()[-1])
     assert max(errors.values()) < 1e-5, errors

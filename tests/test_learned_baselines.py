@@ -248,74 +248,106 @@ def tiny_validation():
     return {"counts": counts, "intensity": intensity, "gt": gt, "names": ["fixed"]}
 
 
-def test_load_baseline_refuses_missing_and_mismatched_files(tmp_path):
-    from jaxsr.training.baselines import BaselineModel, load_baseline, save_baseline
-
-    with pytest.raises(FileNotFoundError, match="no trained baseline.*train_baselines.py"):
-        load_baseline(tmp_path / "nothing")
+def test_baselines_save_and_load_as_every_model_does(tmp_path):
     params = jaxsr.baselines.init_histnet(jax.random.PRNGKey(0), TINY_HISTNET)
-    path = save_baseline(tmp_path / "h.npz", BaselineModel("histnet", params, TINY_HISTNET), card={"steps": 3},
-                         storage_dtype="float16")
-    back = load_baseline(tmp_path / "h")  # without the suffix
-    assert back.kind == "histnet" and back.config == TINY_HISTNET
+    model = jaxsr.Model(params, {}, TINY_HISTNET)
+    assert model.kind == "histnet" and model.architecture.inputs == "histograms"
+    path = jaxsr.save_model(tmp_path / "h.npz", model, card={"steps": 3}, storage_dtype="float16")
+    assert jaxsr.read_metadata(path)["architecture"] == "histnet"
+    back = jaxsr.load_model(tmp_path / "h")  # without the suffix
+    assert back.kind == "histnet" and back.config == TINY_HISTNET and back.state == {}
     assert jax.tree_util.tree_all(jax.tree_util.tree_map(lambda a, b: bool(jnp.allclose(a, b, atol=1e-2)),
                                                          back.params, params))
     # the same arrays under a config of another width: every shape is checked
-    meta_cfg = dataclasses.replace(TINY_HISTNET, width=4)
-    wrong = save_baseline(tmp_path / "w.npz", BaselineModel("histnet", params, meta_cfg))
+    wrong = jaxsr.save_model(tmp_path / "w.npz", jaxsr.Model(params, {}, dataclasses.replace(TINY_HISTNET, width=4)))
     with pytest.raises(ValueError, match="shape"):
-        load_baseline(wrong)
-    jaxsr.save_model(tmp_path / "tr.npz", jaxsr.Model(*jaxsr.init_model(jax.random.PRNGKey(0), jaxsr.ModelConfig(tr=0)),
-                                                      jaxsr.ModelConfig(tr=0)))
-    with pytest.raises(ValueError, match="not hold a trained learned baseline"):
-        load_baseline(tmp_path / "tr.npz")
+        jaxsr.load_model(wrong)
     path.write_bytes(path.read_bytes()[:200])  # truncated
     with pytest.raises(ValueError, match="truncated or corrupt"):
-        load_baseline(path)
-    with pytest.raises(ValueError, match="unknown baseline"):
-        save_baseline(tmp_path / "x.npz", BaselineModel("duf", params, TINY_HISTNET))
+        jaxsr.load_model(path)
+    with pytest.raises(ValueError, match="no registered architecture"):
+        jaxsr.Model(params, {}, {"width": 2}).kind
 
 
-def test_fit_baseline_checkpoints_every_epoch_resumes_and_refuses_other_settings(tmp_path):
-    from jaxsr.training.baselines import fit_baseline, load_baseline
+def test_baselines_saved_by_jaxsr_0_1_still_load(tmp_path):
+    """Files of kind "baseline" (params only, the kind in "baseline") load as a Model with empty state."""
+    from jaxsr.io.checkpoint import config_to_dict, save_tree
 
+    params = jaxsr.baselines.init_histnet(jax.random.PRNGKey(0), TINY_HISTNET)
+    old = save_tree(tmp_path / "old.npz", {"params": params},
+                    {"kind": "baseline", "baseline": "histnet", "config": config_to_dict(TINY_HISTNET), "card": {}})
+    back = jaxsr.load_model(old)
+    assert back.kind == "histnet" and back.state == {}
+    np.testing.assert_array_equal(jax.tree_util.tree_leaves(back.params)[0], jax.tree_util.tree_leaves(params)[0])
+
+
+def test_the_deprecated_baseline_names_warn_and_still_work(tmp_path):
+    from jaxsr.training.baselines import BaselineModel, load_baseline, save_baseline
+
+    params = jaxsr.baselines.init_histnet(jax.random.PRNGKey(0), TINY_HISTNET)
+    with pytest.warns(DeprecationWarning, match="jaxsr.nn.Model"):
+        model = BaselineModel("histnet", params, TINY_HISTNET)
+    with pytest.warns(DeprecationWarning, match="save_model"):
+        save_baseline(tmp_path / "h.npz", model)
+    with pytest.warns(DeprecationWarning, match="load_model"):
+        assert load_baseline(tmp_path / "h.npz").kind == "histnet"
+    with pytest.warns(DeprecationWarning), pytest.raises(FileNotFoundError, match="train_baselines.py"):
+        load_baseline(tmp_path / "nothing")
+    with pytest.warns(DeprecationWarning), pytest.raises(ValueError, match="unknown baseline"):
+        BaselineModel("duf", params, TINY_HISTNET)
+    with pytest.warns(DeprecationWarning, match="moved to jaxsr.training.fit_baseline"):
+        jaxsr.fit_baseline  # noqa: B018 (a former top-level name)
+
+
+def test_one_fit_trains_a_baseline_checkpoints_every_epoch_resumes_and_refuses_other_settings(tmp_path):
     batch = fixed_histogram_batch()
     make_batch = lambda key: batch
     cfg1 = dataclasses.replace(jaxsr.TrainConfig(), batch_size=2, examples_per_epoch=4, epochs=1, decay_epochs=1)
-    kw = {"make_batch": make_batch, "validation": tiny_validation(), "sensor": SMALL_SENSOR}
-    _, hist1 = fit_baseline("histnet", TINY_HISTNET, cfg1, out=tmp_path, **kw)
+    kw = {"make_batch": make_batch, "validation": tiny_validation(), "sensor": SMALL_SENSOR, "progress": False}
+    _, hist1 = jaxsr.fit(TINY_HISTNET, cfg1, out=tmp_path, **kw)
     assert [r["step"] for r in hist1] == [2] and (tmp_path / "best.npz").is_file()
     with pytest.raises(FileExistsError, match="resume"):
-        fit_baseline("histnet", TINY_HISTNET, cfg1, out=tmp_path, **kw)
+        jaxsr.fit(TINY_HISTNET, cfg1, out=tmp_path, **kw)
     # resuming with a larger epoch budget continues from step 2; an uninterrupted 2-epoch run gives the same
     cfg2 = dataclasses.replace(cfg1, epochs=2)
-    _model, hist2 = fit_baseline("histnet", TINY_HISTNET, cfg2, out=tmp_path, resume=True, **kw)
-    _, straight = fit_baseline("histnet", TINY_HISTNET, cfg2, out=tmp_path / "straight", **kw)
+    _model, hist2 = jaxsr.fit(TINY_HISTNET, cfg2, out=tmp_path, resume=True, **kw)
+    _, straight = jaxsr.fit(TINY_HISTNET, cfg2, out=tmp_path / "straight", **kw)
     assert [r["step"] for r in hist2] == [2, 4]
     np.testing.assert_allclose([r["val_loss"] for r in hist2], [r["val_loss"] for r in straight], rtol=1e-5)
     card = jaxsr.read_metadata(tmp_path / "best.npz")["card"]
     assert card["steps"] == 4 and card["validation"]["frames"] == 2
-    assert load_baseline(tmp_path / "best.npz").kind == "histnet"
+    assert jaxsr.load_model(tmp_path / "best.npz").kind == "histnet"
     # finished: running again trains nothing
-    assert len(fit_baseline("histnet", TINY_HISTNET, cfg2, out=tmp_path, resume=True, **kw)[1]) == 2
+    assert len(jaxsr.fit(TINY_HISTNET, cfg2, out=tmp_path, resume=True, **kw)[1]) == 2
     with pytest.raises(ValueError, match="other settings.*lr"):
-        fit_baseline("histnet", TINY_HISTNET, dataclasses.replace(cfg2, lr=1e-2), out=tmp_path, resume=True, **kw)
+        jaxsr.fit(TINY_HISTNET, dataclasses.replace(cfg2, lr=1e-2), out=tmp_path, resume=True, **kw)
+    with pytest.raises(ValueError, match="init.*DUF"):
+        jaxsr.fit(TINY_HISTNET, cfg1, out=tmp_path / "warm", init="tr0", **kw)
+    with pytest.raises(ValueError, match="pretrain_epochs is iSeeBetter's"):
+        jaxsr.fit(TINY_HISTNET, cfg1, out=tmp_path / "pre", pretrain_epochs=1, **kw)
+
+
+def test_one_fit_trains_iseebetter_as_a_gan_with_two_optimisers(tmp_path):
+    cfg = jaxsr.baselines.RBPNConfig(base_filter=8, feat=4, n_resblock=1, frames=3, disc_widths=(4, 4),
+                                     disc_hidden=8, flow_levels=2, flow_iterations=2)
+    windows = jax.random.uniform(jax.random.PRNGKey(0), (2, 3, 8, 16))
+    gt = jax.image.resize(windows[:, 1], (2, 32, 64), "linear")
+    train_cfg = dataclasses.replace(jaxsr.TrainConfig(), batch_size=2, examples_per_epoch=4, epochs=2, patch=(8, 16))
+    validation = {"windows": windows, "gt": gt, "lr": windows[:, 1], "names": ["fixed"]}
+    kw = {"make_batch": lambda key: (windows, gt), "validation": validation, "sensor": SMALL_SENSOR, "progress": False}
+    model, hist = jaxsr.fit(cfg, train_cfg, out=tmp_path, pretrain_epochs=1, **kw)
+    assert model.kind == "iseebetter" and [r["step"] for r in hist] == [2, 4]
+    assert "train_d_loss" not in hist[0] and np.isfinite(hist[1]["train_d_loss"])  # the GAN starts at epoch 2
+    saved = jaxsr.read_metadata(tmp_path / "last.npz")
+    assert saved["architecture"] == "iseebetter" and saved["pretrain_epochs"] == 1
+    hr = jaxsr.super_resolve(jaxsr.load_model(tmp_path / "best.npz"), np.asarray(windows[:, 1]))
+    assert hr.shape == (2, 32, 64) and np.all(np.isfinite(hr))
 
 
 def _train_baselines_script():
-    import importlib.util
-    import sys
-    from pathlib import Path
+    import train_baselines  # experiments/paper/train_baselines.py (pytest's pythonpath)
 
-    folder = Path(__file__).resolve().parents[1] / "experiments"
-    sys.path.insert(0, str(folder))
-    try:
-        spec = importlib.util.spec_from_file_location("train_baselines", folder / "train_baselines.py")
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
-    finally:
-        sys.path.remove(str(folder))
-    return module
+    return train_baselines
 
 
 def test_train_baselines_plan_is_measured_once_and_read_back(tmp_path):
@@ -347,15 +379,15 @@ def test_iseebetter_plan_prices_its_generator_only_epochs_at_their_own_step_time
 
 
 def test_iseebetter_pretraining_moves_the_generator_alone_then_the_gan_starts():
-    from jaxsr.training.baselines import _init_train_state, baseline_train_step
+    how = jaxsr.training.recipe("iseebetter")
 
     cfg = jaxsr.baselines.RBPNConfig(base_filter=8, feat=4, n_resblock=1, frames=3, disc_widths=(4, 4), disc_hidden=8,
                            flow_levels=2, flow_iterations=2)
     windows = jax.random.uniform(jax.random.PRNGKey(0), (2, 3, 8, 16))
     gt = jax.image.resize(windows[:, 1], (2, 32, 64), "linear")
     train_cfg = dataclasses.replace(jaxsr.TrainConfig(), batch_size=2, examples_per_epoch=2, patch=(8, 16))
-    step = baseline_train_step("iseebetter", cfg, train_cfg, lambda key: (windows, gt), pretrain_steps=3)
-    ts = _init_train_state(jax.random.PRNGKey(1), "iseebetter", cfg)
+    step = how.step(cfg, train_cfg, lambda key: (windows, gt), pretrain_steps=3)
+    ts = how.init(jax.random.PRNGKey(1), cfg, None)
     disc0 = jax.device_get(ts["disc"])
     content = []
     for i in range(3):
@@ -368,5 +400,6 @@ def test_iseebetter_pretraining_moves_the_generator_alone_then_the_gan_starts():
     ts, m = step(ts, jax.random.PRNGKey(0), jnp.int32(3))
     assert np.isfinite(float(m["d_loss"]))
     assert not all(np.array_equal(a, b) for a, b in zip(leaves(ts["disc"]), leaves(disc0)))
-    with pytest.raises(ValueError, match="pretrain_steps"):
-        baseline_train_step("histnet", jaxsr.baselines.HistNetConfig(width=4), train_cfg, lambda key: None, pretrain_steps=2)
+    with pytest.raises(ValueError, match="pretrain_epochs is iSeeBetter's"):
+        jaxsr.training.recipe("histnet").step(jaxsr.baselines.HistNetConfig(width=4), train_cfg, lambda key: None,
+                                              pretrain_steps=2)

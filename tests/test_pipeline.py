@@ -86,7 +86,7 @@ def test_gradient_option_keeps_the_counts_and_the_default_stops_gradients():
         poisson_pathwise(jnp.ones(3), jnp.ones(4))
 
 
-@pytest.mark.slow  # about 8 s; experiments/sensor_design.py measures the same on the full pipeline
+@pytest.mark.slow  # about 8 s; experiments/studies/sensor_design.py measures the same on the full pipeline
 def test_surrogate_matches_finite_differences_of_the_monte_carlo_mean_with_plenty_of_photons():
     """d/d irf_sigma of E[mean squared centre-of-mass error]: the "normal" surrogate (mean over keys) against a
     central difference of the Monte-Carlo mean (the same keys on both sides). Where no peak can jump (returns at

@@ -1,16 +1,13 @@
-"""experiments/selection.py: its two validations are the presets' (new) and the one before (old), and it reads
+"""experiments/paper/selection.py: its two validations are the presets' (new) and the one before (old), and it reads
 seed, steps and epoch from both kinds of checkpoint."""
 
-import sys
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
-
-import selection  # noqa: E402
-from jaxsr.io.checkpoint import save_tree  # noqa: E402
-from jaxsr.config import PRESETS, TrainConfig  # noqa: E402
+import selection  # experiments/paper (pytest's pythonpath)
+from jaxsr.io.checkpoint import save_tree
+from jaxsr.config import PRESETS, TrainConfig
 
 
 def test_new_validation_is_the_presets_and_old_the_moving_cameras():

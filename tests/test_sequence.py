@@ -26,7 +26,7 @@ from jaxsr.nn.duf import (
     sequence_radius,
 )
 from jaxsr.nn.streaming import stream_init, stream_step
-from jaxsr.training.loop import fit, sequence_loss
+from jaxsr.training import fit, sequence_loss
 
 TINY = {"base": 8, "growth": 4, "head": 16, "filter_hidden": 16}
 seq_jit = jax.jit(apply_model_sequence, static_argnums=3, static_argnames=("padding", "conv3d_impl"))

@@ -5,16 +5,13 @@ is `apply_model` itself on random windows of a random model (random BN statistic
 convolution variant of the port and with and without BN folding.
 """
 
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 torch = pytest.importorskip("torch")
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-import torch_reference as tref  # noqa: E402
+import torch_reference as tref  # noqa: E402  (benchmarks, pytest's pythonpath)
 
 import jaxsr  # noqa: E402
 

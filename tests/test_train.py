@@ -25,7 +25,8 @@ from jaxsr.nn.duf import apply_model, apply_model_train, init_model
 from jaxsr.training.optim import adam_init, adam_update, step_decay
 from jaxsr.scenes import test_sequences
 from jaxsr.sensor.forward import calibrate, calibrated_rates, expected_histograms, normalise_depth
-from jaxsr.training.loop import evaluate, fit, huber_loss, lr_schedule, resume_config
+from jaxsr.eval.metrics import huber_loss
+from jaxsr.training import evaluate, fit, lr_schedule, resume_config
 
 # momentum 0.9: running BN statistics settle within the few dozen steps of these runs (0.99 needs hundreds)
 TINY = ModelConfig(tr=1, base=8, growth=4, head=16, filter_hidden=16, bn_momentum=0.9)
@@ -384,16 +385,20 @@ def test_a_run_killed_inside_an_epoch_resumes_from_its_last_checkpoint(tmp_path,
     resume_and_compare(tmp_path / "c")
 
 
+def _with_tests_folder(pythonpath):
+    """PYTHONPATH with this tests folder first, for a subprocess that imports a test module."""
+    return os.pathsep.join([str(Path(__file__).parent), *filter(None, [pythonpath])])
+
+
 _SHARDED_SCRIPT = textwrap.dedent(
     """
-    import os, sys, json
+    import os, json
     os.environ["XLA_FLAGS"] = "--xla_force_host_platform_device_count=2"
     import jax, numpy as np
-    sys.path.insert(0, {tests!r})
     from test_train import TINY, toy_batches, tiny_train_cfg
     from jaxsr.nn.duf import init_model
     from jaxsr.training.optim import adam_init
-    from jaxsr.training.loop import data_mesh, make_train_step
+    from jaxsr.training import data_mesh, make_train_step
     assert jax.device_count() == 2, jax.devices()
     cfg = tiny_train_cfg()
     make_batch = toy_batches(TINY.tr, cfg.batch_size)
@@ -417,9 +422,9 @@ _SHARDED_SCRIPT = textwrap.dedent(
 
 @pytest.mark.slow  # a subprocess with 2 host devices compiles two train steps: about 40 s on 2 busy cores
 def test_sharded_equals_single_device():
-    tests = str(Path(__file__).parent)
-    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2", JAX_PLATFORMS="cpu")
-    proc = subprocess.run([sys.executable, "-c", _SHARDED_SCRIPT.format(tests=tests)], capture_output=True,
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2", JAX_PLATFORMS="cpu",
+               PYTHONPATH=_with_tests_folder(os.environ.get("PYTHONPATH")))  # the script imports test_train
+    proc = subprocess.run([sys.executable, "-c", _SHARDED_SCRIPT], capture_output=True,
                           text=True, env=env, timeout=300, cwd=str(Path(__file__).parent.parent))
     assert proc.returncode == 0, proc.stderr[-3000:]
     res = json.loads(proc.stdout.strip().splitlines()[-1])

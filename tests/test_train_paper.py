@@ -1,18 +1,15 @@
-"""The accelerator driver of the paper preset (experiments/train_paper.py): one child process per run with an
+"""The accelerator driver of the paper preset (experiments/paper/train_paper.py): one child process per run with an
 equal share of device memory, failures named, the child's run argument checked; a resumed run continues (slow:
 it trains a tiny stand-in of the preset on the CPU)."""
 
 import dataclasses
 import json
-import sys
 from pathlib import Path
 
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
-
-import train_paper  # noqa: E402
-from jaxsr.config import PRESETS  # noqa: E402
+import train_paper  # experiments/paper (pytest's pythonpath)
+from jaxsr.config import PRESETS
 
 
 class _FakeProcess:

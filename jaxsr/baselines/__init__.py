@@ -31,6 +31,7 @@ from .histnet import (
     init_histnet,
     apply_histnet_features,
     apply_histnet,
+    HISTNET,
 )
 from .rbpn import (
     RBPNConfig,
@@ -42,6 +43,7 @@ from .rbpn import (
     tv_loss,
     generator_loss,
     discriminator_loss,
+    ISEEBETTER,
 )
 
 __all__ = [
@@ -67,6 +69,7 @@ __all__ = [
     "init_histnet",
     "apply_histnet_features",
     "apply_histnet",
+    "HISTNET",
     "RBPNConfig",
     "init_rbpn",
     "rbpn_flows",
@@ -76,4 +79,5 @@ __all__ = [
     "tv_loss",
     "generator_loss",
     "discriminator_loss",
+    "ISEEBETTER",
 ]

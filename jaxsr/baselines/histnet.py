@@ -44,6 +44,7 @@ import jax
 import jax.numpy as jnp
 
 from ..config import SensorConfig
+from ..nn.model import Architecture, register_architecture
 from ..nn.layers import conv2d, conv2d_transpose, init_conv2d, init_from_normals, max_pool2
 from ..sensor.peaks import centre_of_mass, median_of_bins
 
@@ -189,3 +190,13 @@ def apply_histnet(params, counts, intensity, cfg: HistNetConfig = HistNetConfig(
     if intensity.shape != features["d1"].shape:
         raise ValueError(f"apply_histnet: intensity {intensity.shape} must be the HR frame {features['d1'].shape}")
     return apply_histnet_features(params, features, intensity)
+
+
+def _apply(params, state, inputs, cfg: HistNetConfig, *, sensor: SensorConfig = _SENSOR, conv3d_impl: str = "auto"):
+    counts, intensity = inputs
+    return apply_histnet(params, counts, intensity, cfg, sensor=sensor)
+
+
+HISTNET = register_architecture(Architecture("histnet", HistNetConfig, lambda key, cfg: (init_histnet(key, cfg), {}),
+                                             _apply, inputs="histograms", frames=lambda cfg: 1, scale=lambda cfg: 4,
+                                             input_radius=lambda cfg: 0))

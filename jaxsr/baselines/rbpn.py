@@ -40,6 +40,7 @@ import jax
 import jax.numpy as jnp
 
 from .flow import optical_flow
+from ..nn.model import Architecture, register_architecture
 from ..nn.layers import batch_norm, conv2d, conv2d_transpose, init_batch_norm, init_conv2d, init_from_normals, prelu
 
 __all__ = [
@@ -324,3 +325,8 @@ def discriminator_loss(real_logits, fake_logits):
     """
     return jnp.mean(jax.nn.softplus(-real_logits)) + jnp.mean(jax.nn.softplus(fake_logits))
 
+
+
+ISEEBETTER = register_architecture(Architecture(
+    "iseebetter", RBPNConfig, lambda key, cfg: (init_rbpn(key, cfg), {}),
+    lambda params, state, windows, cfg, conv3d_impl="auto": apply_rbpn(params, windows, cfg)))

@@ -1,4 +1,4 @@
-"""`jaxsr train`: train a super-resolution network with `jaxsr.training.loop.fit` on a preset, on rendered scenes (the
+"""`jaxsr train`: train a super-resolution network with `jaxsr.fit` on a preset, on rendered scenes (the
 default) or on HR sequences from an .npz (--data); writes OUT/metrics.jsonl, OUT/best.npz and OUT/last.npz.
 A folder that already holds a run is refused unless --resume (continue it) or --force (start over)."""
 

@@ -31,6 +31,13 @@ from .pipeline import (
     METRICS,
     pipeline_metric,
 )
+from .upscale import (
+    UpscaleJob,
+    UpscaleResult,
+    prepare_upscale,
+    write_upscaled,
+    upscale,
+)
 
 __all__ = [
     "DEFAULT_BATCH_SIZE",
@@ -56,4 +63,9 @@ __all__ = [
     "resolve_model",
     "METRICS",
     "pipeline_metric",
+    "UpscaleJob",
+    "UpscaleResult",
+    "prepare_upscale",
+    "write_upscaled",
+    "upscale",
 ]

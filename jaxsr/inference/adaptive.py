@@ -23,7 +23,7 @@ import numpy as np
 
 from ..io.checkpoint import load_model
 
-STUDY_TABLE = Path(__file__).parent / "weights" / "frame_rate_study.json"
+STUDY_TABLE = Path(__file__).parents[1] / "weights" / "frame_rate_study.json"
 SEARCH_RADIUS = 6  # LR px: block matching searches shifts up to this far
 LAGS = (1, 2, 4, 8)
 MIN_MOVING = 0.002  # fewer moving pixels than this share are noise

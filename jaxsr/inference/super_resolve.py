@@ -29,7 +29,8 @@ from jax.sharding import PartitionSpec as P
 
 from ..checks import require_normalised_depth
 from ..config import MIN_LR_SIDE, SensorConfig
-from ..nn.duf import Model, apply_model, apply_model_sequence, sequence_radius, spatial_radius
+from ..nn.duf import apply_model, apply_model_sequence, sequence_radius
+from ..nn.model import Model
 from ..sensor.peaks import centre_of_mass
 from ..runtime import compiler_options
 from ..nn.streaming import stream_init, stream_step
@@ -64,15 +65,16 @@ def _windows_through_model(model: Model, chunk, sharding=None, conv3d_impl="auto
     """chunk (B + 2 R, h, w) -> (B, h r, w r), R = `input_radius`. Window form: the centre frame of each of the
     B windows of 2 tr + 1 frames, the windows split over `sharding`'s devices (the model and chunk are
     replicated). Sequence form: the B outputs of the chunk, "valid" (`apply_model_sequence`)."""
-    if model.config.temporal == "sequence":
+    arch = model.architecture
+    if arch.sequence_form(model.config):
         return apply_model_sequence(model.params, model.state, chunk[None], model.config, padding="valid",
                                     conv3d_impl=conv3d_impl)[0]
-    n = model.config.frames
+    n = arch.frames(model.config)
     b = chunk.shape[0] - n + 1
     windows = chunk[jnp.arange(b)[:, None] + jnp.arange(n)[None, :]]
     if sharding is not None:
         windows = jax.lax.with_sharding_constraint(windows, sharding)
-    return apply_model(model.params, model.state, windows, model.config, conv3d_impl=conv3d_impl)
+    return arch.apply(model.params, model.state, windows, model.config, conv3d_impl=conv3d_impl)
 
 
 @functools.cache
@@ -143,7 +145,11 @@ def iter_super_resolve(model: Model, frames: Iterable, *, batch_size: int | None
     another shape than the first or smaller than `MIN_LR_SIDE`, or with values further outside [0, 1] (metres,
     negated, inf: the message names the range seen; `jaxsr.normalise_depth` converts metres).
     """
-    sequence_form = model.config.temporal == "sequence"
+    arch = model.architecture
+    if arch.inputs != "depth":
+        raise ValueError(f"super_resolve: a {arch.name} model reads photon histograms, not depth; use "
+                         "super_resolve_histograms(model, counts, intensity=...)")
+    sequence_form = arch.sequence_form(model.config)
     batch_size = _default_batch_size(frames, sequence_form) if batch_size is None else int(batch_size)
     if batch_size < 1:
         raise ValueError(f"super_resolve: batch_size must be >= 1, got {batch_size}")
@@ -151,11 +157,13 @@ def iter_super_resolve(model: Model, frames: Iterable, *, batch_size: int | None
     if sharding is not None:  # replicate the weights once, not on every call
         replicated = NamedSharding(sharding.mesh, P())
         model = jax.device_put(model, replicated)
-    tr = model.config.input_radius  # the loop below needs only the radius: tr, or R in the sequence form
-    margin = spatial_radius(model.config)
+    tr = arch.input_radius(model.config)  # the loop below needs only the radius: tr, or R in the sequence form
+    margin = arch.receptive_radius(model.config)
+    if margin is None:  # a network that reads the whole frame runs on whole frames
+        margin, tile = 0, None
     if tile is not None and tile <= 2 * margin:
         raise ValueError(f"super_resolve: tile must exceed twice the receptive radius ({2 * margin} LR pixels for "
-                         f"tr={model.config.tr}), got {tile}")
+                         f"this model), got {tile}")
     held = deque()  # LR frames first_held .. ; frame `first_held` is the oldest any pending window needs
     first_held, next_out, n_seen, shape, pending = 0, 0, 0, None, None
 
@@ -186,7 +194,7 @@ def iter_super_resolve(model: Model, frames: Iterable, *, batch_size: int | None
         if len(tiles) == 1:
             yield from np.asarray(tiles[0][0])[:count]
             return
-        r = model.config.scale
+        r = arch.scale(model.config)
         out = np.empty((count, shape[0] * r, shape[1] * r), np.float32)
         for hr, y0, ylo, yhi, x0, xlo, xhi in tiles:
             out[:, ylo * r : yhi * r, xlo * r : xhi * r] = np.asarray(hr)[:count, (ylo - y0) * r : (yhi - y0) * r,
@@ -236,7 +244,7 @@ def super_resolve(model: Model, lr_seq, *, batch_size: int | None = None, conv3d
     lr_seq = np.asarray(lr_seq, np.float32)
     if lr_seq.ndim != 3 or lr_seq.shape[0] < 1:
         raise ValueError(f"super_resolve: expected an LR sequence (T, h, w) with T >= 1, got shape {lr_seq.shape}")
-    r = model.config.scale
+    r = model.architecture.scale(model.config)
     out = np.empty((lr_seq.shape[0], lr_seq.shape[1] * r, lr_seq.shape[2] * r), np.float32)
     for t, hr in enumerate(iter_super_resolve(model, lr_seq, batch_size=batch_size, conv3d_impl=conv3d_impl,
                                               tile=tile)):
@@ -280,27 +288,62 @@ def iter_centre_of_mass(counts: Iterable, sensor: SensorConfig = SensorConfig(),
         yield from flush()
 
 
-def super_resolve_histograms(model: Model, counts, sensor: SensorConfig = SensorConfig(), *,
+def super_resolve_histograms(model: Model, counts, sensor: SensorConfig = SensorConfig(), *, intensity=None,
                              batch_size: int | None = None, conv3d_impl: str = "auto",
                              tile: int | None = DEFAULT_TILE) -> np.ndarray:
-    """Super-resolve photon histograms: (T, h, w, K) counts -> (T, h r, w r) normalised depth (NumPy).
+    """Super-resolve photon histograms: (T, h, w, K) counts -> (T, h r, w r) normalised depth (NumPy, float32).
 
-    Depth is extracted by centre of mass (`jaxsr.centre_of_mass` with `sensor`, K = `sensor.bins` over the
-    sensor's gate [0, d_max): the normalised depth is tau / K), then `super_resolve`d, streaming (see
-    `iter_super_resolve`; `batch_size`, `conv3d_impl` and `tile` as there). Any h, w >= `MIN_LR_SIDE`; for
-    histograms over another gate, see `jaxsr.Gate` and `jaxsr.sensor.gate_depth`."""
+    A model that reads depth (the DUF network, iSeeBetter) gets the centre-of-mass depth of each frame
+    (`jaxsr.centre_of_mass` with `sensor`, K = `sensor.bins` over the sensor's gate [0, d_max): the normalised
+    depth is tau / K), `super_resolve`d, streaming (see `iter_super_resolve`; `batch_size`, `conv3d_impl` and
+    `tile` as there). A model that reads histograms (HistNet) gets the counts themselves with `intensity`
+    (T, h r, w r), the HR intensity in [0, 1] it is guided by (required for it, refused otherwise), frame by
+    frame in batches of `batch_size`. Any h, w >= `MIN_LR_SIDE`; for histograms over another gate, see
+    `jaxsr.Gate` and `jaxsr.sensor.gate_depth`."""
     counts = np.asarray(counts)
     if counts.ndim != 4:
         raise ValueError(f"super_resolve_histograms: expected counts (T, h, w, {sensor.bins}), got shape "
                          f"{counts.shape}")
-    r = model.config.scale
+    arch = model.architecture
+    r = arch.scale(model.config)
+    if arch.inputs == "histograms":
+        return _histograms_through_model(model, counts, intensity, sensor, batch_size or DEFAULT_BATCH_SIZE)
+    if intensity is not None:
+        raise ValueError(f"super_resolve_histograms: a {arch.name} model reads depth, not intensity; "
+                         "pass intensity only to a model that reads histograms (HistNet)")
     out = np.empty((counts.shape[0], counts.shape[1] * r, counts.shape[2] * r), np.float32)
     if batch_size is None:  # the frames' count is known here, not in the stream of centre-of-mass frames
-        batch_size = _default_batch_size(counts, model.config.temporal == "sequence")
+        batch_size = _default_batch_size(counts, arch.sequence_form(model.config))
     stream = iter_super_resolve(model, iter_centre_of_mass(counts, sensor), batch_size=batch_size,
                                 conv3d_impl=conv3d_impl, tile=tile)
     for t, hr in enumerate(stream):
         out[t] = hr
+    return out
+
+
+@functools.partial(jax.jit, static_argnames=("sensor",))
+def _histogram_chunk(model: Model, counts, intensity, sensor):
+    return model.architecture.apply(model.params, model.state, (counts, intensity), model.config, sensor=sensor)
+
+
+def _histograms_through_model(model: Model, counts, intensity, sensor: SensorConfig, batch_size: int) -> np.ndarray:
+    """A histogram-reading model over (T, h, w, K) counts and (T, H, W) intensity, `batch_size` frames per call
+    (the last call padded by repeating its final frame, so that every call has one shape)."""
+    r = model.architecture.scale(model.config)
+    want = (counts.shape[0], counts.shape[1] * r, counts.shape[2] * r)
+    if intensity is None or np.shape(intensity) != want:
+        raise ValueError(f"super_resolve_histograms: a {model.kind} model needs intensity {want} (T, h r, w r) "
+                         f"beside counts {counts.shape}, got {None if intensity is None else np.shape(intensity)}")
+    intensity = np.asarray(intensity, np.float32)
+    counts = np.asarray(counts, np.float32)
+    out = np.empty(want, np.float32)
+    for i in range(0, counts.shape[0], batch_size):
+        c, f = counts[i : i + batch_size], intensity[i : i + batch_size]
+        n = c.shape[0]
+        if n < batch_size:
+            c = np.concatenate([c, np.repeat(c[-1:], batch_size - n, 0)])
+            f = np.concatenate([f, np.repeat(f[-1:], batch_size - n, 0)])
+        out[i : i + n] = np.asarray(_histogram_chunk(model, c, f, sensor))[:n]
     return out
 
 

@@ -46,6 +46,7 @@ from .checkpoint import (
     drop_legacy_fields,
     config_from_dict,
     model_template,
+    stored_architecture,
     save_model,
     resolve_model_path,
     load_model,
@@ -55,6 +56,11 @@ from .previews import (
     write_preview,
     write_comparison,
     write_gray_preview,
+)
+from .simulate import (
+    SIMULATION_OUTPUTS,
+    Simulation,
+    simulate_recording,
 )
 
 __all__ = [
@@ -96,6 +102,7 @@ __all__ = [
     "drop_legacy_fields",
     "config_from_dict",
     "model_template",
+    "stored_architecture",
     "save_model",
     "resolve_model_path",
     "load_model",
@@ -103,4 +110,7 @@ __all__ = [
     "write_preview",
     "write_comparison",
     "write_gray_preview",
+    "SIMULATION_OUTPUTS",
+    "Simulation",
+    "simulate_recording",
 ]

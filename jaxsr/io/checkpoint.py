@@ -20,7 +20,8 @@ import numpy as np
 
 from .files import atomic_path
 from ..config import ModelConfig
-from ..nn.duf import Model, count_params, flops_per_frame, init_model
+from ..nn.duf import count_params
+from ..nn.model import Architecture, Model, architecture
 
 __all__ = [
     "FORMAT_VERSION",
@@ -31,6 +32,8 @@ __all__ = [
     "save_model",
     "load_model",
     "model_info",
+    "model_template",
+    "stored_architecture",
     "resolve_model_path",
     "config_to_dict",
     "config_from_dict",
@@ -179,14 +182,15 @@ def config_from_dict(cls, d: dict):
     return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
 
 
-def model_template(cfg: ModelConfig):
-    """Shapes and dtypes of (params, state) for `cfg`, without computing anything."""
-    return jax.eval_shape(lambda k: init_model(k, cfg), jax.random.key(0))
+def model_template(cfg):
+    """Shapes and dtypes of (params, state) for `cfg` (a config of any registered architecture), without computing
+    anything."""
+    return architecture(cfg).template(cfg)
 
 
 def save_model(path, model: Model, *, card: dict | None = None, storage_dtype: str = "float32") -> Path:
-    """Save a `Model` (a pytree of params and BN state) to `path` (.npz): arrays `params/...`, `state/...`,
-    and metadata {kind, config, card, storage_dtype}.
+    """Save a `Model` of any architecture (a pytree of params and state) to `path` (.npz): arrays `params/...`,
+    `state/...`, and metadata {kind: "model", architecture, config, card, storage_dtype}.
 
     `card` is the training card (JSON-ready dict: data, steps, wall time, hardware, validation PSNR, ...).
     storage_dtype: "float32", or "float16" to halve the file (`load_model` returns float32 either way);
@@ -201,7 +205,7 @@ def save_model(path, model: Model, *, card: dict | None = None, storage_dtype: s
         tree = jax.tree_util.tree_map(lambda x: x.astype(np.float16), tree)
     elif storage_dtype != "float32":
         raise ValueError(f"save_model: storage_dtype must be 'float32' or 'float16', got {storage_dtype!r}")
-    meta = {"kind": "model", "config": config_to_dict(model.config), "card": card or {},
+    meta = {"kind": "model", "architecture": model.kind, "config": config_to_dict(model.config), "card": card or {},
             "storage_dtype": storage_dtype}
     return save_tree(path, tree, meta)
 
@@ -217,55 +221,69 @@ def resolve_model_path(path) -> Path:
         return p
     if p.suffix != ".npz" and p.with_name(p.name + ".npz").is_file():
         return p.with_name(p.name + ".npz")
-    bundled = Path(__file__).parent / "weights" / f"{p.name}.npz"
+    bundled = Path(__file__).parents[1] / "weights" / f"{p.name}.npz"
     if len(p.parts) == 1 and bundled.is_file():
         return bundled
     raise FileNotFoundError(f"no checkpoint at {str(path)!r} (nor {str(path)!r}.npz, nor bundled weights {p.name!r})")
 
 
-def load_model(path, *, temporal: str | None = None) -> Model:
-    """Load a `Model` pytree saved by `save_model` (or the model inside a training checkpoint of `jaxsr.training.loop`).
+def stored_architecture(meta: dict, path) -> Architecture:
+    """The architecture a checkpoint's metadata names: "architecture" (files of jaxsr 0.2 on), "baseline" (learned
+    baselines saved before, kind "baseline"), else the DUF network (every older model file). ValueError for a
+    file that holds no model."""
+    kind = meta.get("kind")
+    if kind not in ("model", "train_state", "baseline", "baseline_train_state") or "config" not in meta:
+        raise ValueError(f"checkpoint {str(path)!r} does not hold a jaxsr model (kind {kind!r})")
+    name = meta.get("architecture", meta.get("baseline", "duf"))
+    try:
+        return architecture(str(name))
+    except ValueError as e:
+        raise ValueError(f"checkpoint {str(path)!r}: {e}") from None
 
-    `path` is a file, a file without its `.npz`, or the name of bundled weights ("tr4"). Every array is
-    checked against the shapes `init_model` gives for the stored config; raises `ValueError` for a truncated
-    file, a missing or unexpected key, a wrong shape or dtype, or an unsupported format version. Returns the
-    `Model` (params and state float32 in memory, config from the file). temporal: None (the form the file
-    records; "window" for files older than the field), or "window" / "sequence" to run the same weights in
-    that form (both forms have the same parameters; e.g. `load_model("tr4", temporal="sequence")`).
+
+def load_model(path, *, temporal: str | None = None) -> Model:
+    """Load a `Model` of any registered architecture saved by `save_model` (or the model inside a training
+    checkpoint of `jaxsr.training.fit`; or a learned baseline saved by jaxsr 0.1).
+
+    `path` is a file, a file without its `.npz`, or the name of bundled weights ("tr4", "histnet"). Every
+    array is checked against the shapes the architecture's init gives for the stored config; raises `ValueError`
+    for a truncated file, a missing or unexpected key, a wrong shape or dtype, or an unsupported format version.
+    Returns the `Model` (params and state float32 in memory, config from the file). temporal (DUF models): None
+    (the form the file records; "window" for files older than the field), or "window" / "sequence" to run the
+    same weights in that form (both forms have the same parameters; e.g. `load_model("tr4", temporal="sequence")`).
     """
     path = resolve_model_path(path)
     meta = read_metadata(path)
-    if meta.get("kind") not in ("model", "train_state") or "config" not in meta:
-        raise ValueError(f"checkpoint {str(path)!r} does not hold a jaxsr model (kind {meta.get('kind')!r})")
+    arch = stored_architecture(meta, path)
     try:
-        cfg = config_from_dict(ModelConfig, meta["config"])
-    except (TypeError, AttributeError) as e:  # a config that is not a dict, or fields of the wrong type
-        raise ValueError(f"checkpoint {str(path)!r}: unreadable model config {meta['config']!r}: {e}") from e
+        cfg = config_from_dict(arch.config_type, meta["config"])
+    except (TypeError, AttributeError, ValueError) as e:  # a config that is not a dict, or fields of the wrong type
+        raise ValueError(f"checkpoint {str(path)!r}: unreadable {arch.name} config {meta['config']!r}: {e}") from e
     if temporal is not None:
+        if not hasattr(cfg, "temporal"):
+            raise ValueError(f"load_model: temporal applies to DUF models; {str(path)!r} holds {arch.name}")
         cfg = dataclasses.replace(cfg, temporal=temporal)
     params_t, state_t = model_template(cfg)
-    strict = meta["kind"] == "model"
-    tree, _ = load_tree(path, {"params": params_t, "state": state_t}, strict=strict)
+    template = {"params": params_t} if meta["kind"] == "baseline" else {"params": params_t, "state": state_t}
+    tree, _ = load_tree(path, template, strict=meta["kind"] in ("model", "baseline"))
     tree = jax.tree_util.tree_map(jax.numpy.asarray, tree)
-    return Model(tree["params"], tree["state"], cfg)
+    return Model(tree["params"], tree.get("state", {}), cfg)
 
 
 def model_info(path, *, lr_shape=(32, 64)) -> dict:
-    """Describe a model (see `resolve_model_path` for `path`): its file, config (with its temporal form), frames
-    per window, input radius R (output t from frames t-R .. t+R), parameter count, GFLOP per frame at
-    `lr_shape` (rows, cols) in its form and training card, as a JSON-ready dict."""
+    """Describe a model (see `resolve_model_path` for `path`): its file, architecture, config, parameter count and
+    training card, as a JSON-ready dict; for the DUF network also its temporal form, frames per window, input
+    radius R (output t from frames t-R .. t+R) and GFLOP per frame at `lr_shape` (rows, cols) in its form."""
     path = resolve_model_path(path)
     model = load_model(path)
     meta = read_metadata(path)
     cfg = model.config
     return {
         "path": str(path),
+        "architecture": model.kind,
         "config": config_to_dict(cfg),  # with the fields older files lack at their defaults
-        "temporal": cfg.temporal,
-        "frames_per_window": cfg.frames,
-        "input_radius": cfg.input_radius,
+        **model.architecture.describe(cfg, lr_shape),
         "parameters": count_params(model.params),
         "lr_shape": list(lr_shape),
-        "gflops_per_frame": round(flops_per_frame(cfg, lr_shape) / 1e9, 3),
         "card": meta.get("card", {}),
     }

@@ -2,6 +2,13 @@
 and sequence form, and the sequence form as a stream.
 """
 
+from .model import (
+    Architecture,
+    Model,
+    architecture,
+    architectures,
+    register_architecture,
+)
 from .layers import (
     glorot_limit,
     conv3d_native,
@@ -38,7 +45,7 @@ from .duf import (
     apply_model_sequence,
     apply_model_sequence_train,
     edge_pad_sequence,
-    Model,
+    DUF,
 )
 from .streaming import (
     stream_init,
@@ -46,6 +53,11 @@ from .streaming import (
 )
 
 __all__ = [
+    "Architecture",
+    "Model",
+    "architecture",
+    "architectures",
+    "register_architecture",
     "glorot_limit",
     "conv3d_native",
     "stacked_use",
@@ -79,7 +91,7 @@ __all__ = [
     "apply_model_sequence",
     "apply_model_sequence_train",
     "edge_pad_sequence",
-    "Model",
+    "DUF",
     "stream_init",
     "stream_step",
 ]

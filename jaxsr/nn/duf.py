@@ -26,9 +26,9 @@ from .layers import (
     glorot_limit,
     init_batch_norm,
 )
+from .model import Architecture, Model, register_architecture
 
 __all__ = [
-    "Model",
     "init_model",
     "apply_model",
     "apply_model_train",
@@ -364,17 +364,11 @@ def _head(params, state, x, centre, cfg: ModelConfig, *, bn: dict, impl: str):
     return depth_to_space(sub, cfg.scale)[..., 0], {"bn": sh}
 
 
-@dataclasses.dataclass(frozen=True)
-class Model:
-    """A trained network: `params` and `state` (pytrees of arrays, the leaves) and its `config` (static)."""
-
-    params: dict
-    state: dict
-    config: ModelConfig
-
-    def __call__(self, windows):
-        """Inference: (B, 2*tr+1, H, W) LR windows -> (B, H*r, W*r) HR normalised depth."""
-        return apply_model(self.params, self.state, windows, self.config)
+def _describe(cfg: ModelConfig, lr_shape) -> dict:
+    return {"temporal": cfg.temporal, "frames_per_window": cfg.frames, "input_radius": cfg.input_radius,
+            "gflops_per_frame": round(flops_per_frame(cfg, lr_shape) / 1e9, 3)}
 
 
-jax.tree_util.register_dataclass(Model, data_fields=["params", "state"], meta_fields=["config"])
+DUF = register_architecture(Architecture(
+    "duf", ModelConfig, init_model, apply_model, input_radius=lambda cfg: cfg.input_radius,
+    sequence_form=lambda cfg: cfg.temporal == "sequence", receptive_radius=spatial_radius, describe=_describe))

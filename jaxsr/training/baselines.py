@@ -1,4 +1,5 @@
-"""Train steps of the learned baselines (HistNet, iSeeBetter) and the data source HistNet needs.
+"""How the learned baselines (HistNet, iSeeBetter) train: their jitted steps, the data source HistNet needs and
+their recipes for `jaxsr.training.fit`.
 
 - iSeeBetter takes LR depth windows like our network: `jaxsr.training.data.scene_batches(tr=cfg.frames // 2, train_cfg)`
   (or `sequence_batches`) feeds `make_iseebetter_train_step` as it is.
@@ -15,24 +16,14 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import json
-import math
-import platform
-import time
+import warnings
 from pathlib import Path
-from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..io.files import write_text_atomic
-from ..io.checkpoint import config_from_dict, config_to_dict, load_tree, read_metadata, resolve_model_path, save_tree
-from ..config import SensorConfig, TrainConfig
-from .data import log_uniform, run_keys, scene_batches, validation_set
 from ..baselines.histnet import HistNetConfig, apply_histnet, init_histnet
-from ..eval.metrics import psnr
-from .optim import AdamState, adam_init, adam_update, lr_schedule
 from ..baselines.rbpn import (
     RBPNConfig,
     apply_discriminator,
@@ -42,30 +33,34 @@ from ..baselines.rbpn import (
     init_discriminator,
     init_rbpn,
 )
+from ..config import SensorConfig, TrainConfig
+from ..eval.metrics import psnr
+from ..inference.super_resolve import super_resolve, super_resolve_histograms
+from ..io.checkpoint import load_model, resolve_model_path, save_model
+from ..nn.model import Model, architecture
 from ..scenes import test_sequences, training_clip
 from ..sensor.forward import normalise_depth, simulate_histograms
-from ..temporal import windows as temporal_windows
+from .data import log_uniform, scene_batches, validation_set
+from .optim import AdamState, adam_init, adam_update, lr_schedule
+from .recipes import Recipe, register_recipe
 
 __all__ = [
     "BASELINES",
-    "BaselineModel",
-    "baseline_schedule",
-    "baseline_template",
-    "baseline_train_step",
     "baseline_validation_set",
-    "default_baseline_data",
     "evaluate_baseline",
-    "fit_baseline",
     "histogram_batches",
     "init_adam_pair",
-    "load_baseline",
     "make_histnet_train_step",
     "make_iseebetter_train_step",
     "make_rbpn_train_step",
-    "resolve_baseline_path",
+    # deprecated: the one model interface and loop do their work
+    "BaselineModel",
+    "fit_baseline",
+    "load_baseline",
     "save_baseline",
     "super_resolve_baseline",
 ]
+
 _SENSOR = SensorConfig()  # the default sensor
 
 
@@ -207,135 +202,16 @@ BASELINES = ("histnet", "iseebetter")
 _CONFIGS = {"histnet": HistNetConfig, "iseebetter": RBPNConfig}
 
 
-class BaselineModel(NamedTuple):
-    """A trained learned baseline: `kind` ("histnet" or "iseebetter"), the network's params (iSeeBetter: the
-    generator only; its discriminator serves training alone) and its config (`HistNetConfig` / `RBPNConfig`)."""
-
-    kind: str
-    params: dict
-    config: HistNetConfig | RBPNConfig
-
-
 def _check_kind(kind: str, who: str) -> None:
     if kind not in BASELINES:
         raise ValueError(f"{who}: unknown baseline {kind!r}; expected one of {', '.join(BASELINES)}")
 
 
-def baseline_template(kind: str, cfg):
-    """Shapes and dtypes of the network parameters of baseline `kind` with config `cfg`, computing nothing."""
-    _check_kind(kind, "baseline_template")
-    init = init_histnet if kind == "histnet" else init_rbpn
-    return jax.eval_shape(lambda k: init(k, cfg), jax.random.key(0))
-
-
-def save_baseline(path, model: BaselineModel, *, card: dict | None = None, storage_dtype: str = "float32") -> Path:
-    """Save a `BaselineModel` to `path` (.npz, atomically): arrays `params/...` and metadata {kind: "baseline",
-    baseline, config, card, storage_dtype}. storage_dtype "float16" halves the file (`load_baseline` returns
-    float32); raises ValueError for a value beyond float16's range. Returns the path."""
-    _check_kind(model.kind, "save_baseline")
-    tree = {"params": jax.tree_util.tree_map(lambda x: np.asarray(x, np.float32), model.params)}
-    if storage_dtype == "float16":
-        if any(np.any(np.abs(v) > np.finfo(np.float16).max) for v in jax.tree_util.tree_leaves(tree)):
-            raise ValueError("save_baseline: weights beyond float16's range; store as float32")
-        tree = jax.tree_util.tree_map(lambda x: x.astype(np.float16), tree)
-    elif storage_dtype != "float32":
-        raise ValueError(f"save_baseline: storage_dtype must be 'float32' or 'float16', got {storage_dtype!r}")
-    meta = {"kind": "baseline", "baseline": model.kind, "config": config_to_dict(model.config), "card": card or {},
-            "storage_dtype": storage_dtype}
-    return save_tree(path, tree, meta)
-
-
-def resolve_baseline_path(path) -> Path:
-    """`path` if it is a file, else `path` + ".npz", else the bundled weights of that name
-    (`jaxsr/weights/histnet.npz` for "histnet"). Raises FileNotFoundError saying where it looked and how the
-    bundled ones are made."""
-    try:
-        return resolve_model_path(path)
-    except FileNotFoundError:
-        raise FileNotFoundError(
-            f"no trained baseline at {str(path)!r} (nor {str(path)!r}.npz, nor bundled weights "
-            f"jaxsr/weights/{Path(path).name}.npz); train one with `python experiments/train_baselines.py "
-            f"{Path(path).name if Path(path).name in BASELINES else 'histnet|iseebetter'} --bundle`") from None
-
-
-def load_baseline(path) -> BaselineModel:
-    """Load a `BaselineModel` written by `save_baseline` (or the best weights `fit_baseline` keeps).
-
-    path: a file, a file without its `.npz`, or a bundled name ("histnet", "iseebetter"). Every array is checked
-    against the shapes of the stored config. Raises FileNotFoundError for a missing file, ValueError for a file
-    that is not a trained baseline (e.g. a TR model), an unknown kind or config, a missing/extra array or a
-    shape/dtype mismatch. Returns params float32 in memory.
-    """
-    path = resolve_baseline_path(path)
-    meta = read_metadata(path)
-    if meta.get("kind") != "baseline":
-        raise ValueError(f"{str(path)!r} does not hold a trained learned baseline (kind {meta.get('kind')!r}; a "
-                         "TR model loads with jaxsr.load_model)")
-    kind = meta.get("baseline")
-    if kind not in BASELINES:
-        raise ValueError(f"{str(path)!r}: unknown baseline {kind!r}; expected one of {', '.join(BASELINES)}")
-    try:
-        cfg = config_from_dict(_CONFIGS[kind], meta["config"])
-    except (KeyError, TypeError, AttributeError, ValueError) as e:
-        raise ValueError(f"{str(path)!r}: unreadable {kind} config {meta.get('config')!r}: {e}") from e
-    tree, _ = load_tree(path, {"params": baseline_template(kind, cfg)})
-    return BaselineModel(kind, jax.tree_util.tree_map(jnp.asarray, tree["params"]), cfg)
-
-
-@functools.partial(jax.jit, static_argnames=("cfg", "sensor"))
-def _histnet_chunk(params, counts, intensity, cfg, sensor):
-    return apply_histnet(params, counts, intensity, cfg, sensor=sensor)
-
-
-@functools.partial(jax.jit, static_argnames=("cfg",))
-def _rbpn_chunk(params, windows, cfg):
-    return apply_rbpn(params, windows, cfg)
-
-
-def _chunked(fn, n: int, batch_size: int, *arrays):
-    """fn over the leading axis in chunks of batch_size, the last one padded (one compilation per size)."""
-    outs = []
-    for i in range(0, n, batch_size):
-        chunk = [a[i : i + batch_size] for a in arrays]
-        pad = batch_size - chunk[0].shape[0]
-        if pad:
-            chunk = [jnp.concatenate([c, jnp.repeat(c[-1:], pad, 0)]) for c in chunk]
-        outs.append(np.asarray(fn(*chunk))[: batch_size - pad])
-    return np.concatenate(outs)
-
-
-def super_resolve_baseline(model: BaselineModel, *, counts=None, intensity=None, lr=None, batch_size: int = 4,
-                           sensor: SensorConfig = _SENSOR) -> np.ndarray:
-    """A trained baseline over a sequence, as our `super_resolve`: (T, ...) in, (T, H, W) HR normalised depth out
-    (NumPy float32, not clipped).
-
-    HistNet: counts (T, h, w, K) LR photon histograms and intensity (T, 4h, 4w) HR intensity in [0, 1], frame by
-    frame. iSeeBetter: lr (T, h, w) LR normalised depth (centre of mass); windows of `config.frames` frames,
-    edge-replicated at the ends (`jaxsr.temporal.windows`). Returns the (T, 4h, 4w) HR frames.
-    """
-    if model.kind == "histnet":
-        if counts is None or intensity is None:
-            raise ValueError("super_resolve_baseline: HistNet needs counts (T, h, w, K) and intensity (T, H, W)")
-        counts, intensity = jnp.asarray(counts, jnp.float32), jnp.asarray(intensity, jnp.float32)
-        if counts.ndim != 4 or intensity.shape != (counts.shape[0], *(sensor.scale * s for s in counts.shape[1:3])):
-            raise ValueError(f"super_resolve_baseline: expected counts (T, h, w, K) and intensity (T, {sensor.scale}h, "
-                             f"{sensor.scale}w), got {counts.shape} and {intensity.shape}")
-        fn = functools.partial(_histnet_chunk, model.params, cfg=model.config, sensor=sensor)
-        return _chunked(fn, counts.shape[0], batch_size, counts, intensity)
-    if lr is None:
-        raise ValueError("super_resolve_baseline: iSeeBetter needs lr (T, h, w) LR normalised depth")
-    lr = jnp.asarray(lr, jnp.float32)
-    if lr.ndim != 3:
-        raise ValueError(f"super_resolve_baseline: expected lr (T, h, w), got {lr.shape}")
-    windows = temporal_windows(lr, model.config.frames // 2)
-    return _chunked(functools.partial(_rbpn_chunk, model.params, cfg=model.config), lr.shape[0], batch_size, windows)
-
-
 def baseline_validation_set(key, kind: str, cfg, train_cfg: TrainConfig, *, sensor: SensorConfig = _SENSOR) -> dict:
-    """The validation frames of `jaxsr.training.data.validation_set` (the first `val_frames` of each validation sequence at
-    its own SNR, `val_mean_signal`, the same noise for the same key) with what each baseline reads: "counts"
-    (N, h, w, K) and "intensity" (N, H, W) for HistNet, "windows" (N, frames, h, w) for iSeeBetter; plus "gt"
-    (N, H, W), "lr" (N, h, w), "names", "lengths"."""
+    """The validation frames of `jaxsr.training.data.validation_set` (the first `val_frames` of each validation
+    sequence at its own SNR, `val_mean_signal`, the same noise for the same key) with what each baseline reads:
+    "counts" (N, h, w, K) and "intensity" (N, H, W) for HistNet, "windows" (N, frames, h, w) for iSeeBetter; plus
+    "gt" (N, H, W), "lr" (N, h, w), "names", "lengths"."""
     _check_kind(kind, "baseline_validation_set")
     seqs = test_sequences(n_frames=train_cfg.val_frames, names=train_cfg.val_sequences or None, sensor=sensor)
     tr = cfg.frames // 2 if kind == "iseebetter" else 0
@@ -353,197 +229,169 @@ def baseline_validation_set(key, kind: str, cfg, train_cfg: TrainConfig, *, sens
     return out
 
 
-def evaluate_baseline(model: BaselineModel, validation: dict, *, sensor: SensorConfig = _SENSOR) -> dict:
-    """Validation of a baseline: {"loss": its training content loss (HistNet mean |hr - gt|, iSeeBetter MSE),
-    "psnr": mean per-frame PSNR (dB) of the clipped output}, Python floats. validation: `baseline_validation_set`.
-    """
-    if model.kind == "histnet":
-        hr = super_resolve_baseline(model, counts=validation["counts"], intensity=validation["intensity"],
-                                    sensor=sensor)
-    else:
-        hr = _chunked(functools.partial(_rbpn_chunk, model.params, cfg=model.config), validation["gt"].shape[0], 4,
-                      validation["windows"])
+@functools.partial(jax.jit, static_argnames=("cfg",))
+def _rbpn_windows(params, windows, cfg):
+    return apply_rbpn(params, windows, cfg)
+
+
+def evaluate_baseline(model: Model, validation: dict, *, sensor: SensorConfig = _SENSOR) -> dict:
+    """Validation of a learned baseline: {"loss": its training content loss (HistNet mean |hr - gt|, iSeeBetter
+    MSE), "psnr": mean per-frame PSNR (dB) of the clipped output}, Python floats. validation:
+    `baseline_validation_set`."""
+    if model.architecture.inputs == "histograms":
+        hr = super_resolve_histograms(model, validation["counts"], sensor, intensity=validation["intensity"])
+        loss = np.mean(np.abs(hr - np.asarray(validation["gt"])))
+    else:  # the validation windows themselves: frames of several sequences lie end to end
+        windows = jnp.asarray(validation["windows"])
+        n, pad = windows.shape[0], (-windows.shape[0]) % 4  # chunks of 4, the last padded: one compilation
+        windows = jnp.concatenate([windows, jnp.repeat(windows[-1:], pad, 0)])
+        hr = np.concatenate([np.asarray(_rbpn_windows(model.params, windows[i : i + 4], model.config))
+                             for i in range(0, n + pad, 4)])[:n]
+        loss = np.mean((hr - np.asarray(validation["gt"])) ** 2)
     gt = np.asarray(validation["gt"])
-    loss = np.mean(np.abs(hr - gt)) if model.kind == "histnet" else np.mean((hr - gt) ** 2)
     return {"loss": float(loss), "psnr": float(np.mean(np.asarray(psnr(jnp.clip(hr, 0, 1), gt))))}
 
 
-def _init_train_state(key, kind: str, cfg) -> dict:
-    """The arrays a baseline's train step updates: its params and Adam state (iSeeBetter: also the
-    discriminator's params, batch-norm state and Adam state)."""
-    if kind == "histnet":
-        params = init_histnet(key, cfg)
-        return {"params": params, "opt": adam_init(params)}
-    k_g, k_d = jax.random.split(key)
-    g = init_rbpn(k_g, cfg)
-    d, d_state = init_discriminator(k_d, cfg)
-    g_opt, d_opt = init_adam_pair(g, d)
-    return {"params": g, "disc": d, "disc_state": d_state, "opt": g_opt, "disc_opt": d_opt}
+# --- the recipes `jaxsr.training.fit` reads ------------------------------------------------------------------
 
 
-# The learning rate of a baseline's run: the same step decay as our networks' (`jaxsr.training.optim.lr_schedule`)
-baseline_schedule = lr_schedule
+def _init(kind: str):
+    def init(key, cfg, init=None) -> dict:
+        """params and Adam state (iSeeBetter: also the discriminator's params, batch-norm state and Adam state)."""
+        if init is not None:
+            raise ValueError(f"fit: init (a warm start) is the DUF network's; {kind} starts from random weights")
+        if kind == "histnet":
+            params = init_histnet(key, cfg)
+            return {"params": params, "state": {}, "opt": adam_init(params)}
+        k_g, k_d = jax.random.split(key)
+        g = init_rbpn(k_g, cfg)
+        d, d_state = init_discriminator(k_d, cfg)
+        g_opt, d_opt = init_adam_pair(g, d)
+        return {"params": g, "state": {}, "opt": g_opt, "disc": d, "disc_state": d_state, "disc_opt": d_opt}
+    return init
 
 
-def baseline_train_step(kind: str, cfg, train_cfg: TrainConfig, make_batch, sensor: SensorConfig = _SENSOR, *,
-                        pretrain_steps: int = 0):
-    """One jitted train step of baseline `kind` on the dict of `_init_train_state`: run(train_state, key, step) ->
-    (train_state, metrics). Cached, so a resumed or repeated run does not compile again. The dict's arrays are
-    donated: copy what must outlive the step (`jax.device_get`). iSeeBetter: steps below `pretrain_steps` train
-    the generator alone on its content loss (`make_rbpn_train_step`; the discriminator waits), the rest are GAN
-    steps; `step` must then be a concrete integer (the phase is chosen in Python)."""
-    _check_kind(kind, "baseline_train_step")
-    if pretrain_steps < 0 or (pretrain_steps and kind != "iseebetter"):
-        raise ValueError(f"baseline_train_step: pretrain_steps is iSeeBetter's (>= 0), got {pretrain_steps} for {kind}")
-    # the step does not read the seed or the stopping rule: runs that differ only in those share one compilation
-    return _baseline_train_step(kind, cfg, dataclasses.replace(train_cfg, seed=0, epochs=1, patience=1), make_batch,
-                                sensor, pretrain_steps)
+def _step(kind: str):
+    def step(cfg, train_cfg: TrainConfig, make_batch, *, sensor: SensorConfig = _SENSOR, mesh=None,
+             conv3d_impl="auto", pretrain_steps: int = 0):
+        """One jitted step on the train state of `_init`: run(ts, key, step) -> (ts, metrics). iSeeBetter: steps
+        below `pretrain_steps` train the generator alone on its content loss (`make_rbpn_train_step`; the
+        discriminator waits), the rest are GAN steps (`make_iseebetter_train_step`)."""
+        if pretrain_steps and kind != "iseebetter":
+            raise ValueError(f"fit: pretrain_epochs is iSeeBetter's (a generator trained alone before its GAN), "
+                             f"not {kind}'s")
+        # the step does not read the seed or the stopping rule: runs that differ only in those share one compilation
+        return _compiled_step(kind, cfg, dataclasses.replace(train_cfg, seed=0, epochs=1, patience=1), make_batch,
+                              sensor, pretrain_steps)
+    return step
 
 
 @functools.lru_cache(maxsize=8)
-def _baseline_train_step(kind: str, cfg, train_cfg: TrainConfig, make_batch, sensor: SensorConfig,
-                         pretrain_steps: int = 0):
-    schedule = baseline_schedule(train_cfg)
+def _compiled_step(kind: str, cfg, train_cfg: TrainConfig, make_batch, sensor: SensorConfig, pretrain_steps: int):
+    schedule = lr_schedule(train_cfg)
     if kind == "histnet":
         step = make_histnet_train_step(cfg, make_batch, schedule=schedule, sensor=sensor)
 
         def run(ts, key, i):
             params, opt, metrics = step(ts["params"], ts["opt"], key, i)
-            return {"params": params, "opt": opt}, metrics
+            return {**ts, "params": params, "opt": opt}, metrics
         return run
-    step = make_iseebetter_train_step(cfg, make_batch, schedule=schedule)
+    gan = make_iseebetter_train_step(cfg, make_batch, schedule=schedule)
     pretrain = make_rbpn_train_step(cfg, make_batch, schedule=schedule) if pretrain_steps else None
 
     def run(ts, key, i):
         if pretrain is not None and int(i) < pretrain_steps:
             g, g_opt, metrics = pretrain(ts["params"], ts["opt"], key, i)
             return {**ts, "params": g, "opt": g_opt}, metrics
-        (g, d, d_state), (g_opt, d_opt), metrics = step((ts["params"], ts["disc"], ts["disc_state"]),
-                                                        (ts["opt"], ts["disc_opt"]), key, i)
-        return {"params": g, "disc": d, "disc_state": d_state, "opt": g_opt, "disc_opt": d_opt}, metrics
+        (g, d, d_state), (g_opt, d_opt), metrics = gan((ts["params"], ts["disc"], ts["disc_state"]),
+                                                       (ts["opt"], ts["disc_opt"]), key, i)
+        return {**ts, "params": g, "disc": d, "disc_state": d_state, "opt": g_opt, "disc_opt": d_opt}, metrics
     return run
 
 
-def default_baseline_data(kind: str, cfg, train_cfg: TrainConfig, *, sensor: SensorConfig = _SENSOR):
-    """The data our networks train on, in each baseline's form: `histogram_batches` (HistNet) or
-    `jaxsr.training.data.scene_batches` with tr = frames // 2 (iSeeBetter); same clips, SNR and signal ranges, crops."""
-    _check_kind(kind, "default_baseline_data")
-    if kind == "histnet":
-        return histogram_batches(train_cfg, sensor=sensor)
-    return scene_batches(cfg.frames // 2, train_cfg, sensor=sensor)
+def _data(kind: str):
+    def data(cfg, train_cfg: TrainConfig, sensor: SensorConfig):
+        """The data our networks train on, in each baseline's form: `histogram_batches` (HistNet) or
+        `scene_batches` with tr = frames // 2 (iSeeBetter); same clips, SNR and signal ranges, crops."""
+        if kind == "histnet":
+            return histogram_batches(train_cfg, sensor=sensor)
+        return scene_batches(cfg.frames // 2, train_cfg, sensor=sensor)
+    return data
 
 
-BASELINE_RUN_FILES = ("metrics.jsonl", "last.npz", "best.npz")
+for _kind in BASELINES:
+    register_recipe(_kind, Recipe(
+        init=_init(_kind), step=_step(_kind), data=_data(_kind),
+        validation=lambda key, cfg, train_cfg, sensor, kind=_kind: baseline_validation_set(
+            key, kind, cfg, train_cfg, sensor=sensor),
+        evaluate=lambda model, validation, train_cfg, *, sensor=_SENSOR, conv3d_impl="auto": evaluate_baseline(
+            model, validation, sensor=sensor)))
 
 
-def _baseline_settings(kind: str, cfg, train_cfg: TrainConfig, pretrain_epochs: int = 0) -> dict:
-    # JSON round trip: tuples become lists, as they read back from a file
-    return json.loads(json.dumps({"baseline": kind, "config": config_to_dict(cfg),
-                                  "train_config": config_to_dict(train_cfg), "pretrain_epochs": pretrain_epochs}))
+# --- deprecated: the names of jaxsr 0.1, each now a call of the one model interface or the one loop -------------
 
 
-def _check_same_run(path: Path, saved: dict, wanted: dict) -> None:
-    """ValueError naming each setting (but the epoch budget) in which the run at `path` differs from `wanted`."""
-    def flat(s):
-        out = {"baseline": s["baseline"], "pretrain_epochs": s.get("pretrain_epochs", 0),
-               **{f"config.{k}": v for k, v in s["config"].items()}}
-        out.update({f"train.{k}": v for k, v in s["train_config"].items() if k != "epochs"})
-        return out
+def _deprecated(old: str, new: str):
+    warnings.warn(f"{old} is deprecated: use {new}", DeprecationWarning, stacklevel=3)
 
-    a, b = flat(saved), flat(wanted)
-    differ = sorted(k for k in a.keys() | b.keys() if a.get(k) != b.get(k))
-    if differ:
-        raise ValueError(f"fit_baseline: cannot resume {str(path)!r}: it was trained with other settings: "
-                         + ", ".join(f"{k} {a.get(k)!r} (now {b.get(k)!r})" for k in differ))
+
+def BaselineModel(kind: str, params, config) -> Model:  # noqa: N802 (the class name it replaces)
+    """Deprecated: `jaxsr.nn.Model(params, {}, config)`. Returns that `Model` (its `kind` is `kind`)."""
+    _deprecated("BaselineModel(kind, params, config)", "jaxsr.nn.Model(params, {}, config)")
+    _check_kind(kind, "BaselineModel")
+    if architecture(config).name != kind:
+        raise ValueError(f"BaselineModel: a {type(config).__name__} is not a {kind} config")
+    return Model(params, {}, config)
+
+
+def save_baseline(path, model: Model, *, card: dict | None = None, storage_dtype: str = "float32") -> Path:
+    """Deprecated: `jaxsr.save_model`, which saves every architecture. Returns the path written."""
+    _deprecated("save_baseline", "jaxsr.save_model")
+    return save_model(path, model, card=card, storage_dtype=storage_dtype)
+
+
+def load_baseline(path) -> Model:
+    """Deprecated: `jaxsr.load_model`, which loads every architecture (and baselines saved by jaxsr 0.1).
+    Returns the `Model`; raises ValueError if the file holds no learned baseline."""
+    _deprecated("load_baseline", "jaxsr.load_model")
+    try:
+        resolve_model_path(path)
+    except FileNotFoundError:
+        raise FileNotFoundError(
+            f"no trained baseline at {str(path)!r} (nor {str(path)!r}.npz, nor bundled weights "
+            f"jaxsr/weights/{Path(path).name}.npz); train one with `python experiments/paper/train_baselines.py "
+            f"{Path(path).name if Path(path).name in BASELINES else 'histnet|iseebetter'} --bundle`") from None
+    model = load_model(path)
+    if model.kind not in BASELINES:
+        raise ValueError(f"{str(path)!r} does not hold a trained learned baseline ({model.kind}; a TR model loads "
+                         "with jaxsr.load_model)")
+    return model
+
+
+def super_resolve_baseline(model: Model, *, counts=None, intensity=None, lr=None, batch_size: int = 4,
+                           sensor: SensorConfig = _SENSOR) -> np.ndarray:
+    """Deprecated: `jaxsr.super_resolve(model, lr)` (iSeeBetter) or `jaxsr.super_resolve_histograms(model, counts,
+    intensity=intensity)` (HistNet). (T, ...) in, (T, H, W) HR normalised depth out (NumPy, not clipped)."""
+    _deprecated("super_resolve_baseline", "jaxsr.super_resolve / jaxsr.super_resolve_histograms")
+    if model.architecture.inputs == "histograms":
+        if counts is None or intensity is None:
+            raise ValueError("super_resolve_baseline: HistNet needs counts (T, h, w, K) and intensity (T, H, W)")
+        return super_resolve_histograms(model, counts, sensor, intensity=intensity, batch_size=batch_size)
+    if lr is None:
+        raise ValueError("super_resolve_baseline: iSeeBetter needs lr (T, h, w) LR normalised depth")
+    return super_resolve(model, lr, batch_size=batch_size)
 
 
 def fit_baseline(kind: str, cfg, train_cfg: TrainConfig, *, out, make_batch=None, validation: dict | None = None,
                  sensor: SensorConfig = _SENSOR, resume: bool = False, callback=None, card_extra: dict | None = None,
                  pretrain_epochs: int = 0):
-    """Train a learned baseline as `jaxsr.fit` trains our networks; returns (best `BaselineModel`, history).
-
-    Epochs of `train_cfg.steps_per_epoch` steps (rate `baseline_schedule`), each followed by validation
-    (`evaluate_baseline` on `validation`, default `baseline_validation_set`), early stopping after `patience`
-    epochs without a lower validation loss, and atomic writes into folder `out`: `best.npz` (the best epoch's
-    weights, `load_baseline` reads it, with a training card), `last.npz` (everything needed to resume) and
-    `metrics.jsonl`. `resume=True` continues from `last.npz` (refused if any setting but `epochs` differs); a
-    folder holding a run is refused (FileExistsError) without it. make_batch: default `default_baseline_data`.
-    callback(record) after each epoch's files are written; card_extra: entries added to the card (e.g. the budget).
-    pretrain_epochs (iSeeBetter): epochs of generator-only training on the content loss before the GAN epochs.
-    """
+    """Deprecated: `jaxsr.fit(cfg, train_cfg, ...)`, which trains every architecture. Returns (best `Model`,
+    history)."""
+    _deprecated("fit_baseline", "jaxsr.fit")
     _check_kind(kind, "fit_baseline")
     if not isinstance(cfg, _CONFIGS[kind]):
         raise TypeError(f"fit_baseline: {kind} needs a {_CONFIGS[kind].__name__}, got {type(cfg).__name__}")
-    out = Path(out)
-    held = [n for n in BASELINE_RUN_FILES if (out / n).exists()]
-    if held and not resume:
-        raise FileExistsError(f"{out} holds a training run ({', '.join(held)}); pass resume=True to continue it")
-    out.mkdir(parents=True, exist_ok=True)
-    k_init, k_data, k_val = run_keys(train_cfg.seed)  # as `fit` derives them
-    make_batch = default_baseline_data(kind, cfg, train_cfg, sensor=sensor) if make_batch is None else make_batch
-    if validation is None:
-        validation = baseline_validation_set(k_val, kind, cfg, train_cfg, sensor=sensor)
-    settings = _baseline_settings(kind, cfg, train_cfg, pretrain_epochs)
-    state_t = jax.eval_shape(lambda k: _init_train_state(k, kind, cfg), jax.random.key(0))
-    template = {"train": state_t, "best": state_t["params"],
-                "key": jax.eval_shape(lambda: jax.random.key_data(jax.random.key(0)))}
-    last = out / "last.npz"
-    if resume and last.is_file():
-        meta = read_metadata(last)
-        if meta.get("kind") != "baseline_train_state":
-            raise ValueError(f"fit_baseline: {str(last)!r} is not a baseline training state")
-        _check_same_run(last, meta["settings"], settings)
-        tree, _ = load_tree(last, template)
-        tree = jax.tree_util.tree_map(jnp.asarray, tree)
-        ts, best, k_data = tree["train"], tree["best"], jax.random.wrap_key_data(tree["key"])
-        ts["opt"] = AdamState(*ts["opt"])
-        if "disc_opt" in ts:
-            ts["disc_opt"] = AdamState(*ts["disc_opt"])
-        run = dict(meta["run"])
-    else:
-        ts = _init_train_state(k_init, kind, cfg)
-        best = jax.device_get(ts["params"])
-        run = {"epoch": 0, "step": 0, "best_loss": math.inf, "best_epoch": -1, "bad_epochs": 0, "wall_time_s": 0.0,
-               "history": []}
-    spe = train_cfg.steps_per_epoch
-    step_fn = baseline_train_step(kind, cfg, train_cfg, make_batch, sensor, pretrain_steps=pretrain_epochs * spe)
-    while run["bad_epochs"] < train_cfg.patience and run["epoch"] < train_cfg.epochs:
-        t0 = time.perf_counter()
-        sums = {}
-        for i in range(spe):
-            step = run["epoch"] * spe + i
-            ts, m = step_fn(ts, jax.random.fold_in(k_data, step), jnp.int32(step))
-            for k, v in jax.device_get(m).items():
-                sums[k] = sums.get(k, 0.0) + float(v)
-        train_time = time.perf_counter() - t0
-        val = evaluate_baseline(BaselineModel(kind, ts["params"], cfg), validation, sensor=sensor)
-        run["epoch"] += 1
-        run["step"] = run["epoch"] * spe
-        record = {"epoch": run["epoch"], "step": run["step"], **{f"train_{k}": v / spe for k, v in sums.items()},
-                  "val_loss": val["loss"], "val_psnr": val["psnr"], "examples_per_s": spe * train_cfg.batch_size / train_time}
-        if val["loss"] < run["best_loss"]:
-            run.update(best_loss=val["loss"], best_epoch=run["epoch"] - 1, bad_epochs=0)
-            best = jax.device_get(ts["params"])
-        else:
-            run["bad_epochs"] += 1
-        run["wall_time_s"] += time.perf_counter() - t0
-        record["wall_time_s"] = run["wall_time_s"]
-        run["history"] = [*run["history"], record]
-        card = {"data": getattr(make_batch, "description", "user-supplied make_batch"), "steps": run["step"],
-                "epochs": run["epoch"], "examples": run["step"] * train_cfg.batch_size,
-                "best_epoch": run["best_epoch"], "wall_time_s": run["wall_time_s"],
-                "hardware": {"backend": jax.default_backend(), "devices": jax.device_count(),
-                             "host": platform.platform(), "jax": jax.__version__},
-                "validation": {"sequences": list(validation.get("names", [])), "frames": int(validation["gt"].shape[0]),
-                               "loss": run["best_loss"], "psnr": run["history"][run["best_epoch"]]["val_psnr"]},
-                "train_config": settings["train_config"], "seed": train_cfg.seed,
-                **({"pretrain_epochs": pretrain_epochs} if pretrain_epochs else {}), **(card_extra or {})}
-        # best first, then last: a kill between the two resumes from the previous epoch and rewrites both
-        if run["best_epoch"] == run["epoch"] - 1:
-            save_baseline(out / "best.npz", BaselineModel(kind, best, cfg), card=card)
-        tree = {"train": ts, "best": best, "key": jax.random.key_data(k_data)}
-        save_tree(last, tree, {"kind": "baseline_train_state", "settings": settings, "run": run, "card": card})
-        write_text_atomic(out / "metrics.jsonl", "".join(json.dumps(r) + "\n" for r in run["history"]))
-        if callback is not None:
-            callback(record)
-    return BaselineModel(kind, jax.tree_util.tree_map(jnp.asarray, best), cfg), list(run["history"])
+    from .loop import fit  # the loop imports this package's recipes
+
+    return fit(cfg, train_cfg, out=out, make_batch=make_batch, validation=validation, sensor=sensor, resume=resume,
+               callback=callback, card_extra=card_extra, pretrain_epochs=pretrain_epochs, progress=False)

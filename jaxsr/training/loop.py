@@ -1,20 +1,17 @@
-"""Training: the jitted train step (data simulated inside it), validation, and `fit`.
+"""`fit`: one training loop for every network (the DUF network in either form, HistNet, iSeeBetter's GAN).
 
-The data come from a source `make_batch(key) -> (windows, gt)` of `jaxsr.training.data` (default `scene_batches`), run
-inside the jitted step; a sequence-form model (`ModelConfig(temporal="sequence")`) trains on clips instead,
-`make_batch(key) -> (clips (B, L, h, w), gt (B, L, H, W))` (default `scene_clips`), with the loss on the L - 2R
-frames whose inputs lie inside the clip and BN statistics over the clip. `fit` runs epochs of
-`TrainConfig.steps_per_epoch` steps with step decay, validates with BN in inference mode, logs to `metrics.jsonl`,
-writes `best.npz` (a `Model`) and `last.npz` (everything needed to resume) after every epoch, `resume.npz` (the
-same, inside an epoch) every `checkpoint_every_s` seconds of training, and stops early. Data parallelism: pass a
-`jax.sharding.Mesh` with a "data" axis (default: all devices); the batch is split over it and the parameters are
-replicated.
+`fit` runs epochs of `TrainConfig.steps_per_epoch` jitted steps of the architecture's recipe
+(`jaxsr.training.recipes`: the data are drawn inside each step), validates after each epoch, logs to
+`metrics.jsonl`, writes `best.npz` (a `Model`, `jaxsr.load_model` reads it) and `last.npz` (everything needed to
+resume) after every epoch, `resume.npz` (the same, inside an epoch) every `checkpoint_every_s` seconds of
+training, and stops early after `patience` epochs without a lower validation loss. A resumed run gives the
+same result as an uninterrupted one. Data parallelism: a `jax.sharding.Mesh` with a "data" axis (default: all
+devices) splits each batch.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import functools
 import json
 import math
 import platform
@@ -24,179 +21,27 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
-from ..io.files import write_text_atomic
 from ..baselines.interpolation import bicubic
-from ..io.checkpoint import (
-    config_from_dict,
-    config_to_dict,
-    load_model,
-    load_tree,
-    model_template,
-    read_metadata,
-    save_model,
-    save_tree,
-)
-from ..config import ModelConfig, SensorConfig, TrainConfig
-from .data import run_keys, scene_batches, scene_clips, validation_set
-from ..inference.super_resolve import super_resolve
-from ..eval.metrics import huber_loss, psnr
-from ..nn.duf import (Model, apply_model, apply_model_sequence_train, apply_model_train, grow_tr, init_model,
-                    sequence_radius)
-from .optim import AdamState, adam_init, adam_update, lr_schedule
+from ..config import SensorConfig, TrainConfig
+from ..eval.metrics import psnr
+from ..io.checkpoint import config_from_dict, config_to_dict, load_tree, read_metadata, save_model, save_tree
+from ..io.files import write_text_atomic
+from ..nn.model import Model, architecture
+from .data import run_keys
+from .duf import data_mesh
+from .recipes import recipe
 
 __all__ = [
-    "huber_loss",  # defined in jaxsr.eval.metrics, the training loss
-    "lr_schedule",  # defined in jaxsr.training.optim, shared with the baselines' training
-    "make_train_step",
-    "evaluate",
-    "evaluate_sequences",
-    "data_mesh",
     "choose_mesh",
     "replicate",
     "fit",
     "resume_config",
+    "RUN_FILES",
+    "RESUME_FILE",
 ]
-
-
-def data_mesh(devices=None) -> Mesh:
-    """A 1-D mesh with axis "data" over `devices` (default: all devices of all processes)."""
-    devices = jax.devices() if devices is None else devices
-    return Mesh(np.asarray(devices), ("data",))
-
-
-def make_train_step(model_cfg: ModelConfig, train_cfg: TrainConfig, make_batch, *, mesh: Mesh | None = None,
-                    conv3d_impl: str = "auto"):
-    """The jitted train step: step(params, state, opt_state, key, step) -> (params, state, opt_state, metrics).
-
-    Inside one jit: make_batch(key) -> network with BN in training mode -> Huber loss -> gradients -> Adam
-    with lr = `lr_schedule(train_cfg)(step)`. The network runs in `model_cfg.temporal`'s form (see
-    `sequence_loss` for the sequence form's batches). metrics: {"loss", "psnr" (mean over the batch, prediction
-    clipped), "lr"}. With a `mesh`, the batch is sharded over its "data" axis and params/state/optimiser
-    state are replicated (batch statistics and gradients are reduced over the mesh).
-    conv3d_impl: how the network's convolutions run (see `apply_model`).
-    """
-    # the step does not read the seed, the length of the run or the stopping rule: runs that differ only in
-    # those (other seeds, more epochs on resume) share one compiled step
-    step_cfg = dataclasses.replace(train_cfg, seed=0, epochs=1, patience=1)
-    return _train_step(model_cfg, step_cfg, make_batch, mesh, conv3d_impl)
-
-
-@functools.lru_cache(maxsize=16)
-def _train_step(model_cfg, train_cfg, make_batch, mesh, conv3d_impl):
-    # cached: fitting again with the same configs and data source (e.g. a resume) does not recompile
-    schedule = lr_schedule(train_cfg)
-
-    def constrain(tree, spec):
-        if mesh is None:
-            return tree
-        return jax.lax.with_sharding_constraint(tree, NamedSharding(mesh, spec))
-
-    def step_fn(params, state, opt_state, key, step):
-        windows, gt = constrain(make_batch(key), P("data"))
-
-        def loss_fn(p):
-            if model_cfg.temporal == "sequence":
-                return sequence_loss(p, state, windows, gt, model_cfg, delta=train_cfg.huber_delta,
-                                     conv3d_impl=conv3d_impl)
-            hr, new_state = apply_model_train(p, state, windows, model_cfg, conv3d_impl=conv3d_impl)
-            return huber_loss(hr, gt, delta=train_cfg.huber_delta), (new_state, hr, gt)
-
-        (loss, (new_state, hr, gt)), grads = jax.value_and_grad(loss_fn, has_aux=True)(params)
-        lr = schedule(step)
-        params, opt_state = adam_update(
-            grads, opt_state, params, lr=lr, b1=train_cfg.adam_b1, b2=train_cfg.adam_b2, eps=train_cfg.adam_eps
-        )
-        params, new_state, opt_state = constrain((params, new_state, opt_state), P())
-        metrics = {"loss": loss, "psnr": jnp.mean(psnr(hr, gt)), "lr": lr}
-        return params, new_state, opt_state, metrics
-
-    donate = (0, 1, 2) if jax.default_backend() != "cpu" else ()
-    return jax.jit(step_fn, donate_argnums=donate)
-
-
-def sequence_loss(params, state, clips, gt, cfg: ModelConfig, *, delta: float = 0.01, conv3d_impl: str = "auto"):
-    """The sequence form's training loss: mean Huber loss over the frames of each clip whose inputs all lie
-    inside it, BN with the statistics of the whole batch of clips (`apply_model_sequence_train`, "valid").
-
-    clips: (B, L, h, w) LR normalised depth, L >= 2R + 1 (R = 3 + tr); gt: (B, L, h*r, w*r) the ground truth of
-    every frame. Returns (loss (scalar), (new BN state, hr (B, L - 2R, h*r, w*r), gt of those frames)).
-    """
-    r = sequence_radius(cfg)
-    if gt.ndim != 4 or gt.shape[:2] != clips.shape[:2]:
-        raise ValueError(f"sequence_loss: expected gt (B, L, H, W) for clips {clips.shape}, got {gt.shape}")
-    hr, new_state = apply_model_sequence_train(params, state, clips, cfg, padding="valid", conv3d_impl=conv3d_impl)
-    gt = gt[:, r : gt.shape[1] - r]
-    return huber_loss(hr, gt, delta=delta), (new_state, hr, gt)
-
-
-@functools.partial(jax.jit, static_argnames=("cfg", "delta", "conv3d_impl"))
-def _eval_chunk(params, state, windows, gt, cfg, delta, conv3d_impl):
-    hr = apply_model(params, state, windows, cfg, conv3d_impl=conv3d_impl)
-    return huber_loss(hr, gt, delta=delta, axis=(-2, -1)), psnr(hr, gt)
-
-
-def evaluate(params, state, windows, gt, cfg: ModelConfig, *, delta: float = 0.01, batch_size: int = 8,
-             conv3d_impl: str = "auto") -> dict:
-    """Validation with BN in inference mode: {"loss": mean Huber, "psnr": mean per-frame PSNR (dB)}.
-
-    windows: (N, 2tr+1, h, w); gt: (N, h*r, w*r). Runs in chunks of `batch_size` frames (the last padded);
-    conv3d_impl: see `apply_model`. Returns the dict of two Python floats.
-    """
-    n = windows.shape[0]
-    pad = (-n) % batch_size
-    if pad:
-        windows = jnp.concatenate([windows, jnp.repeat(windows[-1:], pad, 0)])
-        gt = jnp.concatenate([gt, jnp.repeat(gt[-1:], pad, 0)])
-    losses, psnrs = [], []
-    for i in range(0, n + pad, batch_size):
-        l, p = _eval_chunk(params, state, windows[i : i + batch_size], gt[i : i + batch_size], cfg, delta,
-                           conv3d_impl)
-        losses.append(l)
-        psnrs.append(p)
-    return {"loss": float(jnp.concatenate(losses)[:n].mean()), "psnr": float(jnp.concatenate(psnrs)[:n].mean())}
-
-
-@jax.jit
-def _frame_scores(hr, gt, delta):
-    return huber_loss(hr, gt, delta=delta, axis=(-2, -1)), psnr(hr, gt)
-
-
-def evaluate_sequences(params, state, lr, gt, cfg: ModelConfig, *, lengths=None, delta: float = 0.01,
-                       conv3d_impl: str = "auto") -> dict:
-    """Validation in the sequence form, BN in inference mode: {"loss": mean Huber, "psnr": mean per-frame PSNR}.
-
-    lr: (N, h, w) LR normalised depth in [0, 1] (checked as by `super_resolve`) of one or more sequences end
-    to end, `lengths` frames each (None: one sequence);
-    gt: (N, h*r, w*r). Each sequence is super-resolved whole, its ends edge-padded (`super_resolve` of the
-    sequence-form model, in chunks). Returns the dict of two Python floats.
-    """
-    lengths = [lr.shape[0]] if lengths is None else list(lengths)
-    if sum(lengths) != lr.shape[0] or gt.shape[0] != lr.shape[0]:
-        raise ValueError(f"evaluate_sequences: lengths {lengths} must add up to the frames of lr {lr.shape} and "
-                         f"gt {gt.shape}")
-    model = Model(params, state, dataclasses.replace(cfg, temporal="sequence"))
-    losses, psnrs, start = [], [], 0
-    for n in lengths:
-        hr = super_resolve(model, np.asarray(lr[start : start + n]), conv3d_impl=conv3d_impl)
-        l, p = _frame_scores(jnp.asarray(hr), jnp.asarray(gt[start : start + n]), delta)
-        losses.append(l)
-        psnrs.append(p)
-        start += n
-    return {"loss": float(jnp.concatenate(losses).mean()), "psnr": float(jnp.concatenate(psnrs).mean())}
-
-
-def _validate(ts, validation: dict, model_cfg: ModelConfig, train_cfg: TrainConfig, conv3d_impl: str) -> dict:
-    """`evaluate` (window form) or `evaluate_sequences` (sequence form) of the current weights."""
-    if model_cfg.temporal == "sequence":
-        return evaluate_sequences(ts.params, ts.state, validation["lr"], validation["gt"], model_cfg,
-                                  lengths=validation.get("lengths"), delta=train_cfg.huber_delta,
-                                  conv3d_impl=conv3d_impl)
-    return evaluate(ts.params, ts.state, validation["windows"], validation["gt"], model_cfg,
-                    delta=train_cfg.huber_delta, conv3d_impl=conv3d_impl)
 
 
 def _hardware() -> dict:
@@ -212,13 +57,12 @@ def _hardware() -> dict:
 
 
 class _TrainState(NamedTuple):
-    """The arrays of a run, as `last.npz` holds them (the key as raw key data there): what the train step
-    updates (params, BN state, Adam state), the best epoch's {"params", "state"} (on the host), and the data
-    key (step s draws its batch with fold_in(key, s))."""
+    """The arrays of a run: `train`, what the recipe's step updates ({"params", "state", "opt"} and, for a GAN,
+    the discriminator's "disc", "disc_state", "disc_opt"), `best`, the best epoch's {"params", "state"} (on the
+    host), and the data `key` (step s draws its batch with fold_in(key, s)). `last.npz` holds them side by side
+    (the key as raw key data)."""
 
-    params: dict
-    state: dict
-    opt: AdamState
+    train: dict
     best: dict
     key: jax.Array
 
@@ -239,6 +83,7 @@ class _Run:
     epoch_loss_sum: float = 0.0
     epoch_psnr_sum: float = 0.0
     epoch_train_s: float = 0.0
+    epoch_sums: dict = dataclasses.field(default_factory=dict)  # sums of the step's other metrics (a GAN's losses)
     best_loss: float = math.inf
     best_epoch: int = -1
     bad_epochs: int = 0
@@ -247,15 +92,11 @@ class _Run:
     history: tuple = ()
 
 
-def _train_state_template(model_cfg: ModelConfig):
-    params_t, state_t = model_template(model_cfg)
-    return {
-        "params": params_t,
-        "state": state_t,
-        "opt": jax.eval_shape(adam_init, params_t),
-        "best": {"params": params_t, "state": state_t},
-        "key": jax.eval_shape(lambda: jax.random.key_data(jax.random.key(0))),
-    }
+def _train_state_template(model_cfg, k_init) -> dict:
+    """Shapes of everything `last.npz` holds for `model_cfg`, computing nothing."""
+    train = jax.eval_shape(lambda k: recipe(model_cfg).init(k, model_cfg, None), k_init)
+    best = {"params": train["params"], "state": train["state"]}
+    return {**train, "best": best, "key": jax.eval_shape(lambda: jax.random.key_data(jax.random.key(0)))}
 
 
 def choose_mesh(mesh, batch_size: int) -> Mesh | None:
@@ -282,10 +123,15 @@ def _bicubic_psnr(validation: dict, scale: int) -> float | None:
     return float(jnp.mean(psnr(bicubic(validation["lr"], scale=scale), validation["gt"])))
 
 
-def _settings(model_cfg: ModelConfig, train_cfg: TrainConfig) -> dict:
-    """{"config", "train_config"} as a checkpoint's metadata holds them."""
+def _settings(model_cfg, train_cfg: TrainConfig, pretrain_epochs: int) -> dict:
+    """{"architecture", "config", "train_config"} (and "pretrain_epochs" when used) as a checkpoint's metadata
+    holds them."""
     # JSON round trip: tuples become lists, as they are when read back from a checkpoint
-    return json.loads(json.dumps({"config": config_to_dict(model_cfg), "train_config": config_to_dict(train_cfg)}))
+    settings = {"architecture": architecture(model_cfg).name, "config": config_to_dict(model_cfg),
+                "train_config": config_to_dict(train_cfg)}
+    if pretrain_epochs:
+        settings["pretrain_epochs"] = pretrain_epochs
+    return json.loads(json.dumps(settings))
 
 
 def _check_resumable(path: Path, meta: dict, settings: dict):
@@ -295,11 +141,18 @@ def _check_resumable(path: Path, meta: dict, settings: dict):
     depends on decay_epochs and patience, not on the epoch budget). Fields older versions kept in the model
     config (`checkpoint.LEGACY_FIELDS`) are ignored, fields they lacked take their defaults.
     """
-    def flat(model, train):
-        return dict(model, **{f"train.{k}": v for k, v in train.items() if k != "epochs"})
+    def flat(arch, model, train, pretrain):
+        return dict(model, architecture=arch, pretrain_epochs=pretrain,
+                    **{f"train.{k}": v for k, v in train.items() if k != "epochs"})
 
-    saved = flat(config_to_dict(config_from_dict(ModelConfig, meta["config"])), meta["train_config"])
-    wanted = flat(settings["config"], settings["train_config"])
+    if meta.get("kind") != "train_state":
+        raise ValueError(f"fit: cannot resume {str(path)!r}: it holds no training state of `fit` (kind "
+                         f"{meta.get('kind')!r}; a learned baseline's run of jaxsr 0.1 resumes with that version)")
+    arch = architecture(meta.get("architecture", "duf"))
+    saved = flat(arch.name, config_to_dict(config_from_dict(arch.config_type, meta["config"])), meta["train_config"],
+                 meta.get("pretrain_epochs", 0))
+    wanted = flat(settings["architecture"], settings["config"], settings["train_config"],
+                  settings.get("pretrain_epochs", 0))
     differ = sorted(k for k in saved.keys() | wanted.keys() if saved.get(k) != wanted.get(k))
     if differ:
         raise ValueError(
@@ -320,34 +173,6 @@ def resume_config(out, train_cfg: TrainConfig) -> TrainConfig:
     return train_cfg if saved is None else dataclasses.replace(train_cfg, val_sequences=tuple(saved))
 
 
-def _initial_weights(k_init, model_cfg: ModelConfig, init) -> tuple[dict, dict]:
-    """(params, state) to start from: drawn with `k_init`, or those of `init` (a `Model` or a checkpoint
-    path), which must have `model_cfg`'s architecture (its temporal form may differ: fine-tuning a windowed
-    model into the sequence form) or that of a smaller TR (a warm start: `grow_tr` to `model_cfg.tr`, the
-    added blocks drawn with `k_init`)."""
-    if init is None:
-        return init_model(k_init, model_cfg)
-    model = init if isinstance(init, Model) else load_model(init)
-    if model.config.tr < model_cfg.tr:
-        model = grow_tr(k_init, model, model_cfg.tr)
-    if dataclasses.replace(model.config, temporal=model_cfg.temporal) != model_cfg:
-        differ = [k for k, v in config_to_dict(model_cfg).items()
-                  if k != "temporal" and getattr(model.config, k) != v]
-        raise ValueError("fit: the init model's architecture differs from the model to train: "
-                         + ", ".join(f"{k} {getattr(model.config, k)!r} (training {getattr(model_cfg, k)!r})"
-                                     for k in differ))
-    return jax.tree_util.tree_map(jnp.asarray, (model.params, model.state))
-
-
-def default_data(model_cfg: ModelConfig, train_cfg: TrainConfig, sensor: SensorConfig = SensorConfig()):
-    """`fit`'s data source when none is given: rendered scenes, as windows of 2tr+1 frames (window form,
-    `scene_batches`) or clips of `train_cfg.clip_length` frames (sequence form, `scene_clips`).
-    Returns make_batch: key -> (inputs, gt) of that source."""
-    if model_cfg.temporal == "sequence":
-        return scene_clips(train_cfg.clip_length(model_cfg), train_cfg, sensor=sensor)
-    return scene_batches(model_cfg.tr, train_cfg, sensor=sensor)
-
-
 def _latest_state(out: Path) -> Path | None:
     """The train state to resume the run in folder `out` from: `resume.npz` (inside an epoch) when it is ahead of
     `last.npz` (an epoch's end; ahead of it when a kill fell between writing it and removing resume.npz), None
@@ -356,24 +181,24 @@ def _latest_state(out: Path) -> Path | None:
     return max(saved, key=lambda p: read_metadata(p).get("run", {}).get("step", 0), default=None)
 
 
-def _start_or_resume(out: Path, model_cfg: ModelConfig, train_cfg: TrainConfig, settings: dict, *,
-                     k_init, k_data, resume: bool, init=None) -> tuple[_TrainState, _Run]:
+def _start_or_resume(out: Path, model_cfg, train_cfg: TrainConfig, settings: dict, *, k_init, k_data,
+                     resume: bool, init=None) -> tuple[_TrainState, _Run]:
     """The run saved in folder `out` (`_latest_state`) when resuming one, else a fresh one (weights from `init` or
     drawn with `k_init`, data from `k_data`)."""
     path = _latest_state(out) if resume else None
     if path is None:
-        params, state = _initial_weights(k_init, model_cfg, init)
-        best = jax.device_get({"params": params, "state": state})
-        return _TrainState(params, state, adam_init(params), best, k_data), _Run()
-    _check_resumable(path, read_metadata(path), settings)
-    tree, meta = load_tree(path, _train_state_template(model_cfg))
+        train = recipe(model_cfg).init(k_init, model_cfg, init)
+        best = jax.device_get({"params": train["params"], "state": train["state"]})
+        return _TrainState(train, best, k_data), _Run()
+    meta = read_metadata(path)
+    _check_resumable(path, meta, settings)
+    tree, meta = load_tree(path, _train_state_template(model_cfg, k_init))
     tree = jax.tree_util.tree_map(jnp.asarray, tree)
-    ts = _TrainState(tree["params"], tree["state"], AdamState(*tree["opt"]), tree["best"],
-                     jax.random.wrap_key_data(tree["key"]))
+    best, key = tree.pop("best"), jax.random.wrap_key_data(tree.pop("key"))
     saved = meta["run"]
     # A run that used up its epoch budget continues when given more; an early-stopped run stays stopped.
     run = _Run(**dict(saved, history=tuple(saved["history"]), finished=saved["bad_epochs"] >= train_cfg.patience))
-    return ts, run
+    return _TrainState(tree, best, key), run
 
 
 def _run_epoch(step_fn, ts: _TrainState, run: _Run, train_cfg: TrainConfig, *, progress: bool,
@@ -384,13 +209,14 @@ def _run_epoch(step_fn, ts: _TrainState, run: _Run, train_cfg: TrainConfig, *, p
     the epoch's last step: the epoch's end is saved by the caller).
 
     Returns (the new train state, {"loss", "psnr": means over the epoch's steps, "lr": the last step's rate,
-    "train_s": the epoch's training time, from its start in an earlier process if resumed inside it}).
+    "other": means of the step's other metrics, "train_s": the epoch's training time, from its start in an
+    earlier process if resumed inside it}). The loss is the step's "loss", or a GAN generator's "g_loss".
     """
     from tqdm.auto import tqdm  # late: only training needs it
 
     spe = train_cfg.steps_per_epoch
-    params, state, opt = ts.params, ts.state, ts.opt
-    loss_sum, psnr_sum = run.epoch_loss_sum, run.epoch_psnr_sum
+    train = ts.train
+    loss_sum, psnr_sum, sums = run.epoch_loss_sum, run.epoch_psnr_sum, dict(run.epoch_sums)
     lr = None
     done = run.step - run.epoch * spe
     t0 = t_saved = time.perf_counter()
@@ -399,24 +225,27 @@ def _run_epoch(step_fn, ts: _TrainState, run: _Run, train_cfg: TrainConfig, *, p
     for i in range(done, spe):
         step = run.epoch * spe + i
         t_step = time.perf_counter()
-        params, state, opt, m = step_fn(params, state, opt, jax.random.fold_in(ts.key, step), step)
+        train, m = step_fn(train, jax.random.fold_in(ts.key, step), step)
         m = {k: float(v) for k, v in jax.device_get(m).items()}
-        loss_sum += m["loss"]
-        psnr_sum += m["psnr"]
-        lr = m["lr"]
-        bar.set_postfix(loss=f"{m['loss']:.2e}", psnr=f"{m['psnr']:.2f}", lr=f"{lr:.0e}",
+        loss = m.pop("loss") if "loss" in m else m["g_loss"]
+        loss_sum += loss
+        psnr_sum += m.pop("psnr")
+        lr = m.pop("lr")
+        for k, v in m.items():
+            sums[k] = sums.get(k, 0.0) + v
+        bar.set_postfix(loss=f"{loss:.2e}", psnr=f"{psnr_sum / (i + 1):.2f}", lr=f"{lr:.0e}",
                         ex_s=f"{train_cfg.batch_size / (time.perf_counter() - t_step):.1f}")
         bar.update()
         now = time.perf_counter()
         if save is not None and every_s is not None and i + 1 < spe and now - t_saved >= every_s:
-            save(ts._replace(params=params, state=state, opt=opt),
+            save(ts._replace(train=train),
                  dataclasses.replace(run, step=step + 1, epoch_loss_sum=loss_sum, epoch_psnr_sum=psnr_sum,
-                                     epoch_train_s=run.epoch_train_s + now - t0))
+                                     epoch_sums=dict(sums), epoch_train_s=run.epoch_train_s + now - t0))
             t_saved = time.perf_counter()
     bar.close()
-    means = {"loss": loss_sum / spe, "psnr": psnr_sum / spe, "lr": lr,
+    means = {"loss": loss_sum / spe, "psnr": psnr_sum / spe, "lr": lr, "other": {k: v / spe for k, v in sums.items()},
              "train_s": run.epoch_train_s + time.perf_counter() - t0}
-    return ts._replace(params=params, state=state, opt=opt), means
+    return ts._replace(train=train), means
 
 
 def _early_stopping(run: _Run, ts: _TrainState, val_loss: float, train_cfg: TrainConfig) -> tuple[_Run, _TrainState]:
@@ -425,7 +254,7 @@ def _early_stopping(run: _Run, ts: _TrainState, val_loss: float, train_cfg: Trai
     the epoch budget is used up."""
     if val_loss < run.best_loss:
         run = dataclasses.replace(run, best_loss=val_loss, best_epoch=run.epoch - 1, bad_epochs=0)
-        ts = ts._replace(best=jax.device_get({"params": ts.params, "state": ts.state}))
+        ts = ts._replace(best=jax.device_get({"params": ts.train["params"], "state": ts.train["state"]}))
     else:
         run = dataclasses.replace(run, bad_epochs=run.bad_epochs + 1)
     finished = run.bad_epochs >= train_cfg.patience or run.epoch >= train_cfg.epochs
@@ -462,12 +291,12 @@ RUN_FILES = ("metrics.jsonl", "last.npz", "best.npz", RESUME_FILE)  # what `fit`
 
 
 def _save_state(path: Path, ts: _TrainState, run: _Run, settings: dict, card: dict):
-    """Everything a resume needs (params, BN and Adam state, best weights, RNG key, the run), written atomically."""
-    tree = {"params": ts.params, "state": ts.state, "opt": ts.opt, "best": ts.best, "key": jax.random.key_data(ts.key)}
+    """Everything a resume needs (the train state, best weights, RNG key, the run), written atomically."""
+    tree = {**ts.train, "best": ts.best, "key": jax.random.key_data(ts.key)}
     save_tree(path, tree, dict(settings, kind="train_state", run=dataclasses.asdict(run), card=card))
 
 
-def _write_checkpoints(out: Path, ts: _TrainState, run: _Run, model_cfg: ModelConfig, settings: dict, card: dict):
+def _write_checkpoints(out: Path, ts: _TrainState, run: _Run, model_cfg, settings: dict, card: dict):
     """At an epoch's end: `best.npz` (when this epoch is the best), `last.npz` and `metrics.jsonl`, each written
     atomically; then `resume.npz` (inside this epoch) is removed."""
     # best first, then last: a kill between the two resumes from the latest state inside this epoch (or the
@@ -480,7 +309,7 @@ def _write_checkpoints(out: Path, ts: _TrainState, run: _Run, model_cfg: ModelCo
 
 
 def fit(
-    model_cfg: ModelConfig,
+    model_cfg,
     train_cfg: TrainConfig,
     *,
     out,
@@ -496,32 +325,43 @@ def fit(
     conv3d_impl: str = "auto",
     init=None,
     checkpoint_every_s: float | None = 600.0,
+    pretrain_epochs: int = 0,
+    card_extra: dict | None = None,
 ):
-    """Train a network; returns (best `Model`, history: list of per-epoch records).
+    """Train a network of any registered architecture; returns (best `Model`, history: list of per-epoch records).
 
+    model_cfg: the network to train, by its config: `ModelConfig` (the DUF network, in the form its `temporal`
+    says: windows, or clips of `train_cfg.clip_length(model_cfg)` frames validated on whole sequences),
+    `jaxsr.baselines.HistNetConfig` or `jaxsr.baselines.RBPNConfig` (iSeeBetter: a generator and a discriminator,
+    each with its own Adam, updated in the same step; `pretrain_epochs` epochs of the generator alone on its
+    content loss first). What differs between networks is their recipe (`jaxsr.training.recipes`); the loop,
+    its files and its rules are the same for all.
     out: folder for `metrics.jsonl` (one JSON record per epoch), `best.npz` (the best model so far, with its
-    training card; `jaxsr.load_model` reads it) and `last.npz` (params, BN state, Adam state, RNG key, step,
-    epoch, best-so-far weights and early-stopping counters), all written every epoch; inside an epoch the same
-    state goes to `resume.npz` every `checkpoint_every_s` seconds of training (None: never), so that a killed
-    run loses at most that much (removed at the epoch's end). `resume=True` continues from the later of the two
-    (a folder with neither starts afresh) and gives the same result as an uninterrupted run (bit-identical on
-    the same machine). A folder that already holds a run (any of `RUN_FILES`) is refused (FileExistsError)
-    unless `resume` or `overwrite` (start a new run in its place: the old run's files are removed when the new
-    one first saves its state) is given.
-    make_batch: the data source (default `jaxsr.training.data.scene_batches`); validation: a dict from
-    `jaxsr.training.data.validation_set` (default: built from `jaxsr.scenes.test_sequences`). mesh: "auto" (all
-    devices when there are more than one), None (no sharding) or a `Mesh` with a "data" axis. callback(record)
-    is called after each epoch's checkpoint is written. conv3d_impl: how the network's convolutions run (see
-    `apply_model`; not saved, a run may resume with another). Everything random follows `train_cfg.seed`.
-    The network trains in `model_cfg.temporal`'s form: windows, or clips of `train_cfg.clip_length(model_cfg)`
-    frames (default data `scene_clips`; validation on whole edge-padded sequences, `evaluate_sequences`).
-    init: start from these weights instead of random ones (a `Model` or a checkpoint path, the same
-    architecture in either temporal form: e.g. a windowed model fine-tuned into the sequence form; or a smaller
-    TR, grown to this one by `jaxsr.nn.grow_tr`: a warm start from its function); recorded in the training card,
-    ignored when resuming.
+    training card; `jaxsr.load_model` reads it) and `last.npz` (the train state: weights, BN and Adam state, a
+    GAN's discriminator, RNG key, step, epoch, best-so-far weights and early-stopping counters), all written every
+    epoch; inside an epoch the same state goes to `resume.npz` every `checkpoint_every_s` seconds of training
+    (None: never), so that a killed run loses at most that much (removed at the epoch's end). `resume=True`
+    continues from the later of the two (a folder with neither starts afresh) and gives the same result as an
+    uninterrupted run (bit-identical on the same machine); it is refused if any setting but `epochs` differs. A
+    folder that already holds a run (any of `RUN_FILES`) is refused (FileExistsError) unless `resume` or
+    `overwrite` (start a new run in its place: the old run's files are removed when the new one first saves its
+    state) is given.
+    make_batch: the data source (default: the recipe's, rendered scenes in the network's input form);
+    validation: a dict as the recipe's validation set gives (default: built from `jaxsr.scenes.test_sequences`).
+    mesh: "auto" (all devices when there are more than one), None (no sharding) or a `Mesh` with a "data" axis.
+    callback(record) is called after each epoch's checkpoint is written. conv3d_impl: how the DUF network's
+    convolutions run (see `jaxsr.apply_model`; not saved, a run may resume with another). Everything random
+    follows `train_cfg.seed`. init (DUF): start from these weights instead of random ones (a `Model` or a
+    checkpoint path, the same architecture in either temporal form, or a smaller TR grown to this one by
+    `jaxsr.nn.grow_tr`); recorded in the training card, ignored when resuming. card_extra: entries added to
+    the training card.
     """
-    if model_cfg.scale != sensor.scale:
-        raise ValueError(f"fit: model scale {model_cfg.scale} differs from sensor scale {sensor.scale}")
+    arch = architecture(model_cfg)  # ValueError for a config of no registered architecture
+    how = recipe(model_cfg)
+    if arch.scale(model_cfg) != sensor.scale:
+        raise ValueError(f"fit: model scale {arch.scale(model_cfg)} differs from sensor scale {sensor.scale}")
+    if not (isinstance(pretrain_epochs, int) and pretrain_epochs >= 0):
+        raise ValueError(f"fit: pretrain_epochs must be an int >= 0, got {pretrain_epochs!r}")
     out = Path(out)
     held = [name for name in RUN_FILES if (out / name).exists()]
     if resume and overwrite:
@@ -535,24 +375,28 @@ def fit(
     mesh = choose_mesh(mesh, train_cfg.batch_size)
     k_init, k_data, k_val = run_keys(train_cfg.seed)
     if make_batch is None:
-        make_batch = default_data(model_cfg, train_cfg, sensor)
+        make_batch = how.data(model_cfg, train_cfg, sensor)
     if data_description is None:
         data_description = getattr(make_batch, "description", "user-supplied make_batch")
     if validation is None:
-        validation = validation_set(k_val, model_cfg.tr, train_cfg, sensor=sensor)
-    val_bicubic = _bicubic_psnr(validation, model_cfg.scale)
-    settings = _settings(model_cfg, train_cfg)
+        validation = how.validation(k_val, model_cfg, train_cfg, sensor)
+    val_bicubic = _bicubic_psnr(validation, arch.scale(model_cfg))
+    settings = _settings(model_cfg, train_cfg, pretrain_epochs)
     if init is not None:
         settings["init"] = str(init) if not isinstance(init, Model) else "a Model passed to fit"
     ts, run = _start_or_resume(out, model_cfg, train_cfg, settings, k_init=k_init, k_data=k_data,
                                resume=resume, init=init)
-    step_fn = make_train_step(model_cfg, train_cfg, make_batch, mesh=mesh, conv3d_impl=conv3d_impl)
-    params, state, opt = replicate((ts.params, ts.state, ts.opt), mesh)
-    ts = ts._replace(params=params, state=state, opt=opt)
+    spe = train_cfg.steps_per_epoch
+    step_fn = how.step(model_cfg, train_cfg, make_batch, sensor=sensor, mesh=mesh, conv3d_impl=conv3d_impl,
+                       pretrain_steps=pretrain_epochs * spe)
+    ts = ts._replace(train=replicate(ts.train, mesh))
 
     def card_of(run: _Run) -> dict:
-        return _training_card(run, train_cfg=train_cfg, settings=settings, sensor=sensor, validation=validation,
+        card = _training_card(run, train_cfg=train_cfg, settings=settings, sensor=sensor, validation=validation,
                               bicubic_psnr=val_bicubic, data=data_description)
+        if pretrain_epochs:
+            card["pretrain_epochs"] = pretrain_epochs
+        return {**card, **(card_extra or {})}
 
     old_run = held if overwrite else []  # the replaced run's files, removed before the new run's first save
 
@@ -567,17 +411,18 @@ def fit(
         _save_state(out / RESUME_FILE, ts, run, settings,
                     card_of(dataclasses.replace(run, wall_time_s=run.wall_time_s + run.epoch_train_s)))
 
-    spe = train_cfg.steps_per_epoch
     while not run.finished and run.epoch < train_cfg.epochs:
         t0, before = time.perf_counter(), run.epoch_train_s  # before: training time in an earlier process
         ts, train = _run_epoch(step_fn, ts, run, train_cfg, progress=progress, save=save_inside_epoch,
                                every_s=checkpoint_every_s)
-        val = _validate(ts, validation, model_cfg, train_cfg, conv3d_impl)
+        current = Model(ts.train["params"], ts.train["state"], model_cfg)
+        val = how.evaluate(current, validation, train_cfg, sensor=sensor, conv3d_impl=conv3d_impl)
         run = dataclasses.replace(run, epoch=run.epoch + 1, step=(run.epoch + 1) * spe, epoch_loss_sum=0.0,
-                                  epoch_psnr_sum=0.0, epoch_train_s=0.0)
+                                  epoch_psnr_sum=0.0, epoch_sums={}, epoch_train_s=0.0)
         record = {
             "epoch": run.epoch, "step": run.step, "lr": train["lr"],
             "train_loss": train["loss"], "train_psnr": train["psnr"],
+            **{f"train_{k}": v for k, v in train["other"].items()},
             "val_loss": val["loss"], "val_psnr": val["psnr"], "val_bicubic_psnr": val_bicubic,
             "examples_per_s": spe * train_cfg.batch_size / train["train_s"],
             "epoch_time_s": before + time.perf_counter() - t0,

@@ -1,0 +1,444 @@
+"""Super-resolve a whole recording in one call, as `jaxsr upscale` does: open it (depth, histograms or photon
+time tags, `jaxsr.io.recordings`), check every frame, choose the model (a fixed one or `--model auto`), put the
+input on the network's scale (gate, depth scale, units), stream it through the network and write the result
+atomically (an .npy / .npz array or a folder of frame files) with an optional preview strip.
+
+`upscale` is the whole command; `prepare_upscale` and `write_upscaled` are its two halves (a checked job that
+yields HR frames, and the writer), for scripts that want the frames themselves or want to report between the
+checks and the long work.
+
+Frames stream from the input through the model to the output, so a long recording needs memory for a batch, not
+for the whole sequence (an .npz output holds the result; an .npy output is written through a memory map).
+Histograms and photon time tags are read over a gate (`bins`, `bin_width`, `gate_start`) and put on the
+network's scale with the gate's start as its 0 m and `span` metres (default the trained 35 m) as its 1.0; where
+that takes the models outside what they were trained on, `warnings` says so. Outputs never replace an existing
+file or write into a non-empty folder unless `overwrite`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from pathlib import Path
+from typing import Callable, Iterator
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from ..config import DepthScale, Gate, SensorConfig
+from ..io.checkpoint import load_model, resolve_model_path
+from ..io.files import atomic_folder, atomic_path
+from ..io.formats import write_depth, write_sequence
+from ..io.previews import write_comparison
+from ..io.recordings import (
+    ARRAY_FORMATS,
+    Recording,
+    check_frames,
+    check_output,
+    check_preview,
+    gate_frames,
+    guess_units,
+    normalised_frames,
+    open_recording,
+    time_tag_recording,
+    to_units,
+)
+from ..runtime import enable_compilation_cache
+from ..sensor.gates import gate_warnings
+from ..sensor.quantities import parse_span, parse_time_unit, range_metres
+from ..sensor.timetags import TIME_TAG_FORMATS, TimeTags, gate_of_tags, read_time_tags
+from .adaptive import resolve_model
+from .super_resolve import iter_centre_of_mass, iter_super_resolve
+
+__all__ = ["HEAD_FRAMES", "FRAME_FORMATS", "UpscaleJob", "UpscaleResult", "prepare_upscale", "write_upscaled",
+           "upscale"]
+
+HEAD_FRAMES = 64  # frames model="auto" measures the motion on
+FRAME_FORMATS = ("exr", "pfm", "tif", "png")  # frame files of a folder OUTPUT
+KINDS = ("depth", "histograms", "timetags")
+
+
+@dataclasses.dataclass(frozen=True)
+class UpscaleJob:
+    """A recording checked and ready to super-resolve (`prepare_upscale`): every frame checked, the model loaded.
+
+    recording: the opened `jaxsr.io.recordings.Recording` (kind "depth" or "histograms", time tags already
+    histogrammed); model: the `Model`; model_name: the model as people read it (tr4, a path, or
+    "tr1 (auto: motion ...)"); units: "m" or "normalised", of the input depth and of array outputs; gate: the
+    histogram gate (None for depth); scale: the `DepthScale` between metres and the network's [0, 1];
+    warnings: sentences on what the bundled models never saw in this gate and scale; source: the input as named
+    in messages and in an .npz output's metadata."""
+
+    recording: Recording
+    model: object
+    model_name: str
+    units: str
+    gate: Gate | None
+    scale: DepthScale
+    warnings: tuple[str, ...]
+    source: str
+    _lr_stream: Callable[[], Iterator[np.ndarray]] = dataclasses.field(repr=False, compare=False)
+
+    @property
+    def frames(self) -> int:
+        """Frames in the recording, T."""
+        return self.recording.frames
+
+    @property
+    def hr_shape(self) -> tuple[int, int]:
+        """(H, W) of an output frame: the LR frame times the model's scale."""
+        r = _scale(self.model)
+        return (int(self.recording.shape[0]) * r, int(self.recording.shape[1]) * r)
+
+    @property
+    def note(self) -> str:
+        """One line for people: what is read and with which model (`jaxsr upscale` prints it before the work)."""
+        return (f"{self.frames} frames {self.recording.kind} {tuple(self.recording.shape)} from {self.source}, "
+                f"units {self.units}, model {self.model_name}")
+
+    def lr_frames(self) -> Iterator[np.ndarray]:
+        """A fresh stream of the network's input: (h, w) float32 LR normalised depth frames, one per frame."""
+        return self._lr_stream()
+
+    def iter_normalised(self, *, batch_size: int | None = None, lr_frames=None) -> Iterator[np.ndarray]:
+        """The network's output, streamed: (H, W) float32 HR normalised depth (unclipped), one per frame.
+        lr_frames: the LR stream to run (default `lr_frames()`)."""
+        lr = self.lr_frames() if lr_frames is None else lr_frames
+        return iter_super_resolve(self.model, lr, batch_size=batch_size)
+
+    def iter_frames(self, *, batch_size: int | None = None, units: str | None = None) -> Iterator[np.ndarray]:
+        """The super-resolved recording, streamed: (H, W) float32 frames in `units` (default the job's: "m",
+        radial metres with inf for no return, or "normalised", clipped to [0, 1])."""
+        units = self.units if units is None else units
+        for hr in self.iter_normalised(batch_size=batch_size):
+            yield to_units(hr, units, self.scale)
+
+
+@dataclasses.dataclass(frozen=True)
+class UpscaleResult:
+    """What `upscale` / `write_upscaled` did. output: the file or folder written (None when kept in memory);
+    depth: the (T, H, W) float32 result in `units` when no output was written, else None; frames: T; shape:
+    (T, H, W); kind: "depth" or "histograms"; units: of the input and of an array output (a folder of frames is
+    always metres); model: the model as people read it; gate, scale: the histogram gate and depth scale (gate
+    None for depth); preview: the PNG written, or None; warnings: sentences on what the models never saw; notes:
+    every line `jaxsr upscale` prints to stderr (warnings as "warning: ...", then what was read with which
+    model)."""
+
+    output: Path | None
+    depth: np.ndarray | None
+    frames: int
+    shape: tuple[int, int, int]
+    kind: str
+    units: str
+    model: str
+    gate: Gate | None
+    scale: DepthScale
+    preview: Path | None
+    warnings: tuple[str, ...]
+    notes: tuple[str, ...]
+
+    def summary(self) -> dict:
+        """The JSON summary `jaxsr upscale` prints: frames, output, shape, units, model, and for histograms the
+        gate and the depth scale (metres)."""
+        out = {"frames": self.frames, "output": None if self.output is None else str(self.output),
+               "shape": list(self.shape), "units": self.units, "model": self.model}
+        if self.kind == "histograms":
+            out.update(gate={"bins": self.gate.bins, "bin_width_m": float(self.gate.bin_width),
+                             "start_m": float(self.gate.start)},
+                       scale={"offset_m": float(self.scale.offset), "span_m": float(self.scale.span)})
+        return out
+
+
+def _scale(model) -> int:
+    """The model's upscaling factor r (x4 for the paper's models)."""
+    return int(getattr(model.config, "scale", 4))
+
+
+def _seconds(value, what: str) -> float | None:
+    if value is None:
+        return None
+    if isinstance(value, str):
+        try:
+            return parse_time_unit(value)
+        except ValueError as e:
+            raise ValueError(f"{what}: {e}") from None
+    seconds = float(value)
+    if not (np.isfinite(seconds) and seconds > 0):
+        raise ValueError(f"{what}: expected a duration > 0 in seconds, got {value!r}")
+    return seconds
+
+
+def _span(value) -> float | str | None:
+    if value is None or value == "gate":
+        return value
+    if isinstance(value, str):
+        try:
+            return parse_span(value)
+        except ValueError as e:
+            raise ValueError(f"span: {e}") from None
+    metres = float(value)
+    if not (np.isfinite(metres) and metres > 0):
+        raise ValueError(f"span: expected a range > 0 in metres or 'gate', got {value!r}")
+    return metres
+
+
+def _array_recording(arr: np.ndarray, kind: str | None) -> Recording:
+    """A NumPy array as a recording: (T, h, w) depth or (T, h, w, bins) counts, one (h, w) frame allowed."""
+    if arr.dtype.kind not in "iuf":
+        raise ValueError(f"array input holds {arr.dtype} values; expected real numbers")
+    if arr.ndim == 2 and kind != "histograms":
+        arr = arr[None]
+    kind = kind or {3: "depth", 4: "histograms"}.get(arr.ndim)
+    if kind is None or arr.ndim != {"depth": 3, "histograms": 4}[kind]:
+        raise ValueError(f"array input: expected depth (T, h, w) or histograms (T, h, w, bins), got shape {arr.shape}")
+    if arr.shape[0] < 1:
+        raise ValueError("array input: the recording has no frames")
+    return Recording(kind, arr.shape[0], arr.shape[1:], lambda: iter(arr), "array", array=arr)
+
+
+def _open(input, kind, *, bins, bin_width, gate_start, span, time_unit, variable, drop_outside):
+    """(recording, gate, source) for the input: time tags histogrammed over their gate, histograms with theirs,
+    or depth (gate options refused there)."""
+    if kind is not None and kind not in KINDS:
+        raise ValueError(f"kind (--input) is one of {', '.join(KINDS)}, got {kind!r}")
+    width, start = range_metres(bin_width, "bin_width"), range_metres(gate_start, "gate_start")
+    gate_options = any(v is not None for v in (bins, bin_width, gate_start, span))
+    bins = 16 if bins is None else int(bins)
+    if bins < 2:
+        raise ValueError(f"bins: expected an integer >= 2, got {bins}")
+    tag_only = [o for o, v in (("--time-unit", time_unit), ("--variable", variable),
+                               ("--drop-outside", drop_outside or None)) if v is not None]
+    if kind == "timetags" or isinstance(input, TimeTags):
+        if isinstance(input, TimeTags):
+            tags = input
+        else:
+            if not str(input).lower().endswith(TIME_TAG_FORMATS):
+                raise ValueError(f"{input}: time tags are read from a MATLAB .mat cell array (v4-v7) or an .npz "
+                                 "table ('pixel', 'time', 'shape')")
+            tags = read_time_tags(input, variable=variable, time_unit_s=time_unit)
+        if (width is None) != (start is None):
+            raise ValueError("give both --bin-width and --gate-start, or neither (the gate then spans the photons)")
+        gate = gate_of_tags(tags, bins=bins) if width is None else Gate(bins, width, start)
+        rec = time_tag_recording(tags, gate, outside="drop" if drop_outside else "error")
+        return rec, gate, str(input) if not isinstance(input, TimeTags) else tags.source
+    if tag_only:
+        raise ValueError(f"{', '.join(tag_only)} applies to --input timetags only")
+    if isinstance(input, Recording):
+        rec, source = input, str(input.source)
+        if kind is not None and kind != rec.kind:
+            raise ValueError(f"{source}: a {rec.kind} recording, not {kind}")
+    elif isinstance(input, np.ndarray):
+        rec, source = _array_recording(input, kind), "array"
+    else:
+        rec, source = open_recording(input, kind=kind), str(input)
+    if rec.kind == "depth" and (gate_options or drop_outside):
+        raise ValueError("--bins, --bin-width, --gate-start and --span apply to histograms and time tags only")
+    default = Gate()
+    return rec, Gate(bins, default.bin_width if width is None else width, 0.0 if start is None else start), source
+
+
+def _fixed_model(model, min_fps):
+    """(the model named by `model`, loaded and checked now, its name); (None, "auto") for auto, which needs the
+    input first (its bundled weights are looked up now)."""
+    if not isinstance(model, (str, os.PathLike)):  # a model object, already loaded
+        if min_fps is not None:
+            raise ValueError("--min-fps applies to --model auto only (a fixed model runs at its own speed)")
+        return model, "model"
+    if model == "auto":
+        resolve_model_path("tr0")
+        return None, "auto"
+    if min_fps is not None:
+        raise ValueError("--min-fps applies to --model auto only (a fixed model runs at its own speed)")
+    return load_model(model), str(model)
+
+
+def _head(frames, n):
+    """The first n frames of an iterable, stacked."""
+    head = []
+    for f in frames:
+        head.append(f)
+        if len(head) == n:
+            break
+    return np.stack(head)
+
+
+def prepare_upscale(input, *, model="tr4", kind: str | None = None, bins: int | None = None, bin_width=None,
+                    gate_start=None, span=None, time_unit=None, variable: str | None = None,
+                    drop_outside: bool = False, units: str | None = None,
+                    min_fps: float | None = None) -> UpscaleJob:
+    """Open and check a recording and choose its model, as `jaxsr upscale` does before any output is written.
+
+    input: a path (.npy / .npz array of depth (T, h, w) or photon counts (T, h, w, bins); a folder or glob pattern
+    of EXR, PFM, TIFF or 16-bit PNG depth frames; with kind="timetags" a .mat cell array or .npz table of photon
+    time tags), or an opened `jaxsr.io.recordings.Recording`, a NumPy array (T, h, w) / (T, h, w, bins), or
+    `jaxsr.sensor.TimeTags`. The keyword options are `upscale`'s (see there). Checks, in order: the model, then
+    the input and every one of its frames (frames of any size h, w >= 4).
+
+    Returns an `UpscaleJob` (its `iter_frames()` streams the result). Raises ValueError, FileNotFoundError (a
+    missing input or model) with the messages `jaxsr upscale` prints.
+    """
+    fixed, name = _fixed_model(model, min_fps)
+    r = 4 if fixed is None else _scale(fixed)
+    sensor = SensorConfig() if r == 4 else SensorConfig(scale=r)
+    span = _span(span)
+    rec, gate, source = _open(input, kind, bins=bins, bin_width=bin_width, gate_start=gate_start, span=span,
+                              time_unit=_seconds(time_unit, "time_unit"), variable=variable,
+                              drop_outside=drop_outside)
+    if units is not None and units not in ("m", "normalised"):
+        raise ValueError(f"units is 'm' or 'normalised', got {units!r}")
+    warnings = ()
+    if rec.kind == "histograms":
+        scale = DepthScale.for_gate(gate, gate.length if span == "gate" else span)
+        warnings = tuple(gate_warnings(gate, scale))
+        units = "m" if units is None else units
+        check_frames(rec, units, gate)
+
+        def lr_stream():
+            return gate_frames(iter_centre_of_mass(rec, SensorConfig(bins=gate.bins)), gate, scale)
+    else:
+        scale = DepthScale(0.0, float(sensor.d_max))
+        units = guess_units(rec) if units is None else units
+        check_frames(rec, units, gate)
+
+        def lr_stream():
+            return normalised_frames(rec, units, sensor)
+
+        gate = None
+    enable_compilation_cache()
+    if fixed is None:
+        fixed, name = resolve_model("auto", _head(lr_stream(), HEAD_FRAMES), min_fps=min_fps)
+    return UpscaleJob(rec, fixed, name, units, gate, scale, warnings, source, lr_stream)
+
+
+def write_upscaled(job: UpscaleJob, output=None, *, frame_format: str = "exr", batch_size: int | None = None,
+                   preview=None, overwrite: bool = False, progress: bool = False) -> UpscaleResult:
+    """Run a prepared job (`prepare_upscale`) and write its result, as `jaxsr upscale` does.
+
+    output: an .npy file (written through a memory map), an .npz (`jaxsr.io.write_sequence`, with units, model,
+    input and scale as metadata), a folder (one `frame_format` file per frame, frame_000000.exr ..., always
+    metres; missing parent folders are created), or None (the (T, H, W) result is returned in `depth`).
+    Everything is written atomically (a folder into a hidden `.NAME.XXXX.partial` sibling, renamed when complete);
+    an interrupted or failed run leaves nothing. preview: a .png strip of the middle frame, input | output.
+    overwrite (--force): replace an existing output and preview, or write into a non-empty folder.
+    batch_size: frames per compiled call (default: see `iter_super_resolve`). progress: a tqdm progress bar.
+
+    Returns an `UpscaleResult`. Raises FileExistsError, IsADirectoryError, NotADirectoryError, FileNotFoundError
+    or ValueError for an output or preview that cannot be written (checked before any work).
+    """
+    if frame_format not in FRAME_FORMATS:
+        raise ValueError(f"frame_format (--frame-format) is one of {', '.join(FRAME_FORMATS)}, got {frame_format!r}")
+    if batch_size is not None and int(batch_size) < 1:
+        raise ValueError(f"batch_size: expected an integer >= 1, got {batch_size}")
+    out = None if output is None else check_output(output, force=overwrite)
+    preview = None if preview is None else check_preview(preview, force=overwrite, output=out)
+    rec, scale = job.recording, job.scale
+    shape = (job.frames, *job.hr_shape)
+    preview_t = job.frames // 2
+    preview_lr, preview_hr = [], []  # the preview's frames, kept as they stream past (no second pass)
+
+    def keep_preview(frames):
+        for t, f in enumerate(frames):
+            if t == preview_t:
+                preview_lr.append(f)
+            yield f
+
+    stream = job.iter_normalised(batch_size=batch_size, lr_frames=keep_preview(job.lr_frames()))
+    if progress:
+        stream = tqdm(stream, total=job.frames, unit="frame", desc="upscale")
+
+    def frames(units):
+        for t, hr in enumerate(stream):
+            if t == preview_t:
+                preview_hr.append(hr)
+            yield t, to_units(hr, units, scale)
+
+    def write_preview():  # inside the output's atomic block: a failed preview leaves no output either
+        if preview is not None:
+            write_comparison(preview, preview_lr[0], np.clip(preview_hr[0], 0, 1), d_max=float(scale.span),
+                             labels=("input (centre of mass)" if rec.kind == "histograms" else "input",
+                                     job.model_name), overwrite=overwrite)
+
+    depth = None
+    if out is None:
+        depth = np.empty(shape, np.float32)
+        for t, f in frames(job.units):
+            depth[t] = f
+        write_preview()
+    elif out.suffix.lower() == ".npy":  # streamed to disk: memory for a batch, not for the whole result
+        with atomic_path(out, overwrite=overwrite) as tmp:
+            result = np.lib.format.open_memmap(tmp, mode="w+", dtype=np.float32, shape=shape)
+            for t, f in frames(job.units):
+                result[t] = f
+            result.flush()
+            del result
+            write_preview()
+    elif out.suffix.lower() in ARRAY_FORMATS:
+        result = np.empty(shape, np.float32)
+        for t, f in frames(job.units):
+            result[t] = f
+        with atomic_path(out, overwrite=overwrite) as tmp:
+            write_sequence(tmp, result, overwrite=True, units=job.units, model=job.model_name, input=job.source,
+                           scale=_scale(job.model))
+            write_preview()
+    else:
+        with atomic_folder(out) as tmp:
+            for t, f in frames("m"):
+                write_depth(tmp / f"frame_{t:06d}.{frame_format}", f)
+            write_preview()
+    notes = tuple(f"warning: {w}" for w in job.warnings) + (job.note,)
+    return UpscaleResult(out, depth, job.frames, shape, rec.kind, job.units, job.model_name, job.gate, scale,
+                         preview, job.warnings, notes)
+
+
+def upscale(input, output=None, *, model="tr4", kind: str | None = None, bins: int | None = None, bin_width=None,
+            gate_start=None, span=None, time_unit=None, variable: str | None = None, drop_outside: bool = False,
+            units: str | None = None, frame_format: str = "exr", batch_size: int | None = None,
+            min_fps: float | None = None, preview=None, overwrite: bool = False, progress: bool = False,
+            report: Callable[[str], None] | None = None) -> UpscaleResult:
+    """Super-resolve a recording x4 with a trained model and write it: `jaxsr upscale INPUT OUTPUT` in one call.
+
+    input: a path (.npy / .npz array of depth (T, h, w) or photon counts (T, h, w, bins); a folder or glob
+    pattern of EXR, PFM, TIFF or 16-bit PNG depth frames; photon time tags with kind="timetags": a MATLAB v4-v7
+    .mat cell array of per-pixel arrival times, or an .npz table 'pixel', 'time', 'shape'), or a `Recording`,
+    a NumPy array or `TimeTags` (see `prepare_upscale`). output: .npy / .npz, a folder of frames, or None (the
+    result is returned in `UpscaleResult.depth`, (T, H, W) float32). Options, keyword-only, as the command's:
+
+    - model (--model): "tr0".."tr4" (bundled weights), "auto" (the TR `choose_tr` picks from the motion of the
+      first 64 frames, within min_fps), a checkpoint path, or a `Model`. Default "tr4".
+    - kind (--input): "depth", "histograms" or "timetags" (default: depth or histograms from the data).
+    - bins, bin_width, gate_start, span (histograms and time tags): the gate, K bins (default 16) of bin_width
+      from gate_start; bin_width and gate_start are metres or strings with a unit ("12.5ns", "2.19m"; a time
+      converts as r = c t / 2), default 35 m / 16 from 0 (for time tags: the photons' span); span: metres mapped
+      onto the network's [0, 1] (default 35, the models' training range) or "gate" (the gate's length).
+    - time_unit (--time-unit, time tags): seconds per time unit, or a string such as "1ps"; variable: the .mat
+      cell array to read; drop_outside: ignore photons outside the gate (default: refuse them).
+    - units (--units): "m" (radial metres, inf = no return) or "normalised" ([0, 1], 1 = no return) of input and
+      output; default normalised if the first frame lies in [0, 1], else metres; histograms give metres.
+    - frame_format (--frame-format): "exr", "pfm", "tif" or "png", when output is a folder (always metres).
+    - batch_size (--batch-size): frames per compiled call; min_fps (--min-fps, model="auto" only): the slowest
+      acceptable frames/s; preview (--preview): an input | output PNG strip of the middle frame; overwrite
+      (--force): replace output and preview; progress (not --no-progress): show a progress bar.
+    - report: called with each line of `notes` as soon as it is known (the warnings, then what is read with which
+      model, before the network runs); `jaxsr upscale` prints them.
+
+    Everything is checked before the model runs, in order: the output and preview paths, the model, the input
+    and every frame. Returns an `UpscaleResult` (output path, frames, shape, units, model, gate, scale, warnings,
+    notes; `summary()` is the command's JSON). Raises FileNotFoundError (missing input, model or output folder),
+    FileExistsError (an output or preview exists, without overwrite), IsADirectoryError, NotADirectoryError or
+    ValueError (bad options or input), with the messages `jaxsr upscale` prints; nothing is left written then.
+    """
+    if output is not None:
+        out = check_output(output, force=overwrite)
+        if preview is not None:
+            check_preview(preview, force=overwrite, output=out)
+    elif preview is not None:
+        check_preview(preview, force=overwrite)
+    job = prepare_upscale(input, model=model, kind=kind, bins=bins, bin_width=bin_width, gate_start=gate_start,
+                          span=span, time_unit=time_unit, variable=variable, drop_outside=drop_outside,
+                          units=units, min_fps=min_fps)
+    if report is not None:
+        for w in job.warnings:
+            report(f"warning: {w}")
+        report(job.note)
+    return write_upscaled(job, output, frame_format=frame_format, batch_size=batch_size, preview=preview,
+                          overwrite=overwrite, progress=progress)
