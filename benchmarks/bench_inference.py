@@ -19,7 +19,7 @@ import pytest
 
 from jaxsr.config import ModelConfig, SensorConfig
 from jaxsr.inference.super_resolve import DEFAULT_BATCH_SIZE, Stream, iter_centre_of_mass, super_resolve, super_resolve_histograms
-from jaxsr.nn.duf import Model, apply_model, flops_per_frame, init_model
+from jaxsr.nn import Model, apply_model, flops_per_frame, init_model
 from jaxsr.runtime import compiler_options
 
 SENSOR = SensorConfig()

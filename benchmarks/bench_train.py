@@ -27,7 +27,7 @@ from jaxsr.nn import layers
 from jaxsr.config import DEFAULT_CLIP_OUTPUTS, PRESETS, ModelConfig, SensorConfig
 from jaxsr.training.data import log_uniform, random_crop, scene_batches, sequence_batches, sequence_clips
 from jaxsr.nn.layers import conv3d_native, conv3d_stacked, conv3d_taps
-from jaxsr.nn.duf import apply_model, apply_model_sequence, flops_per_frame, init_model, sequence_radius
+from jaxsr.nn import apply_model, apply_model_sequence, flops_per_frame, init_model, sequence_radius
 from jaxsr.training.optim import adam_init
 from jaxsr.sensor.peaks import centre_of_mass
 from jaxsr.runtime import compiler_options

@@ -29,7 +29,7 @@ import numpy as np
 
 import jaxsr
 from jaxsr.config import PRESETS, ModelConfig, SensorConfig
-from jaxsr.nn.duf import Model, init_model
+from jaxsr.nn import Model, init_model
 from jaxsr.runtime import enable_compilation_cache
 
 from jaxsr.eval.scoring import (

@@ -12,7 +12,7 @@ import bundle_weights  # experiments/paper (pytest's pythonpath)
 
 import jaxsr
 from jaxsr.io.checkpoint import resolve_model_path, save_model
-from jaxsr.nn.duf import Model
+from jaxsr.nn import Model
 
 ARGS = ["--runs", "runs", "--trs", "0", "--frames", "2", "--trained-with", "a test"]
 

@@ -20,7 +20,7 @@ from jaxsr.io.checkpoint import (
     save_tree,
 )
 from jaxsr.config import ModelConfig
-from jaxsr.nn.duf import Model, init_model
+from jaxsr.nn import Model, init_model
 
 CFG = ModelConfig(tr=1, base=8, growth=4, head=16, filter_hidden=16)
 

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import jaxsr
 from jaxsr import cli, io
 
 # The subcommands the README documents.
@@ -121,10 +122,25 @@ def test_runs_as_python_m_jaxsr_cli():
 
 @pytest.mark.parametrize("minutes,seconds", [("0", 0.0), ("2.5", 150.0), ("inf", float("inf"))])
 def test_train_checkpoint_minutes_reach_fit_as_seconds(tmp_path, monkeypatch, minutes, seconds):
-    import jaxsr.cli.train as cli_train
+    import jaxsr.training.presets as presets
 
     got = {}
-    monkeypatch.setattr(cli_train, "fit", lambda *a, **kw: (got.update(kw), (None, []))[1])
+    monkeypatch.setattr(presets, "fit", lambda *a, **kw: (got.update(kw), (None, []))[1])
     assert cli.main(["train", "--tr", "0", "--out", str(tmp_path / "run"), "--no-progress",
                      "--checkpoint-minutes", minutes]) == 0
     assert got["checkpoint_every_s"] == seconds
+
+
+def test_train_is_one_library_call_for_every_architecture(tmp_path, monkeypatch):
+    import jaxsr.training.presets as presets
+
+    got = []
+    monkeypatch.setattr(presets, "fit", lambda cfg, *a, **kw: (got.append(cfg), (None, []))[1])
+    assert cli.main(["train", "--arch", "histnet", "--out", str(tmp_path / "h"), "--no-progress"]) == 0
+    assert got[-1] == jaxsr.baselines.HistNetConfig()
+    jaxsr.training.train(tmp_path / "d", tr=1, temporal="sequence", progress=False)
+    assert got[-1] == jaxsr.ModelConfig(tr=1, temporal="sequence")
+    with pytest.raises(ValueError, match="sequence form"):
+        jaxsr.training.train(tmp_path / "w", tr=1, clip_frames=20)
+    with pytest.raises(ValueError, match="no data, init or scale"):
+        jaxsr.training.train(tmp_path / "i", arch="iseebetter", init="tr0")

@@ -24,7 +24,7 @@ from hypothesis.extra import numpy as hnp
 from jaxsr import io
 from jaxsr.io.checkpoint import save_model
 from jaxsr.config import ModelConfig
-from jaxsr.nn.duf import Model, init_model
+from jaxsr.nn import Model, init_model
 
 ROOT = Path(__file__).resolve().parents[1]
 ENV = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), *filter(None, [os.environ.get("PYTHONPATH")])]))

@@ -11,7 +11,7 @@ import _baselines  # experiments/paper (pytest's pythonpath)
 
 import jaxsr
 from jaxsr.eval import scoring
-from jaxsr.nn.duf import Model, init_model
+from jaxsr.nn import Model, init_model
 
 SMALL = {"base": 8, "growth": 4, "head": 16, "filter_hidden": 16}
 

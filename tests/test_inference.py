@@ -14,7 +14,7 @@ import pytest
 
 from jaxsr.config import ModelConfig, SensorConfig
 from jaxsr.inference.super_resolve import iter_centre_of_mass, iter_super_resolve, super_resolve, super_resolve_histograms
-from jaxsr.nn.duf import Model, apply_model, init_model
+from jaxsr.nn import Model, apply_model, init_model
 from jaxsr.sensor.peaks import centre_of_mass
 
 TINY = dict(base=8, growth=4, head=16, filter_hidden=16)

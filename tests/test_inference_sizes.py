@@ -7,7 +7,7 @@ import pytest
 
 from jaxsr.config import ModelConfig
 from jaxsr.inference.super_resolve import iter_super_resolve, super_resolve, super_resolve_histograms, tile_spans
-from jaxsr.nn.duf import Model, init_model, spatial_radius
+from jaxsr.nn import Model, init_model, spatial_radius
 
 TINY = {"base": 8, "growth": 4, "head": 16, "filter_hidden": 16}
 

@@ -15,7 +15,7 @@ import pytest
 
 import jaxsr
 from jaxsr.config import SensorConfig
-from jaxsr.nn.duf import count_params
+from jaxsr.nn import count_params
 
 
 def conv(k, cin, cout):

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from jaxsr.config import ModelConfig
-from jaxsr.nn.duf import (Model, apply_model, apply_model_sequence, apply_model_train, count_params,
+from jaxsr.nn import (Model, apply_model, apply_model_sequence, apply_model_train, count_params,
                          flops_per_frame, grow_tr, init_model)
 from jaxsr.temporal import windows as temporal_windows
 

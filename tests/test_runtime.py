@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from jaxsr.config import ModelConfig
-from jaxsr.nn.duf import apply_model, init_model
+from jaxsr.nn import apply_model, init_model
 from jaxsr.runtime import compiler_options, enable_compilation_cache, limit_cpu_fusions, use_cpu_cores
 
 

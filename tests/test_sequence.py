@@ -15,7 +15,7 @@ from jaxsr.io.checkpoint import load_model, model_info, read_metadata, resolve_m
 from jaxsr.config import ModelConfig, TrainConfig
 from jaxsr.training.data import run_keys
 from jaxsr.inference.super_resolve import Stream, iter_super_resolve, super_resolve
-from jaxsr.nn.duf import (
+from jaxsr.nn import (
     Model,
     apply_model,
     apply_model_sequence,

@@ -21,7 +21,7 @@ from jaxsr.io.checkpoint import load_model, read_metadata, save_tree
 from jaxsr.config import PRESETS, ModelConfig, SensorConfig, TrainConfig
 from jaxsr.training.data import random_crop, sequence_batches, validation_set
 from jaxsr.eval.metrics import psnr
-from jaxsr.nn.duf import apply_model, apply_model_train, init_model
+from jaxsr.nn import apply_model, apply_model_train, init_model
 from jaxsr.training.optim import adam_init, adam_update, step_decay
 from jaxsr.scenes import test_sequences
 from jaxsr.sensor.forward import calibrate, calibrated_rates, expected_histograms, normalise_depth
@@ -396,7 +396,7 @@ _SHARDED_SCRIPT = textwrap.dedent(
     os.environ["XLA_FLAGS"] = "--xla_force_host_platform_device_count=2"
     import jax, numpy as np
     from test_train import TINY, toy_batches, tiny_train_cfg
-    from jaxsr.nn.duf import init_model
+    from jaxsr.nn import init_model
     from jaxsr.training.optim import adam_init
     from jaxsr.training import data_mesh, make_train_step
     assert jax.device_count() == 2, jax.devices()

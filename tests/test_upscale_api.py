@@ -62,10 +62,10 @@ def test_npy_output_equals_the_command_and_in_memory(tmp_path, model_path, metre
     assert dict(result.summary(), output=None) == dict(summary, output=None)
     assert err.startswith("jaxsr upscale: " + result.notes[-1])
     # no output: the same frames in memory; a NumPy array or an opened job give them too
-    kept = upscale(tmp_path / "in.npy", model=model_path, units="m")
+    kept = upscale(tmp_path / "in.npy", None, model=model_path, units="m")
     assert kept.output is None
     np.testing.assert_array_equal(kept.depth, np.load(tmp_path / "cli.npy"))
-    np.testing.assert_array_equal(upscale(metres, model=load_model(model_path)).depth, kept.depth)
+    np.testing.assert_array_equal(upscale(metres, None, model=load_model(model_path)).depth, kept.depth)
     job = prepare_upscale(tmp_path / "in.npy", model=model_path)
     assert job.units == "m" and job.frames == 3 and job.hr_shape == (128, 256)
     np.testing.assert_array_equal(np.stack(list(job.iter_frames(batch_size=2))), kept.depth)

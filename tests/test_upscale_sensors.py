@@ -12,7 +12,7 @@ from jaxsr.io.checkpoint import load_model, save_model
 from jaxsr.config import DepthScale, Gate, ModelConfig
 from jaxsr.sensor.gates import from_network_depth, gate_depth, to_network_depth
 from jaxsr.inference.super_resolve import super_resolve
-from jaxsr.nn.duf import Model, init_model
+from jaxsr.nn import Model, init_model
 from jaxsr.sensor.timetags import histogram_time_tags, read_time_tags
 
 TINY = dict(base=8, growth=4, head=16, filter_hidden=16)

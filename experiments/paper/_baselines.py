@@ -121,7 +121,7 @@ def baseline_source(models: dict, cards: dict, skipped, weights) -> str:
 
 def describe_baseline(model) -> str:
     """Architecture in a few words: configuration and parameter count."""
-    from jaxsr.nn.duf import count_params
+    from jaxsr.nn import count_params
 
     c = model.config
     n = count_params(model.params) / 1e6

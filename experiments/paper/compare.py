@@ -52,7 +52,7 @@ from _baselines import (
 from jaxsr.eval.reports import header, markdown_table, write_atomic
 
 import jaxsr
-from jaxsr.nn.duf import count_params
+from jaxsr.nn import count_params
 from jaxsr.baselines.tv import tv_super_resolve
 from jaxsr.runtime import enable_compilation_cache
 

@@ -51,7 +51,7 @@ import jaxsr
 from jaxsr.training import baseline_validation_set, evaluate_baseline, recipe
 from jaxsr.io.checkpoint import read_metadata, resolve_model_path
 from jaxsr.config import PRESETS
-from jaxsr.nn.duf import count_params, init_model
+from jaxsr.nn import count_params, init_model
 from jaxsr.training.optim import adam_init
 from jaxsr.training.data import validation_set
 from jaxsr.training import default_data, evaluate, make_train_step

@@ -41,7 +41,7 @@ from campaign import REPORTED_RUNS, keep, report, score
 
 import jaxsr
 from jaxsr.config import PRESETS
-from jaxsr.nn.duf import init_model
+from jaxsr.nn import init_model
 from jaxsr.training.optim import adam_init
 from jaxsr.training import choose_mesh, default_data, fit, make_train_step, replicate, resume_config
 

@@ -22,7 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxsr
-from jaxsr.nn.duf import flops_per_frame
+from jaxsr.nn import flops_per_frame
 from jaxsr.runtime import enable_compilation_cache
 
 from jaxsr.eval.scoring import (

@@ -26,7 +26,7 @@ import jax
 import jaxsr
 from jaxsr.io.checkpoint import read_metadata, resolve_model_path
 from jaxsr.config import PRESETS
-from jaxsr.nn.duf import init_model
+from jaxsr.nn import init_model
 from jaxsr.training.optim import adam_init
 from jaxsr.training import default_data, fit, make_train_step
 

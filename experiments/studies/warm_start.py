@@ -31,7 +31,7 @@ from jaxsr.eval.runs import history, run_dir
 import jaxsr
 from jaxsr.config import PRESETS
 from jaxsr.training.data import run_keys, validation_set
-from jaxsr.nn.duf import init_model
+from jaxsr.nn import init_model
 from jaxsr.training import evaluate, fit
 
 

@@ -1,26 +1,21 @@
-"""`jaxsr train`: train a super-resolution network with `jaxsr.fit` on a preset, on rendered scenes (the
-default) or on HR sequences from an .npz (--data); writes OUT/metrics.jsonl, OUT/best.npz and OUT/last.npz.
-A folder that already holds a run is refused unless --resume (continue it) or --force (start over)."""
+"""`jaxsr train`: parse the options of `jaxsr.training.train` (a preset, on rendered scenes or on HR sequences
+from an .npz), call it and say where the best epoch went. It writes OUT/metrics.jsonl, OUT/best.npz and
+OUT/last.npz; a folder that already holds a run is refused unless --resume (continue it) or --force (start over)."""
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
-from .. import io
-from ..io.files import removing_new_folder
-from ..config import PRESETS, TEMPORAL_FORMS, ModelConfig, SensorConfig
-from ..training.data import sequence_batches, sequence_clips
-from ..training.loop import fit, resume_config
+from ..config import PRESETS, TEMPORAL_FORMS
+from ..nn.model import architectures
+from ..training.presets import MAX_TR, train
 from ._args import int_range, seed
-
-# The network has 3 + TR blocks over windows of 2TR+1 frames, so memory and compute grow with TR; the paper
-# uses TR 0-4, and a TR beyond this does not fit a training batch in the memory of a usual machine.
-MAX_TR = 8
 
 
 def add_parser(subparsers):
-    p = subparsers.add_parser("train", help="train a super-resolution network (3 + TR blocks)")
+    p = subparsers.add_parser("train", help="train a super-resolution network (3 + TR blocks, or a learned baseline)")
+    p.add_argument("--arch", choices=architectures(), default="duf",
+                   help="the network: duf (the paper's, 3 + TR blocks) or a learned baseline at its published size")
     p.add_argument("--tr", type=int_range(0, MAX_TR, "memory and compute grow with the window of 2TR+1 frames"),
                    default=4, help=f"temporal radius TR (window of 2TR+1 frames), 0..{MAX_TR}")
     p.add_argument("--scale", type=int_range(1), default=4, help="upsampling factor (4, or 8)")
@@ -51,42 +46,12 @@ def add_parser(subparsers):
     p.set_defaults(func=run)
 
 
-def _sequence_data(path, tr, cfg, sensor, clip=None):
-    """The data source for --data: HR sequences from an .npz, read and checked now; windows for the window form,
-    clips of `clip` frames for the sequence form."""
-    if Path(path).suffix.lower() != ".npz":
-        raise ValueError(f"--data {path}: expected an .npz file with arrays depth (radial m) and intensity, "
-                         "(N, T, H, W)")
-    d = io.read_npz_arrays(path, ["depth", "intensity"])
-    for name in ("depth", "intensity"):
-        if d[name].dtype.kind not in "iuf":
-            raise ValueError(f"--data {path}: {name} holds {d[name].dtype} values; expected real numbers")
-    if clip is None:
-        make_batch = sequence_batches(d["depth"], d["intensity"], tr, cfg, sensor=sensor)
-    else:
-        make_batch = sequence_clips(d["depth"], d["intensity"], clip, cfg, sensor=sensor)
-    make_batch.description = f"{path}: " + make_batch.description
-    return make_batch
-
-
 def run(args) -> int:
     """Train as the arguments say; prints the best epoch. Configs and data are built (and checked) before any work."""
-    changes = {k: v for k, v in (("seed", args.seed), ("epochs", args.epochs), ("clip_frames", args.clip_frames))
-               if v is not None}
-    cfg = dataclasses.replace(PRESETS[args.preset], **changes)
-    sensor = SensorConfig() if args.scale == 4 else SensorConfig(scale=args.scale)
-    model_cfg = ModelConfig(tr=args.tr, scale=args.scale, temporal=args.temporal)
-    clip = cfg.clip_length(model_cfg) if args.temporal == "sequence" else None  # checked before any work
-    if not args.checkpoint_minutes >= 0:  # also refuses NaN
-        raise ValueError(f"--checkpoint-minutes {args.checkpoint_minutes}: expected a number of minutes >= 0")
-    if Path(args.out).exists() and not Path(args.out).is_dir():
-        raise FileExistsError(f"{args.out} is a file; --out is a folder")
-    make_batch = _sequence_data(args.data, args.tr, cfg, sensor, clip) if args.data else None
-    with removing_new_folder(args.out):  # a run that fails or stops before its first save leaves no folder
-        cfg = resume_config(args.out, cfg) if args.resume else cfg  # a run keeps the validation it began with
-        _, history = fit(model_cfg, cfg, out=args.out, make_batch=make_batch, sensor=sensor, resume=args.resume,
-                         overwrite=args.force, progress=not args.no_progress, init=args.init,
-                         checkpoint_every_s=60 * args.checkpoint_minutes)
+    _, history = train(args.out, arch=args.arch, tr=args.tr, scale=args.scale, temporal=args.temporal,
+                       preset=args.preset, seed=args.seed, epochs=args.epochs, clip_frames=args.clip_frames,
+                       data=args.data, init=args.init, resume=args.resume, overwrite=args.force,
+                       checkpoint_minutes=args.checkpoint_minutes, progress=not args.no_progress)
     best = min(history, key=lambda r: r["val_loss"]) if history else None
     if best:
         print(f"best epoch {best['epoch']}: val loss {best['val_loss']:.3e}, val PSNR {best['val_psnr']:.2f} dB "

@@ -152,7 +152,7 @@ def super_resolve_frames(model, lr, frames=None, *, batch: int = 8) -> np.ndarra
     """`jaxsr.super_resolve(model, lr)[frames]` (frames: indices, None = all) for normalised LR depth in [0, 1]
     (no NaN: test clips' centre of mass), computing only those frames' windows in the window form (the sequence
     form runs the whole sequence, as its outputs share work)."""
-    if frames is None or model.config.temporal == "sequence":
+    if frames is None or model.architecture.sequence_form(model.config):
         out = jaxsr.super_resolve(model, lr)
         return out if frames is None else out[frames]
     tr = model.config.tr  # windows edge-replicated at the sequence ends, as `jaxsr.windows`

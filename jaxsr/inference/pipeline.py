@@ -18,7 +18,8 @@ import jax.numpy as jnp
 
 from ..config import DEFAULT_MEAN_SIGNAL, SensorConfig
 from ..eval.metrics import huber_loss, psnr
-from ..nn.duf import Model, apply_model, apply_model_sequence
+from ..nn.duf import DUF, apply_model, apply_model_sequence
+from ..nn.model import Model
 from ..sensor.peaks import centre_of_mass
 from ..sensor.poisson import PATHWISE_ESTIMATORS
 from ..sensor.forward import check_photon_args, expected_histograms, normalise_depth, simulate_histograms
@@ -41,7 +42,7 @@ def _network(model: Model, lr, conv3d_impl):
     """(T, h, w) LR sequence -> (T, h r, w r), in the model's temporal form, ends edge-replicated, BN in
     inference mode."""
     cfg = model.config
-    if cfg.temporal == "sequence":
+    if DUF.sequence_form(cfg):
         return apply_model_sequence(model.params, model.state, lr[None], cfg, conv3d_impl=conv3d_impl)[0]
     return apply_model(model.params, model.state, windows(lr, cfg.tr), cfg, conv3d_impl=conv3d_impl)
 

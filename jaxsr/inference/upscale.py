@@ -310,7 +310,7 @@ def prepare_upscale(input, *, model="tr4", kind: str | None = None, bins: int | 
     return UpscaleJob(rec, fixed, name, units, gate, scale, warnings, source, lr_stream)
 
 
-def write_upscaled(job: UpscaleJob, output=None, *, frame_format: str = "exr", batch_size: int | None = None,
+def write_upscaled(job: UpscaleJob, output, *, frame_format: str = "exr", batch_size: int | None = None,
                    preview=None, overwrite: bool = False, progress: bool = False) -> UpscaleResult:
     """Run a prepared job (`prepare_upscale`) and write its result, as `jaxsr upscale` does.
 
@@ -390,7 +390,7 @@ def write_upscaled(job: UpscaleJob, output=None, *, frame_format: str = "exr", b
                          preview, job.warnings, notes)
 
 
-def upscale(input, output=None, *, model="tr4", kind: str | None = None, bins: int | None = None, bin_width=None,
+def upscale(input, output, *, model="tr4", kind: str | None = None, bins: int | None = None, bin_width=None,
             gate_start=None, span=None, time_unit=None, variable: str | None = None, drop_outside: bool = False,
             units: str | None = None, frame_format: str = "exr", batch_size: int | None = None,
             min_fps: float | None = None, preview=None, overwrite: bool = False, progress: bool = False,

@@ -110,7 +110,7 @@ def _scene(input, kind, frames, fps, camera, seed, sensor):
     return depth, intensity, fps, dict(kind=kind, seed=seed, camera=camera)
 
 
-def simulate_recording(out=None, *, kind: str = "street", input=None, frames: int = 20, fps: float = 25.0,
+def simulate_recording(out, *, kind: str = "street", input=None, frames: int = 20, fps: float = 25.0,
                        snr: float = 1.3, mean_signal: float | None = None, camera: str = "static", seed: int = 0,
                        overwrite: bool = False) -> Simulation:
     """Simulate a SPAD recording and write it: `jaxsr simulate --out OUT` in one call.

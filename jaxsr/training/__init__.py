@@ -39,6 +39,7 @@ from .baselines import (
     super_resolve_baseline,
 )
 from .loop import RESUME_FILE, RUN_FILES, choose_mesh, fit, replicate, resume_config
+from .presets import MAX_TR, sequence_data, train
 
 __all__ = [
     "AdamState", "adam_init", "adam_update", "lr_schedule", "step_decay",
@@ -49,7 +50,7 @@ __all__ = [
     "sequence_loss",
     "BASELINES", "baseline_validation_set", "evaluate_baseline", "histogram_batches", "init_adam_pair",
     "make_histnet_train_step", "make_iseebetter_train_step", "make_rbpn_train_step",
-    "fit", "resume_config", "choose_mesh", "replicate", "RUN_FILES", "RESUME_FILE",
+    "fit", "resume_config", "train", "sequence_data", "MAX_TR", "choose_mesh", "replicate", "RUN_FILES", "RESUME_FILE",
     # deprecated (jaxsr 0.1): jaxsr.nn.Model, jaxsr.save_model / load_model, jaxsr.super_resolve*, jaxsr.fit
     "BaselineModel", "fit_baseline", "load_baseline", "save_baseline", "super_resolve_baseline",
 ]

@@ -23,7 +23,8 @@ from ..config import ModelConfig, SensorConfig, TrainConfig
 from ..eval.metrics import huber_loss, psnr
 from ..inference.super_resolve import super_resolve
 from ..io.checkpoint import config_to_dict, load_model
-from ..nn.duf import apply_model, apply_model_sequence_train, apply_model_train, grow_tr, init_model, sequence_radius
+from ..nn.duf import (DUF, apply_model, apply_model_sequence_train, apply_model_train, grow_tr, init_model,
+                      sequence_radius)
 from ..nn.model import Model
 from .data import scene_batches, scene_clips, validation_set
 from .optim import adam_init, adam_update, lr_schedule
@@ -77,7 +78,7 @@ def _train_step(model_cfg, train_cfg, make_batch, mesh, conv3d_impl):
         windows, gt = constrain(make_batch(key), P("data"))
 
         def loss_fn(p):
-            if model_cfg.temporal == "sequence":
+            if DUF.sequence_form(model_cfg):
                 return sequence_loss(p, state, windows, gt, model_cfg, delta=train_cfg.huber_delta,
                                      conv3d_impl=conv3d_impl)
             hr, new_state = apply_model_train(p, state, windows, model_cfg, conv3d_impl=conv3d_impl)
@@ -190,7 +191,7 @@ def default_data(model_cfg: ModelConfig, train_cfg: TrainConfig, sensor: SensorC
     """`fit`'s data source when none is given: rendered scenes, as windows of 2tr+1 frames (window form,
     `scene_batches`) or clips of `train_cfg.clip_length` frames (sequence form, `scene_clips`).
     Returns make_batch: key -> (inputs, gt) of that source."""
-    if model_cfg.temporal == "sequence":
+    if DUF.sequence_form(model_cfg):
         return scene_clips(train_cfg.clip_length(model_cfg), train_cfg, sensor=sensor)
     return scene_batches(model_cfg.tr, train_cfg, sensor=sensor)
 
