@@ -164,7 +164,7 @@ TEMPORAL_FORMS = ("window", "sequence")
 class ModelConfig:
     """The 3+TR-block dynamic-upsampling-filter network (docs/network.md). All fields are static.
 
-    `tr` is the temporal radius: the network sees 2*tr+1 LR frames and has 3 + tr blocks. `scale` is the
+    `tr` is the temporal radius: the network sees `2*tr+1` LR frames and has 3 + tr blocks. `scale` is the
     upsampling factor r (4, or 8 as in the paper's supplement). `base` (stem channels, 64), `growth` (channels
     added per block, 32), `head` (256), `filter_hidden` (512) and `filter_size` (5: 5x5 dynamic filters) are
     the paper's widths. `same_blocks` is the number of temporally padded blocks (3). BN uses the Keras
@@ -173,7 +173,7 @@ class ModelConfig:
     means "depth 0", the nearest possible return) or "zero" (DUF). The config describes what the network
     computes and goes into checkpoints; how it runs (`conv3d_impl`) is an argument of `apply_model`.
     `temporal` is the form the network was trained in (docs/network.md): "window" (the paper: each
-    output from its own window of 2*tr+1 frames, the first `same_blocks` blocks temporally padded) or
+    output from its own window of `2*tr+1` frames, the first `same_blocks` blocks temporally padded) or
     "sequence" (every block temporally valid, run once over a whole edge-padded sequence: output t from frames
     t-R .. t+R, R = `input_radius` = same_blocks + tr). Both forms have the same parameters.
     """
@@ -205,7 +205,7 @@ class ModelConfig:
 
     @property
     def frames(self) -> int:
-        """Input window length 2*tr + 1."""
+        """Input window length `2*tr + 1`."""
         return 2 * self.tr + 1
 
     @property
@@ -331,7 +331,7 @@ PRESETS = {
         patch=(16, 32),
         val_frames=16,
     ),
-    # The long CPU campaign (experiments/campaign.py): 8x the bundle's steps (20 x 512 = 10240, 40960 examples),
+    # The long CPU campaign (experiments/paper/campaign.py): 8x the bundle's steps (20 x 512 = 10240, 40960 examples),
     # the rate cut once, half way, and validation on 3 x 64 frames so that model selection sees enough frames
     # to rank checkpoints (3 x 16 picked ones 1.5-4 dB worse on the test scenes).
     "long": TrainConfig(

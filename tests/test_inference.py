@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from jaxsr.config import ModelConfig, SensorConfig
-from jaxsr.inference.super_resolve import iter_centre_of_mass, iter_super_resolve, super_resolve, super_resolve_histograms
+from jaxsr.inference.video import iter_centre_of_mass, iter_super_resolve, super_resolve, super_resolve_histograms
 from jaxsr.nn import Model, apply_model, init_model
 from jaxsr.sensor.peaks import centre_of_mass
 
@@ -130,7 +130,7 @@ _SHARDED_SCRIPT = textwrap.dedent(
     """
     import json
     import jax, numpy as np
-    from jaxsr.inference.super_resolve import _batch_sharding, _infer_chunk, super_resolve
+    from jaxsr.inference.video import _batch_sharding, _infer_chunk, super_resolve
     from jaxsr.runtime import use_cpu_cores
     assert use_cpu_cores(n=2) == 2
     assert _batch_sharding(4) is not None and _batch_sharding(3) is None and _batch_sharding(1) is None

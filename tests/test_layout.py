@@ -1,6 +1,8 @@
-"""The package's import graph points one way: a module imports only modules of lower layers (README "Layout").
+"""The package's shape: the stages as subpackages, a few flat modules, imports that point one way.
 
-Imports inside functions count too. A new module must be given a layer here; a move that breaks the order fails."""
+Module by module, the import graph (imports inside functions count too) has no cycle, the flat modules at the
+bottom import no stage, nothing in the library imports the CLI, and no module imports another package's private
+name. A move that breaks any of these fails here."""
 
 import ast
 from pathlib import Path
@@ -8,73 +10,98 @@ from pathlib import Path
 import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "jaxsr"
-
-# Layers of the top-level modules, from the bottom. `scenes` is a subpackage; its modules have their own order.
-LAYERS = [
-    {"_checks", "_files", "config", "runtime", "optim", "metrics", "stats", "layers", "poisson", "temporal",
-     "baselines", "flow"},
-    {"sensor", "peaks", "model", "rbpn"},
-    {"scenes", "io", "checkpoint", "recon", "streaming", "gates", "timetags", "pipeline", "histnet"},
-    {"previews", "recordings", "data", "inference", "adaptive"},
-    {"train", "baseline_training"},
-    {"cli"},
-]
-SCENES_ORDER = ["primitives", "draws", "pose", "raycast", "objects", "layouts", "sequences", "test_sets"]
+STAGES = {"sensor", "scenes", "nn", "baselines", "training", "inference", "io", "eval", "cli"}
+FLAT = {"config", "runtime", "checks", "temporal"}  # besides __init__: at most 8 modules stay flat
+BOTTOM = FLAT | {"eval.metrics", "eval.stats", "nn.layers", "nn.model", "io.files", "sensor.poisson"}
 
 
-def layer_of(top: str) -> int:
-    for i, names in enumerate(LAYERS):
-        if top in names:
-            return i
-    raise AssertionError(f"jaxsr.{top} has no layer in tests/test_layout.py; give it one")
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(PACKAGE).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
-def imported_modules(path: Path, source: str | None = None) -> set[tuple[str, ...]]:
-    """The jaxsr modules (as path tuples below jaxsr/) that `path` (or `source`, as if at `path`) imports."""
-    here = list(path.relative_to(PACKAGE).parts[:-1])  # the package the file is in
+def imports(path: Path, source: str | None = None) -> set[tuple[str, tuple[str, ...]]]:
+    """(module below jaxsr, names imported from it) for every jaxsr import of `path` (or `source` as if at
+    `path`); `from . import x` gives the module of x."""
+    here = list(path.relative_to(PACKAGE).parts[:-1])
     out = set()
     for node in ast.walk(ast.parse(path.read_text() if source is None else source)):
         if isinstance(node, ast.ImportFrom) and node.level > 0:
             base = here[: len(here) - (node.level - 1)]
-            target = base + (node.module.split(".") if node.module else [])
-            if target:
-                out.add(tuple(target))
-            else:  # `from . import io`: the names are modules
-                out.update((a.name,) for a in node.names)
+            if node.module:
+                out.add((".".join(base + node.module.split(".")), tuple(a.name for a in node.names)))
+            else:
+                out.update((".".join(base + [a.name]), ()) for a in node.names)
         elif isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("jaxsr."):
-            out.add(tuple(node.module.split(".")[1:]))
+            out.add((node.module.removeprefix("jaxsr."), tuple(a.name for a in node.names)))
         elif isinstance(node, ast.Import):
-            out.update(tuple(a.name.split(".")[1:]) for a in node.names if a.name.startswith("jaxsr."))
+            out.update((a.name.removeprefix("jaxsr."), ()) for a in node.names if a.name.startswith("jaxsr."))
     return out
 
 
-MODULES = sorted(p for p in PACKAGE.rglob("*.py") if p.name != "__init__.py" or p.parent != PACKAGE)
+FILES = {module_name(p): p for p in PACKAGE.rglob("*.py") if p != PACKAGE / "__init__.py"}
 
 
-@pytest.mark.parametrize("path", MODULES, ids=lambda p: str(p.relative_to(PACKAGE)))
-def test_imports_point_down(path):
-    parts = path.relative_to(PACKAGE).with_suffix("").parts
-    top = parts[0]
-    for dep in imported_modules(path):
-        if dep[0] == top:  # inside a subpackage: the subpackage's own order
-            if top == "scenes" and len(parts) > 1 and parts[1] != "__init__" and len(dep) > 1:
-                assert SCENES_ORDER.index(dep[1]) < SCENES_ORDER.index(parts[1]), f"scenes.{parts[1]} imports {dep}"
-            continue
-        assert layer_of(dep[0]) < layer_of(top), f"jaxsr.{'.'.join(parts)} (layer {layer_of(top)}) imports " \
-                                                  f"jaxsr.{'.'.join(dep)} (layer {layer_of(dep[0])})"
+def resolve(module: str) -> str:
+    """The module file an import reaches: itself, or the nearest package above that exists."""
+    while module and module not in FILES:
+        module = module.rpartition(".")[0]
+    return module
 
 
-def test_every_module_has_a_layer():
-    tops = {p.relative_to(PACKAGE).parts[0].removesuffix(".py") for p in MODULES}
-    for top in tops:
-        layer_of(top)
-    scenes = {p.stem for p in (PACKAGE / "scenes").glob("*.py")} - {"__init__"}
-    assert scenes == set(SCENES_ORDER)
+def graph() -> dict[str, set[str]]:
+    return {m: {resolve(d) for d, _ in imports(p)} - {m, ""} for m, p in FILES.items()}
 
 
-def test_the_checker_sees_a_violation():
-    """The parser finds relative, absolute and in-function imports (so the test above can fail)."""
-    code = "def f():\n    from .train import fit\n    import jaxsr.cli\nfrom .scenes.layouts import sample_scene\n"
-    deps = imported_modules(PACKAGE / "sensor.py", code)
-    assert deps == {("train",), ("cli",), ("scenes", "layouts")}
-    assert layer_of("train") > layer_of("sensor")
+def test_the_top_level_is_the_stages_and_a_few_flat_modules():
+    flat = {p.stem for p in PACKAGE.glob("*.py")} - {"__init__"}
+    assert flat == FLAT and len(flat) <= 8
+    packages = {p.name for p in PACKAGE.iterdir() if (p / "__init__.py").is_file()}
+    assert packages == STAGES
+
+
+def test_imports_point_one_way():
+    edges, done, path = graph(), set(), []
+
+    def visit(m):
+        if m in done:
+            return
+        assert m not in path, "import cycle: " + " -> ".join(path[path.index(m):] + [m])
+        path.append(m)
+        for d in edges.get(m, ()):
+            if d in edges:
+                visit(d)
+        path.pop()
+        done.add(m)
+
+    for m in edges:
+        visit(m)
+
+
+@pytest.mark.parametrize("module", sorted(BOTTOM))
+def test_the_bottom_modules_import_no_stage(module):
+    for dep in graph()[module]:
+        assert dep in BOTTOM, f"jaxsr.{module} imports jaxsr.{dep}, above it"
+
+
+def test_nothing_in_the_library_imports_the_cli():
+    for module, deps in graph().items():
+        if not module.startswith("cli"):
+            assert not any(d.startswith("cli") for d in deps), f"jaxsr.{module} imports the CLI"
+
+
+def test_no_private_name_crosses_a_package():
+    for module, path in FILES.items():
+        package = module.rpartition(".")[0] if "." in module else ""
+        for dep, names in imports(path):
+            dep_package = dep.rpartition(".")[0] if "." in dep else dep
+            if dep_package != package:
+                private = [n for n in names if n.startswith("_") and not n.startswith("__")]
+                assert not private, f"jaxsr.{module} imports {private} from jaxsr.{dep}"
+
+
+def test_the_checker_sees_violations():
+    """The parser finds relative, absolute and in-function imports and private names (so the tests can fail)."""
+    code = "def f():\n    from ..training.loop import _fit\n    import jaxsr.cli\nfrom ..scenes.layouts import x\n"
+    found = imports(PACKAGE / "sensor" / "forward.py", code)
+    assert found == {("training.loop", ("_fit",)), ("cli", ()), ("scenes.layouts", ("x",))}

@@ -9,7 +9,7 @@ import pytest
 from jaxsr import cli, io
 from jaxsr.io.checkpoint import save_model
 from jaxsr.config import ModelConfig, SensorConfig
-from jaxsr.inference.super_resolve import super_resolve
+from jaxsr.inference.video import super_resolve
 from jaxsr.nn import Model, init_model
 from jaxsr.sensor.peaks import centre_of_mass
 from jaxsr.sensor.forward import normalise_depth

@@ -25,7 +25,7 @@ from jaxsr.eval.scoring import score, test_clips
 from jaxsr.eval.reports import header, markdown_table, write_atomic
 
 import jaxsr
-from jaxsr.inference.super_resolve import DEFAULT_SEQUENCE_CHUNK, Stream, iter_centre_of_mass, super_resolve
+from jaxsr.inference.video import DEFAULT_SEQUENCE_CHUNK, Stream, iter_centre_of_mass, super_resolve
 from jaxsr.nn import apply_model, edge_pad_sequence, flops_per_frame, sequence_radius
 from jaxsr.runtime import compiler_options
 from jaxsr.nn.streaming import stream_init, stream_step

@@ -127,7 +127,8 @@ def optical_flow(centre, neighbour, *, levels: int = 3, iterations: int = 8, sig
     """Dense flow from `centre` to `neighbour` by pyramidal iterative Lucas-Kanade.
 
     Args:
-      centre, neighbour: (..., H, W) frames (leading axes are vmapped); H and W divisible by 2^(levels - 1).
+      centre: (..., H, W) frame (leading axes are vmapped); H and W divisible by 2^(levels - 1).
+      neighbour: (..., H, W) frame of the same shape as `centre`.
       levels: pyramid levels (1 = no pyramid); each halves the frame (binomial blur, then every other pixel).
       iterations: Gauss-Newton steps per level.
       sigma: standard deviation (pixels) of the Gaussian window of the least-squares fit.

@@ -32,7 +32,7 @@ def lanczos_kernel(x, lobes: int = 3):
 
 @functools.lru_cache(maxsize=64)
 def resampling_matrix(n_in: int, scale: int, kernel: str) -> np.ndarray:
-    """(n_in * scale, n_in) matrix of an upsampling along one axis with edge replication.
+    """`(n_in * scale, n_in)` matrix of an upsampling along one axis with edge replication.
 
     Rows sum to 1 (the Lanczos taps are normalised, as is usual).
     """
@@ -66,7 +66,7 @@ def bicubic(lr, *, scale: int = 4):
       lr: (..., h, w) frames (e.g. normalised depth).
       scale: integer upsampling factor.
     Returns:
-      (..., h * scale, w * scale); not clipped (cubic overshoot is left to the metric's clipping).
+      `(..., h * scale, w * scale)`; not clipped (cubic overshoot is left to the metric's clipping).
     """
     return _upsample(lr, scale, "bicubic", "bicubic")
 
@@ -78,6 +78,6 @@ def lanczos(lr, *, scale: int = 4):
       lr: (..., h, w) frames.
       scale: integer upsampling factor.
     Returns:
-      (..., h * scale, w * scale); not clipped.
+      `(..., h * scale, w * scale)`; not clipped.
     """
     return _upsample(lr, scale, "lanczos", "lanczos")

@@ -218,7 +218,8 @@ def apply_rbpn(params, windows, cfg: RBPNConfig = RBPNConfig(), *, flows=None):
 
     windows: (B, frames, h, w) LR normalised depth (centre at frames // 2; e.g. `jaxsr.training.data.scene_batches` with
     tr = frames // 2) or (B, frames, h, w, C) for C = cfg.channels > 1. flows: (B, frames - 1, h, w, 2) or None
-    to compute them with `rbpn_flows`. Returns (B, h * scale, w * scale) ((B, H, W, C) for C > 1); not clipped.
+    to compute them with `rbpn_flows`. Returns `(B, h * scale, w * scale)` ((B, H, W, C) for C > 1); not
+    clipped.
     """
     if windows.ndim == 4:
         windows = windows[..., None]

@@ -145,7 +145,7 @@ def tv_super_resolve(
     How the defaults were chosen: on the validation sequence `val1_street` only (first 8 frames at its SNR and
     `DEFAULT_MEAN_SIGNAL` photons, centre-of-mass depth, PSNR against `normalise_depth` of the ground truth),
     a small grid over lam, delta, neighbour_weight and max_steps (an exploratory search; no script keeps it).
-    Re-measured 2026-11-21 with noise key `jax.random.key(0)` (experiments/_eval.simulate_clip): bicubic 21.9 dB
+    Re-measured 2026-11-21 with noise key `jax.random.key(0)` (jaxsr.eval.scoring.simulate_clip): bicubic 21.9 dB
     / SSIM 0.577, the defaults 29.4 dB / SSIM 0.900. The test scenes were not used.
 
     Args:
@@ -159,9 +159,10 @@ def tv_super_resolve(
       neighbour_weight: weight of a frame at temporal distance d relative to the centre frame is
         neighbour_weight^d (in [0, 1]; 0 uses the centre frame only).
       max_steps: L-BFGS iterations per frame (function evaluations of the line search included).
-      rtol, atol: L-BFGS stopping tolerances.
+      rtol: L-BFGS relative stopping tolerance.
+      atol: L-BFGS absolute stopping tolerance.
     Returns:
-      (T, h * scale, w * scale) float32 HR normalised depth, clipped to [0, 1].
+      `(T, h * scale, w * scale)` float32 HR normalised depth, clipped to [0, 1].
     Raises:
       ValueError: lr_seq not of shape (T, h, w) with T, h, w >= 1, holding NaN or inf or values outside [0, 1]
         (checked only for concrete input: under `jax.jit` non-finite values become "no return" 1.0), or an

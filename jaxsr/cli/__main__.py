@@ -1,4 +1,4 @@
-"""`python -m jaxsr.cli ...`: the `jaxsr` command without the console script (as experiments/startup.py runs it)."""
+"""`python -m jaxsr.cli ...`: the `jaxsr` command without the console script (as experiments/studies/startup.py runs it)."""
 
 import sys
 

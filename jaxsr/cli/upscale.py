@@ -1,6 +1,6 @@
 """`jaxsr upscale`: super-resolve a recording (depth, histograms or photon time tags) with a trained model.
 
-Argument parsing and messages only: the work is `jaxsr.inference.upscale.upscale` (the same options as keyword
+Argument parsing and messages only: the work is `jaxsr.inference.recording.upscale` (the same options as keyword
 arguments). Frames stream from the input through the model to the output, so a long recording needs memory for a
 batch, not for the whole sequence. Everything is checked before the model runs: the options, the output and
 preview paths, the model, and every input frame. Histograms and photon time tags are read over a gate (--bins,
@@ -16,7 +16,7 @@ import json
 import sys
 
 from ..config import TRAINED_RANGE_M
-from ..inference.upscale import upscale
+from ..inference.recording import upscale
 from ._args import int_range, positive_float, range_or_time, span, time_unit
 
 

@@ -33,7 +33,8 @@ def psnr(pred, gt):
     """Peak signal-to-noise ratio in dB, peak 1: 20 log10(1 / RMSE) per frame (capped at 120 dB).
 
     Args:
-      pred, gt: (..., H, W) normalised depth; pred is clipped to [0, 1].
+      pred: (..., H, W) normalised depth; clipped to [0, 1].
+      gt: (..., H, W) ground-truth normalised depth, of the same shape.
     Returns:
       (...) PSNR of each frame.
     """
@@ -76,7 +77,8 @@ def ssim(pred, gt, *, win_size: int = 11, sigma: float = 1.5, k1: float = 0.01, 
     use_sample_covariance=False, data_range=1)`.
 
     Args:
-      pred, gt: (..., H, W) normalised depth with H, W >= win_size; pred is clipped to [0, 1].
+      pred: (..., H, W) normalised depth with H, W >= win_size; clipped to [0, 1].
+      gt: (..., H, W) ground-truth normalised depth, of the same shape.
     Returns:
       (...) SSIM of each frame.
     """
@@ -100,7 +102,8 @@ def ssim_global(pred, gt, *, c1: float = 1e-4, c2: float = 9e-4):
     """The paper's Eq. 2 SSIM with whole-frame means, variances and covariance (secondary metric).
 
     Args:
-      pred, gt: (..., H, W) normalised depth; pred is clipped to [0, 1].
+      pred: (..., H, W) normalised depth; clipped to [0, 1].
+      gt: (..., H, W) ground-truth normalised depth, of the same shape.
     Returns:
       (...) global SSIM of each frame.
     """
@@ -131,7 +134,8 @@ def temporal_coherence(pred_seq, gt_seq, *, eps: float = 0.01, eps_gt: float = 1
     Meaningful on static-camera sequences. Report eps = 0.01 (default), 1/255 and 0.05 for a fuller picture.
 
     Args:
-      pred_seq, gt_seq: (..., T, H, W) normalised depth sequences, T >= 2; pred is clipped to [0, 1].
+      pred_seq: (..., T, H, W) normalised depth sequence, T >= 2; clipped to [0, 1].
+      gt_seq: (..., T, H, W) ground-truth normalised depth sequence, of the same shape.
     Returns:
       `TemporalCoherence(counts (..., T-1), mean (...), flicker_fraction (...))`.
     """

@@ -24,7 +24,7 @@ from jax.sharding import PartitionSpec as P
 import jaxsr
 from jaxsr import scenes
 from jaxsr.config import DEFAULT_MEAN_SIGNAL, PRESETS, ModelConfig, SensorConfig, TrainConfig
-from jaxsr.inference.super_resolve import super_resolve, super_resolve_histograms
+from jaxsr.inference.video import super_resolve, super_resolve_histograms
 from jaxsr.io.checkpoint import resolve_model_path
 from jaxsr.runtime import compiler_options
 from jaxsr.scenes import TEST_SEQUENCES, mean_lr_shift, render_sequence, test_scene

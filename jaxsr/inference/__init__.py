@@ -2,7 +2,7 @@
 one differentiable metric.
 """
 
-from .super_resolve import (
+from .video import (
     DEFAULT_BATCH_SIZE,
     DEFAULT_ACCELERATOR_BATCH_SIZE,
     DEFAULT_SEQUENCE_CHUNK,
@@ -31,7 +31,7 @@ from .pipeline import (
     METRICS,
     pipeline_metric,
 )
-from .upscale import (
+from .recording import (
     UpscaleJob,
     UpscaleResult,
     prepare_upscale,

@@ -4,7 +4,7 @@ found best for that motion (beyond the paper, which fixes TR per model).
 The paper's frame-rate study shows the trade: more frames help while objects move little between frames, and
 hurt once they move far (the network cannot align them). `estimate_motion` measures the motion of the moving
 parts of the scene in LR pixels per frame from the centre-of-mass frames themselves, by block matching at
-several frame lags; `choose_tr` looks that motion up in the table `experiments/fps_study.py` measured
+several frame lags; `choose_tr` looks that motion up in the table `experiments/paper/fps_study.py` measured
 (`jaxsr/weights/frame_rate_study.json`: PSNR of each TR against the same estimator's motion, and each TR's
 frames/s) and returns the best TR within a frame-rate budget; `resolve_model` loads the bundled weights it
 picks (`jaxsr upscale --model auto`).
@@ -137,12 +137,12 @@ class TRChoice(NamedTuple):
 
 
 def load_study(path=None) -> dict:
-    """The frame-rate study table (see `experiments/fps_study.py`): {"motion": [...] LR px/frame (as
+    """The frame-rate study table (see `experiments/paper/fps_study.py`): {"motion": [...] LR px/frame (as
     `estimate_motion` measures it), "psnr": {"0": [...], ..., "4": [...]} dB at those motions,
     "fps": {"0": frames/s, ...}, "source": how it was measured}."""
     path = STUDY_TABLE if path is None else Path(path)
     if not path.is_file():
-        raise FileNotFoundError(f"no frame-rate study table at {path}; run experiments/fps_study.py --write-table")
+        raise FileNotFoundError(f"no frame-rate study table at {path}; run experiments/paper/fps_study.py --write-table")
     table = json.loads(path.read_text())
     if not {"motion", "psnr", "fps"} <= table.keys():
         raise ValueError(f"{path}: expected keys motion, psnr and fps, got {sorted(table)}")

@@ -93,12 +93,15 @@ def pipeline_metric(
       intensity: (T, H, W) reflectivity proxy in [0, 1].
       sensor: the `SensorConfig`; its `scale` must be the model's.
       model: a `Model` (e.g. `jaxsr.load_model("tr0")`).
-      snr: frame SNR (> 0); mean_signal: mean signal photons per LR pixel with a return (>= 0).
+      snr: frame SNR (> 0).
+      mean_signal: mean signal photons per LR pixel with a return (>= 0).
       metric: "psnr" (dB, higher is better) or "huber" (the training loss, lower is better).
       gradient: the draw's surrogate derivative, "normal" or "straight-through" (`simulate_histograms`).
-      sampler: the draw's sampler, "fast" or "exact". window: the centre of mass's half-width (default: by
-        `sensor.irf_sigma`, 1 bin up to 0.5 bins of IRF width, 2 above: a step in the score).
-      huber_delta: the Huber loss's delta. conv3d_impl: how the network's convolutions run (`apply_model`).
+      sampler: the draw's sampler, "fast" or "exact".
+      window: the centre of mass's half-width (default: by `sensor.irf_sigma`, 1 bin up to 0.5 bins of IRF width,
+        2 above: a step in the score).
+      huber_delta: the Huber loss's delta.
+      conv3d_impl: how the network's convolutions run (`apply_model`).
     Returns:
       A scalar: the mean over the T frames of the chosen metric.
     """

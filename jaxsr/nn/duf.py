@@ -207,8 +207,8 @@ def _check_inputs(windows, cfg: ModelConfig, conv3d_impl: str, who: str):
 def apply_model(params, state, windows, cfg: ModelConfig, *, conv3d_impl: str = "auto"):
     """Super-resolve the centre frame of each window, batch norm in inference mode (running statistics).
 
-    windows: (B, 2*tr+1, H, W) LR normalised depth (0..1, 1 = no return), the centre frame at index tr.
-    Returns hr (B, H*r, W*r) normalised depth, neither clipped nor passed through an activation.
+    windows: `(B, 2*tr+1, H, W)` LR normalised depth (0..1, 1 = no return), the centre frame at index tr.
+    Returns hr `(B, H*r, W*r)` normalised depth, neither clipped nor passed through an activation.
     conv3d_impl: how the 3x3x3 convolutions run, not what they compute (`jaxsr.nn.layers.conv3d`): "auto" (the
     faster one on the current backend), "native" (one 3D convolution), "taps" (a sum of 2D convolutions over
     the temporal taps), "stacked" (the taps' kernels side by side in one 2D convolution) or "stacked-taps-grad"
@@ -222,7 +222,7 @@ def apply_model(params, state, windows, cfg: ModelConfig, *, conv3d_impl: str = 
 def apply_model_train(params, state, windows, cfg: ModelConfig, *, conv3d_impl: str = "auto"):
     """The network as it trains: batch norm normalises with the batch's own statistics.
 
-    windows: (B, 2*tr+1, H, W) as for `apply_model`. Returns (hr (B, H*r, W*r), new_state): new_state holds
+    windows: `(B, 2*tr+1, H, W)` as for `apply_model`. Returns (hr `(B, H*r, W*r)`, new_state): new_state holds
     the running BN statistics moved towards this batch's (same structure as `state`). conv3d_impl: as for
     `apply_model`.
     """
@@ -264,8 +264,8 @@ def apply_model_sequence(params, state, lr_seq, cfg: ModelConfig, *, padding: st
     the network applied to input frames t-R .. t+R (the dynamic filter on frame t) and neighbouring outputs
     share every intermediate frame. Same parameters as `apply_model` (any checkpoint runs in either form).
     lr_seq: (B, T, H, W) LR normalised depth. padding: "edge" (the ends padded with R copies of the first and
-    last frame; T >= 1) returns (B, T, H*r, W*r); "valid" (no padding; T >= 2R + 1) returns the T - 2R frames
-    whose inputs all lie inside the sequence, (B, T - 2R, H*r, W*r). conv3d_impl: as for `apply_model`.
+    last frame; T >= 1) returns `(B, T, H*r, W*r)`; "valid" (no padding; T >= 2R + 1) returns the T - 2R
+    frames whose inputs all lie inside the sequence, `(B, T - 2R, H*r, W*r)`. conv3d_impl: as for `apply_model`.
     """
     _check_sequence(lr_seq, cfg, padding, conv3d_impl, "apply_model_sequence")
     hr, _ = _forward_sequence(params, state, lr_seq, cfg, padding=padding, train=False, impl=conv3d_impl)
@@ -277,7 +277,7 @@ def apply_model_sequence_train(params, state, lr_seq, cfg: ModelConfig, *, paddi
     """The sequence form as it trains: BN normalises with the statistics of the whole clip, (B, T', H, W).
 
     lr_seq: (B, T, H, W) training clips; padding: "valid" (default: only outputs whose inputs all lie inside
-    the clip, T' = T - 2R) or "edge" (T' = T), as for `apply_model_sequence`. Returns (hr (B, T', H*r, W*r),
+    the clip, T' = T - 2R) or "edge" (T' = T), as for `apply_model_sequence`. Returns (hr `(B, T', H*r, W*r)`,
     new_state), new_state the running BN statistics moved towards the clip's (same structure as `state`).
     """
     _check_sequence(lr_seq, cfg, padding, conv3d_impl, "apply_model_sequence_train")

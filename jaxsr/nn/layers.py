@@ -267,9 +267,9 @@ def batch_norm(params, state, x, *, train: bool, momentum: float = 0.99, eps: fl
 
 
 def neighbourhoods(frame, *, size: int = 5, padding: str = "edge"):
-    """The size x size neighbourhood of every pixel: (B, H, W) -> (B, H, W, size*size).
+    """The size x size neighbourhood of every pixel: (B, H, W) -> `(B, H, W, size*size)`.
 
-    Tap k = size*i + j holds the pixel at offset (i - size//2, j - size//2). Outside the frame the values
+    Tap `k = size*i + j` holds the pixel at offset (i - size//2, j - size//2). Outside the frame the values
     are completed by `padding`: "edge" replicates the border (default; zero would mean "depth 0", the
     nearest possible return) or "zero" (DUF's convention).
     """
@@ -287,9 +287,9 @@ def neighbourhoods(frame, *, size: int = 5, padding: str = "edge"):
 def dynamic_upsample(frame, filters, *, padding: str = "edge"):
     """Apply per-pixel dynamic filters to a frame's neighbourhoods (before depth_to_space).
 
-    frame: (B, H, W) the centre LR input frame; filters: (B, H, W, size*size, r*r), tap k = size*i + j at
-    offset (i - size//2, j - size//2) (see `neighbourhoods`), one filter per sub-pixel s = dy*r + dx.
-    Returns (B, H, W, r*r): sub-pixel s of LR pixel (y, x) = sum_k filters[..., k, s] * neighbourhood[..., k].
+    frame: (B, H, W) the centre LR input frame; filters: `(B, H, W, size*size, r*r)`, tap `k = size*i + j` at
+    offset (i - size//2, j - size//2) (see `neighbourhoods`), one filter per sub-pixel `s = dy*r + dx`.
+    Returns `(B, H, W, r*r)`: sub-pixel s of LR pixel (y, x) = sum_k filters[..., k, s] * neighbourhood[..., k].
     """
     taps = filters.shape[-2]
     size = math.isqrt(taps)
@@ -302,9 +302,9 @@ def dynamic_upsample(frame, filters, *, padding: str = "edge"):
 
 
 def depth_to_space(x, scale: int):
-    """Pixel shuffle: (..., H, W, r*r*C) -> (..., H*r, W*r, C).
+    """Pixel shuffle: `(..., H, W, r*r*C)` -> `(..., H*r, W*r, C)`.
 
-    Channel (dy*r + dx)*C + c of LR pixel (y, x) goes to HR pixel (r*y + dy, r*x + dx), channel c (the
+    Channel `(dy*r + dx)*C + c` of LR pixel (y, x) goes to HR pixel `(r*y + dy, r*x + dx)`, channel c (the
     convention of `tf.nn.depth_to_space` and dm-pix).
     """
     *lead, h, w, ch = x.shape

@@ -112,7 +112,7 @@ class Model:
 
     def __call__(self, inputs):
         """Inference on one batch: (B, frames, h, w) LR windows, or (counts, intensity) for a histogram
-        network -> (B, h*r, w*r) HR normalised depth (not clipped)."""
+        network -> `(B, h*r, w*r)` HR normalised depth (not clipped)."""
         return self.architecture.apply(self.params, self.state, inputs, self.config)
 
 

@@ -9,7 +9,7 @@ pytree of fixed shape: memory does not grow with the length of the stream.
 
 Step n takes padded input frame n and returns the output whose centre is padded frame n - R, i.e. output
 n - 2R of the sequence; it is valid once n >= 2R (the first R + 1 steps feed the first frame, the edge
-padding). `jaxsr.inference.super_resolve.Stream` wraps this for live input. A `lax.scan` of the step over a whole sequence
+padding). `jaxsr.inference.video.Stream` wraps this for live input. A `lax.scan` of the step over a whole sequence
 ran no faster than a Python loop over the jitted step, and both slower than the sequence form in chunks
 (experiments/results/sequence_form.md), so whole sequences go through `apply_model_sequence` instead.
 """
@@ -63,7 +63,7 @@ def stream_step(params, state, buffers: dict, frame, cfg: ModelConfig, *, conv3d
     """One step of the stream, BN in inference mode: feed LR frame n, get the output centred on frame n - R.
 
     frame: (B, h, w) LR normalised depth; buffers: as `stream_init` (or the previous step) returns them.
-    Returns (new buffers, hr (B, h*r, w*r)). With the stream's input edge-padded (R + 1 copies of its first
+    Returns (new buffers, hr `(B, h*r, w*r)`). With the stream's input edge-padded (R + 1 copies of its first
     frame, then the rest, then R copies of the last), the hr of step n >= 2R equals output n - 2R of
     `apply_model_sequence` to float32 rounding. R = `sequence_radius(cfg)`; the weights run in the sequence
     form whatever `cfg.temporal` says. conv3d_impl: as for `apply_model`.

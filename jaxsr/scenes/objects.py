@@ -83,7 +83,7 @@ def _at(base, heading, along, lateral, height):
 
 
 def many(fn, draws: Draws, name: str, n: int, *args, static=None, **kwargs) -> Parts:
-    """Build `n` objects at once: fn(draws_i, *args_i, **kwargs_i, **static) vmapped over the leading axis of
+    """Build `n` objects at once: `fn(draws_i, *args_i, **kwargs_i, **static)` vmapped over the leading axis of
     every argument (scalars are broadcast); each object's draws live under `name/`. The resulting parts are
     flattened to one group per type."""
     table, make = draws.batched(name, n)

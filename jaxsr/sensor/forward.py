@@ -249,9 +249,10 @@ def calibrate(depth, intensity, sensor: SensorConfig = SensorConfig(), *, snr, m
     signal / background photons = `snr`. All sky: alpha = 0 and the background matches `mean_signal / snr`.
 
     Args:
-      depth: (..., H, W) radial metres; intensity: (..., H, W) in [0, 1]; (H, W) = `sensor.hr_shape`.
-      snr: target frame SNR (finite, > 0). mean_signal: target mean signal photons per LR pixel with a return
-        (finite, >= 0).
+      depth: (..., H, W) radial metres; (H, W) = `sensor.hr_shape`.
+      intensity: (..., H, W) in [0, 1].
+      snr: target frame SNR (finite, > 0).
+      mean_signal: target mean signal photons per LR pixel with a return (finite, >= 0).
     Returns:
       (alpha, beta) scalars: photons per unit of s = rho / r^2, and per unit of a = rho + a0. Values out of
       their domain raise `ValueError` eagerly; traced, they give the rules of the module docstring
@@ -275,8 +276,8 @@ def expected_histograms(
       depth: (..., H, W) radial metres (NaN/inf/negative/beyond d_max = no return, eager or traced).
       intensity: (..., H, W) reflectivity proxy in [0, 1]; eagerly anything else is a `ValueError`, traced
         a non-finite value counts as 0 and a finite one is clipped to [0, 1], on its own pixel.
-      snr: target frame SNR (finite, > 0); mean_signal: mean signal photons per LR pixel with a return
-        (finite, >= 0; default `DEFAULT_MEAN_SIGNAL`). Calibration runs over all leading axes together.
+      snr: target frame SNR (finite, > 0). Calibration runs over all leading axes together.
+      mean_signal: mean signal photons per LR pixel with a return (finite, >= 0; default `DEFAULT_MEAN_SIGNAL`).
     Returns:
       (..., H/scale, W/scale, K) non-negative rates (photons); all NaN if, traced, `snr`, `mean_signal` or a
       sensor leaf is out of its domain (eagerly a `ValueError`).
@@ -288,7 +289,7 @@ def expected_histograms(
 
 
 def calibrated_rates(depth, intensity, alpha, beta, sensor: SensorConfig = SensorConfig()):
-    """The rates of `expected_histograms` with given scale factors, for any (..., h*scale, w*scale) HR window.
+    """The rates of `expected_histograms` with given scale factors, for any `(..., h*scale, w*scale)` HR window.
 
     alpha, beta: from `calibrate` over a whole clip; depth, intensity: a window of it aligned to the LR grid
     (no shape check against `sensor.hr_shape`, traced values follow `expected_histograms`' rules). Rates of a
@@ -314,7 +315,10 @@ def simulate_histograms(
 
     Args:
       key: a `jax.random` key.
-      depth, intensity, snr, mean_signal: as in `expected_histograms`.
+      depth: as in `expected_histograms`.
+      intensity: as in `expected_histograms`.
+      snr: as in `expected_histograms`.
+      mean_signal: as in `expected_histograms`.
       sampler: "fast" (exact below 24 photons per bin, Cornish-Fisher above; see `jaxsr.sensor.poisson`) or
         "exact" (`jax.random.poisson`, about 4x slower on CPU).
       gradient: None (the default: a draw has no derivative, so gradients stop at the rates), "normal" or

@@ -35,7 +35,7 @@ from ..baselines.rbpn import (
 )
 from ..config import SensorConfig, TrainConfig
 from ..eval.metrics import psnr
-from ..inference.super_resolve import super_resolve, super_resolve_histograms
+from ..inference.video import super_resolve, super_resolve_histograms
 from ..io.checkpoint import load_model, resolve_model_path, save_model
 from ..nn.model import Model, architecture
 from ..scenes import test_sequences, training_clip
@@ -336,7 +336,9 @@ def _deprecated(old: str, new: str):
 
 
 def BaselineModel(kind: str, params, config) -> Model:  # noqa: N802 (the class name it replaces)
-    """Deprecated: `jaxsr.nn.Model(params, {}, config)`. Returns that `Model` (its `kind` is `kind`)."""
+    """Deprecated: `jaxsr.nn.Model(params, {}, config)`, the one model interface.
+
+    Returns that `Model` (its `kind` is `kind`); raises ValueError for an unknown kind or another kind's config."""
     _deprecated("BaselineModel(kind, params, config)", "jaxsr.nn.Model(params, {}, config)")
     _check_kind(kind, "BaselineModel")
     if architecture(config).name != kind:
@@ -345,7 +347,9 @@ def BaselineModel(kind: str, params, config) -> Model:  # noqa: N802 (the class 
 
 
 def save_baseline(path, model: Model, *, card: dict | None = None, storage_dtype: str = "float32") -> Path:
-    """Deprecated: `jaxsr.save_model`, which saves every architecture. Returns the path written."""
+    """Deprecated: `jaxsr.save_model`, which saves every architecture (the same file and card).
+
+    Returns the path written."""
     _deprecated("save_baseline", "jaxsr.save_model")
     return save_model(path, model, card=card, storage_dtype=storage_dtype)
 
@@ -371,7 +375,8 @@ def load_baseline(path) -> Model:
 def super_resolve_baseline(model: Model, *, counts=None, intensity=None, lr=None, batch_size: int = 4,
                            sensor: SensorConfig = _SENSOR) -> np.ndarray:
     """Deprecated: `jaxsr.super_resolve(model, lr)` (iSeeBetter) or `jaxsr.super_resolve_histograms(model, counts,
-    intensity=intensity)` (HistNet). (T, ...) in, (T, H, W) HR normalised depth out (NumPy, not clipped)."""
+    intensity=intensity)` (HistNet). Returns (T, H, W) HR normalised depth for (T, ...) inputs (NumPy, not
+    clipped)."""
     _deprecated("super_resolve_baseline", "jaxsr.super_resolve / jaxsr.super_resolve_histograms")
     if model.architecture.inputs == "histograms":
         if counts is None or intensity is None:
@@ -385,8 +390,9 @@ def super_resolve_baseline(model: Model, *, counts=None, intensity=None, lr=None
 def fit_baseline(kind: str, cfg, train_cfg: TrainConfig, *, out, make_batch=None, validation: dict | None = None,
                  sensor: SensorConfig = _SENSOR, resume: bool = False, callback=None, card_extra: dict | None = None,
                  pretrain_epochs: int = 0):
-    """Deprecated: `jaxsr.fit(cfg, train_cfg, ...)`, which trains every architecture. Returns (best `Model`,
-    history)."""
+    """Deprecated: `jaxsr.fit`, which trains every architecture in one loop (the same files, resume and card).
+
+    Returns (best `Model`, history)."""
     _deprecated("fit_baseline", "jaxsr.fit")
     _check_kind(kind, "fit_baseline")
     if not isinstance(cfg, _CONFIGS[kind]):

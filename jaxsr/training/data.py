@@ -60,8 +60,8 @@ def log_uniform(key, lo: float, hi: float, shape=()):
 
 
 def random_crop(key, windows, gt, patch: tuple[int, int] | None, scale: int):
-    """A random LR crop of one example: windows (T, h, w) -> (T, ph, pw) and gt (..., h*r, w*r) ->
-    (..., ph*r, pw*r) (one frame or several), aligned (LR pixel (y, x) covers HR pixels r*y .. r*y + r - 1).
+    """A random LR crop of one example: windows (T, h, w) -> (T, ph, pw) and gt `(..., h*r, w*r)` ->
+    `(..., ph*r, pw*r)` (one frame or several), aligned (LR pixel (y, x) covers HR pixels `r*y .. r*y + r - 1`).
     `patch` None returns the inputs."""
     if patch is None:
         return windows, gt
@@ -121,7 +121,7 @@ def scene_batches(tr: int, train_cfg: TrainConfig, *, sensor: SensorConfig = Sen
     Per example: `jaxsr.scenes.training_clip` (2tr+1 frames, motion log-uniform in `motion_range`) -> SNR and
     mean signal log-uniform in the config's ranges -> `simulate_histograms` -> `centre_of_mass` -> the
     LR window; GT = `normalise_depth` of the centre frame; then an optional random crop (`patch`).
-    Returns make_batch: key -> (windows (B, 2tr+1, h, w), gt (B, h*r, w*r)).
+    Returns make_batch: key -> (windows (B, 2tr+1, h, w), gt `(B, h*r, w*r)`).
     """
     make_batch = _centre_frames(scene_clips(2 * tr + 1, train_cfg, sensor=sensor), tr)
     make_batch.description = _SCENES
@@ -132,7 +132,7 @@ def scene_clips(frames: int, train_cfg: TrainConfig, *, sensor: SensorConfig = _
     """Rendered training clips for the sequence form: `make_batch(key)` with `batch_size` random scenes of
     `frames` frames each, simulated as in `scene_batches` (one SNR, mean signal and crop per clip).
 
-    Returns make_batch: key -> (clips (B, frames, h, w) LR normalised depth, gt (B, frames, h*r, w*r)).
+    Returns make_batch: key -> (clips (B, frames, h, w) LR normalised depth, gt `(B, frames, h*r, w*r)`).
     """
     def example(key):
         k_scene, k_rest = jax.random.split(key)
@@ -164,7 +164,7 @@ def sequence_clips(depth, intensity, frames: int, train_cfg: TrainConfig, *, sen
 
     depth, intensity: as for `sequence_batches`, with T >= frames. Per example: a random sequence and start
     frame, then the same simulation as `scene_clips`. Returns make_batch: key -> (clips (B, frames, h, w),
-    gt (B, frames, h*r, w*r)).
+    gt `(B, frames, h*r, w*r)`).
     """
     return _sequence_clips(depth, intensity, frames, train_cfg, sensor, "sequence_clips", "the clip")
 

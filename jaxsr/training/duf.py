@@ -21,7 +21,7 @@ from jax.sharding import PartitionSpec as P
 
 from ..config import ModelConfig, SensorConfig, TrainConfig
 from ..eval.metrics import huber_loss, psnr
-from ..inference.super_resolve import super_resolve
+from ..inference.video import super_resolve
 from ..io.checkpoint import config_to_dict, load_model
 from ..nn.duf import (DUF, apply_model, apply_model_sequence_train, apply_model_train, grow_tr, init_model,
                       sequence_radius)
@@ -101,8 +101,8 @@ def sequence_loss(params, state, clips, gt, cfg: ModelConfig, *, delta: float = 
     """The sequence form's training loss: mean Huber loss over the frames of each clip whose inputs all lie
     inside it, BN with the statistics of the whole batch of clips (`apply_model_sequence_train`, "valid").
 
-    clips: (B, L, h, w) LR normalised depth, L >= 2R + 1 (R = 3 + tr); gt: (B, L, h*r, w*r) the ground truth of
-    every frame. Returns (loss (scalar), (new BN state, hr (B, L - 2R, h*r, w*r), gt of those frames)).
+    clips: (B, L, h, w) LR normalised depth, L >= 2R + 1 (R = 3 + tr); gt: `(B, L, h*r, w*r)` the ground truth
+    of every frame. Returns (loss (scalar), (new BN state, hr `(B, L - 2R, h*r, w*r)`, gt of those frames)).
     """
     r = sequence_radius(cfg)
     if gt.ndim != 4 or gt.shape[:2] != clips.shape[:2]:
@@ -122,7 +122,7 @@ def evaluate(params, state, windows, gt, cfg: ModelConfig, *, delta: float = 0.0
              conv3d_impl: str = "auto") -> dict:
     """Validation with BN in inference mode: {"loss": mean Huber, "psnr": mean per-frame PSNR (dB)}.
 
-    windows: (N, 2tr+1, h, w); gt: (N, h*r, w*r). Runs in chunks of `batch_size` frames (the last padded);
+    windows: (N, 2tr+1, h, w); gt: `(N, h*r, w*r)`. Runs in chunks of `batch_size` frames (the last padded);
     conv3d_impl: see `apply_model`. Returns the dict of two Python floats.
     """
     n = windows.shape[0]
@@ -150,7 +150,7 @@ def evaluate_sequences(params, state, lr, gt, cfg: ModelConfig, *, lengths=None,
 
     lr: (N, h, w) LR normalised depth in [0, 1] (checked as by `super_resolve`) of one or more sequences end
     to end, `lengths` frames each (None: one sequence);
-    gt: (N, h*r, w*r). Each sequence is super-resolved whole, its ends edge-padded (`super_resolve` of the
+    gt: `(N, h*r, w*r)`. Each sequence is super-resolved whole, its ends edge-padded (`super_resolve` of the
     sequence-form model, in chunks). Returns the dict of two Python floats.
     """
     lengths = [lr.shape[0]] if lengths is None else list(lengths)

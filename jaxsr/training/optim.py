@@ -71,7 +71,7 @@ def lr_schedule(train_cfg):
     """The learning rate of a `TrainConfig`'s run (our networks' and the baselines'): step -> lr (a scalar), step
     the 0-based update index.
 
-    lr0 * lr_decay ** (step // (decay_epochs * steps_per_epoch)): constant within an epoch, cut exactly at
+    `lr0 * lr_decay ** (step // (decay_epochs * steps_per_epoch))`: constant within an epoch, cut exactly at
     the first step of epochs decay_epochs + 1, 2 decay_epochs + 1, ... (1-based).
     """
     return step_decay(train_cfg.lr, factor=train_cfg.lr_decay, every=train_cfg.decay_epochs * train_cfg.steps_per_epoch)

@@ -48,7 +48,7 @@ from ..sensor.gates import gate_warnings
 from ..sensor.quantities import parse_span, parse_time_unit, range_metres
 from ..sensor.timetags import TIME_TAG_FORMATS, TimeTags, gate_of_tags, read_time_tags
 from .adaptive import resolve_model
-from .super_resolve import iter_centre_of_mass, iter_super_resolve
+from .video import iter_centre_of_mass, iter_super_resolve
 
 __all__ = ["HEAD_FRAMES", "FRAME_FORMATS", "UpscaleJob", "UpscaleResult", "prepare_upscale", "write_upscaled",
            "upscale"]

@@ -1,4 +1,4 @@
-"""Inference on recordings: streaming super-resolution of depth or histogram sequences in bounded memory.
+"""Super-resolution of depth video: whole sequences, streams and photon histograms, in bounded memory.
 
 Frames go through the network `batch_size` at a time. Each batch is sent to the device as the chunk of
 `batch_size + 2 tr` LR frames it needs, and the windows are cut inside the compiled function, so a frame is
