@@ -162,7 +162,7 @@ def test_batches_split_over_devices_equal_the_window_loop():
 
 
 def test_the_default_batch_fills_an_accelerator_and_keeps_one_frame_per_cpu_device(monkeypatch):
-    from jaxsr.inference import super_resolve as inference
+    from jaxsr.inference import video as inference
 
     frames = np.zeros((40, 32, 64), np.float32)
     on_cpu = inference._default_batch_size(frames, sequence_form=False)
