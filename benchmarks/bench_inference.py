@@ -18,7 +18,13 @@ import numpy as np
 import pytest
 
 from jaxsr.config import ModelConfig, SensorConfig
-from jaxsr.inference.video import DEFAULT_BATCH_SIZE, Stream, iter_centre_of_mass, super_resolve, super_resolve_histograms
+from jaxsr.inference.video import (
+    DEFAULT_BATCH_SIZE,
+    Stream,
+    iter_centre_of_mass,
+    super_resolve,
+    super_resolve_histograms,
+)
 from jaxsr.nn import Model, apply_model, flops_per_frame, init_model
 from jaxsr.runtime import compiler_options
 

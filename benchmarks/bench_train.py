@@ -255,6 +255,7 @@ def test_train_step_today_vs_new(benchmark, form, tr):
                 "speed_up_vs_issue_14": best["issue-14"] / t, "speed_up_vs_main": best["main"] / t}
         benchmark.extra_info[name] = info
         print(f"{form} TR{tr} {name:16s} {1e3 * t:8.1f} ms/step  {info['examples_per_s']:6.2f} examples/s  "
-              f"{info['frames_per_s']:6.2f} frames/s  {info['gflop_per_s']:6.1f} GFLOP/s  x{info['speed_up_vs_issue_14']:.2f} "
+              f"{info['frames_per_s']:6.2f} frames/s  {info['gflop_per_s']:6.1f} GFLOP/s  "
+              f"x{info['speed_up_vs_issue_14']:.2f} "
               f"vs issue-14  x{info['speed_up_vs_main']:.2f} vs main")
     benchmark.extra_info["patch"] = train_cfg.patch

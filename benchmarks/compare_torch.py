@@ -45,7 +45,8 @@ CORES = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os
 
 from jaxsr.eval.reports import header, markdown_table, write_atomic  # noqa: E402
 
-TORCH_MISSING = ("The JAX vs PyTorch comparisons need PyTorch, which is not a jaxsr dependency; install the CPU build with:\n"
+TORCH_MISSING = ("The JAX vs PyTorch comparisons need PyTorch, which is not a jaxsr dependency; "
+                 "install the CPU build with:\n"
                  "    pip install torch==2.13.0")
 LR_SHAPE = (32, 64)
 
@@ -138,8 +139,10 @@ def main(argv=None):
         f"Full-frame inference, LR {LR_SHAPE[0]}x{LR_SHAPE[1]} -> HR {LR_SHAPE[0] * 4}x{LR_SHAPE[1] * 4}, a random "
         f"sequence of {args.frames} frames, random weights. JAX: `jaxsr.super_resolve(model, lr_seq, batch_size=B)` "
         f"(XLA:CPU, {N_DEVICES} CPU devices over {CORES} cores: a batch divisible by {N_DEVICES} is split over them, "
-        f"as `jaxsr.runtime.use_cpu_cores` sets up; compiled with `jaxsr.runtime.compiler_options()` = {jaxsr.runtime.compiler_options()}; "
-        f"`conv3d_impl=\"auto\"`: temporal taps stacked where `stacked_use` >= 0.7). PyTorch {torch.__version__}: the port in "
+        f"as `jaxsr.runtime.use_cpu_cores` sets up; compiled with `jaxsr.runtime.compiler_options()` = "
+        f"{jaxsr.runtime.compiler_options()}; "
+        f"`conv3d_impl=\"auto\"`: temporal taps stacked where `stacked_use` >= 0.7). "
+        f"PyTorch {torch.__version__}: the port in "
         f"`benchmarks/torch_reference.py` (`torch_super_resolve`, eval mode, `torch.inference_mode()`, BN folded "
         f"into the preceding 1x1x1 convolution), `torch.set_num_threads({args.threads})`, oneDNN "
         f"{'on' if torch.backends.mkldnn.is_available() and torch.backends.mkldnn.enabled else 'off'}, "

@@ -154,7 +154,8 @@ def main(argv=None):
     notes = (
         f"TR{args.tr} network, random weights, batch {args.batch}, LR {LR_SHAPE[0]}x{LR_SHAPE[1]}, every dense "
         f"block fed the same activations in both engines. JAX: `conv3d(impl=\"auto\")`, jitted with "
-        f"`jaxsr.runtime.compiler_options()` = {jaxsr.runtime.compiler_options()}, {jax.local_device_count()} CPU devices (this "
+        f"`jaxsr.runtime.compiler_options()` = {jaxsr.runtime.compiler_options()}, "
+        f"{jax.local_device_count()} CPU devices (this "
         f"runs on the first). PyTorch {torch.__version__}: `benchmarks/torch_reference.py`, channels-last, "
         f"per-tap oneDNN `conv2d`, BN folded into the 1x1x1 convolution, `torch.set_num_threads({args.threads})`. "
         f"Fastest of {args.rounds} interleaved rounds. **JAX / torch** is the ratio of times (< 1: JAX faster). "

@@ -188,7 +188,8 @@ def main():
               f"models trained here with the `{preset}` preset ({args.runs})")
     text = header(f"Temporal-radius sweep, x{args.scale} (paper Table 1, Fig. 5)", started)
     text += (f"Models: {source}. Test data: {scored} of each test scene (scenes 1-2 at SNR 1.3, "
-             f"scene 3 at SNR 3, {jaxsr.config.DEFAULT_MEAN_SIGNAL:g} signal photons per LR pixel), noise seed {args.seed}; "
+             f"scene 3 at SNR 3, {jaxsr.config.DEFAULT_MEAN_SIGNAL:g} signal photons per LR pixel), "
+             f"noise seed {args.seed}; "
              "PSNR (dB) and SSIM of the clipped output against the normalised HR ground truth, averaged over frames. "
              f"frames/s: end to end (histograms -> centre of mass -> network), {FPS_NOTE}, on this machine; "
              "the paper's "
@@ -197,7 +198,8 @@ def main():
              "and what training starts from.\n\n")
     text += markdown_table(columns, table + paper)
     cards = [f"- TR{tr}: {r['card'].get('steps', '?')} steps, {r['card'].get('examples', '?')} examples, "
-             f"{r['card'].get('wall_time_s', 0) / 60:.0f} min training on {r['card'].get('hardware', {}).get('backend', '?')}"
+             f"{r['card'].get('wall_time_s', 0) / 60:.0f} min training on "
+             f"{r['card'].get('hardware', {}).get('backend', '?')}"
              for tr, r in rows.items()]
     cards += [f"- TR{tr}-seq (the sequence form, `jaxsr.load_model('tr{tr}-seq')`): {r['card'].get('steps', '?')} "
               f"steps of {r['card'].get('train_config', {}).get('batch_size', '?')} clips, "
@@ -207,7 +209,8 @@ def main():
     bought = interval(rows[0]["frames"], floor_frames) if 0 in rows else None
     checked = differences(rows, seq_rows, vs_tr0, bought) + "\n\n" + claims(rows, bicubic, vs_tr0)
     text += "\n" + checked + "\n"
-    text += f"\nPlots: `{base.name}.png` (PSNR and SSIM against TR), `{base.name}_pareto.png` (PSNR against frames/s).\n"
+    text += (f"\nPlots: `{base.name}.png` (PSNR and SSIM against TR), "
+             f"`{base.name}_pareto.png` (PSNR against frames/s).\n")
     write_atomic(f"{base}.md", text)
     write_atomic(f"{base}.csv", csv)
     plot(f"{base}.png", rows, bicubic, fps_bicubic, seq_rows)

@@ -220,7 +220,9 @@ class ModelConfig:
         return self.base + self.growth * (self.same_blocks + self.tr)
 
 
-jax.tree_util.register_dataclass(ModelConfig, data_fields=[], meta_fields=[f.name for f in dataclasses.fields(ModelConfig)])
+jax.tree_util.register_dataclass(
+    ModelConfig, data_fields=[], meta_fields=[f.name for f in dataclasses.fields(ModelConfig)]
+)
 
 
 # Outputs per training clip of the sequence form when `TrainConfig.clip_frames` is None (L = 2R + this). The TR4
@@ -241,8 +243,8 @@ class TrainConfig:
     `patience` epochs without a lower validation loss (the best weights are kept).
     Data: frame SNR log-uniform in `snr_range`; mean signal photons per LR pixel log-uniform in
     `mean_signal_range` (half to double the calibrated `DEFAULT_MEAN_SIGNAL` by default); mean scene motion
-    log-uniform in `motion_range` LR pixels per frame (`jaxsr.scenes.training_clip`). `patch` = (rows, cols) of a random LR crop to
-    train on (None: whole frames; the network is fully convolutional, crops only cut compute).
+    log-uniform in `motion_range` LR pixels per frame (`jaxsr.scenes.training_clip`). `patch` = (rows, cols) of a
+    random LR crop to train on (None: whole frames; the network is fully convolutional, crops only cut compute).
     Validation: the first `val_frames` frames of each sequence in `val_sequences` of
     `jaxsr.scenes.test_sequences` (by default three static-camera validation sequences, a street, a road and a
     courtyard like the test scenes but distinct from them), at each sequence's own SNR, with `val_mean_signal`.

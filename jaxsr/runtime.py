@@ -28,8 +28,8 @@ _CPU_OPTIONS = {"xla_cpu_experimental_ynn_fusion_type": ""}
 
 # XLA:CPU's YNNPACK element-wise and reduction fusions crash the process (SIGSEGV) on an x86 host without AVX-512:
 # a 2-core AMD EPYC with AVX2 only, JAX 0.10.2 (2026-11-24), running the vmapped gradient of `pipeline_metric`
-# over two or more sensors (tests/test_pipeline.py), with either fusion type alone; with YNNPACK kept to dots and
-# convolutions it runs. Hosts with AVX-512 ran the whole suite with XLA's defaults on the same JAX (sessions of
+# over two or more sensors (tests/inference/test_pipeline.py), with either fusion type alone; with YNNPACK kept to
+# dots and convolutions it runs. Hosts with AVX-512 ran the whole suite with XLA's defaults on the same JAX (sessions of
 # 2026-11-21 to 23): the instruction set is the difference seen, not an established cause. Older jaxlibs may not
 # know the option, and XLA aborts on an unknown flag, so it is set only from the version where it was seen.
 _YNN_OPTION = "xla_cpu_experimental_ynn_fusion_type"

@@ -166,7 +166,8 @@ def main(argv=None):
              f"{describe(dict(card['train_config'], epochs=max(epochs)))}. Card columns: "
              "the best epoch's validation PSNR and bicubic's on the same frames, from the training card. 'val PSNR "
              f"best / last': mean over {', '.join(VALIDATION)} (the first {args.frames} frames of each, other noise) "
-             f"of the two checkpoints of the run; rule `--checkpoint {args.checkpoint}` picks the bundled one. float16 cost: "
+             f"of the two checkpoints of the run; rule `--checkpoint {args.checkpoint}` picks the bundled one. "
+             "float16 cost: "
              "float32 minus float16 PSNR of the bundled one on the same frames.\n\n")
     if kept:
         text += (f"`--keep-better`: for {', '.join(f'TR{tr}' for tr in kept)} the bundled model scored at least as "

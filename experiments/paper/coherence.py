@@ -50,7 +50,8 @@ def plot(path, counts):
 def ratio_intervals(counts_a, counts_b, block: int) -> dict:
     """{eps: a's Tc over b's with its paired block-bootstrap interval over frame pairs (`jaxsr.eval.ratio_interval`)}
     from the per-pair counts of two outputs at each of EPS."""
-    return {e: jaxsr.eval.ratio_interval(jax.random.key(0), a, b, block=block) for e, a, b in zip(EPS, counts_a, counts_b)}
+    return {e: jaxsr.eval.ratio_interval(jax.random.key(0), a, b, block=block)
+            for e, a, b in zip(EPS, counts_a, counts_b)}
 
 
 def ratio_verdict(iv) -> str:

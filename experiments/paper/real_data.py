@@ -198,7 +198,8 @@ def main():
     text += "Agreement of the output with its input (RMS of SR averaged over 4 x 4 blocks minus LR, on LR pixels "
     text += "with a return, normalised depth) and time per recording:\n\n"
     text += markdown_table(["recording", "method", "LR h x w x T", "block-mean RMS vs LR", "s"], rows)
-    text += f"\nFlicker on the tof_radar video's static background ({int(static_lr.sum())} LR pixels, the quarter with " \
+    text += f"\nFlicker on the tof_radar video's static background ({int(static_lr.sum())} LR pixels, " \
+            "the quarter with " \
             "the least temporal std; share of pixel-frames changing by > 0.01):\n\n"
     text += markdown_table(["method", "flicker"], fl)
     text += ("\nThe script also writes real_data.png (LR | bicubic | TR0 | TR4 | TR4 sequence; tower_sub: the "

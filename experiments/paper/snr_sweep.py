@@ -87,7 +87,8 @@ def main():
                   for m in methods]
     text = header("SNR robustness: bicubic, our models and the learned baselines against the frame SNR", started)
     text += (f"The three test scenes, first {args.frames} frames each, simulated at each SNR "
-             f"({jaxsr.config.DEFAULT_MEAN_SIGNAL:g} signal photons per LR pixel), models: {weights_source(args.weights)}. "
+             f"({jaxsr.config.DEFAULT_MEAN_SIGNAL:g} signal photons per LR pixel), "
+             f"models: {weights_source(args.weights)}. "
              "Cells: PSNR (dB) / SSIM, mean over the three scenes. Training covered SNR 0.5-8. "
              + baseline_source(baselines, cards, skipped, args.baseline_weights) + "\n\n")
     text += markdown_table(["SNR", *methods], rows)

@@ -68,8 +68,8 @@ def main():
             c, m = summarise(com_err), summarise(ml_err)
             gain = 100 * (1 - m[1] / c[1]) if np.isfinite(c[1]) and np.isfinite(m[1]) else float("nan")
             rows.append(
-                [signal, snr, f"{bound:.3f}", f"{c[0]:.3f}", f"{m[0]:.3f}", f"{c[1]:.3f}", f"{m[1]:.3f}", f"{gain:+.0f} %",
-                 f"{c[2]:.1f}", f"{m[2]:.1f}", f"{100 * conv:.0f}"]
+                [signal, snr, f"{bound:.3f}", f"{c[0]:.3f}", f"{m[0]:.3f}", f"{c[1]:.3f}", f"{m[1]:.3f}",
+                 f"{gain:+.0f} %", f"{c[2]:.1f}", f"{m[2]:.1f}", f"{100 * conv:.0f}"]
             )
             print(*rows[-1])
     text = header("Depth extraction: centre of mass vs maximum likelihood", started)

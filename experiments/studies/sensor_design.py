@@ -161,7 +161,8 @@ def findings(land, free, bic, runs, com_rows, n_draws, tol=0.1):
              f"{near.max():g} bins within {tol} dB of the best, {land[d].max():.2f} dB). See the gradient check "
              "below before trusting the surrogate's slope: BFGS also uses the objective's values in its line search.\n")
     text += (f"- The noise-free path is no design objective: it prefers {sig[np.argmax(free[d])]:g} bins "
-             f"({free[d].max():.2f} dB) at SNR {DESIGN_SNR} (without photon noise the background subtraction is exact and a "
+             f"({free[d].max():.2f} dB) at SNR {DESIGN_SNR} (without photon noise the background subtraction "
+             "is exact and a "
              "wider IRF only smooths the bin quantisation), where the noisy landscape loses "
              f"{land[d].max() - land[d][np.argmax(free[d])]:.2f} dB.\n")
     text += ("- Without the network (bicubic of the centre of mass) the best width is " + ", ".join(
@@ -237,7 +238,8 @@ def main():
     t = time.time()
     found = {}
     runs = []
-    for label, fn, sigma0 in (("noise-free BFGS from 0.25", noise_free, 0.25), ("noise-free BFGS from 0.9", noise_free, 0.9),
+    for label, fn, sigma0 in (("noise-free BFGS from 0.25", noise_free, 0.25),
+                              ("noise-free BFGS from 0.9", noise_free, 0.9),
                               ("noisy BFGS from 0.25", noisy, 0.25), ("noisy BFGS from 0.9", noisy, 0.9)):
         sigma, steps, ok = optimise_sigma(fn, DESIGN_SNR, sigma0)
         value = float(fn(jnp.float32(sigma), jnp.float32(DESIGN_SNR)))
@@ -297,7 +299,8 @@ def main():
     )
     text += ("\nThe same check without the network, where the mechanism is visible: d/d sigma of the mean squared "
              "centre-of-mass error (normalised depth) on a 4 x 8 LR sensor (16 x 32 HR), one flat surface per LR "
-             "pixel at 4-17 m, reflectivity 0.8, 4000 draws; h = 0.02 bins (`tests/test_pipeline.py` checks the "
+             "pixel at 4-17 m, reflectivity 0.8, 4000 draws; h = 0.02 bins "
+             "(`tests/inference/test_pipeline.py` checks the "
              "first and fourth rows' pattern on a smaller sensor).\n\n")
     text += markdown_table(
         ["returns", "signal photons", "SNR", "normal", "straight-through", "finite difference of MC mean",

@@ -161,7 +161,8 @@ def main():
         f"TR{tr} " + ", ".join(f"{f} {warm[tr, f]:.0f}" for f in FORMS) for tr in args.trs) + ".\n\n"
     text += (
         f"Accuracy: max |sequence form - window loop| over the first {args.gap_frames} frames (ends included; "
-        "the loop is the definition of the sequence form, run with XLA's 3D convolutions), and PSNR (dB) / SSIM of the same weights in the "
+        "the loop is the definition of the sequence form, run with XLA's 3D convolutions), "
+        "and PSNR (dB) / SSIM of the same weights in the "
         f"window and the sequence form on the first {args.score_frames} frames of Scene 1 at its SNR "
         "(`jaxsr/eval/scoring.py` `test_clips`, `score`: output clipped to [0, 1]).\n\n"
     )

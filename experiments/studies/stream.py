@@ -131,7 +131,8 @@ def main():
     text += markdown_table(["TR", "model"] + [SCENE_LABELS[n] for n in TEST_SCENES]
                            + ["mean PSNR", "Tc", "frames/s", "GFLOP", "train steps / min"], rows)
     text += (f"\nWindowed TR0 for reference: mean PSNR {tr0_psnr:.2f} dB, "
-             f"{points[0][1]:.1f} frames/s.\n\n## Frame-rate study (walkers, {args.fps_frames} frames per rate, PSNR dB)\n\n")
+             f"{points[0][1]:.1f} frames/s.\n\n"
+             f"## Frame-rate study (walkers, {args.fps_frames} frames per rate, PSNR dB)\n\n")
     text += markdown_table(["TR", "model"] + [f"{r:g} FPS" for r in RATES], rate_rows)
     text += f"\nPlot: `{args.out.split('/')[-1]}.png` (mean PSNR against frames/s).\n"
     text += hand_written_tail(f"{args.out}.md", HAND_WRITTEN)

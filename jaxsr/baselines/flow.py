@@ -47,7 +47,8 @@ def _gaussian_taps(sigma: float):
 
 
 def _keys(t):
-    """Keys' cubic convolution weights (a = -0.5) of the 4 taps at offsets -1, 0, 1, 2 from floor(x), t = x - floor(x)."""
+    """Keys' cubic convolution weights (a = -0.5) of the 4 taps at offsets -1, 0, 1, 2 from floor(x),
+    t = x - floor(x)."""
     a = -0.5
     d = jnp.stack([1 + t, t, 1 - t, 2 - t])  # distances to the 4 taps
     near = (a + 2) * d**3 - (a + 3) * d**2 + 1

@@ -14,7 +14,8 @@ Followed (read from the papers and their public PyTorch code, then written anew 
   (centre, neighbour, flow) channels instead of 3 and 8, and the output has 1 channel. No bicubic residual
   (RBPN's default `residual=False`).
 - Flow: RBPN/iSeeBetter ran pyflow (Liu's coarse-to-fine variational flow) as preprocessing; here the classical
-  pyramidal Lucas-Kanade of `jaxsr.baselines.flow.optical_flow`, computed inside `apply_rbpn` from the window (no gradient).
+  pyramidal Lucas-Kanade of `jaxsr.baselines.flow.optical_flow`, computed inside `apply_rbpn` from the window
+  (no gradient).
 - Discriminator: SRGAN's (Ledig et al. 2017), as iSeeBetter's `SRGAN/model.py`: eight 3x3 convs 64, 64/2, 128,
   128/2, 256, 256/2, 512, 512/2 (/2 = stride 2), batch norm after all but the first, LeakyReLU 0.2, global
   average pooling, 1x1 convs 512 -> 1024 -> 1, sigmoid. Input 1 channel instead of 3. Batch norm with torch's

@@ -131,8 +131,8 @@ def tv_super_resolve(
     neighbour_weight^|s - t| normalised to sum 1, and TV_eps(x) = sum_i sqrt(dx_i^2 + dy_i^2 + eps^2) - eps a
     smoothed isotropic total variation (forward differences), so the energy is differentiable and convex. Each
     frame starts from bicubic upsampling of its LR frame and runs at most `max_steps` iterations of L-BFGS
-    (optimistix, `throw=False`: a frame that has not met the tolerances returns its last iterate); frames are vmapped and the
-    whole solve is one jitted call (compiled once per shape and static option).
+    (optimistix, `throw=False`: a frame that has not met the tolerances returns its last iterate); frames are
+    vmapped and the whole solve is one jitted call (compiled once per shape and static option).
 
     Frames are not registered: the window only helps where the scene is static. The robust penalty keeps moving
     content where the centre frame has it as long as the centre frame holds more than half of the weight

@@ -1,4 +1,5 @@
-"""`python -m jaxsr.cli ...`: the `jaxsr` command without the console script (as experiments/studies/startup.py runs it)."""
+"""`python -m jaxsr.cli ...`: the `jaxsr` command without the console script (as experiments/studies/startup.py
+runs it)."""
 
 import sys
 

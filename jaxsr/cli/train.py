@@ -19,7 +19,8 @@ def add_parser(subparsers):
     p.add_argument("--tr", type=int_range(0, MAX_TR, "memory and compute grow with the window of 2TR+1 frames"),
                    default=4, help=f"temporal radius TR (window of 2TR+1 frames), 0..{MAX_TR}")
     p.add_argument("--scale", type=int_range(1), default=4, help="upsampling factor (4, or 8)")
-    p.add_argument("--preset", choices=sorted(PRESETS), default="cpu", help="training preset (see jaxsr.config.PRESETS)")
+    p.add_argument("--preset", choices=sorted(PRESETS), default="cpu",
+                   help="training preset (see jaxsr.config.PRESETS)")
     p.add_argument("--out", required=True, help="output folder (metrics.jsonl, best.npz, last.npz)")
     again = p.add_mutually_exclusive_group()
     again.add_argument("--resume", action="store_true", help="continue the run in OUT (from last.npz or resume.npz)")

@@ -24,7 +24,9 @@ _MSE_FLOOR = 1e-12
 def _pair(name, pred, gt):
     pred, gt = jnp.asarray(pred), jnp.asarray(gt)
     if pred.shape != gt.shape or pred.ndim < 2:
-        raise ValueError(f"{name}: pred and gt must be (..., H, W) arrays of equal shape, got {pred.shape} and {gt.shape}")
+        raise ValueError(
+            f"{name}: pred and gt must be (..., H, W) arrays of equal shape, got {pred.shape} and {gt.shape}"
+        )
     dtype = jnp.result_type(pred.dtype, gt.dtype, float)
     return jnp.clip(pred.astype(dtype), 0.0, 1.0), gt.astype(dtype)
 

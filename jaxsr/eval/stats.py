@@ -9,7 +9,7 @@ from random blocks of `block` frames, wrapping around the end, so correlation wi
 several sequences (a leading axis), each is resampled on its own and the statistic is the mean of the
 sequences' means, as the results tables average scenes. With strongly correlated scores the intervals still run
 a little narrow (95 % intervals covered the true mean in 88 % of AR(1) series with phi 0.8 and blocks of 20:
-tests/test_stats.py), so read an interval that barely excludes zero as weak evidence.
+tests/eval/test_stats.py), so read an interval that barely excludes zero as weak evidence.
 """
 
 from __future__ import annotations

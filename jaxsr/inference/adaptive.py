@@ -97,7 +97,7 @@ def estimate_motion(lr_seq, *, max_frames: int = 64) -> MotionEstimate:
     best shift of moving pixels over k at the longest lag whose shifts stay within half the search radius
     (small motions are measured over several frames, large ones over one). When no lag qualifies the lag-1
     shift is returned, or the search radius when changed pixels match no shift at all, as `saturated`: the
-    motion is at least that. Measured on synthetic translating blocks (tests/test_adaptive.py): within 15 %
+    motion is at least that. Measured on synthetic translating blocks (tests/inference/test_adaptive.py): within 15 %
     from 0.25 to 2 px/frame. Returns a `MotionEstimate` (motion, lag, moving_fraction, saturated).
     """
     seq = np.asarray(lr_seq, np.float32)[:max_frames]
@@ -142,7 +142,9 @@ def load_study(path=None) -> dict:
     "fps": {"0": frames/s, ...}, "source": how it was measured}."""
     path = STUDY_TABLE if path is None else Path(path)
     if not path.is_file():
-        raise FileNotFoundError(f"no frame-rate study table at {path}; run experiments/paper/fps_study.py --write-table")
+        raise FileNotFoundError(
+            f"no frame-rate study table at {path}; run experiments/paper/fps_study.py --write-table"
+        )
     table = json.loads(path.read_text())
     if not {"motion", "psnr", "fps"} <= table.keys():
         raise ValueError(f"{path}: expected keys motion, psnr and fps, got {sorted(table)}")

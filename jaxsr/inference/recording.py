@@ -151,7 +151,7 @@ class UpscaleResult:
 
 def _scale(model) -> int:
     """The model's upscaling factor r (x4 for the paper's models)."""
-    return int(getattr(model.config, "scale", 4))
+    return int(model.architecture.scale(model.config))
 
 
 def _seconds(value, what: str) -> float | None:

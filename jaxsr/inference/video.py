@@ -11,8 +11,9 @@ tr: each chunk of `batch_size + 2R` frames goes through `apply_model_sequence` (
 overlapping by 2R frames. `Stream` takes live input one frame at a time instead, with a latency of R frames.
 
 With several devices (e.g. the host's cores exposed as CPU devices by `use_cpu_cores`), each batch of windows is
-split over them (a sequence chunk runs on one device, its convolutions on all cores). The compiled call uses `jaxsr.runtime.compiler_options()` (on CPU, XLA's own convolutions, which keep both
-cores busy on one frame; benchmarks/bench_inference.py::test_network_tr4_one_window).
+split over them (a sequence chunk runs on one device, its convolutions on all cores). The compiled call uses
+`jaxsr.runtime.compiler_options()` (on CPU, XLA's own convolutions, which keep both cores busy on one frame;
+benchmarks/bench_inference.py::test_network_tr4_one_window).
 """
 
 from __future__ import annotations
@@ -138,8 +139,9 @@ def iter_super_resolve(model: Model, frames: Iterable, *, batch_size: int | None
     shorter list or array). conv3d_impl: how the convolutions run (see `apply_model`). tile: the largest side,
     in LR pixels, of the spatial tiles a larger frame is cut into (`tile_spans`: margins of the network's
     receptive radius, `jaxsr.nn.duf.spatial_radius`, so the output equals the whole frame's to float rounding),
-    bounding device memory whatever the frame size; None runs whole frames. Any frame size h, w >= `MIN_LR_SIDE` runs, compiled once per size; the bundled models were
-    trained on 32 x 64 frames of a 30 deg field of view (README "Frame size").
+    bounding device memory whatever the frame size; None runs whole frames. Any frame size h, w >= `MIN_LR_SIDE`
+    runs, compiled once per size; the bundled models were trained on 32 x 64 frames of a 30 deg field of view
+    (README "Frame size").
     Yields (h r, w r) float32 NumPy arrays of HR normalised depth (unclipped network output). NaN is read as
     no return (1.0) and values within 1e-6 of [0, 1] are clipped to it; raises ValueError for a frame of
     another shape than the first or smaller than `MIN_LR_SIDE`, or with values further outside [0, 1] (metres,

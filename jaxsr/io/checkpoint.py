@@ -144,7 +144,9 @@ def load_tree(path, template, *, prefix: str = "", strict: bool = True):
             try:
                 arr = data[key]
             except (zipfile.BadZipFile, EOFError, OSError, ValueError) as e:
-                raise ValueError(f"checkpoint {str(path)!r}: array {key!r} is unreadable (truncated or corrupt?): {e}") from e
+                raise ValueError(
+                    f"checkpoint {str(path)!r}: array {key!r} is unreadable (truncated or corrupt?): {e}"
+                ) from e
             if arr.shape != tuple(tmpl.shape):
                 raise ValueError(
                     f"checkpoint {str(path)!r}: array {key!r} has shape {arr.shape}, expected {tuple(tmpl.shape)}"
@@ -153,7 +155,9 @@ def load_tree(path, template, *, prefix: str = "", strict: bool = True):
             if arr.dtype == np.float16 and want == np.float32 and meta.get("storage_dtype") == "float16":
                 arr = arr.astype(np.float32)  # stored at half precision (`save_model(storage_dtype="float16")`)
             if arr.dtype != want:
-                raise ValueError(f"checkpoint {str(path)!r}: array {key!r} has dtype {arr.dtype}, expected {tmpl.dtype}")
+                raise ValueError(
+                    f"checkpoint {str(path)!r}: array {key!r} has dtype {arr.dtype}, expected {tmpl.dtype}"
+                )
             leaves.append(arr)
     treedef = jax.tree_util.tree_structure(template)
     return jax.tree_util.tree_unflatten(treedef, leaves), meta

@@ -69,7 +69,8 @@ def stream_step(params, state, buffers: dict, frame, cfg: ModelConfig, *, conv3d
     form whatever `cfg.temporal` says. conv3d_impl: as for `apply_model`.
     """
     if frame.ndim != 3 or frame.shape != buffers["lr"].shape[:1] + buffers["lr"].shape[2:]:
-        raise ValueError(f"stream_step: expected a frame (B, h, w) = {buffers['lr'].shape[:1] + buffers['lr'].shape[2:]}"
+        raise ValueError(f"stream_step: expected a frame (B, h, w) = "
+                         f"{buffers['lr'].shape[:1] + buffers['lr'].shape[2:]}"
                          f" matching the stream's buffers, got shape {frame.shape}")
     if conv3d_impl not in CONV3D_IMPLS:
         raise ValueError(f"stream_step: conv3d_impl must be one of {', '.join(map(repr, CONV3D_IMPLS))}, "

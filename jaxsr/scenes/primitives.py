@@ -8,8 +8,8 @@ Coordinates (metres, right-handed with Y up):
   the world's vertical), yaw `psi` about Y (positive turns the view towards +X). Camera-frame coordinates are
   x right, y up (height relative to the camera), z forward (planar depth);
 - pixels: HR pixel (row, col) has centre (col + 0.5, row + 0.5); its ray direction in the camera frame is
-  D = ((col + 0.5 - W/2) / f, -(row + 0.5 - H/2) / f - tilt, 1) with f = `sensor.focal_px` (`jaxsr.sensor.forward.pixel_rays`),
-  so the ray parameter along D is the planar depth z, and the radial depth is r = z |D|; with tilt = 0 this is
+  D = ((col + 0.5 - W/2) / f, -(row + 0.5 - H/2) / f - tilt, 1) with f = `sensor.focal_px`
+  (`jaxsr.sensor.forward.pixel_rays`), so the ray parameter along D is the planar depth z, and the radial depth is r = z |D|; with tilt = 0 this is
   the relation of `jaxsr.sensor.forward.planar_to_radial`. A camera 1.7 m up looking level sees the ground only beyond
   13 m (the vertical field of view is 15.25 deg), so scenes use a small tilt (a lens shift, not a rotation, so
   that the image's vertical stays the world's vertical and the ray casting stays separable).

@@ -331,7 +331,9 @@ def simulate_histograms(
       differentiable (by that surrogate) in everything `expected_histograms` is.
     """
     if gradient is not None and gradient not in PATHWISE_ESTIMATORS:
-        raise ValueError(f"simulate_histograms: gradient must be None or one of {PATHWISE_ESTIMATORS}, got {gradient!r}")
+        raise ValueError(
+            f"simulate_histograms: gradient must be None or one of {PATHWISE_ESTIMATORS}, got {gradient!r}"
+        )
     rates = expected_histograms(depth, intensity, sensor, snr=snr, mean_signal=mean_signal)
     counts = sample_poisson(key, jax.lax.stop_gradient(rates), method=sampler)
     return counts if gradient is None else poisson_pathwise(counts, rates, estimator=gradient)

@@ -122,8 +122,8 @@ def maximum_likelihood_depth(
 
     Minimises sum_k lambda_k - n_k log lambda_k with lambda_k = S h_k(tau) + B / K (the forward model of
     one LR pixel with a single surface) by BFGS (optimistix), vmapped over pixels and started from the
-    centre of mass (tau), the counts above the median over all bins (S) and the median (B). Better than the centre of mass where
-    photons are plentiful; no better in the photon-starved regime (experiments/results/extraction.md).
+    centre of mass (tau), the counts above the median over all bins (S) and the median (B). Better than the centre
+    of mass where photons are plentiful; no better in the photon-starved regime (experiments/results/extraction.md).
 
     Args:
       counts: (..., K) photon counts, as in `centre_of_mass` (eagerly checked; traced, a histogram with a

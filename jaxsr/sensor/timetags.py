@@ -223,8 +223,8 @@ def histogram_photons(cell, delay, *, cells: int, bins: int):
 def _unit_s(tags: TimeTags) -> float:
     if tags.time_unit_s is None or not (0 < tags.time_unit_s < np.inf):
         raise ValueError(f"{tags.source}: the time unit of the tags is unknown; give it (time_unit_s, --time-unit "
-                         "such as 1ps); if nobody knows it, any nominal unit with a depth span of the gate (--span gate) gives the "
-                         "same normalised depth")
+                         "such as 1ps); if nobody knows it, any nominal unit with a depth span of the gate "
+                         "(--span gate) gives the same normalised depth")
     return tags.time_unit_s
 
 

@@ -21,8 +21,8 @@ class Recipe(NamedTuple):
     init(key, cfg, init) -> train state: a dict of pytrees of arrays with at least "params", "state" (the
     network's) and "opt" (its Adam state); more for networks trained against others (a GAN's discriminator and
     its optimiser). `init` is None (draw the weights from `key`), or a `Model` or checkpoint path to start from.
-    step(cfg, train_cfg, make_batch, *, sensor, mesh, conv3d_impl, pretrain_steps) -> run(ts, key, step) -> (ts, metrics):
-    one jitted update of the whole train state, data drawn inside from make_batch(key); metrics a dict of
+    step(cfg, train_cfg, make_batch, *, sensor, mesh, conv3d_impl, pretrain_steps) -> run(ts, key, step) ->
+    (ts, metrics): one jitted update of the whole train state, data drawn inside from make_batch(key); metrics a dict of
     scalars with at least "loss" (or "g_loss"), "psnr" and "lr". data(cfg, train_cfg, sensor) -> make_batch: the
     default data source. validation(key, cfg, train_cfg, sensor) -> dict of arrays with at least "gt" (N, H, W)
     and, for the bicubic reference, "lr" (N, h, w). evaluate(model, validation, train_cfg, *, sensor,

@@ -17,7 +17,7 @@ def test_new_validation_is_the_presets_and_old_the_moving_cameras():
 
 
 def test_card_of_reads_a_model_card_and_a_train_state(tmp_path):
-    budget = Path(__file__).resolve().parents[1] / "experiments" / "budget_weights" / "tr0.npz"
+    budget = Path(__file__).resolve().parents[2] / "experiments" / "budget_weights" / "tr0.npz"
     assert selection.card_of(budget) == {"seed": 0, "steps": 1280, "epoch": 5}  # 5 epochs of 256 steps
     # a train state as fit writes it: the run's record; the card describes its best epoch so far
     state = save_tree(tmp_path / "last.npz", {"x": np.zeros(2)},

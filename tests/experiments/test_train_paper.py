@@ -111,4 +111,4 @@ def test_score_and_report_read_the_kept_runs_and_keep_writes_them(mode, target, 
     assert called[0][0] == (Path("runs/paper") if mode == "--keep" else train_paper.KEPT)
     if mode == "--keep":
         assert called[0][1] == train_paper.KEPT
-    assert (Path(__file__).resolve().parents[1] / train_paper.KEPT / "s0" / "tr4" / "best.npz").exists()
+    assert (Path(__file__).resolve().parents[2] / train_paper.KEPT / "s0" / "tr4" / "best.npz").exists()

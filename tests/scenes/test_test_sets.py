@@ -2,7 +2,7 @@
 
 Every committed result is scored on these sequences. A change to a stored scene, to the renderer, or to how the
 scenes are read makes `test_test_scenes_are_pinned` fail: if the change is on purpose, re-run the experiments
-and paste the new table that `python tests/test_test_sets.py` prints."""
+and paste the new table that `python tests/scenes/test_test_sets.py` prints."""
 
 import hashlib
 
@@ -58,10 +58,10 @@ def fingerprint(name):
 
 @pytest.mark.parametrize("name", sorted(scenes.TEST_SEQUENCES))
 def test_test_scenes_are_pinned(name):
-    assert name in PINNED, f"{name}: no pinned fingerprint; run python tests/test_test_sets.py"
+    assert name in PINNED, f"{name}: no pinned fingerprint; run python tests/scenes/test_test_sets.py"
     digest, stats = fingerprint(name)
     why = (f"the fixed test sequence {name} changed: every committed result is scored on it. If this is on "
-           "purpose, re-run the experiments and update PINNED from `python tests/test_test_sets.py`")
+           "purpose, re-run the experiments and update PINNED from `python tests/scenes/test_test_sets.py`")
     assert digest == PINNED[name][0], why
     np.testing.assert_allclose(stats, PINNED[name][1], rtol=1e-5, atol=1e-6, err_msg=why)
 

@@ -9,22 +9,11 @@ import pytest
 
 import jaxsr
 from jaxsr import cli, io
-from jaxsr.config import ModelConfig, SensorConfig
+from jaxsr.config import SensorConfig
 from jaxsr.inference import UpscaleResult, prepare_upscale, upscale, write_upscaled
-from jaxsr.io.checkpoint import load_model, save_model
-from jaxsr.nn import Model, init_model
+from jaxsr.io.checkpoint import load_model
 
-TINY = dict(base=8, growth=4, head=16, filter_hidden=16)
 SENSOR = SensorConfig()
-
-
-@pytest.fixture(scope="module")
-def model_path(tmp_path_factory):
-    cfg = ModelConfig(tr=1, **TINY)
-    model = Model(*init_model(jax.random.key(0), cfg), cfg)
-    path = tmp_path_factory.mktemp("model") / "tiny.npz"
-    save_model(path, model, card={"data": "none: random weights for tests"})
-    return path
 
 
 @pytest.fixture(scope="module")

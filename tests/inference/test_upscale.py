@@ -7,24 +7,12 @@ import numpy as np
 import pytest
 
 from jaxsr import cli, io
-from jaxsr.io.checkpoint import save_model
-from jaxsr.config import ModelConfig, SensorConfig
+from jaxsr.config import SensorConfig
 from jaxsr.inference.video import super_resolve
-from jaxsr.nn import Model, init_model
 from jaxsr.sensor.peaks import centre_of_mass
 from jaxsr.sensor.forward import normalise_depth
 
-TINY = dict(base=8, growth=4, head=16, filter_hidden=16)
 SENSOR = SensorConfig()
-
-
-@pytest.fixture(scope="module")
-def model_path(tmp_path_factory):
-    cfg = ModelConfig(tr=1, **TINY)
-    model = Model(*init_model(jax.random.key(0), cfg), cfg)
-    path = tmp_path_factory.mktemp("model") / "tiny.npz"
-    save_model(path, model, card={"data": "none: random weights for tests"})
-    return path
 
 
 @pytest.fixture(scope="module")

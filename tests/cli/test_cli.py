@@ -113,7 +113,7 @@ def test_train_bad_values_are_errors_before_any_training(tmp_path, capsys, args,
 
 def test_runs_as_python_m_jaxsr_cli():
     """`python -m jaxsr.cli` (experiments/studies/startup.py runs the command so) reaches the same parser."""
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]
     done = subprocess.run([sys.executable, "-m", "jaxsr.cli", "info", "--help"], cwd=root, capture_output=True,
                           text=True, timeout=120, check=False)
     assert done.returncode == 0, done.stderr

@@ -26,7 +26,7 @@ from jaxsr.io.checkpoint import save_model
 from jaxsr.config import ModelConfig
 from jaxsr.nn import Model, init_model
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 ENV = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), *filter(None, [os.environ.get("PYTHONPATH")])]))
 TINY = ModelConfig(tr=1, base=8, growth=4, head=16, filter_hidden=16)
 

@@ -425,14 +425,14 @@ def test_sharded_equals_single_device():
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2", JAX_PLATFORMS="cpu",
                PYTHONPATH=_with_tests_folder(os.environ.get("PYTHONPATH")))  # the script imports test_train
     proc = subprocess.run([sys.executable, "-c", _SHARDED_SCRIPT], capture_output=True,
-                          text=True, env=env, timeout=300, cwd=str(Path(__file__).parent.parent))
+                          text=True, env=env, timeout=300, cwd=str(Path(__file__).resolve().parents[2]))
     assert proc.returncode == 0, proc.stderr[-3000:]
     res = json.loads(proc.stdout.strip().splitlines()[-1])
     np.testing.assert_allclose(res["la"], res["lb"], rtol=1e-4)
     assert res["err"] < 1e-4, res
 
 
-@pytest.mark.slow  # two gradient compilations; tests/test_layers.py checks the layer's gradients fast
+@pytest.mark.slow  # two gradient compilations; tests/nn/test_layers.py checks the layer's gradients fast
 def test_stacked_layers_gradients_through_the_taps_equal_the_stacked_ones(monkeypatch):
     """`layers.STACKED_GRADIENT` ("taps", the faster one in training) changes how the gradients of the layers
     that conv3d(impl="auto") stacks are computed, not what they are: the train loss's gradients agree with the
