@@ -11,7 +11,7 @@ frames/s on this machine, and plot the speed-accuracy trade.
 Scores are means over --frames frames spread evenly over each 500-frame test sequence (100 by default), not
 its first frames: the scenes change along it.
 
-With the bundled weights and --sequence-form, the sequence-form models that are bundled (tr<N>-seq) are scored
+With the bundled weights and --sequence-form, the sequence-form models tr<N>-seq, where present, are scored
 beside the windowed ones and drawn in the speed-accuracy plot (each frame of theirs is computed with the whole
 sequence: about 1.5 minutes per model). Training runs go to runs/sweep_tr/<preset>/x<scale>/tr<N> and resume
 where they stopped; a finished run is loaded, not retrained. Writes experiments/results/sweep_tr[_x8][_<preset>|
@@ -158,7 +158,9 @@ def main():
     seq_rows = {}  # the bundled sequence-form models (tr<N>-seq), scored the same way
     for tr in trs if pretrained and args.sequence_form else ():
         path = bundled(f"tr{tr}-seq")
-        if path is not None:
+        if path is None:
+            print(f"TR{tr}-seq: not bundled since 0.2; `git checkout 949ee82 -- jaxsr/weights` restores it")
+        else:
             model = jaxsr.load_model(path)
             scores, frames_psnr = scene_scores(model, clips)
             seq_rows[tr] = {"scores": scores, "frames": frames_psnr, "fps": model_fps(model, clip0, min_time=min_time),

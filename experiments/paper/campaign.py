@@ -174,6 +174,10 @@ def tr_differences(scores: dict, *, against_previous: bool = False) -> dict:
     return out
 
 
+# The kept weights of seeds 1 and 2 left the tree (it travels to lent GPUs, which take 64 MiB); git keeps them.
+RESTORE_WEIGHTS = "git checkout 949ee82 -- experiments/paper_weights"
+
+
 def score(root: Path, frames: int, out: str, only=None, *, title: str = "Training campaign") -> None:
     """Score every run's best.npz (those in `only`; None: all) on the test scenes and write the TR differences
     (see `tr_differences`) under `title`. Per-frame scores are kept beside `out` (.json) and reused while a run's
@@ -188,7 +192,12 @@ def score(root: Path, frames: int, out: str, only=None, *, title: str = "Trainin
     scores, rows, trained, earlier = {}, [], set(), []
     for seed, tr in REPORTED_RUNS:
         run = run_dir(root, seed, tr)
-        if not (run / "best.npz").exists() or (only is not None and f"s{seed}/tr{tr}" not in only):
+        if only is not None and f"s{seed}/tr{tr}" not in only:
+            continue
+        if not (run / "best.npz").exists():
+            if (run / "metrics.jsonl").exists():  # a kept run whose weights are not in the tree
+                print(f"s{seed}/tr{tr}: no weights in {run} (seeds 1-2 are kept out of the tree: "
+                      f"`{RESTORE_WEIGHTS}` restores them)", flush=True)
             continue
         name, key = f"s{seed}/tr{tr}", {"weights": weights_digest(run / "best.npz"), "data": data, "code": code}
         # (scenes, frames) in TEST_SCENES order

@@ -7,8 +7,8 @@
 Data: the bundled TR models' (`bundle` preset: batch 4, 16 x 32 LR crops of freshly rendered training clips, SNR
 0.5-8, 7-28 signal photons; validation on the first 16 frames of the three validation sequences), in each
 baseline's form (the baseline's training recipe, `jaxsr.training.recipe(cfg).data`). Schedule: the bundle's 5 epochs,
-Adam 1e-3 cut to 1e-4 for the last epoch, patience 3, the best epoch's weights kept (validation loss: each baseline's own
-content loss, HistNet L1, iSeeBetter MSE). iSeeBetter follows its authors' recipe, a GAN started from a
+Adam 1e-3 cut to 1e-4 for the last epoch, patience 3, the best epoch's weights kept (validation loss: each baseline's
+own content loss, HistNet L1, iSeeBetter MSE). iSeeBetter follows its authors' recipe, a GAN started from a
 pre-trained generator: its first `PRETRAIN_EPOCHS` epochs train the RBPN generator alone on the MSE, the last one
 adds the discriminator and the adversarial term (at the cut rate 1e-4, the published one). A first run that had
 the GAN from the first step stayed below bicubic (its discriminator won early).

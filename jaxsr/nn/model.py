@@ -31,9 +31,10 @@ class Architecture:
     depth, "histograms" reads a pair (counts (B, h, w, K), HR intensity (B, H, W)); apply also takes the keyword
     conv3d_impl (how 3D convolutions run; networks without them accept and ignore it). frames(cfg): LR frames per
     output frame. scale(cfg): the upscaling factor. input_radius(cfg): output t reads frames t - R .. t + R.
-    sequence_form(cfg): True when the network runs on whole sequences (the DUF sequence form) rather than on one window per output frame; this is
-    the one place inference and training ask which. receptive_radius(cfg): LR pixels an output pixel reads
-    around itself (None: unknown or the whole frame, so inference does not cut frames into tiles).
+    sequence_form(cfg): True when the network runs on whole sequences (the DUF sequence form) rather than on one
+    window per output frame; this is the one place inference and training ask which. receptive_radius(cfg): LR
+    pixels an output pixel reads around itself (None: unknown or the whole frame, so inference does not cut frames
+    into tiles).
     describe(cfg, lr_shape) -> dict of extra facts for `jaxsr.io.model_info`.
     """
 

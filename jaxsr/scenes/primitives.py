@@ -9,10 +9,11 @@ Coordinates (metres, right-handed with Y up):
   x right, y up (height relative to the camera), z forward (planar depth);
 - pixels: HR pixel (row, col) has centre (col + 0.5, row + 0.5); its ray direction in the camera frame is
   D = ((col + 0.5 - W/2) / f, -(row + 0.5 - H/2) / f - tilt, 1) with f = `sensor.focal_px`
-  (`jaxsr.sensor.forward.pixel_rays`), so the ray parameter along D is the planar depth z, and the radial depth is r = z |D|; with tilt = 0 this is
-  the relation of `jaxsr.sensor.forward.planar_to_radial`. A camera 1.7 m up looking level sees the ground only beyond
-  13 m (the vertical field of view is 15.25 deg), so scenes use a small tilt (a lens shift, not a rotation, so
-  that the image's vertical stays the world's vertical and the ray casting stays separable).
+  (`jaxsr.sensor.forward.pixel_rays`), so the ray parameter along D is the planar depth z, and the radial depth
+  is r = z |D|; with tilt = 0 this is the relation of `jaxsr.sensor.forward.planar_to_radial`. A camera 1.7 m up
+  looking level sees the ground only beyond 13 m (the vertical field of view is 15.25 deg), so scenes use a small
+  tilt (a lens shift, not a rotation, so that the image's vertical stays the world's vertical and the ray casting
+  stays separable).
 
 A `Scene` holds a fixed number of primitives per type, each with an `active` mask, so scenes sampled under
 `jax.vmap` share one shape and rendering is pure and jittable. Primitive types, chosen so that most of the

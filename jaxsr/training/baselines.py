@@ -139,7 +139,8 @@ def make_iseebetter_train_step(cfg: RBPNConfig, make_batch, *, schedule, adversa
 
     step((g_params, d_params, d_state), (g_opt, d_opt), key, step) -> (same, same, metrics).
     make_batch: key -> (windows (B, frames, h, w), gt (B, h r, w r)), e.g.
-    `jaxsr.training.data.scene_batches(cfg.frames // 2, train_cfg)`; the flows are computed once per batch (`rbpn_flows`). schedule: step -> lr for both.
+    `jaxsr.training.data.scene_batches(cfg.frames // 2, train_cfg)`; the flows are computed once per batch
+    (`rbpn_flows`). schedule: step -> lr for both.
     Losses: `discriminator_loss`, `generator_loss` (MSE + adversarial + tv; no VGG term). Returns the step;
     metrics {"d_loss", "g_loss", "content", "adversarial", "psnr", "lr"}.
     """

@@ -46,7 +46,9 @@ def histnet_published(width=64):
 
 @pytest.mark.parametrize("width", [64, 16])
 def test_histnet_parameter_count_matches_the_published_layers(width):
-    params = jax.eval_shape(lambda k: jaxsr.baselines.init_histnet(k, jaxsr.baselines.HistNetConfig(width=width)), jax.random.PRNGKey(0))
+    params = jax.eval_shape(
+        lambda k: jaxsr.baselines.init_histnet(k, jaxsr.baselines.HistNetConfig(width=width)), jax.random.PRNGKey(0)
+    )
     assert count_params(params) == histnet_published(width)
     if width == 64:
         assert count_params(params) == 45_473_025
@@ -110,7 +112,9 @@ def test_rbpn_and_discriminator_shapes():
     assert jax.eval_shape(lambda w: jaxsr.baselines.rbpn_flows(w, cfg), windows).shape == (2, 6, 32, 64, 2)
     hr = jax.eval_shape(lambda p, w: jaxsr.baselines.apply_rbpn(p, w, cfg), g, windows)
     assert hr.shape == (2, 128, 256)
-    logits, _ = jax.eval_shape(lambda p, s, x: jaxsr.baselines.apply_discriminator(p, s, x, cfg, train=True), dp, ds, hr)
+    logits, _ = jax.eval_shape(
+        lambda p, s, x: jaxsr.baselines.apply_discriminator(p, s, x, cfg, train=True), dp, ds, hr
+    )
     assert logits.shape == (2,)
     with pytest.raises(ValueError, match="expected windows"):
         jaxsr.baselines.apply_rbpn(g, jnp.zeros((2, 5, 32, 64)), cfg)

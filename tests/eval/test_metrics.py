@@ -55,7 +55,9 @@ def test_ssim_global_closed_form():
     x, y = pred[1].ravel(), gt[1].ravel()
     c1, c2 = 1e-4, 9e-4
     mx, my = x.mean(), y.mean()
-    want = ((2 * mx * my + c1) * (2 * np.mean((x - mx) * (y - my)) + c2)) / ((mx**2 + my**2 + c1) * (x.var() + y.var() + c2))
+    want = ((2 * mx * my + c1) * (2 * np.mean((x - mx) * (y - my)) + c2)) / (
+        (mx**2 + my**2 + c1) * (x.var() + y.var() + c2)
+    )
     assert float(jaxsr.ssim_global(pred, gt)[1]) == pytest.approx(want, rel=1e-5)
     assert float(jaxsr.ssim_global(gt[0], gt[0])) == pytest.approx(1.0, rel=1e-6)
 

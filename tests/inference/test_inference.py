@@ -104,7 +104,9 @@ def test_depth_outside_0_1_is_refused_with_the_range_and_the_remedy(make):
     how to normalise; the message says how much float slack is allowed."""
     seq = np.asarray(jax.random.uniform(jax.random.key(6), (3, 4, 6)))
     bad = make(seq)
-    with pytest.raises(ValueError, match=r"frame 0 has values in \[.*\], outside \[0, 1\]: expected normalised depth") as err:
+    with pytest.raises(
+        ValueError, match=r"frame 0 has values in \[.*\], outside \[0, 1\]: expected normalised depth"
+    ) as err:
         super_resolve(_model(0), bad)
     msg = str(err.value)
     assert "--units m" in msg and "jaxsr.normalise_depth" in msg and "1e-06" in msg

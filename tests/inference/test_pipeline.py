@@ -107,7 +107,9 @@ def test_surrogate_matches_finite_differences_of_the_monte_carlo_mean_with_plent
     @jax.jit
     def compare(mean_signal, snr):
         grads = jax.vmap(jax.grad(loss, argnums=1), (0, None, None, None, None))(keys, 0.4, mean_signal, snr, "normal")
-        mc = lambda s: jnp.mean(jax.vmap(loss, (0, None, None, None, None))(keys, s, mean_signal, snr, None))  # noqa: E731
+        mc = lambda s: jnp.mean(  # noqa: E731
+            jax.vmap(loss, (0, None, None, None, None))(keys, s, mean_signal, snr, None)
+        )
         h = 0.02
         return jnp.mean(grads), jnp.std(grads) / np.sqrt(len(keys)), (mc(0.4 + h) - mc(0.4 - h)) / (2 * h)
 

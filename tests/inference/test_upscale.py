@@ -160,8 +160,8 @@ def test_auto_model_uses_choose_tr_and_the_bundled_weights(tmp_path, capsys):
     choice = choose_tr(lr)
     assert upscale(tmp_path / "in.npy", tmp_path / "out.npy", "--model", "auto") == 0
     assert f"model tr{choice.tr} (auto: " in capsys.readouterr().err
-    np.testing.assert_allclose(np.load(tmp_path / "out.npy"), np.clip(super_resolve(load_model(f"tr{choice.tr}"), lr), 0, 1),
-                               atol=1e-6)
+    np.testing.assert_allclose(np.load(tmp_path / "out.npy"),
+                               np.clip(super_resolve(load_model(f"tr{choice.tr}"), lr), 0, 1), atol=1e-6)
     # a budget no model meets: the fastest one, and the reason says so
     assert upscale(tmp_path / "in.npy", tmp_path / "out2.npy", "--model", "auto", "--min-fps", "1e6") == 0
     assert "model tr0 (auto: " in capsys.readouterr().err

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from jaxsr import cli
-from jaxsr.io.checkpoint import load_model, model_info, read_metadata, resolve_model_path, save_model
+from jaxsr.io.checkpoint import load_model, model_info, read_metadata, save_model
 from jaxsr.config import ModelConfig, TrainConfig
 from jaxsr.training.data import run_keys
 from jaxsr.inference.video import Stream, iter_super_resolve, super_resolve
@@ -338,12 +338,3 @@ def test_train_command_checks_the_clip_before_any_training(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.startswith("jaxsr train: error: ") and "clip_frames must be at least 2R + 1 = 15" in err
     assert not out.exists()
-
-
-@pytest.mark.parametrize("name", ["tr1-seq", "tr4-seq"])
-def test_bundled_sequence_models_load_in_their_form_with_their_card(name):
-    """The bundled sequence-form weights: the form and TR of their name, a card that says how they were trained."""
-    model = load_model(name)
-    assert model.config.temporal == "sequence" and model.config.tr == int(name[2])
-    card = read_metadata(resolve_model_path(name))["card"]
-    assert "train_sequence_bundle.py" in card["trained_with"] and card["steps"] > 0

@@ -16,9 +16,10 @@ from jaxsr.config import PRESETS
 T = 8  # frames rendered per sequence (the renderer compiled for the other scene tests)
 
 # name: (SHA-256 of the scene's parameters, first 16 hex digits; per rendered frame 0 and T-1: mean depth of the
-# pixels with a return (m), share of sky pixels, mean intensity). Written 2026-11-23 from the stored scenes (which reproduce
-# the sequences of every result committed up to then, bit for bit); scene2_road and walkers_100fps re-pinned the same
-# day after they were redrawn to keep traffic and people in view (issue 14): results scored on them before are stale.
+# pixels with a return (m), share of sky pixels, mean intensity). Written 2026-11-23 from the stored scenes (which
+# reproduce the sequences of every result committed up to then, bit for bit); scene2_road and walkers_100fps
+# re-pinned the same day after they were redrawn to keep traffic and people in view (issue 14): results scored on
+# them before are stale.
 PINNED = {
     "scene1_street": ("dc19483ab656d479",
         [18.301897, 0, 0.317261279, 18.3909302, 0, 0.317756295]),

@@ -15,7 +15,8 @@ gate_depth_jit = jax.jit(gate_depth, static_argnames=("window", "return_mask"))
 
 
 def synthetic_histogram(range_m, gate, *, signal=500.0, background=2.0):
-    """Noise-free counts of one surface at `range_m` over `gate` (Gaussian IRF of sigma 0.4 bins, docs/sensor-model.md)."""
+    """Noise-free counts of one surface at `range_m` over `gate` (Gaussian IRF of sigma 0.4 bins,
+    docs/sensor-model.md)."""
     tau = (range_m - gate.start) / gate.bin_width
     h = np.asarray(irf_bin_weights(np.float32(tau), SensorConfig(bins=gate.bins)))
     return (signal * h + background).astype(np.float32)

@@ -298,7 +298,8 @@ def test_intensity_out_of_range_raises(bad):
         jaxsr.simulate_histograms(jax.random.key(0), np.ones(SMALL.hr_shape), intensity, SMALL, snr=1.0)
 
 
-@pytest.mark.parametrize("kwargs,match", [(dict(snr=0.0), "snr must be finite and > 0"), (dict(snr=1.0, mean_signal=-1.0), "mean_signal")])
+@pytest.mark.parametrize("kwargs,match", [(dict(snr=0.0), "snr must be finite and > 0"),
+                                          (dict(snr=1.0, mean_signal=-1.0), "mean_signal")])
 def test_bad_photon_levels_raise(kwargs, match):
     with pytest.raises(ValueError, match=match):
         jaxsr.calibrate(np.ones(SMALL.hr_shape), np.ones(SMALL.hr_shape), SMALL, **kwargs)
@@ -365,11 +366,13 @@ LEVEL_CALLS = {
 LEVEL_CALLS_JIT = {name: jax.jit(fn) for name, fn in LEVEL_CALLS.items()}
 
 
-@pytest.mark.parametrize("kwargs,name", BAD_LEVELS, ids=[",".join(f"{k}={v}" for k, v in kw.items()) for kw, _ in BAD_LEVELS])
+@pytest.mark.parametrize("kwargs,name", BAD_LEVELS,
+                         ids=[",".join(f"{k}={v}" for k, v in kw.items()) for kw, _ in BAD_LEVELS])
 @pytest.mark.parametrize("jit", [False, True])
 def test_invalid_photon_levels_raise_eagerly_and_are_nan_everywhere_traced(kwargs, name, jit):
     depth, intensity = _scene()
-    args = (jax.random.key(2), depth, intensity, jnp.float32(kwargs["snr"]), jnp.float32(kwargs.get("mean_signal", 5.0)))
+    args = (jax.random.key(2), depth, intensity, jnp.float32(kwargs["snr"]),
+            jnp.float32(kwargs.get("mean_signal", 5.0)))
     for fn in (LEVEL_CALLS_JIT if jit else LEVEL_CALLS).values():
         if not jit:
             with pytest.raises(ValueError, match=name):

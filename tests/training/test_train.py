@@ -112,7 +112,8 @@ def test_adam_matches_hand_computation():
     p1, opt = adam_update(g1, opt, params, lr=lr, b1=b1, b2=b2, eps=eps)
     # first step, closed form: p - lr * g / (|g| + eps / sqrt(1 - b2)); zero gradient -> no move
     ga = np.array([0.5, -0.2])
-    np.testing.assert_allclose(p1["a"], np.array([1.0, -2.0]) - lr * ga / (np.abs(ga) + eps / np.sqrt(1 - b2)), rtol=1e-6)
+    np.testing.assert_allclose(p1["a"], np.array([1.0, -2.0]) - lr * ga / (np.abs(ga) + eps / np.sqrt(1 - b2)),
+                               rtol=1e-6)
     assert float(p1["b"][0]) == 3.0
     p2, opt = adam_update(g2, opt, p1, lr=lr, b1=b1, b2=b2, eps=eps)
     # second step by hand (float64), Keras's form
@@ -489,7 +490,8 @@ def test_validation_set_from_the_named_sequences():
     sensor = SensorConfig()
     val = validation_set(jax.random.key(0), 1, cfg)
     n = 2 * len(cfg.val_sequences)
-    assert val["windows"].shape == (n, 3, 32, 64) and val["gt"].shape == (n, 128, 256) and val["lr"].shape == (n, 32, 64)
+    assert (val["windows"].shape == (n, 3, 32, 64) and val["gt"].shape == (n, 128, 256)
+            and val["lr"].shape == (n, 32, 64))
     assert val["names"] == list(cfg.val_sequences)
     # GT: each named sequence's first val_frames frames, normalised, in the order of val_sequences
     seqs = test_sequences(n_frames=2, names=cfg.val_sequences, sensor=sensor)
