@@ -21,12 +21,15 @@ def run(args) -> int:
         print(json.dumps(info, indent=1))
         return 0
     cfg = info["config"]
-    r = info["input_radius"]
-    form = (f"window of {info['frames_per_window']} frames" if info["temporal"] == "window" else
-            f"sequence form: frame t from frames t-{r} .. t+{r}, stream latency {r} frames")
-    print(f"{info['path']}\n  TR {cfg['tr']} ({form}), x{cfg['scale']}, "
-          f"{info['parameters']:,} parameters, {info['gflops_per_frame']} GFLOP per {info['lr_shape'][0]}x"
-          f"{info['lr_shape'][1]} frame")
+    if info["architecture"] == "duf":
+        r = info["input_radius"]
+        form = (f"window of {info['frames_per_window']} frames" if info["temporal"] == "window" else
+                f"sequence form: frame t from frames t-{r} .. t+{r}, stream latency {r} frames")
+        print(f"{info['path']}\n  TR {cfg['tr']} ({form}), x{cfg['scale']}, "
+              f"{info['parameters']:,} parameters, {info['gflops_per_frame']} GFLOP per {info['lr_shape'][0]}x"
+              f"{info['lr_shape'][1]} frame")
+    else:
+        print(f"{info['path']}\n  {info['architecture']} (a learned baseline), {info['parameters']:,} parameters")
     print("  config: " + ", ".join(f"{k}={v}" for k, v in cfg.items()))
     card = info["card"]
     if card:

@@ -7,7 +7,9 @@ preview paths, the model, and every input frame. Histograms and photon time tags
 --bin-width, --gate-start) and put on the network's scale with the gate's start as its 0 m and --span metres
 (default the trained 35 m) as its 1.0; where that takes the models outside what they were trained on, a warning
 line says so. Outputs are written atomically and never replace an existing file or write into a non-empty
-folder without --force. Prints a JSON summary on stdout (`UpscaleResult.summary()`).
+folder without --force. --video writes an .mp4 / .gif to watch (input | output | --reference) and --points a
+folder of PLY point clouds, both streamed frame by frame over the sensor's true range in metres. Prints a JSON
+summary on stdout (`UpscaleResult.summary()`).
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import sys
 
 from ..config import TRAINED_RANGE_M
 from ..inference.recording import upscale
+from ..io.pointcloud import DEFAULT_FOV_DEG
 from ._args import int_range, positive_float, range_or_time, span, time_unit
 
 
@@ -63,7 +66,23 @@ def add_parser(subparsers):
     p.add_argument("--min-fps", type=positive_float, default=None,
                    help="with --model auto: the slowest acceptable frames/s")
     p.add_argument("--preview", default=None, help="write an input | output PNG strip of the middle frame")
-    p.add_argument("--force", action="store_true", help="overwrite OUTPUT (and the preview)")
+    g = p.add_argument_group("pictures to look at (one colour scale in metres: the true range, gate start included)")
+    g.add_argument("--video", default=None,
+                   help="write an .mp4 or .gif of every frame: input (nearest-neighbour upscaled) | output (| "
+                   "reference), one colour scale with a colour bar in metres, no return black, the frame number")
+    g.add_argument("--fps", type=positive_float, default=None,
+                   help="--video's frames per second (default: the recording's where its .npz says, else 25)")
+    g.add_argument("--reference", default=None,
+                   help="--video: HR depth (T, H, W) to show beside the output, e.g. the ground truth (the "
+                   "formats of INPUT's depth; metres or normalised)")
+    g.add_argument("--points", default=None, metavar="DIR",
+                   help="write one PLY point cloud per frame into DIR (x right, y up, z forward, metres; no-return "
+                   "pixels left out; coloured by depth)")
+    g.add_argument("--fov", type=positive_float, default=None,
+                   help="--points: horizontal field of view in degrees (default 30, the sensor model's)")
+    g.add_argument("--points-colour", choices=["depth", "none"], default="depth",
+                   help="--points: colour the points by depth (default) or write x, y, z only")
+    p.add_argument("--force", action="store_true", help="overwrite OUTPUT (and the preview, video and point clouds)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -73,7 +92,9 @@ def run(args) -> int:
                      bin_width=args.bin_width, gate_start=args.gate_start, span=args.span, time_unit=args.time_unit,
                      variable=args.variable, drop_outside=args.drop_outside, units=args.units,
                      frame_format=args.frame_format, batch_size=args.batch_size, min_fps=args.min_fps,
-                     preview=args.preview, overwrite=args.force, progress=not args.no_progress,
+                     preview=args.preview, video=args.video, fps=args.fps, reference=args.reference,
+                     points=args.points, fov_deg=DEFAULT_FOV_DEG if args.fov is None else args.fov,
+                     points_colour=None if args.points_colour == "none" else args.points_colour, overwrite=args.force, progress=not args.no_progress,
                      report=lambda line: print(f"jaxsr upscale: {line}", file=sys.stderr, flush=True))
     print(json.dumps(result.summary()))
     return 0

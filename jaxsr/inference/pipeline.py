@@ -108,9 +108,9 @@ def pipeline_metric(
     depth, intensity = check_photon_args("pipeline_metric", depth, intensity, sensor, snr, mean_signal)
     if depth.ndim != 3:
         raise ValueError(f"pipeline_metric: depth and intensity must be sequences (T, H, W), got shape {depth.shape}")
-    if not isinstance(model, Model):
-        raise ValueError(f"pipeline_metric: model must be a jaxsr.Model (e.g. jaxsr.load_model('tr0')), got "
-                         f"{type(model).__name__}")
+    if not isinstance(model, Model) or model.kind != "duf":
+        raise ValueError(f"pipeline_metric: model must be a jaxsr.Model of the DUF network (e.g. "
+                         f"jaxsr.load_model('tr0')), got {getattr(model, 'kind', type(model).__name__)}")
     if model.config.scale != sensor.scale:
         raise ValueError(f"pipeline_metric: the model upsamples x{model.config.scale} but the sensor's scale is "
                          f"{sensor.scale}")

@@ -17,6 +17,8 @@ file or write into a non-empty folder unless `overwrite`.
 
 from __future__ import annotations
 
+import collections
+import contextlib
 import dataclasses
 import os
 from pathlib import Path
@@ -29,6 +31,7 @@ from ..config import DepthScale, Gate, SensorConfig
 from ..io.checkpoint import load_model, resolve_model_path
 from ..io.files import atomic_folder, atomic_path
 from ..io.formats import write_depth, write_sequence
+from ..io.pointcloud import DEFAULT_FOV_DEG, PointCloudWriter, check_points_folder
 from ..io.previews import write_comparison
 from ..io.recordings import (
     ARRAY_FORMATS,
@@ -43,6 +46,7 @@ from ..io.recordings import (
     time_tag_recording,
     to_units,
 )
+from ..io.video import DEFAULT_FPS, DepthVideoWriter, check_video
 from ..runtime import enable_compilation_cache
 from ..sensor.gates import gate_warnings
 from ..sensor.quantities import parse_span, parse_time_unit, range_metres
@@ -96,6 +100,17 @@ class UpscaleJob:
         return (f"{self.frames} frames {self.recording.kind} {tuple(self.recording.shape)} from {self.source}, "
                 f"units {self.units}, model {self.model_name}")
 
+    @property
+    def fps(self) -> float | None:
+        """The recording's frames per second where its file says (an .npz from `jaxsr simulate`), else None."""
+        return getattr(self.recording, "fps", None)
+
+    @property
+    def d_range(self) -> tuple[float, float]:
+        """(first, last) metres of the sensor's true range that the network's [0, 1] covers: the depth scale's
+        offset (the gate's start) and offset + span. Every picture, video and point cloud is drawn over it."""
+        return float(self.scale.offset), float(self.scale.offset + self.scale.span)
+
     def lr_frames(self) -> Iterator[np.ndarray]:
         """A fresh stream of the network's input: (h, w) float32 LR normalised depth frames, one per frame."""
         return self._lr_stream()
@@ -122,7 +137,7 @@ class UpscaleResult:
     always metres); model: the model as people read it; gate, scale: the histogram gate and depth scale (gate
     None for depth); preview: the PNG written, or None; warnings: sentences on what the models never saw; notes:
     every line `jaxsr upscale` prints to stderr (warnings as "warning: ...", then what was read with which
-    model)."""
+    model); video: the side-by-side video written, or None; points: the folder of PLY point clouds, or None."""
 
     output: Path | None
     depth: np.ndarray | None
@@ -136,12 +151,18 @@ class UpscaleResult:
     preview: Path | None
     warnings: tuple[str, ...]
     notes: tuple[str, ...]
+    video: Path | None = None
+    points: Path | None = None
 
     def summary(self) -> dict:
-        """The JSON summary `jaxsr upscale` prints: frames, output, shape, units, model, and for histograms the
-        gate and the depth scale (metres)."""
+        """The JSON summary `jaxsr upscale` prints: frames, output, shape, units, model, for histograms the
+        gate and the depth scale (metres), and the video and point clouds' folder where written."""
         out = {"frames": self.frames, "output": None if self.output is None else str(self.output),
                "shape": list(self.shape), "units": self.units, "model": self.model}
+        if self.video is not None:
+            out["video"] = str(self.video)
+        if self.points is not None:
+            out["points"] = str(self.points)
         if self.kind == "histograms":
             out.update(gate={"bins": self.gate.bins, "bin_width_m": float(self.gate.bin_width),
                              "start_m": float(self.gate.start)},
@@ -310,8 +331,37 @@ def prepare_upscale(input, *, model="tr4", kind: str | None = None, bins: int | 
     return UpscaleJob(rec, fixed, name, units, gate, scale, warnings, source, lr_stream)
 
 
+def _reference(reference, job: UpscaleJob):
+    """The reference (ground truth) for the video, opened and checked against the job: (recording, units).
+    A path (as INPUT's depth formats), a `Recording` or a NumPy array (T, H, W) of HR depth in metres or
+    normalised on the job's scale; T frames of the output's (H, W)."""
+    if isinstance(reference, Recording):
+        rec = reference
+    elif isinstance(reference, np.ndarray):
+        rec = _array_recording(reference, "depth")
+    else:
+        rec = open_recording(reference, kind="depth")
+    where = f"reference {getattr(rec, 'source', 'array')}"
+    if rec.kind != "depth":
+        raise ValueError(f"{where}: the reference is depth (T, H, W), not {rec.kind}")
+    if rec.frames != job.frames or tuple(rec.shape) != job.hr_shape:
+        raise ValueError(f"{where}: {rec.frames} frames of {tuple(rec.shape)}; the output has {job.frames} frames "
+                         f"of {job.hr_shape}")
+    return rec, guess_units(rec)
+
+
+def _metres(frame, units, scale):
+    """A reference frame in `units` -> radial metres, inf for no return (normalised: on the job's scale)."""
+    frame = np.asarray(frame, np.float32)
+    if units == "normalised":
+        return to_units(np.where(np.isnan(frame), 1.0, frame), "m", scale)
+    return np.where(np.isnan(frame) | (frame < 0), np.inf, frame).astype(np.float32)
+
+
 def write_upscaled(job: UpscaleJob, output, *, frame_format: str = "exr", batch_size: int | None = None,
-                   preview=None, overwrite: bool = False, progress: bool = False) -> UpscaleResult:
+                   preview=None, video=None, fps: float | None = None, reference=None, points=None,
+                   fov_deg: float = DEFAULT_FOV_DEG, points_colour: str | None = "depth", overwrite: bool = False,
+                   progress: bool = False) -> UpscaleResult:
     """Run a prepared job (`prepare_upscale`) and write its result, as `jaxsr upscale` does.
 
     output: an .npy file (written through a memory map), an .npz (`jaxsr.io.write_sequence`, with units, model,
@@ -319,81 +369,135 @@ def write_upscaled(job: UpscaleJob, output, *, frame_format: str = "exr", batch_
     metres; missing parent folders are created), or None (the (T, H, W) result is returned in `depth`).
     Everything is written atomically (a folder into a hidden `.NAME.XXXX.partial` sibling, renamed when complete);
     an interrupted or failed run leaves nothing. preview: a .png strip of the middle frame, input | output.
-    overwrite (--force): replace an existing output and preview, or write into a non-empty folder.
+    video (--video): an .mp4 or .gif of every frame, input (nearest-neighbour upscaled) | output | reference
+    (`jaxsr.io.write_depth_video`), at `fps` frames/s (--fps; default the recording's where its file says, else
+    25); reference (--reference): HR depth (T, H, W) to show beside them, a path as INPUT's depth formats or an
+    array, in metres or normalised on the job's scale. points (--points): a folder of PLY point clouds, one per
+    frame (`jaxsr.io.write_point_clouds`), over a horizontal field of view of `fov_deg` degrees (--fov; default
+    the sensor model's 30), coloured by depth (points_colour "depth") or not (None). Previews, videos and point
+    clouds show the sensor's true range in metres (`UpscaleJob.d_range`: the gate's start included).
+    overwrite (--force): replace an existing output, preview and video, or write into a non-empty folder.
     batch_size: frames per compiled call (default: see `iter_super_resolve`). progress: a tqdm progress bar.
 
     Returns an `UpscaleResult`. Raises FileExistsError, IsADirectoryError, NotADirectoryError, FileNotFoundError
-    or ValueError for an output or preview that cannot be written (checked before any work).
+    or ValueError for an output, preview, video, reference or point clouds' folder that cannot be written or read
+    (checked before any work).
     """
     if frame_format not in FRAME_FORMATS:
         raise ValueError(f"frame_format (--frame-format) is one of {', '.join(FRAME_FORMATS)}, got {frame_format!r}")
     if batch_size is not None and int(batch_size) < 1:
         raise ValueError(f"batch_size: expected an integer >= 1, got {batch_size}")
+    _check_look_options(video, fps, reference, points, points_colour)
     out = None if output is None else check_output(output, force=overwrite)
     preview = None if preview is None else check_preview(preview, force=overwrite, output=out)
+    video = None if video is None else check_video(video, force=overwrite, output=out)
+    points = None if points is None else check_points_folder(points, force=overwrite, output=out)
+    ref = None if reference is None else _reference(reference, job)
     rec, scale = job.recording, job.scale
+    d_min, d_max = job.d_range
     shape = (job.frames, *job.hr_shape)
     preview_t = job.frames // 2
     preview_lr, preview_hr = [], []  # the preview's frames, kept as they stream past (no second pass)
+    lr_ahead = collections.deque()  # the video's LR frames, from the model's input until its output comes
+    input_label = "input (centre of mass)" if rec.kind == "histograms" else "input"
 
     def keep_preview(frames):
         for t, f in enumerate(frames):
             if t == preview_t:
                 preview_lr.append(f)
+            if video is not None:
+                lr_ahead.append(f)
             yield f
 
     stream = job.iter_normalised(batch_size=batch_size, lr_frames=keep_preview(job.lr_frames()))
     if progress:
         stream = tqdm(stream, total=job.frames, unit="frame", desc="upscale")
 
-    def frames(units):
-        for t, hr in enumerate(stream):
-            if t == preview_t:
-                preview_hr.append(hr)
-            yield t, to_units(hr, units, scale)
+    with contextlib.ExitStack() as looks:  # the video and point clouds: committed after the output
+        film = clouds = None
+        if video is not None:
+            labels = (input_label, job.model_name) + (() if ref is None else ("reference",))
+            rate = fps if fps is not None else job.fps if job.fps is not None else DEFAULT_FPS
+            film = looks.enter_context(DepthVideoWriter(video, job.hr_shape, labels=labels, fps=rate, d_min=d_min,
+                                                        d_max=d_max, frames=job.frames, overwrite=overwrite))
+        if points is not None:
+            clouds = looks.enter_context(PointCloudWriter(points, fov_deg=fov_deg, colour=points_colour,
+                                                          d_min=d_min, d_max=d_max, overwrite=overwrite))
+        ref_frames = None if ref is None else iter(ref[0])
 
-    def write_preview():  # inside the output's atomic block: a failed preview leaves no output either
-        if preview is not None:
-            write_comparison(preview, preview_lr[0], np.clip(preview_hr[0], 0, 1), d_max=float(scale.span),
-                             labels=("input (centre of mass)" if rec.kind == "histograms" else "input",
-                                     job.model_name), overwrite=overwrite)
+        def frames(units):
+            for t, hr in enumerate(stream):
+                if t == preview_t:
+                    preview_hr.append(hr)
+                if film is not None or clouds is not None:
+                    metres = to_units(hr, "m", scale)
+                    if film is not None:
+                        panels = [to_units(lr_ahead.popleft(), "m", scale), metres]
+                        if ref_frames is not None:
+                            panels.append(_metres(next(ref_frames), ref[1], scale))
+                        film.write(*panels)
+                    if clouds is not None:
+                        clouds.write(metres)
+                yield t, to_units(hr, units, scale)
 
-    depth = None
-    if out is None:
-        depth = np.empty(shape, np.float32)
-        for t, f in frames(job.units):
-            depth[t] = f
-        write_preview()
-    elif out.suffix.lower() == ".npy":  # streamed to disk: memory for a batch, not for the whole result
-        with atomic_path(out, overwrite=overwrite) as tmp:
-            result = np.lib.format.open_memmap(tmp, mode="w+", dtype=np.float32, shape=shape)
+        def finish():  # inside the output's atomic block: a failed preview or video leaves no output either
+            if preview is not None:
+                write_comparison(preview, to_units(preview_lr[0], "m", scale), to_units(preview_hr[0], "m", scale),
+                                 d_min=d_min, d_max=d_max, labels=(input_label, job.model_name),
+                                 overwrite=overwrite)
+            if film is not None:
+                film.finish()
+
+        depth = None
+        if out is None:
+            depth = np.empty(shape, np.float32)
+            for t, f in frames(job.units):
+                depth[t] = f
+            finish()
+        elif out.suffix.lower() == ".npy":  # streamed to disk: memory for a batch, not for the whole result
+            with atomic_path(out, overwrite=overwrite) as tmp:
+                result = np.lib.format.open_memmap(tmp, mode="w+", dtype=np.float32, shape=shape)
+                for t, f in frames(job.units):
+                    result[t] = f
+                result.flush()
+                del result
+                finish()
+        elif out.suffix.lower() in ARRAY_FORMATS:
+            result = np.empty(shape, np.float32)
             for t, f in frames(job.units):
                 result[t] = f
-            result.flush()
-            del result
-            write_preview()
-    elif out.suffix.lower() in ARRAY_FORMATS:
-        result = np.empty(shape, np.float32)
-        for t, f in frames(job.units):
-            result[t] = f
-        with atomic_path(out, overwrite=overwrite) as tmp:
-            write_sequence(tmp, result, overwrite=True, units=job.units, model=job.model_name, input=job.source,
-                           scale=_scale(job.model))
-            write_preview()
-    else:
-        with atomic_folder(out) as tmp:
-            for t, f in frames("m"):
-                write_depth(tmp / f"frame_{t:06d}.{frame_format}", f)
-            write_preview()
+            with atomic_path(out, overwrite=overwrite) as tmp:
+                write_sequence(tmp, result, overwrite=True, units=job.units, model=job.model_name, input=job.source,
+                               scale=_scale(job.model))
+                finish()
+        else:
+            with atomic_folder(out) as tmp:
+                for t, f in frames("m"):
+                    write_depth(tmp / f"frame_{t:06d}.{frame_format}", f)
+                finish()
     notes = tuple(f"warning: {w}" for w in job.warnings) + (job.note,)
     return UpscaleResult(out, depth, job.frames, shape, rec.kind, job.units, job.model_name, job.gate, scale,
-                         preview, job.warnings, notes)
+                         preview, job.warnings, notes, video, points)
+
+
+def _check_look_options(video, fps, reference, points, points_colour):
+    """Options that need another: --fps and --reference need --video; a frame rate > 0; a known colouring."""
+    if video is None:
+        for name, value in (("--fps", fps), ("--reference", reference)):
+            if value is not None:
+                raise ValueError(f"{name} applies to --video only")
+    if fps is not None and not (np.isfinite(float(fps)) and float(fps) > 0):
+        raise ValueError(f"fps (--fps): expected frames per second > 0, got {fps}")
+    if points_colour not in ("depth", None):
+        raise ValueError(f"points_colour: 'depth' or None, got {points_colour!r}")
 
 
 def upscale(input, output, *, model="tr4", kind: str | None = None, bins: int | None = None, bin_width=None,
             gate_start=None, span=None, time_unit=None, variable: str | None = None, drop_outside: bool = False,
             units: str | None = None, frame_format: str = "exr", batch_size: int | None = None,
-            min_fps: float | None = None, preview=None, overwrite: bool = False, progress: bool = False,
+            min_fps: float | None = None, preview=None, video=None, fps: float | None = None, reference=None,
+            points=None, fov_deg: float = DEFAULT_FOV_DEG, points_colour: str | None = "depth",
+            overwrite: bool = False, progress: bool = False,
             report: Callable[[str], None] | None = None) -> UpscaleResult:
     """Super-resolve a recording x4 with a trained model and write it: `jaxsr upscale INPUT OUTPUT` in one call.
 
@@ -417,7 +521,10 @@ def upscale(input, output, *, model="tr4", kind: str | None = None, bins: int | 
     - frame_format (--frame-format): "exr", "pfm", "tif" or "png", when output is a folder (always metres).
     - batch_size (--batch-size): frames per compiled call; min_fps (--min-fps, model="auto" only): the slowest
       acceptable frames/s; preview (--preview): an input | output PNG strip of the middle frame; overwrite
-      (--force): replace output and preview; progress (not --no-progress): show a progress bar.
+      (--force): replace output, preview and video; progress (not --no-progress): show a progress bar.
+    - video (--video), fps (--fps), reference (--reference): an .mp4 / .gif of every frame, input | output |
+      reference, one colour scale in metres; points (--points), fov_deg (--fov), points_colour: a folder of PLY
+      point clouds, one per frame (see `write_upscaled`).
     - report: called with each line of `notes` as soon as it is known (the warnings, then what is read with which
       model, before the network runs); `jaxsr upscale` prints them.
 
@@ -427,12 +534,17 @@ def upscale(input, output, *, model="tr4", kind: str | None = None, bins: int | 
     FileExistsError (an output or preview exists, without overwrite), IsADirectoryError, NotADirectoryError or
     ValueError (bad options or input), with the messages `jaxsr upscale` prints; nothing is left written then.
     """
-    if output is not None:
-        out = check_output(output, force=overwrite)
-        if preview is not None:
-            check_preview(preview, force=overwrite, output=out)
-    elif preview is not None:
-        check_preview(preview, force=overwrite)
+    _check_look_options(video, fps, reference, points, points_colour)
+    out = None if output is None else check_output(output, force=overwrite)
+    if preview is not None:
+        check_preview(preview, force=overwrite, output=out)
+    if video is not None:
+        check_video(video, force=overwrite, output=out)
+    if points is not None:
+        check_points_folder(points, force=overwrite, output=out)
+        PointCloudWriter(points, fov_deg=fov_deg, overwrite=overwrite)  # checks the field of view
+    if reference is not None and not isinstance(reference, (np.ndarray, Recording)):
+        open_recording(reference, kind="depth")  # exists and reads (its frames are checked against the job's later)
     job = prepare_upscale(input, model=model, kind=kind, bins=bins, bin_width=bin_width, gate_start=gate_start,
                           span=span, time_unit=time_unit, variable=variable, drop_outside=drop_outside,
                           units=units, min_fps=min_fps)
@@ -441,4 +553,5 @@ def upscale(input, output, *, model="tr4", kind: str | None = None, bins: int | 
             report(f"warning: {w}")
         report(job.note)
     return write_upscaled(job, output, frame_format=frame_format, batch_size=batch_size, preview=preview,
-                          overwrite=overwrite, progress=progress)
+                          video=video, fps=fps, reference=reference, points=points, fov_deg=fov_deg,
+                          points_colour=points_colour, overwrite=overwrite, progress=progress)

@@ -1,4 +1,5 @@
-"""Files: depth and histogram formats, recordings, checkpoints and bundled weights, previews, atomic writes.
+"""Files: depth and histogram formats, recordings, checkpoints and bundled weights, previews, depth videos
+(`write_depth_video`), PLY point clouds (`write_point_clouds`), atomic writes.
 """
 
 from .files import (
@@ -57,6 +58,21 @@ from .previews import (
     write_comparison,
     write_gray_preview,
 )
+from .video import (
+    VIDEO_FORMATS,
+    DepthVideoWriter,
+    write_depth_video,
+    check_video,
+)
+from .pointcloud import (
+    DEFAULT_FOV_DEG,
+    depth_points,
+    write_ply,
+    write_point_cloud,
+    write_point_clouds,
+    PointCloudWriter,
+    check_points_folder,
+)
 from .simulate import (
     SIMULATION_OUTPUTS,
     Simulation,
@@ -110,6 +126,17 @@ __all__ = [
     "write_preview",
     "write_comparison",
     "write_gray_preview",
+    "VIDEO_FORMATS",
+    "DepthVideoWriter",
+    "write_depth_video",
+    "check_video",
+    "DEFAULT_FOV_DEG",
+    "depth_points",
+    "write_ply",
+    "write_point_cloud",
+    "write_point_clouds",
+    "PointCloudWriter",
+    "check_points_folder",
     "SIMULATION_OUTPUTS",
     "Simulation",
     "simulate_recording",

@@ -236,7 +236,7 @@ def stored_architecture(meta: dict, path) -> Architecture:
     baselines saved before, kind "baseline"), else the DUF network (every older model file). ValueError for a
     file that holds no model."""
     kind = meta.get("kind")
-    if kind not in ("model", "train_state", "baseline", "baseline_train_state") or "config" not in meta:
+    if kind not in ("model", "train_state", "baseline") or "config" not in meta:
         raise ValueError(f"checkpoint {str(path)!r} does not hold a jaxsr model (kind {kind!r})")
     name = meta.get("architecture", meta.get("baseline", "duf"))
     try:

@@ -8,37 +8,50 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..config import SensorConfig
+from ..config import DepthScale, SensorConfig
 from .formats import write_image
 from ..sensor.forward import denormalise_depth
+from ..sensor.gates import from_network_depth
 
 __all__ = ["write_comparison", "write_gray_preview", "write_preview"]
 
 
-def _colourise(depth, d_max, cmap):
-    """(H, W) metres -> (H, W, 3) float32 RGB in [0, 1]; no return (inf, NaN, > d_max) black."""
+NO_RETURN_RGB = (0.0, 0.0, 0.0)  # no return, in every picture and video: black
+
+
+def _colourise(depth, d_min, d_max, cmap):
+    """(H, W) metres -> (H, W, 3) float32 RGB in [0, 1], d_min at the map's first colour and d_max at its last;
+    no return (inf, NaN, > d_max) black."""
     import matplotlib
 
     depth = np.asarray(depth, np.float32)
-    norm = np.clip(np.where(np.isfinite(depth), depth, np.inf) / d_max, 0.0, 1.0)
+    norm = np.clip((np.where(np.isfinite(depth), depth, np.inf) - d_min) / (d_max - d_min), 0.0, 1.0)
     rgb = matplotlib.colormaps[cmap](norm)[..., :3]
     no_return = ~np.isfinite(depth) | (depth > d_max)
-    rgb[no_return] = (0.0, 0.0, 0.0)
+    rgb[no_return] = NO_RETURN_RGB
     return rgb.astype(np.float32)
 
 
-def _to_metres(frame, d_max):
-    """(H, W) normalised [0, 1] -> metres, inf for no return (`jaxsr.sensor.forward.denormalise_depth`)."""
-    return np.asarray(denormalise_depth(frame, SensorConfig(d_max=d_max)), np.float32)
+def _to_metres(frame, d_min, d_max):
+    """(H, W) normalised [0, 1] -> metres d_min + n (d_max - d_min), inf for no return
+    (`jaxsr.sensor.gates.from_network_depth`; with d_min 0, `jaxsr.sensor.forward.denormalise_depth`)."""
+    if d_min == 0:
+        return np.asarray(denormalise_depth(frame, SensorConfig(d_max=d_max)), np.float32)
+    return np.asarray(from_network_depth(frame, DepthScale(d_min, d_max - d_min)), np.float32)
 
 
-def _metres_or_normalised(frame, d_max):
+def _metres_or_normalised(frame, d_min, d_max):
     """Accept normalised depth in [0, 1] (1 = no return) or metres; return metres with inf for no return.
     A frame whose finite values all lie within [0, 1] is taken as normalised (no lidar scene lies within a metre)."""
     frame = np.asarray(frame, np.float32)
     if np.nanmax(np.where(np.isfinite(frame), frame, 0.0), initial=0.0) <= 1.0:
-        return _to_metres(frame, d_max)
+        return _to_metres(frame, d_min, d_max)
     return frame
+
+
+def _check_range(d_min, d_max):
+    if not (np.isfinite(d_min) and np.isfinite(d_max) and d_max > d_min):
+        raise ValueError(f"the colour scale needs finite metres d_min < d_max, got {d_min}, {d_max}")
 
 
 def _to_png(rgb):
@@ -46,18 +59,20 @@ def _to_png(rgb):
     return (rgb * 255 + 0.5).astype(np.uint8)
 
 
-def write_preview(path, depth, *, d_max=35.0, cmap="turbo", normalised=False, overwrite=False):
-    """Write a colour-mapped PNG of a depth frame (H, W) in metres (or normalised [0, 1] with normalised=True);
-    no return (inf, NaN, > d_max) is black.
+def write_preview(path, depth, *, d_max=35.0, d_min=0.0, cmap="turbo", normalised=False, overwrite=False):
+    """Write a colour-mapped PNG of a depth frame (H, W) in metres (or normalised [0, 1] with normalised=True,
+    0 meaning d_min and 1 no return); the colours span d_min to d_max metres (the sensor's true range: for a
+    gated recording, the gate's start to start + span); no return (inf, NaN, > d_max) is black.
 
     Args: path (.png), depth (H, W). Returns None (an RGB PNG of shape (H, W, 3)).
     """
     depth = np.asarray(depth, np.float32)
     if depth.ndim != 2:
         raise ValueError(f"writing {path}: expected a depth frame (H, W), got {depth.shape}")
+    _check_range(d_min, d_max)
     if normalised:
-        depth = _to_metres(depth, d_max)
-    write_image(path, _to_png(_colourise(depth, d_max, cmap)), overwrite=overwrite)
+        depth = _to_metres(depth, d_min, d_max)
+    write_image(path, _to_png(_colourise(depth, d_min, d_max, cmap)), overwrite=overwrite)
 
 
 def _label(rgb, text):
@@ -77,14 +92,17 @@ def _label(rgb, text):
     return np.asarray(canvas.buffer_rgba())[..., :3].astype(np.float32) / 255.0
 
 
-def write_comparison(path, lr, sr, *, gt=None, d_max=35.0, cmap="turbo", labels=("LR", "SR", "GT"), overwrite=False):
+def write_comparison(path, lr, sr, *, gt=None, d_max=35.0, d_min=0.0, cmap="turbo", labels=("LR", "SR", "GT"),
+                     overwrite=False):
     """Write an LR | SR | GT strip (LR | SR without `gt`) as PNG. lr (h, w) is nearest-upsampled to the HR size
-    of sr and gt (H, W). Frames in metres or normalised [0, 1] (1 = no return); no return is black.
+    of sr and gt (H, W). Frames in metres or normalised [0, 1] (0 = d_min, 1 = no return); one colour scale from
+    d_min to d_max metres (the sensor's true range, the gate's start included) for every panel; no return is black.
 
     Args: path (.png), lr (h, w), sr (H, W), gt (H, W) or None. Returns None (a PNG of shape
     (H, n W + 2 (n - 1), 3) for n panels).
     """
-    frames = [_metres_or_normalised(a, d_max) for a in ((lr, sr) if gt is None else (lr, sr, gt))]
+    _check_range(d_min, d_max)
+    frames = [_metres_or_normalised(a, d_min, d_max) for a in ((lr, sr) if gt is None else (lr, sr, gt))]
     lr, hr = frames[0], frames[1:]
     if hr[0].ndim != 2 or any(a.shape != hr[0].shape for a in hr):
         raise ValueError(f"writing {path}: SR and GT must be equal (H, W) frames, got {[a.shape for a in hr]}")
@@ -93,7 +111,7 @@ def write_comparison(path, lr, sr, *, gt=None, d_max=35.0, cmap="turbo", labels=
     if lr.ndim != 2 or lr.shape[0] * fy != shape[0] or lr.shape[1] * fx != shape[1]:
         raise ValueError(f"writing {path}: LR {lr.shape} is not an integer downscale of {shape}")
     lr_up = np.repeat(np.repeat(lr, fy, 0), fx, 1)
-    panels = [_colourise(a, d_max, cmap) for a in [lr_up, *hr]]
+    panels = [_colourise(a, d_min, d_max, cmap) for a in [lr_up, *hr]]
     if labels:
         panels = [_label(p, t) for p, t in zip(panels, labels)]
     gap = np.ones((shape[0], 2, 3), np.float32)

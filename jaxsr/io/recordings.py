@@ -12,6 +12,7 @@ return in either.
 from __future__ import annotations
 
 import glob
+import json
 from pathlib import Path
 
 import numpy as np
@@ -36,12 +37,14 @@ ARRAY_FORMATS = (".npy", ".npz")
 
 class Recording:
     """A recording opened for reading: `kind` ("depth" or "histograms"), `frames` (the number of frames),
-    `shape` (of one frame), `__iter__` over frames (NumPy, as stored) and `array` (the whole (T, ...) array,
-    memory-mapped for .npy, when the recording is one; None for image frames)."""
+    `shape` (of one frame), `__iter__` over frames (NumPy, as stored), `array` (the whole (T, ...) array,
+    memory-mapped for .npy, when the recording is one; None for image frames) and `fps` (frames per second where
+    the file says, as an .npz's metadata from `jaxsr simulate` does; else None)."""
 
-    def __init__(self, kind, frames, shape, reader, source, array=None):
+    def __init__(self, kind, frames, shape, reader, source, array=None, fps=None):
         self.kind, self.frames, self.shape, self._reader, self.source = kind, frames, shape, reader, source
         self.array = array
+        self.fps = fps
 
     def __iter__(self):
         return self._reader()
@@ -118,7 +121,8 @@ def open_recording(spec, *, kind: str | None = None) -> Recording:
         k = _kind_of(arr.ndim, kind, spec)
         if arr.shape[0] < 1:
             raise ValueError(f"{spec}: the recording has no frames")
-        return Recording(k, arr.shape[0], arr.shape[1:], lambda: iter(arr), spec, array=arr)
+        return Recording(k, arr.shape[0], arr.shape[1:], lambda: iter(arr), spec, array=arr,
+                         fps=None if suffix == ".npy" else _stored_fps(z))
     if suffix in ARRAY_FORMATS:
         raise ValueError(f"{spec}: patterns select image frames ({', '.join(FRAME_FORMATS)}), not {suffix} arrays")
     if kind == "histograms":
@@ -134,6 +138,15 @@ def open_recording(spec, *, kind: str | None = None) -> Recording:
             yield d
 
     return Recording("depth", len(files), first.shape, frames, spec)
+
+
+def _stored_fps(arrays) -> float | None:
+    """The frame rate an .npz's JSON metadata gives (`fps`), or None when it gives none (or no usable one)."""
+    try:
+        fps = float(json.loads(str(arrays["metadata"])).get("fps"))
+    except (KeyError, TypeError, ValueError, AttributeError):
+        return None
+    return fps if np.isfinite(fps) and fps > 0 else None
 
 
 def _chunks(recording: Recording, size: int = 256):

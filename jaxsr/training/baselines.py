@@ -240,7 +240,8 @@ def evaluate_baseline(model: Model, validation: dict, *, sensor: SensorConfig = 
     MSE), "psnr": mean per-frame PSNR (dB) of the clipped output}, Python floats. validation:
     `baseline_validation_set`."""
     if model.architecture.inputs == "histograms":
-        hr = super_resolve_histograms(model, validation["counts"], sensor, intensity=validation["intensity"])
+        hr = super_resolve_histograms(model, validation["counts"], sensor, intensity=validation["intensity"],
+                                      batch_size=4)
         loss = np.mean(np.abs(hr - np.asarray(validation["gt"])))
     else:  # the validation windows themselves: frames of several sequences lie end to end
         windows = jnp.asarray(validation["windows"])
@@ -339,7 +340,8 @@ def _deprecated(old: str, new: str):
 def BaselineModel(kind: str, params, config) -> Model:  # noqa: N802 (the class name it replaces)
     """Deprecated: `jaxsr.nn.Model(params, {}, config)`, the one model interface.
 
-    Returns that `Model` (its `kind` is `kind`); raises ValueError for an unknown kind or another kind's config."""
+    Returns that `Model` (its `kind` is `kind`; a dataclass now, not the NamedTuple of jaxsr 0.1: no tuple
+    unpacking or `_replace`); raises ValueError for an unknown kind or another kind's config."""
     _deprecated("BaselineModel(kind, params, config)", "jaxsr.nn.Model(params, {}, config)")
     _check_kind(kind, "BaselineModel")
     if architecture(config).name != kind:
@@ -391,7 +393,8 @@ def super_resolve_baseline(model: Model, *, counts=None, intensity=None, lr=None
 def fit_baseline(kind: str, cfg, train_cfg: TrainConfig, *, out, make_batch=None, validation: dict | None = None,
                  sensor: SensorConfig = _SENSOR, resume: bool = False, callback=None, card_extra: dict | None = None,
                  pretrain_epochs: int = 0):
-    """Deprecated: `jaxsr.fit`, which trains every architecture in one loop (the same files, resume and card).
+    """Deprecated: `jaxsr.fit`, which trains every architecture in one loop (the same file names; the card and
+    the per-epoch keys are `fit`'s, and run folders begun by jaxsr 0.1's fit_baseline are refused on resume).
 
     Returns (best `Model`, history)."""
     _deprecated("fit_baseline", "jaxsr.fit")

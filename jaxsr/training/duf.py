@@ -229,4 +229,4 @@ def _evaluate(model: Model, validation: dict, train_cfg: TrainConfig, *, sensor=
 
 
 register_recipe("duf", Recipe(init=_init, step=_step, data=lambda cfg, train_cfg, sensor: default_data(
-    cfg, train_cfg, sensor), validation=_validation, evaluate=_evaluate))
+    cfg, train_cfg, sensor), validation=_validation, evaluate=_evaluate, data_parallel=True))

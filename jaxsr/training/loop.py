@@ -5,8 +5,8 @@
 `metrics.jsonl`, writes `best.npz` (a `Model`, `jaxsr.load_model` reads it) and `last.npz` (everything needed to
 resume) after every epoch, `resume.npz` (the same, inside an epoch) every `checkpoint_every_s` seconds of
 training, and stops early after `patience` epochs without a lower validation loss. A resumed run gives the
-same result as an uninterrupted one. Data parallelism: a `jax.sharding.Mesh` with a "data" axis (default: all
-devices) splits each batch.
+same result as an uninterrupted one. Data parallelism (the DUF network): a `jax.sharding.Mesh` with a "data" axis
+(default: all devices) splits each batch.
 """
 
 from __future__ import annotations
@@ -149,8 +149,9 @@ def _check_resumable(path: Path, meta: dict, settings: dict):
         raise ValueError(f"fit: cannot resume {str(path)!r}: it holds no training state of `fit` (kind "
                          f"{meta.get('kind')!r}; a learned baseline's run of jaxsr 0.1 resumes with that version)")
     arch = architecture(meta.get("architecture", "duf"))
-    saved = flat(arch.name, config_to_dict(config_from_dict(arch.config_type, meta["config"])), meta["train_config"],
-                 meta.get("pretrain_epochs", 0))
+    # through JSON as `settings` went (tuples become lists), with the fields older files lack at their defaults
+    saved_cfg = json.loads(json.dumps(config_to_dict(config_from_dict(arch.config_type, meta["config"]))))
+    saved = flat(arch.name, saved_cfg, meta["train_config"], meta.get("pretrain_epochs", 0))
     wanted = flat(settings["architecture"], settings["config"], settings["train_config"],
                   settings.get("pretrain_epochs", 0))
     differ = sorted(k for k in saved.keys() | wanted.keys() if saved.get(k) != wanted.get(k))
@@ -227,7 +228,7 @@ def _run_epoch(step_fn, ts: _TrainState, run: _Run, train_cfg: TrainConfig, *, p
         t_step = time.perf_counter()
         train, m = step_fn(train, jax.random.fold_in(ts.key, step), step)
         m = {k: float(v) for k, v in jax.device_get(m).items()}
-        loss = m.pop("loss") if "loss" in m else m["g_loss"]
+        loss = m.pop("loss") if "loss" in m else m.pop("g_loss")  # a GAN: the generator's loss
         loss_sum += loss
         psnr_sum += m.pop("psnr")
         lr = m.pop("lr")
@@ -348,7 +349,8 @@ def fit(
     state) is given.
     make_batch: the data source (default: the recipe's, rendered scenes in the network's input form);
     validation: a dict as the recipe's validation set gives (default: built from `jaxsr.scenes.test_sequences`).
-    mesh: "auto" (all devices when there are more than one), None (no sharding) or a `Mesh` with a "data" axis.
+    mesh: "auto" (all devices when there are more than one), None (no sharding) or a `Mesh` with a "data" axis
+    (the DUF network; HistNet and iSeeBetter train on one device).
     callback(record) is called after each epoch's checkpoint is written. conv3d_impl: how the DUF network's
     convolutions run (see `jaxsr.apply_model`; not saved, a run may resume with another). Everything random
     follows `train_cfg.seed`. init (DUF): start from these weights instead of random ones (a `Model` or a
@@ -372,6 +374,11 @@ def fit(
     if not (checkpoint_every_s is None or checkpoint_every_s >= 0):  # also refuses NaN
         raise ValueError(f"fit: checkpoint_every_s={checkpoint_every_s!r}; expected seconds >= 0, or None")
     out.mkdir(parents=True, exist_ok=True)
+    if not how.data_parallel:
+        if isinstance(mesh, Mesh):
+            raise ValueError(f"fit: {arch.name} trains on one device (its step does not split a batch); pass "
+                             "mesh=None or 'auto'")
+        mesh = None
     mesh = choose_mesh(mesh, train_cfg.batch_size)
     k_init, k_data, k_val = run_keys(train_cfg.seed)
     if make_batch is None:

@@ -27,6 +27,8 @@ class Recipe(NamedTuple):
     default data source. validation(key, cfg, train_cfg, sensor) -> dict of arrays with at least "gt" (N, H, W)
     and, for the bicubic reference, "lr" (N, h, w). evaluate(model, validation, train_cfg, *, sensor,
     conv3d_impl) -> {"loss", "psnr"}: the validation score early stopping reads (lower loss is better).
+    data_parallel: whether `step` splits its batch over a mesh's "data" axis; `fit` gives a recipe without it no
+    mesh (one device), rather than the same work on every device.
     """
 
     init: Callable
@@ -34,6 +36,7 @@ class Recipe(NamedTuple):
     data: Callable
     validation: Callable
     evaluate: Callable
+    data_parallel: bool = False
 
 
 _RECIPES: dict[str, Recipe] = {}

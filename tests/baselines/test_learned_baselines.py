@@ -346,6 +346,21 @@ def test_one_fit_trains_iseebetter_as_a_gan_with_two_optimisers(tmp_path):
     assert saved["architecture"] == "iseebetter" and saved["pretrain_epochs"] == 1
     hr = jaxsr.super_resolve(jaxsr.load_model(tmp_path / "best.npz"), np.asarray(windows[:, 1]))
     assert hr.shape == (2, 32, 64) and np.all(np.isfinite(hr))
+    assert "train_g_loss" not in hist[1]  # the generator's loss is the train loss
+    # its config holds a tuple (disc_widths): the saved settings still match on resume
+    _, more = jaxsr.fit(cfg, dataclasses.replace(train_cfg, epochs=3), out=tmp_path, pretrain_epochs=1, resume=True,
+                        **kw)
+    assert [r["step"] for r in more] == [2, 4, 6]
+    with pytest.raises(ValueError, match="one device"):
+        jaxsr.fit(cfg, train_cfg, out=tmp_path / "m", mesh=jaxsr.training.data_mesh(), **kw)
+
+
+def test_info_describes_a_learned_baseline(capsys):
+    from jaxsr import cli
+
+    assert cli.main(["info", "histnet"]) == 0
+    out = capsys.readouterr().out
+    assert "histnet (a learned baseline)" in out and "parameters" in out
 
 
 def _train_baselines_script():

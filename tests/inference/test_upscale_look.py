@@ -1,0 +1,118 @@
+"""`jaxsr upscale --video / --fps / --reference / --points / --fov`: a video with one frame per depth frame, one
+PLY per frame with one vertex per valid output pixel, all over the sensor's true range (the gate's start
+included); nothing is overwritten without --force, and options that need --video say so."""
+
+import json
+
+import imageio_ffmpeg
+import jax
+import numpy as np
+import pytest
+
+from jaxsr import cli, io
+from jaxsr.config import SensorConfig
+from jaxsr.sensor.forward import pixel_rays
+
+SENSOR = SensorConfig()
+T = 3
+
+
+def upscale(*args):
+    return cli.main(["upscale", *map(str, args), "--no-progress"])
+
+
+def read_ply(path):
+    """The vertices of a binary little-endian PLY, parsed by hand."""
+    data = path.read_bytes()
+    end = data.index(b"end_header\n") + len(b"end_header\n")
+    header = data[:end].decode("ascii").splitlines()
+    assert header[1] == "format binary_little_endian 1.0"
+    types = {"float": "<f4", "uchar": "u1"}
+    fields = [(line.split()[2], types[line.split()[1]]) for line in header if line.startswith("property")]
+    n = int(next(line.split()[2] for line in header if line.startswith("element vertex")))
+    vertices = np.frombuffer(data[end:], dtype=fields)
+    assert len(vertices) == n
+    return vertices
+
+
+@pytest.fixture(scope="module")
+def gated(tmp_path_factory):
+    """Histograms of a gate that starts at 100 m (16 bins of 2.1875 m), with a 10 frames/s rate in the metadata."""
+    folder = tmp_path_factory.mktemp("gated")
+    counts = np.array(jax.random.poisson(jax.random.key(2), 1.5, (T, 32, 64, SENSOR.bins)))
+    counts[:, 8:24, 16:48, 5] += 40  # a target at bin 5
+    io.write_histograms(folder / "h.npz", counts, sensor=SENSOR, fps=10.0)
+    return folder / "h.npz"
+
+
+def test_video_and_points_of_a_gated_recording(tmp_path, model_path, gated, capsys):
+    gt = np.full((T, 128, 256), 112.0, np.float32)
+    gt[:, :10] = np.inf
+    np.save(tmp_path / "gt.npy", gt)
+    assert upscale(gated, tmp_path / "out.npz", "--model", model_path, "--gate-start", "100m",
+                   "--bin-width", "2.1875m", "--video", tmp_path / "v.mp4", "--reference", tmp_path / "gt.npy",
+                   "--points", tmp_path / "pts", "--preview", tmp_path / "p.png") == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["video"] == str(tmp_path / "v.mp4") and summary["points"] == str(tmp_path / "pts")
+    out = io.read_sequence(tmp_path / "out.npz")["depth"]
+    assert out.shape == (T, 128, 256)
+    assert imageio_ffmpeg.count_frames_and_secs(str(tmp_path / "v.mp4"))[0] == T
+    files = sorted((tmp_path / "pts").iterdir())
+    assert [f.name for f in files] == [f"frame_{t:06d}.ply" for t in range(T)]
+    dx, dy, _ = (np.asarray(a) for a in pixel_rays(SensorConfig(hr_shape=(128, 256), scale=1)))
+    for f, d in zip(files, out):
+        v = read_ply(f)
+        valid = np.isfinite(d)
+        assert len(v) == valid.sum() > 0
+        xyz = np.stack([v["x"], v["y"], v["z"]], -1).astype(np.float64)
+        r = np.linalg.norm(xyz, axis=1)
+        np.testing.assert_allclose(r, d[valid], rtol=1e-5)
+        assert r.min() >= 100.0 - 1e-3  # the true range: the gate's start included
+        rows, cols = np.nonzero(valid)
+        np.testing.assert_allclose(xyz[:, 0] / xyz[:, 2], dx[cols], rtol=1e-4, atol=1e-6)
+        assert {"red", "green", "blue"} <= set(v.dtype.names)
+
+
+def test_gif_fps_fov_and_no_overwrite(tmp_path, model_path, gated, capsys):
+    args = [gated, tmp_path / "out.npy", "--model", model_path, "--video", tmp_path / "v.gif", "--fps", "5",
+            "--points", tmp_path / "pts", "--fov", "60", "--points-colour", "none"]
+    assert upscale(*args) == 0
+    capsys.readouterr()
+    assert imageio_ffmpeg.count_frames_and_secs(str(tmp_path / "v.gif"))[0] == T
+    meta = next(imageio_ffmpeg.read_frames(str(tmp_path / "v.gif")))
+    assert meta["fps"] == pytest.approx(5.0, rel=0.05)
+    out = np.load(tmp_path / "out.npy")
+    v = read_ply(tmp_path / "pts" / "frame_000000.ply")
+    assert v.dtype.names == ("x", "y", "z") and len(v) == np.isfinite(out[0]).sum()
+    dx = np.asarray(pixel_rays(SensorConfig(hr_shape=(128, 256), scale=1, fov_deg=60.0))[0])
+    valid = np.isfinite(out[0])
+    np.testing.assert_allclose(v["x"] / v["z"], dx[np.nonzero(valid)[1]], rtol=1e-4, atol=1e-6)
+    # the video and the point clouds are never replaced without --force (checked before any work)
+    (tmp_path / "out.npy").unlink()
+    before = (tmp_path / "v.gif").read_bytes()
+    assert upscale(*args) == 2
+    assert "--force" in capsys.readouterr().err
+    assert (tmp_path / "v.gif").read_bytes() == before and not (tmp_path / "out.npy").exists()
+    assert upscale(*args, "--force") == 0
+
+
+def test_default_fps_is_the_recordings(tmp_path, model_path, gated, capsys):
+    assert upscale(gated, tmp_path / "o.npy", "--model", model_path, "--video", tmp_path / "v.mp4") == 0
+    meta = next(imageio_ffmpeg.read_frames(str(tmp_path / "v.mp4")))
+    assert meta["fps"] == pytest.approx(10.0, rel=0.01)
+
+
+@pytest.mark.parametrize("args,message", [
+    (["--fps", "5"], "--fps applies to --video"),
+    (["--reference", "gt.npy"], "--reference applies to --video"),
+    (["--video", "v.avi"], r"\.mp4 or \.gif"),
+    (["--points", "p.ply"], "folder"),
+    (["--points", "pts", "--fov", "200"], "field of view"),
+    (["--video", "v.mp4", "--reference", "missing.npy"], "no such file"),
+])
+def test_bad_look_options_are_clear_errors(tmp_path, model_path, gated, capsys, args, message):
+    args = [str(tmp_path / a) if a.endswith((".npy", ".avi", ".mp4", ".ply")) or a == "pts" else a for a in args]
+    assert upscale(gated, tmp_path / "o.npy", "--model", model_path, *args) == 2
+    err = capsys.readouterr().err
+    assert __import__("re").search(message, err), err
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
