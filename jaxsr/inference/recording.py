@@ -175,32 +175,24 @@ def _scale(model) -> int:
     return int(model.architecture.scale(model.config))
 
 
-def _seconds(value, what: str) -> float | None:
+def _positive(value, what: str, parse, unit: str):
+    """None, a string parsed by `parse` (a quantity with its unit), or a finite number > 0 in `unit`."""
     if value is None:
         return None
     if isinstance(value, str):
         try:
-            return parse_time_unit(value)
+            return parse(value)
         except ValueError as e:
             raise ValueError(f"{what}: {e}") from None
-    seconds = float(value)
-    if not (np.isfinite(seconds) and seconds > 0):
-        raise ValueError(f"{what}: expected a duration > 0 in seconds, got {value!r}")
-    return seconds
+    number = float(value)
+    if not (np.isfinite(number) and number > 0):
+        raise ValueError(f"{what}: expected a value > 0 in {unit}, got {value!r}")
+    return number
 
 
 def _span(value) -> float | str | None:
-    if value is None or value == "gate":
-        return value
-    if isinstance(value, str):
-        try:
-            return parse_span(value)
-        except ValueError as e:
-            raise ValueError(f"span: {e}") from None
-    metres = float(value)
-    if not (np.isfinite(metres) and metres > 0):
-        raise ValueError(f"span: expected a range > 0 in metres or 'gate', got {value!r}")
-    return metres
+    """The span option: None, "gate", or a range > 0 (metres, or a string with its unit)."""
+    return value if value == "gate" else _positive(value, "span", parse_span, "metres or 'gate'")
 
 
 def _array_recording(arr: np.ndarray, kind: str | None) -> Recording:
@@ -303,7 +295,7 @@ def prepare_upscale(input, *, model="tr4", kind: str | None = None, bins: int | 
     sensor = SensorConfig() if r == 4 else SensorConfig(scale=r)
     span = _span(span)
     rec, gate, source = _open(input, kind, bins=bins, bin_width=bin_width, gate_start=gate_start, span=span,
-                              time_unit=_seconds(time_unit, "time_unit"), variable=variable,
+                              time_unit=_positive(time_unit, "time_unit", parse_time_unit, "seconds"), variable=variable,
                               drop_outside=drop_outside)
     if units is not None and units not in ("m", "normalised"):
         raise ValueError(f"units is 'm' or 'normalised', got {units!r}")
