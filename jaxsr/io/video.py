@@ -176,7 +176,7 @@ class DepthVideoWriter:
                 # a palette per frame (streams: no pass over the whole video), looping forever
                 params = dict(codec="gif", pix_fmt_out="pal8", quality=None, macro_block_size=1,
                               output_params=["-vf", "split[a][b];[a]palettegen=stats_mode=single[p];"
-                                             "[b][p]paletteuse=new=1", "-loop", "0", "-f", "gif"])
+                                             "[b][p]paletteuse=new=1:dither=none", "-loop", "0", "-f", "gif"])
             else:
                 params = dict(codec="libx264", pix_fmt_out="yuv420p", quality=8, macro_block_size=16,
                               output_params=["-movflags", "+faststart", "-f", "mp4"])
