@@ -78,8 +78,9 @@ def _bench_step(benchmark, tr, *, clip_outputs=None):
 
     one()  # compile
     benchmark.pedantic(one, rounds=3 if tr else 10, iterations=1)
-    benchmark.extra_info["examples_per_s"] = CPU.batch_size / benchmark.stats["mean"]
-    benchmark.extra_info["frames_per_s"] = CPU.batch_size * frames / benchmark.stats["mean"]
+    if benchmark.stats is not None:  # None when benchmarks are disabled (a plain test run)
+        benchmark.extra_info["examples_per_s"] = CPU.batch_size / benchmark.stats["mean"]
+        benchmark.extra_info["frames_per_s"] = CPU.batch_size * frames / benchmark.stats["mean"]
     benchmark.extra_info["patch"] = CPU.patch
     benchmark.extra_info["backend"] = jax.default_backend()
 

@@ -15,7 +15,8 @@ With the bundled weights and --sequence-form, the sequence-form models tr<N>-seq
 beside the windowed ones and drawn in the speed-accuracy plot (each frame of theirs is computed with the whole
 sequence: about 1.5 minutes per model). Training runs go to runs/sweep_tr/<preset>/x<scale>/tr<N> and resume
 where they stopped; a finished run is loaded, not retrained. Writes experiments/results/sweep_tr[_x8][_<preset>|
-_quick].{md,csv,png} (the _pareto.png beside it: PSNR against frames/s).
+_quick].{md,csv,png} (the _pareto.png beside it: PSNR against frames/s; both with 95 % intervals) and .mp4 (a
+short comparison video: bicubic | TR0 | TR4 | truth), and prints where they are.
 """
 
 from __future__ import annotations
@@ -47,15 +48,53 @@ from jaxsr.eval.scoring import (
     interval,
     model_fps,
     scene_scores,
-    score,
+    frame_scores,
     test_clips,
 )
 from jaxsr.eval.reports import header, markdown_table, save_figure, write_atomic
 
+VIDEO_FRAMES = 32  # consecutive frames of the first test scene in the comparison video
 
-def bicubic_row(clips, scale) -> dict:
+
+def bicubic_row(clips, scale) -> tuple[dict, np.ndarray]:
+    """Bicubic's mean PSNR and SSIM per scene, and its per-frame PSNR (scenes, frames)."""
     scored = {name: c.at(c.scored) for name, c in clips.items()}
-    return {name: score(np.asarray(jaxsr.bicubic(c.lr, scale=scale)), c.gt) for name, c in scored.items()}
+    means, frames = {}, []
+    for name, c in scored.items():
+        p, s = frame_scores(np.asarray(jaxsr.bicubic(c.lr, scale=scale)), c.gt)
+        means[name] = (float(p.mean()), float(s.mean()))
+        frames.append(p)
+    return means, np.stack(frames)
+
+
+def mean_interval(frames):
+    """(mean, low, high) of the mean PSNR over frames (scenes, T) or (T,), 95 % block bootstrap (`interval`)."""
+    iv = interval(frames, np.zeros_like(frames))
+    return float(iv.mean), float(iv.low), float(iv.high)
+
+
+def error_bar(ivs):
+    """matplotlib's yerr (2, n) from (mean, low, high) triples."""
+    return np.array([[m - lo for m, lo, _ in ivs], [hi - m for m, _, hi in ivs]])
+
+
+def comparison_video(path, clip, models, scale, *, frames=32, fps=8.0, sensor=SensorConfig()):
+    """A short video of the clip's first `frames` consecutive frames: bicubic | each model | truth, in metres on
+    one colour scale (`jaxsr.io.DepthVideoWriter`). models: {label: Model}. Returns the frames written."""
+    from jaxsr.io import DepthVideoWriter
+
+    n = min(frames, len(clip.lr))
+    lr, gt = np.asarray(clip.lr[:n]), np.asarray(clip.gt[:n])
+    outs = [np.asarray(jaxsr.bicubic(lr, scale=scale))] + [np.asarray(jaxsr.super_resolve(m, lr))
+                                                           for m in models.values()]
+    metres = lambda a: np.asarray(jaxsr.denormalise_depth(np.clip(a, 0, 1), sensor))  # noqa: E731
+    panels = [metres(a) for a in (*outs, gt)]
+    labels = ("bicubic", *models, "truth")
+    with DepthVideoWriter(path, gt.shape[1:], labels=labels, fps=fps, d_max=float(sensor.d_max), frames=n,
+                          overwrite=True) as video:
+        for t in range(n):
+            video.write(*(p[t] for p in panels))
+    return video.frames_written
 
 
 def untrained(scale: int) -> Model:
@@ -71,8 +110,9 @@ def pareto(points):
             if not any(f2 >= f and p2 >= p and (f2, p2) != (f, p) for f2, p2 in points)]
 
 
-def plot(path, rows, bicubic, fps_bicubic, seq_rows=None):
-    """PSNR and SSIM against TR per scene (paper Fig. 5), and PSNR against frames/s with the Pareto front."""
+def plot(path, rows, bicubic, fps_bicubic, seq_rows=None, bicubic_frames=None):
+    """PSNR and SSIM against TR per scene (paper Fig. 5), and PSNR against frames/s with the Pareto front; PSNR
+    with its 95 % interval over frames (block bootstrap, `interval`) where per-frame scores are at hand."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -80,32 +120,43 @@ def plot(path, rows, bicubic, fps_bicubic, seq_rows=None):
 
     trs = sorted(rows)
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
-    for name in TEST_SCENES:
+    for k, name in enumerate(TEST_SCENES):
         for ax, i in zip(axes, (0, 1)):
-            ax.plot(trs, [rows[tr]["scores"][name][i] for tr in trs], "o-", label=SCENE_LABELS[name])
+            ys = [rows[tr]["scores"][name][i] for tr in trs]
+            if i == 0 and all("frames" in rows[tr] for tr in trs):
+                ax.errorbar(trs, ys, yerr=error_bar([mean_interval(rows[tr]["frames"][k]) for tr in trs]),
+                            fmt="o-", capsize=3, label=SCENE_LABELS[name])
+            else:
+                ax.plot(trs, ys, "o-", label=SCENE_LABELS[name])
             ax.axhline(bicubic[name][i], ls=":", lw=0.8, color=ax.lines[-1].get_color())
     for ax, label in zip(axes, ("PSNR (dB)", "SSIM")):
         ax.set_xlabel("temporal radius TR")
         ax.set_ylabel(label)
         ax.set_xticks(trs)
-    axes[0].legend(fontsize=8, title="dotted: bicubic", title_fontsize=7)
+    axes[0].legend(fontsize=8, title="dotted: bicubic; bars: 95 % intervals", title_fontsize=7)
     save_figure(fig, path)
 
     fig, ax = plt.subplots(figsize=(5, 3.6))
     pts = [(rows[tr]["fps"], np.mean([rows[tr]["scores"][n][0] for n in TEST_SCENES])) for tr in trs]
     pts.append((fps_bicubic, np.mean([bicubic[n][0] for n in TEST_SCENES])))
     labels = [f"TR{tr}" for tr in trs] + ["bicubic"]
+    per_frame = [rows[tr].get("frames") for tr in trs] + [bicubic_frames]
     for tr, r in (seq_rows or {}).items():
         pts.append((r["fps"], np.mean([r["scores"][n][0] for n in TEST_SCENES])))
         labels.append(f"TR{tr}-seq")
+        per_frame.append(r.get("frames"))
     front = sorted(pareto(pts), key=lambda i: pts[i][0])
     ax.plot([pts[i][0] for i in front], [pts[i][1] for i in front], "-", color="0.6", label="Pareto front")
-    for (f, p), lab in zip(pts, labels):
-        ax.plot(f, p, "^" if lab.endswith("-seq") else "o")
+    for (f, p), lab, fr in zip(pts, labels, per_frame):
+        if fr is None:
+            ax.plot(f, p, "^" if lab.endswith("-seq") else "o")
+        else:
+            ax.errorbar([f], [p], yerr=error_bar([mean_interval(fr)]), fmt="^" if lab.endswith("-seq") else "o",
+                        capsize=3)
         ax.annotate(lab, (f, p), textcoords="offset points", xytext=(4, 4), fontsize=8)
     ax.set_xscale("log")
     ax.set_xlabel("frames/s on this machine (end to end)")
-    ax.set_ylabel("mean PSNR over the 3 scenes (dB)")
+    ax.set_ylabel("mean PSNR, 3 scenes (dB; 95 % int.)")
     ax.legend(fontsize=8)
     save_figure(fig, str(path).replace(".png", "_pareto.png"))
 
@@ -140,12 +191,12 @@ def main():
     base.parent.mkdir(parents=True, exist_ok=True)
 
     clips = test_clips(frames, seed=args.seed, sensor=sensor, spread=not args.quick)
-    bicubic = bicubic_row(clips, args.scale)
+    bicubic, bicubic_frames = bicubic_row(clips, args.scale)
     clip0 = clips[TEST_SCENES[0]]
     min_time = 1.0 if args.quick else 3.0
     fps_bicubic = bicubic_fps(clip0, sensor=sensor, min_time=min_time)
     floor, floor_frames = scene_scores(untrained(args.scale), clips)
-    rows = {}
+    rows, models = {}, {}
     for tr in trs:
         t0 = time.time()
         model, card = get_model(tr, pretrained=pretrained, preset=preset, runs=Path(args.runs),
@@ -153,6 +204,8 @@ def main():
         scores, frames_psnr = scene_scores(model, clips)
         fps = model_fps(model, clip0, min_time=min_time)
         rows[tr] = {"scores": scores, "frames": frames_psnr, "fps": fps, "card": card}
+        if tr in (min(trs), max(trs)):
+            models[f"TR{tr}"] = model
         print(f"TR{tr}: " + ", ".join(f"{SCENE_LABELS[n]} {p:.2f} dB / {s:.3f}" for n, (p, s) in scores.items())
               + f", {fps:.1f} frames/s ({time.time() - t0:.0f} s)", flush=True)
     seq_rows = {}  # the bundled sequence-form models (tr<N>-seq), scored the same way
@@ -211,13 +264,18 @@ def main():
     bought = interval(rows[0]["frames"], floor_frames) if 0 in rows else None
     checked = differences(rows, seq_rows, vs_tr0, bought) + "\n\n" + claims(rows, bicubic, vs_tr0)
     text += "\n" + checked + "\n"
+    video_label = " | ".join(["bicubic", *models, "truth"])
     text += (f"\nPlots: `{base.name}.png` (PSNR and SSIM against TR), "
-             f"`{base.name}_pareto.png` (PSNR against frames/s).\n")
+             f"`{base.name}_pareto.png` (PSNR against frames/s), PSNR with its 95 % interval over frames. "
+             f"Video: `{base.name}.mp4`, {video_label} on the first {VIDEO_FRAMES} frames of "
+             f"{SCENE_LABELS[TEST_SCENES[0]]}, in metres.\n")
     write_atomic(f"{base}.md", text)
     write_atomic(f"{base}.csv", csv)
-    plot(f"{base}.png", rows, bicubic, fps_bicubic, seq_rows)
+    plot(f"{base}.png", rows, bicubic, fps_bicubic, seq_rows, bicubic_frames)
+    n_video = comparison_video(f"{base}.mp4", clip0, models, args.scale, frames=VIDEO_FRAMES, sensor=sensor)
     print("\n" + markdown_table(columns, table + paper) + "\n" + checked)
-    print(f"wrote {base}.md, .csv, .png ({time.time() - started:.0f} s)")
+    print(f"wrote {base}.md and {base}.csv (Table 1), {base}.png and {base}_pareto.png (the trade plots, with "
+          f"intervals), {base}.mp4 ({video_label}, {n_video} frames) ({time.time() - started:.0f} s)")
 
 
 def csv_row(label, scores, fps):

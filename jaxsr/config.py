@@ -305,6 +305,82 @@ class TrainConfig:
         return self.examples_per_epoch // self.batch_size
 
 
+def _check_range(who, name, pair, lo=0.0, strict=True, hi=None):
+    a, b = (float(v) for v in pair)
+    if not ((a > lo if strict else a >= lo) and a <= b and (hi is None or b <= hi) and b < float("inf")):
+        bound = f"{lo:g} {'<' if strict else '<='} lo <= hi" + ("" if hi is None else f" <= {hi:g}")
+        raise ValueError(f"{who}: {name} must be finite with {bound}, got {tuple(pair)}")
+
+
+@dataclasses.dataclass(frozen=True)
+class PhotonRegime:
+    """The photon regimes a training clip is drawn from, every parameter per clip (docs/training.md, "Photon
+    regimes"; `jaxsr.training.regime_batches`). JSON-ready (`to_dict`) for the model card.
+
+    - `signal_range`: mean signal photons per LR pixel with a return, log-uniform (0.5-1000);
+    - `snr_range`: frame SNR (signal / ambient photons), log-uniform (0.05-20);
+    - IRF width in bins: with probability `irf_paper_prob` the paper's `irf_paper` (0.4), else
+      exp(log lo + (log hi - log lo) u^`irf_power`) for u uniform in [0, 1] over `irf_sigma_range` (0.3-3): power
+      1 is log-uniform, 2 puts the median at 0.53 bins with a long tail (16 % above 1.5 bins);
+    - dark counts: with probability `dark_prob`, a flat `jaxsr.sensor.dark_counts` rate per bin log-uniform in
+      `dark_range` photons;
+    - hot pixels: with probability `hot_prob`, a fraction uniform in [0, `hot_fraction_max`] of the LR pixels,
+      each with `hot_level_range` (log-uniform) times the clip's mean signal as extra photons spread evenly
+      over the bins;
+    - dead pixels: with probability `dead_prob`, a fraction uniform in [0, `dead_fraction_max`];
+    - no return (sky, absorbing surfaces): with probability `no_return_prob`, a fraction uniform in
+      `no_return_fraction` of the HR pixels (`jaxsr.sensor.no_return_regions`, sky weight uniform in [0, 1],
+      blobs of `blob_size` HR pixels), on top of the scene's own sky;
+    - `motion`: `jaxsr.scenes.training_clip`'s motion mode ("seen": every clip's motion shows in its depth).
+    """
+
+    signal_range: tuple[float, float] = (0.5, 1000.0)
+    snr_range: tuple[float, float] = (0.05, 20.0)
+    irf_sigma_range: tuple[float, float] = (0.3, 3.0)
+    irf_power: float = 2.0
+    irf_paper: float = 0.4
+    irf_paper_prob: float = 0.25
+    dark_prob: float = 0.5
+    dark_range: tuple[float, float] = (1e-3, 0.3)
+    hot_prob: float = 0.3
+    hot_fraction_max: float = 0.01
+    hot_level_range: tuple[float, float] = (0.1, 10.0)
+    dead_prob: float = 0.3
+    dead_fraction_max: float = 0.01
+    no_return_prob: float = 0.5
+    no_return_fraction: tuple[float, float] = (0.05, 0.6)
+    blob_size: int = 16
+    motion: str = "seen"
+
+    def __post_init__(self):
+        who = "PhotonRegime"
+        for name in ("signal_range", "snr_range", "irf_sigma_range", "dark_range", "hot_level_range"):
+            _check_range(who, name, getattr(self, name))
+        _check_range(who, "no_return_fraction", self.no_return_fraction, strict=False, hi=1.0)
+        for name in ("irf_paper_prob", "dark_prob", "hot_prob", "hot_fraction_max", "dead_prob",
+                     "dead_fraction_max", "no_return_prob"):
+            v = float(getattr(self, name))
+            if not 0.0 <= v <= 1.0:
+                raise ValueError(f"{who}: {name} must be in [0, 1], got {v}")
+        if not (0 < float(self.irf_paper) < float("inf")) or not (0 < float(self.irf_power) < float("inf")):
+            raise ValueError(f"{who}: irf_paper and irf_power must be finite and > 0, got {self.irf_paper}, "
+                             f"{self.irf_power}")
+        if int(self.blob_size) != self.blob_size or self.blob_size < 1:
+            raise ValueError(f"{who}: blob_size must be an integer >= 1, got {self.blob_size}")
+        if self.motion not in ("drawn", "seen"):
+            raise ValueError(f"{who}: motion must be 'drawn' or 'seen', got {self.motion!r}")
+
+    def to_dict(self) -> dict:
+        """The regime as JSON-ready values (tuples as lists), for the model card."""
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(self).items()}
+
+
+# The ranges `scene_batches` draws (photons 7-28, SNR 0.5-8, IRF 0.4, no effects) as a regime, for ablations of the
+# new effects; `regime_batches` with it draws from the same ranges, not the same clips.
+PAPER_REGIME = PhotonRegime(signal_range=TRAIN_MEAN_SIGNAL_RANGE, snr_range=(0.5, 8.0), irf_paper_prob=1.0,
+                            dark_prob=0.0, hot_prob=0.0, dead_prob=0.0, no_return_prob=0.0, motion="drawn")
+
+
 # Training presets. `paper`: the paper's schedule (15500 examples/epoch, batch 4, 100 epochs, patience 5,
 # validation on 3 x 500 frames). `cpu`: sized so that TR0-TR4 all train in about 45 min on 2 CPU cores.
 # Measured on 2 shared XLA:CPU cores (benchmarks/bench_train.py, 16 x 32 LR patches, sensor simulation

@@ -1,6 +1,6 @@
 """The README's picture: an animated GIF of a test scene, LR input | TR4 | truth, from the bundled weights.
 
-    python experiments/studies/readme_picture.py [--frames 24] [--fps 8] [--out experiments/results/readme.gif]
+    python experiments/studies/readme_picture.py [--frames 20] [--fps 8] [--out experiments/results/readme.gif]
 
 The street test scene (`jaxsr.scenes.test_sequences`, its first frames), photons simulated at the scene's SNR
 with noise seed 0, centre-of-mass depth (the 32 x 64 LR input, nearest-neighbour upscaled) and the bundled TR4
@@ -24,7 +24,7 @@ from jaxsr import io, scenes
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--frames", type=int, default=24, help="frames of the scene (default 24)")
+    parser.add_argument("--frames", type=int, default=20, help="frames of the scene (default 20)")
     parser.add_argument("--fps", type=float, default=8.0, help="frames per second of the GIF (default 8)")
     parser.add_argument("--out", default="experiments/results/readme.gif", help="the GIF (replaced if there)")
     parser.add_argument("--max-kb", type=float, default=1000.0, help="largest size allowed, kB (default 1000)")

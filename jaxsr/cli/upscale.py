@@ -67,18 +67,18 @@ def add_parser(subparsers):
                    help="with --model auto: the slowest acceptable frames/s")
     p.add_argument("--preview", default=None, help="write an input | output PNG strip of the middle frame")
     g = p.add_argument_group("pictures to look at (one colour scale in metres: the true range, gate start included)")
-    g.add_argument("--video", default=None,
+    g.add_argument("--video", default=None, metavar="PATH",
                    help="write an .mp4 or .gif of every frame: input (nearest-neighbour upscaled) | output (| "
                    "reference), one colour scale with a colour bar in metres, no return black, the frame number")
-    g.add_argument("--fps", type=positive_float, default=None,
+    g.add_argument("--fps", type=positive_float, default=None, metavar="F",
                    help="--video's frames per second (default: the recording's where its .npz says, else 25)")
-    g.add_argument("--reference", default=None,
+    g.add_argument("--reference", default=None, metavar="PATH",
                    help="--video: HR depth (T, H, W) to show beside the output, e.g. the ground truth (the "
                    "formats of INPUT's depth; metres or normalised)")
     g.add_argument("--points", default=None, metavar="DIR",
                    help="write one PLY point cloud per frame into DIR (x right, y up, z forward, metres; no-return "
                    "pixels left out; coloured by depth)")
-    g.add_argument("--fov", type=positive_float, default=None,
+    g.add_argument("--fov", type=positive_float, default=None, metavar="DEG",
                    help="--points: horizontal field of view in degrees (default 30, the sensor model's)")
     g.add_argument("--points-colour", choices=["depth", "none"], default="depth",
                    help="--points: colour the points by depth (default) or write x, y, z only")
@@ -94,7 +94,8 @@ def run(args) -> int:
                      frame_format=args.frame_format, batch_size=args.batch_size, min_fps=args.min_fps,
                      preview=args.preview, video=args.video, fps=args.fps, reference=args.reference,
                      points=args.points, fov_deg=DEFAULT_FOV_DEG if args.fov is None else args.fov,
-                     points_colour=None if args.points_colour == "none" else args.points_colour, overwrite=args.force, progress=not args.no_progress,
+                     points_colour=None if args.points_colour == "none" else args.points_colour,
+                     overwrite=args.force, progress=not args.no_progress,
                      report=lambda line: print(f"jaxsr upscale: {line}", file=sys.stderr, flush=True))
     print(json.dumps(result.summary()))
     return 0

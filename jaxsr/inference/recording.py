@@ -520,10 +520,11 @@ def upscale(input, output, *, model="tr4", kind: str | None = None, bins: int | 
     - report: called with each line of `notes` as soon as it is known (the warnings, then what is read with which
       model, before the network runs); `jaxsr upscale` prints them.
 
-    Everything is checked before the model runs, in order: the output and preview paths, the model, the input
-    and every frame. Returns an `UpscaleResult` (output path, frames, shape, units, model, gate, scale, warnings,
-    notes; `summary()` is the command's JSON). Raises FileNotFoundError (missing input, model or output folder),
-    FileExistsError (an output or preview exists, without overwrite), IsADirectoryError, NotADirectoryError or
+    Everything is checked before the model runs, in order: the output, preview, video and point clouds' paths
+    (and that the reference reads), the model, the input and every frame. Returns an `UpscaleResult` (output
+    path, frames, shape, units, model, gate, scale, warnings, notes, video, points; `summary()` is the command's
+    JSON). Raises FileNotFoundError (missing input, model, reference or output folder), FileExistsError (an
+    output, preview or video exists, or the point clouds' folder holds files, without overwrite), IsADirectoryError, NotADirectoryError or
     ValueError (bad options or input), with the messages `jaxsr upscale` prints; nothing is left written then.
     """
     _check_look_options(video, fps, reference, points, points_colour)

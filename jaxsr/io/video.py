@@ -178,7 +178,7 @@ class DepthVideoWriter:
                               output_params=["-vf", "split[a][b];[a]palettegen=stats_mode=single[p];"
                                              "[b][p]paletteuse=new=1:dither=none", "-loop", "0", "-f", "gif"])
             else:
-                params = dict(codec="libx264", pix_fmt_out="yuv420p", quality=8, macro_block_size=16,
+                params = dict(codec="libx264", pix_fmt_out="yuv420p", quality=6, macro_block_size=16,
                               output_params=["-movflags", "+faststart", "-f", "mp4"])
             self._writer = imageio_ffmpeg.write_frames(str(tmp), self.size, fps=self.fps, ffmpeg_log_level="error",
                                                        **params)
@@ -251,8 +251,11 @@ def write_depth_video(path, lr, sr, gt=None, *, fps: float = DEFAULT_FPS, d_min:
       lr: (T, h, w) input frames in metres, or any iterable of (h, w) frames (nearest-neighbour upscaled).
       sr: (T, H, W) output frames in metres, or an iterable of them.
       gt: (T, H, W) reference frames in metres, an iterable of them, or None (two panels).
-      fps, d_min, d_max, labels (one per panel; the first two without `gt`), frames (T, shown on each frame;
-        default len(sr) where it has one), cmap, zoom, overwrite: as `DepthVideoWriter`.
+      labels: one title per panel (the first two without `gt`).
+      frames: T, shown on each frame (default len(sr) where it has one).
+
+    fps, d_min, d_max, cmap, zoom and overwrite are `DepthVideoWriter`'s.
+
     Returns the number of frames written. Frames are read from the iterables one at a time (memory for a frame).
     Raises ValueError if the streams differ in length.
     """

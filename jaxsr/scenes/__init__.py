@@ -34,10 +34,12 @@ from .primitives import Motion as Motion
 from .primitives import Scene as Scene
 from .raycast import render as render
 from .raycast import render_sequence as render_sequence
+from .raycast import grid_depth as grid_depth
 from .raycast import seen_primitives as seen_primitives
 from .raycast import tile_overflow as tile_overflow
 from .sequences import in_view_lr_shift as in_view_lr_shift
 from .sequences import mean_lr_shift as mean_lr_shift
+from .sequences import moving_share as moving_share
 from .sequences import sequence as sequence
 from .sequences import training_clip as training_clip
 from .sequences import training_scene as training_scene
@@ -70,10 +72,12 @@ __all__ = [
     "Scene",
     "render",
     "render_sequence",
+    "grid_depth",
     "seen_primitives",
     "tile_overflow",
     "in_view_lr_shift",
     "mean_lr_shift",
+    "moving_share",
     "sequence",
     "training_clip",
     "training_scene",

@@ -16,7 +16,8 @@ from ..sensor.forward import pixel_rays
 from .pose import BOX, CYL, ELL, NEAR, Group, pose_all, project_bounds
 from .primitives import Scene
 
-__all__ = ["DEFAULT_K_MAX", "DEFAULT_TILES", "render", "render_sequence", "seen_primitives", "tile_overflow"]
+__all__ = ["DEFAULT_K_MAX", "DEFAULT_TILES", "grid_depth", "render", "render_sequence", "seen_primitives",
+           "tile_overflow"]
 
 _INF = jnp.inf
 
@@ -311,6 +312,26 @@ def seen_primitives(scene: Scene, t, *, sensor: SensorConfig = SensorConfig(), s
 
     Args: scene (Scene), t (s, scalar), stride (static int). Returns (N_BOXES + N_CYLINDERS + N_ELLIPSOIDS,)
     bool, in the order boxes, cylinders, ellipsoids (that of `pose_all`'s groups)."""
+    z, index, t_gnd, norm, offset = _grid_cast(scene, t, sensor, stride)
+    hit = (z < t_gnd) & (z * norm <= sensor.d_max)  # z is planar depth; z * norm the radial range
+    # Rays that hit nothing but the ground or the sky count in an extra bin, dropped.
+    return jnp.bincount(jnp.where(hit, index, offset).ravel(), length=offset + 1)[:offset] > 0
+
+
+def grid_depth(scene: Scene, t, *, sensor: SensorConfig = SensorConfig(), stride: int = 8):
+    """Radial depth (m, inf = no return) on a grid through every `stride`-th HR pixel centre at time `t` (s):
+    the values `render` gives at those pixels (rows and cols stride // 2 + stride * i), without its tiling, at a
+    fraction 1 / stride^2 of the pixels. Args: scene (Scene), t (s, scalar), stride (static int). Returns
+    (H // stride, W // stride) float32."""
+    z, _, t_gnd, norm, _ = _grid_cast(scene, t, sensor, stride)
+    z = jnp.minimum(z, t_gnd)
+    return jnp.where(jnp.isfinite(z), z * norm, _INF).astype(jnp.float32)
+
+
+def _grid_cast(scene: Scene, t, sensor: SensorConfig, stride: int):
+    """The nearest primitive on the ray grid of `seen_primitives`: (planar depth of the nearest primitive (inf if
+    none), its index in `pose_all`'s order, the ground's planar depth (column of rows), the rays' norms, the
+    number of primitives)."""
     dx, dy, norm = pixel_rays(sensor, tilt=scene.camera.tilt)
     grid = (slice(stride // 2, None, stride),) * 2
     dx, dy, norm = dx[grid[1]], dy[grid[0]], norm[grid]
@@ -324,9 +345,7 @@ def seen_primitives(scene: Scene, t, *, sensor: SensorConfig = SensorConfig(), s
         z, index = jnp.where(closer, t_min, z), jnp.where(closer, i_min + offset, index)
         offset += group.params.shape[0]
     t_gnd = jnp.where(dy < 0, -scene.camera.position[1] / jnp.where(dy < 0, dy, -1.0), _INF)[:, None]
-    hit = (z < t_gnd) & (z * norm <= sensor.d_max)  # z is planar depth; z * norm the radial range
-    # Rays that hit nothing but the ground or the sky count in an extra bin, dropped.
-    return jnp.bincount(jnp.where(hit, index, offset).ravel(), length=offset + 1)[:offset] > 0
+    return z, index, t_gnd, norm, offset
 
 
 def render_sequence(scene: Scene, times, *, sensor: SensorConfig = SensorConfig(), tiles=DEFAULT_TILES,

@@ -1,6 +1,6 @@
 """The SPAD sensor: the forward model from depth and intensity to photon histograms, Poisson sampling,
-calibration to a frame SNR, time gates, photon time tags, and depth extraction (centre of mass, maximum
-likelihood).
+calibration to a frame SNR, sensor effects (dark counts, hot and dead pixels, no-return regions), time gates,
+photon time tags, and depth extraction (centre of mass, maximum likelihood).
 """
 
 from .forward import (
@@ -30,6 +30,14 @@ from .peaks import (
     default_window,
     centre_of_mass,
     maximum_likelihood_depth,
+)
+from .effects import (
+    dark_counts,
+    hot_pixels,
+    dead_pixels,
+    no_return_regions,
+    with_irf_sigma,
+    clip_negative_counts,
 )
 from .gates import (
     gate_depth,
@@ -70,6 +78,12 @@ __all__ = [
     "default_window",
     "centre_of_mass",
     "maximum_likelihood_depth",
+    "dark_counts",
+    "hot_pixels",
+    "dead_pixels",
+    "no_return_regions",
+    "with_irf_sigma",
+    "clip_negative_counts",
     "gate_depth",
     "to_network_depth",
     "from_network_depth",

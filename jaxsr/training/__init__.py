@@ -6,6 +6,9 @@ from .optim import AdamState, adam_init, adam_update, lr_schedule, step_decay
 from .data import (
     log_uniform,
     random_crop,
+    regime_batches,
+    regime_clips,
+    regime_parameters,
     run_keys,
     scene_batches,
     scene_clips,
@@ -43,7 +46,8 @@ from .presets import MAX_TR, sequence_data, train
 
 __all__ = [
     "AdamState", "adam_init", "adam_update", "lr_schedule", "step_decay",
-    "log_uniform", "random_crop", "run_keys", "scene_batches", "scene_clips", "sequence_batches", "sequence_clips",
+    "log_uniform", "random_crop", "regime_batches", "regime_clips", "regime_parameters", "run_keys", "scene_batches",
+    "scene_clips", "sequence_batches", "sequence_clips",
     "validation_set",
     "Recipe", "recipe", "register_recipe",
     "data_mesh", "default_data", "evaluate", "evaluate_sequences", "initial_weights", "make_train_step",

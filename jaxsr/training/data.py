@@ -9,7 +9,9 @@ records. The sources:
 - `scene_batches`: random procedural clips (`jaxsr.scenes.training_clip`), the default;
 - `sequence_batches`: windows drawn from HR depth/intensity sequences held in memory (e.g. AirSim recordings);
 - `scene_clips` and `sequence_clips`: the same, as whole clips of L frames with the ground truth of every frame,
-  `make_batch(key) -> (clips (B, L, h, w), gt (B, L, h*r, w*r))`, for the sequence form of the network.
+  `make_batch(key) -> (clips (B, L, h, w), gt (B, L, h*r, w*r))`, for the sequence form of the network;
+- `regime_batches` and `regime_clips`: random procedural clips under a `jaxsr.config.PhotonRegime` (photons
+  0.5-1000, SNR 0.05-20, IRF width, dark counts, hot and dead pixels, no-return regions, all drawn per clip).
 
 Both draw a frame SNR and a mean signal log-uniformly per example, calibrate the sensor over the whole clip,
 simulate photon histograms (`simulate_histograms`) and extract centre-of-mass depth; with a `patch`, the photons
@@ -24,7 +26,10 @@ import functools
 import jax
 import jax.numpy as jnp
 
-from ..config import SensorConfig, TrainConfig
+import json
+
+from ..config import PhotonRegime, SensorConfig, TrainConfig
+from ..sensor.effects import dark_counts, dead_pixels, hot_pixels, no_return_regions, with_irf_sigma
 from ..sensor.peaks import centre_of_mass
 from ..sensor.poisson import sample_poisson
 from ..scenes import test_sequences, training_clip
@@ -35,6 +40,9 @@ __all__ = [
     "log_uniform",
     "run_keys",
     "random_crop",
+    "regime_batches",
+    "regime_clips",
+    "regime_parameters",
     "scene_batches",
     "scene_clips",
     "sequence_batches",
@@ -143,6 +151,99 @@ def scene_clips(frames: int, train_cfg: TrainConfig, *, sensor: SensorConfig = _
         return jax.vmap(example)(jax.random.split(key, train_cfg.batch_size))
 
     make_batch.description = _SCENES
+    return make_batch
+
+
+def regime_parameters(key, regime: PhotonRegime = PhotonRegime()):
+    """One clip's draw from `regime` (see `PhotonRegime`): a dict of scalars `mean_signal` (photons per LR pixel
+    with a return), `snr`, `irf_sigma` (bins), `dark` (photons per bin), `hot_fraction`, `hot_level` (extra
+    photons of a hot pixel over all bins, times `mean_signal`), `dead_fraction`, `no_return_fraction` and `sky`
+    (the weight of the sky band). An effect not drawn for the clip has fraction or rate 0. jit/vmap-able."""
+    k = iter(jax.random.split(key, 14))
+
+    def chance(p):
+        return jax.random.uniform(next(k)) < p
+
+    def uniform(lo, hi):
+        return jax.random.uniform(next(k), minval=lo, maxval=hi)
+
+    lo, hi = (jnp.log(v) for v in regime.irf_sigma_range)
+    tail = jnp.exp(lo + (hi - lo) * jax.random.uniform(next(k)) ** regime.irf_power)
+    mean_signal = log_uniform(next(k), *regime.signal_range)
+    return dict(
+        mean_signal=mean_signal,
+        snr=log_uniform(next(k), *regime.snr_range),
+        irf_sigma=jnp.where(chance(regime.irf_paper_prob), regime.irf_paper, tail),
+        dark=jnp.where(chance(regime.dark_prob), log_uniform(next(k), *regime.dark_range), 0.0),
+        hot_fraction=jnp.where(chance(regime.hot_prob), uniform(0.0, regime.hot_fraction_max), 0.0),
+        hot_level=log_uniform(next(k), *regime.hot_level_range),
+        dead_fraction=jnp.where(chance(regime.dead_prob), uniform(0.0, regime.dead_fraction_max), 0.0),
+        no_return_fraction=jnp.where(chance(regime.no_return_prob), uniform(*regime.no_return_fraction), 0.0),
+        sky=uniform(0.0, 1.0),
+    )
+
+
+def _regime_description(regime: PhotonRegime):
+    return (f"jaxsr.scenes.training_clip(motion={regime.motion!r}) -> PhotonRegime "
+            f"{json.dumps(regime.to_dict(), sort_keys=True)} -> no_return_regions -> calibrated_rates (per-clip IRF) "
+            "-> dark_counts, hot_pixels, dead_pixels -> sample_poisson -> centre_of_mass")
+
+
+def regime_clips(frames: int, train_cfg: TrainConfig, regime: PhotonRegime = PhotonRegime(), *,
+                 sensor: SensorConfig = _SENSOR):
+    """Training clips spanning real sensors: `make_batch(key)` with `batch_size` random scenes of `frames` frames,
+    every parameter of `regime` drawn per clip (`regime_parameters`).
+
+    Per clip: `jaxsr.scenes.training_clip` (motion log-uniform in `train_cfg.motion_range`, `regime.motion`) ->
+    `no_return_regions` on the HR depth -> calibration over the whole clip to the drawn SNR and photon level with
+    the drawn IRF width (`with_irf_sigma`) -> rates of the kept crop (`train_cfg.patch`) -> `dark_counts`,
+    `hot_pixels`, `dead_pixels` (one mask per clip) -> Poisson draw -> `centre_of_mass` with `sensor` (the
+    nominal IRF's window, as a recording is read at inference). GT = `normalise_depth` of the depth with its
+    no-return regions: 1.0 there. `train_cfg.snr_range` and `mean_signal_range` are not used.
+    Returns make_batch: key -> (clips (B, frames, h, w) LR normalised depth, gt `(B, frames, h*r, w*r)`), with
+    `description` (the regime as JSON) and `regime` (`regime.to_dict()`).
+    """
+    r, bins = sensor.scale, sensor.bins
+
+    def example(key):
+        k_scene, k_par, k_sky, k_hot, k_dead, k_noise, k_crop = jax.random.split(key, 7)
+        depth, intensity = training_clip(k_scene, frames, sensor=sensor, shift_range=train_cfg.motion_range,
+                                         motion=regime.motion)
+        p = regime_parameters(k_par, regime)
+        depth = no_return_regions(k_sky, depth, fraction=p["no_return_fraction"], sky=p["sky"],
+                                  blob_size=regime.blob_size)
+        gt = normalise_depth(depth, sensor)
+        clip_sensor = with_irf_sigma(sensor, p["irf_sigma"])
+        alpha, beta = calibrate(depth, intensity, clip_sensor, snr=p["snr"], mean_signal=p["mean_signal"])
+        if train_cfg.patch is not None:
+            (ph, pw), t = train_cfg.patch, depth.shape[0]
+            y0, x0 = _crop_origin(k_crop, (depth.shape[1] // r, depth.shape[2] // r), train_cfg.patch,
+                                  "regime_clips")
+            hr_window = functools.partial(jax.lax.dynamic_slice, start_indices=(0, y0 * r, x0 * r),
+                                          slice_sizes=(t, ph * r, pw * r))
+            depth, intensity, gt = hr_window(depth), hr_window(intensity), hr_window(gt)
+        rates = calibrated_rates(depth, intensity, alpha, beta, clip_sensor)
+        rates = dark_counts(rates, rate_per_bin=p["dark"])
+        rates = hot_pixels(k_hot, rates, fraction=p["hot_fraction"], rate=p["hot_level"] * p["mean_signal"] / bins)
+        rates = dead_pixels(k_dead, rates, fraction=p["dead_fraction"])
+        return centre_of_mass(sample_poisson(k_noise, rates), sensor), gt
+
+    def make_batch(key):
+        return jax.vmap(example)(jax.random.split(key, train_cfg.batch_size))
+
+    make_batch.description = _regime_description(regime)
+    make_batch.regime = regime.to_dict()
+    return make_batch
+
+
+def regime_batches(tr: int, train_cfg: TrainConfig, regime: PhotonRegime = PhotonRegime(), *,
+                   sensor: SensorConfig = SensorConfig()):
+    """`regime_clips` as windows: `make_batch(key) -> (windows (B, 2tr+1, h, w), gt (B, h*r, w*r))`, the ground
+    truth of the centre frame (like `scene_batches`, with the photon regimes of `regime`). Carries `description`
+    and `regime` for the training card."""
+    clips = regime_clips(2 * tr + 1, train_cfg, regime, sensor=sensor)
+    make_batch = _centre_frames(clips, tr)
+    make_batch.description, make_batch.regime = clips.description, clips.regime
     return make_batch
 
 

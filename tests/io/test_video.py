@@ -73,3 +73,20 @@ def test_no_overwrite_and_nothing_left_on_failure(tmp_path):
         io.write_depth_video(tmp_path / "v.avi", lr, sr)
     with pytest.raises(FileExistsError):
         io.check_video(path, force=False)
+
+
+def test_previews_span_the_true_range(tmp_path):
+    """A gated recording's preview: colours from the gate's start (d_min) to start + span, in metres or
+    normalised on that scale alike."""
+    d = np.full((8, 16), 776.0 + 17.5, np.float32)
+    d[0] = np.inf
+    io.write_comparison(tmp_path / "m.png", d[::4, ::4], d, d_min=776.0, d_max=811.0, labels=())
+    io.write_comparison(tmp_path / "n.png", np.full((2, 4), 0.5), np.where(np.isfinite(d), 0.5, 1.0),
+                        d_min=776.0, d_max=811.0, labels=())
+    want = np.round(np.asarray(matplotlib.colormaps["turbo"](0.5)[:3]) * 255)
+    for name in ("m.png", "n.png"):
+        img = np.round(np.asarray(io.read_image(tmp_path / name), np.float64) * 255)
+        np.testing.assert_allclose(img[6, 20], want, atol=1)  # the output panel, a return at mid-range
+        assert np.all(img[0, 20] == 0)  # no return: black
+    with pytest.raises(ValueError, match="d_min < d_max"):
+        io.write_preview(tmp_path / "x.png", d, d_min=40.0, d_max=35.0)

@@ -1,0 +1,79 @@
+"""The photon-regime data source (jaxsr.training.regime_batches, jaxsr.config.PhotonRegime): per-clip draws in the
+regime's ranges, shapes, determinism per key, no-return regions in the ground truth, and that it traces."""
+
+import dataclasses
+import json
+
+import jax
+import numpy as np
+import pytest
+
+from jaxsr.config import PAPER_REGIME, PhotonRegime, SensorConfig, TrainConfig
+from jaxsr.training import regime_batches, regime_clips, regime_parameters
+
+SENSOR = SensorConfig()
+
+
+def test_regime_is_json_ready_and_checked():
+    regime = PhotonRegime()
+    card = json.loads(json.dumps(regime.to_dict()))
+    assert card["signal_range"] == [0.5, 1000.0] and card["snr_range"] == [0.05, 20.0]
+    assert PhotonRegime(**{k: tuple(v) if isinstance(v, list) else v for k, v in card.items()}) == regime
+    assert PAPER_REGIME.signal_range == TrainConfig().mean_signal_range
+    for change in (dict(signal_range=(0.0, 10.0)), dict(snr_range=(5.0, 1.0)), dict(dark_prob=1.5),
+                   dict(no_return_fraction=(0.2, 1.5)), dict(blob_size=0), dict(motion="fast"),
+                   dict(irf_sigma_range=(0.3, float("inf")))):
+        with pytest.raises(ValueError, match="PhotonRegime"):
+            PhotonRegime(**change)
+
+
+def test_parameters_span_the_regime():
+    regime = PhotonRegime()
+    p = {k: np.asarray(v) for k, v in
+         jax.jit(jax.vmap(lambda k: regime_parameters(k, regime)))(jax.random.split(jax.random.key(0), 4000)).items()}
+    lo, hi = regime.signal_range
+    assert lo <= p["mean_signal"].min() < 0.6 and 800 < p["mean_signal"].max() <= hi
+    assert np.median(np.log(p["mean_signal"])) == pytest.approx(np.log(np.sqrt(lo * hi)), abs=0.2)
+    assert 0.05 <= p["snr"].min() < 0.06 and 17 < p["snr"].max() <= 20.0
+    sigma = p["irf_sigma"]
+    assert sigma.min() >= 0.3 - 1e-6 and sigma.max() <= 3.0 + 1e-5 and sigma.max() > 2.5
+    assert np.mean(sigma == np.float32(0.4)) == pytest.approx(0.25, abs=0.03)  # the paper's pulse
+    assert 0.1 < np.mean(sigma > 1.5) < 0.2  # the long tail
+    for name, prob in (("dark", 0.5), ("hot_fraction", 0.3), ("dead_fraction", 0.3),
+                       ("no_return_fraction", 0.5)):
+        assert np.mean(p[name] > 0) == pytest.approx(prob, abs=0.03), name
+    assert p["hot_fraction"].max() <= 0.01 and p["dead_fraction"].max() <= 0.01
+    drawn = p["no_return_fraction"][p["no_return_fraction"] > 0]
+    assert drawn.min() >= 0.05 and drawn.max() <= 0.6
+
+
+def test_default_source_traces():
+    cfg = dataclasses.replace(TrainConfig(), batch_size=2, patch=(16, 32))
+    make_batch = regime_batches(2, cfg, sensor=SENSOR)
+    windows, gt = jax.eval_shape(make_batch, jax.random.key(0))
+    assert windows.shape == (2, 5, 16, 32) and gt.shape == (2, 64, 128)
+    assert "PhotonRegime" in make_batch.description and make_batch.regime == PhotonRegime().to_dict()
+    clips, gt = jax.eval_shape(regime_clips(9, cfg, sensor=SENSOR), jax.random.key(0))
+    assert clips.shape == (2, 9, 16, 32) and gt.shape == (2, 9, 64, 128)
+
+
+@pytest.mark.slow
+def test_low_photons_and_no_return_regions():
+    """One compiled batch at the low end (0.5 signal photons per pixel at SNR 20, no dark counts: most histograms
+    are empty)
+    with no-return regions on 30 % of every clip: the ground truth is 1.0 there, the windows mostly no return;
+    the same key gives the same batch."""
+    regime = dataclasses.replace(PhotonRegime(), signal_range=(0.5, 0.5), snr_range=(20.0, 20.0),
+                                 no_return_prob=1.0, no_return_fraction=(0.3, 0.3), motion="drawn", dark_prob=0.0,
+                                 hot_prob=0.0)
+    cfg = dataclasses.replace(TrainConfig(), batch_size=2, patch=None)
+    make_batch = jax.jit(regime_batches(0, cfg, regime, sensor=SENSOR))
+    windows, gt = (np.asarray(a) for a in make_batch(jax.random.key(3)))
+    assert windows.shape == (2, 1, 32, 64) and gt.shape == (2, 128, 256)
+    assert np.all((windows >= 0) & (windows <= 1)) and np.all((gt >= 0) & (gt <= 1))
+    assert np.all((gt == 1.0).mean(axis=(1, 2)) >= 0.3 - 1e-3)
+    assert (windows == 1.0).mean() > 0.5
+    again, _ = make_batch(jax.random.key(3))
+    np.testing.assert_array_equal(again, windows)
+    other, _ = make_batch(jax.random.key(4))
+    assert not np.array_equal(np.asarray(other), windows)
