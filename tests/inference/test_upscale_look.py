@@ -14,6 +14,8 @@ from jaxsr.config import SensorConfig
 from jaxsr.sensor.forward import pixel_rays
 
 SENSOR = SensorConfig()
+# reading a video back starts ffmpeg (fork + exec at once) in a process where JAX runs threads
+pytestmark = pytest.mark.filterwarnings("ignore:os.fork:RuntimeWarning")
 T = 3
 
 

@@ -9,6 +9,9 @@ import pytest
 from jaxsr import io
 from jaxsr.io.video import DepthVideoWriter
 
+# reading a video back starts ffmpeg (fork + exec at once) in a process where JAX runs threads
+pytestmark = pytest.mark.filterwarnings("ignore:os.fork:RuntimeWarning")
+
 
 def frames(t=5, start=0.0):
     """(lr (t, 8, 16), sr (t, 32, 64), gt) in metres from `start`, with no-return pixels."""

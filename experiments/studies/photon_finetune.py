@@ -1,0 +1,79 @@
+"""Fine-tune a bundled depth-only model on the wide photon regime (`jaxsr.config.PhotonRegime`), resumably.
+
+    python experiments/studies/photon_finetune.py --tr 0                 # train (or resume) runs/photons/tr0
+    python experiments/studies/photon_finetune.py --tr 0 --keep          # its best weights into photon_weights/
+
+The first step of the photons work: the same network and input as the paper's (centre-of-mass depth only),
+started from the bundled weights (`init`), trained on clips whose every sensor parameter is drawn from the wide
+regime: 0.5-1000 signal photons per LR pixel, SNR 0.05-20, pulse widths 0.3-3 bins, dark counts, hot and dead
+pixels, no-return regions with ground truth 1.0 (`jaxsr.training.regime_batches`). Validation draws from the
+same regime with fixed keys (model selection on the regime the model is for; the paper's fixed sequences at 14
+photons measure the cost there separately). Every run resumes where it stopped (a session's end, a kill):
+`--checkpoint-minutes` of training are lost at most. `--keep` copies the run's best weights (float16, with the
+training card, which records the regime) to experiments/photon_weights/tr<N>.npz.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+
+import jaxsr
+from jaxsr.config import PRESETS, PhotonRegime
+from jaxsr.training import regime_batches
+
+KEPT = Path(__file__).resolve().parents[1] / "photon_weights"
+
+
+def train_config(epochs: int, steps_per_epoch: int, lr: float, seed: int):
+    """The bundle preset's crops and batch, with this run's length and a fine-tuning rate (cut 10x half way)."""
+    base = PRESETS["bundle"]
+    return dataclasses.replace(base, examples_per_epoch=steps_per_epoch * base.batch_size, epochs=epochs,
+                               lr=lr, decay_epochs=max(1, epochs // 2), patience=max(3, epochs // 4), seed=seed)
+
+
+def regime_validation(tr: int, train_cfg, regime: PhotonRegime, *, batches: int, sensor) -> dict:
+    """`batches` batches of the regime's data drawn with fixed keys (independent of the training keys), as
+    `jaxsr.training.evaluate` reads them: windows, gt, and the centre frames for the bicubic reference."""
+    make_batch = jax.jit(regime_batches(tr, train_cfg, regime, sensor=sensor))
+    drawn = [make_batch(jax.random.fold_in(jax.random.key(2**31 - 1), i)) for i in range(batches)]
+    windows = jnp.concatenate([w for w, _ in drawn])
+    gt = jnp.concatenate([g for _, g in drawn])
+    return {"windows": windows, "gt": gt, "lr": windows[:, tr], "names": [f"regime draws x{windows.shape[0]}"]}
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--tr", type=int, default=0, help="the bundled model to start from (tr0 .. tr4)")
+    parser.add_argument("--out", default=None, help="run folder (default runs/photons/tr<N>)")
+    parser.add_argument("--epochs", type=int, default=40)
+    parser.add_argument("--steps-per-epoch", type=int, default=256)
+    parser.add_argument("--lr", type=float, default=1e-4, help="Adam's rate (a fine-tune: 10x below the paper's)")
+    parser.add_argument("--val-batches", type=int, default=16, help="batches of 4 regime draws to validate on")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--checkpoint-minutes", type=float, default=5.0)
+    parser.add_argument("--keep", action="store_true", help="copy the run's best weights to experiments/photon_weights")
+    args = parser.parse_args(argv)
+    out = Path(args.out or f"runs/photons/tr{args.tr}")
+    if args.keep:
+        model = jaxsr.load_model(out / "best.npz")
+        card = jaxsr.read_metadata(out / "best.npz")["card"]
+        KEPT.mkdir(exist_ok=True)
+        path = jaxsr.save_model(KEPT / f"tr{args.tr}.npz", model, card=card, storage_dtype="float16")
+        print(f"kept {path} ({card['steps']} steps, validation PSNR {card['validation']['psnr']:.2f} dB)")
+        return
+    sensor, regime = jaxsr.SensorConfig(), PhotonRegime()
+    train_cfg = train_config(args.epochs, args.steps_per_epoch, args.lr, args.seed)
+    validation = regime_validation(args.tr, train_cfg, regime, batches=args.val_batches, sensor=sensor)
+    jaxsr.fit(jaxsr.ModelConfig(tr=args.tr), train_cfg, out=out, make_batch=regime_batches(
+        args.tr, train_cfg, regime, sensor=sensor), validation=validation, sensor=sensor, resume=True,
+        init=f"tr{args.tr}", checkpoint_every_s=60 * args.checkpoint_minutes,
+        card_extra={"regime": regime.to_dict(), "trained_with": "experiments/studies/photon_finetune.py"})
+
+
+if __name__ == "__main__":
+    main()
