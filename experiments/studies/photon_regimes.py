@@ -1,0 +1,413 @@
+"""Benchmark across photon regimes (the photons issue, items 3 and 5): PSNR and SSIM of bicubic, the TV
+reconstruction, TR0, TR4 and any extra models at 1, 3, 14, 100 and 1000 signal photons per LR pixel and frame SNR
+0.1, 1.3 and 5 on the three test scenes, the goals checked, and how models treat regions with no return.
+
+    python experiments/studies/photon_regimes.py --frames 4 --tv                 # a small run (4 min on 2 cores)
+    python experiments/studies/photon_regimes.py --frames 32 --tv --tv-frames 4  # the full benchmark (~20 min)
+    python experiments/studies/photon_regimes.py --model TR0-photons=experiments/photon_weights/tr0.npz
+
+Data: the test scenes (jaxsr.eval.scoring.TEST_SCENES), `--frames` frames per scene spread over each 500-frame
+sequence (`scored_frames`, as experiments/sweep_tr.py scores). Each regime calibrates the laser and ambient over the
+whole sequence (`jaxsr.sensor.calibrate`, as `simulate_histograms` does) and draws photons only for the frames the
+models read (the scored frames and their temporal windows), so a regime costs a fraction of a full simulation.
+Besides the grid, the paper's regime: 14 photons, each scene at its own SNR (1.3, 1.3, 3); a model's PSNR there is
+compared with the bundled TR4's ("today"). Every method of a regime sees the same noise, so differences are paired:
+intervals are 95 % block-bootstrap intervals over frames (`frame_interval`: `jaxsr.paired_interval` with blocks
+as long as `jaxsr.eval.scoring.interval`'s in sequence frames, so frames spread far apart are resampled one by one).
+TV (`--tv`, slow: seconds per frame on a CPU) runs on `--tv-frames` of the scored frames per scene and is compared
+on those only.
+
+No return (item 3): the test depth with `no_return_regions` (a `NO_RETURN_FRACTION` share of the HR pixels, sky
+weight `NO_RETURN_SKY`, one mask per scene) at 3 photons and above, SNR 1.3. A pixel with no return (ground truth
+1.0) counts as output as depth where the normalised output is below `NO_RETURN_AT` (0.99); a true return
+(ground truth below 1) counts as dropped where the output is at or above it.
+
+Writes experiments/results/photon_regimes.md (or --out) and a .json of the raw numbers beside it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import json
+import time
+from pathlib import Path
+from types import SimpleNamespace
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import jaxsr
+from jaxsr.config import DEFAULT_MEAN_SIGNAL, SensorConfig
+from jaxsr.eval.scoring import (
+    BLOCK,
+    SCENE_LABELS,
+    SEQUENCE_FRAMES,
+    TEST_SCENES,
+    Clip,
+    format_interval,
+    frame_scores,
+    scored_frames,
+    scored_output,
+)
+from jaxsr.eval.reports import header, markdown_table, write_atomic
+from jaxsr.sensor import calibrate, calibrated_rates, centre_of_mass, no_return_regions, normalise_depth, sample_poisson
+
+PHOTONS = (1.0, 3.0, 14.0, 100.0, 1000.0)
+SNRS = (0.1, 1.3, 5.0)
+PAPER = "own"  # the SNR label of the paper's regime: each scene at its own SNR
+NO_RETURN_AT = 0.99  # normalised output at or above it reads as "no return"
+NO_RETURN_FRACTION = 0.3
+NO_RETURN_SKY = 0.5
+NO_RETURN_SNR = 1.3
+NO_RETURN_MIN_PHOTONS = 3.0
+TV_TR = 1  # the TV baseline's temporal radius (its default)
+# The issue's goals (item 5 for PSNR, item 3 for no return)
+GOAL_LOW = 6.0  # dB over bicubic, mean over 1-3 photons
+GOAL_100 = 3.0  # dB over bicubic at 100 photons
+GOAL_TODAY = -0.3  # dB against the bundled TR4 at the paper's regime
+GOAL_AS_DEPTH = 5.0  # % of no-return pixels output as depth, at most
+GOAL_DROPPED = 2.0  # % of true returns dropped, at most
+
+
+@functools.partial(jax.jit, static_argnames=("sensor",))
+def _calibration(depth, intensity, snr, mean_signal, sensor):
+    return calibrate(depth, intensity, sensor, snr=snr, mean_signal=mean_signal)
+
+
+@functools.partial(jax.jit, static_argnames=("sensor",))
+def _draw(key, depth, intensity, alpha, beta, sensor):
+    counts = sample_poisson(key, calibrated_rates(depth, intensity, alpha, beta, sensor), method="fast")
+    return centre_of_mass(counts, sensor), normalise_depth(depth, sensor)
+
+
+def needed_frames(scored, total: int, radius: int) -> np.ndarray:
+    """The frames the methods read: each scored frame's window of +- radius, clipped to the sequence, sorted."""
+    scored = np.asarray(scored)
+    return np.unique(np.clip(scored[:, None] + np.arange(-radius, radius + 1), 0, total - 1))
+
+
+def regime_clips(seqs: dict, photons: float, snr, *, scored, radius: int, key, sensor=SensorConfig()) -> dict:
+    """The sequences at one regime: {name: Clip} of the frames the methods need (`needed_frames`), with `scored`
+    as positions in them. snr None: each sequence's own. The laser and ambient are calibrated over the whole
+    sequence, as `simulate_histograms` would, and photons are drawn only for those frames."""
+    clips = {}
+    for i, (name, seq) in enumerate(seqs.items()):
+        s = float(seq.snr if snr is None else snr)
+        alpha, beta = _calibration(jnp.asarray(seq.depth), jnp.asarray(seq.intensity), jnp.float32(s),
+                                   jnp.float32(photons), sensor)
+        keep = needed_frames(scored, len(seq.depth), radius)
+        lr, gt = _draw(jax.random.fold_in(key, i), jnp.asarray(seq.depth[keep]), jnp.asarray(seq.intensity[keep]),
+                       alpha, beta, sensor)
+        counts = np.zeros((len(keep), 0), np.float32)  # not kept: the methods read the centre of mass
+        clips[name] = Clip(name, np.asarray(lr), counts, np.asarray(gt), float(seq.fps), s,
+                           np.asarray(seq.intensity[keep], np.float32), np.searchsorted(keep, scored))
+    return clips
+
+
+def with_no_return(seqs: dict, *, seed: int = 0, fraction=NO_RETURN_FRACTION, sky=NO_RETURN_SKY) -> dict:
+    """The sequences with regions of no return (`no_return_regions`, one mask per sequence, all frames)."""
+    out = {}
+    for i, (name, seq) in enumerate(seqs.items()):
+        depth = no_return_regions(jax.random.key(10_000 + 100 * seed + i), jnp.asarray(seq.depth),
+                                  fraction=fraction, sky=sky)
+        out[name] = SimpleNamespace(**{**vars_of(seq), "depth": np.asarray(depth)})
+    return out
+
+
+def vars_of(seq) -> dict:
+    """A sequence record's fields (a TestSequence or a SimpleNamespace)."""
+    return seq._asdict() if hasattr(seq, "_asdict") else dict(vars(seq))
+
+
+def no_return_rates(sr, gt, threshold: float = NO_RETURN_AT) -> tuple[float, float]:
+    """(% of no-return pixels (gt >= 1) output as depth (sr < threshold), % of true returns (gt < 1) dropped
+    (sr >= threshold or NaN)); NaN where there is no pixel of the kind."""
+    sr, gt = np.asarray(sr), np.asarray(gt)
+    as_depth = sr < threshold  # NaN compares False: no return
+    sky = gt >= 1.0
+    as_depth_pct = 100.0 * as_depth[sky].mean() if sky.any() else float("nan")
+    dropped_pct = 100.0 * (~as_depth[~sky]).mean() if (~sky).any() else float("nan")
+    return float(as_depth_pct), float(dropped_pct)
+
+
+def bicubic_output(clip: Clip, scale: int) -> tuple[np.ndarray, np.ndarray]:
+    return np.asarray(jaxsr.bicubic(clip.lr[clip.scored], scale=scale)), clip.gt[clip.scored]
+
+
+def tv_output(clip: Clip, frames, scale: int) -> tuple[np.ndarray, np.ndarray]:
+    """TV on the clip's frames at positions `frames` (each solved with its own window of 2 TV_TR + 1 frames)."""
+    out = []
+    for t in frames:
+        window = clip.lr[np.clip(t + np.arange(-TV_TR, TV_TR + 1), 0, len(clip.lr) - 1)]
+        out.append(np.asarray(jaxsr.tv_super_resolve(window, scale=scale, tr=TV_TR))[TV_TR])
+    return np.stack(out), clip.gt[frames]
+
+
+def method_scores(outputs) -> dict:
+    """{"psnr": (scenes, T), "ssim": (scenes, T)} per-frame scores of [(sr, gt) per scene]."""
+    scores = [frame_scores(sr, gt) for sr, gt in outputs]
+    return {"psnr": np.stack([p for p, _ in scores]), "ssim": np.stack([s for _, s in scores])}
+
+
+def regime_label(photons, snr) -> str:
+    return f"{photons:g} photons, SNR {PAPER if snr is None else f'{snr:g}'}"
+
+
+def frame_interval(a, b, spacing: float, seed: int = 0):
+    """Mean difference a - b of per-frame scores ((T,) or (rows, T)) of frames `spacing` apart in their
+    sequence, with its 95 % block-bootstrap interval (`jaxsr.paired_interval`): blocks span about
+    `jaxsr.eval.scoring.BLOCK` frames of the sequence, as `interval` resamples consecutive frames, so frames
+    spread far apart are resampled one by one."""
+    block = int(np.clip(round(BLOCK / max(spacing, 1.0)), 1, np.shape(a)[-1]))
+    return jaxsr.paired_interval(jax.random.key(seed), a, b, block=block)
+
+
+def evaluate(models: dict, seqs: dict, *, frames: int, photons=PHOTONS, snrs=SNRS, tv_frames: int = 0,
+             seed: int = 0, sensor=SensorConfig(), paper: bool = True, no_return: bool = True, log=print) -> dict:
+    """Score bicubic, TV (tv_frames > 0) and `models` ({label: Model}) on `seqs` ({name: sequence record with
+    depth, intensity, fps, snr}) at every (photons, snr) regime, plus the paper's (14 photons, own SNR), and the
+    no-return measure. Returns the raw results: {"regimes": [{"photons", "snr", "scores": {method: {"psnr",
+    "ssim"}: (scenes, T)}, "tv_frames": positions in the scored frames}], "no_return": [...]} (NumPy arrays)."""
+    total = len(next(iter(seqs.values())).depth)
+    scored = scored_frames(frames, total)
+    # TV's frames: tv_frames of the scored ones, spread over them (positions in `scored`)
+    tv_idx = scored_frames(tv_frames, len(scored)) if tv_frames else np.zeros(0, int)
+    sequence_form = any(m.architecture.sequence_form(m.config) for m in models.values())
+    radius = total if sequence_form else max([TV_TR if tv_frames else 0] + [m.config.tr for m in models.values()])
+    grid = [(float(p), float(s)) for p in photons for s in snrs]
+    if paper:
+        grid.append((DEFAULT_MEAN_SIGNAL, None))
+    results = {"scored": scored, "tv_idx": tv_idx, "spacing": total / len(scored),
+               "tv_spacing": total / max(len(tv_idx), 1), "regimes": [], "no_return": [], "scenes": list(seqs),
+               "methods": ["bicubic"] + (["TV"] if tv_frames else []) + list(models)}
+    for k, (p, s) in enumerate(grid):
+        started = time.time()
+        key = jax.random.fold_in(jax.random.key(seed), k)
+        clips = regime_clips(seqs, p, s, scored=scored, radius=radius, key=key, sensor=sensor)
+        scores = {"bicubic": method_scores([bicubic_output(c, sensor.scale) for c in clips.values()])}
+        if tv_frames:
+            scores["TV"] = method_scores([tv_output(c, c.scored[tv_idx], sensor.scale) for c in clips.values()])
+        for label, model in models.items():
+            scores[label] = method_scores([scored_output(model, c) for c in clips.values()])
+        results["regimes"].append({"photons": p, "snr": s, "scores": scores})
+        log(f"{regime_label(p, s)}: " + ", ".join(f"{m} {v['psnr'].mean():.2f} dB" for m, v in scores.items())
+            + f" ({time.time() - started:.0f} s)")
+    if no_return:
+        dark = with_no_return(seqs, seed=seed)
+        for k, p in enumerate(q for q in photons if q >= NO_RETURN_MIN_PHOTONS):
+            key = jax.random.fold_in(jax.random.key(seed + 1), k)
+            clips = regime_clips(dark, float(p), NO_RETURN_SNR, scored=scored, radius=radius, key=key, sensor=sensor)
+            outputs = {"bicubic": [bicubic_output(c, sensor.scale) for c in clips.values()]}
+            for label, model in models.items():
+                outputs[label] = [scored_output(model, c) for c in clips.values()]
+            rates = {m: no_return_rates(np.concatenate([sr.ravel() for sr, _ in o]),
+                                        np.concatenate([gt.ravel() for _, gt in o])) for m, o in outputs.items()}
+            results["no_return"].append({"photons": float(p), "snr": NO_RETURN_SNR, "rates": rates})
+            log(f"no return, {p:g} photons: " + ", ".join(f"{m} {a:.1f} % as depth, {d:.1f} % dropped"
+                                                          for m, (a, d) in rates.items()))
+    return results
+
+
+# ---------------------------------------------------------------------------------------------------- the report
+
+def _grid(results):
+    """The regimes of the grid (not the paper's)."""
+    return [r for r in results["regimes"] if r["snr"] is not None]
+
+
+def _paper(results):
+    return next((r for r in results["regimes"] if r["snr"] is None), None)
+
+
+def _stacked(regimes, method, cols=None):
+    """Per-frame PSNR of `method` over several regimes, as (regimes * scenes, T) rows (their mean: the mean of
+    the regimes' scene means)."""
+    rows = [r["scores"][method]["psnr"] for r in regimes]
+    return np.concatenate([x if cols is None else x[:, cols] for x in rows])
+
+
+def _goal(value, target, *, at_least=True, iv=None, fmt="{:+.2f}", unit=" dB"):
+    """A goal's cell: value (its interval), and whether it is met (by the mean)."""
+    if value is None:
+        return {"value": None, "met": None, "cell": "not measured"}
+    met = value >= target if at_least else value <= target
+    text = format_interval(iv) if iv is not None else fmt.format(value)
+    return {"value": float(value), "met": bool(met), "cell": f"{text}{unit} {'yes' if met else 'NO'}",
+            **({} if iv is None else {"low": float(iv.low), "high": float(iv.high)})}
+
+
+def goals(results, *, today: str = "TR4") -> dict:
+    """Each network model's goals: {model: {goal: {"value", "met", "cell", ...}}}."""
+    grid, paper = _grid(results), _paper(results)
+    low = [r for r in grid if r["photons"] in (1.0, 3.0)]
+    at100 = [r for r in grid if r["photons"] == 100.0]
+    nets = [m for m in results["methods"] if m not in ("bicubic", "TV")]
+    tv = "TV" in results["methods"]
+    sp, tv_sp = results["spacing"], results["tv_spacing"]
+    out = {}
+    for m in nets:
+        g = {}
+        for name, regimes, target in (("low", low, GOAL_LOW), ("100", at100, GOAL_100)):
+            if regimes:
+                iv = frame_interval(_stacked(regimes, m), _stacked(regimes, "bicubic"), sp)
+                g[name] = _goal(float(iv.mean), target, iv=iv)
+            else:
+                g[name] = _goal(None, target)
+        if paper is not None and today in paper["scores"]:
+            iv = frame_interval(paper["scores"][m]["psnr"], paper["scores"][today]["psnr"], sp)
+            g["today"] = _goal(float(iv.mean), GOAL_TODAY, iv=iv)
+        else:
+            g["today"] = _goal(None, GOAL_TODAY)
+        if tv and grid:
+            cols = results["tv_idx"]
+            ivs = [(r, frame_interval(r["scores"][m]["psnr"][:, cols], r["scores"]["TV"]["psnr"], tv_sp))
+                   for r in grid]
+            worst, iv = min(ivs, key=lambda x: float(x[1].mean))
+            g["tv"] = _goal(float(iv.mean), 0.0, iv=iv)
+            g["tv"]["cell"] += f" (worst: {regime_label(worst['photons'], worst['snr'])})"
+            g["tv"]["met"] = bool(all(float(v.mean) > 0 for _, v in ivs))
+        else:
+            g["tv"] = _goal(None, 0.0)
+        nr = results["no_return"]
+        if nr:
+            as_depth = max(e["rates"][m][0] for e in nr)
+            dropped = max(e["rates"][m][1] for e in nr)
+            g["as_depth"] = _goal(as_depth, GOAL_AS_DEPTH, at_least=False, fmt="{:.2f}", unit=" %")
+            g["dropped"] = _goal(dropped, GOAL_DROPPED, at_least=False, fmt="{:.2f}", unit=" %")
+        else:
+            g["as_depth"] = _goal(None, GOAL_AS_DEPTH)
+            g["dropped"] = _goal(None, GOAL_DROPPED)
+        out[m] = g
+    return out
+
+
+GOAL_TEXT = {
+    "low": f"PSNR - bicubic, mean over 1 and 3 photons (every SNR) >= +{GOAL_LOW:g} dB",
+    "100": f"PSNR - bicubic at 100 photons (mean over SNRs) >= +{GOAL_100:g} dB",
+    "today": f"PSNR - bundled TR4 at the paper's regime (14 photons, own SNR) >= {GOAL_TODAY:g} dB",
+    "tv": "PSNR - TV > 0 in every regime of the grid (TV's frames; worst regime shown)",
+    "as_depth": f"no-return pixels output as depth <= {GOAL_AS_DEPTH:g} % (worst photon level >= 3, SNR 1.3)",
+    "dropped": f"true returns dropped <= {GOAL_DROPPED:g} % (worst photon level >= 3, SNR 1.3)",
+}
+
+
+def tables(results) -> str:
+    methods = results["methods"]
+    tv_note = " (TV: on its frames only)" if "TV" in methods else ""
+    text = []
+    for metric, fmt, title in (("psnr", "{:.2f}", "Mean PSNR (dB)"), ("ssim", "{:.3f}", "Mean SSIM")):
+        rows = [[f"{r['photons']:g}", PAPER if r["snr"] is None else f"{r['snr']:g}"]
+                + [fmt.format(r["scores"][m][metric].mean()) for m in methods] for r in results["regimes"]]
+        text.append(f"### {title}, 3 scenes{tv_note}\n\n" + markdown_table(["photons", "SNR", *methods], rows))
+    cols = results["tv_idx"]
+    rows = []
+    for r in results["regimes"]:
+        bic = r["scores"]["bicubic"]["psnr"]
+        cells = []
+        for m in methods[1:]:
+            a = r["scores"][m]["psnr"]
+            cells.append(format_interval(frame_interval(a, bic[:, cols], results["tv_spacing"]) if m == "TV"
+                                         else frame_interval(a, bic, results["spacing"])))
+        rows.append([f"{r['photons']:g}", PAPER if r["snr"] is None else f"{r['snr']:g}", *cells])
+    text.append("### PSNR - bicubic (dB, mean [95 % interval over frames, paired])" + tv_note + "\n\n"
+                + markdown_table(["photons", "SNR", *methods[1:]], rows))
+    g = goals(results)
+    if g:
+        nets = list(g)
+        rows = [[GOAL_TEXT[k], *(g[m][k]["cell"] for m in nets)] for k in GOAL_TEXT]
+        text.append("### Goals (met by the mean; intervals 95 %)\n\n" + markdown_table(["goal", *nets], rows))
+    if results["no_return"]:
+        nr_methods = list(results["no_return"][0]["rates"])
+        rows = [[f"{e['photons']:g}", f"{e['snr']:g}", *(f"{e['rates'][m][0]:.2f} / {e['rates'][m][1]:.2f}"
+                                                        for m in nr_methods)] for e in results["no_return"]]
+        text.append(f"### No return: % of no-return HR pixels output as depth / % of true returns dropped\n\n"
+                    f"Test depth with `no_return_regions` ({100 * NO_RETURN_FRACTION:g} % of the HR pixels, sky weight "
+                    f"{NO_RETURN_SKY:g}), output read as no return at normalised >= {NO_RETURN_AT:g}.\n\n"
+                    + markdown_table(["photons", "SNR", *nr_methods], rows))
+    return "\n".join(text)
+
+
+def raw(results, models_info) -> dict:
+    """The results as JSON-ready numbers (per-frame PSNR and SSIM (scenes, frames) per regime and method)."""
+    def scores(s):
+        return {m: {"psnr_mean": float(v["psnr"].mean()), "ssim_mean": float(v["ssim"].mean()),
+                    "psnr": np.round(v["psnr"], 4).tolist(), "ssim": np.round(v["ssim"], 5).tolist()}
+                for m, v in s.items()}
+    return {"scenes": results["scenes"], "scored_frames": np.asarray(results["scored"]).tolist(),
+            "tv_frames": np.asarray(results["scored"])[results["tv_idx"]].tolist(), "models": models_info,
+            "regimes": [{"photons": r["photons"], "snr": r["snr"] if r["snr"] is not None else PAPER,
+                         "scores": scores(r["scores"])} for r in results["regimes"]],
+            "no_return": [{"photons": e["photons"], "snr": e["snr"],
+                           "rates": {m: {"as_depth_pct": a, "dropped_pct": d} for m, (a, d) in e["rates"].items()}}
+                          for e in results["no_return"]],
+            "goals": {m: {k: {kk: vv for kk, vv in v.items() if kk != "cell"} for k, v in g.items()}
+                      for m, g in goals(results).items()},
+            "settings": {"no_return_at": NO_RETURN_AT, "no_return_fraction": NO_RETURN_FRACTION,
+                         "no_return_sky": NO_RETURN_SKY, "tv_tr": TV_TR}}
+
+
+def load_models(specs) -> tuple[dict, dict]:
+    """TR0 and TR4 bundled, and each NAME=PATH of --model that exists (a printed line for one that does not).
+    Returns ({label: Model}, {label: source})."""
+    models = {"TR0": jaxsr.load_model("tr0"), "TR4": jaxsr.load_model("tr4")}
+    info = {"TR0": "bundled tr0", "TR4": "bundled tr4"}
+    for spec in specs:
+        name, sep, path = spec.partition("=")
+        if not sep or not name or not path:
+            raise SystemExit(f"--model expects NAME=PATH, got {spec!r}")
+        if not Path(path).is_file():
+            print(f"skipping {name}: {path} does not exist")
+            info[name] = f"skipped: {path} absent"
+            continue
+        models[name] = jaxsr.load_model(path)
+        info[name] = path
+    return models, info
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=8,
+                        help=f"frames scored per test scene, spread over its {SEQUENCE_FRAMES} (default 8)")
+    parser.add_argument("--photons", type=float, nargs="+", default=list(PHOTONS),
+                        help="signal photons per LR pixel (default 1 3 14 100 1000)")
+    parser.add_argument("--snr", type=float, nargs="+", default=list(SNRS), help="frame SNRs (default 0.1 1.3 5)")
+    parser.add_argument("--tv", action="store_true", help="also the TV reconstruction (slow), on --tv-frames")
+    parser.add_argument("--tv-frames", type=int, default=2, help="frames per scene TV runs on (default 2)")
+    parser.add_argument("--model", action="append", default=[], metavar="NAME=PATH",
+                        help="an extra model file to score (skipped with a line when absent); repeatable")
+    parser.add_argument("--seed", type=int, default=0, help="noise seed")
+    parser.add_argument("--out", default="experiments/results/photon_regimes.md",
+                        help="the results file (a .json beside it)")
+    args = parser.parse_args(argv)
+    started = time.time()
+    models, info = load_models(args.model)
+    seqs = jaxsr.scenes.test_sequences(n_frames=SEQUENCE_FRAMES, names=TEST_SCENES)
+    results = evaluate(models, seqs, frames=args.frames, photons=args.photons, snrs=args.snr,
+                       tv_frames=args.tv_frames if args.tv else 0, seed=args.seed)
+    full = "python experiments/studies/photon_regimes.py --frames 32 --tv --tv-frames 4"
+    small = args.frames < 32 or not args.tv or args.photons != list(PHOTONS) or args.snr != list(SNRS)
+    scenes_text = ", ".join(SCENE_LABELS[n] for n in TEST_SCENES)
+    text = (header("Benchmark across photon regimes (photons issue, items 3 and 5)", started)
+            + (f"**A small run** ({args.frames} frames per scene{'' if args.tv else ', no TV'}): the differences "
+               f"carry wide intervals. The full benchmark: `{full}`.\n\n" if small else "")
+            + f"{scenes_text}: {args.frames} frames each, spread over the {SEQUENCE_FRAMES} "
+            f"(frames {', '.join(map(str, results['scored']))}); noise seed {args.seed}, the same noise for every "
+            f"method of a regime. Photons: mean signal photons per LR pixel with a return; SNR `{PAPER}`: the "
+            "paper's regime, each scene at its own SNR (1.3, 1.3, 3). "
+            + (f"TV (`tv_super_resolve`, tr {TV_TR}, its defaults) on {args.tv_frames} of them per scene (frames "
+               f"{', '.join(map(str, np.asarray(results['scored'])[results['tv_idx']]))}). " if args.tv else
+               "TV not run (`--tv`). ")
+            + "Models: " + "; ".join(f"{k}: {v}" for k, v in info.items()) + ". Outputs clipped to [0, 1] for "
+            "PSNR and SSIM (`jaxsr.eval.scoring.frame_scores`).\n\n"
+            + tables(results))
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_atomic(out, text)
+    write_atomic(out.with_suffix(".json"), json.dumps(raw(results, info), indent=1) + "\n")
+    print(f"wrote {out} and {out.with_suffix('.json')}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,95 @@
+"""experiments/studies/photon_regimes.py on a tiny configuration: a synthetic 12-frame sequence, one photon level
+and SNR, 2 frames, a small random network; the no-return measure on constructed outputs."""
+
+from types import SimpleNamespace
+
+import jax
+import numpy as np
+import pytest
+
+import photon_regimes  # experiments/studies (pytest's pythonpath)
+from jaxsr.config import ModelConfig, SensorConfig
+from jaxsr.nn import Model, init_model
+
+TINY = dict(base=8, growth=4, head=16, filter_hidden=16)
+
+
+def synthetic_sequence(frames=12, snr=1.3):
+    """A sloped floor with a box moving across it (radial metres), uniform reflectivity."""
+    h, w = SensorConfig().hr_shape
+    depth = np.broadcast_to(np.linspace(30.0, 5.0, h, dtype=np.float32)[:, None], (frames, h, w)).copy()
+    for t in range(frames):
+        depth[t, 40:80, 20 + 4 * t:60 + 4 * t] = 8.0
+    intensity = np.full_like(depth, 0.6)
+    return SimpleNamespace(name="synthetic", depth=depth, intensity=intensity, fps=30.0, snr=snr)
+
+
+@pytest.fixture(scope="module")
+def results():
+    cfg = ModelConfig(tr=1, **TINY)
+    tiny = Model(*init_model(jax.random.key(0), cfg), cfg)
+    # labelled TR4 so that the "today" goal (against the bundled TR4) has its reference
+    return photon_regimes.evaluate({"TR4": tiny}, {"synthetic": synthetic_sequence()}, frames=2, photons=[3.0],
+                                   snrs=[1.3], log=lambda _: None)
+
+
+def test_regimes_methods_and_finite_scores(results):
+    assert [(r["photons"], r["snr"]) for r in results["regimes"]] == [(3.0, 1.3), (14.0, None)]  # + the paper's
+    assert results["methods"] == ["bicubic", "TR4"]
+    for r in results["regimes"]:
+        for m in results["methods"]:
+            for metric in ("psnr", "ssim"):
+                scores = r["scores"][m][metric]
+                assert scores.shape == (1, 2) and np.all(np.isfinite(scores))
+    assert [e["photons"] for e in results["no_return"]] == [3.0]
+    rates = results["no_return"][0]["rates"]
+    assert set(rates) == {"bicubic", "TR4"}
+    assert all(0 <= v <= 100 for pair in rates.values() for v in pair)
+
+
+def test_tables_and_json(results):
+    text = photon_regimes.tables(results)
+    psnr_table = text.split("### Mean PSNR")[1].split("###")[0]
+    rows = [line for line in psnr_table.splitlines() if line.startswith("| ") and "photons" not in line]
+    assert [row.split("|")[1:3] for row in rows] == [[" 3 ", " 1.3 "], [" 14 ", " own "]]
+    assert "| 3 | 1.3 |" in text.split("### No return")[1]
+    assert "nan" not in text.lower()
+    goals = photon_regimes.goals(results)["TR4"]
+    assert goals["today"]["value"] == pytest.approx(0.0)  # TR4 against itself
+    assert goals["100"]["met"] is None and goals["tv"]["met"] is None  # not in this grid
+    assert goals["low"]["value"] is not None and goals["as_depth"]["value"] is not None
+    raw = photon_regimes.raw(results, {"TR4": "random tiny"})
+    assert raw["regimes"][1]["snr"] == "own" and len(raw["regimes"][0]["scores"]["TR4"]["psnr"][0]) == 2
+    import json
+    json.dumps(raw, allow_nan=False)
+
+
+def test_no_return_measure_on_constructed_outputs():
+    gt = np.array([[1.0, 1.0, 0.5, 0.2], [1.0, 0.9, 0.3, 0.995]])  # 3 without a return, 5 returns
+    # everything read as no return: every return dropped, no no-return pixel output as depth
+    assert photon_regimes.no_return_rates(np.ones_like(gt), gt) == (0.0, 100.0)
+    # everything a near return: every no-return pixel output as depth, none dropped
+    assert photon_regimes.no_return_rates(np.full_like(gt, 0.1), gt) == (100.0, 0.0)
+    # one no-return pixel as depth (1 of 3), one return dropped (NaN, 1 of 5)
+    sr = np.array([[0.5, 1.2, 0.5, np.nan], [1.0, 0.9, 0.3, 0.5]])
+    as_depth, dropped = photon_regimes.no_return_rates(sr, gt)
+    assert as_depth == pytest.approx(100 / 3) and dropped == pytest.approx(20.0)
+
+
+def test_no_return_regions_reach_the_ground_truth():
+    seq = synthetic_sequence(frames=2)
+    dark = photon_regimes.with_no_return({"s": seq})["s"]
+    sky = ~np.isfinite(dark.depth)
+    assert np.all(sky[0] == sky[1])  # one mask for the whole sequence
+    assert sky[0].mean() == pytest.approx(photon_regimes.NO_RETURN_FRACTION, abs=0.01)
+    clips = photon_regimes.regime_clips({"s": dark}, 100.0, 1.3, scored=np.array([1]), radius=1,
+                                        key=jax.random.key(0))
+    assert np.array_equal(clips["s"].gt[0] >= 1.0, sky[0])
+
+
+def test_frames_far_apart_are_resampled_one_by_one():
+    a, b = np.array([[1.0, 3.0, 2.0, 6.0]]), np.zeros((1, 4))
+    iv = photon_regimes.frame_interval(a, b, spacing=125.0)  # 4 frames spread over 500: blocks of 1
+    assert float(iv.mean) == pytest.approx(3.0) and float(iv.low) < 3.0 < float(iv.high)
+    near = photon_regimes.frame_interval(a, b, spacing=1.0)  # consecutive frames: one block of all 4
+    assert float(near.low) == pytest.approx(3.0) == pytest.approx(float(near.high))
