@@ -160,6 +160,11 @@ jax.tree_util.register_dataclass(DepthScale, data_fields=["offset", "span"], met
 TEMPORAL_FORMS = ("window", "sequence")
 
 
+# Bounds of `ModelConfig` far beyond the paper's network (TR 0-4, x4 or x8, widths up to 512), so that no
+# config (one read from a checkpoint above all) builds an absurd network: 3 + tr blocks of up to `width` channels.
+MODEL_LIMITS = {"tr": 64, "scale": 16, "filter_size": 15, "same_blocks": 16, "width": 4096}
+
+
 @dataclasses.dataclass(frozen=True)
 class ModelConfig:
     """The 3+TR-block dynamic-upsampling-filter network (docs/network.md). All fields are static.
@@ -192,12 +197,22 @@ class ModelConfig:
     temporal: str = "window"
 
     def __post_init__(self):
-        if self.tr < 0:
-            raise ValueError(f"ModelConfig: tr must be >= 0, got {self.tr}")
-        if self.scale < 1:
-            raise ValueError(f"ModelConfig: scale must be >= 1, got {self.scale}")
-        if self.filter_size < 1 or self.filter_size % 2 == 0:
-            raise ValueError(f"ModelConfig: filter_size must be odd and >= 1, got {self.filter_size}")
+        # upper limits too: a config read from a file builds its templates block by block, and a tr of 10^5
+        # (a damaged or hostile checkpoint) would take minutes and gigabytes before any shape is checked
+        if not 0 <= self.tr <= MODEL_LIMITS["tr"]:
+            raise ValueError(f"ModelConfig: tr must be 0..{MODEL_LIMITS['tr']}, got {self.tr}")
+        if not 1 <= self.scale <= MODEL_LIMITS["scale"]:
+            raise ValueError(f"ModelConfig: scale must be 1..{MODEL_LIMITS['scale']}, got {self.scale}")
+        if not (1 <= self.filter_size <= MODEL_LIMITS["filter_size"] and self.filter_size % 2 == 1):
+            raise ValueError(f"ModelConfig: filter_size must be odd and 1..{MODEL_LIMITS['filter_size']}, got "
+                             f"{self.filter_size}")
+        if not 0 <= self.same_blocks <= MODEL_LIMITS["same_blocks"]:
+            raise ValueError(f"ModelConfig: same_blocks must be 0..{MODEL_LIMITS['same_blocks']}, got "
+                             f"{self.same_blocks}")
+        for name in ("base", "growth", "head", "filter_hidden"):
+            if not 1 <= getattr(self, name) <= MODEL_LIMITS["width"]:
+                raise ValueError(f"ModelConfig: {name} must be 1..{MODEL_LIMITS['width']} channels, got "
+                                 f"{getattr(self, name)}")
         if self.filter_padding not in ("edge", "zero"):
             raise ValueError(f"ModelConfig: filter_padding must be 'edge' or 'zero', got {self.filter_padding!r}")
         if self.temporal not in TEMPORAL_FORMS:

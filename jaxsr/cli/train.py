@@ -4,6 +4,8 @@ OUT/last.npz; a folder that already holds a run is refused unless --resume (cont
 
 from __future__ import annotations
 
+import sys
+import warnings
 from pathlib import Path
 
 from ..config import PRESETS, TEMPORAL_FORMS
@@ -49,10 +51,12 @@ def add_parser(subparsers):
 
 def run(args) -> int:
     """Train as the arguments say; prints the best epoch. Configs and data are built (and checked) before any work."""
-    _, history = train(args.out, arch=args.arch, tr=args.tr, scale=args.scale, temporal=args.temporal,
-                       preset=args.preset, seed=args.seed, epochs=args.epochs, clip_frames=args.clip_frames,
-                       data=args.data, init=args.init, resume=args.resume, overwrite=args.force,
-                       checkpoint_minutes=args.checkpoint_minutes, progress=not args.no_progress)
+    with warnings.catch_warnings():  # each warning one line on stderr (e.g. a resumed run with nothing to train)
+        warnings.showwarning = lambda message, *_, **__: print(f"jaxsr train: warning: {message}", file=sys.stderr)
+        _, history = train(args.out, arch=args.arch, tr=args.tr, scale=args.scale, temporal=args.temporal,
+                           preset=args.preset, seed=args.seed, epochs=args.epochs, clip_frames=args.clip_frames,
+                           data=args.data, init=args.init, resume=args.resume, overwrite=args.force,
+                           checkpoint_minutes=args.checkpoint_minutes, progress=not args.no_progress)
     best = min(history, key=lambda r: r["val_loss"]) if history else None
     if best:
         print(f"best epoch {best['epoch']}: val loss {best['val_loss']:.3e}, val PSNR {best['val_psnr']:.2f} dB "

@@ -22,7 +22,8 @@ from ..nn.duf import DUF, apply_model, apply_model_sequence
 from ..nn.model import Model
 from ..sensor.peaks import centre_of_mass
 from ..sensor.poisson import PATHWISE_ESTIMATORS
-from ..sensor.forward import check_photon_args, expected_histograms, normalise_depth, simulate_histograms
+from ..sensor.forward import (_levels_valid, check_photon_args, expected_histograms, normalise_depth,
+                              simulate_histograms)
 from ..temporal import windows
 
 METRICS = ("psnr", "huber")
@@ -54,9 +55,10 @@ def _pipeline(key, depth, intensity, sensor, model, snr, mean_signal, window, hu
                    window=window)
     hr = _network(model, lr, conv3d_impl)
     gt = normalise_depth(depth, sensor)
-    if metric == "psnr":
-        return jnp.mean(psnr(hr, gt))
-    return huber_loss(hr, gt, delta=huber_delta)
+    score = jnp.mean(psnr(hr, gt)) if metric == "psnr" else huber_loss(hr, gt, delta=huber_delta)
+    # Out-of-domain levels or sensor leaves (reachable only traced: under jit, or per element under vmap) give
+    # NaN histograms, which the centre of mass would turn into a plausible depth and score: NaN instead.
+    return jnp.where(_levels_valid(sensor, snr, mean_signal), score, jnp.nan)
 
 
 def pipeline_metric(
@@ -103,7 +105,9 @@ def pipeline_metric(
       huber_delta: the Huber loss's delta.
       conv3d_impl: how the network's convolutions run (`apply_model`).
     Returns:
-      A scalar: the mean over the T frames of the chosen metric.
+      A scalar: the mean over the T frames of the chosen metric; NaN where a value reached only under a trace
+      (jit, vmap) is out of its domain (snr <= 0, mean_signal < 0, a sensor leaf <= 0, NaN or inf); concrete
+      out-of-domain values raise ValueError.
     """
     depth, intensity = check_photon_args("pipeline_metric", depth, intensity, sensor, snr, mean_signal)
     if depth.ndim != 3:

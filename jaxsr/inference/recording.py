@@ -463,7 +463,7 @@ def write_upscaled(job: UpscaleJob, output, *, frame_format: str = "exr", batch_
                                scale=_scale(job.model))
                 finish()
         else:
-            with atomic_folder(out) as tmp:
+            with atomic_folder(out, overwrite=overwrite) as tmp:
                 for t, f in frames("m"):
                     write_depth(tmp / f"frame_{t:06d}.{frame_format}", f)
                 finish()

@@ -251,7 +251,8 @@ def load_model(path, *, temporal: str | None = None) -> Model:
 
     `path` is a file, a file without its `.npz`, or the name of bundled weights ("tr4", "histnet"). Every
     array is checked against the shapes the architecture's init gives for the stored config; raises `ValueError`
-    for a truncated file, a missing or unexpected key, a wrong shape or dtype, or an unsupported format version.
+    for a truncated file, a missing or unexpected key, a wrong shape or dtype, a non-finite value (NaN weights
+    give NaN outputs), a config beyond `jaxsr.config`'s limits, or an unsupported format version.
     Returns the `Model` (params and state float32 in memory, config from the file). temporal (DUF models): None
     (the form the file records; "window" for files older than the field), or "window" / "sequence" to run the
     same weights in that form (both forms have the same parameters; e.g. `load_model("tr4", temporal="sequence")`).
@@ -270,6 +271,11 @@ def load_model(path, *, temporal: str | None = None) -> Model:
     params_t, state_t = model_template(cfg)
     template = {"params": params_t} if meta["kind"] == "baseline" else {"params": params_t, "state": state_t}
     tree, _ = load_tree(path, template, strict=meta["kind"] in ("model", "baseline"))
+    bad = [k for k, v in flatten_tree(tree).items() if not np.isfinite(v).all()]
+    if bad:  # such weights turn every output into NaN
+        raise ValueError(f"checkpoint {str(path)!r}: array {bad[0]!r} holds non-finite values (NaN or inf)"
+                         + (f", and {len(bad) - 1} more array(s)" if len(bad) > 1 else "")
+                         + ": weights of a run that diverged, or a damaged file")
     tree = jax.tree_util.tree_map(jax.numpy.asarray, tree)
     return Model(tree["params"], tree.get("state", {}), cfg)
 

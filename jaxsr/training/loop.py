@@ -16,6 +16,7 @@ import json
 import math
 import platform
 import time
+import warnings
 from pathlib import Path
 from typing import NamedTuple
 
@@ -28,7 +29,7 @@ from ..baselines.interpolation import bicubic
 from ..config import SensorConfig, TrainConfig
 from ..eval.metrics import psnr
 from ..io.checkpoint import config_from_dict, config_to_dict, load_tree, read_metadata, save_model, save_tree
-from ..io.files import write_text_atomic
+from ..io.files import folder_lock, write_text_atomic
 from ..nn.model import Model, architecture
 from .data import run_keys
 from .duf import data_mesh
@@ -342,11 +343,14 @@ def fit(
     GAN's discriminator, RNG key, step, epoch, best-so-far weights and early-stopping counters), all written every
     epoch; inside an epoch the same state goes to `resume.npz` every `checkpoint_every_s` seconds of training
     (None: never), so that a killed run loses at most that much (removed at the epoch's end). `resume=True`
-    continues from the later of the two (a folder with neither starts afresh) and gives the same result as an
-    uninterrupted run (bit-identical on the same machine); it is refused if any setting but `epochs` differs. A
-    folder that already holds a run (any of `RUN_FILES`) is refused (FileExistsError) unless `resume` or
-    `overwrite` (start a new run in its place: the old run's files are removed when the new one first saves its
-    state) is given.
+    continues from the later of the two (a folder with no run files starts afresh; one holding run files but
+    neither, e.g. best.npz and metrics.jsonl alone, is refused: FileExistsError) and gives the same result as an
+    uninterrupted run (bit-identical on the same machine); it is refused if any setting but `epochs` differs, and
+    warns (nothing to train) when the run already has `epochs` epochs or stopped early. A folder that already
+    holds a run (any of `RUN_FILES`) is refused (FileExistsError) unless `resume` or `overwrite` (start a new run
+    in its place: the old run's files are removed when the new one first saves its state) is given. The run
+    holds a lock on `out` (`out/.lock`, removed at the end): a second `fit` on the same folder meanwhile fails at
+    once (FileExistsError).
     make_batch: the data source (default: the recipe's, rendered scenes in the network's input form);
     validation: a dict as the recipe's validation set gives (default: built from `jaxsr.scenes.test_sequences`).
     mesh: "auto" (all devices when there are more than one), None (no sharding) or a `Mesh` with a "data" axis
@@ -365,15 +369,45 @@ def fit(
     if not (isinstance(pretrain_epochs, int) and pretrain_epochs >= 0):
         raise ValueError(f"fit: pretrain_epochs must be an int >= 0, got {pretrain_epochs!r}")
     out = Path(out)
-    held = [name for name in RUN_FILES if (out / name).exists()]
     if resume and overwrite:
         raise ValueError("fit: resume and overwrite exclude each other (continue the run, or start over)")
+    if not (checkpoint_every_s is None or checkpoint_every_s >= 0):  # also refuses NaN
+        raise ValueError(f"fit: checkpoint_every_s={checkpoint_every_s!r}; expected seconds >= 0, or None")
+    if out.exists() and not out.is_dir():
+        raise FileExistsError(f"{out} is a file; fit's out is a folder")
+    out.mkdir(parents=True, exist_ok=True)
+    with folder_lock(out, what="training run"):  # a second run on this folder fails at once
+        return _fit_in(out, model_cfg, train_cfg, make_batch=make_batch, validation=validation, sensor=sensor,
+                       resume=resume, overwrite=overwrite, mesh=mesh, progress=progress, callback=callback,
+                       data_description=data_description, conv3d_impl=conv3d_impl, init=init,
+                       checkpoint_every_s=checkpoint_every_s, pretrain_epochs=pretrain_epochs,
+                       card_extra=card_extra)
+
+
+def _first_epoch_kill(out: Path, held: list) -> bool:
+    """Whether the run files `held` in `out`, with no train state, are what a kill inside the first epoch's save
+    leaves (best.npz of epoch 1 alone: last.npz and metrics.jsonl come after it): a resume starts that run afresh."""
+    if held != ["best.npz"]:
+        return False
+    try:
+        return read_metadata(out / "best.npz").get("card", {}).get("epochs") == 1
+    except ValueError:
+        return False
+
+
+def _fit_in(out: Path, model_cfg, train_cfg: TrainConfig, *, make_batch, validation, sensor, resume, overwrite, mesh,
+            progress, callback, data_description, conv3d_impl, init, checkpoint_every_s, pretrain_epochs,
+            card_extra):
+    """`fit` in folder `out`, which exists and whose lock this process holds."""
+    arch, how = architecture(model_cfg), recipe(model_cfg)
+    held = [name for name in RUN_FILES if (out / name).exists()]
     if held and not (resume or overwrite):
         raise FileExistsError(f"{out} holds a training run ({', '.join(held)}); pass resume=True (--resume) to "
                               "continue it or overwrite=True (--force) to start a new one in its place")
-    if not (checkpoint_every_s is None or checkpoint_every_s >= 0):  # also refuses NaN
-        raise ValueError(f"fit: checkpoint_every_s={checkpoint_every_s!r}; expected seconds >= 0, or None")
-    out.mkdir(parents=True, exist_ok=True)
+    if resume and held and _latest_state(out) is None and not _first_epoch_kill(out, held):
+        raise FileExistsError(f"{out} holds a run without its train state ({', '.join(held)}; no last.npz or "
+                              f"{RESUME_FILE}), so it cannot be resumed; overwrite=True (--force) starts over in its "
+                              "place")
     if not how.data_parallel:
         if isinstance(mesh, Mesh):
             raise ValueError(f"fit: {arch.name} trains on one device (its step does not split a batch); pass "
@@ -393,6 +427,11 @@ def fit(
         settings["init"] = str(init) if not isinstance(init, Model) else "a Model passed to fit"
     ts, run = _start_or_resume(out, model_cfg, train_cfg, settings, k_init=k_init, k_data=k_data,
                                resume=resume, init=init)
+    if resume and run.epoch and (run.finished or run.epoch >= train_cfg.epochs):
+        why = (f"stopped early after {run.epoch} epochs ({train_cfg.patience} without a lower validation loss)"
+               if run.finished else f"already has {run.epoch} epochs (epochs={train_cfg.epochs})")
+        warnings.warn(f"the run in {out} {why}; nothing to train"
+                      + ("" if run.finished else ": give more epochs (--epochs) to continue it"), stacklevel=3)
     spe = train_cfg.steps_per_epoch
     step_fn = how.step(model_cfg, train_cfg, make_batch, sensor=sensor, mesh=mesh, conv3d_impl=conv3d_impl,
                        pretrain_steps=pretrain_epochs * spe)

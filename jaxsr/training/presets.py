@@ -12,7 +12,7 @@ from ..io.files import removing_new_folder
 from ..io.formats import read_npz_arrays
 from ..nn.model import Model, architecture, architectures
 from .data import sequence_batches, sequence_clips
-from .loop import fit, resume_config
+from .loop import RUN_FILES, fit, resume_config
 
 __all__ = ["MAX_TR", "train", "sequence_data"]
 
@@ -54,7 +54,8 @@ def train(out, *, arch: str = "duf", tr: int = 4, scale: int = 4, temporal: str 
     "iseebetter" at their published sizes, x4). preset: a key of `jaxsr.config.PRESETS`, with `seed`, `epochs`
     and `clip_frames` (sequence form) overriding its own when given. data: None (rendered scenes) or an .npz of
     HR sequences (DUF only; `sequence_data`). init: weights to start from (DUF only; see `jaxsr.fit`).
-    resume / overwrite: continue the run in `out`, or start over in its place (see `jaxsr.fit`).
+    resume / overwrite: continue the run in `out`, or start over in its place (see `jaxsr.fit`); resume refuses
+    (FileNotFoundError) a missing folder or one without a run, where `fit` would start a new one.
     checkpoint_minutes: minutes of training between saves inside an epoch (0: every step; inf: never).
     Configs and data are built and checked before any work, and a run that fails or is stopped before its first
     save leaves no new folder. Returns (best `Model`, history: per-epoch records); raises ValueError for a bad
@@ -85,6 +86,9 @@ def train(out, *, arch: str = "duf", tr: int = 4, scale: int = 4, temporal: str 
     sensor = SensorConfig() if scale == 4 else SensorConfig(scale=scale)
     if Path(out).exists() and not Path(out).is_dir():
         raise FileExistsError(f"{out} is a file; --out is a folder")
+    if resume and not any((Path(out) / name).exists() for name in RUN_FILES):
+        raise FileNotFoundError(f"--resume: nothing to resume: {out} holds no training run (none of "
+                                f"{', '.join(RUN_FILES)}); leave out --resume to start one")
     make_batch = sequence_data(data, model_cfg, train_cfg, sensor) if data is not None else None
     with removing_new_folder(out):  # a run that fails or stops before its first save leaves no folder
         train_cfg = resume_config(out, train_cfg) if resume else train_cfg  # a run keeps the validation it began with

@@ -202,3 +202,22 @@ def test_pipeline_metric_refuses_bad_input(model):
     with pytest.raises(ValueError, match="x2 but the sensor's scale is 4"):
         jaxsr.pipeline_metric(key, depth, intensity, jaxsr.SensorConfig(hr_shape=(8, 16), scale=4, bins=8), model,
                               snr=1.0)
+
+
+def test_traced_out_of_domain_levels_and_sensor_leaves_give_nan(model):
+    """Eagerly such values raise (above); traced, the histograms are NaN and the centre of mass would turn them into
+    a plausible score: the result is NaN, for the bad elements only of a jitted vmap over levels and IRF widths."""
+    depth, intensity = _scene()
+
+    @jax.jit
+    @jax.vmap
+    def score(snr, mean_signal, irf_sigma):
+        sensor = dataclasses.replace(SMALL, irf_sigma=irf_sigma)
+        return jaxsr.pipeline_metric(jax.random.key(0), depth, intensity, sensor, model, snr=snr,
+                                     mean_signal=mean_signal)
+
+    cases = np.array([(1.0, 10.0, 0.5), (0.0, 10.0, 0.5), (-1.0, 10.0, 0.5), (np.nan, 10.0, 0.5), (np.inf, 10.0, 0.5),
+                      (1.0, -5.0, 0.5), (1.0, 10.0, -1.0), (1.0, 10.0, 0.0), (1.0, 10.0, np.nan), (2.0, 3.0, 1.0)],
+                     np.float32)
+    got = np.asarray(score(*cases.T))
+    assert np.isfinite(got[[0, 9]]).all() and np.isnan(got[1:9]).all(), got

@@ -196,3 +196,33 @@ def test_legacy_execution_field_is_dropped(tmp_path, model):
     # the bundled window-form weights load whether or not they were written with the legacy field
     for tr in range(5):
         assert load_model(f"tr{tr}").config == ModelConfig(tr=tr)
+
+
+def test_non_finite_weights_are_refused_naming_the_array(tmp_path, model):
+    """NaN weights (a diverged run) would load and turn every output into NaN."""
+    params = jax.tree_util.tree_map(np.asarray, model.params)
+    params["head"]["conv"]["w"] = params["head"]["conv"]["w"].copy()
+    params["head"]["conv"]["w"][0, 0, 0, 0, 0] = np.nan
+    params["stem"]["b"] = np.full_like(params["stem"]["b"], np.inf)
+    path = save_model(tmp_path / "m.npz", Model(params, model.state, CFG))
+    with pytest.raises(ValueError, match=r"array 'params/head/conv/w' holds non-finite values .*and 1 more"):
+        load_model(path)
+
+
+def test_a_config_beyond_the_limits_is_refused_before_building_anything(tmp_path, model):
+    """tr=100000 in a checkpoint's config would build 100003 blocks' templates (minutes, gigabytes)."""
+    import time
+
+    path = save_model(tmp_path / "m.npz", model)
+    with np.load(path) as data:
+        arrays = {k: data[k] for k in data.files}
+    meta = json.loads(str(arrays["__metadata__"]))
+    for field, value in (("tr", 100_000), ("base", 10**7), ("scale", 1000), ("filter_size", 101)):
+        arrays["__metadata__"] = np.array(json.dumps(dict(meta, config=dict(meta["config"], **{field: value}))))
+        np.savez(tmp_path / "big.npz", **arrays)
+        t0 = time.perf_counter()
+        with pytest.raises(ValueError, match=rf"ModelConfig: {field} must be .*got {value}"):
+            load_model(tmp_path / "big.npz")
+        assert time.perf_counter() - t0 < 1.0
+    with pytest.raises(ValueError, match=r"tr must be 0\.\.64"):
+        ModelConfig(tr=65)

@@ -216,3 +216,32 @@ def test_atomic_writes_leave_nothing_when_interrupted(tmp_path):
         (tmp / "f1.exr").write_bytes(b"y")
     assert sorted(p.name for p in (tmp_path / "new" / "frames").iterdir()) == ["f0.exr", "f1.exr"]
     assert sorted(p.name for p in tmp_path.rglob("*")) == ["f0.exr", "f1.exr", "frames", "new"]
+
+
+def test_an_output_another_writer_created_meanwhile_is_never_replaced(tmp_path):
+    """Two runs writing one new output both pass the check at the start; the second to finish fails, naming the
+    output, and the first one's result stays (a file: a hard link that fails if the target exists; a folder: a
+    rename that fails onto a folder with files). With overwrite the last one wins, as asked."""
+    from jaxsr.io.files import atomic_folder, atomic_path
+
+    out = tmp_path / "up.npy"
+    with pytest.raises(FileExistsError, match=r"up\.npy was created by another writer .*not replaced"):
+        with atomic_path(out) as tmp:
+            tmp.write_bytes(b"second")
+            out.write_bytes(b"first")  # the other run finishes meanwhile
+    assert out.read_bytes() == b"first" and sorted(p.name for p in tmp_path.iterdir()) == ["up.npy"]
+    with atomic_path(out, overwrite=True) as tmp:
+        tmp.write_bytes(b"forced")
+    assert out.read_bytes() == b"forced"
+
+    frames = tmp_path / "frames"
+    with pytest.raises(FileExistsError, match=r"frames was written by another writer .*not written into"):
+        with atomic_folder(frames, overwrite=False) as tmp:
+            (tmp / "frame_000000.exr").write_bytes(b"second")
+            frames.mkdir()
+            (frames / "frame_000000.exr").write_bytes(b"first")
+    assert (frames / "frame_000000.exr").read_bytes() == b"first"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["frames", "up.npy"]  # no temporary folder left
+    with atomic_folder(tmp_path / "new", overwrite=False) as tmp:  # a new folder, or an empty one, is claimed
+        (tmp / "a").write_bytes(b"a")
+    assert (tmp_path / "new" / "a").read_bytes() == b"a"

@@ -284,6 +284,71 @@ def test_a_folder_holding_a_run_is_refused_without_resume_or_overwrite(tmp_path)
     assert (tmp_path / "best.npz").read_bytes() != files["best.npz"]
 
 
+def test_resume_refuses_a_run_without_its_train_state_and_a_folder_without_a_run(tmp_path):
+    """best.npz and metrics.jsonl without last.npz / resume.npz: resuming would start over and replace them. The
+    CLI path (`train`) also refuses --resume where there is nothing to resume; fit itself (scripts that always
+    resume) starts afresh in a folder with no run files. All refused before any work."""
+    from jaxsr.cli import main
+    from jaxsr.training import train
+
+    for name in ("best.npz", "metrics.jsonl"):
+        (tmp_path / name).write_bytes(b"the only copy")
+    with pytest.raises(FileExistsError, match=r"holds a run without its train state .*--force\) starts over"):
+        fit(TINY, tiny_train_cfg(), out=tmp_path, make_batch=toy_batches(TINY.tr, 4), validation={}, resume=True)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["best.npz", "metrics.jsonl"]
+    assert (tmp_path / "best.npz").read_bytes() == b"the only copy"
+    for out in (tmp_path / "missing", tmp_path / "empty"):
+        (tmp_path / "empty").mkdir(exist_ok=True)
+        with pytest.raises(FileNotFoundError, match="nothing to resume"):
+            train(out, tr=0, resume=True, progress=False)
+    assert not (tmp_path / "missing").exists() and not any((tmp_path / "empty").iterdir())
+    assert main(["train", "--tr", "0", "--out", str(tmp_path / "missing"), "--resume", "--no-progress"]) == 2
+
+
+def test_resuming_a_run_that_has_its_epochs_warns_that_there_is_nothing_to_train(tmp_path, monkeypatch, capsys):
+    import jaxsr.cli.train as cli_train
+    import jaxsr.training.loop as loop
+    from jaxsr.cli import main
+
+    real = loop._start_or_resume
+
+    def two_epochs_done(*args, **kw):  # the saved run of a 2-epoch fit, without training one
+        ts, _ = real(*args, **dict(kw, resume=False))
+        return ts, loop._Run(epoch=2, step=2 * tiny_train_cfg().steps_per_epoch, finished=False)
+
+    monkeypatch.setattr(loop, "_start_or_resume", two_epochs_done)
+    with pytest.warns(UserWarning, match=r"already has 2 epochs \(epochs=1\); nothing to train: give more epochs"):
+        _, history = fit(TINY, tiny_train_cfg(epochs=1), out=tmp_path, make_batch=toy_batches(TINY.tr, 4),
+                         validation={}, progress=False, resume=True)
+    assert history == [] and not any(tmp_path.iterdir())  # nothing written, and the lock released
+    # the CLI says it on one line, exit 0
+    monkeypatch.setattr(cli_train, "train", lambda *a, **k: (__import__("warnings").warn("the run in X already has "
+                        "2 epochs (epochs=1); nothing to train", stacklevel=2), (None, []))[1])
+    assert main(["train", "--out", str(tmp_path), "--resume", "--epochs", "1", "--no-progress"]) == 0
+    assert capsys.readouterr().err == ("jaxsr train: warning: the run in X already has 2 epochs (epochs=1); nothing "
+                                       "to train\n")
+
+
+def test_a_second_run_on_a_locked_folder_fails_at_once(tmp_path):
+    """Two runs on one folder would overwrite each other's files: fit holds OUT/.lock (flock) while it runs."""
+    from jaxsr.io.files import LOCK_FILE, folder_lock
+
+    with folder_lock(tmp_path, what="training run"):
+        assert (tmp_path / LOCK_FILE).exists()
+        with pytest.raises(FileExistsError, match=f"{tmp_path} is in use by another run .*{LOCK_FILE}"):
+            with folder_lock(tmp_path):
+                pass
+        with pytest.raises(FileExistsError, match="in use by another training run"):
+            fit(TINY, tiny_train_cfg(), out=tmp_path, make_batch=toy_batches(TINY.tr, 4), validation={})
+        # another process too
+        code = f"from jaxsr.io.files import folder_lock\nwith folder_lock({str(tmp_path)!r}): pass"
+        done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+        assert done.returncode == 1 and "is in use by another run" in done.stderr
+    assert not (tmp_path / LOCK_FILE).exists()
+    with folder_lock(tmp_path):  # released: free again
+        pass
+
+
 def test_kill_and_resume_equals_uninterrupted(tmp_path):
     # decay every epoch and patience 1 so the schedule and the early-stopping counters cross the restart
     cfg = tiny_train_cfg(examples_per_epoch=12, epochs=4, decay_epochs=1, patience=2)
