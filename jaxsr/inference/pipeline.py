@@ -22,7 +22,7 @@ from ..nn.duf import DUF, apply_model, apply_model_sequence
 from ..nn.model import Model
 from ..sensor.peaks import centre_of_mass
 from ..sensor.poisson import PATHWISE_ESTIMATORS
-from ..sensor.forward import (_levels_valid, check_photon_args, expected_histograms, normalise_depth,
+from ..sensor.forward import (levels_valid, check_photon_args, expected_histograms, normalise_depth,
                               simulate_histograms)
 from ..temporal import windows
 
@@ -58,7 +58,7 @@ def _pipeline(key, depth, intensity, sensor, model, snr, mean_signal, window, hu
     score = jnp.mean(psnr(hr, gt)) if metric == "psnr" else huber_loss(hr, gt, delta=huber_delta)
     # Out-of-domain levels or sensor leaves (reachable only traced: under jit, or per element under vmap) give
     # NaN histograms, which the centre of mass would turn into a plausible depth and score: NaN instead.
-    return jnp.where(_levels_valid(sensor, snr, mean_signal), score, jnp.nan)
+    return jnp.where(levels_valid(sensor, snr, mean_signal), score, jnp.nan)
 
 
 def pipeline_metric(

@@ -15,6 +15,7 @@ from .forward import (
     calibrate,
     expected_histograms,
     calibrated_rates,
+    levels_valid,
     simulate_histograms,
 )
 from .poisson import (
@@ -67,6 +68,7 @@ __all__ = [
     "calibrate",
     "expected_histograms",
     "calibrated_rates",
+    "levels_valid",
     "simulate_histograms",
     "EXACT_BELOW",
     "NORMAL_ABOVE",

@@ -193,8 +193,11 @@ def _in_domain(x, strict, xp):
     return xp.isfinite(x) & ((x > 0) if strict else (x >= 0))
 
 
-def _levels_valid(sensor: SensorConfig, snr, mean_signal):
-    """A boolean scalar: every physical scalar is in its domain (traced, a value to select on, not a check)."""
+def levels_valid(sensor: SensorConfig, snr, mean_signal):
+    """Whether every physical scalar of `sensor`, `snr` and `mean_signal` lies in its domain (finite, positive
+    where it must be), as a traced value to select on (e.g. NaN for a score under jit or vmap), not a check.
+
+    Returns a boolean scalar."""
     ok = True
     for value, strict, _ in _physical_scalars(sensor, snr, mean_signal).values():
         ok = ok & jnp.all(_in_domain(jnp.asarray(value), strict, jnp))
@@ -220,7 +223,7 @@ def _calibrate_from_sums(s_sum, a_sum, sensor: SensorConfig, *, snr, mean_signal
     beta_sky = jnp.where(mean_a > 0, mean_signal / (snr * jnp.where(mean_a > 0, mean_a, 1.0)), 0.0)
     beta = jnp.where(any_signal, beta_signal, beta_sky)
     # Invalid levels: NaN everywhere downstream, never counts that look plausible.
-    valid = _levels_valid(sensor, snr, mean_signal)
+    valid = levels_valid(sensor, snr, mean_signal)
     return jnp.where(valid, alpha, jnp.nan), jnp.where(valid, beta, jnp.nan)
 
 
