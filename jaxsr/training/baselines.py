@@ -257,47 +257,78 @@ def evaluate_baseline(model: Model, validation: dict, *, sensor: SensorConfig = 
 # --- the recipes `jaxsr.training.fit` reads ------------------------------------------------------------------
 
 
-def _init(kind: str):
-    def init(key, cfg, init=None) -> dict:
-        """params and Adam state (iSeeBetter: also the discriminator's params, batch-norm state and Adam state)."""
-        if init is not None:
-            raise ValueError(f"fit: init (a warm start) is the DUF network's; {kind} starts from random weights")
-        if kind == "histnet":
-            params = init_histnet(key, cfg)
-            return {"params": params, "state": {}, "opt": adam_init(params)}
-        k_g, k_d = jax.random.split(key)
-        g = init_rbpn(k_g, cfg)
-        d, d_state = init_discriminator(k_d, cfg)
-        g_opt, d_opt = init_adam_pair(g, d)
-        return {"params": g, "state": {}, "opt": g_opt, "disc": d, "disc_state": d_state, "disc_opt": d_opt}
-    return init
+def _no_warm_start(name: str, init) -> None:
+    if init is not None:
+        raise ValueError(f"fit: init (a warm start) is the DUF network's; {name} starts from random weights")
 
 
-def _step(kind: str):
-    def step(cfg, train_cfg: TrainConfig, make_batch, *, sensor: SensorConfig = _SENSOR, mesh=None,
-             conv3d_impl="auto", pretrain_steps: int = 0):
-        """One jitted step on the train state of `_init`: run(ts, key, step) -> (ts, metrics). iSeeBetter: steps
-        below `pretrain_steps` train the generator alone on its content loss (`make_rbpn_train_step`; the
-        discriminator waits), the rest are GAN steps (`make_iseebetter_train_step`)."""
-        if pretrain_steps and kind != "iseebetter":
-            raise ValueError(f"fit: pretrain_epochs is iSeeBetter's (a generator trained alone before its GAN), "
-                             f"not {kind}'s")
-        # the step does not read the seed or the stopping rule: runs that differ only in those share one compilation
-        return _compiled_step(kind, cfg, dataclasses.replace(train_cfg, seed=0, epochs=1, patience=1), make_batch,
-                              sensor, pretrain_steps)
-    return step
+def _shared_step(train_cfg: TrainConfig) -> TrainConfig:
+    # the step does not read the seed or the stopping rule: runs that differ only in those share one compilation
+    return dataclasses.replace(train_cfg, seed=0, epochs=1, patience=1)
 
 
-@functools.lru_cache(maxsize=8)
-def _compiled_step(kind: str, cfg, train_cfg: TrainConfig, make_batch, sensor: SensorConfig, pretrain_steps: int):
+def _evaluate(model, validation, train_cfg, *, sensor=_SENSOR, conv3d_impl="auto") -> dict:
+    return evaluate_baseline(model, validation, sensor=sensor)
+
+
+# HistNet: its params and one Adam, an L1 step on histograms + HR intensity
+
+
+def _histnet_init(key, cfg: HistNetConfig, init=None) -> dict:
+    _no_warm_start("histnet", init)
+    params = init_histnet(key, cfg)
+    return {"params": params, "state": {}, "opt": adam_init(params)}
+
+
+def _histnet_step(cfg, train_cfg: TrainConfig, make_batch, *, sensor: SensorConfig = _SENSOR, mesh=None,
+                  conv3d_impl="auto", pretrain_steps: int = 0):
+    if pretrain_steps:
+        raise ValueError("fit: pretrain_epochs is iSeeBetter's (a generator trained alone before its GAN), not "
+                         "histnet's")
+    return _histnet_run(cfg, _shared_step(train_cfg), make_batch, sensor)
+
+
+@functools.lru_cache(maxsize=4)
+def _histnet_run(cfg, train_cfg: TrainConfig, make_batch, sensor: SensorConfig):
+    step = make_histnet_train_step(cfg, make_batch, schedule=lr_schedule(train_cfg), sensor=sensor)
+
+    def run(ts, key, i):
+        params, opt, metrics = step(ts["params"], ts["opt"], key, i)
+        return {**ts, "params": params, "opt": opt}, metrics
+    return run
+
+
+register_recipe("histnet", Recipe(
+    init=_histnet_init, step=_histnet_step,
+    data=lambda cfg, train_cfg, sensor: histogram_batches(train_cfg, sensor=sensor),
+    validation=lambda key, cfg, train_cfg, sensor: baseline_validation_set(key, "histnet", cfg, train_cfg,
+                                                                         sensor=sensor),
+    evaluate=_evaluate))
+
+
+# iSeeBetter: a generator and a discriminator, each with its own Adam, in one train state
+
+
+def _iseebetter_init(key, cfg: RBPNConfig, init=None) -> dict:
+    _no_warm_start("iseebetter", init)
+    k_g, k_d = jax.random.split(key)
+    g = init_rbpn(k_g, cfg)
+    d, d_state = init_discriminator(k_d, cfg)
+    g_opt, d_opt = init_adam_pair(g, d)
+    return {"params": g, "state": {}, "opt": g_opt, "disc": d, "disc_state": d_state, "disc_opt": d_opt}
+
+
+def _iseebetter_step(cfg, train_cfg: TrainConfig, make_batch, *, sensor: SensorConfig = _SENSOR, mesh=None,
+                     conv3d_impl="auto", pretrain_steps: int = 0):
+    """run(ts, key, step) -> (ts, metrics): steps below `pretrain_steps` train the generator alone on its content
+    loss (`make_rbpn_train_step`; the discriminator waits), the rest are GAN steps (`make_iseebetter_train_step`);
+    `step` must then be a concrete integer (the phase is chosen in Python)."""
+    return _iseebetter_run(cfg, _shared_step(train_cfg), make_batch, pretrain_steps)
+
+
+@functools.lru_cache(maxsize=4)
+def _iseebetter_run(cfg, train_cfg: TrainConfig, make_batch, pretrain_steps: int):
     schedule = lr_schedule(train_cfg)
-    if kind == "histnet":
-        step = make_histnet_train_step(cfg, make_batch, schedule=schedule, sensor=sensor)
-
-        def run(ts, key, i):
-            params, opt, metrics = step(ts["params"], ts["opt"], key, i)
-            return {**ts, "params": params, "opt": opt}, metrics
-        return run
     gan = make_iseebetter_train_step(cfg, make_batch, schedule=schedule)
     pretrain = make_rbpn_train_step(cfg, make_batch, schedule=schedule) if pretrain_steps else None
 
@@ -311,23 +342,12 @@ def _compiled_step(kind: str, cfg, train_cfg: TrainConfig, make_batch, sensor: S
     return run
 
 
-def _data(kind: str):
-    def data(cfg, train_cfg: TrainConfig, sensor: SensorConfig):
-        """The data our networks train on, in each baseline's form: `histogram_batches` (HistNet) or
-        `scene_batches` with tr = frames // 2 (iSeeBetter); same clips, SNR and signal ranges, crops."""
-        if kind == "histnet":
-            return histogram_batches(train_cfg, sensor=sensor)
-        return scene_batches(cfg.frames // 2, train_cfg, sensor=sensor)
-    return data
-
-
-for _kind in BASELINES:
-    register_recipe(_kind, Recipe(
-        init=_init(_kind), step=_step(_kind), data=_data(_kind),
-        validation=lambda key, cfg, train_cfg, sensor, kind=_kind: baseline_validation_set(
-            key, kind, cfg, train_cfg, sensor=sensor),
-        evaluate=lambda model, validation, train_cfg, *, sensor=_SENSOR, conv3d_impl="auto": evaluate_baseline(
-            model, validation, sensor=sensor)))
+register_recipe("iseebetter", Recipe(
+    init=_iseebetter_init, step=_iseebetter_step,
+    data=lambda cfg, train_cfg, sensor: scene_batches(cfg.frames // 2, train_cfg, sensor=sensor),
+    validation=lambda key, cfg, train_cfg, sensor: baseline_validation_set(key, "iseebetter", cfg, train_cfg,
+                                                                         sensor=sensor),
+    evaluate=_evaluate))
 
 
 # --- deprecated: the names of jaxsr 0.1, each now a call of the one model interface or the one loop -------------
