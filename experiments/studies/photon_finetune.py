@@ -54,6 +54,9 @@ def main(argv=None) -> None:
     parser.add_argument("--steps-per-epoch", type=int, default=256)
     parser.add_argument("--lr", type=float, default=1e-4, help="Adam's rate (a fine-tune: 10x below the paper's)")
     parser.add_argument("--val-batches", type=int, default=16, help="batches of 4 regime draws to validate on")
+    parser.add_argument("--init", default=None,
+                        help="weights to start from (default the bundled tr<N>; e.g. experiments/photon_weights/tr0.npz "
+                        "to continue this study's kept run in a new folder)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--checkpoint-minutes", type=float, default=5.0)
     parser.add_argument("--keep", action="store_true", help="copy the run's best weights to experiments/photon_weights")
@@ -71,7 +74,7 @@ def main(argv=None) -> None:
     validation = regime_validation(args.tr, train_cfg, regime, batches=args.val_batches, sensor=sensor)
     jaxsr.fit(jaxsr.ModelConfig(tr=args.tr), train_cfg, out=out, make_batch=regime_batches(
         args.tr, train_cfg, regime, sensor=sensor), validation=validation, sensor=sensor, resume=True,
-        init=f"tr{args.tr}", checkpoint_every_s=60 * args.checkpoint_minutes,
+        init=args.init or f"tr{args.tr}", checkpoint_every_s=60 * args.checkpoint_minutes,
         card_extra={"regime": regime.to_dict(), "trained_with": "experiments/studies/photon_finetune.py"})
 
 
