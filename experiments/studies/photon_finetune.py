@@ -55,8 +55,8 @@ def main(argv=None) -> None:
     parser.add_argument("--lr", type=float, default=1e-4, help="Adam's rate (a fine-tune: 10x below the paper's)")
     parser.add_argument("--val-batches", type=int, default=16, help="batches of 4 regime draws to validate on")
     parser.add_argument("--init", default=None,
-                        help="weights to start from (default the bundled tr<N>; e.g. experiments/photon_weights/tr0.npz "
-                        "to continue this study's kept run in a new folder)")
+                        help="weights to start from (default the bundled tr<N>; e.g. "
+                        "experiments/photon_weights/tr0.npz to continue this study's kept run in a new folder)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--checkpoint-minutes", type=float, default=5.0)
     parser.add_argument("--keep", action="store_true", help="copy the run's best weights to experiments/photon_weights")
