@@ -162,6 +162,10 @@ TEMPORAL_FORMS = ("window", "sequence")
 
 # Bounds of `ModelConfig` far beyond the paper's network (TR 0-4, x4 or x8, widths up to 512), so that no
 # config (one read from a checkpoint above all) builds an absurd network: 3 + tr blocks of up to `width` channels.
+# What a network may read per LR pixel (`ModelConfig.inputs`): the centre-of-mass depth, always first (the dynamic
+# filters upsample it), then optionally the photons behind it (`jaxsr.sensor.peak_evidence`, log-encoded by
+# `jaxsr.nn.inputs`): "signal" (photons in the peak above the background) and "background" (ambient photons).
+MODEL_INPUTS = ("depth", "signal", "background")
 MODEL_LIMITS = {"tr": 64, "scale": 16, "filter_size": 15, "same_blocks": 16, "width": 4096}
 
 
@@ -181,6 +185,11 @@ class ModelConfig:
     output from its own window of `2*tr+1` frames, the first `same_blocks` blocks temporally padded) or
     "sequence" (every block temporally valid, run once over a whole edge-padded sequence: output t from frames
     t-R .. t+R, R = `input_radius` = same_blocks + tr). Both forms have the same parameters.
+    `inputs` is what the network reads per LR pixel (`MODEL_INPUTS`): ("depth",) for the paper's networks
+    (inputs (..., H, W)); with photon channels, ("depth", "signal", "background") say, inputs carry a last
+    axis of that many channels, built from histograms by `jaxsr.nn.inputs.network_inputs`. `no_return_head`
+    adds an output: per HR pixel the logit that it has no return, trained against the ground truth's 1.0;
+    where it is positive the output is 1.0 (no return), elsewhere the upsampled depth.
     """
 
     tr: int = 0
@@ -195,6 +204,8 @@ class ModelConfig:
     bn_eps: float = 1e-3
     filter_padding: str = "edge"
     temporal: str = "window"
+    inputs: tuple = ("depth",)
+    no_return_head: bool = False
 
     def __post_init__(self):
         # upper limits too: a config read from a file builds its templates block by block, and a tr of 10^5
@@ -217,6 +228,19 @@ class ModelConfig:
             raise ValueError(f"ModelConfig: filter_padding must be 'edge' or 'zero', got {self.filter_padding!r}")
         if self.temporal not in TEMPORAL_FORMS:
             raise ValueError(f"ModelConfig: temporal must be one of {TEMPORAL_FORMS}, got {self.temporal!r}")
+        inputs = tuple(self.inputs) if isinstance(self.inputs, (list, tuple)) else None
+        if (not inputs or inputs[0] != "depth" or len(set(inputs)) != len(inputs)
+                or not set(inputs) <= set(MODEL_INPUTS)):
+            raise ValueError(f"ModelConfig: inputs must be 'depth' followed by distinct names of {MODEL_INPUTS}, got "
+                             f"{self.inputs!r}")
+        object.__setattr__(self, "inputs", inputs)  # a list (from JSON) hashes as the tuple it means
+        if not isinstance(self.no_return_head, bool):
+            raise ValueError(f"ModelConfig: no_return_head must be True or False, got {self.no_return_head!r}")
+
+    @property
+    def channels(self) -> int:
+        """Input channels per LR pixel, len(inputs)."""
+        return len(self.inputs)
 
     @property
     def frames(self) -> int:
@@ -251,7 +275,8 @@ DEFAULT_CLIP_OUTPUTS = 8
 class TrainConfig:
     """Everything that affects a training run's result (docs/training.md); it goes into the checkpoint.
 
-    Optimisation: Huber loss with `huber_delta`; hand-written Adam (`lr`, `adam_b1`, `adam_b2`, `adam_eps`,
+    Optimisation: Huber loss with `huber_delta` (a model with a no-return head adds `no_return_weight` x the
+    mean binary cross-entropy of its no-return logits against the ground truth's 1.0); hand-written Adam (`lr`, `adam_b1`, `adam_b2`, `adam_eps`,
     Keras's epsilon placement and default 1e-7); step decay of the rate by `lr_decay` every `decay_epochs`
     epochs, exactly at epoch boundaries. `batch_size` examples per step, `examples_per_epoch` examples per
     epoch (steps per epoch = examples_per_epoch // batch_size), at most `epochs` epochs, early stopping after
@@ -277,6 +302,7 @@ class TrainConfig:
     lr_decay: float = 0.1
     decay_epochs: int = 10
     huber_delta: float = 0.01
+    no_return_weight: float = 0.01
     adam_b1: float = 0.9
     adam_b2: float = 0.999
     adam_eps: float = 1e-7
@@ -299,6 +325,8 @@ class TrainConfig:
             )
         if self.epochs < 1 or self.patience < 1 or self.decay_epochs < 1:
             raise ValueError("TrainConfig: epochs, patience and decay_epochs must be >= 1")
+        if not self.no_return_weight >= 0:
+            raise ValueError(f"TrainConfig: no_return_weight must be >= 0, got {self.no_return_weight}")
         if not (0 < self.snr_range[0] <= self.snr_range[1]):
             raise ValueError(f"TrainConfig: snr_range must be 0 < lo <= hi, got {self.snr_range}")
         if not (0 < self.mean_signal_range[0] <= self.mean_signal_range[1]):
@@ -346,7 +374,10 @@ class PhotonRegime:
     - no return (sky, absorbing surfaces): with probability `no_return_prob`, a fraction uniform in
       `no_return_fraction` of the HR pixels (`jaxsr.sensor.no_return_regions`, sky weight uniform in [0, 1],
       blobs of `blob_size` HR pixels), on top of the scene's own sky;
-    - `motion`: `jaxsr.scenes.training_clip`'s motion mode ("seen": every clip's motion shows in its depth).
+    - `motion`: `jaxsr.scenes.training_clip`'s motion mode ("seen": every clip's motion shows in its depth);
+    - `paper_prob`: the share of clips drawn from the paper's regime instead (`PAPER_REGIME`'s signal and SNR
+      ranges, the IRF `irf_paper`, no dark counts, hot or dead pixels and no added no-return regions),
+      so that a model of the wide regime keeps the paper's accuracy there.
     """
 
     signal_range: tuple[float, float] = (0.5, 1000.0)
@@ -366,6 +397,7 @@ class PhotonRegime:
     no_return_fraction: tuple[float, float] = (0.05, 0.6)
     blob_size: int = 16
     motion: str = "seen"
+    paper_prob: float = 0.0
 
     def __post_init__(self):
         who = "PhotonRegime"
@@ -373,7 +405,7 @@ class PhotonRegime:
             _check_range(who, name, getattr(self, name))
         _check_range(who, "no_return_fraction", self.no_return_fraction, strict=False, hi=1.0)
         for name in ("irf_paper_prob", "dark_prob", "hot_prob", "hot_fraction_max", "dead_prob",
-                     "dead_fraction_max", "no_return_prob"):
+                     "dead_fraction_max", "no_return_prob", "paper_prob"):
             v = float(getattr(self, name))
             if not 0.0 <= v <= 1.0:
                 raise ValueError(f"{who}: {name} must be in [0, 1], got {v}")

@@ -3,6 +3,8 @@
 import inspect
 import re
 
+import jax
+import numpy as np
 import pytest
 
 import jaxsr
@@ -106,3 +108,99 @@ def test_a_name_that_left_the_top_level_still_works_there_with_a_warning(name):
 def test_an_unknown_name_is_an_attribute_error():
     with pytest.raises(AttributeError, match="no attribute 'no_such_name'"):
         jaxsr.no_such_name  # noqa: B018
+
+
+# None, text and empty arrays (docs/api-conventions.md "Bad input is an error that says what was expected"): a
+# TypeError or ValueError naming the argument, never JAX's or NumPy's words, or an empty result of the right shape.
+HR, KEY = np.ones((1, 128, 256), np.float32), jax.random.key(0)
+REFUSED = {
+    "bicubic None": (lambda: jaxsr.bicubic(None), TypeError, "bicubic: lr must be an array of numbers, got None"),
+    "bicubic text": (lambda: jaxsr.bicubic(np.array([["a", "b"]])), TypeError, "bicubic: lr must be an array of real"),
+    "bicubic 1-d empty": (lambda: jaxsr.bicubic(np.zeros(0)), ValueError, r"expected \(\.\.\., h, w\) frames"),
+    "lanczos None": (lambda: jaxsr.lanczos(None), TypeError, "lanczos: lr must be an array"),
+    "centre_of_mass None": (lambda: jaxsr.centre_of_mass(None), TypeError,
+                            "centre_of_mass: counts must be an array of numbers, got None"),
+    "centre_of_mass sensor None": (lambda: jaxsr.centre_of_mass(np.ones((4, 4, 16)), None), TypeError,
+                                   "centre_of_mass: sensor must be a jaxsr.SensorConfig, got NoneType"),
+    "centre_of_mass 0 bins": (lambda: jaxsr.centre_of_mass(np.zeros((2, 4, 4, 0))), ValueError,
+                              r"counts must have shape \(\.\.\., 16\)"),
+    "simulate_histograms depth None": (lambda: jaxsr.simulate_histograms(KEY, None, HR, snr=1.0), TypeError,
+                                       "simulate_histograms: depth must be an array of numbers, got None"),
+    "simulate_histograms intensity None": (lambda: jaxsr.simulate_histograms(KEY, HR, None, snr=1.0), TypeError,
+                                           "simulate_histograms: intensity must be an array"),
+    "simulate_histograms key None": (lambda: jaxsr.simulate_histograms(None, HR, HR, snr=1.0), TypeError,
+                                     r"key must be a jax.random key, e.g. jax.random.key\(seed\), got NoneType"),
+    "simulate_histograms seed as key": (lambda: jaxsr.simulate_histograms(0, HR, HR, snr=1.0), TypeError,
+                                        "key must be a jax.random key"),
+    "simulate_histograms sensor None": (lambda: jaxsr.simulate_histograms(KEY, HR, HR, None, snr=1.0), TypeError,
+                                        "sensor must be a jaxsr.SensorConfig"),
+    "simulate_histograms 0 x 0 frames": (lambda: jaxsr.simulate_histograms(KEY, np.zeros((2, 0, 0)),
+                                                                           np.zeros((2, 0, 0)), snr=1.0),
+                                         ValueError, r"depth must have shape \(\.\.\., 128, 256\)"),
+    "upscale model None": (lambda: jaxsr.upscale(np.full((2, 32, 64), 0.5), None, model=None), TypeError,
+                           "model: expected 'default', 'tr0'..'tr4', 'auto', a checkpoint path or a loaded "
+                           "jaxsr.Model, got NoneType None"),
+    "upscale input None": (lambda: jaxsr.upscale(None, None, model="tr0"), TypeError,
+                           "input: expected a path, a Recording, a NumPy array"),
+    "upscale 0 frames": (lambda: jaxsr.upscale(np.zeros((0, 32, 64)), None, model="tr0"), ValueError,
+                         "the recording has no frames"),
+    "upscale 0 x 0 frames": (lambda: jaxsr.upscale(np.zeros((2, 0, 0)), None, model="tr0"), ValueError,
+                             "frames of 0 x 0 pixels; expected LR frames of at least 4 x 4"),
+    "upscale 0 histogram frames": (lambda: jaxsr.upscale(np.zeros((0, 32, 64, 16)), None, model="tr0"), ValueError,
+                                   "the recording has no frames"),
+}
+
+
+@pytest.mark.parametrize("case", REFUSED)
+def test_none_text_and_unusable_empty_arrays_are_clear_errors(case):
+    call, error, message = REFUSED[case]
+    with pytest.raises(error, match=message):
+        call()
+
+
+EMPTY = {
+    "bicubic 0 frames": (lambda: jaxsr.bicubic(np.zeros((0, 32, 64))), (0, 128, 256)),
+    "bicubic 0 x 0 frames": (lambda: jaxsr.bicubic(np.zeros((2, 0, 0))), (2, 0, 0)),
+    "lanczos 0 frames": (lambda: jaxsr.lanczos(np.zeros((0, 32, 64)), scale=2), (0, 64, 128)),
+    "centre_of_mass 0 frames": (lambda: jaxsr.centre_of_mass(np.zeros((0, 32, 64, 16))), (0, 32, 64)),
+    "centre_of_mass 0 x 0 frames": (lambda: jaxsr.centre_of_mass(np.zeros((2, 0, 0, 16))), (2, 0, 0)),
+    "simulate_histograms 0 frames": (lambda: jaxsr.simulate_histograms(KEY, HR[:0], HR[:0], snr=1.0),
+                                     (0, 32, 64, 16)),
+}
+
+
+@pytest.mark.parametrize("case", EMPTY)
+def test_empty_arrays_give_empty_results_of_the_right_shape(case):
+    call, shape = EMPTY[case]
+    assert np.asarray(call()).shape == shape
+
+
+@pytest.mark.parametrize("call", [
+    lambda: jaxsr.super_resolve(None, np.zeros((1, 8, 8), np.float32)),
+    lambda: jaxsr.super_resolve("tr4", np.zeros((1, 8, 8), np.float32)),
+    lambda: jaxsr.super_resolve_histograms(None, np.zeros((1, 8, 8, 16), np.float32)),
+    lambda: jaxsr.inference.Stream(None),
+    lambda: list(jaxsr.inference.iter_super_resolve(None, [])),
+])
+def test_inference_without_a_model_says_how_to_load_one(call):
+    with pytest.raises(TypeError, match="load_model"):
+        call()
+
+
+@pytest.mark.parametrize("data", [None, "frames.npy"])
+def test_inference_without_frames_says_what_it_expected(data, tiny_model_for_api):
+    with pytest.raises(TypeError, match="expected|must be"):
+        jaxsr.super_resolve(tiny_model_for_api, data)
+    with pytest.raises(TypeError, match="expected"):
+        jaxsr.super_resolve_histograms(tiny_model_for_api, data)
+
+
+def test_empty_histograms_are_refused_with_the_shape(tiny_model_for_api):
+    with pytest.raises(ValueError, match="T >= 1"):
+        jaxsr.super_resolve_histograms(tiny_model_for_api, np.zeros((0, 8, 8, 16), np.float32))
+
+
+@pytest.fixture(scope="module")
+def tiny_model_for_api():
+    cfg = jaxsr.ModelConfig(tr=0, base=8, growth=4, head=16, filter_hidden=16)
+    return jaxsr.Model(*jaxsr.nn.init_model(jax.random.key(0), cfg), cfg)

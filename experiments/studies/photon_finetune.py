@@ -2,11 +2,15 @@
 
     python experiments/studies/photon_finetune.py --tr 0                 # train (or resume) runs/photons/tr0
     python experiments/studies/photon_finetune.py --tr 0 --keep          # its best weights into photon_weights/
+    python experiments/studies/photon_finetune.py --tr 0 --photons       # reading photons: runs/photons/tr0-photons
 
 The first step of the photons work: the same network and input as the paper's (centre-of-mass depth only),
 started from the bundled weights (`init`), trained on clips whose every sensor parameter is drawn from the wide
 regime: 0.5-1000 signal photons per LR pixel, SNR 0.05-20, pulse widths 0.3-3 bins, dark counts, hot and dead
-pixels, no-return regions with ground truth 1.0 (`jaxsr.training.regime_batches`). Validation draws from the
+pixels, no-return regions with ground truth 1.0 (`jaxsr.training.regime_batches`). `--photons` widens the model
+first (`jaxsr.nn.with_photon_inputs`): it also reads the photons behind each depth (signal and background,
+`jaxsr.nn.network_inputs`) and marks no return with a head of its own, starting from the bundled function;
+`--paper-share` of the clips come from the paper's regime, so that it keeps its accuracy there. Validation draws from the
 same regime with fixed keys (model selection on the regime the model is for; the paper's fixed sequences at 14
 photons measure the cost there separately). Every run resumes where it stopped (a session's end, a kill):
 `--checkpoint-minutes` of training are lost at most. `--keep` copies the run's best weights (float16, with the
@@ -27,6 +31,7 @@ from jaxsr.config import PRESETS, PhotonRegime
 from jaxsr.training import regime_batches
 
 KEPT = Path(__file__).resolve().parents[1] / "photon_weights"
+PHOTON_MODEL = {"inputs": ("depth", "signal", "background"), "no_return_head": True}
 
 
 def train_config(epochs: int, steps_per_epoch: int, lr: float, seed: int):
@@ -36,10 +41,10 @@ def train_config(epochs: int, steps_per_epoch: int, lr: float, seed: int):
                                lr=lr, decay_epochs=max(1, epochs // 2), patience=max(3, epochs // 4), seed=seed)
 
 
-def regime_validation(tr: int, train_cfg, regime: PhotonRegime, *, batches: int, sensor) -> dict:
+def regime_validation(tr: int, train_cfg, regime: PhotonRegime, *, batches: int, sensor, inputs=("depth",)) -> dict:
     """`batches` batches of the regime's data drawn with fixed keys (independent of the training keys), as
     `jaxsr.training.evaluate` reads them: windows, gt, and the centre frames for the bicubic reference."""
-    make_batch = jax.jit(regime_batches(tr, train_cfg, regime, sensor=sensor))
+    make_batch = jax.jit(regime_batches(tr, train_cfg, regime, sensor=sensor, inputs=inputs))
     drawn = [make_batch(jax.random.fold_in(jax.random.key(2**31 - 1), i)) for i in range(batches)]
     windows = jnp.concatenate([w for w, _ in drawn])
     gt = jnp.concatenate([g for _, g in drawn])
@@ -58,22 +63,31 @@ def main(argv=None) -> None:
                         help="weights to start from (default the bundled tr<N>; e.g. "
                         "experiments/photon_weights/tr0.npz to continue this study's kept run in a new folder)")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--photons", action="store_true",
+                        help="read signal and background photons too and mark no return (default: depth only)")
+    parser.add_argument("--paper-share", type=float, default=0.0,
+                        help="share of clips from the paper's regime (PhotonRegime.paper_prob)")
     parser.add_argument("--checkpoint-minutes", type=float, default=5.0)
     parser.add_argument("--keep", action="store_true", help="copy the run's best weights to experiments/photon_weights")
     args = parser.parse_args(argv)
-    out = Path(args.out or f"runs/photons/tr{args.tr}")
+    name = f"tr{args.tr}-photons" if args.photons else f"tr{args.tr}"
+    out = Path(args.out or f"runs/photons/{name}")
     if args.keep:
         model = jaxsr.load_model(out / "best.npz")
         card = jaxsr.read_metadata(out / "best.npz")["card"]
         KEPT.mkdir(exist_ok=True)
-        path = jaxsr.save_model(KEPT / f"tr{args.tr}.npz", model, card=card, storage_dtype="float16")
+        path = jaxsr.save_model(KEPT / f"{name}.npz", model, card=card, storage_dtype="float16")
         print(f"kept {path} ({card['steps']} steps, validation PSNR {card['validation']['psnr']:.2f} dB)")
         return
-    sensor, regime = jaxsr.SensorConfig(), PhotonRegime()
+    sensor, regime = jaxsr.SensorConfig(), PhotonRegime(paper_prob=args.paper_share)
+    model_cfg = jaxsr.ModelConfig(tr=args.tr, **(PHOTON_MODEL if args.photons else {}))
     train_cfg = train_config(args.epochs, args.steps_per_epoch, args.lr, args.seed)
-    validation = regime_validation(args.tr, train_cfg, regime, batches=args.val_batches, sensor=sensor)
-    jaxsr.fit(jaxsr.ModelConfig(tr=args.tr), train_cfg, out=out, make_batch=regime_batches(
-        args.tr, train_cfg, regime, sensor=sensor), validation=validation, sensor=sensor, resume=True,
+    # validation on the wide regime alone (paper_prob 0): the model is chosen for the regime it is for
+    validation = regime_validation(args.tr, train_cfg, PhotonRegime(), batches=args.val_batches, sensor=sensor,
+                                   inputs=model_cfg.inputs)
+    jaxsr.fit(model_cfg, train_cfg, out=out, make_batch=regime_batches(
+        args.tr, train_cfg, regime, sensor=sensor, inputs=model_cfg.inputs), validation=validation, sensor=sensor,
+        resume=True,
         init=args.init or f"tr{args.tr}", checkpoint_every_s=60 * args.checkpoint_minutes,
         card_extra={"regime": regime.to_dict(), "trained_with": "experiments/studies/photon_finetune.py"})
 

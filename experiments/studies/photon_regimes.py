@@ -39,7 +39,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxsr
-from jaxsr.config import DEFAULT_MEAN_SIGNAL, SensorConfig
+from jaxsr.config import DEFAULT_MEAN_SIGNAL, MODEL_INPUTS, SensorConfig
 from jaxsr.eval.scoring import (
     BLOCK,
     SCENE_LABELS,
@@ -52,7 +52,8 @@ from jaxsr.eval.scoring import (
     scored_output,
 )
 from jaxsr.eval.reports import header, markdown_table, write_atomic
-from jaxsr.sensor import calibrate, calibrated_rates, centre_of_mass, no_return_regions, normalise_depth, sample_poisson
+from jaxsr.nn import network_inputs
+from jaxsr.sensor import calibrate, calibrated_rates, no_return_regions, normalise_depth, sample_poisson
 
 PHOTONS = (1.0, 3.0, 14.0, 100.0, 1000.0)
 SNRS = (0.1, 1.3, 5.0)
@@ -79,7 +80,7 @@ def _calibration(depth, intensity, snr, mean_signal, sensor):
 @functools.partial(jax.jit, static_argnames=("sensor",))
 def _draw(key, depth, intensity, alpha, beta, sensor):
     counts = sample_poisson(key, calibrated_rates(depth, intensity, alpha, beta, sensor), method="fast")
-    return centre_of_mass(counts, sensor), normalise_depth(depth, sensor)
+    return network_inputs(counts, sensor, MODEL_INPUTS), normalise_depth(depth, sensor)
 
 
 def needed_frames(scored, total: int, radius: int) -> np.ndarray:
@@ -98,11 +99,12 @@ def regime_clips(seqs: dict, photons: float, snr, *, scored, radius: int, key, s
         alpha, beta = _calibration(jnp.asarray(seq.depth), jnp.asarray(seq.intensity), jnp.float32(s),
                                    jnp.float32(photons), sensor)
         keep = needed_frames(scored, len(seq.depth), radius)
-        lr, gt = _draw(jax.random.fold_in(key, i), jnp.asarray(seq.depth[keep]), jnp.asarray(seq.intensity[keep]),
-                       alpha, beta, sensor)
-        counts = np.zeros((len(keep), 0), np.float32)  # not kept: the methods read the centre of mass
-        clips[name] = Clip(name, np.asarray(lr), counts, np.asarray(gt), float(seq.fps), s,
-                           np.asarray(seq.intensity[keep], np.float32), np.searchsorted(keep, scored))
+        x, gt = _draw(jax.random.fold_in(key, i), jnp.asarray(seq.depth[keep]), jnp.asarray(seq.intensity[keep]),
+                      alpha, beta, sensor)
+        x = np.asarray(x)
+        counts = np.zeros((len(keep), 0), np.float32)  # not kept: the methods read the centre of mass (+ photons)
+        clips[name] = Clip(name, x[..., 0], counts, np.asarray(gt), float(seq.fps), s,
+                           np.asarray(seq.intensity[keep], np.float32), np.searchsorted(keep, scored), x[..., 1:])
     return clips
 
 

@@ -13,6 +13,8 @@ import functools
 import jax.numpy as jnp
 import numpy as np
 
+from ..checks import require_array
+
 
 def keys_cubic(x, a: float = -0.5):
     """Keys' cubic convolution kernel (a = -0.5 reproduces quadratics)."""
@@ -48,7 +50,7 @@ def resampling_matrix(n_in: int, scale: int, kernel: str) -> np.ndarray:
 
 
 def _upsample(lr, scale: int, kernel: str, name: str):
-    lr = jnp.asarray(lr)
+    lr = require_array(name, "lr", lr)  # None or text: a TypeError that says so
     if lr.ndim < 2:
         raise ValueError(f"{name}: expected (..., h, w) frames, got shape {lr.shape}")
     if not (isinstance(scale, int) and scale >= 1):
@@ -63,10 +65,12 @@ def bicubic(lr, *, scale: int = 4):
     """Bicubic (Keys, a = -0.5) upsampling with edge replication.
 
     Args:
-      lr: (..., h, w) frames (e.g. normalised depth).
+      lr: (..., h, w) frames (e.g. normalised depth); no frames or empty ones give an empty result
+        (..., h * scale, w * scale).
       scale: integer upsampling factor.
     Returns:
-      `(..., h * scale, w * scale)`; not clipped (cubic overshoot is left to the metric's clipping).
+      `(..., h * scale, w * scale)`; not clipped (cubic overshoot is left to the metric's clipping). Raises
+      TypeError for None or non-numeric `lr`, ValueError for fewer than 2 dimensions or a bad scale.
     """
     return _upsample(lr, scale, "bicubic", "bicubic")
 

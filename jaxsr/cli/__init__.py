@@ -13,8 +13,11 @@ Each subcommand is a module here with `add_parser(subparsers)`, which registers 
 Errors: a user's mistake (a bad argument, a missing or unreadable file, an existing output, a wrongly shaped
 input) is one line on stderr, `jaxsr CMD: error: ...`, saying what was expected, and exit status 2, with no
 output or temporary file left behind; options and inputs are checked before the long work starts. A traceback
-means a bug. Ctrl-C (SIGINT) and SIGTERM remove what the command had started to write and exit with 130 and
-143 (128 + the signal number) after one line saying so.
+means a bug. A write the system refuses (a full disk, a quota, a read-only or failing device: any other
+OSError) is one line too, `jaxsr CMD: error: no space left on device while writing OUT; nothing was written
+...`, and exit status 1: the command was right, the machine could not do it; atomic writes
+(`jaxsr.io.files`) have removed their temporary files by then. Ctrl-C (SIGINT) and SIGTERM remove what the
+command had started to write and exit with 130 and 143 (128 + the signal number) after one line saying so.
 """
 
 from __future__ import annotations
@@ -57,6 +60,15 @@ def _one_line(error: BaseException) -> str:
     return " ".join(str(error).split()) or type(error).__name__
 
 
+def _os_error_line(error: OSError) -> str:
+    """An OSError as one line for people: `WriteError`'s own sentence, else the system's words and the file
+    (no "[Errno N]" prefix)."""
+    if error.strerror is None or type(error).__str__ is not OSError.__str__:
+        return _one_line(error)
+    where = f": {error.filename}" if error.filename is not None else ""
+    return " ".join(f"{error.strerror}{where}".split())
+
+
 def _raise_terminated(signum, frame):
     raise Terminated()
 
@@ -65,7 +77,8 @@ def main(argv=None) -> int:
     """Entry point of the `jaxsr` console script.
 
     Args: argv (list of str, default sys.argv[1:]). Returns the exit status: 0 on success; 2 on a user error
-    (see the module docstring), after printing the message to stderr; 130 after Ctrl-C, 143 after SIGTERM."""
+    (see the module docstring), after printing the message to stderr; 1 when the system refused a write or a
+    read (an OSError such as a full disk), after one line; 130 after Ctrl-C, 143 after SIGTERM."""
     args = build_parser().parse_args(argv)
     if argv is None:  # run as a program (not called from Python, where the user owns JAX's devices)
         from ..runtime import use_cpu_cores
@@ -78,6 +91,9 @@ def main(argv=None) -> int:
     except USER_ERRORS as e:
         print(f"jaxsr {args.command}: error: {_one_line(e)}", file=sys.stderr)
         return 2
+    except OSError as e:  # after USER_ERRORS, which holds OSError's user-mistake subclasses
+        print(f"jaxsr {args.command}: error: {_os_error_line(e)}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt as e:
         what = "terminated (SIGTERM)" if isinstance(e, Terminated) else "interrupted"
         print(f"jaxsr {args.command}: {what}; unfinished outputs removed", file=sys.stderr)

@@ -6,10 +6,11 @@ batch, not for the whole sequence. Everything is checked before the model runs: 
 preview paths, the model, and every input frame. Histograms and photon time tags are read over a gate (--bins,
 --bin-width, --gate-start) and put on the network's scale with the gate's start as its 0 m and --span metres
 (default the trained 35 m) as its 1.0; where that takes the models outside what they were trained on, a warning
-line says so. Outputs are written atomically and never replace an existing file or write into a non-empty
-folder without --force. --video writes an .mp4 / .gif to watch (input | output | --reference) and --points a
-folder of PLY point clouds, both streamed frame by frame over the sensor's true range in metres. Prints a JSON
-summary on stdout (`UpscaleResult.summary()`).
+line says so. Negative counts (background-subtracted histograms) are refused unless --clip-negative, which clips
+them at 0 and says how many, in how many pixels. Outputs are written atomically and never replace an existing
+file or write into a non-empty folder without --force. --video writes an .mp4 / .gif to watch (input | output |
+--reference) and --points a folder of PLY point clouds, both streamed frame by frame over the sensor's true range
+in metres. Prints a JSON summary on stdout (`UpscaleResult.summary()`).
 """
 
 from __future__ import annotations
@@ -34,8 +35,9 @@ def add_parser(subparsers):
                               "--bins 16 --bin-width 12.5ns --gate-start 5.18us")
     p.add_argument("input", help="the recording")
     p.add_argument("output", help="output .npy, .npz or folder")
-    p.add_argument("--model", default="tr4", help="tr0..tr4 (bundled weights), auto (choose TR from the measured "
-                   "motion), or a checkpoint path (default tr4)")
+    p.add_argument("--model", default="default", help="default (the bundled model that fits the input), tr0..tr4 "
+                   "(bundled weights; paper-tr0..paper-tr4 always the paper's), auto (choose TR from the measured "
+                   "motion), or a checkpoint path")
     p.add_argument("--input", dest="input_kind", choices=["depth", "histograms", "timetags"], default=None,
                    help="what INPUT holds (default: depth or histograms from the data; time tags must be named)")
     g = p.add_argument_group("histogram gate (histograms and time tags)")
@@ -55,6 +57,9 @@ def add_parser(subparsers):
     g.add_argument("--variable", default=None, help="time tags: the .mat cell array to read (default: the only one)")
     g.add_argument("--drop-outside", action="store_true",
                    help="time tags: ignore photons outside the gate (default: refuse them)")
+    g.add_argument("--clip-negative", action="store_true",
+                   help="histograms: clip negative counts at 0 (background-subtracted histograms, as some published "
+                   "data are) and say how many, in how many pixels (default: refuse them)")
     p.add_argument("--units", choices=["m", "normalised"], default=None,
                    help="depth units of INPUT and OUTPUT: radial metres (inf = no return) or normalised [0, 1] "
                    "(1 = no return); default: normalised if the first frame lies in [0, 1], else metres; "
@@ -95,7 +100,7 @@ def run(args) -> int:
                      preview=args.preview, video=args.video, fps=args.fps, reference=args.reference,
                      points=args.points, fov_deg=DEFAULT_FOV_DEG if args.fov is None else args.fov,
                      points_colour=None if args.points_colour == "none" else args.points_colour,
-                     overwrite=args.force, progress=not args.no_progress,
+                     overwrite=args.force, progress=not args.no_progress, clip_negative=args.clip_negative,
                      report=lambda line: print(f"jaxsr upscale: {line}", file=sys.stderr, flush=True))
     print(json.dumps(result.summary()))
     return 0

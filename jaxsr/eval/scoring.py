@@ -62,14 +62,28 @@ class Clip:
     snr: float
     intensity: np.ndarray | None = None  # the HR intensity (T, H, W) in [0, 1], HistNet's guide image
     scored: np.ndarray | None = None  # the frames a test scores (`scored_frames`); None: every frame
+    # the photons behind each LR depth, (T, h, w, 2) encoded signal and background (`jaxsr.nn.network_inputs`),
+    # for networks that read them; None when the clip was made without them
+    photons: np.ndarray | None = None
+
+    def network_input(self, inputs=("depth",)) -> np.ndarray:
+        """What a network reading `inputs` (`ModelConfig.inputs`) gets: lr, or (T, h, w, C) channels."""
+        inputs = tuple(inputs)
+        if inputs == ("depth",):
+            return self.lr
+        if self.photons is None:
+            raise ValueError(f"clip {self.name!r} was made without its photons; a model reading {inputs} needs them")
+        channel = {"depth": self.lr, "signal": self.photons[..., 0], "background": self.photons[..., 1]}
+        return np.stack([channel[name] for name in inputs], axis=-1)
 
     def at(self, frames) -> Clip:
         """The clip of only these frames (indices; None: this clip), all of them scored."""
         if frames is None:
             return self
         intensity = None if self.intensity is None else self.intensity[frames]
+        photons = None if self.photons is None else self.photons[frames]
         return dataclasses.replace(self, lr=self.lr[frames], counts=self.counts[frames], gt=self.gt[frames],
-                                   intensity=intensity, scored=None)
+                                   intensity=intensity, scored=None, photons=photons)
 
 
 @jax.jit
@@ -171,7 +185,8 @@ def super_resolve_frames(model, lr, frames=None, *, batch: int = 8) -> np.ndarra
 
 def scored_output(model, clip: Clip) -> tuple[np.ndarray, np.ndarray]:
     """The model's output on the clip's scored frames and their ground truth."""
-    return super_resolve_frames(model, clip.lr, clip.scored), clip.gt if clip.scored is None else clip.gt[clip.scored]
+    lr = clip.network_input(getattr(model.config, "inputs", ("depth",)))
+    return super_resolve_frames(model, lr, clip.scored), clip.gt if clip.scored is None else clip.gt[clip.scored]
 
 
 def scene_scores(model, clips: dict) -> tuple[dict, np.ndarray]:

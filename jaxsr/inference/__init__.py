@@ -11,6 +11,7 @@ from .video import (
     iter_super_resolve,
     super_resolve,
     iter_centre_of_mass,
+    iter_network_inputs,
     super_resolve_histograms,
     Stream,
 )
@@ -32,6 +33,7 @@ from .pipeline import (
     pipeline_metric,
 )
 from .recording import (
+    DEFAULT_MODELS,
     UpscaleJob,
     UpscaleResult,
     prepare_upscale,
@@ -48,6 +50,7 @@ __all__ = [
     "iter_super_resolve",
     "super_resolve",
     "iter_centre_of_mass",
+    "iter_network_inputs",
     "super_resolve_histograms",
     "Stream",
     "STUDY_TABLE",
@@ -65,6 +68,7 @@ __all__ = [
     "pipeline_metric",
     "UpscaleJob",
     "UpscaleResult",
+    "DEFAULT_MODELS",
     "prepare_upscale",
     "write_upscaled",
     "upscale",

@@ -29,7 +29,7 @@ from tqdm.auto import tqdm
 
 from ..config import DepthScale, Gate, SensorConfig
 from ..io.checkpoint import load_model, resolve_model_path
-from ..io.files import atomic_folder, atomic_path
+from ..io.files import atomic_folder, atomic_path, reserve_space
 from ..io.formats import write_depth, write_sequence
 from ..io.pointcloud import DEFAULT_FOV_DEG, PointCloudWriter, check_points_folder
 from ..io.previews import write_comparison
@@ -39,6 +39,7 @@ from ..io.recordings import (
     check_frames,
     check_output,
     check_preview,
+    clipped_recording,
     gate_frames,
     guess_units,
     normalised_frames,
@@ -47,17 +48,22 @@ from ..io.recordings import (
     to_units,
 )
 from ..io.video import DEFAULT_FPS, DepthVideoWriter, check_video
+from ..nn.model import Model
 from ..runtime import enable_compilation_cache
 from ..sensor.gates import gate_warnings
 from ..sensor.quantities import parse_span, parse_time_unit, range_metres
 from ..sensor.timetags import TIME_TAG_FORMATS, TimeTags, gate_of_tags, read_time_tags
 from .adaptive import resolve_model
-from .video import iter_centre_of_mass, iter_super_resolve
+from .video import iter_network_inputs, iter_super_resolve
 
-__all__ = ["HEAD_FRAMES", "FRAME_FORMATS", "UpscaleJob", "UpscaleResult", "prepare_upscale", "write_upscaled",
+__all__ = ["HEAD_FRAMES", "DEFAULT_MODELS", "FRAME_FORMATS", "UpscaleJob", "UpscaleResult", "prepare_upscale", "write_upscaled",
            "upscale"]
 
 HEAD_FRAMES = 64  # frames model="auto" measures the motion on
+# model="default": the bundled model that fits the input. Depth gives only the centre of mass, which the paper's
+# TR4 reads; histograms and time tags also give the photons behind it, which a photon model reads
+# (experiments/results/photon_regimes.md says why this one).
+DEFAULT_MODELS = {"depth": "tr4", "histograms": "tr4"}
 FRAME_FORMATS = ("exr", "pfm", "tif", "png")  # frame files of a folder OUTPUT
 KINDS = ("depth", "histograms", "timetags")
 
@@ -70,8 +76,9 @@ class UpscaleJob:
     histogrammed); model: the `Model`; model_name: the model as people read it (tr4, a path, or
     "tr1 (auto: motion ...)"); units: "m" or "normalised", of the input depth and of array outputs; gate: the
     histogram gate (None for depth); scale: the `DepthScale` between metres and the network's [0, 1];
-    warnings: sentences on what the bundled models never saw in this gate and scale; source: the input as named
-    in messages and in an .npz output's metadata."""
+    warnings: sentences on what the bundled models never saw in this gate and scale, and on negative counts
+    clipped; source: the input as named in messages and in an .npz output's metadata; negative_counts: with
+    `clip_negative`, (negative counts clipped at 0, pixels holding one), else None."""
 
     recording: Recording
     model: object
@@ -82,6 +89,7 @@ class UpscaleJob:
     warnings: tuple[str, ...]
     source: str
     _lr_stream: Callable[[], Iterator[np.ndarray]] = dataclasses.field(repr=False, compare=False)
+    negative_counts: tuple[int, int] | None = None
 
     @property
     def frames(self) -> int:
@@ -112,7 +120,8 @@ class UpscaleJob:
         return float(self.scale.offset), float(self.scale.offset + self.scale.span)
 
     def lr_frames(self) -> Iterator[np.ndarray]:
-        """A fresh stream of the network's input: (h, w) float32 LR normalised depth frames, one per frame."""
+        """A fresh stream of the network's input: (h, w) float32 LR normalised depth frames, one per frame
+        ((h, w, C) for a model reading photons too: depth in channel 0, `jaxsr.nn.network_inputs`)."""
         return self._lr_stream()
 
     def iter_normalised(self, *, batch_size: int | None = None, lr_frames=None) -> Iterator[np.ndarray]:
@@ -137,7 +146,8 @@ class UpscaleResult:
     always metres); model: the model as people read it; gate, scale: the histogram gate and depth scale (gate
     None for depth); preview: the PNG written, or None; warnings: sentences on what the models never saw; notes:
     every line `jaxsr upscale` prints to stderr (warnings as "warning: ...", then what was read with which
-    model); video: the side-by-side video written, or None; points: the folder of PLY point clouds, or None."""
+    model); video: the side-by-side video written, or None; points: the folder of PLY point clouds, or None;
+    negative_counts: with `clip_negative`, (negative counts clipped at 0, pixels holding one), else None."""
 
     output: Path | None
     depth: np.ndarray | None
@@ -153,10 +163,12 @@ class UpscaleResult:
     notes: tuple[str, ...]
     video: Path | None = None
     points: Path | None = None
+    negative_counts: tuple[int, int] | None = None
 
     def summary(self) -> dict:
         """The JSON summary `jaxsr upscale` prints: frames, output, shape, units, model, for histograms the
-        gate and the depth scale (metres), and the video and point clouds' folder where written."""
+        gate and the depth scale (metres), the video and point clouds' folder where written, and with
+        --clip-negative the negative counts clipped and the pixels holding them."""
         out = {"frames": self.frames, "output": None if self.output is None else str(self.output),
                "shape": list(self.shape), "units": self.units, "model": self.model}
         if self.video is not None:
@@ -167,6 +179,8 @@ class UpscaleResult:
             out.update(gate={"bins": self.gate.bins, "bin_width_m": float(self.gate.bin_width),
                              "start_m": float(self.gate.start)},
                        scale={"offset_m": float(self.scale.offset), "span_m": float(self.scale.span)})
+        if self.negative_counts is not None:
+            out["negative_counts_clipped"] = dict(zip(("counts", "pixels"), self.negative_counts))
         return out
 
 
@@ -209,9 +223,12 @@ def _array_recording(arr: np.ndarray, kind: str | None) -> Recording:
     return Recording(kind, arr.shape[0], arr.shape[1:], lambda: iter(arr), "array", array=arr)
 
 
-def _open(input, kind, *, bins, bin_width, gate_start, span, time_unit, variable, drop_outside):
+def _open(input, kind, *, bins, bin_width, gate_start, span, time_unit, variable, drop_outside, clip_negative):
     """(recording, gate, source) for the input: time tags histogrammed over their gate, histograms with theirs,
-    or depth (gate options refused there)."""
+    or depth (gate options and clip_negative refused there)."""
+    if input is None:
+        raise TypeError("input: expected a path, a Recording, a NumPy array (T, h, w) or (T, h, w, bins) or "
+                        "TimeTags, got None")
     if kind is not None and kind not in KINDS:
         raise ValueError(f"kind (--input) is one of {', '.join(KINDS)}, got {kind!r}")
     width, start = range_metres(bin_width, "bin_width"), range_metres(gate_start, "gate_start")
@@ -231,6 +248,8 @@ def _open(input, kind, *, bins, bin_width, gate_start, span, time_unit, variable
             tags = read_time_tags(input, variable=variable, time_unit_s=time_unit)
         if (width is None) != (start is None):
             raise ValueError("give both --bin-width and --gate-start, or neither (the gate then spans the photons)")
+        if clip_negative:
+            raise ValueError("--clip-negative applies to histograms only (counts of time tags are never negative)")
         gate = gate_of_tags(tags, bins=bins) if width is None else Gate(bins, width, start)
         rec = time_tag_recording(tags, gate, outside="drop" if drop_outside else "error")
         return rec, gate, str(input) if not isinstance(input, TimeTags) else tags.source
@@ -246,14 +265,25 @@ def _open(input, kind, *, bins, bin_width, gate_start, span, time_unit, variable
         rec, source = open_recording(input, kind=kind), str(input)
     if rec.kind == "depth" and (gate_options or drop_outside):
         raise ValueError("--bins, --bin-width, --gate-start and --span apply to histograms and time tags only")
+    if rec.kind == "depth" and clip_negative:
+        raise ValueError("--clip-negative applies to histograms only (negative depth is no return)")
     default = Gate()
     return rec, Gate(bins, default.bin_width if width is None else width, 0.0 if start is None else start), source
 
 
 def _fixed_model(model, min_fps):
-    """(the model named by `model`, loaded and checked now, its name); (None, "auto") for auto, which needs the
-    input first (its bundled weights are looked up now)."""
-    if not isinstance(model, (str, os.PathLike)):  # a model object, already loaded
+    """(the model named by `model`, loaded and checked now, its name); (None, "auto") for auto and (None,
+    "default") for the default, which need the input first (their bundled weights are looked up now)."""
+    if not isinstance(model, (str, os.PathLike, Model)):
+        raise TypeError(f"model: expected 'default', 'tr0'..'tr4', 'auto', a checkpoint path or a loaded jaxsr.Model, "
+                        f"got {type(model).__name__} {model!r:.60}")
+    if isinstance(model, str) and model == "default":
+        for name in set(DEFAULT_MODELS.values()):
+            resolve_model_path(name)
+        if min_fps is not None:
+            raise ValueError("--min-fps applies to --model auto only (a fixed model runs at its own speed)")
+        return None, "default"
+    if isinstance(model, Model):  # already loaded
         if min_fps is not None:
             raise ValueError("--min-fps applies to --model auto only (a fixed model runs at its own speed)")
         return model, "model"
@@ -275,10 +305,10 @@ def _head(frames, n):
     return np.stack(head)
 
 
-def prepare_upscale(input, *, model="tr4", kind: str | None = None, bins: int | None = None, bin_width=None,
+def prepare_upscale(input, *, model="default", kind: str | None = None, bins: int | None = None, bin_width=None,
                     gate_start=None, span=None, time_unit=None, variable: str | None = None,
-                    drop_outside: bool = False, units: str | None = None,
-                    min_fps: float | None = None) -> UpscaleJob:
+                    drop_outside: bool = False, units: str | None = None, min_fps: float | None = None,
+                    clip_negative: bool = False) -> UpscaleJob:
     """Open and check a recording and choose its model, as `jaxsr upscale` does before any output is written.
 
     input: a path (.npy / .npz array of depth (T, h, w) or photon counts (T, h, w, bins); a folder or glob pattern
@@ -288,26 +318,38 @@ def prepare_upscale(input, *, model="tr4", kind: str | None = None, bins: int | 
     the input and every one of its frames (frames of any size h, w >= 4).
 
     Returns an `UpscaleJob` (its `iter_frames()` streams the result). Raises ValueError, FileNotFoundError (a
-    missing input or model) with the messages `jaxsr upscale` prints.
+    missing input or model) with the messages `jaxsr upscale` prints, TypeError for an input or model of another
+    type (None among them).
     """
     fixed, name = _fixed_model(model, min_fps)
-    r = 4 if fixed is None else _scale(fixed)
-    sensor = SensorConfig() if r == 4 else SensorConfig(scale=r)
     span = _span(span)
     rec, gate, source = _open(input, kind, bins=bins, bin_width=bin_width, gate_start=gate_start, span=span,
                               time_unit=_positive(time_unit, "time_unit", parse_time_unit, "seconds"), variable=variable,
-                              drop_outside=drop_outside)
+                              drop_outside=drop_outside, clip_negative=clip_negative)
+    if name == "default":  # the bundled model that fits the input
+        name = DEFAULT_MODELS[rec.kind]
+        fixed = load_model(name)
+    inputs = tuple(getattr(getattr(fixed, "config", None), "inputs", ("depth",)))
+    if rec.kind != "histograms" and inputs != ("depth",):
+        raise ValueError(f"model {name} reads {', '.join(inputs)} per pixel, which depth frames do not hold: give it "
+                         "photon histograms or time tags, or choose a depth model (tr0..tr4)")
+    r = 4 if fixed is None else _scale(fixed)
+    sensor = SensorConfig() if r == 4 else SensorConfig(scale=r)
     if units is not None and units not in ("m", "normalised"):
         raise ValueError(f"units is 'm' or 'normalised', got {units!r}")
-    warnings = ()
+    warnings, negatives = (), None
     if rec.kind == "histograms":
         scale = DepthScale.for_gate(gate, gate.length if span == "gate" else span)
         warnings = tuple(gate_warnings(gate, scale))
         units = "m" if units is None else units
-        check_frames(rec, units, gate)
+        found = check_frames(rec, units, gate, clip_negative=clip_negative)  # (0, 0) unless clip_negative
+        negatives = found if clip_negative else None
+        if found[0]:
+            warnings += (_clipped_note(*found),)
+        counts = clipped_recording(rec) if clip_negative else rec
 
         def lr_stream():
-            return gate_frames(iter_centre_of_mass(rec, SensorConfig(bins=gate.bins)), gate, scale)
+            return gate_frames(iter_network_inputs(counts, SensorConfig(bins=gate.bins), inputs), gate, scale)
     else:
         scale = DepthScale(0.0, float(sensor.d_max))
         units = guess_units(rec) if units is None else units
@@ -320,7 +362,17 @@ def prepare_upscale(input, *, model="tr4", kind: str | None = None, bins: int | 
     enable_compilation_cache()
     if fixed is None:
         fixed, name = resolve_model("auto", _head(lr_stream(), HEAD_FRAMES), min_fps=min_fps)
-    return UpscaleJob(rec, fixed, name, units, gate, scale, warnings, source, lr_stream)
+    return UpscaleJob(rec, fixed, name, units, gate, scale, warnings, source, lr_stream, negatives)
+
+
+def _plural(n: int, noun: str) -> str:
+    return f"{n} {noun}" + ("" if n == 1 else "s")
+
+
+def _clipped_note(counts: int, pixels: int) -> str:
+    """The warning on negative counts clipped (--clip-negative): how many, in how many pixels."""
+    return (f"{_plural(counts, 'negative count')} in {_plural(pixels, 'pixel')} clipped at 0 (--clip-negative: "
+            "background-subtracted histograms)")
 
 
 def _reference(reference, job: UpscaleJob):
@@ -395,10 +447,11 @@ def write_upscaled(job: UpscaleJob, output, *, frame_format: str = "exr", batch_
 
     def keep_preview(frames):
         for t, f in enumerate(frames):
+            depth = f[..., 0] if f.ndim == 3 else f  # a photon model's input: depth in channel 0
             if t == preview_t:
-                preview_lr.append(f)
+                preview_lr.append(depth)
             if video is not None:
-                lr_ahead.append(f)
+                lr_ahead.append(depth)
             yield f
 
     stream = job.iter_normalised(batch_size=batch_size, lr_frames=keep_preview(job.lr_frames()))
@@ -449,6 +502,7 @@ def write_upscaled(job: UpscaleJob, output, *, frame_format: str = "exr", batch_
         elif out.suffix.lower() == ".npy":  # streamed to disk: memory for a batch, not for the whole result
             with atomic_path(out, overwrite=overwrite) as tmp:
                 result = np.lib.format.open_memmap(tmp, mode="w+", dtype=np.float32, shape=shape)
+                reserve_space(tmp)  # a full disk: ENOSPC now, not SIGBUS when a page of the map is written
                 for t, f in frames(job.units):
                     result[t] = f
                 result.flush()
@@ -469,7 +523,7 @@ def write_upscaled(job: UpscaleJob, output, *, frame_format: str = "exr", batch_
                 finish()
     notes = tuple(f"warning: {w}" for w in job.warnings) + (job.note,)
     return UpscaleResult(out, depth, job.frames, shape, rec.kind, job.units, job.model_name, job.gate, scale,
-                         preview, job.warnings, notes, video, points)
+                         preview, job.warnings, notes, video, points, job.negative_counts)
 
 
 def _check_look_options(video, fps, reference, points, points_colour):
@@ -484,12 +538,12 @@ def _check_look_options(video, fps, reference, points, points_colour):
         raise ValueError(f"points_colour: 'depth' or None, got {points_colour!r}")
 
 
-def upscale(input, output, *, model="tr4", kind: str | None = None, bins: int | None = None, bin_width=None,
+def upscale(input, output, *, model="default", kind: str | None = None, bins: int | None = None, bin_width=None,
             gate_start=None, span=None, time_unit=None, variable: str | None = None, drop_outside: bool = False,
             units: str | None = None, frame_format: str = "exr", batch_size: int | None = None,
             min_fps: float | None = None, preview=None, video=None, fps: float | None = None, reference=None,
             points=None, fov_deg: float = DEFAULT_FOV_DEG, points_colour: str | None = "depth",
-            overwrite: bool = False, progress: bool = False,
+            overwrite: bool = False, progress: bool = False, clip_negative: bool = False,
             report: Callable[[str], None] | None = None) -> UpscaleResult:
     """Super-resolve a recording x4 with a trained model and write it: `jaxsr upscale INPUT OUTPUT` in one call.
 
@@ -499,8 +553,10 @@ def upscale(input, output, *, model="tr4", kind: str | None = None, bins: int | 
     a NumPy array or `TimeTags` (see `prepare_upscale`). output: .npy / .npz, a folder of frames, or None (the
     result is returned in `UpscaleResult.depth`, (T, H, W) float32). Options, keyword-only, as the command's:
 
-    - model (--model): "tr0".."tr4" (bundled weights), "auto" (the TR `choose_tr` picks from the motion of the
-      first 64 frames, within min_fps), a checkpoint path, or a `Model`. Default "tr4".
+    - model (--model): "default" (the bundled model that fits the input, `DEFAULT_MODELS`: tr4 for depth and
+      for histograms and time tags), "tr0".."tr4" (bundled weights; "paper-tr0".."paper-tr4" always the
+      paper's), "auto" (the TR `choose_tr` picks from the motion of the first 64 frames, within min_fps), a
+      checkpoint path, or a `Model`; a model reading photons (`ModelConfig.inputs`) needs histograms or time tags.
     - kind (--input): "depth", "histograms" or "timetags" (default: depth or histograms from the data).
     - bins, bin_width, gate_start, span (histograms and time tags): the gate, K bins (default 16) of bin_width
       from gate_start; bin_width and gate_start are metres or strings with a unit ("12.5ns", "2.19m"; a time
@@ -508,6 +564,9 @@ def upscale(input, output, *, model="tr4", kind: str | None = None, bins: int | 
       onto the network's [0, 1] (default 35, the models' training range) or "gate" (the gate's length).
     - time_unit (--time-unit, time tags): seconds per time unit, or a string such as "1ps"; variable: the .mat
       cell array to read; drop_outside: ignore photons outside the gate (default: refuse them).
+    - clip_negative (--clip-negative, histograms): clip negative counts at 0 (background-subtracted histograms,
+      as some published data are) and say how many, in how many pixels (a warning, and
+      `UpscaleResult.negative_counts`); default: refuse them, as raw photon counts are never negative.
     - units (--units): "m" (radial metres, inf = no return) or "normalised" ([0, 1], 1 = no return) of input and
       output; default normalised if the first frame lies in [0, 1], else metres; histograms give metres.
     - frame_format (--frame-format): "exr", "pfm", "tif" or "png", when output is a folder (always metres).
@@ -525,7 +584,9 @@ def upscale(input, output, *, model="tr4", kind: str | None = None, bins: int | 
     path, frames, shape, units, model, gate, scale, warnings, notes, video, points; `summary()` is the command's
     JSON). Raises FileNotFoundError (missing input, model, reference or output folder), FileExistsError (an
     output, preview or video exists, or the point clouds' folder holds files, without overwrite), IsADirectoryError, NotADirectoryError or
-    ValueError (bad options or input), with the messages `jaxsr upscale` prints; nothing is left written then.
+    ValueError (bad options or input), with the messages `jaxsr upscale` prints, TypeError (an input or model of
+    another type, None among them), or `jaxsr.io.WriteError` (the disk refused a write: full, over quota, ...);
+    nothing is left written then.
     """
     _check_look_options(video, fps, reference, points, points_colour)
     out = None if output is None else check_output(output, force=overwrite)
@@ -540,7 +601,7 @@ def upscale(input, output, *, model="tr4", kind: str | None = None, bins: int | 
         open_recording(reference, kind="depth")  # exists and reads (its frames are checked against the job's later)
     job = prepare_upscale(input, model=model, kind=kind, bins=bins, bin_width=bin_width, gate_start=gate_start,
                           span=span, time_unit=time_unit, variable=variable, drop_outside=drop_outside,
-                          units=units, min_fps=min_fps)
+                          units=units, min_fps=min_fps, clip_negative=clip_negative)
     if report is not None:
         for w in job.warnings:
             report(f"warning: {w}")

@@ -32,7 +32,7 @@ from ..checks import require_normalised_depth
 from ..config import MIN_LR_SIDE, SensorConfig
 from ..nn.duf import apply_model, apply_model_sequence, sequence_radius
 from ..nn.model import Model
-from ..sensor.peaks import centre_of_mass
+from ..nn.inputs import network_inputs
 from ..runtime import compiler_options
 from ..nn.streaming import stream_init, stream_step
 
@@ -96,13 +96,34 @@ def _default_batch_size(frames, sequence_form: bool) -> int:
     return max(1, min(n, DEFAULT_SEQUENCE_CHUNK))
 
 
-def _check_frame(frame, shape, index):
+def _require_model(model, who: str) -> Model:
+    """`model` if it is a loaded `Model`; a TypeError that says how to get one otherwise (None, a name, a path)."""
+    if not isinstance(model, Model):
+        raise TypeError(f"{who}: expected a jaxsr.Model (e.g. jaxsr.load_model('tr4')), got "
+                        f"{type(model).__name__} {model!r:.60}")
+    return model
+
+
+def _check_frame(frame, shape, index, inputs=("depth",)):
+    """One LR frame checked for a network reading `inputs`: (h, w) normalised depth, or (h, w, C) channels, depth
+    first and photon channels finite and >= 0 (`jaxsr.nn.network_inputs`)."""
     frame = np.asarray(frame, np.float32)
-    if frame.ndim != 2 or (shape is not None and frame.shape != shape) or min(frame.shape) < MIN_LR_SIDE:
-        want = f"(h, w) with h, w >= {MIN_LR_SIDE}" if shape is None else str(shape)
-        raise ValueError(f"super_resolve: frame {index} has shape {frame.shape}, expected {want} "
-                         "(LR normalised depth)")
-    return require_normalised_depth(f"super_resolve: frame {index}", frame)
+    ndim = 2 if len(inputs) == 1 else 3
+    if (frame.ndim != ndim or (ndim == 3 and frame.shape[-1] != len(inputs))
+            or (shape is not None and frame.shape != shape) or min(frame.shape[:2]) < MIN_LR_SIDE):
+        want = str(shape) if shape is not None else (f"(h, w) with h, w >= {MIN_LR_SIDE}" if ndim == 2 else
+                                                     f"(h, w, {len(inputs)}) with h, w >= {MIN_LR_SIDE}")
+        what = "LR normalised depth" if ndim == 2 else (f"the channels {inputs} of jaxsr.nn.network_inputs; give "
+                                                        "photon histograms to super_resolve_histograms")
+        raise ValueError(f"super_resolve: frame {index} has shape {frame.shape}, expected {want} ({what})")
+    if ndim == 2:
+        return require_normalised_depth(f"super_resolve: frame {index}", frame)
+    photons = frame[..., 1:]
+    if not (np.all(np.isfinite(photons)) and photons.min() >= 0):
+        raise ValueError(f"super_resolve: frame {index}'s channels {inputs[1:]} must be finite and >= 0 (encoded "
+                         "photons, jaxsr.nn.encode_photons)")
+    depth = require_normalised_depth(f"super_resolve: frame {index}'s depth", frame[..., 0])
+    return np.concatenate([depth[..., None], photons], axis=-1)
 
 
 def tile_spans(n: int, radius: int, max_side: int | None) -> tuple[int, list[tuple[int, int, int]]]:
@@ -130,7 +151,8 @@ def iter_super_resolve(model: Model, frames: Iterable, *, batch_size: int | None
     """Super-resolve a stream of LR frames, yielding HR frames in order, in bounded memory.
 
     frames: an iterable of (h, w) LR normalised depth frames (0..1, 1 or NaN = no return), e.g. a generator reading
-    files one by one. In the model's form (`model.config.temporal`): frame t is computed from frames t - R ..
+    files one by one; for a model reading photons too (`ModelConfig.inputs`), (h, w, C) frames of
+    `jaxsr.nn.network_inputs` (`super_resolve_histograms` builds them). In the model's form (`model.config.temporal`): frame t is computed from frames t - R ..
     t + R, R = `model.config.input_radius` (tr for the window form, 3 + tr for the sequence form),
     edge-replicated at both ends of the stream (as `jaxsr.temporal.windows`), so frame t is yielded once frame
     t + R has arrived (or the stream has ended), `batch_size` at a time. batch_size: frames per compiled call
@@ -147,10 +169,13 @@ def iter_super_resolve(model: Model, frames: Iterable, *, batch_size: int | None
     another shape than the first or smaller than `MIN_LR_SIDE`, or with values further outside [0, 1] (metres,
     negated, inf: the message names the range seen; `jaxsr.normalise_depth` converts metres).
     """
-    arch = model.architecture
+    arch = _require_model(model, "super_resolve").architecture
+    if frames is None or isinstance(frames, (str, bytes)):
+        raise TypeError(f"super_resolve: frames must be an iterable of LR frames, got {type(frames).__name__}")
     if arch.inputs != "depth":
         raise ValueError(f"super_resolve: a {arch.name} model reads photon histograms, not depth; use "
                          "super_resolve_histograms(model, counts, intensity=...)")
+    inputs = getattr(model.config, "inputs", ("depth",))
     sequence_form = arch.sequence_form(model.config)
     batch_size = _default_batch_size(frames, sequence_form) if batch_size is None else int(batch_size)
     if batch_size < 1:
@@ -204,7 +229,7 @@ def iter_super_resolve(model: Model, frames: Iterable, *, batch_size: int | None
         yield from out
 
     for f in frames:
-        f = _check_frame(f, shape, n_seen)
+        f = _check_frame(f, shape, n_seen, inputs)
         shape = f.shape
         held.append(f)
         n_seen += 1
@@ -240,12 +265,21 @@ def super_resolve(model: Model, lr_seq, *, batch_size: int | None = None, conv3d
     (`jaxsr.temporal.windows`) and the result equals `apply_model` on those windows, or (sequence form) the
     result equals `apply_model_sequence` on the whole sequence (`conv3d_impl` is passed on). Memory on the device is
     bounded by the batch (see `iter_super_resolve`); the HR result is assembled on the host. `lr_seq` is
-    normalised depth in [0, 1] (1 or NaN = no return; checked as in `iter_super_resolve`). For a
-    differentiable, traceable version, call `apply_model(params, state, jaxsr.windows(lr_seq, tr), cfg)`.
+    normalised depth in [0, 1] (1 or NaN = no return; checked as in `iter_super_resolve`), or (T, h, w, C) for a
+    model reading photons too (`jaxsr.nn.network_inputs`). For a differentiable, traceable version, call `apply_model(params, state, jaxsr.windows(lr_seq, tr), cfg)`.
     """
+    _require_model(model, "super_resolve")
+    if lr_seq is None or isinstance(lr_seq, (str, bytes)):
+        raise TypeError(f"super_resolve: expected an LR sequence array (T, h, w), got {type(lr_seq).__name__}")
     lr_seq = np.asarray(lr_seq, np.float32)
-    if lr_seq.ndim != 3 or lr_seq.shape[0] < 1:
-        raise ValueError(f"super_resolve: expected an LR sequence (T, h, w) with T >= 1, got shape {lr_seq.shape}")
+    inputs = getattr(model.config, "inputs", ("depth",))
+    want = 3 if len(inputs) == 1 else 4
+    if lr_seq.ndim != want or lr_seq.shape[0] < 1:
+        shape = "(T, h, w)" if want == 3 else f"(T, h, w, {len(inputs)}) of jaxsr.nn.network_inputs"
+        hint = "" if want == 3 else (f"; this model reads {inputs} per pixel: give it histograms with "
+                                     "super_resolve_histograms")
+        raise ValueError(f"super_resolve: expected an LR sequence {shape} with T >= 1, got shape {lr_seq.shape}"
+                         + hint)
     r = model.architecture.scale(model.config)
     out = np.empty((lr_seq.shape[0], lr_seq.shape[1] * r, lr_seq.shape[2] * r), np.float32)
     for t, hr in enumerate(iter_super_resolve(model, lr_seq, batch_size=batch_size, conv3d_impl=conv3d_impl,
@@ -254,9 +288,9 @@ def super_resolve(model: Model, lr_seq, *, batch_size: int | None = None, conv3d
     return out
 
 
-@jax.jit
-def _com_chunk(counts, sensor):
-    return centre_of_mass(counts, sensor)
+@functools.partial(jax.jit, static_argnames="inputs")
+def _inputs_chunk(counts, sensor, inputs):
+    return network_inputs(counts, sensor, inputs)
 
 
 def iter_centre_of_mass(counts: Iterable, sensor: SensorConfig = SensorConfig(), *,
@@ -266,6 +300,15 @@ def iter_centre_of_mass(counts: Iterable, sensor: SensorConfig = SensorConfig(),
     counts: an iterable of (h, w, K) photon counts, or a (T, h, w, K) array. Yields (h, w) float32 LR
     normalised depth frames. Raises ValueError for a frame whose bin count is not `sensor.bins`, or with
     negative or non-finite counts."""
+    return iter_network_inputs(counts, sensor, chunk=chunk)
+
+
+def iter_network_inputs(counts: Iterable, sensor: SensorConfig = SensorConfig(), inputs=("depth",), *,
+                        chunk: int = 16) -> Iterator[np.ndarray]:
+    """A network's input frames from a stream of histogram frames (`jaxsr.nn.network_inputs`), `chunk` frames per
+    compiled call: (h, w) depth for inputs ("depth",), else (h, w, len(inputs)); float32. Counts are checked as
+    in `iter_centre_of_mass`."""
+    inputs = tuple(inputs)
     buf = []
 
     def flush():
@@ -273,7 +316,7 @@ def iter_centre_of_mass(counts: Iterable, sensor: SensorConfig = SensorConfig(),
         n = block.shape[0]
         if n < chunk:  # keep one compiled shape
             block = np.concatenate([block, np.zeros((chunk - n, *block.shape[1:]), block.dtype)])
-        yield from np.asarray(_com_chunk(jnp.asarray(block), sensor))[:n]
+        yield from np.asarray(_inputs_chunk(jnp.asarray(block), sensor, inputs))[:n]
         buf.clear()
 
     for i, c in enumerate(counts):
@@ -297,15 +340,20 @@ def super_resolve_histograms(model: Model, counts, sensor: SensorConfig = Sensor
 
     A model that reads depth (the DUF network, iSeeBetter) gets the centre-of-mass depth of each frame
     (`jaxsr.centre_of_mass` with `sensor`, K = `sensor.bins` over the sensor's gate [0, d_max): the normalised
-    depth is tau / K), `super_resolve`d, streaming (see `iter_super_resolve`; `batch_size`, `conv3d_impl` and
+    depth is tau / K), and the photons behind it if its config lists more `inputs` (`jaxsr.nn.network_inputs`),
+    `super_resolve`d, streaming (see `iter_super_resolve`; `batch_size`, `conv3d_impl` and
     `tile` as there). A model that reads histograms (HistNet) gets the counts themselves with `intensity`
     (T, h r, w r), the HR intensity in [0, 1] it is guided by (required for it, refused otherwise), frame by
     frame in batches of `batch_size`. Any h, w >= `MIN_LR_SIDE`; for histograms over another gate, see
     `jaxsr.Gate` and `jaxsr.sensor.gate_depth`."""
+    _require_model(model, "super_resolve_histograms")
+    if counts is None or isinstance(counts, (str, bytes)):
+        raise TypeError(f"super_resolve_histograms: expected photon counts (T, h, w, {sensor.bins}), got "
+                        f"{type(counts).__name__}")
     counts = np.asarray(counts)
-    if counts.ndim != 4:
-        raise ValueError(f"super_resolve_histograms: expected counts (T, h, w, {sensor.bins}), got shape "
-                         f"{counts.shape}")
+    if counts.ndim != 4 or counts.shape[0] < 1 or min(counts.shape[1:3]) < MIN_LR_SIDE:
+        raise ValueError(f"super_resolve_histograms: expected counts (T, h, w, {sensor.bins}) with T >= 1 and h, w >= "
+                         f"{MIN_LR_SIDE}, got shape {counts.shape}")
     arch = model.architecture
     r = arch.scale(model.config)
     if arch.inputs == "histograms":
@@ -316,8 +364,8 @@ def super_resolve_histograms(model: Model, counts, sensor: SensorConfig = Sensor
     out = np.empty((counts.shape[0], counts.shape[1] * r, counts.shape[2] * r), np.float32)
     if batch_size is None:  # the frames' count is known here, not in the stream of centre-of-mass frames
         batch_size = _default_batch_size(counts, arch.sequence_form(model.config))
-    stream = iter_super_resolve(model, iter_centre_of_mass(counts, sensor), batch_size=batch_size,
-                                conv3d_impl=conv3d_impl, tile=tile)
+    frames = iter_network_inputs(counts, sensor, getattr(model.config, "inputs", ("depth",)))
+    stream = iter_super_resolve(model, frames, batch_size=batch_size, conv3d_impl=conv3d_impl, tile=tile)
     for t, hr in enumerate(stream):
         out[t] = hr
     return out
@@ -370,7 +418,7 @@ class Stream:
     """
 
     def __init__(self, model: Model, *, conv3d_impl: str = "auto"):
-        self.model = model
+        self.model = _require_model(model, "Stream")
         self.conv3d_impl = conv3d_impl
         self.latency = sequence_radius(model.config)
         self._reset()
@@ -388,10 +436,11 @@ class Stream:
 
     def push(self, frame) -> np.ndarray | None:
         """Feed LR frame t (h, w); returns HR frame t - R (h r, w r), or None while t < R."""
-        frame = _check_frame(frame, self._shape, self._fed - self.latency if self._shape else 0)
+        frame = _check_frame(frame, self._shape, self._fed - self.latency if self._shape else 0,
+                             self.model.config.inputs)
         if self._shape is None:  # a new stream: R copies of the first frame before it (edge padding)
             self._shape = frame.shape
-            self._buffers = stream_init(self.model.config, frame.shape)
+            self._buffers = stream_init(self.model.config, frame.shape[:2])
             for _ in range(self.latency):
                 self._step(frame)
         self._last = frame

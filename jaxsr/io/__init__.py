@@ -3,6 +3,7 @@
 """
 
 from .files import (
+    WriteError,
     atomic_path,
     write_text_atomic,
     atomic_folder,
@@ -80,6 +81,7 @@ from .simulate import (
 )
 
 __all__ = [
+    "WriteError",
     "atomic_path",
     "write_text_atomic",
     "atomic_folder",

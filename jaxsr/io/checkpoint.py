@@ -214,9 +214,15 @@ def save_model(path, model: Model, *, card: dict | None = None, storage_dtype: s
     return save_tree(path, tree, meta)
 
 
+# Names of bundled weights that stay fixed whatever the defaults become: "paper-tr4" is always the paper's TR4
+# (depth in, trained on the paper's regime), which the reproduction scripts load.
+BUNDLED_ALIASES = {f"paper-tr{tr}": f"tr{tr}" for tr in range(5)}
+
+
 def resolve_model_path(path) -> Path:
     """Where a model lives: `path` itself if it is a file, else `path` + ".npz", else the bundled weights of
-    that name (`jaxsr/weights/tr4.npz` for "tr4"). Raises FileNotFoundError naming all three.
+    that name (`jaxsr/weights/tr4.npz` for "tr4"; "paper-tr0".."paper-tr4" name the paper's models,
+    `BUNDLED_ALIASES`). Raises FileNotFoundError naming all three.
 
     Args: path (str or Path). Returns a Path to an existing file (not opened or checked).
     """
@@ -225,7 +231,7 @@ def resolve_model_path(path) -> Path:
         return p
     if p.suffix != ".npz" and p.with_name(p.name + ".npz").is_file():
         return p.with_name(p.name + ".npz")
-    bundled = Path(__file__).parents[1] / "weights" / f"{p.name}.npz"
+    bundled = Path(__file__).parents[1] / "weights" / f"{BUNDLED_ALIASES.get(p.name, p.name)}.npz"
     if len(p.parts) == 1 and bundled.is_file():
         return bundled
     raise FileNotFoundError(f"no checkpoint at {str(path)!r} (nor {str(path)!r}.npz, nor bundled weights {p.name!r})")

@@ -1,6 +1,8 @@
 """Atomic file writes: a temporary file in the destination folder, then `os.replace`, so a crash or an
 exception never leaves a half-written file, and an existing file is only replaced when asked. Folders of
 outputs are written the same way (`atomic_folder`): into a hidden temporary sibling, moved into place at the end.
+A write that the disk refuses (full, over quota, read-only, an I/O error) raises `WriteError`, which names the
+output rather than its hidden temporary file, after the temporary file or folder is removed.
 """
 
 from __future__ import annotations
@@ -11,6 +13,62 @@ import os
 import shutil
 import tempfile
 from pathlib import Path
+
+
+# OSErrors that are a user's mistake (an existing or missing path, no permission), raised with their own message:
+# the rest, raised inside an atomic write, are the disk's (ENOSPC, EDQUOT, EROFS, EIO, ...) and become WriteError.
+_PATH_ERRORS = (FileExistsError, FileNotFoundError, IsADirectoryError, NotADirectoryError, PermissionError)
+
+
+class WriteError(OSError):
+    """An output could not be written (a full disk, a quota, a read-only or failing device). `path` is the
+    output as the caller named it (never the hidden temporary file), `reason` the system's words for errno
+    (e.g. "no space left on device"); str() is one line: "REASON while writing PATH; nothing was written (the
+    partial file was removed)". partial: "file" or "folder", what was removed (None: nothing had been created)."""
+
+    def __init__(self, errno_: int, path, reason: str, partial: str | None = "file"):
+        self.path, self.reason, self.partial = Path(path), reason, partial
+        removed = "" if partial is None else f" (the partial {partial} was removed)"
+        super().__init__(errno_, f"{reason} while writing {path}; nothing was written{removed}")
+
+    def __str__(self) -> str:  # no "[Errno 28]" prefix: the message is for people
+        return self.strerror
+
+
+def _write_error(error: BaseException, path: Path, tmp, partial: str) -> BaseException:
+    """The exception an atomic write of `path` (through its temporary `tmp`, None before it exists) raises for
+    `error`: a disk error becomes a `WriteError` naming `path`, and one an inner atomic write raised for a file
+    inside `tmp` (or for `tmp` itself) names the file's final place; anything else is raised unchanged."""
+    if isinstance(error, WriteError):
+        inner = error.path
+        if tmp is None or not (inner == tmp or tmp in inner.parents):
+            return error  # another output's (written beside this one, not into it)
+        where = path if inner == tmp else path / inner.relative_to(tmp)
+        return WriteError(error.errno, where, error.reason, partial)
+    if not isinstance(error, OSError) or error.errno is None or isinstance(error, _PATH_ERRORS):
+        return error
+    reason = os.strerror(error.errno)
+    return WriteError(error.errno, path, reason[:1].lower() + reason[1:], None if tmp is None else partial)
+
+
+def reserve_space(path) -> None:
+    """Allocate the disk blocks of the whole file `path` now (`os.posix_fallocate` over its current size): a
+    memory-mapped file (`numpy.lib.format.open_memmap`) is created sparse, and a page written to it on a full disk
+    kills the process with SIGBUS; reserved first, a full disk is an OSError (ENOSPC) before any work. A file
+    system or platform that cannot allocate ahead is left as it is."""
+    if not hasattr(os, "posix_fallocate"):  # pragma: no cover - not POSIX
+        return
+    size = os.path.getsize(path)
+    if size == 0:
+        return
+    fd = os.open(path, os.O_RDWR)
+    try:
+        os.posix_fallocate(fd, 0, size)
+    except OSError as e:
+        if e.errno not in (errno.EOPNOTSUPP, errno.ENOTSUP, errno.EINVAL, errno.ENOSYS):
+            raise
+    finally:
+        os.close(fd)
 
 
 def _umask() -> int:
@@ -26,7 +84,8 @@ def atomic_path(path, *, overwrite: bool = False, make_parents: bool = False):
     Raises FileExistsError if `path` exists and `overwrite` is False, at the start or (another writer's file)
     at the end, when it is never replaced; FileNotFoundError if its folder does not exist (unless
     `make_parents`). The file gets the usual permissions (0666 less the umask), not
-    mkstemp's private 0600. Any exception, KeyboardInterrupt included, removes the temporary file.
+    mkstemp's private 0600. Any exception, KeyboardInterrupt included, removes the temporary file; an OSError
+    of the disk (full, over quota, read-only, failing) is raised as a `WriteError` naming `path`.
     """
     path = Path(path)
     if path.exists() and not overwrite:
@@ -45,11 +104,14 @@ def atomic_path(path, *, overwrite: bool = False, make_parents: bool = False):
             os.replace(tmp, path)
         else:
             _claim(Path(tmp), path)
-    except BaseException:
+    except BaseException as e:
         if tmp is not None:
             with contextlib.suppress(FileNotFoundError):
                 os.remove(tmp)
-        raise
+        error = _write_error(e, path, None if tmp is None else Path(tmp), "file")
+        if error is e:
+            raise
+        raise error from e
 
 
 def _claim(tmp: Path, path: Path) -> None:
@@ -136,7 +198,8 @@ def atomic_folder(path, *, overwrite: bool = True):
 
     The caller decides beforehand whether `path` may be written into (`jaxsr.io.recordings.check_output`);
     overwrite=False claims a new folder: FileExistsError at the end, writing nothing into it, if `path` holds
-    files by then (another writer's, created while this one ran). Raises FileExistsError if `path` is a file.
+    files by then (another writer's, created while this one ran). Raises FileExistsError if `path` is a file,
+    and a `WriteError` naming `path` (or the file inside it) for an OSError of the disk (full, over quota, ...).
     """
     path = Path(path)
     if path.is_file():
@@ -164,10 +227,13 @@ def atomic_folder(path, *, overwrite: bool = True):
         for f in sorted(tmp.iterdir()):
             os.replace(f, path / f.name)
         tmp.rmdir()
-    except BaseException:
+    except BaseException as e:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
-        raise
+        error = _write_error(e, path, tmp, "folder")
+        if error is e:
+            raise
+        raise error from e
 
 
 @contextlib.contextmanager

@@ -20,12 +20,14 @@ import numpy as np
 from . import formats as io
 from ..checks import NORMALISED_SLACK, require_normalised_depth
 from ..config import MIN_LR_SIDE, DepthScale, Gate, SensorConfig
+from ..sensor.effects import clip_negative_counts
 from ..sensor.gates import from_network_depth, to_network_depth
 from ..sensor.forward import normalise_depth
 from ..sensor.timetags import histogram_time_tags
 
 __all__ = ["ARRAY_FORMATS", "FRAME_FORMATS", "Recording", "check_frames", "check_output", "check_preview",
-           "gate_frames", "guess_units", "normalised_frames", "open_recording", "time_tag_recording", "to_units"]
+           "clipped_recording", "gate_frames", "guess_units", "normalised_frames", "open_recording",
+           "time_tag_recording", "to_units"]
 
 FRAME_FORMATS = (".exr", ".pfm", ".tif", ".tiff", ".png")
 ARRAY_FORMATS = (".npy", ".npz")
@@ -160,15 +162,19 @@ def _chunks(recording: Recording, size: int = 256):
             yield t, np.asarray(f, np.float64)[None]
 
 
-def check_frames(recording: Recording, units: str, gate: Gate = Gate()) -> None:
+def check_frames(recording: Recording, units: str, gate: Gate = Gate(), *,
+                 clip_negative: bool = False) -> tuple[int, int]:
     """Check every frame before any work, so that a bad recording is refused before compute and before any
     output is written (one pass over the input: a memory-mapped array in blocks, image frames one by one).
 
     Frames of any size h x w with h, w >= MIN_LR_SIDE run (the bundled models were trained on 32 x 64 frames
     of a 30 deg field of view: README "Frame size"); histograms must have `gate.bins` bins (--bins). Depth: NaN
     and inf are no return; for `units` "normalised" the other values lie within [0, 1] (up to
-    NORMALISED_SLACK, as `super_resolve` checks). Histograms: finite, non-negative counts. Raises ValueError
-    naming the recording, the frame and what was expected."""
+    NORMALISED_SLACK, as `super_resolve` checks). Histograms: finite counts, >= 0 unless `clip_negative`
+    (background-subtracted histograms, whose negative counts `clipped_recording` clips at 0). Raises ValueError
+    naming the recording, the frame and what was expected.
+
+    Returns (negative counts, pixels holding one): what `clip_negative` lets through ((0, 0) for depth)."""
     src = recording.source
     frame = tuple(recording.shape[:2])
     if recording.kind == "histograms" and recording.shape[-1] != gate.bins:
@@ -177,27 +183,65 @@ def check_frames(recording: Recording, units: str, gate: Gate = Gate()) -> None:
     if len(frame) != 2 or min(frame) < MIN_LR_SIDE:
         raise ValueError(f"{src}: frames of {' x '.join(map(str, frame))} pixels; expected LR frames of at least "
                          f"{MIN_LR_SIDE} x {MIN_LR_SIDE} pixels (T, h, w)")
+    counts = pixels = 0
     for t, block in _chunks(recording):
         if recording.kind == "histograms":
-            bad = ~(np.isfinite(block) & (block >= 0) & (block <= np.finfo(np.float32).max))
-            what = "negative, non-finite or huge (beyond float32) photon counts; expected counts >= 0"
-        elif units == "normalised":
-            bad = ~np.isnan(block) & ((block < -NORMALISED_SLACK) | (block > 1 + NORMALISED_SLACK))
-            what = "values outside [0, 1]; for depth in metres pass --units m"
-        else:
+            n, p = _negative_counts(src, t, block, clip_negative)
+            counts, pixels = counts + n, pixels + p
+            continue
+        if units != "normalised":
             continue  # metres: any value is meaningful (NaN, inf, negative and beyond d_max: no return)
+        bad = ~np.isnan(block) & ((block < -NORMALISED_SLACK) | (block > 1 + NORMALISED_SLACK))
         if np.any(bad):
-            first = t + int(np.argmax(bad.reshape(len(block), -1).any(axis=1)))
-            raise ValueError(f"{src}: frame {first} holds {what}")
+            raise ValueError(f"{src}: frame {_first_frame(t, bad)} holds values outside [0, 1]; for depth in "
+                             "metres pass --units m")
+    return counts, pixels
+
+
+def _first_frame(t: int, bad: np.ndarray) -> int:
+    """The first frame of a block (frames t, t + 1, ...) where `bad` holds anywhere."""
+    return t + int(np.argmax(bad.reshape(len(bad), -1).any(axis=1)))
+
+
+def _negative_counts(src, t: int, block: np.ndarray, clip_negative: bool) -> tuple[int, int]:
+    """(negative counts, pixels holding one) of a block of histogram frames from frame t. Refuses non-finite
+    counts and counts beyond float32 always, negative ones unless `clip_negative` (the message says it exists:
+    raw photon counts are never negative, background-subtracted ones are)."""
+    bad = ~(np.isfinite(block) & (block <= np.finfo(np.float32).max))
+    if np.any(bad):
+        raise ValueError(f"{src}: frame {_first_frame(t, bad)} holds non-finite or huge (beyond float32) photon "
+                         "counts; expected finite counts >= 0")
+    negative = block < 0
+    if np.any(negative) and not clip_negative:
+        raise ValueError(f"{src}: frame {_first_frame(t, negative)} holds negative photon counts; expected counts "
+                         ">= 0 (for background-subtracted histograms pass --clip-negative, clip_negative=True, to "
+                         "clip them at 0)")
+    return int(negative.sum()), int(negative.any(axis=-1).sum())
+
+
+def clipped_recording(recording: Recording) -> Recording:
+    """A histogram recording with its negative counts clipped at 0 (`jaxsr.sensor.clip_negative_counts`), frame
+    by frame as it streams: background-subtracted histograms made fit for the centre of mass, which refuses
+    negative counts. Frames (h, w, K) float32; NaN stays NaN (and is refused downstream)."""
+    sensor = SensorConfig(bins=int(recording.shape[-1]))
+
+    def frames():
+        for f in recording:
+            yield np.asarray(clip_negative_counts(np.asarray(f, np.float32), sensor)[0])
+
+    return Recording("histograms", recording.frames, recording.shape, frames, recording.source, fps=recording.fps)
 
 
 def gate_frames(com_frames, gate: Gate, scale: DepthScale):
     """Centre-of-mass frames normalised to the gate (tau / K, 1.0 = no return, as `iter_centre_of_mass` gives
     them for K = gate.bins) -> the network's normalised depth under `scale`: the range gate.start + n *
-    gate.length in metres, then `to_network_depth`. Yields (h, w) float32 frames."""
+    gate.length in metres, then `to_network_depth`. Yields (h, w) float32 frames; (h, w, C) frames of
+    `iter_network_inputs` keep their photon channels, the depth in channel 0 converted."""
     for f in com_frames:
-        metres = np.where(f >= 1.0, np.inf, float(gate.start) + np.float64(f) * float(gate.length))
-        yield np.asarray(to_network_depth(metres, scale), np.float32)
+        depth = f[..., 0] if f.ndim == 3 else f
+        metres = np.where(depth >= 1.0, np.inf, float(gate.start) + np.float64(depth) * float(gate.length))
+        network = np.asarray(to_network_depth(metres, scale), np.float32)
+        yield np.concatenate([network[..., None], f[..., 1:]], axis=-1) if f.ndim == 3 else network
 
 
 def time_tag_recording(tags, gate: Gate, *, outside: str = "error") -> Recording:

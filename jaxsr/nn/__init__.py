@@ -36,6 +36,8 @@ from .layers import (
 from .duf import (
     init_model,
     grow_tr,
+    with_photon_inputs,
+    merge_no_return,
     count_params,
     flops_per_frame,
     apply_model,
@@ -46,6 +48,11 @@ from .duf import (
     apply_model_sequence_train,
     edge_pad_sequence,
     DUF,
+)
+from .inputs import (
+    PHOTON_SCALE,
+    encode_photons,
+    network_inputs,
 )
 from .streaming import (
     stream_init,
@@ -82,6 +89,11 @@ __all__ = [
     "max_pool2",
     "init_model",
     "grow_tr",
+    "with_photon_inputs",
+    "merge_no_return",
+    "PHOTON_SCALE",
+    "encode_photons",
+    "network_inputs",
     "count_params",
     "flops_per_frame",
     "apply_model",

@@ -26,7 +26,10 @@ from .layers import (
     glorot_limit,
     init_batch_norm,
 )
+from ..sensor.peaks import NO_RETURN
 from .model import Architecture, Model, register_architecture
+
+NO_RETURN_PRIOR = -4.0  # a new no-return branch's logit: p = 0.018, "a return" everywhere
 
 __all__ = [
     "init_model",
@@ -40,6 +43,9 @@ __all__ = [
     "count_params",
     "flops_per_frame",
     "grow_tr",
+    "with_photon_inputs",
+    "merge_no_return",
+    "no_return_branch",
 ]
 
 
@@ -58,7 +64,7 @@ def init_model(key, cfg: ModelConfig) -> tuple[dict, dict]:
 def _conv_shapes(cfg: ModelConfig) -> dict:
     """{(group, index or None, name): (kernel, cin, cout)} of every convolution, in a fixed order."""
     r2 = cfg.scale * cfg.scale
-    shapes = {("stem", None, None): ((1, 3, 3), 1, cfg.base)}
+    shapes = {("stem", None, None): ((1, 3, 3), cfg.channels, cfg.base)}
     f = cfg.base
     for i in range(cfg.same_blocks + cfg.tr):
         shapes[("blocks", i, "conv1")] = ((1, 1, 1), f, f)
@@ -69,6 +75,9 @@ def _conv_shapes(cfg: ModelConfig) -> dict:
     shapes[("residual", None, "conv2")] = ((1, 1, 1), cfg.head, r2)
     shapes[("filter", None, "conv1")] = ((1, 1, 1), cfg.head, cfg.filter_hidden)
     shapes[("filter", None, "conv2")] = ((1, 1, 1), cfg.filter_hidden, cfg.filter_size**2 * r2)
+    if cfg.no_return_head:
+        shapes[("no_return", None, "conv1")] = ((1, 1, 1), cfg.head, cfg.head)
+        shapes[("no_return", None, "conv2")] = ((1, 1, 1), cfg.head, r2)
     return shapes
 
 
@@ -99,7 +108,37 @@ def _init_model(key, cfg: ModelConfig) -> tuple[dict, dict]:
     state["head"] = {"bn": s}
     params["residual"] = {"conv1": convs[("residual", None, "conv1")], "conv2": convs[("residual", None, "conv2")]}
     params["filter"] = {"conv1": convs[("filter", None, "conv1")], "conv2": convs[("filter", None, "conv2")]}
+    if cfg.no_return_head:
+        params["no_return"] = no_return_branch(convs[("no_return", None, "conv1")], cfg)
     return params, state
+
+
+def no_return_branch(conv1, cfg: ModelConfig) -> dict:
+    """The no-return branch's params from its first convolution: the second's weights zero and its bias
+    `NO_RETURN_PRIOR`, so that a new branch starts by calling every pixel a return, changing nothing."""
+    r2 = cfg.scale * cfg.scale
+    return {"conv1": conv1, "conv2": {"w": jnp.zeros((1, 1, 1, cfg.head, r2), jnp.float32),
+                                      "b": jnp.full((r2,), NO_RETURN_PRIOR, jnp.float32)}}
+
+
+def with_photon_inputs(key, model: Model, inputs=("depth", "signal", "background"), *,
+                       no_return_head: bool = True) -> Model:
+    """A depth-only model widened to read `inputs` and (optionally) to mark no return, computing exactly what
+    `model` computes until training moves the new weights: the stem's kernels on the added channels are zero,
+    and the no-return branch (first convolution drawn from `key`) starts at "return everywhere".
+    Returns the widened `Model` (same form, widths and TR)."""
+    cfg = model.config
+    if cfg.inputs != ("depth",) or cfg.no_return_head:
+        raise ValueError(f"with_photon_inputs: expects a depth-only model without a no-return head, got inputs "
+                         f"{cfg.inputs} and no_return_head {cfg.no_return_head}")
+    new_cfg = dataclasses.replace(cfg, inputs=tuple(inputs), no_return_head=no_return_head)
+    stem = model.params["stem"]
+    w = jnp.zeros((*stem["w"].shape[:3], new_cfg.channels, stem["w"].shape[-1]), stem["w"].dtype)
+    params = {**model.params, "stem": {"w": w.at[..., :1, :].set(stem["w"]), "b": stem["b"]}}
+    if no_return_head:
+        fresh, _ = init_model(key, new_cfg)
+        params["no_return"] = fresh["no_return"]
+    return Model(params, model.state, new_cfg)
 
 
 def grow_tr(key, model: Model, tr: int) -> Model:
@@ -191,15 +230,28 @@ def flops_per_frame(cfg: ModelConfig, lr_shape=(32, 64), *, clip_frames: int | N
     for i in range(n_blocks):
         macs += conv(("blocks", i, "conv1"), block_t[i]) + conv(("blocks", i, "conv2"), conv2_taps[i])
     macs += conv(("head", None, "conv"), outputs)
-    for group in ("residual", "filter"):
+    for group in ("residual", "filter") + (("no_return",) if cfg.no_return_head else ()):
         macs += conv((group, None, "conv1"), outputs) + conv((group, None, "conv2"), outputs)
     macs += outputs * cfg.filter_size**2 * cfg.scale**2  # the dynamic filter, per LR pixel
     return int(round(2 * macs * lr_shape[0] * lr_shape[1] / outputs))
 
 
+def _input_shape(cfg: ModelConfig, lead: str) -> str:
+    """How a network's input looks, for error messages: "(B, T, H, W)" or "(B, T, H, W, C)"."""
+    return f"({lead}, H, W)" if cfg.channels == 1 else f"({lead}, H, W, {cfg.channels})"
+
+
+def _has_channels(x, cfg: ModelConfig, ndim: int) -> bool:
+    """x is (..., H, W) for a depth-only network, (..., H, W, C) for one reading `cfg.inputs`."""
+    if cfg.channels == 1:
+        return x.ndim == ndim
+    return x.ndim == ndim + 1 and x.shape[-1] == cfg.channels
+
+
 def _check_inputs(windows, cfg: ModelConfig, conv3d_impl: str, who: str):
-    if windows.ndim != 4 or windows.shape[1] != cfg.frames:
-        raise ValueError(f"{who}: expected windows (B, {cfg.frames}, H, W) for tr={cfg.tr}, got shape {windows.shape}")
+    if not _has_channels(windows, cfg, 4) or windows.shape[1] != cfg.frames:
+        raise ValueError(f"{who}: expected windows {_input_shape(cfg, f'B, {cfg.frames}')} for tr={cfg.tr} and "
+                         f"inputs {cfg.inputs}, got shape {windows.shape}")
     if conv3d_impl not in CONV3D_IMPLS:
         raise ValueError(f"{who}: conv3d_impl must be one of {', '.join(map(repr, CONV3D_IMPLS))}, got {conv3d_impl!r}")
 
@@ -207,24 +259,27 @@ def _check_inputs(windows, cfg: ModelConfig, conv3d_impl: str, who: str):
 def apply_model(params, state, windows, cfg: ModelConfig, *, conv3d_impl: str = "auto"):
     """Super-resolve the centre frame of each window, batch norm in inference mode (running statistics).
 
-    windows: `(B, 2*tr+1, H, W)` LR normalised depth (0..1, 1 = no return), the centre frame at index tr.
-    Returns hr `(B, H*r, W*r)` normalised depth, neither clipped nor passed through an activation.
+    windows: `(B, 2*tr+1, H, W)` LR normalised depth (0..1, 1 = no return), the centre frame at index tr; a
+    network with more `cfg.inputs` reads `(B, 2*tr+1, H, W, C)`, depth in channel 0 (`jaxsr.nn.inputs`).
+    Returns hr `(B, H*r, W*r)` normalised depth, neither clipped nor passed through an activation; with a
+    no-return head, 1.0 where it says no return (`merge_no_return`).
     conv3d_impl: how the 3x3x3 convolutions run, not what they compute (`jaxsr.nn.layers.conv3d`): "auto" (the
     faster one on the current backend), "native" (one 3D convolution), "taps" (a sum of 2D convolutions over
     the temporal taps), "stacked" (the taps' kernels side by side in one 2D convolution) or "stacked-taps-grad"
     (the stacked forward with the taps' gradients, what "auto" trains with on CPU).
     """
     _check_inputs(windows, cfg, conv3d_impl, "apply_model")
-    hr, _ = _forward(params, state, windows, cfg, train=False, impl=conv3d_impl)
-    return hr
+    out, _ = _forward(params, state, windows, cfg, train=False, impl=conv3d_impl)
+    return merge_no_return(out, cfg)
 
 
 def apply_model_train(params, state, windows, cfg: ModelConfig, *, conv3d_impl: str = "auto"):
     """The network as it trains: batch norm normalises with the batch's own statistics.
 
-    windows: `(B, 2*tr+1, H, W)` as for `apply_model`. Returns (hr `(B, H*r, W*r)`, new_state): new_state holds
-    the running BN statistics moved towards this batch's (same structure as `state`). conv3d_impl: as for
-    `apply_model`.
+    windows: as for `apply_model`. Returns (out, new_state): out the raw output, hr `(B, H*r, W*r)`, or with a
+    no-return head `(B, H*r, W*r, 2)` [depth, no-return logit] (what the loss needs; `merge_no_return` makes
+    it `apply_model`'s output); new_state holds the running BN statistics moved towards this batch's (same
+    structure as `state`). conv3d_impl: as for `apply_model`.
     """
     _check_inputs(windows, cfg, conv3d_impl, "apply_model_train")
     return _forward(params, state, windows, cfg, train=True, impl=conv3d_impl)
@@ -247,9 +302,9 @@ def _check_sequence(lr_seq, cfg: ModelConfig, padding: str, conv3d_impl: str, wh
     if padding not in ("edge", "valid"):
         raise ValueError(f"{who}: padding must be 'edge' or 'valid', got {padding!r}")
     need = 1 if padding == "edge" else 2 * r + 1
-    if lr_seq.ndim != 4 or lr_seq.shape[1] < need:
+    if not _has_channels(lr_seq, cfg, 4) or lr_seq.shape[1] < need:
         raise ValueError(
-            f"{who}: expected an LR sequence (B, T, H, W) with T >= {need} for tr={cfg.tr} and padding "
+            f"{who}: expected an LR sequence {_input_shape(cfg, 'B, T')} with T >= {need} for tr={cfg.tr} and padding "
             f"{padding!r} (R = {r}), got shape {lr_seq.shape}"
         )
     if conv3d_impl not in CONV3D_IMPLS:
@@ -268,8 +323,8 @@ def apply_model_sequence(params, state, lr_seq, cfg: ModelConfig, *, padding: st
     frames whose inputs all lie inside the sequence, `(B, T - 2R, H*r, W*r)`. conv3d_impl: as for `apply_model`.
     """
     _check_sequence(lr_seq, cfg, padding, conv3d_impl, "apply_model_sequence")
-    hr, _ = _forward_sequence(params, state, lr_seq, cfg, padding=padding, train=False, impl=conv3d_impl)
-    return hr
+    out, _ = _forward_sequence(params, state, lr_seq, cfg, padding=padding, train=False, impl=conv3d_impl)
+    return merge_no_return(out, cfg)
 
 
 def apply_model_sequence_train(params, state, lr_seq, cfg: ModelConfig, *, padding: str = "valid",
@@ -277,8 +332,9 @@ def apply_model_sequence_train(params, state, lr_seq, cfg: ModelConfig, *, paddi
     """The sequence form as it trains: BN normalises with the statistics of the whole clip, (B, T', H, W).
 
     lr_seq: (B, T, H, W) training clips; padding: "valid" (default: only outputs whose inputs all lie inside
-    the clip, T' = T - 2R) or "edge" (T' = T), as for `apply_model_sequence`. Returns (hr `(B, T', H*r, W*r)`,
-    new_state), new_state the running BN statistics moved towards the clip's (same structure as `state`).
+    the clip, T' = T - 2R) or "edge" (T' = T), as for `apply_model_sequence`. Returns (out, new_state): out
+    the raw output `(B, T', H*r, W*r)` (with a no-return head a last axis [depth, logit], as
+    `apply_model_train`), new_state the running BN statistics moved towards the clip's.
     """
     _check_sequence(lr_seq, cfg, padding, conv3d_impl, "apply_model_sequence_train")
     return _forward_sequence(params, state, lr_seq, cfg, padding=padding, train=True, impl=conv3d_impl)
@@ -301,7 +357,8 @@ def _forward_sequence(params, state, lr_seq, cfg: ModelConfig, *, padding: str, 
     for p, s in zip(params["blocks"], state["blocks"]):
         x, s_i = _block(p, s, x, valid=True, bn=bn, impl=impl)
         new_state["blocks"].append(s_i)
-    hr, new_state["head"] = _head(params, state, x, x_in[:, r : x_in.shape[1] - r], cfg, bn=bn, impl=impl)
+    hr, new_state["head"] = _head(params, state, x, _depth(x_in[:, r : x_in.shape[1] - r], cfg), cfg, bn=bn,
+                                  impl=impl)
     return hr, new_state
 
 
@@ -313,13 +370,20 @@ def _forward(params, state, windows, cfg: ModelConfig, *, train: bool, impl: str
     for i, (p, s) in enumerate(zip(params["blocks"], state["blocks"])):
         x, s_i = _block(p, s, x, valid=i >= cfg.same_blocks, bn=bn, impl=impl)
         new_state["blocks"].append(s_i)
-    hr, new_state["head"] = _head(params, state, x, windows[:, cfg.tr : cfg.tr + 1], cfg, bn=bn, impl=impl)
+    hr, new_state["head"] = _head(params, state, x, _depth(windows[:, cfg.tr : cfg.tr + 1], cfg), cfg, bn=bn,
+                                  impl=impl)
     return hr[:, 0], new_state  # T = 1 after tr valid blocks
 
 
+def _depth(lr, cfg: ModelConfig):
+    """The depth channel of network inputs: (B, T, H, W) either way."""
+    return lr if cfg.channels == 1 else lr[..., 0]
+
+
 def _stem(params, lr, *, impl: str):
-    """lr (B, T, H, W) -> stem features (B, T, H, W, base): conv 1x3x3, spatial zero padding."""
-    return conv3d(lr[..., None], params["stem"]["w"], params["stem"]["b"], padding="same", impl=impl)
+    """lr (B, T, H, W) or (B, T, H, W, C) -> stem features (B, T, H, W, base): conv 1x3x3, spatial zero padding."""
+    x = lr[..., None] if lr.ndim == 4 else lr
+    return conv3d(x, params["stem"]["w"], params["stem"]["b"], padding="same", impl=impl)
 
 
 def _block_input(p, s, x, *, bn: dict):
@@ -361,7 +425,20 @@ def _head(params, state, x, centre, cfg: ModelConfig, *, bn: dict, impl: str):
     sub = dynamic_upsample(centre.reshape(b * t, *centre.shape[2:]), filters.reshape(b * t, *filters.shape[2:]),
                            padding=cfg.filter_padding)
     sub = sub.reshape(b, t, *sub.shape[1:]) + residual  # (B, T, H, W, r^2)
-    return depth_to_space(sub, cfg.scale)[..., 0], {"bn": sh}
+    hr = depth_to_space(sub, cfg.scale)[..., 0]
+    if cfg.no_return_head:
+        p = params["no_return"]
+        logit = depth_to_space(dense(p["conv2"], jax.nn.relu(dense(p["conv1"], h))), cfg.scale)[..., 0]
+        hr = jnp.stack([hr, logit], axis=-1)
+    return hr, {"bn": sh}
+
+
+def merge_no_return(out, cfg: ModelConfig):
+    """The network's depth from its raw output: `out` itself for a model without a no-return head; with one,
+    out[..., 0] where the logit out[..., 1] <= 0 and 1.0 (no return) where it is positive."""
+    if not cfg.no_return_head:
+        return out
+    return jnp.where(out[..., 1] > 0, NO_RETURN, out[..., 0])
 
 
 def _describe(cfg: ModelConfig, lr_shape) -> dict:

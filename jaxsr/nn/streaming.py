@@ -20,7 +20,7 @@ import jax.numpy as jnp
 
 from ..config import ModelConfig
 from .layers import CONV3D_IMPLS, conv3d
-from .duf import _block_input, _head, _stem, sequence_radius
+from .duf import _block_input, _depth, _has_channels, _head, _stem, merge_no_return, sequence_radius
 
 __all__ = ["stream_init", "stream_step"]
 
@@ -28,7 +28,7 @@ __all__ = ["stream_init", "stream_step"]
 def stream_init(cfg: ModelConfig, lr_shape: tuple[int, int], *, batch: int = 1, dtype=jnp.float32) -> dict:
     """Empty (zero) stream buffers for `batch` streams of (h, w) = lr_shape LR frames.
 
-    Returns {"lr": (batch, R + 1, h, w) the last LR frames, "blocks": [{"skip": (batch, h, w, F_i) the
+    Returns {"lr": (batch, R + 1, h, w) the last LR frames' depth, "blocks": [{"skip": (batch, h, w, F_i) the
     block's input features of the previous frame, "partial": (batch, 2, h, w, growth) the partial sums of
     the next two outputs}] * (same_blocks + tr)}, F_i = base + i * growth. The first 2R outputs of a stream
     depend on these zeros and are to be discarded (`Stream` does).
@@ -62,25 +62,27 @@ def _stream_block(p, s, buf, x, *, bn: dict, impl: str):
 def stream_step(params, state, buffers: dict, frame, cfg: ModelConfig, *, conv3d_impl: str = "auto"):
     """One step of the stream, BN in inference mode: feed LR frame n, get the output centred on frame n - R.
 
-    frame: (B, h, w) LR normalised depth; buffers: as `stream_init` (or the previous step) returns them.
+    frame: (B, h, w) LR normalised depth ((B, h, w, C) for a network reading more `cfg.inputs`); buffers: as
+    `stream_init` (or the previous step) returns them.
     Returns (new buffers, hr `(B, h*r, w*r)`). With the stream's input edge-padded (R + 1 copies of its first
     frame, then the rest, then R copies of the last), the hr of step n >= 2R equals output n - 2R of
     `apply_model_sequence` to float32 rounding. R = `sequence_radius(cfg)`; the weights run in the sequence
     form whatever `cfg.temporal` says. conv3d_impl: as for `apply_model`.
     """
-    if frame.ndim != 3 or frame.shape != buffers["lr"].shape[:1] + buffers["lr"].shape[2:]:
-        raise ValueError(f"stream_step: expected a frame (B, h, w) = "
-                         f"{buffers['lr'].shape[:1] + buffers['lr'].shape[2:]}"
-                         f" matching the stream's buffers, got shape {frame.shape}")
+    want = buffers["lr"].shape[:1] + buffers["lr"].shape[2:] + ((cfg.channels,) if cfg.channels > 1 else ())
+    if not _has_channels(frame, cfg, 3) or frame.shape != want:
+        raise ValueError(f"stream_step: expected a frame {want} (B, h, w{', C' if cfg.channels > 1 else ''}) "
+                         f"matching the stream's buffers and inputs {cfg.inputs}, got shape {frame.shape}")
     if conv3d_impl not in CONV3D_IMPLS:
         raise ValueError(f"stream_step: conv3d_impl must be one of {', '.join(map(repr, CONV3D_IMPLS))}, "
                          f"got {conv3d_impl!r}")
     bn = {"train": False, "momentum": cfg.bn_momentum, "eps": cfg.bn_eps}
-    lr = jnp.concatenate([buffers["lr"][:, 1:], frame[:, None].astype(buffers["lr"].dtype)], axis=1)
+    depth = _depth(frame[:, None], cfg).astype(buffers["lr"].dtype)
+    lr = jnp.concatenate([buffers["lr"][:, 1:], depth], axis=1)
     x = _stem(params, frame[:, None], impl=conv3d_impl)  # (B, 1, h, w, base)
     new_blocks = []
     for p, s, buf in zip(params["blocks"], state["blocks"], buffers["blocks"]):
         x, buf = _stream_block(p, s, buf, x, bn=bn, impl=conv3d_impl)
         new_blocks.append(buf)
     hr, _ = _head(params, state, x, lr[:, :1], cfg, bn=bn, impl=conv3d_impl)
-    return {"lr": lr, "blocks": new_blocks}, hr[:, 0]
+    return {"lr": lr, "blocks": new_blocks}, merge_no_return(hr[:, 0], cfg)

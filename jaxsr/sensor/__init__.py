@@ -30,6 +30,7 @@ from .peaks import (
     median_of_bins,
     default_window,
     centre_of_mass,
+    peak_evidence,
     maximum_likelihood_depth,
 )
 from .effects import (
@@ -79,6 +80,7 @@ __all__ = [
     "median_of_bins",
     "default_window",
     "centre_of_mass",
+    "peak_evidence",
     "maximum_likelihood_depth",
     "dark_counts",
     "hot_pixels",

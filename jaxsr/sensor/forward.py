@@ -303,6 +303,15 @@ def calibrated_rates(depth, intensity, alpha, beta, sensor: SensorConfig = Senso
     return alpha * signal_hist + (beta / sensor.bins) * a_sum[..., None]
 
 
+def _require_key(name, key):
+    """Refuse what is no `jax.random` key (None, a bare seed) with a TypeError that says how to make one, before
+    JAX's words on invalid key data."""
+    dtype = getattr(key, "dtype", None)
+    if dtype is None or not (jax.dtypes.issubdtype(dtype, jax.dtypes.prng_key) or dtype == jnp.uint32):
+        raise TypeError(f"{name}: key must be a jax.random key, e.g. jax.random.key(seed), got "
+                        f"{type(key).__name__} {key!r:.40}")
+
+
 def simulate_histograms(
     key,
     depth,
@@ -337,6 +346,8 @@ def simulate_histograms(
         raise ValueError(
             f"simulate_histograms: gradient must be None or one of {PATHWISE_ESTIMATORS}, got {gradient!r}"
         )
+    _require_key("simulate_histograms", key)
+    require_hr_pair("simulate_histograms", depth, intensity, sensor)  # messages in the caller's name
     rates = expected_histograms(depth, intensity, sensor, snr=snr, mean_signal=mean_signal)
     counts = sample_poisson(key, jax.lax.stop_gradient(rates), method=sampler)
     return counts if gradient is None else poisson_pathwise(counts, rates, estimator=gradient)

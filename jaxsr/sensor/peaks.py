@@ -84,11 +84,7 @@ def centre_of_mass(counts, sensor: SensorConfig = SensorConfig(), *, window=None
     """
     n, usable = _usable(_check_counts("centre_of_mass", counts, sensor))
     k = jnp.arange(sensor.bins)
-    w = default_window(sensor) if window is None else window
-    background = median_of_bins(n)
-    k_peak = jnp.argmax(n, axis=-1)
-    in_window = jnp.abs(k - k_peak[..., None]) <= w
-    excess = jnp.where(in_window, jnp.maximum(n - background[..., None], 0.0), 0.0)
+    excess, background = _peak_excess(n, sensor, window)
     # Counts near float32's maximum would overflow the sums below: scale those by 2^-100, which is exact (a
     # power of two), so that nothing else changes, gradients included.
     huge = jnp.max(excess, axis=-1, keepdims=True) > 2.0**100
@@ -99,6 +95,32 @@ def centre_of_mass(counts, sensor: SensorConfig = SensorConfig(), *, window=None
     tau = jnp.sum((k + 0.5) * excess, axis=-1) / jnp.where(valid, mass, 1.0)
     depth = jnp.where(valid, tau / sensor.bins, NO_RETURN)
     return (depth, valid) if return_mask else depth
+
+
+def _peak_excess(n, sensor: SensorConfig, window):
+    """(counts above the median background in the window around the first argmax (..., K), the median (...))."""
+    k = jnp.arange(sensor.bins)
+    w = default_window(sensor) if window is None else window
+    background = median_of_bins(n)
+    in_window = jnp.abs(k - jnp.argmax(n, axis=-1)[..., None]) <= w
+    return jnp.where(in_window, jnp.maximum(n - background[..., None], 0.0), 0.0), background
+
+
+def peak_evidence(counts, sensor: SensorConfig = SensorConfig(), *, window=None):
+    """How much a histogram says about its return: (signal, background) in photons per pixel.
+
+    signal = the counts above the median background in the centre of mass's window (the photons the depth
+    is computed from); background = median per bin x K (the ambient and dark photons of the whole gate).
+    Ambient light alone gives signal of the order of sqrt(background) (the largest fluctuation), a return
+    gives about the photons it sent back: the two tell "no return" from "a surface in mid-gate", which the
+    centre of mass alone cannot. Same rules for counts as `centre_of_mass` (an unusable histogram gives 0, 0).
+
+    Returns two arrays of shape counts.shape[:-1], float32 (or wider).
+    """
+    n, usable = _usable(_check_counts("peak_evidence", counts, sensor))
+    excess, background = _peak_excess(n, sensor, window)
+    signal = jnp.sum(excess, axis=-1)
+    return jnp.where(usable, signal, 0.0), jnp.where(usable, background * sensor.bins, 0.0)
 
 
 def _bin_model(theta, sensor):

@@ -28,9 +28,9 @@ import jax.numpy as jnp
 
 import json
 
-from ..config import PhotonRegime, SensorConfig, TrainConfig
+from ..config import PAPER_REGIME, PhotonRegime, SensorConfig, TrainConfig
 from ..sensor.effects import dark_counts, dead_pixels, hot_pixels, no_return_regions, with_irf_sigma
-from ..sensor.peaks import centre_of_mass
+from ..nn.inputs import network_inputs
 from ..sensor.poisson import sample_poisson
 from ..scenes import test_sequences, training_clip
 from ..sensor.forward import calibrate, calibrated_rates, normalise_depth, simulate_histograms
@@ -91,8 +91,9 @@ def _crop_origin(key, shape: tuple[int, int], patch: tuple[int, int], who: str):
     return jax.random.randint(ky, (), 0, h - ph + 1), jax.random.randint(kx, (), 0, w - pw + 1)
 
 
-def _simulate_clip(key, depth, intensity, train_cfg: TrainConfig, sensor: SensorConfig):
-    """(T, H, W) HR radial depth + intensity -> (LR clip (T, h, w), GT of every frame (T, H, W)), cropped."""
+def _simulate_clip(key, depth, intensity, train_cfg: TrainConfig, sensor: SensorConfig, inputs=("depth",)):
+    """(T, H, W) HR radial depth + intensity -> (LR clip (T, h, w) (or (T, h, w, C) for more `inputs`), GT of
+    every frame (T, H, W)), cropped."""
     k_snr, k_sig, k_noise, k_crop = jax.random.split(key, 4)
     snr = log_uniform(k_snr, *train_cfg.snr_range)
     mean_signal = log_uniform(k_sig, *train_cfg.mean_signal_range)
@@ -100,7 +101,7 @@ def _simulate_clip(key, depth, intensity, train_cfg: TrainConfig, sensor: Sensor
     if train_cfg.patch is None:
         # Calibration over the whole clip: the laser and the sun do not change from frame to frame.
         counts = simulate_histograms(k_noise, depth, intensity, sensor, snr=snr, mean_signal=mean_signal)
-        return centre_of_mass(counts, sensor), gt
+        return network_inputs(counts, sensor, inputs), gt
     # The same calibration over the whole clip, but photons drawn for the kept patch only: each LR pixel's
     # histogram depends on its own HR block alone, so the crop's counts have the same distribution as the
     # crop of the whole clip's, at a quarter of the cost with the cpu preset's patch (16 x 32 of 32 x 64).
@@ -110,7 +111,7 @@ def _simulate_clip(key, depth, intensity, train_cfg: TrainConfig, sensor: Sensor
     hr_window = functools.partial(jax.lax.dynamic_slice, start_indices=(0, y0 * r, x0 * r),
                                   slice_sizes=(t, ph * r, pw * r))
     rates = calibrated_rates(hr_window(depth), hr_window(intensity), alpha, beta, sensor)
-    clip = centre_of_mass(sample_poisson(k_noise, rates), sensor)
+    clip = network_inputs(sample_poisson(k_noise, rates), sensor, inputs)
     return clip, hr_window(gt)
 
 
@@ -123,20 +124,21 @@ def _centre_frames(make_clips, tr: int):
     return make_batch
 
 
-def scene_batches(tr: int, train_cfg: TrainConfig, *, sensor: SensorConfig = SensorConfig()):
+def scene_batches(tr: int, train_cfg: TrainConfig, *, sensor: SensorConfig = SensorConfig(), inputs=("depth",)):
     """The default data source: `make_batch(key)` rendering `batch_size` random scenes.
 
     Per example: `jaxsr.scenes.training_clip` (2tr+1 frames, motion log-uniform in `motion_range`) -> SNR and
     mean signal log-uniform in the config's ranges -> `simulate_histograms` -> `centre_of_mass` -> the
     LR window; GT = `normalise_depth` of the centre frame; then an optional random crop (`patch`).
+    `inputs`: what the network reads (`ModelConfig.inputs`; more than depth adds a channel axis).
     Returns make_batch: key -> (windows (B, 2tr+1, h, w), gt `(B, h*r, w*r)`).
     """
-    make_batch = _centre_frames(scene_clips(2 * tr + 1, train_cfg, sensor=sensor), tr)
+    make_batch = _centre_frames(scene_clips(2 * tr + 1, train_cfg, sensor=sensor, inputs=inputs), tr)
     make_batch.description = _SCENES
     return make_batch
 
 
-def scene_clips(frames: int, train_cfg: TrainConfig, *, sensor: SensorConfig = _SENSOR):
+def scene_clips(frames: int, train_cfg: TrainConfig, *, sensor: SensorConfig = _SENSOR, inputs=("depth",)):
     """Rendered training clips for the sequence form: `make_batch(key)` with `batch_size` random scenes of
     `frames` frames each, simulated as in `scene_batches` (one SNR, mean signal and crop per clip).
 
@@ -145,7 +147,7 @@ def scene_clips(frames: int, train_cfg: TrainConfig, *, sensor: SensorConfig = _
     def example(key):
         k_scene, k_rest = jax.random.split(key)
         depth, intensity = training_clip(k_scene, frames, sensor=sensor, shift_range=train_cfg.motion_range)
-        return _simulate_clip(k_rest, depth, intensity, train_cfg, sensor)
+        return _simulate_clip(k_rest, depth, intensity, train_cfg, sensor, inputs)
 
     def make_batch(key):
         return jax.vmap(example)(jax.random.split(key, train_cfg.batch_size))
@@ -158,7 +160,8 @@ def regime_parameters(key, regime: PhotonRegime = PhotonRegime()):
     """One clip's draw from `regime` (see `PhotonRegime`): a dict of scalars `mean_signal` (photons per LR pixel
     with a return), `snr`, `irf_sigma` (bins), `dark` (photons per bin), `hot_fraction`, `hot_level` (extra
     photons of a hot pixel over all bins, times `mean_signal`), `dead_fraction`, `no_return_fraction` and `sky`
-    (the weight of the sky band). An effect not drawn for the clip has fraction or rate 0. jit/vmap-able."""
+    (the weight of the sky band). An effect not drawn for the clip has fraction or rate 0; a clip of the
+    paper's regime (`regime.paper_prob`) has the paper's signal, SNR and IRF and no effects. jit/vmap-able."""
     k = iter(jax.random.split(key, 14))
 
     def chance(p):
@@ -170,7 +173,7 @@ def regime_parameters(key, regime: PhotonRegime = PhotonRegime()):
     lo, hi = (jnp.log(v) for v in regime.irf_sigma_range)
     tail = jnp.exp(lo + (hi - lo) * jax.random.uniform(next(k)) ** regime.irf_power)
     mean_signal = log_uniform(next(k), *regime.signal_range)
-    return dict(
+    wide = dict(
         mean_signal=mean_signal,
         snr=log_uniform(next(k), *regime.snr_range),
         irf_sigma=jnp.where(chance(regime.irf_paper_prob), regime.irf_paper, tail),
@@ -181,16 +184,24 @@ def regime_parameters(key, regime: PhotonRegime = PhotonRegime()):
         no_return_fraction=jnp.where(chance(regime.no_return_prob), uniform(*regime.no_return_fraction), 0.0),
         sky=uniform(0.0, 1.0),
     )
+    # the paper's regime, drawn from keys of its own so that paper_prob = 0 leaves every other draw as it was
+    k_paper, k_sig, k_snr = jax.random.split(jax.random.fold_in(key, 14), 3)
+    paper = dict(wide, mean_signal=log_uniform(k_sig, *PAPER_REGIME.signal_range),
+                 snr=log_uniform(k_snr, *PAPER_REGIME.snr_range), irf_sigma=jnp.asarray(regime.irf_paper, jnp.float32),
+                 dark=0.0, hot_fraction=0.0, dead_fraction=0.0, no_return_fraction=0.0)
+    is_paper = jax.random.uniform(k_paper) < regime.paper_prob
+    return {name: jnp.where(is_paper, paper[name], wide[name]) for name in wide}
 
 
-def _regime_description(regime: PhotonRegime):
+def _regime_description(regime: PhotonRegime, inputs=("depth",)):
     return (f"jaxsr.scenes.training_clip(motion={regime.motion!r}) -> PhotonRegime "
             f"{json.dumps(regime.to_dict(), sort_keys=True)} -> no_return_regions -> calibrated_rates (per-clip IRF) "
-            "-> dark_counts, hot_pixels, dead_pixels -> sample_poisson -> centre_of_mass")
+            "-> dark_counts, hot_pixels, dead_pixels -> sample_poisson -> "
+            + ("centre_of_mass" if tuple(inputs) == ("depth",) else f"network_inputs{tuple(inputs)}"))
 
 
 def regime_clips(frames: int, train_cfg: TrainConfig, regime: PhotonRegime = PhotonRegime(), *,
-                 sensor: SensorConfig = _SENSOR):
+                 sensor: SensorConfig = _SENSOR, inputs=("depth",)):
     """Training clips spanning real sensors: `make_batch(key)` with `batch_size` random scenes of `frames` frames,
     every parameter of `regime` drawn per clip (`regime_parameters`).
 
@@ -199,7 +210,8 @@ def regime_clips(frames: int, train_cfg: TrainConfig, regime: PhotonRegime = Pho
     the drawn IRF width (`with_irf_sigma`) -> rates of the kept crop (`train_cfg.patch`) -> `dark_counts`,
     `hot_pixels`, `dead_pixels` (one mask per clip) -> Poisson draw -> `centre_of_mass` with `sensor` (the
     nominal IRF's window, as a recording is read at inference). GT = `normalise_depth` of the depth with its
-    no-return regions: 1.0 there. `train_cfg.snr_range` and `mean_signal_range` are not used.
+    no-return regions: 1.0 there. `train_cfg.snr_range` and `mean_signal_range` are not used. `inputs`: what
+    the network reads (`jaxsr.nn.inputs.network_inputs`; more than depth adds a last axis of channels).
     Returns make_batch: key -> (clips (B, frames, h, w) LR normalised depth, gt `(B, frames, h*r, w*r)`), with
     `description` (the regime as JSON) and `regime` (`regime.to_dict()`).
     """
@@ -226,22 +238,22 @@ def regime_clips(frames: int, train_cfg: TrainConfig, regime: PhotonRegime = Pho
         rates = dark_counts(rates, rate_per_bin=p["dark"])
         rates = hot_pixels(k_hot, rates, fraction=p["hot_fraction"], rate=p["hot_level"] * p["mean_signal"] / bins)
         rates = dead_pixels(k_dead, rates, fraction=p["dead_fraction"])
-        return centre_of_mass(sample_poisson(k_noise, rates), sensor), gt
+        return network_inputs(sample_poisson(k_noise, rates), sensor, inputs), gt
 
     def make_batch(key):
         return jax.vmap(example)(jax.random.split(key, train_cfg.batch_size))
 
-    make_batch.description = _regime_description(regime)
+    make_batch.description = _regime_description(regime, inputs)
     make_batch.regime = regime.to_dict()
     return make_batch
 
 
 def regime_batches(tr: int, train_cfg: TrainConfig, regime: PhotonRegime = PhotonRegime(), *,
-                   sensor: SensorConfig = SensorConfig()):
+                   sensor: SensorConfig = SensorConfig(), inputs=("depth",)):
     """`regime_clips` as windows: `make_batch(key) -> (windows (B, 2tr+1, h, w), gt (B, h*r, w*r))`, the ground
     truth of the centre frame (like `scene_batches`, with the photon regimes of `regime`). Carries `description`
     and `regime` for the training card."""
-    clips = regime_clips(2 * tr + 1, train_cfg, regime, sensor=sensor)
+    clips = regime_clips(2 * tr + 1, train_cfg, regime, sensor=sensor, inputs=inputs)
     make_batch = _centre_frames(clips, tr)
     make_batch.description, make_batch.regime = clips.description, clips.regime
     return make_batch
@@ -305,11 +317,13 @@ def _field(seq, name):
     return seq[name] if isinstance(seq, dict) else getattr(seq, name)
 
 
-def validation_set(key, tr: int, train_cfg: TrainConfig, *, sensor: SensorConfig = SensorConfig(), sequences=None):
+def validation_set(key, tr: int, train_cfg: TrainConfig, *, sensor: SensorConfig = SensorConfig(), sequences=None,
+                   inputs=("depth",)):
     """Fixed validation windows: the first `val_frames` frames of each named sequence at its own SNR.
 
     sequences: {name: seq with fields depth, intensity (T, H, W) and snr}; default
     `jaxsr.scenes.test_sequences(n_frames=train_cfg.val_frames)` restricted to `train_cfg.val_sequences`.
+    `inputs`: what the network reads (`ModelConfig.inputs`; more than depth adds a last axis of channels).
     Returns {"windows": (N, 2tr+1, h, w), "gt": (N, H, W), "lr": (N, h, w) centre frames, "names": [...],
     "lengths": [frames of each sequence, in order]} (the sequence form validates on "lr" sequence by sequence).
     """
@@ -325,7 +339,7 @@ def validation_set(key, tr: int, train_cfg: TrainConfig, *, sensor: SensorConfig
             jax.random.fold_in(key, i), depth, intensity, sensor,
             snr=float(_field(seq, "snr")), mean_signal=train_cfg.val_mean_signal,
         )
-        lr = centre_of_mass(counts, sensor)
+        lr = network_inputs(counts, sensor, inputs)
         windows.append(temporal_windows(lr, tr))
         gts.append(normalise_depth(depth, sensor))
         lrs.append(lr)

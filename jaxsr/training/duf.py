@@ -24,7 +24,8 @@ from ..eval.metrics import huber_loss, psnr
 from ..inference.video import super_resolve
 from ..io.checkpoint import config_to_dict, load_model
 from ..nn.duf import (DUF, apply_model, apply_model_sequence_train, apply_model_train, grow_tr, init_model,
-                      sequence_radius)
+                      merge_no_return, sequence_radius, with_photon_inputs)
+from ..sensor.peaks import NO_RETURN
 from ..nn.model import Model
 from .data import scene_batches, scene_clips, validation_set
 from .optim import adam_init, adam_update, lr_schedule
@@ -33,6 +34,7 @@ from .recipes import Recipe, register_recipe
 __all__ = [
     "data_mesh",
     "make_train_step",
+    "model_loss",
     "sequence_loss",
     "evaluate",
     "evaluate_sequences",
@@ -79,10 +81,9 @@ def _train_step(model_cfg, train_cfg, make_batch, mesh, conv3d_impl):
 
         def loss_fn(p):
             if DUF.sequence_form(model_cfg):
-                return sequence_loss(p, state, windows, gt, model_cfg, delta=train_cfg.huber_delta,
-                                     conv3d_impl=conv3d_impl)
-            hr, new_state = apply_model_train(p, state, windows, model_cfg, conv3d_impl=conv3d_impl)
-            return huber_loss(hr, gt, delta=train_cfg.huber_delta), (new_state, hr, gt)
+                return sequence_loss(p, state, windows, gt, model_cfg, conv3d_impl=conv3d_impl, train_cfg=train_cfg)
+            out, new_state = apply_model_train(p, state, windows, model_cfg, conv3d_impl=conv3d_impl)
+            return model_loss(out, gt, model_cfg, train_cfg), (new_state, merge_no_return(out, model_cfg), gt)
 
         (loss, (new_state, hr, gt)), grads = jax.value_and_grad(loss_fn, has_aux=True)(params)
         lr = schedule(step)
@@ -97,19 +98,37 @@ def _train_step(model_cfg, train_cfg, make_batch, mesh, conv3d_impl):
     return jax.jit(step_fn, donate_argnums=donate)
 
 
-def sequence_loss(params, state, clips, gt, cfg: ModelConfig, *, delta: float = 0.01, conv3d_impl: str = "auto"):
+def model_loss(out, gt, cfg: ModelConfig, train_cfg: TrainConfig = TrainConfig()):
+    """The training loss of the network's raw output `out` (`apply_model_train`'s) against gt (normalised, 1.0 =
+    no return): the Huber loss (`train_cfg.huber_delta`) of the depth, everywhere (a no-return pixel's depth
+    learns 1.0 too, so that a missed mark is still near it); with a no-return head, plus
+    `train_cfg.no_return_weight` x the mean binary cross-entropy of the logits against gt >= 1.0. A scalar."""
+    if not cfg.no_return_head:
+        return huber_loss(out, gt, delta=train_cfg.huber_delta)
+    depth, logit = out[..., 0], out[..., 1]
+    no_return = (gt >= NO_RETURN).astype(logit.dtype)
+    # log(1 + e^x) - y x, the cross-entropy of a logit, without overflow at large |x|
+    bce = jnp.mean(jax.nn.softplus(logit) - no_return * logit)
+    return huber_loss(depth, gt, delta=train_cfg.huber_delta) + train_cfg.no_return_weight * bce
+
+
+def sequence_loss(params, state, clips, gt, cfg: ModelConfig, *, delta: float = 0.01, conv3d_impl: str = "auto",
+                  train_cfg: TrainConfig | None = None):
     """The sequence form's training loss: mean Huber loss over the frames of each clip whose inputs all lie
     inside it, BN with the statistics of the whole batch of clips (`apply_model_sequence_train`, "valid").
 
-    clips: (B, L, h, w) LR normalised depth, L >= 2R + 1 (R = 3 + tr); gt: `(B, L, h*r, w*r)` the ground truth
-    of every frame. Returns (loss (scalar), (new BN state, hr `(B, L - 2R, h*r, w*r)`, gt of those frames)).
+    clips: (B, L, h, w) LR normalised depth (or (B, L, h, w, C), as `cfg.inputs`), L >= 2R + 1 (R = 3 + tr);
+    gt: `(B, L, h*r, w*r)` the ground truth of every frame. The loss is `model_loss` with `train_cfg` (default:
+    `TrainConfig(huber_delta=delta)`). Returns (loss (scalar), (new BN state, hr `(B, L - 2R, h*r, w*r)`, gt of
+    those frames)).
     """
+    train_cfg = TrainConfig(huber_delta=delta) if train_cfg is None else train_cfg
     r = sequence_radius(cfg)
     if gt.ndim != 4 or gt.shape[:2] != clips.shape[:2]:
         raise ValueError(f"sequence_loss: expected gt (B, L, H, W) for clips {clips.shape}, got {gt.shape}")
-    hr, new_state = apply_model_sequence_train(params, state, clips, cfg, padding="valid", conv3d_impl=conv3d_impl)
+    out, new_state = apply_model_sequence_train(params, state, clips, cfg, padding="valid", conv3d_impl=conv3d_impl)
     gt = gt[:, r : gt.shape[1] - r]
-    return huber_loss(hr, gt, delta=delta), (new_state, hr, gt)
+    return model_loss(out, gt, cfg, train_cfg), (new_state, merge_no_return(out, cfg), gt)
 
 
 @functools.partial(jax.jit, static_argnames=("cfg", "delta", "conv3d_impl"))
@@ -172,10 +191,15 @@ def initial_weights(k_init, model_cfg: ModelConfig, init) -> tuple[dict, dict]:
     """(params, state) to start from: drawn with `k_init`, or those of `init` (a `Model` or a checkpoint
     path), which must have `model_cfg`'s architecture (its temporal form may differ: fine-tuning a windowed
     model into the sequence form) or that of a smaller TR (a warm start: `grow_tr` to `model_cfg.tr`, the
-    added blocks drawn with `k_init`)."""
+    added blocks drawn with `k_init`); a depth-only `init` is widened to `model_cfg`'s photon inputs and
+    no-return head (`with_photon_inputs`)."""
     if init is None:
         return init_model(k_init, model_cfg)
     model = init if isinstance(init, Model) else load_model(init)
+    if model.config.inputs == ("depth",) and not model.config.no_return_head and (
+            model_cfg.inputs != ("depth",) or model_cfg.no_return_head):
+        # the photon inputs and the no-return head start from a depth-only model's function
+        model = with_photon_inputs(k_init, model, model_cfg.inputs, no_return_head=model_cfg.no_return_head)
     if model.config.tr < model_cfg.tr:
         model = grow_tr(k_init, model, model_cfg.tr)
     if dataclasses.replace(model.config, temporal=model_cfg.temporal) != model_cfg:
@@ -192,8 +216,8 @@ def default_data(model_cfg: ModelConfig, train_cfg: TrainConfig, sensor: SensorC
     `scene_batches`) or clips of `train_cfg.clip_length` frames (sequence form, `scene_clips`).
     Returns make_batch: key -> (inputs, gt) of that source."""
     if DUF.sequence_form(model_cfg):
-        return scene_clips(train_cfg.clip_length(model_cfg), train_cfg, sensor=sensor)
-    return scene_batches(model_cfg.tr, train_cfg, sensor=sensor)
+        return scene_clips(train_cfg.clip_length(model_cfg), train_cfg, sensor=sensor, inputs=model_cfg.inputs)
+    return scene_batches(model_cfg.tr, train_cfg, sensor=sensor, inputs=model_cfg.inputs)
 
 
 def _init(key, cfg: ModelConfig, init=None) -> dict:
@@ -214,7 +238,7 @@ def _step(cfg: ModelConfig, train_cfg: TrainConfig, make_batch, *, sensor=None, 
 
 
 def _validation(key, cfg: ModelConfig, train_cfg: TrainConfig, sensor: SensorConfig) -> dict:
-    return validation_set(key, cfg.tr, train_cfg, sensor=sensor)
+    return validation_set(key, cfg.tr, train_cfg, sensor=sensor, inputs=cfg.inputs)
 
 
 def _evaluate(model: Model, validation: dict, train_cfg: TrainConfig, *, sensor=None, conv3d_impl="auto") -> dict:

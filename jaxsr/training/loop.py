@@ -121,7 +121,9 @@ def _bicubic_psnr(validation: dict, scale: int) -> float | None:
     baseline every epoch's validation PSNR is logged beside."""
     if "lr" not in validation:
         return None
-    return float(jnp.mean(psnr(bicubic(validation["lr"], scale=scale), validation["gt"])))
+    lr = validation["lr"]
+    depth = lr[..., 0] if lr.ndim == validation["gt"].ndim + 1 else lr  # a photon model's channels: depth first
+    return float(jnp.mean(psnr(bicubic(depth, scale=scale), validation["gt"])))
 
 
 def _settings(model_cfg, train_cfg: TrainConfig, pretrain_epochs: int) -> dict:

@@ -7,6 +7,7 @@ replaced, interruptions; a hypothesis test throws arbitrary arrays at `jaxsr ups
 
 Each command starts JAX (2-4 s); the long cases are marked slow."""
 
+import json
 import os
 import signal
 import subprocess
@@ -67,6 +68,15 @@ def _frames(folder, shape, fmt="png"):
         io.write_depth(folder / "frames" / f"f{t}.{fmt}", np.full(shape, 5.0 + t, np.float32))
 
 
+def _negative_counts():
+    """Two tiny background-subtracted histogram frames (4 x 4 pixels, 16 bins): 3 negative counts in 2 pixels of
+    frame 1."""
+    counts = np.full((2, 4, 4, 16), 2.0, np.float32)
+    counts[1, 0, 1, 3] = -1.5
+    counts[1, 2, 2, :2] = -0.5
+    return counts
+
+
 # (setup(folder), arguments, words the message must hold). `MODEL` is replaced by the tiny checkpoint.
 CASES = {
     # shapes no network runs on (any h, w >= 4 does: issue 16), and histograms of other than --bins bins
@@ -80,6 +90,12 @@ CASES = {
     "upscale --bin-width without a unit": (lambda p: np.save(p / "in.npy", np.ones((2, 32, 64, 16), np.uint16)),
                                            ["upscale", "in.npy", "out.npy", "--model", "MODEL", "--bin-width", "3"],
                                            ["--bin-width", "with its unit"]),
+    "upscale negative counts": (lambda p: np.save(p / "in.npy", _negative_counts()),
+                                ["upscale", "in.npy", "out.npy", "--model", "MODEL"],
+                                ["frame 1", "negative photon counts", "--clip-negative"]),
+    "upscale --clip-negative for depth": (lambda p: np.save(p / "in.npy", np.full((3, 32, 64), 0.5, np.float32)),
+                                          ["upscale", "in.npy", "out.npy", "--model", "MODEL", "--clip-negative"],
+                                          ["--clip-negative applies to histograms only"]),
     "upscale --bins for depth": (lambda p: np.save(p / "in.npy", np.full((3, 32, 64), 0.5, np.float32)),
                                  ["upscale", "in.npy", "out.npy", "--model", "MODEL", "--bins", "8"],
                                  ["histograms and time tags only"]),
@@ -161,6 +177,25 @@ def test_upscale_any_array_is_upscaled_or_refused_cleanly(tmp_path_factory, mode
         assert [n for n, _ in tree(folder)] == sorted(["in.npy", "out.npy"])
     else:
         assert_refused(done, "upscale", folder, before)
+
+
+def test_negative_counts_are_refused_with_the_hint_then_clipped_with_clip_negative(tmp_path, model_path):
+    """Background-subtracted histograms (issue 35): refused by default, naming --clip-negative; with it, clipped
+    at 0, the count and the pixels said on a warning line and in the summary, and the output that of the
+    histograms clipped beforehand."""
+    np.save(tmp_path / "in.npy", _negative_counts())
+    before = tree(tmp_path)
+    args = ("upscale", "in.npy", "out.npy", "--model", model_path, "--no-progress")
+    assert_refused(jaxsr(tmp_path, *args), "upscale", tmp_path, before, "in.npy: frame 1 holds negative photon "
+                   "counts", "pass --clip-negative")
+    done = jaxsr(tmp_path, *args, "--clip-negative")
+    assert done.returncode == 0, done.stderr
+    assert done.stderr.splitlines()[0] == ("jaxsr upscale: warning: 3 negative counts in 2 pixels clipped at 0 "
+                                           "(--clip-negative: background-subtracted histograms)"), done.stderr
+    assert json.loads(done.stdout)["negative_counts_clipped"] == {"counts": 3, "pixels": 2}
+    np.save(tmp_path / "clipped.npy", np.maximum(_negative_counts(), 0))
+    assert jaxsr(tmp_path, "upscale", "clipped.npy", "want.npy", "--model", model_path).returncode == 0
+    np.testing.assert_array_equal(np.load(tmp_path / "out.npy"), np.load(tmp_path / "want.npy"))
 
 
 def _interrupt(tmp_path, model_path, output, sig):

@@ -117,6 +117,53 @@ def test_bad_input_raises_the_commands_error(tmp_path, model_path, capsys, make,
     assert status == 2 and err.startswith("jaxsr upscale: error: ") and len(err.strip().splitlines()) == 1
 
 
+def background_subtracted():
+    """Histograms (3, 32, 64, 16) with their background subtracted, as some published data sets are: photon counts
+    less a background of 1.5 per bin, so that many counts are negative."""
+    counts = np.asarray(jax.random.poisson(jax.random.key(2), 1.5, (3, 32, 64, SENSOR.bins)), np.float32)
+    counts[:, 10:14, 20:30, 5] += 20.0  # a return
+    return counts - 1.5
+
+
+def test_clip_negative_clips_background_subtracted_histograms_and_says_how_many(model_path):
+    """Refused by default (the message names the option); clipped at 0 with clip_negative, the result that of the
+    histograms clipped beforehand, and the negative counts and the pixels holding them said in a warning, the
+    result and the summary."""
+    counts = background_subtracted()
+    n, pixels = int((counts < 0).sum()), int((counts < 0).any(-1).sum())
+    with pytest.raises(ValueError, match=r"array: frame 0 holds negative photon counts.*--clip-negative, "
+                       r"clip_negative=True"):
+        upscale(counts, None, model=model_path)
+    result = upscale(counts, None, model=model_path, clip_negative=True)
+    np.testing.assert_array_equal(result.depth, upscale(np.maximum(counts, 0), None, model=model_path).depth)
+    assert result.negative_counts == (n, pixels) and 0 < pixels < n
+    assert result.summary()["negative_counts_clipped"] == {"counts": n, "pixels": pixels}
+    assert result.warnings[-1] == (f"{n} negative counts in {pixels} pixels clipped at 0 (--clip-negative: "
+                                   "background-subtracted histograms)")
+    assert f"warning: {result.warnings[-1]}" in result.notes
+    # nothing to clip: (0, 0), and no warning; without the option, no such field
+    job = prepare_upscale(np.maximum(counts, 0), model=model_path, clip_negative=True)
+    assert job.negative_counts == (0, 0) and not any("negative" in w for w in job.warnings)
+    assert prepare_upscale(np.maximum(counts, 0), model=model_path).negative_counts is None
+
+
+@pytest.mark.parametrize("case", ["NaN count", "depth", "time tags"])
+def test_clip_negative_clips_nothing_else(tmp_path, model_path, case):
+    """Non-finite counts stay refused with clip_negative; depth and time tags (whose counts are never negative)
+    refuse the option."""
+    if case == "NaN count":
+        counts = background_subtracted()
+        counts[1, 0, 0, 0] = np.nan
+        source, options, message = counts, {}, "frame 1 holds non-finite"
+    elif case == "depth":
+        source, options, message = np.full((2, 32, 64), 0.5, np.float32), {}, "histograms only"
+    else:
+        np.savez(tmp_path / "t.npz", pixel=np.arange(16), time=np.arange(16.0), shape=np.array([4, 4]))
+        source, options, message = tmp_path / "t.npz", {"kind": "timetags", "time_unit": "1ns"}, "never negative"
+    with pytest.raises(ValueError, match=message):
+        upscale(source, None, model=model_path, clip_negative=True, **options)
+
+
 def test_write_upscaled_checks_its_output(tmp_path, model_path, metres):
     job = prepare_upscale(metres, model=model_path)
     (tmp_path / "out.npz").write_bytes(b"keep")

@@ -1,5 +1,8 @@
 """File I/O round trips (bit-exact float formats, <= 0.5 mm for 16-bit PNG) and clear errors."""
 
+import errno
+import os
+
 import numpy as np
 import pytest
 
@@ -245,3 +248,73 @@ def test_an_output_another_writer_created_meanwhile_is_never_replaced(tmp_path):
     with atomic_folder(tmp_path / "new", overwrite=False) as tmp:  # a new folder, or an empty one, is claimed
         (tmp / "a").write_bytes(b"a")
     assert (tmp_path / "new" / "a").read_bytes() == b"a"
+
+
+def _disk_full(*args, **kwargs):
+    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+
+def _cannot_reserve(*args, **kwargs):
+    raise OSError(errno.EOPNOTSUPP, os.strerror(errno.EOPNOTSUPP))
+
+
+@pytest.mark.parametrize("case", ["file", "folder", "file in a folder", "file through a file"])
+def test_a_full_disk_is_a_write_error_naming_the_output_and_leaves_nothing(tmp_path, case):
+    """ENOSPC (as any OSError of the disk) inside an atomic write removes the temporary file or folder and is a
+    `WriteError` that names the output, never the hidden temporary (an inner write into the temporary folder or
+    file names its final place)."""
+    from jaxsr.io.files import WriteError, atomic_folder, atomic_path
+
+    out = tmp_path / ("frames" if "folder" in case else "up.npz")
+    want = {"file": out, "folder": out, "file in a folder": out / "h.npz", "file through a file": out}[case]
+    with pytest.raises(WriteError) as caught:
+        if case == "file":
+            with atomic_path(out) as tmp:
+                tmp.write_bytes(b"half")
+                _disk_full()
+        elif case == "folder":
+            with atomic_folder(out) as tmp:
+                (tmp / "f0.exr").write_bytes(b"x")
+                _disk_full()
+        elif case == "file in a folder":  # as `jaxsr simulate` writes its outputs
+            with atomic_folder(out) as tmp, atomic_path(tmp / "h.npz") as inner:
+                inner.write_bytes(b"half")
+                _disk_full()
+        else:  # as `jaxsr upscale` writes an .npz: write_sequence's own atomic write onto the temporary file
+            with atomic_path(out) as tmp, atomic_path(tmp, overwrite=True) as inner:
+                inner.write_bytes(b"half")
+                _disk_full()
+    error = caught.value
+    partial = "folder" if "folder" in case else "file"
+    assert error.errno == errno.ENOSPC and error.path == want
+    assert str(error) == (f"no space left on device while writing {want}; nothing was written (the partial "
+                          f"{partial} was removed)")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_user_mistakes_in_an_atomic_write_are_not_write_errors(tmp_path):
+    """An existing output, a missing folder, no permission: the user's, raised as they are (exit 2 in the CLI)."""
+    from jaxsr.io.files import WriteError, atomic_path
+
+    with pytest.raises(PermissionError) as caught, atomic_path(tmp_path / "a.npy"):
+        raise PermissionError(errno.EACCES, "no", "x")
+    assert not isinstance(caught.value, WriteError)
+    with pytest.raises(ValueError, match="mine"), atomic_path(tmp_path / "a.npy"):
+        raise ValueError("mine")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_reserve_space_turns_a_full_disk_into_enospc_before_the_map_is_written(tmp_path, monkeypatch):
+    """A memory-mapped output is created sparse; its blocks are reserved at once, so a full disk is an OSError,
+    not SIGBUS when a page is written. A file system that cannot reserve is left as it is."""
+    from jaxsr.io.files import reserve_space
+
+    path = tmp_path / "m.npy"
+    np.lib.format.open_memmap(path, mode="w+", dtype=np.float32, shape=(4, 1024))
+    reserve_space(path)  # room enough: nothing to say
+    monkeypatch.setattr(os, "posix_fallocate", _disk_full)
+    with pytest.raises(OSError) as caught:
+        reserve_space(path)
+    assert caught.value.errno == errno.ENOSPC
+    monkeypatch.setattr(os, "posix_fallocate", _cannot_reserve)
+    reserve_space(path)

@@ -1,0 +1,111 @@
+"""experiments/studies/real_photons.py: the photon video's splitting and thinning on synthetic time tags (frames
+disjoint, levels kept, the recording's photons capping the frames), the reference's test for a rivalling second
+return, and the script's core on crops of the real recordings (skipped where they are absent)."""
+
+import json
+
+import numpy as np
+import pytest
+
+import jaxsr
+import real_photons  # experiments/studies (pytest's pythonpath)
+from jaxsr.sensor.timetags import TimeTags
+
+
+def synthetic_tags(n=5000, side=16, seed=0):
+    """n photons on a side x side grid, pixel p drawn with weight 1 + p (bright and dark pixels), each with a
+    unique arrival time (its index), so that a photon can be followed through the split."""
+    rng = np.random.default_rng(seed)
+    weights = 1.0 + np.arange(side * side)
+    pixel = rng.choice(side * side, n, p=weights / weights.sum())
+    return TimeTags(pixel.astype(np.int64), np.zeros(n, np.int64), np.arange(n, dtype=np.float64), (side, side), 1,
+                    1e-12, "synthetic")
+
+
+def test_bin_pixels_maps_blocks_to_lr_pixels():
+    tags = synthetic_tags(n=2000)
+    lr = real_photons.bin_pixels(tags)
+    y, x = np.divmod(tags.pixel, 16)
+    assert lr.shape == (4, 4)
+    np.testing.assert_array_equal(lr.pixel, (y // 4) * 4 + x // 4)
+    np.testing.assert_array_equal(lr.time, tags.time)
+
+
+@pytest.mark.parametrize("level", [1.0, 2.0, 16.0])
+def test_photon_video_frames_disjoint_at_the_level(level):
+    lr = real_photons.bin_pixels(synthetic_tags())
+    video = real_photons.photon_video(lr, level, max_frames=9, seed=3)
+    per_frame = round(level * 16)
+    assert video.frames == min(9, 5000 // per_frame)  # 16 photons: 19 frames' worth, capped at 9
+    assert np.all(np.bincount(video.frame, minlength=video.frames) == per_frame)  # exactly L per LR pixel, mean
+    assert len(np.unique(video.time)) == video.time.size  # no photon in two frames
+    assert np.isin(video.time, lr.time).all()
+    # each photon keeps its LR pixel
+    np.testing.assert_array_equal(video.pixel, lr.pixel[video.time.astype(int)])
+
+
+def test_photon_video_caps_frames_and_thins_evenly():
+    lr = real_photons.bin_pixels(synthetic_tags())
+    # 5000 photons over 16 LR pixels: 312 per pixel; 100 per pixel and frame leaves room for 3 frames, 400 none
+    assert real_photons.photon_video(lr, 100.0, max_frames=9, seed=0).frames == 3
+    assert real_photons.photon_video(lr, 400.0, max_frames=9, seed=0) is None
+    # seeded: the same split for the same seed, another for another
+    a, b, c = (real_photons.photon_video(lr, 4.0, max_frames=9, seed=s) for s in (1, 1, 2))
+    np.testing.assert_array_equal(a.time, b.time)
+    np.testing.assert_array_equal(a.frame, b.frame)
+    assert not np.array_equal(a.time, c.time)
+    # thinning: each LR pixel's share of a frame follows its share of the recording (bright pixels keep more)
+    video = real_photons.photon_video(lr, 30.0, max_frames=9, seed=0)
+    kept = np.bincount(video.pixel, minlength=16) / video.time.size
+    whole = np.bincount(lr.pixel, minlength=16) / lr.time.size
+    np.testing.assert_allclose(kept, whole, atol=0.01)
+
+
+def test_split_photons_labels():
+    label = real_photons.split_photons(10, 3, max_frames=5, seed=0)
+    assert sorted(label.tolist()) == [-1, 0, 0, 0, 1, 1, 1, 2, 2, 2]
+    assert (real_photons.split_photons(10, 3, max_frames=1, seed=0) >= 0).sum() == 3
+    with pytest.raises(ValueError):
+        real_photons.split_photons(10, 0, max_frames=1, seed=0)
+
+
+def test_competing_return():
+    counts = np.zeros((4, 16))
+    counts[0, 3] = 20  # one return on a dark background
+    counts[1, [3, 10]] = 20, 18  # two returns of about equal strength: which is highest is chance
+    counts[2, [3, 10]] = 60, 10  # a second return the peak beats clearly
+    counts[3, [3, 4]] = 20, 18  # both in the peak's window: one return
+    np.testing.assert_array_equal(real_photons.competing_return(counts), [False, True, False, False])
+
+
+DATA = real_photons.DEFAULT_DATA
+
+
+@pytest.mark.skipif(not all((DATA / s.file).is_file() for s in real_photons.SOURCES),
+                    reason=f"the real recordings (tower.mat, two_layer.mat) are not in {DATA}; they are not part of "
+                           "the project (docs/own-sensor.md, 'Real recordings', says where to get them)")
+def test_core_on_crops_of_the_real_recordings(tmp_path):
+    recordings = [real_photons.read_recording(DATA, real_photons.SOURCES[0], crop=(64, 64, 48)),
+                  real_photons.read_recording(DATA, real_photons.SOURCES[1], crop=(24, 24, 48))]
+    assert [r.tags.shape for r in recordings] == [(48, 48), (48, 48)]
+    # the bundled TR0, labelled TR4 so that the goal (TR4 against bicubic) has its model: it compiles faster
+    models = {"TR4": jaxsr.load_model("tr0")}
+    results = real_photons.evaluate(recordings, models, levels=[2.0], max_frames=2, log=lambda _: None)
+    for rec in recordings:
+        r = results[rec.name]
+        assert r["lr_shape"] == (12, 12) and r["valid"].any()
+        assert 0 < r["noise"]["both_return"] <= 1 and np.isfinite(r["noise"]["psnr_halves"])
+        (entry,) = r["levels"]
+        assert entry["frames"] == 2
+        assert set(entry["scores"]) == {"nearest", "bicubic", "TV", "TR4"}
+        for s in entry["scores"].values():
+            assert s["psnr"].shape == (2,) and np.all(np.isfinite(s["psnr"]))
+            assert np.all((s["no_return"] >= 0) & (s["no_return"] <= 1))
+        assert real_photons.goal(entry) is not None
+    text = real_photons.tables(results, recordings)
+    assert "## tower" in text and "## two_layer" in text
+    goals, _ = real_photons.goal_table(results)
+    assert "TR4 - bicubic" in goals
+    real_photons.picture(results, recordings, tmp_path / "p.png")
+    assert (tmp_path / "p.png").stat().st_size > 0
+    json.dumps(real_photons.raw(results, {"TR4": "bundled tr0"}, {}))

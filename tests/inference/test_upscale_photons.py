@@ -1,0 +1,50 @@
+"""`jaxsr upscale` with a model that reads the photons behind each depth: histograms feed it its channels
+(over any gate, as the library's `super_resolve_histograms` does for the default gate), depth is refused with
+a message that says what it needs, and "default" picks the bundled model that fits the input."""
+
+import jax
+import numpy as np
+import pytest
+
+from jaxsr.config import ModelConfig, SensorConfig
+from jaxsr.inference import DEFAULT_MODELS, prepare_upscale, super_resolve_histograms, upscale
+from jaxsr.io.checkpoint import save_model
+from jaxsr.nn import Model, init_model
+
+SENSOR = SensorConfig()
+TINY = dict(base=8, growth=4, head=16, filter_hidden=16)
+
+
+@pytest.fixture(scope="module")
+def photon_model(tmp_path_factory):
+    cfg = ModelConfig(tr=0, inputs=("depth", "signal", "background"), no_return_head=True, **TINY)
+    params, state = init_model(jax.random.key(0), cfg)
+    # a head that marks some pixels, so that the no-return output is exercised
+    params["no_return"]["conv2"]["b"] = params["no_return"]["conv2"]["b"] + 4.0
+    model = Model(params, state, cfg)
+    return model, save_model(tmp_path_factory.mktemp("m") / "photons.npz", model)
+
+
+@pytest.fixture(scope="module")
+def counts():
+    return np.asarray(jax.random.poisson(jax.random.key(1), 0.8, (2, 8, 12, 16)), np.float32)
+
+
+def test_histograms_through_a_photon_model_equal_the_library(photon_model, counts):
+    model, path = photon_model
+    result = upscale(counts, None, model=path, units="normalised")
+    want = super_resolve_histograms(model, counts)
+    np.testing.assert_allclose(result.depth, np.clip(want, 0, 1), atol=1e-6)
+
+
+def test_depth_to_a_photon_model_is_refused(photon_model):
+    depth = np.full((2, 8, 12), 0.5, np.float32)
+    with pytest.raises(ValueError, match="histograms or time tags"):
+        prepare_upscale(depth, model=photon_model[1])
+
+
+def test_default_fits_the_input(counts):
+    assert prepare_upscale(counts).model_name == DEFAULT_MODELS["histograms"]
+    assert prepare_upscale(np.full((2, 8, 12), 0.5, np.float32)).model_name == DEFAULT_MODELS["depth"]
+    with pytest.raises(TypeError, match="default"):
+        prepare_upscale(counts, model=3)
