@@ -23,15 +23,13 @@ import argparse
 import dataclasses
 from pathlib import Path
 
-import jax
-import jax.numpy as jnp
 
 import jaxsr
 from jaxsr.config import PRESETS, PhotonRegime
 from jaxsr.training import regime_batches
+from jaxsr.training.presets import PHOTON_INPUTS, regime_validation
 
 KEPT = Path(__file__).resolve().parents[1] / "photon_weights"
-PHOTON_MODEL = {"inputs": ("depth", "signal", "background"), "no_return_head": True}
 
 
 def train_config(epochs: int, steps_per_epoch: int, lr: float, seed: int):
@@ -39,16 +37,6 @@ def train_config(epochs: int, steps_per_epoch: int, lr: float, seed: int):
     base = PRESETS["bundle"]
     return dataclasses.replace(base, examples_per_epoch=steps_per_epoch * base.batch_size, epochs=epochs,
                                lr=lr, decay_epochs=max(1, epochs // 2), patience=max(3, epochs // 4), seed=seed)
-
-
-def regime_validation(tr: int, train_cfg, regime: PhotonRegime, *, batches: int, sensor, inputs=("depth",)) -> dict:
-    """`batches` batches of the regime's data drawn with fixed keys (independent of the training keys), as
-    `jaxsr.training.evaluate` reads them: windows, gt, and the centre frames for the bicubic reference."""
-    make_batch = jax.jit(regime_batches(tr, train_cfg, regime, sensor=sensor, inputs=inputs))
-    drawn = [make_batch(jax.random.fold_in(jax.random.key(2**31 - 1), i)) for i in range(batches)]
-    windows = jnp.concatenate([w for w, _ in drawn])
-    gt = jnp.concatenate([g for _, g in drawn])
-    return {"windows": windows, "gt": gt, "lr": windows[:, tr], "names": [f"regime draws x{windows.shape[0]}"]}
 
 
 def main(argv=None) -> None:
@@ -80,7 +68,7 @@ def main(argv=None) -> None:
         print(f"kept {path} ({card['steps']} steps, validation PSNR {card['validation']['psnr']:.2f} dB)")
         return
     sensor, regime = jaxsr.SensorConfig(), PhotonRegime(paper_prob=args.paper_share)
-    model_cfg = jaxsr.ModelConfig(tr=args.tr, **(PHOTON_MODEL if args.photons else {}))
+    model_cfg = jaxsr.ModelConfig(tr=args.tr, **(PHOTON_INPUTS if args.photons else {}))
     train_cfg = train_config(args.epochs, args.steps_per_epoch, args.lr, args.seed)
     # validation on the wide regime alone (paper_prob 0): the model is chosen for the regime it is for
     validation = regime_validation(args.tr, train_cfg, PhotonRegime(), batches=args.val_batches, sensor=sensor,

@@ -27,11 +27,11 @@ import signal
 import sys
 import threading
 
-from . import info, simulate, train, upscale
+from . import finetune, info, simulate, train, upscale
 
 __all__ = ["COMMANDS", "USER_ERRORS", "Terminated", "build_parser", "main"]
 
-COMMANDS = (simulate, train, upscale, info)
+COMMANDS = (simulate, train, finetune, upscale, info)
 # Exceptions that mean the user asked for something impossible (the library raises these with a message).
 USER_ERRORS = (FileNotFoundError, FileExistsError, IsADirectoryError, NotADirectoryError, PermissionError, ValueError)
 

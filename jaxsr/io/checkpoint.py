@@ -219,21 +219,31 @@ def save_model(path, model: Model, *, card: dict | None = None, storage_dtype: s
 BUNDLED_ALIASES = {f"paper-tr{tr}": f"tr{tr}" for tr in range(5)}
 
 
+# The model of a training run's folder (`jaxsr.training.fit` writes it): a folder given as a model means this file.
+RUN_MODEL_FILE = "best.npz"
+
+
 def resolve_model_path(path) -> Path:
-    """Where a model lives: `path` itself if it is a file, else `path` + ".npz", else the bundled weights of
-    that name (`jaxsr/weights/tr4.npz` for "tr4"; "paper-tr0".."paper-tr4" name the paper's models,
-    `BUNDLED_ALIASES`). Raises FileNotFoundError naming all three.
+    """Where a model lives: `path` itself if it is a file, else the best model of a training run if it is a
+    folder holding one (`path/best.npz`, as `jaxsr train` and `jaxsr finetune` write it), else `path` + ".npz",
+    else the bundled weights of that name (`jaxsr/weights/tr4.npz` for "tr4"; "paper-tr0".."paper-tr4" name the
+    paper's models, `BUNDLED_ALIASES`). Raises FileNotFoundError naming what was tried.
 
     Args: path (str or Path). Returns a Path to an existing file (not opened or checked).
     """
     p = Path(path)
     if p.is_file():
         return p
-    if p.suffix != ".npz" and p.with_name(p.name + ".npz").is_file():
+    if p.is_dir() and (p / RUN_MODEL_FILE).is_file():
+        return p / RUN_MODEL_FILE
+    if p.name and p.suffix != ".npz" and p.with_name(p.name + ".npz").is_file():
         return p.with_name(p.name + ".npz")
     bundled = Path(__file__).parents[1] / "weights" / f"{BUNDLED_ALIASES.get(p.name, p.name)}.npz"
     if len(p.parts) == 1 and bundled.is_file():
         return bundled
+    if p.is_dir():
+        raise FileNotFoundError(f"no checkpoint at {str(path)!r}: a folder without {RUN_MODEL_FILE} (a training run "
+                                "writes it at the end of its first epoch), nor bundled weights of that name")
     raise FileNotFoundError(f"no checkpoint at {str(path)!r} (nor {str(path)!r}.npz, nor bundled weights {p.name!r})")
 
 

@@ -71,8 +71,9 @@ def stream_step(params, state, buffers: dict, frame, cfg: ModelConfig, *, conv3d
     """
     want = buffers["lr"].shape[:1] + buffers["lr"].shape[2:] + ((cfg.channels,) if cfg.channels > 1 else ())
     if not _has_channels(frame, cfg, 3) or frame.shape != want:
-        raise ValueError(f"stream_step: expected a frame {want} (B, h, w{', C' if cfg.channels > 1 else ''}) "
-                         f"matching the stream's buffers and inputs {cfg.inputs}, got shape {frame.shape}")
+        axes = "(B, h, w)" if cfg.channels == 1 else f"(B, h, w, C) for inputs {cfg.inputs}"
+        raise ValueError(f"stream_step: expected a frame {axes} = {want} matching the stream's buffers, got shape "
+                         f"{frame.shape}")
     if conv3d_impl not in CONV3D_IMPLS:
         raise ValueError(f"stream_step: conv3d_impl must be one of {', '.join(map(repr, CONV3D_IMPLS))}, "
                          f"got {conv3d_impl!r}")

@@ -1,5 +1,6 @@
-"""Training: the data sources, Adam and the step-decay schedule, each architecture's recipe, and the one `fit`
-loop that trains them all.
+"""Training: the data sources, Adam and the step-decay schedule, each architecture's recipe, the one `fit`
+loop that trains them all, and the runs from a preset (`train`) or to a sensor described in a file (`finetune`,
+`read_sensor_file`).
 """
 
 from .optim import AdamState, adam_init, adam_update, lr_schedule, step_decay
@@ -42,7 +43,8 @@ from .baselines import (
     super_resolve_baseline,
 )
 from .loop import RESUME_FILE, RUN_FILES, choose_mesh, fit, replicate, resume_config
-from .presets import MAX_TR, sequence_data, train
+from .presets import FINETUNE_LR_FACTOR, MAX_TR, PHOTON_INPUTS, finetune, regime_validation, sequence_data, train
+from .sensor_file import fit_irf, parse_sensor_file, read_irf_file, read_sensor_file
 
 __all__ = [
     "AdamState", "adam_init", "adam_update", "lr_schedule", "step_decay",
@@ -55,6 +57,8 @@ __all__ = [
     "BASELINES", "baseline_validation_set", "evaluate_baseline", "histogram_batches", "init_adam_pair",
     "make_histnet_train_step", "make_iseebetter_train_step", "make_rbpn_train_step",
     "fit", "resume_config", "train", "sequence_data", "MAX_TR", "choose_mesh", "replicate", "RUN_FILES", "RESUME_FILE",
+    "finetune", "regime_validation", "FINETUNE_LR_FACTOR", "PHOTON_INPUTS",
+    "read_sensor_file", "parse_sensor_file", "fit_irf", "read_irf_file",
     # deprecated (jaxsr 0.1): jaxsr.nn.Model, jaxsr.save_model / load_model, jaxsr.super_resolve*, jaxsr.fit
     "BaselineModel", "fit_baseline", "load_baseline", "save_baseline", "super_resolve_baseline",
 ]

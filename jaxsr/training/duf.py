@@ -100,16 +100,18 @@ def _train_step(model_cfg, train_cfg, make_batch, mesh, conv3d_impl):
 
 def model_loss(out, gt, cfg: ModelConfig, train_cfg: TrainConfig = TrainConfig()):
     """The training loss of the network's raw output `out` (`apply_model_train`'s) against gt (normalised, 1.0 =
-    no return): the Huber loss (`train_cfg.huber_delta`) of the depth, everywhere (a no-return pixel's depth
-    learns 1.0 too, so that a missed mark is still near it); with a no-return head, plus
-    `train_cfg.no_return_weight` x the mean binary cross-entropy of the logits against gt >= 1.0. A scalar."""
+    no return): the mean Huber loss (`train_cfg.huber_delta`) of the depth. With a no-return head the head
+    alone answers for the pixels without a return: the depth's loss counts the returns only (a depth pulled
+    towards 1.0 on sky learns to push far, faint surfaces there too), plus `train_cfg.no_return_weight` x the
+    mean binary cross-entropy of the logits against gt >= 1.0. A scalar."""
     if not cfg.no_return_head:
         return huber_loss(out, gt, delta=train_cfg.huber_delta)
     depth, logit = out[..., 0], out[..., 1]
-    no_return = (gt >= NO_RETURN).astype(logit.dtype)
+    no_return = gt >= NO_RETURN
     # log(1 + e^x) - y x, the cross-entropy of a logit, without overflow at large |x|
-    bce = jnp.mean(jax.nn.softplus(logit) - no_return * logit)
-    return huber_loss(depth, gt, delta=train_cfg.huber_delta) + train_cfg.no_return_weight * bce
+    bce = jnp.mean(jax.nn.softplus(logit) - no_return.astype(logit.dtype) * logit)
+    returns_only = jnp.where(no_return, gt, depth)  # no error, and no gradient, where there is no return
+    return huber_loss(returns_only, gt, delta=train_cfg.huber_delta) + train_cfg.no_return_weight * bce
 
 
 def sequence_loss(params, state, clips, gt, cfg: ModelConfig, *, delta: float = 0.01, conv3d_impl: str = "auto",

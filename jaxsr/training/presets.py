@@ -1,20 +1,30 @@
-"""Training from a preset, as `jaxsr train` does it: one call from options to a finished (or resumed) run."""
+"""Training from a preset, as `jaxsr train` does it: one call from options to a finished (or resumed) run; and
+fine-tuning a trained model to a sensor described in a file, as `jaxsr finetune` does it, on the same path."""
 
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from pathlib import Path
+
+import jax
+import jax.numpy as jnp
 
 from ..baselines.histnet import HistNetConfig
 from ..baselines.rbpn import RBPNConfig
-from ..config import PRESETS, ModelConfig, SensorConfig
+from ..config import PRESETS, ModelConfig, PhotonRegime, SensorConfig
+from ..io.checkpoint import config_from_dict, read_metadata, resolve_model_path
 from ..io.files import removing_new_folder
 from ..io.formats import read_npz_arrays
 from ..nn.model import Model, architecture, architectures
-from .data import sequence_batches, sequence_clips
-from .loop import RUN_FILES, fit, resume_config
+from .data import regime_batches, run_keys, sequence_batches, sequence_clips
+from .duf import initial_weights
+from .loop import RUN_FILES, _latest_state, fit, resume_config
+from .recipes import recipe
+from .sensor_file import card_entry, read_sensor_file, sensor_differences
 
-__all__ = ["MAX_TR", "train", "sequence_data"]
+__all__ = ["MAX_TR", "train", "sequence_data", "finetune", "regime_validation", "FINETUNE_LR_FACTOR",
+           "PHOTON_INPUTS"]
 
 # The network has 3 + TR blocks over windows of 2TR+1 frames, so memory and compute grow with TR; the paper
 # uses TR 0-4, and a TR beyond this does not fit a training batch in the memory of a usual machine.
@@ -65,8 +75,7 @@ def train(out, *, arch: str = "duf", tr: int = 4, scale: int = 4, temporal: str 
         raise ValueError(f"train: arch must be one of {', '.join(architectures())}, got {arch!r}")
     if preset not in PRESETS:
         raise ValueError(f"train: preset must be one of {', '.join(sorted(PRESETS))}, got {preset!r}")
-    if not checkpoint_minutes >= 0:  # also refuses NaN
-        raise ValueError(f"--checkpoint-minutes {checkpoint_minutes}: expected a number of minutes >= 0")
+    _check_minutes(checkpoint_minutes)
     changes = {k: v for k, v in (("seed", seed), ("epochs", epochs), ("clip_frames", clip_frames)) if v is not None}
     train_cfg = dataclasses.replace(PRESETS[preset], **changes)
     if arch == "duf":
@@ -84,13 +93,162 @@ def train(out, *, arch: str = "duf", tr: int = 4, scale: int = 4, temporal: str 
                              "scale)")
         model_cfg = _BASELINE_CONFIGS[arch]
     sensor = SensorConfig() if scale == 4 else SensorConfig(scale=scale)
+    _check_out(out, resume)
+    make_batch = sequence_data(data, model_cfg, train_cfg, sensor) if data is not None else None
+    return _fit_in_new_folder(out, model_cfg, train_cfg, make_batch=make_batch, sensor=sensor, resume=resume,
+                              overwrite=overwrite, progress=progress, init=init,
+                              checkpoint_every_s=60 * checkpoint_minutes)
+
+
+def _check_minutes(checkpoint_minutes):
+    if not checkpoint_minutes >= 0:  # also refuses NaN
+        raise ValueError(f"--checkpoint-minutes {checkpoint_minutes}: expected a number of minutes >= 0")
+
+
+def _check_out(out, resume: bool):
+    """The checks of folder `out` that `train` and `finetune` make before any work: not a file, and holding a run
+    to resume when `resume`."""
     if Path(out).exists() and not Path(out).is_dir():
         raise FileExistsError(f"{out} is a file; --out is a folder")
     if resume and not any((Path(out) / name).exists() for name in RUN_FILES):
         raise FileNotFoundError(f"--resume: nothing to resume: {out} holds no training run (none of "
                                 f"{', '.join(RUN_FILES)}); leave out --resume to start one")
-    make_batch = sequence_data(data, model_cfg, train_cfg, sensor) if data is not None else None
-    with removing_new_folder(out):  # a run that fails or stops before its first save leaves no folder
-        train_cfg = resume_config(out, train_cfg) if resume else train_cfg  # a run keeps the validation it began with
-        return fit(model_cfg, train_cfg, out=out, make_batch=make_batch, sensor=sensor, resume=resume,
-                   overwrite=overwrite, progress=progress, init=init, checkpoint_every_s=60 * checkpoint_minutes)
+
+
+def _fit_in_new_folder(out, model_cfg, train_cfg, *, resume: bool, **fit_args):
+    """`fit` into folder `out`, which a run that fails or stops before its first save leaves as it was (a new
+    folder is removed); a resumed run keeps the validation sequences it began with (`resume_config`)."""
+    with removing_new_folder(out):
+        train_cfg = resume_config(out, train_cfg) if resume else train_cfg
+        return fit(model_cfg, train_cfg, out=out, resume=resume, **fit_args)
+
+
+# Fine-tuning: Adam's rate 10x below the preset's (the weights start from a trained function), cut 10x half way.
+FINETUNE_LR_FACTOR = 0.1
+# A model that reads the photons behind each depth and marks no return (`jaxsr.nn.with_photon_inputs` widens a
+# depth-only model to it, starting from its function).
+PHOTON_INPUTS = {"inputs": ("depth", "signal", "background"), "no_return_head": True}
+
+
+def regime_validation(tr: int, train_cfg, regime: PhotonRegime, *, batches: int, sensor: SensorConfig,
+                      inputs=("depth",), key=None) -> dict:
+    """A fixed validation set drawn from a photon regime: `batches` batches of `regime_batches(tr, train_cfg,
+    regime, ...)` drawn with keys folded from `key` (default a fixed key independent of any training keys), as
+    `fit` takes it (and `jaxsr.training.evaluate` reads it): {"windows", "gt", "lr" (the centre frames, for the
+    bicubic reference), "names"}. Model selection on the regime the model is for."""
+    if not (isinstance(batches, int) and batches >= 1):
+        raise ValueError(f"regime_validation: batches must be an integer >= 1, got {batches!r}")
+    key = jax.random.key(2**31 - 1) if key is None else key
+    make_batch = jax.jit(regime_batches(tr, train_cfg, regime, sensor=sensor, inputs=inputs))
+    drawn = [make_batch(jax.random.fold_in(key, i)) for i in range(batches)]
+    windows = jnp.concatenate([w for w, _ in drawn])
+    gt = jnp.concatenate([g for _, g in drawn])
+    return {"windows": windows, "gt": gt, "lr": windows[:, tr], "names": [f"regime draws x{windows.shape[0]}"]}
+
+
+def _init_config(init, photons: bool | None) -> ModelConfig:
+    """The model a fine-tune trains: the architecture of the weights `init` (read from the file), in the window
+    form, widened to the photon inputs when `photons` (None: as `init` reads)."""
+    path = resolve_model_path(init)  # FileNotFoundError naming the model
+    meta = read_metadata(path)
+    name = meta.get("architecture", meta.get("baseline", "duf"))
+    if name != "duf" or "config" not in meta:
+        raise ValueError(f"--from {init}: expected a model of the paper's network (tr0..tr4 or a checkpoint of it), "
+                         f"got {'a ' + str(name) + ' model' if 'config' in meta else 'a file that holds no model'}")
+    cfg = dataclasses.replace(config_from_dict(ModelConfig, meta["config"]), temporal="window")
+    if cfg.scale != 4:
+        raise ValueError(f"--from {init}: a x{cfg.scale} model; fine-tuning trains x4 models")
+    reads_photons = cfg.inputs != ("depth",) or cfg.no_return_head
+    if photons:
+        return dataclasses.replace(cfg, **PHOTON_INPUTS)
+    if photons is False and reads_photons:
+        raise ValueError(f"--from {init}: the model reads {', '.join(cfg.inputs)}; a model cannot be narrowed to "
+                         "depth alone (leave photons unset to keep its inputs)")
+    return cfg
+
+
+def _start_score(model_cfg: ModelConfig, train_cfg, init, validation: dict, sensor: SensorConfig) -> dict:
+    """The validation score of the weights a fine-tune starts from (as `fit` starts: widened to photon inputs
+    with the run's init key where asked), {"val_loss", "val_psnr"}: the mark its epochs have to beat."""
+    params, state = initial_weights(run_keys(train_cfg.seed)[0], model_cfg, init)
+    val = recipe(model_cfg).evaluate(Model(params, state, model_cfg), validation, train_cfg, sensor=sensor)
+    return {"val_loss": float(val["loss"]), "val_psnr": float(val["psnr"])}
+
+
+def finetune(out, *, sensor_file, init="tr4", epochs: int = 10, steps_per_epoch: int = 256, val_batches: int = 16,
+             preset: str = "bundle", photons: bool | None = None, seed: int | None = None, resume: bool = False,
+             overwrite: bool = False, checkpoint_minutes: float = 10.0, progress: bool = True) -> tuple[Model, list]:
+    """Fine-tune trained weights to the sensor a TOML file describes, into folder `out`, as `jaxsr finetune`
+    does: `train`'s path (the same folder checks, lock, files, resume and training card) with the sensor's data.
+
+    sensor_file: the sensor (`jaxsr.training.sensor_file.read_sensor_file`: bins, bin width, gate, pulse,
+    resolution, photon levels and SNR). init: the weights to start from (tr0..tr4, a checkpoint or a run
+    folder); the model keeps their architecture and TR, in the window form, and with `photons` True reads
+    the photons behind each depth too (`PHOTON_INPUTS`; None keeps what `init` reads). Training: `epochs`
+    epochs of `steps_per_epoch` steps of the `preset`'s batch and LR crops (cut to the sensor's frame) on
+    `regime_batches` with the file's SensorConfig and PhotonRegime, Adam's rate `FINETUNE_LR_FACTOR` x the
+    preset's, cut 10x after half the epochs, early stopping after max(3, epochs / 4) epochs without progress;
+    validation on `val_batches` batches of the same regime drawn with fixed keys (`regime_validation`).
+    The training card records the sensor file (its text, gate, IRF fit, the `jaxsr upscale` gate flags), the
+    regime and the starting weights' validation score ("finetune": "start"), which the epochs have to beat (a
+    warning when none does: best.npz then holds the best fine-tuned epoch all the same). resume continues the
+    run in `out` (refused, ValueError, when the file now describes another sensor: the parsed keys count, not
+    the comments; a larger `epochs` trains a finished run longer, on its schedule); overwrite starts over in its
+    place. Returns (best `Model`, history); the sensor file's warnings go out as `warnings.warn`."""
+    for name, value, lo in (("epochs", epochs, 1), ("steps_per_epoch", steps_per_epoch, 1),
+                            ("val_batches", val_batches, 1)):
+        if not (isinstance(value, int) and not isinstance(value, bool) and value >= lo):
+            raise ValueError(f"finetune: {name} must be an integer >= {lo}, got {value!r}")
+    if preset not in PRESETS:
+        raise ValueError(f"finetune: preset must be one of {', '.join(sorted(PRESETS))}, got {preset!r}")
+    _check_minutes(checkpoint_minutes)
+    _check_out(out, resume)
+    sensor, regime, info = read_sensor_file(sensor_file)
+    model_cfg = _init_config(init, photons)
+    entry = card_entry(info)
+    base = PRESETS[preset]
+    rows, cols = sensor.lr_shape
+    patch = None if base.patch is None else (min(base.patch[0], rows), min(base.patch[1], cols))
+    schedule = {"decay_epochs": max(1, epochs // 2), "patience": max(3, epochs // 4)}
+    saved_path = _latest_state(Path(out)) if resume else None
+    if saved_path is not None:
+        saved = read_metadata(saved_path)
+        card = saved.get("card", {})
+        if "sensor_file" not in card:
+            raise ValueError(f"--resume: the run in {out} is not a fine-tune to a sensor file (one of jaxsr train?); "
+                             "use --force to start over in its place, or another --out")
+        differ = sensor_differences(card, entry, regime)
+        if differ:
+            raise ValueError(f"--resume: {sensor_file} describes another sensor than the run in {out} was trained "
+                             f"for ({card['sensor_file'].get('path')}): {', '.join(differ)} differ; use --force to "
+                             "start over, or another --out")
+        # a resumed run keeps its schedule (the rate's cut and the patience), so that --epochs may extend it
+        saved_cfg = saved.get("train_config", {})
+        schedule = {k: saved_cfg.get(k, v) for k, v in schedule.items()}
+    train_cfg = dataclasses.replace(base, examples_per_epoch=steps_per_epoch * base.batch_size, epochs=epochs,
+                                    lr=base.lr * FINETUNE_LR_FACTOR, patch=patch, **schedule,
+                                    **({} if seed is None else {"seed": seed}))
+    for line in info["warnings"]:
+        warnings.warn(f"{info['path']}: {line}", stacklevel=2)
+    make_batch = regime_batches(model_cfg.tr, train_cfg, regime, sensor=sensor, inputs=model_cfg.inputs)
+    validation = regime_validation(model_cfg.tr, train_cfg, dataclasses.replace(regime, paper_prob=0.0),
+                                   batches=val_batches, sensor=sensor, inputs=model_cfg.inputs,
+                                   key=run_keys(train_cfg.seed)[2])
+    init_path = str(resolve_model_path(init))
+    if saved_path is not None and "start" in card.get("finetune", {}):
+        start = card["finetune"]["start"]
+    else:
+        start = _start_score(model_cfg, train_cfg, init_path, validation, sensor)
+    extra = {"sensor_file": entry, "regime": regime.to_dict(),
+             "finetune": {"from": str(init), "lr_factor": FINETUNE_LR_FACTOR, "val_batches": val_batches,
+                          "preset": preset, "photons": model_cfg.inputs != ("depth",), "start": start}}
+    if progress:
+        print(f"starting from {init}: val loss {start['val_loss']:.3e}, val PSNR {start['val_psnr']:.2f} dB")
+    model, history = _fit_in_new_folder(out, model_cfg, train_cfg, make_batch=make_batch, validation=validation,
+                                        sensor=sensor, resume=resume, overwrite=overwrite, progress=progress,
+                                        init=init_path, checkpoint_every_s=60 * checkpoint_minutes, card_extra=extra)
+    if history and min(r["val_loss"] for r in history) >= start["val_loss"]:
+        warnings.warn(f"no epoch beat the starting model {init} on the sensor's validation (val loss "
+                      f"{start['val_loss']:.3e}); {Path(out) / 'best.npz'} holds the best epoch all the same: train "
+                      "longer, or keep using the starting model", stacklevel=2)
+    return model, history

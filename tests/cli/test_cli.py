@@ -14,7 +14,7 @@ import jaxsr
 from jaxsr import cli, io
 
 # The subcommands the README documents.
-SUBCOMMANDS = {"simulate", "train", "upscale", "info"}
+SUBCOMMANDS = {"simulate", "train", "finetune", "upscale", "info"}
 
 
 def test_simulate_scene(tmp_path, capsys):
