@@ -109,3 +109,27 @@ def test_core_on_crops_of_the_real_recordings(tmp_path):
     real_photons.picture(results, recordings, tmp_path / "p.png")
     assert (tmp_path / "p.png").stat().st_size > 0
     json.dumps(real_photons.raw(results, {"TR4": "bundled tr0"}, {}))
+
+
+def test_a_photon_model_reads_the_depth_and_the_photons_behind_it():
+    """model_input gives a depth-only network the centre of mass and a photon network its channels, depth first."""
+    import jax
+
+    from jaxsr.config import ModelConfig
+    from jaxsr.nn import Model, init_model
+
+    rng = np.random.default_rng(0)
+    counts = rng.poisson(0.5, (2, 6, 6, 16)).astype(np.float32)
+    counts[..., 7] += rng.poisson(6.0, (2, 6, 6))
+    gate, scale = jaxsr.Gate(16, 35.0 / 16, 0.0), jaxsr.DepthScale()
+    depth, _ = real_photons._network_depth(counts, gate, scale, 0.0)
+    frames = real_photons.PhotonFrames(counts, np.asarray(depth, np.float32), gate, scale)
+    cfg = ModelConfig(tr=0, base=8, growth=4, head=16, filter_hidden=16)
+    wide = ModelConfig(tr=0, base=8, growth=4, head=16, filter_hidden=16, inputs=("depth", "signal", "background"))
+    np.testing.assert_array_equal(real_photons.model_input(Model(*init_model(jax.random.key(0), cfg), cfg), frames),
+                                  frames.depth)
+    x = real_photons.model_input(Model(*init_model(jax.random.key(0), wide), wide), frames)
+    assert x.shape == (2, 6, 6, 3)
+    np.testing.assert_allclose(x[..., 0], frames.depth, atol=1e-6)
+    np.testing.assert_allclose(x[..., 1:], jaxsr.nn.network_inputs(counts, jaxsr.SensorConfig(),
+                                                                   wide.inputs)[..., 1:], atol=1e-6)
