@@ -7,6 +7,8 @@ metadata, the physical numbers are leaves, so a sweep can `jax.vmap` or `jax.gra
 from __future__ import annotations
 
 import dataclasses
+import numbers
+
 import jax
 import jax.numpy as jnp
 
@@ -160,13 +162,25 @@ jax.tree_util.register_dataclass(DepthScale, data_fields=["offset", "span"], met
 TEMPORAL_FORMS = ("window", "sequence")
 
 
-# Bounds of `ModelConfig` far beyond the paper's network (TR 0-4, x4 or x8, widths up to 512), so that no
-# config (one read from a checkpoint above all) builds an absurd network: 3 + tr blocks of up to `width` channels.
 # What a network may read per LR pixel (`ModelConfig.inputs`): the centre-of-mass depth, always first (the dynamic
 # filters upsample it), then optionally the photons behind it (`jaxsr.sensor.peak_evidence`, log-encoded by
 # `jaxsr.nn.inputs`): "signal" (photons in the peak above the background) and "background" (ambient photons).
 MODEL_INPUTS = ("depth", "signal", "background")
-MODEL_LIMITS = {"tr": 64, "scale": 16, "filter_size": 15, "same_blocks": 16, "width": 4096}
+# Bounds of `ModelConfig` far beyond the paper's network (TR 0-4, x4 or x8, widths up to 512), so that no
+# config (one read from a checkpoint above all) builds an absurd network: 3 + tr blocks of up to `width` channels.
+# The baselines' configs (`jaxsr.baselines.HistNetConfig`, `RBPNConfig`) are bounded by the same table: "width" bounds
+# every channel count, "tr" the temporal radius of an RBPN window (frames <= 2 tr + 1), "blocks" RBPN's residual
+# blocks per module and the discriminator's convolutions, "flow_levels" and "flow_iterations" its optical flow's
+# pyramid and Gauss-Newton steps, "bins" HistNet's first-peak half-width (in histogram bins).
+MODEL_LIMITS = {"tr": 64, "scale": 16, "filter_size": 15, "same_blocks": 16, "width": 4096, "blocks": 64,
+                "flow_levels": 8, "flow_iterations": 256, "bins": 4096}
+
+
+def check_int_field(who: str, name: str, value, lo: int, hi: int, unit: str = "") -> None:
+    """Raise ValueError unless `value` is an integer (not a bool) in lo..hi: a config field read from a file,
+    bounded so that no config builds an absurd network (`MODEL_LIMITS`)."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or not lo <= value <= hi:
+        raise ValueError(f"{who}: {name} must be an integer {lo}..{hi}{unit}, got {value!r}")
 
 
 @dataclasses.dataclass(frozen=True)

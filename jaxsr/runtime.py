@@ -1,7 +1,8 @@
-"""How JAX runs this project's programs: CPU devices, XLA compiler options and the compilation cache.
+"""How JAX runs this project's programs: processes, CPU devices, XLA compiler options and the compilation cache.
 
-These are process-wide settings, not pipeline stages: call `use_cpu_cores` and `enable_compilation_cache` once,
-right after `import jax`; pass `compiler_options()` to `jax.jit` around code that calls `apply_model`.
+These are process-wide settings, not pipeline stages: call `init_distributed` (training across processes) first,
+then `use_cpu_cores` and `enable_compilation_cache` once, right after `import jax`; pass `compiler_options()` to
+`jax.jit` around code that calls `apply_model`.
 """
 
 from __future__ import annotations
@@ -15,7 +16,8 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 
-__all__ = ["MAX_CPU_DEVICES", "use_cpu_cores", "compiler_options", "enable_compilation_cache", "limit_cpu_fusions"]
+__all__ = ["MAX_CPU_DEVICES", "use_cpu_cores", "compiler_options", "enable_compilation_cache", "limit_cpu_fusions",
+           "init_distributed", "distributed_settings", "DISTRIBUTED_ENV"]
 
 # `use_cpu_cores` exposes at most this many: the speed-up was measured on 2 cores only.
 MAX_CPU_DEVICES = 8
@@ -146,3 +148,95 @@ def enable_compilation_cache(*, path=None) -> Path | None:
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
     return path
+
+
+# Training across processes (JAX's multi-controller runtime): the environment variables `init_distributed` reads when
+# its arguments are not given, as (coordinator "HOST:PORT", number of processes, this process's id).
+DISTRIBUTED_ENV = ("JAXSR_COORDINATOR", "JAXSR_NUM_PROCESSES", "JAXSR_PROCESS_ID")
+# The variables of a Slurm job step that JAX's own detection (`jax.distributed.initialize()` with no arguments) reads.
+_SLURM_ENV = ("SLURM_JOB_ID", "SLURM_STEP_NODELIST", "SLURM_NTASKS", "SLURM_PROCID", "SLURM_LOCALID")
+
+
+def _whole(text, what: str, lo: int) -> int:
+    try:
+        value = int(text)
+    except (TypeError, ValueError):
+        raise ValueError(f"init_distributed: {what} must be an integer >= {lo}, got {text!r}") from None
+    if value < lo:
+        raise ValueError(f"init_distributed: {what} must be an integer >= {lo}, got {value}")
+    return value
+
+
+def distributed_settings(coordinator=None, num_processes=None, process_id=None, *, environ=None) -> dict | None:
+    """How `init_distributed` starts this process, computing nothing: None for one process (no runtime to start),
+    else {"coordinator_address", "num_processes", "process_id"} for `jax.distributed.initialize` (each None where
+    JAX's own Slurm detection fills it in).
+
+    Each argument left None comes from `environ` (default os.environ): JAXSR_COORDINATOR ("HOST:PORT", process 0's
+    host and a free port on it), JAXSR_NUM_PROCESSES, JAXSR_PROCESS_ID. When none of the three is set anywhere, a
+    Slurm job step of several tasks (`srun`: SLURM_NTASKS > 1 and the step's variables) runs one process per task,
+    as JAX detects it; otherwise, or with a count of 1, one process. Raises ValueError for a malformed value, a
+    process id outside 0..count-1, or a partial set of the three outside Slurm."""
+    env = os.environ if environ is None else environ
+    names = dict(zip(("coordinator", "num_processes", "process_id"), DISTRIBUTED_ENV))
+    given = {"coordinator": coordinator, "num_processes": num_processes, "process_id": process_id}
+    given = {k: env.get(names[k]) if v is None or v == "" else v for k, v in given.items()}
+    given = {k: None if v is None or v == "" else v for k, v in given.items()}
+    if given["coordinator"] is not None:
+        host, _, port = str(given["coordinator"]).rpartition(":")
+        if not host or not port.isdigit() or not 0 < int(port) < 65536:
+            raise ValueError(f"init_distributed: the coordinator must be HOST:PORT (process 0's host and a free port "
+                             f"on it, e.g. 10.0.0.1:8476), got {given['coordinator']!r}")
+        given["coordinator"] = str(given["coordinator"])
+    if given["num_processes"] is not None:
+        given["num_processes"] = _whole(given["num_processes"], "the number of processes", 1)
+    if given["process_id"] is not None:
+        given["process_id"] = _whole(given["process_id"], "the process id", 0)
+    n, i = given["num_processes"], given["process_id"]
+    if n is not None and i is not None and i >= n:
+        raise ValueError(f"init_distributed: process id {i} is outside 0..{n - 1} (ids run from 0 to the number of "
+                         "processes - 1)")
+    if n == 1:
+        return None
+    slurm = all(v in env for v in _SLURM_ENV)
+    if all(v is None for v in given.values()):
+        if not slurm or _whole(env["SLURM_NTASKS"], "SLURM_NTASKS", 1) == 1:
+            return None
+    elif not slurm and any(v is None for v in given.values()):
+        missing = [f"{k} (${names[k]})" for k, v in given.items() if v is None]
+        raise ValueError("init_distributed: training across processes needs the coordinator, the number of processes "
+                         f"and this process's id; missing: {', '.join(missing)}")
+    return {"coordinator_address": given["coordinator"], "num_processes": n, "process_id": i}
+
+
+def init_distributed(coordinator: str | None = None, num_processes: int | None = None,
+                     process_id: int | None = None) -> tuple[int, int]:
+    """Join a training run across processes (and hosts): start JAX's multi-controller runtime
+    (`jax.distributed.initialize`), after which `jax.devices()` lists every process's devices and `jaxsr.fit`
+    splits each global batch over them all. Returns (this process's index, the number of processes).
+
+    Call it first, before any other JAX use (an array, `jax.devices()`, `use_cpu_cores`...): the runtime can only
+    start before JAX's backend does; afterwards this raises RuntimeError saying so. Every process calls it with
+    the same coordinator and count and its own id; process 0 hosts the coordinator. The arguments, or the
+    environment variables JAXSR_COORDINATOR / JAXSR_NUM_PROCESSES / JAXSR_PROCESS_ID, or under `srun` Slurm's own
+    variables decide (`distributed_settings`). With one process it does nothing and returns (0, 1); called again
+    in a process that joined, it returns the same pair. On CPU the processes exchange data with gloo (JAX's
+    default CPU collectives); on GPUs JAX gives each process under Slurm the GPU of its local task id."""
+    settings = distributed_settings(coordinator, num_processes, process_id)
+    if jax.distributed.is_initialized():
+        return jax.process_index(), jax.process_count()
+    if settings is None:
+        return 0, 1
+    try:
+        jax.distributed.initialize(**settings)
+    except RuntimeError as e:
+        if "before" not in str(e):
+            raise
+        raise RuntimeError("init_distributed must be called before any other JAX use (arrays, jax.devices(), "
+                           "use_cpu_cores ...): JAX's backend is already running in this process, so it can no longer "
+                           f"join a run across processes ({e})") from None
+    # the pair without asking JAX (which would start the backend: use_cpu_cores may still set the devices); under
+    # Slurm, the task variables JAX read
+    index = settings["process_id"] if settings["process_id"] is not None else int(os.environ["SLURM_PROCID"])
+    count = settings["num_processes"] if settings["num_processes"] is not None else int(os.environ["SLURM_NTASKS"])
+    return index, count

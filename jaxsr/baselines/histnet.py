@@ -39,11 +39,12 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import numbers
 
 import jax
 import jax.numpy as jnp
 
-from ..config import SensorConfig
+from ..config import MODEL_LIMITS, SensorConfig, check_int_field
 from ..nn.model import Architecture, register_architecture
 from ..nn.layers import conv2d, conv2d_transpose, init_conv2d, init_from_normals, max_pool2
 from ..sensor.peaks import centre_of_mass, median_of_bins
@@ -59,11 +60,23 @@ _DEPTH_KEYS = ("pool1", "pool2", "pool3", "pool4")
 class HistNetConfig:
     """HistNet sizes: `width` channels at full resolution, doubled at each of the 4 pooled levels (published 64),
     `second_peak_z` the significance (in sqrt(background)) a second peak needs (Ruget's level, 4), `peak_half`
-    the half-width in bins of the first peak removed before the second is looked for (2)."""
+    the half-width in bins of the first peak removed before the second is looked for (2). Bounded by
+    `jaxsr.config.MODEL_LIMITS` (width 1..256, so 16 x width <= its channel limit; ValueError otherwise)."""
 
     width: int = 64
     second_peak_z: float = 4.0
     peak_half: int = 2
+
+    def __post_init__(self):
+        # bounded like `ModelConfig` (`MODEL_LIMITS`): a config read from a file builds its template level by level,
+        # and a width of 10^6 (a damaged or hostile checkpoint) would ask for absurd kernels before any shape is
+        # checked; every level's channels (width * 16 at the bottom) stay within the width limit
+        check_int_field("HistNetConfig", "width", self.width, 1, MODEL_LIMITS["width"] // 16,
+                        f" channels (the bottom level has 16 x width, at most {MODEL_LIMITS['width']})")
+        z = self.second_peak_z
+        if isinstance(z, bool) or not isinstance(z, numbers.Real) or not 0 <= z < float("inf"):
+            raise ValueError(f"HistNetConfig: second_peak_z must be a finite number >= 0, got {z!r}")
+        check_int_field("HistNetConfig", "peak_half", self.peak_half, 0, MODEL_LIMITS["bins"], " bins")
 
     def widths(self) -> tuple[int, ...]:
         """Channels of the 5 encoder levels: width * (1, 2, 4, 8, 16)."""

@@ -36,11 +36,13 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import numbers
 
 import jax
 import jax.numpy as jnp
 
 from .flow import optical_flow
+from ..config import MODEL_LIMITS, check_int_field
 from ..nn.model import Architecture, register_architecture
 from ..nn.layers import batch_norm, conv2d, conv2d_transpose, init_batch_norm, init_conv2d, init_from_normals, prelu
 
@@ -65,7 +67,7 @@ class RBPNConfig:
     """RBPN / iSeeBetter sizes. Defaults: the published ones (iSeeBetter's RBPN: base_filter 256, feat 64, 3
     stages, 5 residual blocks, 7 frames, x4). `channels` 1 (depth; RBPN had 3). Flow: `flow_levels`,
     `flow_iterations` of `jaxsr.baselines.flow.optical_flow`. Discriminator widths: `disc_widths` (SRGAN: 64 .. 512) and
-    `disc_hidden` (1024)."""
+    `disc_hidden` (1024). Every field is an integer bounded by `jaxsr.config.MODEL_LIMITS` (ValueError otherwise)."""
 
     channels: int = 1
     base_filter: int = 256
@@ -79,10 +81,28 @@ class RBPNConfig:
     disc_hidden: int = 1024
 
     def __post_init__(self):
-        if self.scale not in (2, 4, 8):
-            raise ValueError(f"RBPNConfig: scale must be 2, 4 or 8 (RBPN's projection kernels), got {self.scale}")
-        if self.frames < 2:
-            raise ValueError(f"RBPNConfig: frames must be >= 2 (a centre and a neighbour), got {self.frames}")
+        # bounded like `ModelConfig` (`MODEL_LIMITS`): a config read from a file builds its template block by block,
+        # and n_resblock = 10^6 or base_filter = 10^6 (a damaged or hostile checkpoint) would take minutes and
+        # gigabytes before any shape is checked
+        scale = self.scale
+        if isinstance(scale, bool) or not isinstance(scale, numbers.Integral) or scale not in (2, 4, 8):
+            raise ValueError(f"RBPNConfig: scale must be 2, 4 or 8 (RBPN's projection kernels), got {self.scale!r}")
+        check_int_field("RBPNConfig", "frames", self.frames, 2, 2 * MODEL_LIMITS["tr"] + 1,
+                        " (a centre and at least one neighbour)")
+        width = MODEL_LIMITS["width"]
+        for name in ("channels", "base_filter", "feat", "disc_hidden"):
+            check_int_field("RBPNConfig", name, getattr(self, name), 1, width, " channels")
+        check_int_field("RBPNConfig", "n_resblock", self.n_resblock, 0, MODEL_LIMITS["blocks"])
+        check_int_field("RBPNConfig", "flow_levels", self.flow_levels, 1, MODEL_LIMITS["flow_levels"])
+        check_int_field("RBPNConfig", "flow_iterations", self.flow_iterations, 0, MODEL_LIMITS["flow_iterations"])
+        disc = self.disc_widths
+        if (not isinstance(disc, (list, tuple)) or not 1 <= len(disc) <= MODEL_LIMITS["blocks"]
+                or any(isinstance(c, bool) or not isinstance(c, numbers.Integral) or not 1 <= c <= width
+                       for c in disc)):
+            shown = repr(disc) if not isinstance(disc, (list, tuple)) or len(disc) <= 10 else f"{len(disc)} widths"
+            raise ValueError(f"RBPNConfig: disc_widths must be 1..{MODEL_LIMITS['blocks']} integers 1..{width} "
+                             f"(channels per discriminator conv), got {shown}")
+        object.__setattr__(self, "disc_widths", tuple(disc))  # a list (from JSON) hashes as the tuple it means
 
     @property
     def projection(self) -> tuple[int, int, int]:

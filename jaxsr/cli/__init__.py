@@ -8,11 +8,13 @@ library modules they call).
     jaxsr info tr4 [--json]
 
 Each subcommand is a module here with `add_parser(subparsers)`, which registers its arguments and sets
-`func=run`, and `run(args) -> exit status`. To add one, write such a module and list it in `COMMANDS`.
+`func=run`, and `run(args) -> exit status` (and may set `before_jax(args)`, run before JAX's backend starts). To
+add one, write such a module and list it in `COMMANDS`.
 
 Errors: a user's mistake (a bad argument, a missing or unreadable file, an existing output, a wrongly shaped
-input) is one line on stderr, `jaxsr CMD: error: ...`, saying what was expected, and exit status 2, with no
-output or temporary file left behind; options and inputs are checked before the long work starts. A traceback
+input, a damaged or hostile file) is one line on stderr, `jaxsr CMD: error: ...` (control characters escaped),
+saying what was expected, and exit status 2, with no output or temporary file left behind; options and inputs
+are checked before the long work starts. A traceback
 means a bug. A write the system refuses (a full disk, a quota, a read-only or failing device: any other
 OSError) is one line too, `jaxsr CMD: error: no space left on device while writing OUT; nothing was written
 ...`, and exit status 1: the command was right, the machine could not do it; atomic writes
@@ -28,6 +30,7 @@ import sys
 import threading
 
 from . import finetune, info, simulate, train, upscale
+from ._text import printable, shortened
 
 __all__ = ["COMMANDS", "USER_ERRORS", "Terminated", "build_parser", "main"]
 
@@ -56,8 +59,14 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+# An error line longer than this is cut: a message may quote a damaged file (megabytes of a config).
+ERROR_LINE_CHARS = 2000
+
+
 def _one_line(error: BaseException) -> str:
-    return " ".join(str(error).split()) or type(error).__name__
+    """The error's message on one line, control characters escaped and cut at `ERROR_LINE_CHARS` (a message may
+    quote a damaged file)."""
+    return shortened(printable(" ".join(str(error).split())), ERROR_LINE_CHARS) or type(error).__name__
 
 
 def _os_error_line(error: OSError) -> str:
@@ -66,7 +75,7 @@ def _os_error_line(error: OSError) -> str:
     if error.strerror is None or type(error).__str__ is not OSError.__str__:
         return _one_line(error)
     where = f": {error.filename}" if error.filename is not None else ""
-    return " ".join(f"{error.strerror}{where}".split())
+    return shortened(printable(" ".join(f"{error.strerror}{where}".split())), ERROR_LINE_CHARS)
 
 
 def _raise_terminated(signum, frame):
@@ -80,13 +89,15 @@ def main(argv=None) -> int:
     (see the module docstring), after printing the message to stderr; 1 when the system refused a write or a
     read (an OSError such as a full disk), after one line; 130 after Ctrl-C, 143 after SIGTERM."""
     args = build_parser().parse_args(argv)
-    if argv is None:  # run as a program (not called from Python, where the user owns JAX's devices)
-        from ..runtime import use_cpu_cores
-
-        use_cpu_cores()
     in_main_thread = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGTERM, _raise_terminated) if in_main_thread else None
     try:
+        if getattr(args, "before_jax", None) is not None:  # first: e.g. joining a run across processes
+            args.before_jax(args)
+        if argv is None:  # run as a program (not called from Python, where the user owns JAX's devices)
+            from ..runtime import use_cpu_cores
+
+            use_cpu_cores()
         return args.func(args)
     except USER_ERRORS as e:
         print(f"jaxsr {args.command}: error: {_one_line(e)}", file=sys.stderr)

@@ -1,11 +1,16 @@
 """`jaxsr info`: describe a model (bundled weights or a checkpoint): config, parameters, FLOPs per frame and its
-training card, as text or JSON (`jaxsr.io.checkpoint.model_info`)."""
+training card, as text or JSON (`jaxsr.io.checkpoint.model_info`). What the file says is printed escaped (no control
+character reaches the terminal raw; JSON escapes them too) and each card entry of the text is cut at
+`CARD_LINE_CHARS` characters (`--json` prints it whole)."""
 
 from __future__ import annotations
 
 import json
 
 from ..io.checkpoint import model_info
+from ._text import printable, shortened
+
+CARD_LINE_CHARS = 1000
 
 
 def add_parser(subparsers):
@@ -18,24 +23,27 @@ def add_parser(subparsers):
 def run(args) -> int:
     info = model_info(args.model)
     if args.json:
-        print(json.dumps(info, indent=1))
+        print(json.dumps(info, indent=1))  # ASCII: control characters and the rest escaped (\u001b)
         return 0
     cfg = info["config"]
+    lines = [info["path"]]
     if info["architecture"] == "duf":
         r = info["input_radius"]
         form = (f"window of {info['frames_per_window']} frames" if info["temporal"] == "window" else
                 f"sequence form: frame t from frames t-{r} .. t+{r}, stream latency {r} frames")
-        print(f"{info['path']}\n  TR {cfg['tr']} ({form}), x{cfg['scale']}, "
-              f"{info['parameters']:,} parameters, {info['gflops_per_frame']} GFLOP per {info['lr_shape'][0]}x"
-              f"{info['lr_shape'][1]} frame")
+        lines.append(f"  TR {cfg['tr']} ({form}), x{cfg['scale']}, {info['parameters']:,} parameters, "
+                     f"{info['gflops_per_frame']} GFLOP per {info['lr_shape'][0]}x{info['lr_shape'][1]} frame")
     else:
-        print(f"{info['path']}\n  {info['architecture']} (a learned baseline), {info['parameters']:,} parameters")
-    print("  config: " + ", ".join(f"{k}={v}" for k, v in cfg.items()))
+        lines.append(f"  {info['architecture']} (a learned baseline), {info['parameters']:,} parameters")
+    lines.append("  config: " + ", ".join(f"{k}={v}" for k, v in cfg.items()))
     card = info["card"]
-    if card:
-        print("  training card:")
-        for k, v in card.items():
-            print(f"    {k}: {json.dumps(v)}")
+    if isinstance(card, dict) and card:
+        lines.append("  training card:")
+        lines += [shortened(f"    {k}: {json.dumps(v)}", CARD_LINE_CHARS) for k, v in card.items()]
+    elif card:  # not a JSON object: shown as it is
+        lines.append(shortened(f"  training card: {json.dumps(card)}", CARD_LINE_CHARS))
     else:
-        print("  no training card")
+        lines.append("  no training card")
+    for line in lines:
+        print(printable(line))
     return 0

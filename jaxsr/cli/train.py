@@ -1,6 +1,8 @@
 """`jaxsr train`: parse the options of `jaxsr.training.train` (a preset, on rendered scenes or on HR sequences
 from an .npz), call it and say where the best epoch went. It writes OUT/metrics.jsonl, OUT/best.npz and
-OUT/last.npz; a folder that already holds a run is refused unless --resume (continue it) or --force (start over)."""
+OUT/last.npz; a folder that already holds a run is refused unless --resume (continue it) or --force (start over).
+Across processes (--coordinator, --num-processes, --process-id, or $JAXSR_COORDINATOR, $JAXSR_NUM_PROCESSES,
+$JAXSR_PROCESS_ID, or `srun`'s Slurm variables) every process runs this command and process 0 writes OUT."""
 
 from __future__ import annotations
 
@@ -8,7 +10,10 @@ import sys
 import warnings
 from pathlib import Path
 
+import jax
+
 from ..config import PRESETS, TEMPORAL_FORMS
+from ..runtime import init_distributed
 from ..nn.model import architectures
 from ..training.presets import MAX_TR, train
 from ._args import int_range, seed
@@ -46,7 +51,24 @@ def add_parser(subparsers):
                    "that a stopped run resumes (--resume) with at most that much lost (default 10; 0: every step; "
                    "inf: never)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p.set_defaults(func=run)
+    across = p.add_argument_group(
+        "across processes", "one run over several processes or hosts (JAX's multi-controller runtime): every process "
+        "runs this same command with its own --process-id; the preset's batch is the global one, split over all "
+        "their devices; process 0 writes OUT. Each option defaults to its environment variable; under srun (Slurm) "
+        "none is needed")
+    across.add_argument("--coordinator", metavar="HOST:PORT", default=None,
+                        help="process 0's host and a free port on it (default $JAXSR_COORDINATOR)")
+    across.add_argument("--num-processes", metavar="N", type=int_range(1), default=None,
+                        help="how many processes take part (default $JAXSR_NUM_PROCESSES, else 1 or Slurm's tasks)")
+    across.add_argument("--process-id", metavar="I", type=int_range(0), default=None,
+                        help="this process's id, 0..N-1; 0 writes OUT (default $JAXSR_PROCESS_ID)")
+    p.set_defaults(func=run, before_jax=join_processes)
+
+
+def join_processes(args) -> None:
+    """Before any JAX work: join the run across processes the options or the environment describe (nothing for one
+    process); ValueError for a malformed or partial description."""
+    init_distributed(args.coordinator, args.num_processes, args.process_id)
 
 
 def run(args) -> int:
@@ -58,7 +80,7 @@ def run(args) -> int:
                            data=args.data, init=args.init, resume=args.resume, overwrite=args.force,
                            checkpoint_minutes=args.checkpoint_minutes, progress=not args.no_progress)
     best = min(history, key=lambda r: r["val_loss"]) if history else None
-    if best:
+    if best and jax.process_index() == 0:  # across processes: the one that wrote OUT
         print(f"best epoch {best['epoch']}: val loss {best['val_loss']:.3e}, val PSNR {best['val_psnr']:.2f} dB "
               f"-> {Path(args.out) / 'best.npz'}")
     return 0

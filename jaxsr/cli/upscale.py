@@ -21,6 +21,7 @@ import sys
 from ..config import TRAINED_RANGE_M
 from ..inference.recording import upscale
 from ..io.pointcloud import DEFAULT_FOV_DEG
+from ..io.recordings import DEPTH_UNITS
 from ._args import int_range, positive_float, range_or_time, span, time_unit
 
 
@@ -60,10 +61,11 @@ def add_parser(subparsers):
     g.add_argument("--clip-negative", action="store_true",
                    help="histograms: clip negative counts at 0 (background-subtracted histograms, as some published "
                    "data are) and say how many, in how many pixels (default: refuse them)")
-    p.add_argument("--units", choices=["m", "normalised"], default=None,
-                   help="depth units of INPUT and OUTPUT: radial metres (inf = no return) or normalised [0, 1] "
-                   "(1 = no return); default: normalised if the first frame lies in [0, 1], else metres; "
-                   "histograms give metres")
+    p.add_argument("--units", choices=list(DEPTH_UNITS), default=None,
+                   help="depth units of INPUT and OUTPUT: radial metres (inf = no return), mm, cm or km (0 is no "
+                   "return too in mm and cm, as in 16-bit depth images), or normalised [0, 1] (1 = no return); "
+                   "default: normalised if the first frame lies in [0, 1], else metres, but never a guess for "
+                   "integer arrays (mm? cm?) or values that could be km; histograms give metres")
     p.add_argument("--frame-format", choices=["exr", "pfm", "tif", "png"], default="exr",
                    help="frame files when OUTPUT is a folder (default exr; always metres)")
     p.add_argument("--batch-size", type=int_range(1), default=None,

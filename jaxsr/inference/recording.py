@@ -35,6 +35,7 @@ from ..io.pointcloud import DEFAULT_FOV_DEG, PointCloudWriter, check_points_fold
 from ..io.previews import write_comparison
 from ..io.recordings import (
     ARRAY_FORMATS,
+    DEPTH_UNITS,
     Recording,
     check_frames,
     check_output,
@@ -74,11 +75,11 @@ class UpscaleJob:
 
     recording: the opened `jaxsr.io.recordings.Recording` (kind "depth" or "histograms", time tags already
     histogrammed); model: the `Model`; model_name: the model as people read it (tr4, a path, or
-    "tr1 (auto: motion ...)"); units: "m" or "normalised", of the input depth and of array outputs; gate: the
-    histogram gate (None for depth); scale: the `DepthScale` between metres and the network's [0, 1];
-    warnings: sentences on what the bundled models never saw in this gate and scale, and on negative counts
-    clipped; source: the input as named in messages and in an .npz output's metadata; negative_counts: with
-    `clip_negative`, (negative counts clipped at 0, pixels holding one), else None."""
+    "tr1 (auto: motion ...)"); units: "m", "mm", "cm", "km" or "normalised" (`DEPTH_UNITS`), of the input depth
+    and of array outputs; gate: the histogram gate (None for depth); scale: the `DepthScale` between metres and
+    the network's [0, 1]; warnings: sentences on what the bundled models never saw in this gate and scale, and on
+    negative counts clipped; source: the input as named in messages and in an .npz output's metadata;
+    negative_counts: with `clip_negative`, (negative counts clipped at 0, pixels holding one), else None."""
 
     recording: Recording
     model: object
@@ -132,7 +133,7 @@ class UpscaleJob:
 
     def iter_frames(self, *, batch_size: int | None = None, units: str | None = None) -> Iterator[np.ndarray]:
         """The super-resolved recording, streamed: (H, W) float32 frames in `units` (default the job's: "m",
-        radial metres with inf for no return, or "normalised", clipped to [0, 1])."""
+        radial metres with inf for no return, or "mm", "cm", "km" likewise, or "normalised", clipped to [0, 1])."""
         units = self.units if units is None else units
         for hr in self.iter_normalised(batch_size=batch_size):
             yield to_units(hr, units, self.scale)
@@ -335,8 +336,8 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
                          "photon histograms or time tags, or choose a depth model (tr0..tr4)")
     r = 4 if fixed is None else _scale(fixed)
     sensor = SensorConfig() if r == 4 else SensorConfig(scale=r)
-    if units is not None and units not in ("m", "normalised"):
-        raise ValueError(f"units is 'm' or 'normalised', got {units!r}")
+    if units is not None and units not in DEPTH_UNITS:
+        raise ValueError(f"units is one of {', '.join(map(repr, DEPTH_UNITS))}, got {units!r}")
     warnings, negatives = (), None
     if rec.kind == "histograms":
         scale = DepthScale.for_gate(gate, gate.length if span == "gate" else span)
@@ -391,7 +392,7 @@ def _reference(reference, job: UpscaleJob):
     if rec.frames != job.frames or tuple(rec.shape) != job.hr_shape:
         raise ValueError(f"{where}: {rec.frames} frames of {tuple(rec.shape)}; the output has {job.frames} frames "
                          f"of {job.hr_shape}")
-    return rec, guess_units(rec)
+    return rec, guess_units(rec, ask="give the reference as float metres or normalised depth")
 
 
 def _metres(frame, units, scale):
@@ -567,8 +568,11 @@ def upscale(input, output, *, model="default", kind: str | None = None, bins: in
     - clip_negative (--clip-negative, histograms): clip negative counts at 0 (background-subtracted histograms,
       as some published data are) and say how many, in how many pixels (a warning, and
       `UpscaleResult.negative_counts`); default: refuse them, as raw photon counts are never negative.
-    - units (--units): "m" (radial metres, inf = no return) or "normalised" ([0, 1], 1 = no return) of input and
-      output; default normalised if the first frame lies in [0, 1], else metres; histograms give metres.
+    - units (--units): "m" (radial metres, inf = no return), "mm", "cm" or "km" (radial distance in those units;
+      0 is no return too in mm and cm, as in 16-bit depth images) or "normalised" ([0, 1], 1 = no return) of input
+      and output (array outputs in mm, cm or km are float32, inf = no return); default (`guess_units`): normalised
+      if the first frame lies in [0, 1], else metres, refused (a ValueError asking for units) for integer arrays
+      (millimetres? centimetres?) and for values that could be kilometres; histograms give metres.
     - frame_format (--frame-format): "exr", "pfm", "tif" or "png", when output is a folder (always metres).
     - batch_size (--batch-size): frames per compiled call; min_fps (--min-fps, model="auto" only): the slowest
       acceptable frames/s; preview (--preview): an input | output PNG strip of the middle frame; overwrite

@@ -36,6 +36,9 @@ from .recordings import (
     check_output,
     check_preview,
     to_units,
+    to_metres,
+    DEPTH_UNITS,
+    METRES_PER_UNIT,
 )
 from .checkpoint import (
     FORMAT_VERSION,
@@ -110,6 +113,9 @@ __all__ = [
     "check_output",
     "check_preview",
     "to_units",
+    "to_metres",
+    "DEPTH_UNITS",
+    "METRES_PER_UNIT",
     "FORMAT_VERSION",
     "LEGACY_FIELDS",
     "flatten_tree",

@@ -19,6 +19,7 @@ import jax
 import numpy as np
 
 from .files import atomic_path
+from .formats import JSON_METADATA_MAX_BYTES, _json_metadata
 from ..config import ModelConfig
 from ..nn.duf import count_params
 from ..nn.model import Architecture, Model, architecture
@@ -96,10 +97,17 @@ def _open(path):
 def _read_meta(data, path) -> dict:
     if _META not in data.files:
         raise ValueError(f"checkpoint {str(path)!r} has no {_META!r} entry: not a jaxsr checkpoint")
+    names = data.zip.namelist()
+    stored = data.zip.getinfo(_META + ".npy" if _META + ".npy" in names else _META).file_size
+    if stored > JSON_METADATA_MAX_BYTES:  # refused before it is read: the zip's directory gives its size
+        raise ValueError(f"checkpoint {str(path)!r}: {stored / 2**20:.0f} MiB of metadata, more than the "
+                         f"{JSON_METADATA_MAX_BYTES // 2**20} MiB a jaxsr checkpoint's may hold: a damaged or "
+                         "foreign file")
     try:
-        meta = json.loads(str(data[_META]))
+        entry = data[_META]
     except (zipfile.BadZipFile, EOFError, OSError, ValueError) as e:
         raise ValueError(f"checkpoint {str(path)!r}: unreadable metadata (truncated or corrupt?): {e}") from e
+    meta = _json_metadata(entry, f"checkpoint {str(path)!r}")
     if not isinstance(meta, dict):
         raise ValueError(  # noqa: TRY004 - a foreign file, not a wrong type in code
             f"checkpoint {str(path)!r}: metadata is not a JSON object: not a jaxsr checkpoint")
@@ -279,7 +287,9 @@ def load_model(path, *, temporal: str | None = None) -> Model:
     try:
         cfg = config_from_dict(arch.config_type, meta["config"])
     except (TypeError, AttributeError, ValueError) as e:  # a config that is not a dict, or fields of the wrong type
-        raise ValueError(f"checkpoint {str(path)!r}: unreadable {arch.name} config {meta['config']!r}: {e}") from e
+        shown = repr(meta["config"])
+        shown = shown if len(shown) <= 500 else f"{shown[:500]} ... ({len(shown) - 500:,} more characters)"
+        raise ValueError(f"checkpoint {str(path)!r}: unreadable {arch.name} config {shown}: {e}") from e
     if temporal is not None:
         if not hasattr(cfg, "temporal"):
             raise ValueError(f"load_model: temporal applies to DUF models; {str(path)!r} holds {arch.name}")

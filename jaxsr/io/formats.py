@@ -39,6 +39,12 @@ __all__ = [
 
 DEPTH_FORMATS = (".exr", ".pfm", ".tif", ".tiff", ".png", ".npy")
 PNG_MAX_M = 65.535
+# JSON metadata stored in a file (an .npz's `metadata` and `config`, a checkpoint's `__metadata__`): at most this many
+# bytes as stored (a NumPy string, 4 bytes per character) and this many levels of nesting. Ours hold a few kB (a
+# training run's checkpoint about 100 kB) and nest 5 levels; more is a damaged or hostile file, refused (a ValueError)
+# before it costs minutes of parsing or a RecursionError.
+JSON_METADATA_MAX_BYTES = 16 * 2**20
+JSON_METADATA_MAX_DEPTH = 64
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -273,6 +279,39 @@ def write_sequence(path, depth, *, intensity=None, overwrite=False, **metadata):
             raise ValueError(f"{path}: sequences are .npy or .npz, got {suffix!r}")
 
 
+def _json_metadata(entry, where: str):
+    """Parse JSON metadata stored in a file: `entry` is the stored value (a 0-d NumPy string, or str). Refuses
+    (ValueError naming `where`) more than `JSON_METADATA_MAX_BYTES`, invalid JSON, and nesting deeper than
+    `JSON_METADATA_MAX_DEPTH` levels. Returns the parsed value (any JSON type)."""
+    size = entry.nbytes if isinstance(entry, np.ndarray) else 4 * len(str(entry))
+    if size > JSON_METADATA_MAX_BYTES:
+        raise ValueError(f"{where}: {size / 2**20:.0f} MiB of JSON metadata, more than the "
+                         f"{JSON_METADATA_MAX_BYTES // 2**20} MiB it may hold: a damaged or foreign file")
+    try:
+        value = json.loads(str(entry))
+        deep = _nested_deeper(value, JSON_METADATA_MAX_DEPTH)
+    except RecursionError:  # nested deeper than the interpreter's recursion limit
+        deep = True
+    except ValueError as e:
+        raise ValueError(f"{where}: unreadable JSON metadata (truncated or corrupt?): {e}") from e
+    if deep:
+        raise ValueError(f"{where}: JSON metadata nested more than {JSON_METADATA_MAX_DEPTH} levels deep: a damaged "
+                         "or foreign file")
+    return value
+
+
+def _nested_deeper(value, limit: int) -> bool:
+    """Whether lists and objects nest more than `limit` levels deep in the JSON value (no recursion)."""
+    stack = [(value, 1)]
+    while stack:
+        v, depth = stack.pop()
+        if isinstance(v, (dict, list)):
+            if depth > limit:
+                return True
+            stack.extend((child, depth + 1) for child in (v.values() if isinstance(v, dict) else v))
+    return False
+
+
 def read_npz_arrays(path, required=()):
     """Every array of an .npz file, read eagerly (no pickles); the arrays named in `required` must be there.
 
@@ -307,7 +346,7 @@ def read_sequence(path):
             raise ValueError(f"{path}: expected a (T, H, W) sequence, got {depth.shape}")
         return dict(depth=depth, metadata={})
     z = read_npz_arrays(path, ["depth"])
-    z["metadata"] = json.loads(str(z["metadata"])) if "metadata" in z else {}
+    z["metadata"] = _json_metadata(z["metadata"], f"{path}: metadata") if "metadata" in z else {}
     return z
 
 
@@ -346,8 +385,8 @@ def read_histograms(path):
     Args: path (.npz). Returns a dict; counts of shape (T, h, w, K).
     """
     z = read_npz_arrays(path, ["counts"])
-    z["config"] = json.loads(str(z["config"])) if "config" in z else {}
-    z["metadata"] = json.loads(str(z["metadata"])) if "metadata" in z else {}
+    z["config"] = _json_metadata(z["config"], f"{path}: config") if "config" in z else {}
+    z["metadata"] = _json_metadata(z["metadata"], f"{path}: metadata") if "metadata" in z else {}
     return z
 
 

@@ -5,32 +5,43 @@ recording's units.
 A recording is an .npy array, an .npz from `jaxsr.io.formats.write_sequence` / `write_histograms`, or a folder or glob
 pattern of depth frames (EXR, PFM, TIFF, 16-bit PNG). Frames stream one by one where the format allows (image
 frames, or an .npy read through a memory map), so a long recording needs memory for a batch, not for the whole
-sequence. Units: "m" (radial metres, inf = no return) or "normalised" ([0, 1], 1 = no return); NaN is no
-return in either.
+sequence. Units (`DEPTH_UNITS`): "m" (radial metres, inf = no return), "mm", "cm" or "km" (radial distance in
+those units; for "mm" and "cm" 0 is no return too, as in 16-bit depth images) or "normalised" ([0, 1], 1 = no
+return); NaN is no return in each. `guess_units` guesses only "m" or "normalised", and refuses to guess for integer
+arrays (millimetres? centimetres?) and for values that could be kilometres.
 """
 
 from __future__ import annotations
 
 import glob
-import json
 from pathlib import Path
 
 import numpy as np
 
 from . import formats as io
 from ..checks import NORMALISED_SLACK, require_normalised_depth
-from ..config import MIN_LR_SIDE, DepthScale, Gate, SensorConfig
+from ..config import MIN_LR_SIDE, TRAINED_RANGE_M, DepthScale, Gate, SensorConfig
 from ..sensor.effects import clip_negative_counts
 from ..sensor.gates import from_network_depth, to_network_depth
 from ..sensor.forward import normalise_depth
 from ..sensor.timetags import histogram_time_tags
 
-__all__ = ["ARRAY_FORMATS", "FRAME_FORMATS", "Recording", "check_frames", "check_output", "check_preview",
-           "clipped_recording", "gate_frames", "guess_units", "normalised_frames", "open_recording",
-           "time_tag_recording", "to_units"]
+__all__ = ["ARRAY_FORMATS", "DEPTH_UNITS", "FRAME_FORMATS", "METRES_PER_UNIT", "Recording", "check_frames",
+           "check_output", "check_preview", "clipped_recording", "gate_frames", "guess_units", "normalised_frames",
+           "open_recording", "time_tag_recording", "to_metres", "to_units"]
 
 FRAME_FORMATS = (".exr", ".pfm", ".tif", ".tiff", ".png")
 ARRAY_FORMATS = (".npy", ".npz")
+# Units of depth frames (--units): radial distance in metres, millimetres, centimetres or kilometres, or normalised
+# [0, 1] (the network's). METRES_PER_UNIT converts the distances.
+METRES_PER_UNIT = {"m": 1.0, "mm": 1e-3, "cm": 1e-2, "km": 1e3}
+DEPTH_UNITS = ("m", "normalised", "mm", "cm", "km")
+# Units whose 0 is no return (the convention of integer depth images: 16-bit PNG, depth cameras).
+_ZERO_IS_NO_RETURN = ("mm", "cm")
+# `guess_units` does not guess "normalised" for a first frame whose largest value is below this: in kilometres a
+# scene within 100 m, normalised a scene within 3.5 m without one no-return pixel (1.0), which the bundled models
+# (trained on streets up to 35 m) never saw.
+KM_OR_NORMALISED = 0.1
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -143,9 +154,10 @@ def open_recording(spec, *, kind: str | None = None) -> Recording:
 
 
 def _stored_fps(arrays) -> float | None:
-    """The frame rate an .npz's JSON metadata gives (`fps`), or None when it gives none (or no usable one)."""
+    """The frame rate an .npz's JSON metadata gives (`fps`), or None when it gives none (or no usable one: metadata
+    that is no JSON object, or too large or deeply nested to read)."""
     try:
-        fps = float(json.loads(str(arrays["metadata"])).get("fps"))
+        fps = float(io._json_metadata(arrays["metadata"], "metadata").get("fps"))
     except (KeyError, TypeError, ValueError, AttributeError):
         return None
     return fps if np.isfinite(fps) and fps > 0 else None
@@ -251,27 +263,54 @@ def time_tag_recording(tags, gate: Gate, *, outside: str = "error") -> Recording
     return Recording("histograms", counts.shape[0], counts.shape[1:], lambda: iter(counts), tags.source, array=counts)
 
 
+def to_metres(frame, units: str) -> np.ndarray:
+    """A depth frame in `units` ("m", "mm", "cm" or "km", `METRES_PER_UNIT`) -> float32 radial metres; 0 is no
+    return (inf) in "mm" and "cm", as in 16-bit depth images. NaN and the rest as they are."""
+    with np.errstate(over="ignore"):  # distances beyond float32 are no return (inf), as they should be
+        f = np.asarray(frame, np.float32)
+    if units == "m":
+        return f
+    metres = (f * np.float32(METRES_PER_UNIT[units])).astype(np.float32)
+    return np.where(f == 0, np.float32(np.inf), metres) if units in _ZERO_IS_NO_RETURN else metres
+
+
 def normalised_frames(recording: Recording, units: str, sensor: SensorConfig):
-    """Depth frames of a recording as LR normalised depth: metres -> `normalise_depth` (NaN, inf, negative and
-    beyond d_max: no return, 1.0); normalised -> checked as `super_resolve` checks it (NaN -> 1.0, values
-    outside [0, 1] by more than float rounding refused with a message that suggests --units m)."""
+    """Depth frames of a recording as LR normalised depth: metres (or mm, cm, km: `to_metres`) -> `normalise_depth`
+    (NaN, inf, negative and beyond d_max: no return, 1.0); normalised -> checked as `super_resolve` checks it (NaN
+    -> 1.0, values outside [0, 1] by more than float rounding refused with a message that suggests --units m)."""
     for t, f in enumerate(recording):
-        with np.errstate(over="ignore"):  # metres beyond float32 are no return (inf), as they should be
-            f = np.asarray(f, np.float32)
-        if units == "m":
-            yield np.asarray(normalise_depth(f, sensor))
+        if units in METRES_PER_UNIT:
+            yield np.asarray(normalise_depth(to_metres(f, units), sensor))
         else:
-            yield require_normalised_depth(f"{recording.source}: frame {t}", f)
+            yield require_normalised_depth(f"{recording.source}: frame {t}", np.asarray(f, np.float32))
 
 
-def guess_units(recording: Recording) -> str:
-    """"normalised" when the first frame's values other than NaN (no return in either unit) are finite and within
-    [0, 1] up to float rounding (no lidar scene lies within a metre), else "m"."""
+def guess_units(recording: Recording, *, ask: str = "pass --units (units=): m, mm, cm, km or normalised") -> str:
+    """The units of a depth recording, from its first frame: "normalised" when its values other than NaN (no return
+    in either unit) are finite and within [0, 1] up to float rounding (no lidar scene lies within a metre), else
+    "m". Refuses to guess (ValueError: what is ambiguous, then `ask`) where that would silently read other units:
+    integer frames (millimetres, as 16-bit depth images store them, or centimetres; image frames are read as
+    metres already), and values within [0, 1] that could be kilometres (with inf for no return, which normalised
+    depth never holds; or all below `KM_OR_NORMALISED`)."""
+    head = np.asarray(recording.head(1)[0])
+    src = recording.source
+    if head.dtype.kind in "iu":
+        raise ValueError(f"{src}: depth as integers ({head.dtype}) could be millimetres (as 16-bit depth images store "
+                         f"it), centimetres or metres; {ask}")
     with np.errstate(over="ignore"):  # values beyond float32 become inf: not normalised depth
-        f = np.asarray(recording.head(1)[0], np.float32)
+        f = np.asarray(head, np.float32)
     f = f[~np.isnan(f)]
-    in_range = np.all(np.isfinite(f) & (f >= -NORMALISED_SLACK) & (f <= 1 + NORMALISED_SLACK))
-    return "normalised" if in_range else "m"
+    finite = f[np.isfinite(f)]
+    if not np.all(np.isfinite(f) & (f >= -NORMALISED_SLACK) & (f <= 1 + NORMALISED_SLACK)):
+        if finite.size and np.all(np.isposinf(f) | ((f >= -NORMALISED_SLACK) & (f <= 1 + NORMALISED_SLACK))):
+            raise ValueError(f"{src}: depth within [0, 1] with inf for no return could be kilometres (or metres of "
+                             f"a scene within 1 m); {ask}")
+        return "m"
+    if finite.size and finite.max() < KM_OR_NORMALISED:
+        raise ValueError(f"{src}: depth all below {KM_OR_NORMALISED:g} could be kilometres (a scene within "
+                         f"{KM_OR_NORMALISED * 1000:g} m) or normalised depth (a scene within "
+                         f"{KM_OR_NORMALISED * TRAINED_RANGE_M:g} m without one no-return pixel at 1.0); {ask}")
+    return "normalised"
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -330,7 +369,9 @@ def check_preview(spec, *, force: bool, output=None) -> Path:
 def to_units(hr, units: str, scale: DepthScale = DepthScale()):
     """Network output (H, W), normalised and unclipped -> the recording's units: "normalised" (clipped to
     [0, 1]) or "m" (radial metres offset + n * span, inf for no return: `jaxsr.sensor.gates.from_network_depth`; with
-    the default scale `jaxsr.sensor.forward.denormalise_depth`). Returns (H, W)."""
+    the default scale `jaxsr.sensor.forward.denormalise_depth`), or those metres in "mm", "cm" or "km" (float32, inf
+    for no return). Returns (H, W)."""
     if units == "normalised":
         return np.clip(hr, 0.0, 1.0)
-    return np.asarray(from_network_depth(hr, scale), np.float32)
+    metres = np.asarray(from_network_depth(hr, scale), np.float32)
+    return metres if units == "m" else (metres / np.float32(METRES_PER_UNIT[units])).astype(np.float32)

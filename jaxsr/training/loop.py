@@ -6,11 +6,14 @@
 resume) after every epoch, `resume.npz` (the same, inside an epoch) every `checkpoint_every_s` seconds of
 training, and stops early after `patience` epochs without a lower validation loss. A resumed run gives the
 same result as an uninterrupted one. Data parallelism (the DUF network): a `jax.sharding.Mesh` with a "data" axis
-(default: all devices) splits each batch.
+(default: all devices) splits each batch, also across processes and hosts (`jaxsr.runtime.init_distributed`): every
+process runs the same steps on its share of the global batch, and process 0 alone reads and writes the run folder.
 """
 
 from __future__ import annotations
 
+import builtins
+import contextlib
 import dataclasses
 import json
 import math
@@ -22,6 +25,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
@@ -102,10 +106,22 @@ def _train_state_template(model_cfg, k_init) -> dict:
 
 def choose_mesh(mesh, batch_size: int) -> Mesh | None:
     """`fit`'s mesh argument resolved: "auto" shards over all devices when there are several that divide the
-    batch evenly."""
+    batch evenly.
+
+    Across processes (`jax.process_count()` > 1) the batch is the global one, and it must be split: the mesh
+    ("auto", or a `Mesh`) must hold every process's devices and `batch_size` must be a multiple of their number,
+    else ValueError (so must it be for mesh=None, which would have every process do the whole batch)."""
+    n, processes = jax.device_count(), jax.process_count()
+    if processes > 1:
+        if not (mesh == "auto" or (isinstance(mesh, Mesh) and mesh.devices.size == n)):
+            raise ValueError(f"fit: across {processes} processes the batch is split over a mesh of all {n} devices; "
+                             f"got mesh={mesh!r} (pass 'auto')")
+        if batch_size % n:
+            raise ValueError(f"fit: the global batch of {batch_size} (TrainConfig.batch_size) does not split evenly "
+                             f"over the {n} devices of {processes} processes; choose a multiple of {n}")
+        return data_mesh() if mesh == "auto" else mesh
     if mesh != "auto":
         return mesh
-    n = jax.device_count()
     return data_mesh() if n > 1 and batch_size % n == 0 else None
 
 
@@ -114,6 +130,50 @@ def replicate(tree, mesh: Mesh | None):
     Adam state: the step shards only the batch), so that its first calls do not compile again for another
     placement; unchanged when `mesh` is None."""
     return tree if mesh is None else jax.device_put(tree, NamedSharding(mesh, P()))
+
+
+def _lead() -> bool:
+    """Whether this process reads and writes the run folder: process 0 of a run across processes, or the only one."""
+    return jax.process_index() == 0
+
+
+def _share(value):
+    """Process 0's `value` (JSON-serialisable) on every process; `value` itself with one process. Sent as the bytes
+    of its JSON text (padded to a power of two, so that few lengths compile), so that floats arrive exactly."""
+    if jax.process_count() == 1:
+        return value
+    from jax.experimental import multihost_utils  # late: only runs across processes need it
+
+    text = json.dumps(value).encode() if _lead() else b""
+    size = int(multihost_utils.broadcast_one_to_all(np.int32(len(text))))
+    buffer = np.full(max(256, 1 << (size - 1).bit_length()), ord(" "), np.uint8)
+    buffer[: len(text)] = np.frombuffer(text, np.uint8)
+    return json.loads(np.asarray(multihost_utils.broadcast_one_to_all(buffer), np.uint8).tobytes().decode())
+
+
+def _on_lead(fn):
+    """fn() run by process 0 alone (it reads and writes the run folder), its JSON-serialisable result on every
+    process; an exception it raises is raised on every process, of the same built-in type with the same message
+    (RuntimeError naming it for others), so that no process waits for one that failed. fn() itself with one process."""
+    if jax.process_count() == 1:
+        return fn()
+    error = None
+    if _lead():
+        try:
+            outcome = {"value": fn()}
+        except Exception as e:  # noqa: BLE001 - every process must learn of it; re-raised below
+            error, outcome = e, {"error": type(e).__name__, "message": str(e)}
+    else:
+        outcome = None
+    outcome = _share(outcome)
+    if error is not None:
+        raise error
+    if "error" in outcome:
+        kind = getattr(builtins, outcome["error"], None)
+        if isinstance(kind, type) and issubclass(kind, Exception):
+            raise kind(outcome["message"])
+        raise RuntimeError(f"process 0: {outcome['error']}: {outcome['message']}")
+    return outcome["value"]
 
 
 def _bicubic_psnr(validation: dict, scale: int) -> float | None:
@@ -159,9 +219,13 @@ def _check_resumable(path: Path, meta: dict, settings: dict):
                   settings.get("pretrain_epochs", 0))
     differ = sorted(k for k in saved.keys() | wanted.keys() if saved.get(k) != wanted.get(k))
     if differ:
+        before, now = meta.get("processes", 1), jax.process_count()
+        across = (f"; a run begun on {before} process(es) continues on {now} only with the same global batch "
+                  "(TrainConfig.batch_size, split over all devices)" if "train.batch_size" in differ and before != now
+                  else "")
         raise ValueError(
             f"fit: cannot resume {str(path)!r}: it was trained with other settings: "
-            + ", ".join(f"{k} {saved.get(k)!r} (now {wanted.get(k)!r})" for k in differ)
+            + ", ".join(f"{k} {saved.get(k)!r} (now {wanted.get(k)!r})" for k in differ) + across
         )
 
 
@@ -196,6 +260,12 @@ def _start_or_resume(out: Path, model_cfg, train_cfg: TrainConfig, settings: dic
         return _TrainState(train, best, k_data), _Run()
     meta = read_metadata(path)
     _check_resumable(path, meta, settings)
+    before, now = meta.get("processes", 1), jax.process_count()
+    if before != now:  # the global batch is the same (_check_resumable): so is each step's update, up to rounding
+        warnings.warn(f"resuming {str(path)!r}, begun on {before} process(es), on {now}: the global batch of "
+                      f"{train_cfg.batch_size} is unchanged, so each step computes the same update, split over "
+                      f"{jax.device_count()} devices; the run goes on as it would have, up to float rounding (not bit "
+                      "for bit)", stacklevel=4)
     tree, meta = load_tree(path, _train_state_template(model_cfg, k_init))
     tree = jax.tree_util.tree_map(jnp.asarray, tree)
     best, key = tree.pop("best"), jax.random.wrap_key_data(tree.pop("key"))
@@ -203,6 +273,32 @@ def _start_or_resume(out: Path, model_cfg, train_cfg: TrainConfig, settings: dic
     # A run that used up its epoch budget continues when given more; an early-stopped run stays stopped.
     run = _Run(**dict(saved, history=tuple(saved["history"]), finished=saved["bad_epochs"] >= train_cfg.patience))
     return _TrainState(tree, best, key), run
+
+
+def _start_across_processes(out: Path, model_cfg, train_cfg: TrainConfig, settings: dict, *, k_init, k_data,
+                            resume: bool, init=None) -> tuple[_TrainState, _Run]:
+    """`_start_or_resume` run by process 0 (the only one that reads the run folder, or `init`'s checkpoint), its
+    train state and run sent to every process (`multihost_utils.broadcast_one_to_all`, exact)."""
+    from jax.experimental import multihost_utils  # late: only runs across processes need it
+
+    started = []
+
+    def start():
+        ts, run = _start_or_resume(out, model_cfg, train_cfg, settings, k_init=k_init, k_data=k_data, resume=resume,
+                                   init=init)
+        started.append(ts)
+        return dataclasses.asdict(run)
+
+    saved = _on_lead(start)
+    run = _Run(**dict(saved, history=tuple(saved["history"])))
+    if started:
+        ts = started[0]
+        tree = {**ts.train, "best": ts.best, "key": jax.random.key_data(ts.key)}
+    else:  # zeros of the same shapes: broadcast_one_to_all adds them to process 0's arrays
+        tree = jax.tree_util.tree_map(lambda a: np.zeros(a.shape, a.dtype), _train_state_template(model_cfg, k_init))
+    tree = jax.device_get(multihost_utils.broadcast_one_to_all(tree))
+    best, key = tree.pop("best"), jax.random.wrap_key_data(jnp.asarray(tree.pop("key")))
+    return _TrainState(jax.tree_util.tree_map(jnp.asarray, tree), best, key), run
 
 
 def _run_epoch(step_fn, ts: _TrainState, run: _Run, train_cfg: TrainConfig, *, progress: bool,
@@ -297,7 +393,8 @@ RUN_FILES = ("metrics.jsonl", "last.npz", "best.npz", RESUME_FILE)  # what `fit`
 def _save_state(path: Path, ts: _TrainState, run: _Run, settings: dict, card: dict):
     """Everything a resume needs (the train state, best weights, RNG key, the run), written atomically."""
     tree = {**ts.train, "best": ts.best, "key": jax.random.key_data(ts.key)}
-    save_tree(path, tree, dict(settings, kind="train_state", run=dataclasses.asdict(run), card=card))
+    save_tree(path, tree, dict(settings, kind="train_state", run=dataclasses.asdict(run), card=card,
+                               processes=jax.process_count()))
 
 
 def _write_checkpoints(out: Path, ts: _TrainState, run: _Run, model_cfg, settings: dict, card: dict):
@@ -363,6 +460,17 @@ def fit(
     checkpoint path, the same architecture in either temporal form, or a smaller TR grown to this one by
     `jaxsr.nn.grow_tr`); recorded in the training card, ignored when resuming. card_extra: entries added to
     the training card.
+
+    Across processes and hosts (a data-parallel recipe: the DUF network), after `jaxsr.runtime.init_distributed`
+    in every process: each process calls `fit` with the same arguments and runs the same steps;
+    `train_cfg.batch_size` is the global batch, split over the devices of all processes (it must be a multiple of
+    their number: ValueError), the mesh ("auto") spans them all. Process 0 alone reads and writes `out` (the lock,
+    `metrics.jsonl`, the checkpoints with their card, progress output); the others touch nothing there and
+    receive what process 0 read (a resumed state, its errors: raised on every process). Each process validates on
+    its own copy of the replicated weights; the record of process 0 is every process's, so that all stop together
+    and return the same model and history; `callback` runs on every process. The run's state records its number
+    of processes: a resume on another number is allowed when the global batch is the same (it is a setting: it
+    must be), and warns that it continues equal up to float rounding, no longer bit for bit.
     """
     arch = architecture(model_cfg)  # ValueError for a config of no registered architecture
     how = recipe(model_cfg)
@@ -375,10 +483,15 @@ def fit(
         raise ValueError("fit: resume and overwrite exclude each other (continue the run, or start over)")
     if not (checkpoint_every_s is None or checkpoint_every_s >= 0):  # also refuses NaN
         raise ValueError(f"fit: checkpoint_every_s={checkpoint_every_s!r}; expected seconds >= 0, or None")
-    if out.exists() and not out.is_dir():
-        raise FileExistsError(f"{out} is a file; fit's out is a folder")
-    out.mkdir(parents=True, exist_ok=True)
-    with folder_lock(out, what="training run"):  # a second run on this folder fails at once
+    with contextlib.ExitStack() as lock:
+
+        def open_folder():  # on process 0 alone across processes: the others never touch the folder
+            if out.exists() and not out.is_dir():
+                raise FileExistsError(f"{out} is a file; fit's out is a folder")
+            out.mkdir(parents=True, exist_ok=True)
+            lock.enter_context(folder_lock(out, what="training run"))  # a second run on this folder fails at once
+
+        _on_lead(open_folder)
         return _fit_in(out, model_cfg, train_cfg, make_batch=make_batch, validation=validation, sensor=sensor,
                        resume=resume, overwrite=overwrite, mesh=mesh, progress=progress, callback=callback,
                        data_description=data_description, conv3d_impl=conv3d_impl, init=init,
@@ -400,17 +513,26 @@ def _first_epoch_kill(out: Path, held: list) -> bool:
 def _fit_in(out: Path, model_cfg, train_cfg: TrainConfig, *, make_batch, validation, sensor, resume, overwrite, mesh,
             progress, callback, data_description, conv3d_impl, init, checkpoint_every_s, pretrain_epochs,
             card_extra):
-    """`fit` in folder `out`, which exists and whose lock this process holds."""
+    """`fit` in folder `out`, which exists and whose lock this process holds (process 0's, across processes)."""
     arch, how = architecture(model_cfg), recipe(model_cfg)
-    held = [name for name in RUN_FILES if (out / name).exists()]
-    if held and not (resume or overwrite):
-        raise FileExistsError(f"{out} holds a training run ({', '.join(held)}); pass resume=True (--resume) to "
-                              "continue it or overwrite=True (--force) to start a new one in its place")
-    if resume and held and _latest_state(out) is None and not _first_epoch_kill(out, held):
-        raise FileExistsError(f"{out} holds a run without its train state ({', '.join(held)}; no last.npz or "
-                              f"{RESUME_FILE}), so it cannot be resumed; overwrite=True (--force) starts over in its "
-                              "place")
+    lead, processes = _lead(), jax.process_count()
+
+    def run_files() -> list:
+        held = [name for name in RUN_FILES if (out / name).exists()]
+        if held and not (resume or overwrite):
+            raise FileExistsError(f"{out} holds a training run ({', '.join(held)}); pass resume=True (--resume) to "
+                                  "continue it or overwrite=True (--force) to start a new one in its place")
+        if resume and held and _latest_state(out) is None and not _first_epoch_kill(out, held):
+            raise FileExistsError(f"{out} holds a run without its train state ({', '.join(held)}; no last.npz or "
+                                  f"{RESUME_FILE}), so it cannot be resumed; overwrite=True (--force) starts over in "
+                                  "its place")
+        return held
+
+    held = _on_lead(run_files)
     if not how.data_parallel:
+        if processes > 1:
+            raise ValueError(f"fit: {arch.name} trains on one device (its step does not split a batch), so not across "
+                             f"{processes} processes; train it in one")
         if isinstance(mesh, Mesh):
             raise ValueError(f"fit: {arch.name} trains on one device (its step does not split a batch); pass "
                              "mesh=None or 'auto'")
@@ -427,9 +549,9 @@ def _fit_in(out: Path, model_cfg, train_cfg: TrainConfig, *, make_batch, validat
     settings = _settings(model_cfg, train_cfg, pretrain_epochs)
     if init is not None:
         settings["init"] = str(init) if not isinstance(init, Model) else "a Model passed to fit"
-    ts, run = _start_or_resume(out, model_cfg, train_cfg, settings, k_init=k_init, k_data=k_data,
-                               resume=resume, init=init)
-    if resume and run.epoch and (run.finished or run.epoch >= train_cfg.epochs):
+    start = _start_or_resume if processes == 1 else _start_across_processes
+    ts, run = start(out, model_cfg, train_cfg, settings, k_init=k_init, k_data=k_data, resume=resume, init=init)
+    if lead and resume and run.epoch and (run.finished or run.epoch >= train_cfg.epochs):
         why = (f"stopped early after {run.epoch} epochs ({train_cfg.patience} without a lower validation loss)"
                if run.finished else f"already has {run.epoch} epochs (epochs={train_cfg.epochs})")
         warnings.warn(f"the run in {out} {why}; nothing to train"
@@ -461,9 +583,12 @@ def _fit_in(out: Path, model_cfg, train_cfg: TrainConfig, *, make_batch, validat
 
     while not run.finished and run.epoch < train_cfg.epochs:
         t0, before = time.perf_counter(), run.epoch_train_s  # before: training time in an earlier process
-        ts, train = _run_epoch(step_fn, ts, run, train_cfg, progress=progress, save=save_inside_epoch,
-                               every_s=checkpoint_every_s)
-        current = Model(ts.train["params"], ts.train["state"], model_cfg)
+        ts, train = _run_epoch(step_fn, ts, run, train_cfg, progress=progress and lead,
+                               save=save_inside_epoch if lead else None, every_s=checkpoint_every_s)
+        weights = (ts.train["params"], ts.train["state"])
+        if processes > 1:  # each process validates on its own copy of the (replicated) weights
+            weights = jax.tree_util.tree_map(jnp.asarray, jax.device_get(weights))
+        current = Model(*weights, model_cfg)
         val = how.evaluate(current, validation, train_cfg, sensor=sensor, conv3d_impl=conv3d_impl)
         run = dataclasses.replace(run, epoch=run.epoch + 1, step=(run.epoch + 1) * spe, epoch_loss_sum=0.0,
                                   epoch_psnr_sum=0.0, epoch_sums={}, epoch_train_s=0.0)
@@ -475,13 +600,15 @@ def _fit_in(out: Path, model_cfg, train_cfg: TrainConfig, *, make_batch, validat
             "examples_per_s": spe * train_cfg.batch_size / train["train_s"],
             "epoch_time_s": before + time.perf_counter() - t0,
         }
-        run, ts = _early_stopping(run, ts, val["loss"], train_cfg)
+        record = _share(record)  # process 0's numbers: every process logs and stops on the same
+        run, ts = _early_stopping(run, ts, record["val_loss"], train_cfg)
         record["wall_time_s"] = run.wall_time_s + record["epoch_time_s"]
         run = dataclasses.replace(run, wall_time_s=record["wall_time_s"], history=(*run.history, record))
-        if progress:
-            print(json.dumps(record))
-        forget_old_run()
-        _write_checkpoints(out, ts, run, model_cfg, settings, card_of(run))
+        if lead:
+            if progress:
+                print(json.dumps(record))
+            forget_old_run()
+            _write_checkpoints(out, ts, run, model_cfg, settings, card_of(run))
         if callback is not None:
             callback(record)
     best = jax.tree_util.tree_map(jnp.asarray, ts.best)

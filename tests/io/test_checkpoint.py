@@ -226,3 +226,36 @@ def test_a_config_beyond_the_limits_is_refused_before_building_anything(tmp_path
         assert time.perf_counter() - t0 < 1.0
     with pytest.raises(ValueError, match=r"tr must be 0\.\.64"):
         ModelConfig(tr=65)
+
+
+@pytest.mark.parametrize("kind, field, value", [
+    ("histnet", "width", 10**6),
+    ("histnet", "peak_half", -1),
+    ("iseebetter", "base_filter", 10**6),
+    ("iseebetter", "n_resblock", 10**6),
+    ("iseebetter", "frames", 10**6),
+    ("iseebetter", "disc_widths", [8] * 10**5),
+])
+def test_a_baseline_config_beyond_the_limits_is_refused_before_building_anything(tmp_path, kind, field, value):
+    """HistNet's and iSeeBetter's configs are bounded like ModelConfig's (issue 37): n_resblock=10^6 in a file would
+    trace 3 x 10^6 residual blocks' templates (2000 took 10 s) before any shape is checked."""
+    import time
+
+    from jaxsr.baselines import HistNetConfig, RBPNConfig
+    from jaxsr.io.checkpoint import model_template
+
+    config = HistNetConfig(width=1) if kind == "histnet" else RBPNConfig(
+        base_filter=2, feat=2, n_resblock=1, frames=3, disc_widths=(2,), disc_hidden=2)
+    params, state = jax.tree_util.tree_map(lambda s: np.zeros(s.shape, s.dtype), model_template(config))
+    path = save_model(tmp_path / "m.npz", Model(params, state, config))
+    assert load_model(path).config == config
+    with np.load(path) as data:
+        arrays = {k: data[k] for k in data.files}
+    meta = json.loads(str(arrays["__metadata__"]))
+    assert meta["architecture"] == kind
+    arrays["__metadata__"] = np.array(json.dumps(dict(meta, config=dict(meta["config"], **{field: value}))))
+    np.savez(tmp_path / "big.npz", **arrays)
+    t0 = time.perf_counter()
+    with pytest.raises(ValueError, match=rf"{type(config).__name__}: {field} must be .*got"):
+        load_model(tmp_path / "big.npz")
+    assert time.perf_counter() - t0 < 1.0

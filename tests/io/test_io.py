@@ -318,3 +318,21 @@ def test_reserve_space_turns_a_full_disk_into_enospc_before_the_map_is_written(t
     assert caught.value.errno == errno.ENOSPC
     monkeypatch.setattr(os, "posix_fallocate", _cannot_reserve)
     reserve_space(path)
+
+
+def test_hostile_json_metadata_of_a_recording_is_refused_or_ignored_not_a_traceback(tmp_path):
+    """Issue 37: metadata nested 100000 levels deep (a RecursionError in json.loads) is a ValueError naming the file
+    where the metadata is read, and ignored where only its fps is looked for (`jaxsr upscale` on the recording)."""
+    depth = np.full((2, 4, 4), 5.0, np.float32)
+    for nested in ("[" * 100_000 + "]" * 100_000, "[" * 100 + "]" * 100):
+        np.savez(tmp_path / "seq.npz", depth=depth, metadata=np.array(nested))
+        with pytest.raises(ValueError, match="seq.npz: metadata: JSON metadata nested more than 64 levels"):
+            io.read_sequence(tmp_path / "seq.npz")
+        np.savez(tmp_path / "h.npz", counts=np.ones((1, 4, 4, 16), np.uint16), config=np.array(nested))
+        with pytest.raises(ValueError, match="h.npz: config: JSON metadata nested"):
+            io.read_histograms(tmp_path / "h.npz")
+        rec = io.open_recording(tmp_path / "seq.npz")
+        assert rec.fps is None and rec.frames == 2
+    np.savez(tmp_path / "seq.npz", depth=depth, metadata=np.array('{"fps": 12.5, "snr": [1, [2]]}'))
+    assert io.read_sequence(tmp_path / "seq.npz")["metadata"] == {"fps": 12.5, "snr": [1, [2]]}
+    assert io.open_recording(tmp_path / "seq.npz").fps == 12.5
