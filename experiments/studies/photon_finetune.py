@@ -14,7 +14,8 @@ first (`jaxsr.nn.with_photon_inputs`): it also reads the photons behind each dep
 same regime with fixed keys (model selection on the regime the model is for; the paper's fixed sequences at 14
 photons measure the cost there separately). Every run resumes where it stopped (a session's end, a kill):
 `--checkpoint-minutes` of training are lost at most. `--keep` copies the run's best weights (float16, with the
-training card, which records the regime) to experiments/photon_weights/tr<N>.npz.
+training card, which records the regime) to experiments/photon_weights/tr<N>[-photons].npz; the bundled
+`tr0-photons` and `tr4-photons` (jaxsr/weights/) are such files, copied there.
 """
 
 from __future__ import annotations
@@ -49,7 +50,7 @@ def main(argv=None) -> None:
     parser.add_argument("--val-batches", type=int, default=16, help="batches of 4 regime draws to validate on")
     parser.add_argument("--init", default=None,
                         help="weights to start from (default the bundled tr<N>; e.g. "
-                        "experiments/photon_weights/tr0.npz to continue this study's kept run in a new folder)")
+                        "experiments/photon_weights/tr0-wide-depth.npz to continue this study's kept run in a new folder)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--photons", action="store_true",
                         help="read signal and background photons too and mark no return (default: depth only)")

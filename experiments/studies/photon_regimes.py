@@ -4,7 +4,7 @@ reconstruction, TR0, TR4 and any extra models at 1, 3, 14, 100 and 1000 signal p
 
     python experiments/studies/photon_regimes.py --frames 4 --tv                 # a small run (4 min on 2 cores)
     python experiments/studies/photon_regimes.py --frames 32 --tv --tv-frames 4  # the full benchmark (~20 min)
-    python experiments/studies/photon_regimes.py --model TR0-photons=experiments/photon_weights/tr0.npz
+    python experiments/studies/photon_regimes.py --model TR4-photons=tr4-photons
 
 Data: the test scenes (jaxsr.eval.scoring.TEST_SCENES), `--frames` frames per scene spread over each 500-frame
 sequence (`scored_frames`, as experiments/sweep_tr.py scores). Each regime calibrates the laser and ambient over the
@@ -52,6 +52,7 @@ from jaxsr.eval.scoring import (
     scored_output,
 )
 from jaxsr.eval.reports import header, markdown_table, write_atomic
+from jaxsr.io.checkpoint import resolve_model_path
 from jaxsr.nn import network_inputs
 from jaxsr.sensor import calibrate, calibrated_rates, no_return_regions, normalise_depth, sample_poisson
 
@@ -351,15 +352,18 @@ def raw(results, models_info) -> dict:
 
 
 def load_models(specs) -> tuple[dict, dict]:
-    """TR0 and TR4 bundled, and each NAME=PATH of --model that exists (a printed line for one that does not).
-    Returns ({label: Model}, {label: source})."""
+    """TR0 and TR4 bundled, and each NAME=PATH of --model that exists (PATH a file, a run folder or the name of
+    bundled weights such as tr4-photons; a printed line for one that does not). Returns ({label: Model},
+    {label: source})."""
     models = {"TR0": jaxsr.load_model("tr0"), "TR4": jaxsr.load_model("tr4")}
     info = {"TR0": "bundled tr0", "TR4": "bundled tr4"}
     for spec in specs:
         name, sep, path = spec.partition("=")
         if not sep or not name or not path:
             raise SystemExit(f"--model expects NAME=PATH, got {spec!r}")
-        if not Path(path).is_file():
+        try:
+            resolve_model_path(path)
+        except FileNotFoundError:
             print(f"skipping {name}: {path} does not exist")
             info[name] = f"skipped: {path} absent"
             continue

@@ -3,7 +3,7 @@ photon videos at 1-16 photons per LR pixel and frame, upscaled x4 by bicubic, TV
 any `--model`), and scored against the depth of all the recording's photons at full resolution.
 
     python experiments/studies/real_photons.py                              # the benchmark (~2 min on 2 cores)
-    python experiments/studies/real_photons.py --model TR0-photons=experiments/photon_weights/tr0.npz
+    python experiments/studies/real_photons.py --model TR0-photons=tr0-photons --model TR4-photons=tr4-photons
     python experiments/studies/real_photons.py --levels 2 --frames 3 --tv-frames 1   # a quick look
 
 Data (`--data`, default ../shared/realdata beside the repository; never copied into the project:

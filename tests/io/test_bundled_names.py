@@ -14,3 +14,12 @@ def test_paper_names_resolve_to_the_papers_weights(tr):
 def test_an_unknown_name_says_where_it_looked():
     with pytest.raises(FileNotFoundError, match="paper-tr9"):
         resolve_model_path("paper-tr9")
+
+
+@pytest.mark.parametrize("name", ["tr0-photons", "tr4-photons"])
+def test_bundled_photon_models_read_photons_and_mark_no_return(name):
+    from jaxsr.io.checkpoint import read_metadata
+
+    meta = read_metadata(resolve_model_path(name))
+    assert meta["config"]["inputs"] == ["depth", "signal", "background"] and meta["config"]["no_return_head"]
+    assert meta["card"]["regime"]["paper_prob"] == 0.3 and meta["card"]["init"] in ("tr0", "tr4")
