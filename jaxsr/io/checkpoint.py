@@ -239,6 +239,9 @@ def resolve_model_path(path) -> Path:
 
     Args: path (str or Path). Returns a Path to an existing file (not opened or checked).
     """
+    if isinstance(path, str) and not path.strip():
+        raise FileNotFoundError("no checkpoint named '': expected a file, a run folder or the name of bundled "
+                                "weights (tr0 .. tr4, tr0-photons, tr4-photons, paper-tr0 .. paper-tr4)")
     p = Path(path)
     if p.is_file():
         return p

@@ -99,6 +99,11 @@ def centre_of_mass(counts, sensor: SensorConfig = SensorConfig(), *, window=None
 
 def _peak_excess(n, sensor: SensorConfig, window):
     """(counts above the median background in the window around the first argmax (..., K), the median (...))."""
+    if window is not None and is_concrete(window):
+        w = np.asarray(window)
+        if w.shape != () or w.dtype.kind not in "iu" or int(w) < 0:
+            raise ValueError(f"window: expected a half-width in bins, an integer >= 0 (or None for the sensor's "
+                             f"default), got {window!r}")
     k = jnp.arange(sensor.bins)
     w = default_window(sensor) if window is None else window
     background = median_of_bins(n)

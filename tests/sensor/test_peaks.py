@@ -220,3 +220,10 @@ def test_huge_and_tiny_counts_and_narrow_dtypes(jit, dtype, scale):
     got = np.asarray(f((hist * scale).astype(dtype)))
     assert got.dtype == np.float32
     np.testing.assert_allclose(got, want, atol=2e-3)
+
+
+@pytest.mark.parametrize("window", ["a", -1, 1.5, [1, 2]])
+def test_a_window_that_is_not_a_half_width_is_refused(window):
+    counts = np.ones((2, 16), np.float32)
+    with pytest.raises(ValueError, match="half-width in bins"):
+        jaxsr.centre_of_mass(counts, window=window)
