@@ -114,20 +114,23 @@ def atomic_path(path, *, overwrite: bool = False, make_parents: bool = False):
         raise error from e
 
 
+def _claimed_meanwhile(path: Path) -> FileExistsError:
+    return FileExistsError(f"{path} was created by another writer while this one ran; not replaced (pass "
+                           "overwrite=True, or --force, to replace it)")
+
+
 def _claim(tmp: Path, path: Path) -> None:
     """Move the finished file `tmp` to `path`, which must not exist: a hard link fails if another writer created
     `path` meanwhile (checking first and then renaming would silently replace its file)."""
     try:
         os.link(tmp, path)
     except FileExistsError:
-        raise FileExistsError(f"{path} was created by another writer while this one ran; not replaced (pass "
-                              "overwrite=True, or --force, to replace it)") from None
+        raise _claimed_meanwhile(path) from None
     except OSError as e:  # a file system without hard links: the check and the rename, a moment apart
         if e.errno not in (errno.EPERM, errno.ENOTSUP, errno.EOPNOTSUPP, errno.EMLINK):
             raise
         if path.exists():
-            raise FileExistsError(f"{path} was created by another writer while this one ran; not replaced (pass "
-                                  "overwrite=True, or --force, to replace it)") from None
+            raise _claimed_meanwhile(path) from None
         os.replace(tmp, path)
         return
     os.remove(tmp)

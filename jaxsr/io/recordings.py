@@ -24,6 +24,7 @@ from ..config import MIN_LR_SIDE, TRAINED_RANGE_M, DepthScale, Gate, SensorConfi
 from ..sensor.effects import clip_negative_counts
 from ..sensor.gates import from_network_depth, to_network_depth
 from ..sensor.forward import normalise_depth
+from ..sensor.quantities import RANGE_UNITS
 from ..sensor.timetags import histogram_time_tags
 
 __all__ = ["ARRAY_FORMATS", "DEPTH_UNITS", "FRAME_FORMATS", "METRES_PER_UNIT", "Recording", "check_frames",
@@ -34,7 +35,7 @@ FRAME_FORMATS = (".exr", ".pfm", ".tif", ".tiff", ".png")
 ARRAY_FORMATS = (".npy", ".npz")
 # Units of depth frames (--units): radial distance in metres, millimetres, centimetres or kilometres, or normalised
 # [0, 1] (the network's). METRES_PER_UNIT converts the distances.
-METRES_PER_UNIT = {"m": 1.0, "mm": 1e-3, "cm": 1e-2, "km": 1e3}
+METRES_PER_UNIT = {unit: RANGE_UNITS[unit] for unit in ("m", "mm", "cm", "km")}  # the CLI's range units
 DEPTH_UNITS = ("m", "normalised", "mm", "cm", "km")
 # Units whose 0 is no return (the convention of integer depth images: 16-bit PNG, depth cameras).
 _ZERO_IS_NO_RETURN = ("mm", "cm")

@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from ..config import METRES_PER_SECOND, MIN_LR_SIDE, PhotonRegime, SensorConfig
+from ..sensor.quantities import TIME_UNITS
 
 try:  # Python 3.11+
     import tomllib
@@ -59,7 +60,7 @@ IRF_RESIDUAL_WARN = 0.05
 SCENE_DEPTH_M = (3.6, 46.0)
 GATE_WARN_M = (10.0, 200.0)
 
-_LENGTH = {"m": 1.0, "ns": 1e-9 * METRES_PER_SECOND, "ps": 1e-12 * METRES_PER_SECOND}
+_LENGTH = {"m": 1.0, **{unit: TIME_UNITS[unit] * METRES_PER_SECOND for unit in ("ns", "ps")}}  # r = c t / 2
 
 
 # --- checks of single values: each returns the value or raises ValueError(what was expected) -------------------
