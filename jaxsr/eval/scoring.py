@@ -27,6 +27,7 @@ from jaxsr.config import DEFAULT_MEAN_SIGNAL, PRESETS, ModelConfig, SensorConfig
 from jaxsr.inference.video import super_resolve, super_resolve_histograms
 from jaxsr.io.checkpoint import resolve_model_path
 from jaxsr.runtime import compiler_options
+from jaxsr.sensor.forward import require_scalar_levels
 from jaxsr.scenes import TEST_SEQUENCES, mean_lr_shift, render_sequence, test_scene
 from jaxsr.training.data import sequence_batches
 from jaxsr.training import resume_config
@@ -97,6 +98,7 @@ def simulate_clip(key, seq, *, sensor: SensorConfig = SensorConfig(), snr=None,
     """Histograms, centre of mass and normalised ground truth of a `TestSequence`-like record (depth,
     intensity, fps, snr), at its own SNR unless `snr` is given."""
     snr = seq.snr if snr is None else snr
+    require_scalar_levels("simulate_clip", snr, mean_signal)
     counts, lr, gt = _simulate(key, jnp.asarray(seq.depth), jnp.asarray(seq.intensity), sensor,
                                jnp.float32(snr), jnp.float32(mean_signal))
     return Clip(name or seq.name, np.asarray(lr), np.asarray(counts), np.asarray(gt), float(seq.fps), float(snr),

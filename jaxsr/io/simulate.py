@@ -18,7 +18,7 @@ from ..baselines.interpolation import bicubic
 from ..config import DEFAULT_MEAN_SIGNAL, SensorConfig
 from ..eval.metrics import psnr, ssim
 from ..scenes import KINDS, sequence
-from ..sensor.forward import normalise_depth, simulate_histograms
+from ..sensor.forward import normalise_depth, require_scalar_levels, simulate_histograms
 from ..sensor.peaks import centre_of_mass
 from .files import atomic_folder
 from .formats import read_airsim, write_histograms, write_sequence
@@ -89,6 +89,7 @@ def _check_options(kind, frames, fps, snr, mean_signal, camera, seed):
         raise ValueError(f"camera (--camera) is one of {', '.join(CAMERAS)}, got {camera!r}")
     if int(frames) != frames or frames < 1:
         raise ValueError(f"frames (--frames): expected an integer >= 1, got {frames!r}")
+    require_scalar_levels("simulate_recording", snr, 0.0 if mean_signal is None else mean_signal)
     for name, value in (("fps", fps), ("snr", snr), ("mean_signal", mean_signal)):
         if value is not None and not (np.isfinite(value) and value > 0):
             raise ValueError(f"{name} (--{name.replace('_', '-')}): expected a finite number > 0, got {value!r}")

@@ -227,6 +227,15 @@ def _calibrate_from_sums(s_sum, a_sum, sensor: SensorConfig, *, snr, mean_signal
     return jnp.where(valid, alpha, jnp.nan), jnp.where(valid, beta, jnp.nan)
 
 
+def require_scalar_levels(name, snr, mean_signal=0.0):
+    """Refuse an `snr` or `mean_signal` that is not one number (an array would broadcast into the bins' axis): a
+    ValueError in `name`'s words. Shapes are known under a trace too, so this holds under jit and vmap."""
+    for label, value in (("snr", snr), ("mean_signal", mean_signal)):
+        if np.shape(value) != ():
+            raise ValueError(f"{name}: {label} must be a scalar (one number for the whole sequence), got an array "
+                             f"of shape {np.shape(value)}; for several values, jax.vmap over them")
+
+
 def check_photon_args(name, depth, intensity, sensor, snr, mean_signal):
     """Shapes always; values where concrete (eager). Traced values follow the rules in the module docstring."""
     depth, intensity = require_hr_pair(name, depth, intensity, sensor)
@@ -237,6 +246,7 @@ def check_photon_args(name, depth, intensity, sensor, snr, mean_signal):
         if not (0.0 <= lo and hi <= 1.0):  # also catches NaN, whose comparisons are False
             raise ValueError(f"{name}: intensity must be finite and in [0, 1], got values in [{lo}, {hi}] (under "
                              "jit a non-finite intensity is taken as 0 and one outside [0, 1] is clipped)")
+    require_scalar_levels(name, snr, mean_signal)
     for label, (value, strict, unit) in _physical_scalars(sensor, snr, mean_signal).items():
         if is_concrete(value) and not np.all(_in_domain(np.asarray(value), strict, np)):
             raise ValueError(f"{name}: {label} must be finite and {'>' if strict else '>='} 0{unit}, got {value} "
@@ -348,6 +358,7 @@ def simulate_histograms(
         )
     _require_key("simulate_histograms", key)
     require_hr_pair("simulate_histograms", depth, intensity, sensor)  # messages in the caller's name
+    require_scalar_levels("simulate_histograms", snr, mean_signal)
     rates = expected_histograms(depth, intensity, sensor, snr=snr, mean_signal=mean_signal)
     counts = sample_poisson(key, jax.lax.stop_gradient(rates), method=sampler)
     return counts if gradient is None else poisson_pathwise(counts, rates, estimator=gradient)

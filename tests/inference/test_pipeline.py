@@ -193,6 +193,8 @@ def test_pipeline_metric_refuses_bad_input(model):
         jaxsr.pipeline_metric(key, depth[0], intensity[0], SMALL, model, snr=1.0)
     with pytest.raises(ValueError, match="snr must be finite and > 0"):
         jaxsr.pipeline_metric(key, depth, intensity, SMALL, model, snr=0.0)
+    with pytest.raises(ValueError, match=r"pipeline_metric: snr must be a scalar .* shape \(2,\)"):
+        jaxsr.pipeline_metric(key, depth, intensity, SMALL, model, snr=np.array([1.0, 2.0]))
     with pytest.raises(ValueError, match="metric must be one of"):
         jaxsr.pipeline_metric(key, depth, intensity, SMALL, model, snr=1.0, metric="ssim")
     with pytest.raises(ValueError, match="gradient must be one of"):

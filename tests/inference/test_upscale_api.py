@@ -2,6 +2,7 @@
 input raises the documented exception with the command's message, leaving nothing written."""
 
 import json
+from types import SimpleNamespace
 
 import jax
 import numpy as np
@@ -190,3 +191,15 @@ def test_simulate_recording_equals_the_command(tmp_path, capsys):
         jaxsr.simulate_recording(tmp_path / "api", kind="walkers", frames=2)
     with pytest.raises(ValueError, match="--camera"):
         jaxsr.simulate_recording(None, camera="flying")
+    with pytest.raises(ValueError, match=r"simulate_recording: snr must be a scalar .* shape \(2,\)"):
+        jaxsr.simulate_recording(None, snr=np.array([1.0, 2.0]))
+
+
+def test_simulate_clip_refuses_an_array_snr():
+    """`jaxsr.eval.scoring.simulate_clip` takes one SNR for the clip (issue 37: a TypeError before)."""
+    from jaxsr.eval.scoring import simulate_clip
+
+    record = SimpleNamespace(name="x", depth=np.full((2, 128, 256), 8.0, np.float32),
+                             intensity=np.full((2, 128, 256), 0.5, np.float32), fps=25.0, snr=1.3)
+    with pytest.raises(ValueError, match=r"simulate_clip: snr must be a scalar .* shape \(2,\)"):
+        simulate_clip(jax.random.key(0), record, snr=np.array([1.0, 2.0]))

@@ -382,6 +382,18 @@ def test_invalid_photon_levels_raise_eagerly_and_are_nan_everywhere_traced(kwarg
         assert all(np.all(np.isnan(x)) for x in out), [np.asarray(x).ravel()[:4] for x in out]
 
 
+@pytest.mark.parametrize("level", ["snr", "mean_signal"])
+@pytest.mark.parametrize("jit", [False, True])
+def test_an_array_of_photon_levels_is_refused_as_not_a_scalar(level, jit):
+    """An array where one number is expected (issue 37) broadcast into the bins' axis: a TypeError in JAX's words."""
+    depth, intensity = _scene()
+    levels = {"snr": jnp.float32(1.3), "mean_signal": jnp.float32(5.0), level: np.array([1.0, 2.0], np.float32)}
+    for fn in (LEVEL_CALLS_JIT if jit else LEVEL_CALLS).values():
+        with pytest.raises(ValueError, match=f"{level} must be a scalar .* got an array of shape \\(2,\\); for several "
+                           "values, jax.vmap"):
+            fn(jax.random.key(2), depth, intensity, levels["snr"], levels["mean_signal"])
+
+
 @pytest.mark.parametrize(
     "field,value", [("d_max", 0.0), ("d_max", np.nan), ("irf_sigma", 0.0), ("irf_sigma", -0.4), ("r_min", 0.0),
                     ("ambient_floor", -0.05), ("ambient_floor", np.inf)]
