@@ -40,6 +40,19 @@ def positive_float(text: str) -> float:
 seed = int_range(0, 2**32 - 1)
 
 
+def seed_list(text: str) -> tuple[int, ...]:
+    """An argparse type: distinct seeds separated by commas, such as 0,1,2 (each 0..2^32-1, at least one)."""
+    parts = [part.strip() for part in text.split(",")]
+    if not all(parts):
+        raise argparse.ArgumentTypeError(f"expected seeds separated by commas, such as 0,1,2, got {text!r}")
+    seeds = tuple(seed(part) for part in parts)
+    twice = sorted({s for s in seeds if seeds.count(s) > 1})
+    if twice:
+        raise argparse.ArgumentTypeError(f"each seed once, got {', '.join(map(str, twice))} more than once in "
+                                         f"{text!r}")
+    return seeds
+
+
 # Quantities with their unit (12.5ns, 2.19m): parsed by `jaxsr.sensor.quantities`, whose ValueError becomes
 # argparse's one-line error.
 

@@ -1,6 +1,7 @@
 """`jaxsr train`: parse the options of `jaxsr.training.train` (a preset, on rendered scenes or on HR sequences
 from an .npz), call it and say where the best epoch went. It writes OUT/metrics.jsonl, OUT/best.npz and
 OUT/last.npz; a folder that already holds a run is refused unless --resume (continue it) or --force (start over).
+--seeds 0,1,2 trains those seeds at once, stacked in one vmapped step, each into its own run folder OUT/seed<k>.
 Across processes (--coordinator, --num-processes, --process-id, or $JAXSR_COORDINATOR, $JAXSR_NUM_PROCESSES,
 $JAXSR_PROCESS_ID, or `srun`'s Slurm variables) every process runs this command and process 0 writes OUT."""
 
@@ -16,7 +17,8 @@ from ..config import PRESETS, TEMPORAL_FORMS
 from ..runtime import init_distributed
 from ..nn.model import architectures
 from ..training.presets import MAX_TR, train
-from ._args import int_range, seed
+from ..training.loop import seed_folder
+from ._args import int_range, seed, seed_list
 
 
 def add_parser(subparsers):
@@ -32,7 +34,13 @@ def add_parser(subparsers):
     again = p.add_mutually_exclusive_group()
     again.add_argument("--resume", action="store_true", help="continue the run in OUT (from last.npz or resume.npz)")
     again.add_argument("--force", action="store_true", help="start a new run in OUT, replacing the run it holds")
-    p.add_argument("--seed", type=seed, default=None, help="override the preset's seed (0..2^32-1)")
+    seeding = p.add_mutually_exclusive_group()
+    seeding.add_argument("--seed", type=seed, default=None, help="override the preset's seed (0..2^32-1)")
+    seeding.add_argument("--seeds", type=seed_list, default=None, metavar="K,K,...",
+                         help="train several seeds at once (e.g. 0,1,2), each as --seed K alone would, stacked in one "
+                         "vmapped step (faster than one after another where one run leaves the device idle: "
+                         "docs/training.md), each in its own run folder OUT/seedK with its own files, resume and "
+                         "early stopping")
     p.add_argument("--epochs", type=int_range(1), default=None, help="override the preset's number of epochs")
     p.add_argument("--data", default=None,
                    help="train on HR sequences from an .npz with arrays depth (radial m) and intensity, (N, T, H, W)")
@@ -75,12 +83,15 @@ def run(args) -> int:
     """Train as the arguments say; prints the best epoch. Configs and data are built (and checked) before any work."""
     with warnings.catch_warnings():  # each warning one line on stderr (e.g. a resumed run with nothing to train)
         warnings.showwarning = lambda message, *_, **__: print(f"jaxsr train: warning: {message}", file=sys.stderr)
-        _, history = train(args.out, arch=args.arch, tr=args.tr, scale=args.scale, temporal=args.temporal,
-                           preset=args.preset, seed=args.seed, epochs=args.epochs, clip_frames=args.clip_frames,
-                           data=args.data, init=args.init, resume=args.resume, overwrite=args.force,
-                           checkpoint_minutes=args.checkpoint_minutes, progress=not args.no_progress)
-    best = min(history, key=lambda r: r["val_loss"]) if history else None
-    if best and jax.process_index() == 0:  # across processes: the one that wrote OUT
-        print(f"best epoch {best['epoch']}: val loss {best['val_loss']:.3e}, val PSNR {best['val_psnr']:.2f} dB "
-              f"-> {Path(args.out) / 'best.npz'}")
+        result = train(args.out, arch=args.arch, tr=args.tr, scale=args.scale, temporal=args.temporal,
+                       preset=args.preset, seed=args.seed, seeds=args.seeds, epochs=args.epochs,
+                       clip_frames=args.clip_frames, data=args.data, init=args.init, resume=args.resume,
+                       overwrite=args.force, checkpoint_minutes=args.checkpoint_minutes, progress=not args.no_progress)
+    runs = {None: result} if args.seeds is None else result
+    for k, (_, history) in runs.items():
+        best = min(history, key=lambda r: r["val_loss"]) if history else None
+        if best and jax.process_index() == 0:  # across processes: the one that wrote OUT
+            folder = Path(args.out) if k is None else seed_folder(args.out, k)
+            print(("" if k is None else f"seed {k}: ") + f"best epoch {best['epoch']}: val loss "
+                  f"{best['val_loss']:.3e}, val PSNR {best['val_psnr']:.2f} dB -> {folder / 'best.npz'}")
     return 0

@@ -42,7 +42,7 @@ from .baselines import (
     save_baseline,
     super_resolve_baseline,
 )
-from .loop import RESUME_FILE, RUN_FILES, choose_mesh, fit, replicate, resume_config
+from .loop import RESUME_FILE, RUN_FILES, choose_mesh, fit, replicate, resume_config, seed_folder
 from .presets import FINETUNE_LR_FACTOR, MAX_TR, PHOTON_INPUTS, finetune, regime_validation, sequence_data, train
 from .sensor_file import fit_irf, parse_sensor_file, read_irf_file, read_sensor_file
 
@@ -56,7 +56,8 @@ __all__ = [
     "sequence_loss",
     "BASELINES", "baseline_validation_set", "evaluate_baseline", "histogram_batches", "init_adam_pair",
     "make_histnet_train_step", "make_iseebetter_train_step", "make_rbpn_train_step",
-    "fit", "resume_config", "train", "sequence_data", "MAX_TR", "choose_mesh", "replicate", "RUN_FILES", "RESUME_FILE",
+    "fit", "resume_config", "seed_folder", "train", "sequence_data", "MAX_TR", "choose_mesh", "replicate", "RUN_FILES",
+    "RESUME_FILE",
     "finetune", "regime_validation", "FINETUNE_LR_FACTOR", "PHOTON_INPUTS",
     "read_sensor_file", "parse_sensor_file", "fit_irf", "read_irf_file",
     # deprecated (jaxsr 0.1): jaxsr.nn.Model, jaxsr.save_model / load_model, jaxsr.super_resolve*, jaxsr.fit

@@ -8,6 +8,8 @@ training, and stops early after `patience` epochs without a lower validation los
 same result as an uninterrupted one. Data parallelism (the DUF network): a `jax.sharding.Mesh` with a "data" axis
 (default: all devices) splits each batch, also across processes and hosts (`jaxsr.runtime.init_distributed`): every
 process runs the same steps on its share of the global batch, and process 0 alone reads and writes the run folder.
+Stacked runs (`fit(seeds=[...])`): several seeds of one network, each in its own run folder, their train states
+stacked along a leading axis and updated by one jitted step, the recipe's vmapped over the seeds.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import contextlib
 import dataclasses
 import json
 import math
+import numbers
 import platform
 import time
 import warnings
@@ -44,6 +47,7 @@ __all__ = [
     "replicate",
     "fit",
     "resume_config",
+    "seed_folder",
     "RUN_FILES",
     "RESUME_FILE",
 ]
@@ -301,51 +305,110 @@ def _start_across_processes(out: Path, model_cfg, train_cfg: TrainConfig, settin
     return _TrainState(jax.tree_util.tree_map(jnp.asarray, tree), best, key), run
 
 
-def _run_epoch(step_fn, ts: _TrainState, run: _Run, train_cfg: TrainConfig, *, progress: bool,
-               save=None, every_s: float | None = None):
-    """The remaining train steps of epoch `run.epoch` (0-based; all `steps_per_epoch` of them unless `run` was
-    saved inside it) with a progress bar. save(ts, run) is called with the run so far whenever `every_s`
-    seconds have passed since the epoch began or since the last save (never when `every_s` is None, nor after
-    the epoch's last step: the epoch's end is saved by the caller).
+def _stack(trees: list):
+    """Pytrees of one structure stacked along a new leading axis, one entry per run."""
+    return jax.tree_util.tree_map(lambda *leaves: jnp.stack(leaves), *trees)
 
-    Returns (the new train state, {"loss", "psnr": means over the epoch's steps, "lr": the last step's rate,
+
+def _unstack(tree, i: int):
+    """Entry `i` of a pytree stacked by `_stack`."""
+    return jax.tree_util.tree_map(lambda leaf: leaf[i], tree)
+
+
+def _advance(step_fn, keys: list, *, stacked: bool):
+    """advance(train, step, active) -> (train, metrics): train step `step` of every run, each drawing its data
+    with fold_in(its key, step), as one run alone does.
+
+    One run (`keys` of one, not `stacked`): the recipe's `step_fn` on its train state (`active` unused). Stacked:
+    one jitted step, `step_fn` vmapped over the runs' train states stacked along a leading axis (`_stack`),
+    each metric one value per run; a run whose entry of `active` (bools, one per run) is False keeps its state
+    (its update is computed and dropped: a run that stopped early, or waits for the others to catch up)."""
+    if not stacked:
+        (key,) = keys
+        return lambda train, step, active: step_fn(train, jax.random.fold_in(key, step), step)
+
+    def one_step(train, keys, step, active):
+        draws = jax.vmap(jax.random.fold_in, in_axes=(0, None))(keys, step)
+        new, metrics = jax.vmap(step_fn, in_axes=(0, 0, None))(train, draws, step)
+        keep = lambda n, o: jnp.where(active.reshape(active.shape + (1,) * (n.ndim - 1)), n, o)  # noqa: E731
+        return jax.tree_util.tree_map(keep, new, train), metrics
+
+    jitted = jax.jit(one_step, donate_argnums=(0,) if jax.default_backend() != "cpu" else ())
+    stacked_keys = jnp.stack(keys)
+    return lambda train, step, active: jitted(train, stacked_keys, step, jnp.asarray(active))
+
+
+def _next_group(runs: list, epochs: int) -> list:
+    """The runs that train next: the unfinished ones (neither stopped early nor at `epochs`) at the lowest epoch,
+    so that a run resumed behind the others trains alone until it has caught up; [] when every run is done."""
+    left = [i for i, run in enumerate(runs) if not run.finished and run.epoch < epochs]
+    first = min((runs[i].epoch for i in left), default=None)
+    return [i for i in left if runs[i].epoch == first]
+
+
+def _run_epoch(advance, train, runs: list, group: list, train_cfg: TrainConfig, *, progress: bool, save=None,
+               every_s: float | None = None):
+    """The remaining train steps of one epoch of the runs `group` (indices into `runs`, all in the same 0-based
+    epoch: all `steps_per_epoch` steps of it for a run not saved inside it) with a progress bar, one
+    advance(train, step, active) (`_advance`) per step: a run trains from its own step on (one resumed further
+    into the epoch waits for the others to reach it), the runs outside `group` not at all. save(i, train, run)
+    is called for each run `i` that has trained, with its run so far, whenever `every_s` seconds have passed
+    since the epoch began or since the last save (never when `every_s` is None, nor after the epoch's last step:
+    the epoch's end is saved by the caller).
+
+    Returns (the new train state, {i: {"loss", "psnr": means over the epoch's steps, "lr": the last step's rate,
     "other": means of the step's other metrics, "train_s": the epoch's training time, from its start in an
-    earlier process if resumed inside it}). The loss is the step's "loss", or a GAN generator's "g_loss".
+    earlier process if resumed inside it}} for each i of `group`). The loss is the step's "loss", or a GAN
+    generator's "g_loss".
     """
     from tqdm.auto import tqdm  # late: only training needs it
 
-    spe = train_cfg.steps_per_epoch
-    train = ts.train
-    loss_sum, psnr_sum, sums = run.epoch_loss_sum, run.epoch_psnr_sum, dict(run.epoch_sums)
-    lr = None
-    done = run.step - run.epoch * spe
-    t0 = t_saved = time.perf_counter()
-    bar = tqdm(total=spe, initial=done, desc=f"epoch {run.epoch + 1}/{train_cfg.epochs}", disable=not progress,
+    spe, epoch = train_cfg.steps_per_epoch, runs[group[0]].epoch
+    start = {i: runs[i].step - epoch * spe for i in group}
+    loss_sum = {i: runs[i].epoch_loss_sum for i in group}
+    psnr_sum = {i: runs[i].epoch_psnr_sum for i in group}
+    sums = {i: dict(runs[i].epoch_sums) for i in group}
+    lr, began, last_loss = {}, {}, {}
+    active = np.zeros(len(runs), bool)
+    first = min(start.values())
+    t_saved = time.perf_counter()
+    bar = tqdm(total=spe, initial=first, desc=f"epoch {epoch + 1}/{train_cfg.epochs}", disable=not progress,
                leave=False)
-    for i in range(done, spe):
-        step = run.epoch * spe + i
+    for j in range(first, spe):
+        step = epoch * spe + j
         t_step = time.perf_counter()
-        train, m = step_fn(train, jax.random.fold_in(ts.key, step), step)
-        m = {k: float(v) for k, v in jax.device_get(m).items()}
-        loss = m.pop("loss") if "loss" in m else m.pop("g_loss")  # a GAN: the generator's loss
-        loss_sum += loss
-        psnr_sum += m.pop("psnr")
-        lr = m.pop("lr")
-        for k, v in m.items():
-            sums[k] = sums.get(k, 0.0) + v
-        bar.set_postfix(loss=f"{loss:.2e}", psnr=f"{psnr_sum / (i + 1):.2f}", lr=f"{lr:.0e}",
-                        ex_s=f"{train_cfg.batch_size / (time.perf_counter() - t_step):.1f}")
+        for i in group:
+            active[i] = start[i] <= j
+            if active[i]:
+                began.setdefault(i, t_step)
+        train, m = advance(train, step, active)
+        m = jax.device_get(m)
+        trained = [i for i in group if active[i]]
+        for i in trained:
+            values = {k: float(np.ravel(v)[i]) for k, v in m.items()}  # one value per run when stacked
+            last_loss[i] = values.pop("loss") if "loss" in values else values.pop("g_loss")  # a GAN: the generator's
+            loss_sum[i] += last_loss[i]
+            psnr_sum[i] += values.pop("psnr")
+            lr[i] = values.pop("lr")
+            for k, v in values.items():
+                sums[i][k] = sums[i].get(k, 0.0) + v
+        bar.set_postfix(loss=f"{np.mean([last_loss[i] for i in trained]):.2e}",
+                        psnr=f"{np.mean([psnr_sum[i] for i in trained]) / (j + 1):.2f}", lr=f"{lr[trained[0]]:.0e}",
+                        ex_s=f"{train_cfg.batch_size * len(trained) / (time.perf_counter() - t_step):.1f}")
         bar.update()
         now = time.perf_counter()
-        if save is not None and every_s is not None and i + 1 < spe and now - t_saved >= every_s:
-            save(ts._replace(train=train),
-                 dataclasses.replace(run, step=step + 1, epoch_loss_sum=loss_sum, epoch_psnr_sum=psnr_sum,
-                                     epoch_sums=dict(sums), epoch_train_s=run.epoch_train_s + now - t0))
+        if save is not None and every_s is not None and j + 1 < spe and now - t_saved >= every_s:
+            for i in trained:
+                save(i, train, dataclasses.replace(runs[i], step=step + 1, epoch_loss_sum=loss_sum[i],
+                                                   epoch_psnr_sum=psnr_sum[i], epoch_sums=dict(sums[i]),
+                                                   epoch_train_s=runs[i].epoch_train_s + now - began[i]))
             t_saved = time.perf_counter()
     bar.close()
-    means = {"loss": loss_sum / spe, "psnr": psnr_sum / spe, "lr": lr, "other": {k: v / spe for k, v in sums.items()},
-             "train_s": run.epoch_train_s + time.perf_counter() - t0}
-    return ts._replace(train=train), means
+    end = time.perf_counter()
+    means = {i: {"loss": loss_sum[i] / spe, "psnr": psnr_sum[i] / spe, "lr": lr[i],
+                 "other": {k: v / spe for k, v in sums[i].items()}, "train_s": runs[i].epoch_train_s + end - began[i]}
+             for i in group}
+    return train, means
 
 
 def _early_stopping(run: _Run, ts: _TrainState, val_loss: float, train_cfg: TrainConfig) -> tuple[_Run, _TrainState]:
@@ -414,6 +477,7 @@ def fit(
     train_cfg: TrainConfig,
     *,
     out,
+    seeds=None,
     make_batch=None,
     validation: dict | None = None,
     sensor: SensorConfig = SensorConfig(),
@@ -429,7 +493,8 @@ def fit(
     pretrain_epochs: int = 0,
     card_extra: dict | None = None,
 ):
-    """Train a network of any registered architecture; returns (best `Model`, history: list of per-epoch records).
+    """Train a network of any registered architecture; returns (best `Model`, history: list of per-epoch records),
+    or with `seeds` a dict {seed: (best `Model`, history)}.
 
     model_cfg: the network to train, by its config: `ModelConfig` (the DUF network, in the form its `temporal`
     says: windows, or clips of `train_cfg.clip_length(model_cfg)` frames validated on whole sequences),
@@ -450,11 +515,23 @@ def fit(
     in its place: the old run's files are removed when the new one first saves its state) is given. The run
     holds a lock on `out` (`out/.lock`, removed at the end): a second `fit` on the same folder meanwhile fails at
     once (FileExistsError).
+    seeds: a stacked run, several seeds of this network trained at once (a list of distinct integers 0..2^32-1,
+    e.g. [0, 1, 2]; None: one run of `train_cfg.seed`). Seed k trains as the run of `train_cfg` with seed=k
+    alone would (its initial weights, data, validation set; equal up to float rounding), in its own folder
+    `out/seed<k>`, a run folder as above: its files, card, lock, resume and early stopping are its own, and
+    every rule above applies to each (a run that stops early keeps its state while the others train on; the
+    stacked run ends when every seed's has). Their train states are stacked along a leading axis and updated
+    by one jitted step, the recipe's vmapped over the seeds, so that small networks keep a device busy.
+    A seed's folder may be resumed alone and a single run's folder in a stack; seeds resumed at different
+    epochs train alone until they catch up. Not across processes, nor with `pretrain_epochs` (ValueError);
+    `out` itself must not hold a run (FileExistsError).
     make_batch: the data source (default: the recipe's, rendered scenes in the network's input form);
-    validation: a dict as the recipe's validation set gives (default: built from `jaxsr.scenes.test_sequences`).
+    validation: a dict as the recipe's validation set gives (default: built from `jaxsr.scenes.test_sequences`,
+    each seed's with its own noise).
     mesh: "auto" (all devices when there are more than one), None (no sharding) or a `Mesh` with a "data" axis
     (the DUF network; HistNet and iSeeBetter train on one device).
-    callback(record) is called after each epoch's checkpoint is written. conv3d_impl: how the DUF network's
+    callback(record) is called after each epoch's checkpoint is written (with `seeds`, for each seed's, the
+    record's "seed" saying which). conv3d_impl: how the DUF network's
     convolutions run (see `jaxsr.apply_model`; not saved, a run may resume with another). Everything random
     follows `train_cfg.seed`. init (DUF): start from these weights instead of random ones (a `Model` or a
     checkpoint path, the same architecture in either temporal form, or a smaller TR grown to this one by
@@ -473,7 +550,7 @@ def fit(
     must be), and warns that it continues equal up to float rounding, no longer bit for bit.
     """
     arch = architecture(model_cfg)  # ValueError for a config of no registered architecture
-    how = recipe(model_cfg)
+    recipe(model_cfg)  # ValueError for an architecture without a recipe
     if arch.scale(model_cfg) != sensor.scale:
         raise ValueError(f"fit: model scale {arch.scale(model_cfg)} differs from sensor scale {sensor.scale}")
     if not (isinstance(pretrain_epochs, int) and pretrain_epochs >= 0):
@@ -483,20 +560,62 @@ def fit(
         raise ValueError("fit: resume and overwrite exclude each other (continue the run, or start over)")
     if not (checkpoint_every_s is None or checkpoint_every_s >= 0):  # also refuses NaN
         raise ValueError(f"fit: checkpoint_every_s={checkpoint_every_s!r}; expected seconds >= 0, or None")
+    seeds = _check_seeds(seeds)
+    if seeds is not None and (pretrain_epochs or jax.process_count() > 1):
+        raise ValueError("fit: a stacked run (seeds) trains in one process and without pretrain_epochs; train "
+                         + ("one seed per run across processes" if pretrain_epochs == 0 else "each seed alone"))
+    folders = [out] if seeds is None else [seed_folder(out, s) for s in seeds]
+    cfgs = [train_cfg] if seeds is None else [dataclasses.replace(train_cfg, seed=s) for s in seeds]
     with contextlib.ExitStack() as lock:
 
-        def open_folder():  # on process 0 alone across processes: the others never touch the folder
-            if out.exists() and not out.is_dir():
-                raise FileExistsError(f"{out} is a file; fit's out is a folder")
-            out.mkdir(parents=True, exist_ok=True)
-            lock.enter_context(folder_lock(out, what="training run"))  # a second run on this folder fails at once
+        def open_folders():  # on process 0 alone across processes: the others never touch the folders
+            if seeds is not None:
+                _check_stack_folder(out)
+            for folder in folders:
+                if folder.exists() and not folder.is_dir():
+                    raise FileExistsError(f"{folder} is a file; fit's out is a folder")
+                folder.mkdir(parents=True, exist_ok=True)
+                lock.enter_context(folder_lock(folder, what="training run"))  # a second run on it fails at once
 
-        _on_lead(open_folder)
-        return _fit_in(out, model_cfg, train_cfg, make_batch=make_batch, validation=validation, sensor=sensor,
-                       resume=resume, overwrite=overwrite, mesh=mesh, progress=progress, callback=callback,
-                       data_description=data_description, conv3d_impl=conv3d_impl, init=init,
-                       checkpoint_every_s=checkpoint_every_s, pretrain_epochs=pretrain_epochs,
-                       card_extra=card_extra)
+        _on_lead(open_folders)
+        fitted = _fit_in(folders, model_cfg, cfgs, make_batch=make_batch, validation=validation, sensor=sensor,
+                         resume=resume, overwrite=overwrite, mesh=mesh, progress=progress, callback=callback,
+                         data_description=data_description, conv3d_impl=conv3d_impl, init=init,
+                         checkpoint_every_s=checkpoint_every_s, pretrain_epochs=pretrain_epochs,
+                         card_extra=card_extra)
+    return fitted[0] if seeds is None else dict(zip(seeds, fitted))
+
+
+def _check_seeds(seeds) -> tuple | None:
+    """The seeds of a stacked run (`fit(seeds=...)`) checked: None stays None, else a tuple of at least one
+    distinct integer 0..2^32-1 (ValueError naming what is wrong)."""
+    if seeds is None:
+        return None
+    if isinstance(seeds, (str, bytes)) or not hasattr(seeds, "__iter__"):
+        raise ValueError(f"fit: seeds must be a list of integers, got {seeds!r}")
+    seeds = tuple(seeds)
+    bad = [s for s in seeds if isinstance(s, bool) or not isinstance(s, numbers.Integral) or not 0 <= s < 2**32]
+    if bad or not seeds:
+        raise ValueError(f"fit: seeds must be integers 0..2^32-1, at least one, got {list(seeds)!r}")
+    twice = sorted({int(s) for s in seeds if seeds.count(s) > 1})
+    if twice:
+        raise ValueError(f"fit: seeds must differ, got {', '.join(map(str, twice))} more than once")
+    return tuple(int(s) for s in seeds)
+
+
+def seed_folder(out, seed: int) -> Path:
+    """The run folder of seed `seed` of a stacked run in `out`: `out/seed<seed>`."""
+    return Path(out) / f"seed{seed}"
+
+
+def _check_stack_folder(out: Path):
+    """A stacked run's folder `out` (its seeds' run folders go inside) is not a file, nor a run folder itself."""
+    if out.exists() and not out.is_dir():
+        raise FileExistsError(f"{out} is a file; fit's out is a folder")
+    held = [name for name in RUN_FILES if (out / name).exists()]
+    if held:
+        raise FileExistsError(f"{out} holds a training run ({', '.join(held)}); a stacked run trains each seed in "
+                              "a folder inside out (seed<k>), not next to a run: choose another out")
 
 
 def _first_epoch_kill(out: Path, held: list) -> bool:
@@ -510,25 +629,41 @@ def _first_epoch_kill(out: Path, held: list) -> bool:
         return False
 
 
-def _fit_in(out: Path, model_cfg, train_cfg: TrainConfig, *, make_batch, validation, sensor, resume, overwrite, mesh,
+def _held_run_files(out: Path, *, resume: bool, overwrite: bool) -> list:
+    """The run files (`RUN_FILES`) folder `out` holds, checked against what `fit` was asked to do with them:
+    FileExistsError for a run neither resumed nor overwritten, or one to resume without its train state."""
+    held = [name for name in RUN_FILES if (out / name).exists()]
+    if held and not (resume or overwrite):
+        raise FileExistsError(f"{out} holds a training run ({', '.join(held)}); pass resume=True (--resume) to "
+                              "continue it or overwrite=True (--force) to start a new one in its place")
+    if resume and held and _latest_state(out) is None and not _first_epoch_kill(out, held):
+        raise FileExistsError(f"{out} holds a run without its train state ({', '.join(held)}; no last.npz or "
+                              f"{RESUME_FILE}), so it cannot be resumed; overwrite=True (--force) starts over in "
+                              "its place")
+    return held
+
+
+class _Seat(NamedTuple):
+    """What one run of a `fit` keeps from start to end: its folder, config (its seed), settings as its
+    checkpoints record them, validation set with its bicubic PSNR, and data key."""
+
+    out: Path
+    train_cfg: TrainConfig
+    settings: dict
+    validation: dict
+    val_bicubic: float | None
+    key: jax.Array
+
+
+def _fit_in(folders: list, model_cfg, cfgs: list, *, make_batch, validation, sensor, resume, overwrite, mesh,
             progress, callback, data_description, conv3d_impl, init, checkpoint_every_s, pretrain_epochs,
-            card_extra):
-    """`fit` in folder `out`, which exists and whose lock this process holds (process 0's, across processes)."""
+            card_extra) -> list:
+    """`fit` of one run per folder of `folders` (each with the config of `cfgs` beside it: they differ in their
+    seed alone), which exist and whose locks this process holds (process 0's, across processes); several runs
+    are stacked (`_advance`). Returns [(best `Model`, history)] in the order of `folders`."""
     arch, how = architecture(model_cfg), recipe(model_cfg)
-    lead, processes = _lead(), jax.process_count()
-
-    def run_files() -> list:
-        held = [name for name in RUN_FILES if (out / name).exists()]
-        if held and not (resume or overwrite):
-            raise FileExistsError(f"{out} holds a training run ({', '.join(held)}); pass resume=True (--resume) to "
-                                  "continue it or overwrite=True (--force) to start a new one in its place")
-        if resume and held and _latest_state(out) is None and not _first_epoch_kill(out, held):
-            raise FileExistsError(f"{out} holds a run without its train state ({', '.join(held)}; no last.npz or "
-                                  f"{RESUME_FILE}), so it cannot be resumed; overwrite=True (--force) starts over in "
-                                  "its place")
-        return held
-
-    held = _on_lead(run_files)
+    lead, processes, train_cfg = _lead(), jax.process_count(), cfgs[0]
+    held = [_on_lead(lambda out=out: _held_run_files(out, resume=resume, overwrite=overwrite)) for out in folders]
     if not how.data_parallel:
         if processes > 1:
             raise ValueError(f"fit: {arch.name} trains on one device (its step does not split a batch), so not across "
@@ -538,78 +673,95 @@ def _fit_in(out: Path, model_cfg, train_cfg: TrainConfig, *, make_batch, validat
                              "mesh=None or 'auto'")
         mesh = None
     mesh = choose_mesh(mesh, train_cfg.batch_size)
-    k_init, k_data, k_val = run_keys(train_cfg.seed)
     if make_batch is None:
         make_batch = how.data(model_cfg, train_cfg, sensor)
     if data_description is None:
         data_description = getattr(make_batch, "description", "user-supplied make_batch")
-    if validation is None:
-        validation = how.validation(k_val, model_cfg, train_cfg, sensor)
-    val_bicubic = _bicubic_psnr(validation, arch.scale(model_cfg))
-    settings = _settings(model_cfg, train_cfg, pretrain_epochs)
-    if init is not None:
-        settings["init"] = str(init) if not isinstance(init, Model) else "a Model passed to fit"
+    seats, states, runs = [], [], []
     start = _start_or_resume if processes == 1 else _start_across_processes
-    ts, run = start(out, model_cfg, train_cfg, settings, k_init=k_init, k_data=k_data, resume=resume, init=init)
-    if lead and resume and run.epoch and (run.finished or run.epoch >= train_cfg.epochs):
-        why = (f"stopped early after {run.epoch} epochs ({train_cfg.patience} without a lower validation loss)"
-               if run.finished else f"already has {run.epoch} epochs (epochs={train_cfg.epochs})")
-        warnings.warn(f"the run in {out} {why}; nothing to train"
-                      + ("" if run.finished else ": give more epochs (--epochs) to continue it"), stacklevel=3)
-    spe = train_cfg.steps_per_epoch
+    for out, cfg in zip(folders, cfgs):
+        k_init, k_data, k_val = run_keys(cfg.seed)
+        val = how.validation(k_val, model_cfg, cfg, sensor) if validation is None else validation
+        settings = _settings(model_cfg, cfg, pretrain_epochs)
+        if init is not None:
+            settings["init"] = str(init) if not isinstance(init, Model) else "a Model passed to fit"
+        ts, run = start(out, model_cfg, cfg, settings, k_init=k_init, k_data=k_data, resume=resume, init=init)
+        seats.append(_Seat(out, cfg, settings, val, _bicubic_psnr(val, arch.scale(model_cfg)), ts.key))
+        states.append(ts)
+        runs.append(run)
+    if lead and resume and not _next_group(runs, train_cfg.epochs):  # each run done (a stack's seeds: all of them)
+        for seat, run in zip(seats, runs):
+            why = (f"stopped early after {run.epoch} epochs ({train_cfg.patience} without a lower validation loss)"
+                   if run.finished else f"already has {run.epoch} epochs (epochs={train_cfg.epochs})")
+            warnings.warn(f"the run in {seat.out} {why}; nothing to train"
+                          + ("" if run.finished else ": give more epochs (--epochs) to continue it"), stacklevel=3)
+    spe, stacked = train_cfg.steps_per_epoch, len(seats) > 1
     step_fn = how.step(model_cfg, train_cfg, make_batch, sensor=sensor, mesh=mesh, conv3d_impl=conv3d_impl,
                        pretrain_steps=pretrain_epochs * spe)
-    ts = ts._replace(train=replicate(ts.train, mesh))
+    advance = _advance(step_fn, [seat.key for seat in seats], stacked=stacked)
+    train = replicate(_stack([ts.train for ts in states]) if stacked else states[0].train, mesh)
+    bests = [ts.best for ts in states]
+    del states  # the runs' train states live in `train` from here on
 
-    def card_of(run: _Run) -> dict:
-        card = _training_card(run, train_cfg=train_cfg, settings=settings, sensor=sensor, validation=validation,
-                              bicubic_psnr=val_bicubic, data=data_description)
+    def view(i: int, train) -> _TrainState:  # run i's own train state
+        return _TrainState(_unstack(train, i) if stacked else train, bests[i], seats[i].key)
+
+    def card_of(i: int, run: _Run) -> dict:
+        seat = seats[i]
+        card = _training_card(run, train_cfg=seat.train_cfg, settings=seat.settings, sensor=sensor,
+                              validation=seat.validation, bicubic_psnr=seat.val_bicubic, data=data_description)
         if pretrain_epochs:
             card["pretrain_epochs"] = pretrain_epochs
+        if stacked:
+            card["stacked_seeds"] = [s.train_cfg.seed for s in seats]
         return {**card, **(card_extra or {})}
 
-    old_run = held if overwrite else []  # the replaced run's files, removed before the new run's first save
+    old_runs = [list(h) if overwrite else [] for h in held]  # replaced runs' files, removed before the first save
 
-    def forget_old_run():
-        for name in old_run:
-            (out / name).unlink(missing_ok=True)
-        old_run.clear()
+    def forget_old_run(i: int):
+        for name in old_runs[i]:
+            (seats[i].out / name).unlink(missing_ok=True)
+        old_runs[i].clear()
 
-    def save_inside_epoch(ts: _TrainState, run: _Run):
-        forget_old_run()
+    def save_inside_epoch(i: int, train, run: _Run):
+        forget_old_run(i)
         # the card counts the steps and time so far; the run keeps the epoch's time apart until the epoch ends
-        _save_state(out / RESUME_FILE, ts, run, settings,
-                    card_of(dataclasses.replace(run, wall_time_s=run.wall_time_s + run.epoch_train_s)))
+        _save_state(seats[i].out / RESUME_FILE, view(i, train), run, seats[i].settings,
+                    card_of(i, dataclasses.replace(run, wall_time_s=run.wall_time_s + run.epoch_train_s)))
 
-    while not run.finished and run.epoch < train_cfg.epochs:
-        t0, before = time.perf_counter(), run.epoch_train_s  # before: training time in an earlier process
-        ts, train = _run_epoch(step_fn, ts, run, train_cfg, progress=progress and lead,
-                               save=save_inside_epoch if lead else None, every_s=checkpoint_every_s)
-        weights = (ts.train["params"], ts.train["state"])
-        if processes > 1:  # each process validates on its own copy of the (replicated) weights
-            weights = jax.tree_util.tree_map(jnp.asarray, jax.device_get(weights))
-        current = Model(*weights, model_cfg)
-        val = how.evaluate(current, validation, train_cfg, sensor=sensor, conv3d_impl=conv3d_impl)
-        run = dataclasses.replace(run, epoch=run.epoch + 1, step=(run.epoch + 1) * spe, epoch_loss_sum=0.0,
-                                  epoch_psnr_sum=0.0, epoch_sums={}, epoch_train_s=0.0)
-        record = {
-            "epoch": run.epoch, "step": run.step, "lr": train["lr"],
-            "train_loss": train["loss"], "train_psnr": train["psnr"],
-            **{f"train_{k}": v for k, v in train["other"].items()},
-            "val_loss": val["loss"], "val_psnr": val["psnr"], "val_bicubic_psnr": val_bicubic,
-            "examples_per_s": spe * train_cfg.batch_size / train["train_s"],
-            "epoch_time_s": before + time.perf_counter() - t0,
-        }
-        record = _share(record)  # process 0's numbers: every process logs and stops on the same
-        run, ts = _early_stopping(run, ts, record["val_loss"], train_cfg)
-        record["wall_time_s"] = run.wall_time_s + record["epoch_time_s"]
-        run = dataclasses.replace(run, wall_time_s=record["wall_time_s"], history=(*run.history, record))
-        if lead:
-            if progress:
-                print(json.dumps(record))
-            forget_old_run()
-            _write_checkpoints(out, ts, run, model_cfg, settings, card_of(run))
-        if callback is not None:
-            callback(record)
-    best = jax.tree_util.tree_map(jnp.asarray, ts.best)
-    return Model(best["params"], best["state"], model_cfg), list(run.history)
+    while group := _next_group(runs, train_cfg.epochs):
+        train, trained = _run_epoch(advance, train, runs, group, train_cfg, progress=progress and lead,
+                                    save=save_inside_epoch if lead else None, every_s=checkpoint_every_s)
+        for i in group:
+            t_val, ts, seat = time.perf_counter(), view(i, train), seats[i]
+            weights = (ts.train["params"], ts.train["state"])
+            if processes > 1:  # each process validates on its own copy of the (replicated) weights
+                weights = jax.tree_util.tree_map(jnp.asarray, jax.device_get(weights))
+            val = how.evaluate(Model(*weights, model_cfg), seat.validation, seat.train_cfg, sensor=sensor,
+                               conv3d_impl=conv3d_impl)
+            epoch = trained[i]
+            run = dataclasses.replace(runs[i], epoch=runs[i].epoch + 1, step=(runs[i].epoch + 1) * spe,
+                                      epoch_loss_sum=0.0, epoch_psnr_sum=0.0, epoch_sums={}, epoch_train_s=0.0)
+            record = {
+                "epoch": run.epoch, "step": run.step, "lr": epoch["lr"],
+                "train_loss": epoch["loss"], "train_psnr": epoch["psnr"],
+                **{f"train_{k}": v for k, v in epoch["other"].items()},
+                "val_loss": val["loss"], "val_psnr": val["psnr"], "val_bicubic_psnr": seat.val_bicubic,
+                "examples_per_s": spe * train_cfg.batch_size / epoch["train_s"],
+                "epoch_time_s": epoch["train_s"] + time.perf_counter() - t_val,
+            }
+            record = _share(record)  # process 0's numbers: every process logs and stops on the same
+            run, ts = _early_stopping(run, ts, record["val_loss"], seat.train_cfg)
+            bests[i] = ts.best
+            record["wall_time_s"] = run.wall_time_s + record["epoch_time_s"]
+            runs[i] = run = dataclasses.replace(run, wall_time_s=record["wall_time_s"], history=(*run.history, record))
+            told = {"seed": seat.train_cfg.seed, **record} if stacked else record
+            if lead:
+                if progress:
+                    print(json.dumps(told))
+                forget_old_run(i)
+                _write_checkpoints(seat.out, ts, run, model_cfg, seat.settings, card_of(i, run))
+            if callback is not None:
+                callback(told)
+    return [(Model(*(jax.tree_util.tree_map(jnp.asarray, (b["params"], b["state"]))), model_cfg), list(run.history))
+            for b, run in zip(bests, runs)]

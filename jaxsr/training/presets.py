@@ -3,6 +3,7 @@ fine-tuning a trained model to a sensor described in a file, as `jaxsr finetune`
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import warnings
 from pathlib import Path
@@ -19,7 +20,7 @@ from ..io.formats import read_npz_arrays
 from ..nn.model import Model, architecture, architectures
 from .data import regime_batches, run_keys, sequence_batches, sequence_clips
 from .duf import initial_weights
-from .loop import RUN_FILES, _latest_state, fit, resume_config
+from .loop import RUN_FILES, _check_seeds, _check_stack_folder, _latest_state, fit, resume_config, seed_folder
 from .recipes import recipe
 from .sensor_file import card_entry, read_sensor_file, sensor_differences
 
@@ -55,27 +56,33 @@ def sequence_data(path, model_cfg: ModelConfig, train_cfg, sensor: SensorConfig)
 
 
 def train(out, *, arch: str = "duf", tr: int = 4, scale: int = 4, temporal: str = "window", preset: str = "cpu",
-          seed: int | None = None, epochs: int | None = None, clip_frames: int | None = None, data=None, init=None,
-          resume: bool = False, overwrite: bool = False, checkpoint_minutes: float = 10.0,
-          progress: bool = True) -> tuple[Model, list]:
+          seed: int | None = None, seeds=None, epochs: int | None = None, clip_frames: int | None = None,
+          data=None, init=None, resume: bool = False, overwrite: bool = False, checkpoint_minutes: float = 10.0,
+          progress: bool = True) -> tuple[Model, list] | dict:
     """Train a network from a preset into folder `out`, as `jaxsr train` does (the same options, the same files).
 
     arch: a registered architecture ("duf", the paper's network with `tr`, `scale` and `temporal`; "histnet" or
     "iseebetter" at their published sizes, x4). preset: a key of `jaxsr.config.PRESETS`, with `seed`, `epochs`
-    and `clip_frames` (sequence form) overriding its own when given. data: None (rendered scenes) or an .npz of
-    HR sequences (DUF only; `sequence_data`). init: weights to start from (DUF only; see `jaxsr.fit`).
+    and `clip_frames` (sequence form) overriding its own when given. seeds: a stacked run of these seeds (a list,
+    not with `seed`; see `jaxsr.fit`), each in its own folder `out/seed<k>` (`seed_folder`); with resume, a seed
+    whose folder holds no run starts afresh, as long as one of them holds one. data: None (rendered scenes) or an
+    .npz of HR sequences (DUF only; `sequence_data`). init: weights to start from (DUF only; see `jaxsr.fit`).
     resume / overwrite: continue the run in `out`, or start over in its place (see `jaxsr.fit`); resume refuses
     (FileNotFoundError) a missing folder or one without a run, where `fit` would start a new one.
     checkpoint_minutes: minutes of training between saves inside an epoch (0: every step; inf: never).
     Configs and data are built and checked before any work, and a run that fails or is stopped before its first
-    save leaves no new folder. Returns (best `Model`, history: per-epoch records); raises ValueError for a bad
-    option and FileExistsError for an `out` that is a file or holds a run (without resume or overwrite).
+    save leaves no new folder. Returns (best `Model`, history: per-epoch records), with `seeds` a dict {seed:
+    (best `Model`, history)}; raises ValueError for a bad option and FileExistsError for an `out` that is a file or
+    holds a run (without resume or overwrite).
     """
     if arch not in architectures():
         raise ValueError(f"train: arch must be one of {', '.join(architectures())}, got {arch!r}")
     if preset not in PRESETS:
         raise ValueError(f"train: preset must be one of {', '.join(sorted(PRESETS))}, got {preset!r}")
     _check_minutes(checkpoint_minutes)
+    if seed is not None and seeds is not None:
+        raise ValueError("train: seed and seeds exclude each other (one run, or a stacked run of several seeds)")
+    seeds = _check_seeds(seeds)
     changes = {k: v for k, v in (("seed", seed), ("epochs", epochs), ("clip_frames", clip_frames)) if v is not None}
     train_cfg = dataclasses.replace(PRESETS[preset], **changes)
     if arch == "duf":
@@ -93,11 +100,11 @@ def train(out, *, arch: str = "duf", tr: int = 4, scale: int = 4, temporal: str 
                              "scale)")
         model_cfg = _BASELINE_CONFIGS[arch]
     sensor = SensorConfig() if scale == 4 else SensorConfig(scale=scale)
-    _check_out(out, resume)
+    _check_out(out, resume, seeds=seeds)
     make_batch = sequence_data(data, model_cfg, train_cfg, sensor) if data is not None else None
     return _fit_in_new_folder(out, model_cfg, train_cfg, make_batch=make_batch, sensor=sensor, resume=resume,
                               overwrite=overwrite, progress=progress, init=init,
-                              checkpoint_every_s=60 * checkpoint_minutes)
+                              checkpoint_every_s=60 * checkpoint_minutes, seeds=seeds)
 
 
 def _check_minutes(checkpoint_minutes):
@@ -105,22 +112,37 @@ def _check_minutes(checkpoint_minutes):
         raise ValueError(f"--checkpoint-minutes {checkpoint_minutes}: expected a number of minutes >= 0")
 
 
-def _check_out(out, resume: bool):
+def _check_out(out, resume: bool, *, seeds=None):
     """The checks of folder `out` that `train` and `finetune` make before any work: not a file, and holding a run
-    to resume when `resume`."""
-    if Path(out).exists() and not Path(out).is_dir():
-        raise FileExistsError(f"{out} is a file; --out is a folder")
-    if resume and not any((Path(out) / name).exists() for name in RUN_FILES):
-        raise FileNotFoundError(f"--resume: nothing to resume: {out} holds no training run (none of "
+    to resume when `resume`; with `seeds` (a stacked run), of each seed's folder in it (one holding a run is
+    enough to resume), and `out` itself holding none."""
+    folders = [Path(out)] if seeds is None else [seed_folder(out, s) for s in seeds]
+    for folder in {Path(out), *folders}:
+        if folder.exists() and not folder.is_dir():
+            raise FileExistsError(f"{folder} is a file; --out is a folder")
+    if seeds is not None:
+        _check_stack_folder(Path(out))
+    if resume and not any((folder / name).exists() for folder in folders for name in RUN_FILES):
+        what = out if seeds is None else f"no seed folder of {out} ({', '.join(f.name for f in folders)})"
+        raise FileNotFoundError(f"--resume: nothing to resume: {what} holds no training run (none of "
                                 f"{', '.join(RUN_FILES)}); leave out --resume to start one")
 
 
-def _fit_in_new_folder(out, model_cfg, train_cfg, *, resume: bool, **fit_args):
-    """`fit` into folder `out`, which a run that fails or stops before its first save leaves as it was (a new
-    folder is removed); a resumed run keeps the validation sequences it began with (`resume_config`)."""
-    with removing_new_folder(out):
-        train_cfg = resume_config(out, train_cfg) if resume else train_cfg
-        return fit(model_cfg, train_cfg, out=out, resume=resume, **fit_args)
+def _fit_in_new_folder(out, model_cfg, train_cfg, *, resume: bool, seeds=None, **fit_args):
+    """`fit` into folder `out` (with `seeds`, a stacked run into its seeds' folders in it), which a run that fails
+    or stops before its first save leaves as it was (new folders are removed); a resumed run keeps the
+    validation sequences it began with (`resume_config`)."""
+    folders = [] if seeds is None else [seed_folder(out, s) for s in seeds]
+    with contextlib.ExitStack() as stack:
+        for folder in (out, *folders):  # left in reverse: the seeds' folders before `out`
+            stack.enter_context(removing_new_folder(folder))
+        if resume:
+            resumed = [resume_config(folder, train_cfg) for folder in folders or [out]]
+            if any(cfg != resumed[0] for cfg in resumed):
+                raise ValueError(f"--resume: the seeds' runs in {out} validate on different sequences; resume each "
+                                 "alone (--seed K --out OUT/seedK)")
+            train_cfg = resumed[0]
+        return fit(model_cfg, train_cfg, out=out, resume=resume, seeds=seeds, **fit_args)
 
 
 # Fine-tuning: Adam's rate 10x below the preset's (the weights start from a trained function), cut 10x half way.
