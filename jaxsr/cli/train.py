@@ -38,9 +38,9 @@ def add_parser(subparsers):
     seeding.add_argument("--seed", type=seed, default=None, help="override the preset's seed (0..2^32-1)")
     seeding.add_argument("--seeds", type=seed_list, default=None, metavar="K,K,...",
                          help="train several seeds at once (e.g. 0,1,2), each as --seed K alone would, stacked in one "
-                         "vmapped step (faster than one after another where one run leaves the device idle: "
-                         "docs/training.md), each in its own run folder OUT/seedK with its own files, resume and "
-                         "early stopping")
+                         "vmapped step, each in its own run folder OUT/seedK with its own files, resume and early "
+                         "stopping; meant for a GPU that one small run leaves idle: on CPU it is slower than the runs "
+                         "one after another (docs/training.md, stacked seeds)")
     p.add_argument("--epochs", type=int_range(1), default=None, help="override the preset's number of epochs")
     p.add_argument("--data", default=None,
                    help="train on HR sequences from an .npz with arrays depth (radial m) and intensity, (N, T, H, W)")

@@ -696,6 +696,10 @@ def _fit_in(folders: list, model_cfg, cfgs: list, *, make_batch, validation, sen
             warnings.warn(f"the run in {seat.out} {why}; nothing to train"
                           + ("" if run.finished else ": give more epochs (--epochs) to continue it"), stacklevel=3)
     spe, stacked = train_cfg.steps_per_epoch, len(seats) > 1
+    if stacked and lead and jax.default_backend() == "cpu" and _next_group(runs, train_cfg.epochs):
+        warnings.warn(f"{len(seats)} seeds stacked on CPU train slower than one after another (XLA:CPU runs the "
+                      "convolutions vmapped over the seeds' weights as grouped ones, several times slower: x0.2 at "
+                      "TR0, docs/training.md)", stacklevel=3)
     step_fn = how.step(model_cfg, train_cfg, make_batch, sensor=sensor, mesh=mesh, conv3d_impl=conv3d_impl,
                        pretrain_steps=pretrain_epochs * spe)
     advance = _advance(step_fn, [seat.key for seat in seats], stacked=stacked)
