@@ -521,7 +521,8 @@ def fit(
     `out/seed<k>`, a run folder as above: its files, card, lock, resume and early stopping are its own, and
     every rule above applies to each (a run that stops early keeps its state while the others train on; the
     stacked run ends when every seed's has). Their train states are stacked along a leading axis and updated
-    by one jitted step, the recipe's vmapped over the seeds, so that small networks keep a device busy.
+    by one jitted step, the recipe's vmapped over the seeds, so that small networks keep a GPU busy (on CPU it is
+    slower than the runs one after another: a warning says so; a single seed trains unstacked, in its folder).
     A seed's folder may be resumed alone and a single run's folder in a stack; seeds resumed at different
     epochs train alone until they catch up. Not across processes, nor with `pretrain_epochs` (ValueError);
     `out` itself must not hold a run (FileExistsError).
@@ -578,8 +579,9 @@ def fit(
                 lock.enter_context(folder_lock(folder, what="training run"))  # a second run on it fails at once
 
         _on_lead(open_folders)
-        fitted = _fit_in(folders, model_cfg, cfgs, make_batch=make_batch, validation=validation, sensor=sensor,
-                         resume=resume, overwrite=overwrite, mesh=mesh, progress=progress, callback=callback,
+        fitted = _fit_in(folders, model_cfg, cfgs, by_seed=seeds is not None, make_batch=make_batch,
+                         validation=validation, sensor=sensor, resume=resume, overwrite=overwrite, mesh=mesh,
+                         progress=progress, callback=callback,
                          data_description=data_description, conv3d_impl=conv3d_impl, init=init,
                          checkpoint_every_s=checkpoint_every_s, pretrain_epochs=pretrain_epochs,
                          card_extra=card_extra)
@@ -655,12 +657,14 @@ class _Seat(NamedTuple):
     key: jax.Array
 
 
-def _fit_in(folders: list, model_cfg, cfgs: list, *, make_batch, validation, sensor, resume, overwrite, mesh,
-            progress, callback, data_description, conv3d_impl, init, checkpoint_every_s, pretrain_epochs,
-            card_extra) -> list:
+def _fit_in(folders: list, model_cfg, cfgs: list, *, by_seed: bool, make_batch, validation, sensor, resume,
+            overwrite, mesh, progress, callback, data_description, conv3d_impl, init, checkpoint_every_s,
+            pretrain_epochs, card_extra) -> list:
     """`fit` of one run per folder of `folders` (each with the config of `cfgs` beside it: they differ in their
     seed alone), which exist and whose locks this process holds (process 0's, across processes); several runs
-    are stacked (`_advance`). Returns [(best `Model`, history)] in the order of `folders`."""
+    are stacked (`_advance`). by_seed (`fit(seeds=...)`, one seed or more): the records the callback gets and
+    the progress lines name their seed, the cards the stack's seeds. Returns [(best `Model`, history)] in the
+    order of `folders`."""
     arch, how = architecture(model_cfg), recipe(model_cfg)
     lead, processes, train_cfg = _lead(), jax.process_count(), cfgs[0]
     held = [_on_lead(lambda out=out: _held_run_files(out, resume=resume, overwrite=overwrite)) for out in folders]
@@ -716,7 +720,7 @@ def _fit_in(folders: list, model_cfg, cfgs: list, *, make_batch, validation, sen
                               validation=seat.validation, bicubic_psnr=seat.val_bicubic, data=data_description)
         if pretrain_epochs:
             card["pretrain_epochs"] = pretrain_epochs
-        if stacked:
+        if by_seed:
             card["stacked_seeds"] = [s.train_cfg.seed for s in seats]
         return {**card, **(card_extra or {})}
 
@@ -759,7 +763,7 @@ def _fit_in(folders: list, model_cfg, cfgs: list, *, make_batch, validation, sen
             bests[i] = ts.best
             record["wall_time_s"] = run.wall_time_s + record["epoch_time_s"]
             runs[i] = run = dataclasses.replace(run, wall_time_s=record["wall_time_s"], history=(*run.history, record))
-            told = {"seed": seat.train_cfg.seed, **record} if stacked else record
+            told = {"seed": seat.train_cfg.seed, **record} if by_seed else record
             if lead:
                 if progress:
                     print(json.dumps(told))

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))  # the tiny network and toy data of test_train
-from test_train import TINY, Killed, tiny_train_cfg, toy_batches  # noqa: E402
+from test_train import TINY, Killed, tiny_train_cfg, toy_batches, toy_validation  # noqa: E402
 
 import jaxsr.training.recipes as recipes  # noqa: E402
 from jaxsr import cli  # noqa: E402
@@ -85,6 +85,15 @@ def test_each_seed_has_its_own_run_folder_and_card(stacked):
     assert not (out / "seed2").exists() or not any((out / "seed2").iterdir())
     with pytest.raises(FileExistsError, match="a stacked run trains each seed in a folder inside out"):
         fit(TINY, CFG, out=seed_folder(out, 0), seeds=[5], make_batch=MAKE_BATCH, progress=False)
+
+
+def test_one_seed_trains_unstacked_in_its_folder(tmp_path, recwarn):
+    told = []
+    result = fit(TINY, dataclasses.replace(CFG, epochs=1), out=tmp_path, seeds=[5], make_batch=MAKE_BATCH,
+                 validation=toy_validation(TINY.tr, n=2), progress=False, callback=told.append)
+    assert list(result) == [5] and [r["seed"] for r in told] == [5]
+    assert read_metadata(seed_folder(tmp_path, 5) / "last.npz")["card"]["stacked_seeds"] == [5]
+    assert not [w for w in recwarn if "stacked on CPU" in str(w.message)]
 
 
 @pytest.mark.parametrize("seeds,message", [
