@@ -1,6 +1,10 @@
-"""Cheap input validation shared by the public functions (shapes always, values only when concrete)."""
+"""Cheap input validation shared by the public functions (shapes always, values only when concrete), and the
+memory budget that work growing with the input is checked against before it allocates."""
 
 from __future__ import annotations
+
+import os
+import zipfile
 
 import jax
 import jax.numpy as jnp
@@ -82,3 +86,94 @@ def require_normalised_depth(name, frame):
             "normalise it with jaxsr.normalise_depth, or run `jaxsr upscale --units m`"
         )
     return np.where(nan, np.float32(1.0), np.clip(frame, np.float32(0.0), np.float32(1.0)))
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Memory: work whose memory grows with the input (a frame's size, its bins, the frames held at once) is
+# estimated before it allocates, and refused beyond a budget, so that a mistake is one line at once rather than
+# the kernel's OOM kill minutes later.
+
+# The default budget: this share of the machine's RAM (the rest for the system and other programs).
+MEMORY_SHARE = 0.75
+_SIZE_UNITS = {"B": 1, "kB": 1e3, "KB": 1e3, "MB": 1e6, "GB": 1e9, "TB": 1e12,
+               "KiB": 2**10, "MiB": 2**20, "GiB": 2**30, "TiB": 2**40}
+
+
+def parse_memory(text: str) -> int:
+    """A size with its unit, such as 16GB, 512MB or 1.5GiB (B, kB, MB, GB, TB; KiB, MiB, GiB, TiB) -> bytes > 0.
+    A bare number is refused (bytes? gigabytes?): ValueError."""
+    text = str(text).strip()
+    for unit in sorted(_SIZE_UNITS, key=len, reverse=True):
+        if text.endswith(unit):
+            try:
+                value = float(text[: -len(unit)]) * _SIZE_UNITS[unit]
+            except ValueError:
+                break
+            if np.isfinite(value) and value >= 1:
+                return int(value)
+            break
+    raise ValueError(f"expected a size > 0 with its unit (B, kB, MB, GB, TB, KiB, MiB, GiB, TiB), such as 16GB, "
+                     f"got {text!r}")
+
+
+def machine_memory() -> int | None:
+    """This machine's RAM in bytes (os.sysconf), or None where the system does not say."""
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):  # not a POSIX system
+        return None
+
+
+def memory_budget(max_memory=None) -> int | None:
+    """The bytes a command may allocate: `max_memory` (bytes, or a string for `parse_memory`), else `MEMORY_SHARE`
+    of `machine_memory()`; None (no limit) where neither is known."""
+    if max_memory is not None:
+        value = parse_memory(max_memory) if isinstance(max_memory, str) else max_memory
+        if not (np.isfinite(float(value)) and value >= 1):
+            raise ValueError(f"max_memory (--max-memory): expected bytes > 0 or a size such as 16GB, got {value!r}")
+        return int(value)
+    ram = machine_memory()
+    return None if ram is None else int(MEMORY_SHARE * ram)
+
+
+def format_bytes(n: float) -> str:
+    """Bytes as people read them: 7.2 GB, 350 MB."""
+    return f"{n / 1e9:.1f} GB" if n >= 1e9 else f"{max(n, 1e6) / 1e6:.0f} MB"
+
+
+def require_memory(need: float, what: str, max_memory=None, *, remedy: str = "") -> None:
+    """Refuse (ValueError) work estimated to need `need` bytes beyond `memory_budget(max_memory)`: one line with
+    what `what` needs, the budget, how to override it (--max-memory, max_memory=) and `remedy` (e.g. "give fewer
+    --bins")."""
+    budget = memory_budget(max_memory)
+    if budget is None or need <= budget:
+        return
+    allowed = ("by --max-memory (max_memory)" if max_memory is not None
+               else f"({MEMORY_SHARE:.0%} of this machine's {format_bytes(machine_memory())})")
+    raise ValueError(f"{what} needs about {format_bytes(need)} of memory, more than the {format_bytes(budget)} "
+                     f"allowed {allowed}; {remedy + ', or ' if remedy else ''}give --max-memory "
+                     f"{int(np.ceil(need / 1e9))}GB (max_memory=) to try anyway")
+
+
+def npz_array_bytes(path, names) -> int:
+    """Bytes the arrays `names` of the .npz file `path` take once read (those it holds), from their .npy headers:
+    only each header is decompressed, so a large array can be refused before it is read. Raises ValueError for a
+    file that is not an .npz of plain arrays."""
+    total = 0
+    try:
+        with zipfile.ZipFile(path) as archive:
+            stored = set(archive.namelist())
+            for name in names:
+                if f"{name}.npy" not in stored:
+                    continue
+                with archive.open(f"{name}.npy") as f:
+                    version = np.lib.format.read_magic(f)
+                    read = {(1, 0): np.lib.format.read_array_header_1_0,
+                            (2, 0): np.lib.format.read_array_header_2_0}.get(version)
+                    if read is None:  # a header version for structured names: read whole, as np.load does
+                        continue
+                    shape, _, dtype = read(f)
+                total += int(np.prod(shape, dtype=np.float64)) * dtype.itemsize
+    except (zipfile.BadZipFile, ValueError, OSError, EOFError) as e:
+        raise ValueError(f"cannot read {path}: truncated or not an NPZ file ({e})") from e
+    return total

@@ -18,16 +18,21 @@ are checked before the long work starts. A traceback
 means a bug. A write the system refuses (a full disk, a quota, a read-only or failing device: any other
 OSError) is one line too, `jaxsr CMD: error: no space left on device while writing OUT; nothing was written
 ...`, and exit status 1: the command was right, the machine could not do it; atomic writes
-(`jaxsr.io.files`) have removed their temporary files by then. Ctrl-C (SIGINT) and SIGTERM remove what the
-command had started to write and exit with 130 and 143 (128 + the signal number) after one line saying so.
+(`jaxsr.io.files`) have removed their temporary files by then. A folder it may not write to (permissions, a
+read-only file system) is the user's choice: exit status 2. Ctrl-C (SIGINT), SIGTERM and SIGHUP (the terminal
+closed) remove what the command had started to write and exit with 130, 143 and 129 (128 + the signal number)
+after one line saying so (where the terminal is gone, the line is lost). A Python warning is one line too,
+`jaxsr CMD: warning: ...`.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import signal
 import sys
 import threading
+import warnings
 
 from . import finetune, info, simulate, train, upscale
 from ._text import printable, shortened
@@ -40,7 +45,16 @@ USER_ERRORS = (FileNotFoundError, FileExistsError, IsADirectoryError, NotADirect
 
 
 class Terminated(KeyboardInterrupt):
-    """SIGTERM, raised like Ctrl-C so that the same clean-up runs (temporary files and folders removed)."""
+    """SIGTERM or SIGHUP (`signum`), raised like Ctrl-C so that the same clean-up runs (temporary files and
+    folders removed)."""
+
+    def __init__(self, signum: int = signal.SIGTERM):
+        super().__init__(signum)
+        self.signum = signal.Signals(signum)
+
+
+# Signals that end a command as Ctrl-C does: SIGTERM (kill, a scheduler) and SIGHUP (the terminal closed).
+TERMINATING = tuple(getattr(signal, name) for name in ("SIGTERM", "SIGHUP") if hasattr(signal, name))
 
 
 class _Parser(argparse.ArgumentParser):
@@ -79,7 +93,16 @@ def _os_error_line(error: OSError) -> str:
 
 
 def _raise_terminated(signum, frame):
-    raise Terminated()
+    raise Terminated(signum)
+
+
+def _print_warning(command: str):
+    """A `warnings.showwarning` that prints each warning as one line, `jaxsr COMMAND: warning: ...`."""
+
+    def show(message, *args, **kwargs):
+        print(f"jaxsr {command}: warning: {_one_line(message)}", file=sys.stderr)
+
+    return show
 
 
 def main(argv=None) -> int:
@@ -87,10 +110,21 @@ def main(argv=None) -> int:
 
     Args: argv (list of str, default sys.argv[1:]). Returns the exit status: 0 on success; 2 on a user error
     (see the module docstring), after printing the message to stderr; 1 when the system refused a write or a
-    read (an OSError such as a full disk), after one line; 130 after Ctrl-C, 143 after SIGTERM."""
+    read (an OSError such as a full disk), after one line; 130 after Ctrl-C, 143 after SIGTERM, 129 after SIGHUP."""
     args = build_parser().parse_args(argv)
     in_main_thread = threading.current_thread() is threading.main_thread()
-    previous = signal.signal(signal.SIGTERM, _raise_terminated) if in_main_thread else None
+    previous = {s: signal.signal(s, _raise_terminated) for s in TERMINATING} if in_main_thread else {}
+    with warnings.catch_warnings():
+        warnings.showwarning = _print_warning(args.command)
+        try:
+            return _run(args, argv)
+        finally:
+            for s, handler in previous.items():
+                signal.signal(s, handler)
+
+
+def _run(args, argv) -> int:
+    """Run the parsed command; the exit status, after one line for an error or an interruption (`main`)."""
     try:
         if getattr(args, "before_jax", None) is not None:  # first: e.g. joining a run across processes
             args.before_jax(args)
@@ -106,9 +140,7 @@ def main(argv=None) -> int:
         print(f"jaxsr {args.command}: error: {_os_error_line(e)}", file=sys.stderr)
         return 1
     except KeyboardInterrupt as e:
-        what = "terminated (SIGTERM)" if isinstance(e, Terminated) else "interrupted"
-        print(f"jaxsr {args.command}: {what}; unfinished outputs removed", file=sys.stderr)
-        return 128 + (signal.SIGTERM if isinstance(e, Terminated) else signal.SIGINT)
-    finally:
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
+        what = f"terminated ({e.signum.name})" if isinstance(e, Terminated) else "interrupted"
+        with contextlib.suppress(OSError):  # SIGHUP: the terminal may be gone, and the line with it
+            print(f"jaxsr {args.command}: {what}; unfinished outputs removed", file=sys.stderr)
+        return 128 + int(e.signum if isinstance(e, Terminated) else signal.SIGINT)

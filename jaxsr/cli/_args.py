@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import math
 
+from .. import checks
 from ..sensor import quantities
 
 
@@ -76,3 +77,5 @@ time_unit.__doc__ = "An argparse type: the duration of one unit of time tags, su
 span = _argument_type(quantities.parse_span, "span")
 span.__doc__ = """An argparse type: metres of range mapped onto the network's [0, 1] (a number > 0, with or without m),
 or 'gate' (the gate's length)."""
+memory = _argument_type(checks.parse_memory, "memory")
+memory.__doc__ = "An argparse type: a size with its unit, such as 16GB or 512MiB (bytes > 0)."

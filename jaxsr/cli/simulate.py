@@ -14,7 +14,8 @@ import json
 from pathlib import Path
 
 from ..io.simulate import simulate_recording
-from ._args import int_range, positive_float, seed
+from ..checks import MEMORY_SHARE
+from ._args import int_range, memory, positive_float, seed
 
 
 def add_parser(subparsers):
@@ -32,12 +33,15 @@ def add_parser(subparsers):
     p.add_argument("--seed", type=seed, default=0, help="random seed, 0..2^32-1 (default 0)")
     p.add_argument("--out", type=Path, required=True, help="output folder")
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
+    p.add_argument("--max-memory", type=memory, default=None, metavar="SIZE",
+                   help=f"the memory the command may take, such as 16GB (default {MEMORY_SHARE * 100:.0f}%% of this "
+                   "machine's RAM): the frames' memory is estimated before any work, and refused beyond it")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
     result = simulate_recording(args.out, kind=args.kind, input=args.input, frames=args.frames, fps=args.fps,
                                 snr=args.snr, mean_signal=args.mean_signal, camera=args.camera, seed=args.seed,
-                                overwrite=args.force)
+                                overwrite=args.force, max_memory=args.max_memory)
     print(json.dumps(result.summary()))
     return 0

@@ -22,7 +22,8 @@ from ..config import TRAINED_RANGE_M
 from ..inference.recording import upscale
 from ..io.pointcloud import DEFAULT_FOV_DEG
 from ..io.recordings import DEPTH_UNITS
-from ._args import int_range, positive_float, range_or_time, span, time_unit
+from ..checks import MEMORY_SHARE
+from ._args import int_range, memory, positive_float, range_or_time, span, time_unit
 
 
 def add_parser(subparsers):
@@ -66,10 +67,14 @@ def add_parser(subparsers):
                    "return too in mm and cm, as in 16-bit depth images), or normalised [0, 1] (1 = no return); "
                    "default: normalised if the first frame lies in [0, 1], else metres, but never a guess for "
                    "integer arrays (mm? cm?) or values that could be km; histograms give metres")
-    p.add_argument("--frame-format", choices=["exr", "pfm", "tif", "png"], default="exr",
-                   help="frame files when OUTPUT is a folder (default exr; always metres)")
+    p.add_argument("--frame-format", choices=["exr", "pfm", "tif", "png"], default=None,
+                   help="frame files when OUTPUT is a folder (default exr; always metres; 16-bit png holds 1 mm to "
+                   "65.535 m)")
     p.add_argument("--batch-size", type=int_range(1), default=None,
                    help="frames per compiled call (default: one per CPU core, each core a JAX device)")
+    p.add_argument("--max-memory", type=memory, default=None, metavar="SIZE",
+                   help=f"the memory the command may take, such as 16GB (default {MEMORY_SHARE * 100:.0f}%% of this "
+                   "machine's RAM): the input's arrays and the work are estimated before they allocate, and refused beyond it")
     p.add_argument("--min-fps", type=positive_float, default=None,
                    help="with --model auto: the slowest acceptable frames/s")
     p.add_argument("--preview", default=None, help="write an input | output PNG strip of the middle frame")
@@ -103,6 +108,7 @@ def run(args) -> int:
                      points=args.points, fov_deg=DEFAULT_FOV_DEG if args.fov is None else args.fov,
                      points_colour=None if args.points_colour == "none" else args.points_colour,
                      overwrite=args.force, progress=not args.no_progress, clip_negative=args.clip_negative,
+                     max_memory=args.max_memory,
                      report=lambda line: print(f"jaxsr upscale: {line}", file=sys.stderr, flush=True))
     print(json.dumps(result.summary()))
     return 0

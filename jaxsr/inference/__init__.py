@@ -39,6 +39,7 @@ from .recording import (
     prepare_upscale,
     write_upscaled,
     upscale,
+    upscale_memory,
 )
 
 __all__ = [
@@ -72,4 +73,5 @@ __all__ = [
     "prepare_upscale",
     "write_upscaled",
     "upscale",
+    "upscale_memory",
 ]

@@ -27,10 +27,11 @@ from typing import Callable, Iterator
 import numpy as np
 from tqdm.auto import tqdm
 
+from ..checks import memory_budget, require_memory
 from ..config import DepthScale, Gate, SensorConfig
 from ..io.checkpoint import load_model, resolve_model_path
 from ..io.files import atomic_folder, atomic_path, reserve_space
-from ..io.formats import write_depth, write_sequence
+from ..io.formats import PNG_MAX_M, write_depth, write_sequence
 from ..io.pointcloud import DEFAULT_FOV_DEG, PointCloudWriter, check_points_folder
 from ..io.previews import write_comparison
 from ..io.recordings import (
@@ -53,12 +54,12 @@ from ..nn.model import Model
 from ..runtime import enable_compilation_cache
 from ..sensor.gates import gate_warnings
 from ..sensor.quantities import parse_span, parse_time_unit, range_metres
-from ..sensor.timetags import TIME_TAG_FORMATS, TimeTags, gate_of_tags, read_time_tags
+from ..sensor.timetags import TIME_TAG_FORMATS, TimeTags, gate_of_tags, read_time_tags, time_tag_warnings
 from .adaptive import resolve_model
-from .video import iter_network_inputs, iter_super_resolve
+from .video import DEFAULT_TILE, _default_batch_size, iter_network_inputs, iter_super_resolve
 
-__all__ = ["HEAD_FRAMES", "DEFAULT_MODELS", "FRAME_FORMATS", "UpscaleJob", "UpscaleResult", "prepare_upscale", "write_upscaled",
-           "upscale"]
+__all__ = ["HEAD_FRAMES", "DEFAULT_MODELS", "FRAME_FORMATS", "UpscaleJob", "UpscaleResult", "prepare_upscale",
+           "write_upscaled", "upscale", "upscale_memory"]
 
 HEAD_FRAMES = 64  # frames model="auto" measures the motion on
 # model="default": the bundled model that fits the input. Depth gives only the centre of mass, which the paper's
@@ -67,6 +68,16 @@ HEAD_FRAMES = 64  # frames model="auto" measures the motion on
 DEFAULT_MODELS = {"depth": "tr4", "histograms": "tr4"}
 FRAME_FORMATS = ("exr", "pfm", "tif", "png")  # frame files of a folder OUTPUT
 KINDS = ("depth", "histograms", "timetags")
+# Memory of `write_upscaled` (`upscale_memory`), measured on XLA:CPU with peak resident sizes (2026, 2 cores):
+# JAX, a model and the interpreter before any frame (0.36-0.49 GB);
+BASE_BYTES = 0.5e9
+# histogram frames turned into the network's input per compiled call (`iter_network_inputs`), and the copies
+# each float32 frame of counts makes there (6x: 16 frames of 2000 bins took 1.6 GB);
+HISTOGRAM_CHUNK, HISTOGRAM_COPIES = 16, 6
+# a DUF network's features per LR pixel of a tile and frame of the batch, in bytes per channel: float32 twice
+# over the window (the dense blocks' activations and their batch norm) and once in the head (TR0 5.3 kB, TR4
+# 20 kB per pixel measured; this gives 5.3 and 25). Another architecture counts as TR4.
+NETWORK_BYTES_TR4 = 25e3
 
 
 @dataclasses.dataclass(frozen=True)
@@ -107,7 +118,7 @@ class UpscaleJob:
     def note(self) -> str:
         """One line for people: what is read and with which model (`jaxsr upscale` prints it before the work)."""
         return (f"{self.frames} frames {self.recording.kind} {tuple(self.recording.shape)} from {self.source}, "
-                f"units {self.units}, model {self.model_name}")
+                f"input units {self.units}, model {self.model_name}")
 
     @property
     def fps(self) -> float | None:
@@ -143,12 +154,14 @@ class UpscaleJob:
 class UpscaleResult:
     """What `upscale` / `write_upscaled` did. output: the file or folder written (None when kept in memory);
     depth: the (T, H, W) float32 result in `units` when no output was written, else None; frames: T; shape:
-    (T, H, W); kind: "depth" or "histograms"; units: of the input and of an array output (a folder of frames is
-    always metres); model: the model as people read it; gate, scale: the histogram gate and depth scale (gate
-    None for depth); preview: the PNG written, or None; warnings: sentences on what the models never saw; notes:
-    every line `jaxsr upscale` prints to stderr (warnings as "warning: ...", then what was read with which
-    model); video: the side-by-side video written, or None; points: the folder of PLY point clouds, or None;
-    negative_counts: with `clip_negative`, (negative counts clipped at 0, pixels holding one), else None."""
+    (T, H, W); kind: "depth" or "histograms"; units: of the output's values (an array's: the input's units; a
+    folder of frames: always "m"); model: the model as people read it; gate, scale: the histogram gate and depth
+    scale (gate None for depth); preview: the PNG written, or None; warnings: sentences on what the models never
+    saw and on what the writing found; notes: every line `jaxsr upscale` prints to stderr (warnings as "warning:
+    ...", then what was read with which model, then warnings on what the writing found); video: the side-by-side
+    video written, or None; points: the folder of PLY point clouds, or None; negative_counts: with
+    `clip_negative`, (negative counts clipped at 0, pixels holding one), else None; input_units: the input's
+    units (`UpscaleJob.units`), where they differ from `units`."""
 
     output: Path | None
     depth: np.ndarray | None
@@ -165,13 +178,17 @@ class UpscaleResult:
     video: Path | None = None
     points: Path | None = None
     negative_counts: tuple[int, int] | None = None
+    input_units: str | None = None
 
     def summary(self) -> dict:
-        """The JSON summary `jaxsr upscale` prints: frames, output, shape, units, model, for histograms the
+        """The JSON summary `jaxsr upscale` prints: frames, output, shape, units (of the output; input_units too
+        where the input's differ), model, for histograms the
         gate and the depth scale (metres), the video and point clouds' folder where written, and with
         --clip-negative the negative counts clipped and the pixels holding them."""
         out = {"frames": self.frames, "output": None if self.output is None else str(self.output),
                "shape": list(self.shape), "units": self.units, "model": self.model}
+        if self.input_units is not None:
+            out["input_units"] = self.input_units
         if self.video is not None:
             out["video"] = str(self.video)
         if self.points is not None:
@@ -199,10 +216,11 @@ def _positive(value, what: str, parse, unit: str):
             return parse(value)
         except ValueError as e:
             raise ValueError(f"{what}: {e}") from None
-    number = float(value)
-    if not (np.isfinite(number) and number > 0):
-        raise ValueError(f"{what}: expected a value > 0 in {unit}, got {value!r}")
-    return number
+    arr = np.asarray(value)
+    if arr.size != 1 or arr.dtype.kind not in "iuf" or not (np.isfinite(arr).all() and arr.item() > 0):
+        got = f"an array of shape {arr.shape}" if arr.size != 1 else repr(value)
+        raise ValueError(f"{what}: expected one value > 0 in {unit}, got {got}")
+    return float(arr.item())
 
 
 def _span(value) -> float | str | None:
@@ -224,9 +242,11 @@ def _array_recording(arr: np.ndarray, kind: str | None) -> Recording:
     return Recording(kind, arr.shape[0], arr.shape[1:], lambda: iter(arr), "array", array=arr)
 
 
-def _open(input, kind, *, bins, bin_width, gate_start, span, time_unit, variable, drop_outside, clip_negative):
-    """(recording, gate, source) for the input: time tags histogrammed over their gate, histograms with theirs,
-    or depth (gate options and clip_negative refused there)."""
+def _open(input, kind, *, bins, bin_width, gate_start, span, time_unit, variable, drop_outside, clip_negative,
+          max_memory):
+    """(recording, gate, source, warnings) for the input: time tags histogrammed over their gate (the warnings
+    on photons dropped or a likely wrong time unit), histograms with theirs, or depth (gate options and
+    clip_negative refused there)."""
     if input is None:
         raise TypeError("input: expected a path, a Recording, a NumPy array (T, h, w) or (T, h, w, bins) or "
                         "TimeTags, got None")
@@ -237,6 +257,8 @@ def _open(input, kind, *, bins, bin_width, gate_start, span, time_unit, variable
     bins = 16 if bins is None else int(bins)
     if bins < 2:
         raise ValueError(f"bins: expected an integer >= 2, got {bins}")
+    if start is not None and start < 0:  # before the laser pulse: depth would come out negative
+        raise ValueError(f"gate_start (--gate-start): expected a range >= 0 from the laser pulse, got {start:g} m")
     tag_only = [o for o, v in (("--time-unit", time_unit), ("--variable", variable),
                                ("--drop-outside", drop_outside or None)) if v is not None]
     if kind == "timetags" or isinstance(input, TimeTags):
@@ -246,14 +268,16 @@ def _open(input, kind, *, bins, bin_width, gate_start, span, time_unit, variable
             if not str(input).lower().endswith(TIME_TAG_FORMATS):
                 raise ValueError(f"{input}: time tags are read from a MATLAB .mat cell array (v4-v7) or an .npz "
                                  "table ('pixel', 'time', 'shape')")
-            tags = read_time_tags(input, variable=variable, time_unit_s=time_unit)
+            tags = read_time_tags(input, variable=variable, time_unit_s=time_unit, max_memory=max_memory)
         if (width is None) != (start is None):
             raise ValueError("give both --bin-width and --gate-start, or neither (the gate then spans the photons)")
         if clip_negative:
             raise ValueError("--clip-negative applies to histograms only (counts of time tags are never negative)")
         gate = gate_of_tags(tags, bins=bins) if width is None else Gate(bins, width, start)
-        rec = time_tag_recording(tags, gate, outside="drop" if drop_outside else "error")
-        return rec, gate, str(input) if not isinstance(input, TimeTags) else tags.source
+        outside = "drop" if drop_outside else "error"
+        rec = time_tag_recording(tags, gate, outside=outside, max_memory=max_memory)
+        source = str(input) if not isinstance(input, TimeTags) else tags.source
+        return rec, gate, source, tuple(time_tag_warnings(tags, gate, outside=outside))
     if tag_only:
         raise ValueError(f"{', '.join(tag_only)} applies to --input timetags only")
     if isinstance(input, Recording):
@@ -263,13 +287,14 @@ def _open(input, kind, *, bins, bin_width, gate_start, span, time_unit, variable
     elif isinstance(input, np.ndarray):
         rec, source = _array_recording(input, kind), "array"
     else:
-        rec, source = open_recording(input, kind=kind), str(input)
+        rec, source = open_recording(input, kind=kind, max_memory=max_memory), str(input)
     if rec.kind == "depth" and (gate_options or drop_outside):
         raise ValueError("--bins, --bin-width, --gate-start and --span apply to histograms and time tags only")
     if rec.kind == "depth" and clip_negative:
         raise ValueError("--clip-negative applies to histograms only (negative depth is no return)")
     default = Gate()
-    return rec, Gate(bins, default.bin_width if width is None else width, 0.0 if start is None else start), source
+    gate = Gate(bins, default.bin_width if width is None else width, 0.0 if start is None else start)
+    return rec, gate, source, ()
 
 
 def _fixed_model(model, min_fps):
@@ -309,14 +334,15 @@ def _head(frames, n):
 def prepare_upscale(input, *, model="default", kind: str | None = None, bins: int | None = None, bin_width=None,
                     gate_start=None, span=None, time_unit=None, variable: str | None = None,
                     drop_outside: bool = False, units: str | None = None, min_fps: float | None = None,
-                    clip_negative: bool = False) -> UpscaleJob:
+                    clip_negative: bool = False, max_memory=None) -> UpscaleJob:
     """Open and check a recording and choose its model, as `jaxsr upscale` does before any output is written.
 
     input: a path (.npy / .npz array of depth (T, h, w) or photon counts (T, h, w, bins); a folder or glob pattern
     of EXR, PFM, TIFF or 16-bit PNG depth frames; with kind="timetags" a .mat cell array or .npz table of photon
     time tags), or an opened `jaxsr.io.recordings.Recording`, a NumPy array (T, h, w) / (T, h, w, bins), or
     `jaxsr.sensor.TimeTags`. The keyword options are `upscale`'s (see there). Checks, in order: the model, then
-    the input and every one of its frames (frames of any size h, w >= 4).
+    the input and every one of its frames (frames of any size h, w >= 4); an .npz's array and time tags'
+    histograms are checked against the memory budget (`max_memory`) before they are read.
 
     Returns an `UpscaleJob` (its `iter_frames()` streams the result). Raises ValueError, FileNotFoundError (a
     missing input or model) with the messages `jaxsr upscale` prints, TypeError for an input or model of another
@@ -324,9 +350,10 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
     """
     fixed, name = _fixed_model(model, min_fps)
     span = _span(span)
-    rec, gate, source = _open(input, kind, bins=bins, bin_width=bin_width, gate_start=gate_start, span=span,
-                              time_unit=_positive(time_unit, "time_unit", parse_time_unit, "seconds"), variable=variable,
-                              drop_outside=drop_outside, clip_negative=clip_negative)
+    time_unit = _positive(time_unit, "time_unit", parse_time_unit, "seconds")
+    rec, gate, source, tag_notes = _open(input, kind, bins=bins, bin_width=bin_width, gate_start=gate_start,
+                                         span=span, time_unit=time_unit, variable=variable, drop_outside=drop_outside,
+                                         clip_negative=clip_negative, max_memory=max_memory)
     if name == "default":  # the bundled model that fits the input
         name = DEFAULT_MODELS[rec.kind]
         fixed = load_model(name)
@@ -341,7 +368,7 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
     warnings, negatives = (), None
     if rec.kind == "histograms":
         scale = DepthScale.for_gate(gate, gate.length if span == "gate" else span)
-        warnings = tuple(gate_warnings(gate, scale))
+        warnings = tag_notes + tuple(gate_warnings(gate, scale))
         units = "m" if units is None else units
         found = check_frames(rec, units, gate, clip_negative=clip_negative)  # (0, 0) unless clip_negative
         negatives = found if clip_negative else None
@@ -350,7 +377,8 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
         counts = clipped_recording(rec) if clip_negative else rec
 
         def lr_stream():
-            return gate_frames(iter_network_inputs(counts, SensorConfig(bins=gate.bins), inputs), gate, scale)
+            return gate_frames(iter_network_inputs(counts, SensorConfig(bins=gate.bins), inputs, chunk=HISTOGRAM_CHUNK),
+                               gate, scale)
     else:
         scale = DepthScale(0.0, float(sensor.d_max))
         units = guess_units(rec) if units is None else units
@@ -403,17 +431,20 @@ def _metres(frame, units, scale):
     return np.where(np.isnan(frame) | (frame < 0), np.inf, frame).astype(np.float32)
 
 
-def write_upscaled(job: UpscaleJob, output, *, frame_format: str = "exr", batch_size: int | None = None,
+def write_upscaled(job: UpscaleJob, output, *, frame_format: str | None = None, batch_size: int | None = None,
                    preview=None, video=None, fps: float | None = None, reference=None, points=None,
                    fov_deg: float = DEFAULT_FOV_DEG, points_colour: str | None = "depth", overwrite: bool = False,
-                   progress: bool = False) -> UpscaleResult:
+                   progress: bool = False, max_memory=None) -> UpscaleResult:
     """Run a prepared job (`prepare_upscale`) and write its result, as `jaxsr upscale` does.
 
     output: an .npy file (written through a memory map), an .npz (`jaxsr.io.write_sequence`, with units, model,
     input and scale as metadata), a folder (one `frame_format` file per frame, frame_000000.exr ..., always
-    metres; missing parent folders are created), or None (the (T, H, W) result is returned in `depth`).
-    Everything is written atomically (a folder into a hidden `.NAME.XXXX.partial` sibling, renamed when complete);
-    an interrupted or failed run leaves nothing. preview: a .png strip of the middle frame, input | output.
+    metres; missing parent folders are created; frame_format: "exr" by default, "pfm", "tif" or "png", refused
+    for any other output, and "png" for a range starting beyond its 65.535 m, deeper pixels counted in a
+    warning), or None (the (T, H, W) result is returned in `depth`).
+    Everything is written atomically (a folder into a hidden `.NAME.HOST-PID.XXXXXXXX.partial` sibling, renamed
+    when complete; `jaxsr.io.atomic_folder`); an interrupted or failed run leaves nothing. preview: a .png strip
+    of the middle frame, input | output.
     video (--video): an .mp4 or .gif of every frame, input (nearest-neighbour upscaled) | output | reference
     (`jaxsr.io.write_depth_video`), at `fps` frames/s (--fps; default the recording's where its file says, else
     25); reference (--reference): HR depth (T, H, W) to show beside them, a path as INPUT's depth formats or an
@@ -422,22 +453,24 @@ def write_upscaled(job: UpscaleJob, output, *, frame_format: str = "exr", batch_
     the sensor model's 30), coloured by depth (points_colour "depth") or not (None). Previews, videos and point
     clouds show the sensor's true range in metres (`UpscaleJob.d_range`: the gate's start included).
     overwrite (--force): replace an existing output, preview and video, or write into a non-empty folder.
-    batch_size: frames per compiled call (default: see `iter_super_resolve`). progress: a tqdm progress bar.
+    batch_size: frames per compiled call (default: see `iter_super_resolve`; at most the recording's frames).
+    progress: a tqdm progress bar. max_memory (--max-memory): the memory the work may take, bytes or a size such as
+    "16GB" (default `jaxsr.checks.memory_budget`: a share of this machine's RAM); `upscale_memory` estimates it
+    before any work, and a job beyond it is refused (ValueError: the estimate and what would need less).
 
-    Returns an `UpscaleResult`. Raises FileExistsError, IsADirectoryError, NotADirectoryError, FileNotFoundError
-    or ValueError for an output, preview, video, reference or point clouds' folder that cannot be written or read
-    (checked before any work).
+    Returns an `UpscaleResult`. Raises FileExistsError, IsADirectoryError, NotADirectoryError, FileNotFoundError,
+    `jaxsr.io.NotWritableError` or ValueError for an output, preview, video, reference or point clouds' folder
+    that cannot be written or read, or a symbolic link among them (checked before any work).
     """
-    if frame_format not in FRAME_FORMATS:
-        raise ValueError(f"frame_format (--frame-format) is one of {', '.join(FRAME_FORMATS)}, got {frame_format!r}")
-    if batch_size is not None and int(batch_size) < 1:
-        raise ValueError(f"batch_size: expected an integer >= 1, got {batch_size}")
+    batch_size = _batch_size(job, batch_size)
     _check_look_options(video, fps, reference, points, points_colour)
     out = None if output is None else check_output(output, force=overwrite)
+    frame_format = _frame_format(frame_format, out, job)
     preview = None if preview is None else check_preview(preview, force=overwrite, output=out)
     video = None if video is None else check_video(video, force=overwrite, output=out)
     points = None if points is None else check_points_folder(points, force=overwrite, output=out)
     ref = None if reference is None else _reference(reference, job)
+    _check_memory(job, out, batch_size, video is not None or points is not None, max_memory)
     rec, scale = job.recording, job.scale
     d_min, d_max = job.d_range
     shape = (job.frames, *job.hr_shape)
@@ -494,7 +527,7 @@ def write_upscaled(job: UpscaleJob, output, *, frame_format: str = "exr", batch_
             if film is not None:
                 film.finish()
 
-        depth = None
+        depth, saturated = None, 0
         if out is None:
             depth = np.empty(shape, np.float32)
             for t, f in frames(job.units):
@@ -521,10 +554,96 @@ def write_upscaled(job: UpscaleJob, output, *, frame_format: str = "exr", batch_
             with atomic_folder(out, overwrite=overwrite) as tmp:
                 for t, f in frames("m"):
                     write_depth(tmp / f"frame_{t:06d}.{frame_format}", f)
+                    if frame_format == "png":
+                        saturated += np.count_nonzero(np.isfinite(f) & (f > PNG_MAX_M))
                 finish()
-    notes = tuple(f"warning: {w}" for w in job.warnings) + (job.note,)
-    return UpscaleResult(out, depth, job.frames, shape, rec.kind, job.units, job.model_name, job.gate, scale,
-                         preview, job.warnings, notes, video, points, job.negative_counts)
+    late = (_saturated_note(saturated),) if saturated else ()
+    warnings = job.warnings + late
+    notes = tuple(f"warning: {w}" for w in job.warnings) + (job.note,) + tuple(f"warning: {w}" for w in late)
+    units = "m" if out is not None and out.suffix.lower() not in ARRAY_FORMATS else job.units
+    return UpscaleResult(out, depth, job.frames, shape, rec.kind, units, job.model_name, job.gate, scale, preview,
+                         warnings, notes, video, points, job.negative_counts, None if units == job.units else job.units)
+
+
+def _frame_format(frame_format: str | None, out: Path | None, job: UpscaleJob) -> str | None:
+    """The frame files' format for a folder OUTPUT (default "exr"); refused for any other output, where it would
+    do nothing, and "png" for a range that starts beyond 16-bit PNG's 65.535 m (every pixel would saturate)."""
+    folder = out is not None and out.suffix.lower() not in ARRAY_FORMATS
+    if frame_format is None:
+        return "exr" if folder else None
+    if frame_format not in FRAME_FORMATS:
+        raise ValueError(f"frame_format (--frame-format) is one of {', '.join(FRAME_FORMATS)}, got {frame_format!r}")
+    if not folder:
+        raise ValueError(f"frame_format (--frame-format) applies to a folder OUTPUT (one file per frame), not "
+                         f"{'an output kept in memory' if out is None else out}")
+    if frame_format == "png" and job.d_range[0] >= PNG_MAX_M:
+        raise ValueError(f"16-bit PNG frames hold depth up to {PNG_MAX_M} m, and this recording's range starts at "
+                         f"{job.d_range[0]:g} m (the gate's start): choose --frame-format exr, pfm or tif")
+    return frame_format
+
+
+def _saturated_note(pixels: int) -> str:
+    """The warning on depth beyond 16-bit PNG's range, written as its largest value."""
+    return (f"{_plural(pixels, 'pixel')} beyond {PNG_MAX_M} m written as {PNG_MAX_M} m (16-bit PNG's largest "
+            "depth); --frame-format exr, pfm or tif store them")
+
+
+def _network_bytes_per_pixel(model) -> float:
+    """Bytes a model holds per LR pixel of a tile and frame of the batch while it runs (see `NETWORK_BYTES_TR4`)."""
+    cfg = model.config
+    try:
+        window = model.architecture.frames(cfg)
+        blocks = 8 * window * (cfg.base + (cfg.same_blocks + cfg.tr) * cfg.growth)
+        return blocks + 4 * (cfg.head + cfg.filter_hidden + cfg.filter_size**2 * cfg.scale**2)
+    except AttributeError:  # not the DUF network
+        return NETWORK_BYTES_TR4
+
+
+def upscale_memory(job: UpscaleJob, *, batch_size: int, in_memory: bool, looks: bool = False) -> float:
+    """Bytes `write_upscaled` is estimated to need at its peak, from the job's sizes alone (nothing is run):
+    `BASE_BYTES`; the input where it is held whole (an .npz's array, time tags' histograms; an .npy is
+    memory-mapped); histogram frames on their way to the network (`HISTOGRAM_CHUNK` x `HISTOGRAM_COPIES`); the
+    network on one tile (at most `DEFAULT_TILE` LR pixels a side) per frame of the batch; the HR frames of two
+    batches (the one computed and the one drained) and of a frame converted; and the whole result when it is
+    held (`in_memory`: an .npz output or none) or drawn (`looks`: the video's panels or a point cloud per
+    frame). Measured peaks were 0.6-0.9x of it (frames of 32 x 64 to 2048 x 2048 LR pixels, batches of 1-8)."""
+    rec, model = job.recording, job.model
+    h, w = (int(v) for v in rec.shape[:2])
+    hr = 4.0 * job.hr_shape[0] * job.hr_shape[1]
+    need = BASE_BYTES
+    if rec.array is not None and not isinstance(rec.array, np.memmap):
+        need += rec.array.nbytes
+    if rec.kind == "histograms":
+        need += HISTOGRAM_COPIES * HISTOGRAM_CHUNK * 4.0 * h * w * int(rec.shape[-1])
+    channels = len(getattr(model.config, "inputs", ("depth",)))
+    radius = model.architecture.input_radius(model.config)
+    tile = min(h, DEFAULT_TILE) * min(w, DEFAULT_TILE)
+    need += batch_size * tile * _network_bytes_per_pixel(model) + 3 * (batch_size + 2 * radius) * 4.0 * h * w * channels
+    need += (2 * batch_size + 1) * hr + (job.frames * hr if in_memory else 0) + (6 * hr if looks else 0)
+    return need
+
+
+def _batch_size(job: UpscaleJob, batch_size: int | None) -> int:
+    """Frames per compiled call: `batch_size` (default as `iter_super_resolve`'s) but no more than the
+    recording's frames (a larger batch would be padded with copies of the last frame)."""
+    if batch_size is not None and int(batch_size) < 1:
+        raise ValueError(f"batch_size: expected an integer >= 1, got {batch_size}")
+    sequence_form = job.model.architecture.sequence_form(job.model.config)
+    size = _default_batch_size(range(job.frames), sequence_form) if batch_size is None else int(batch_size)
+    return min(size, job.frames)
+
+
+def _check_memory(job: UpscaleJob, out, batch_size: int, looks: bool, max_memory) -> None:
+    """Refuse a job whose `upscale_memory` exceeds the budget (`jaxsr.checks.require_memory`), naming its sizes and
+    what would need less."""
+    in_memory = out is None or out.suffix.lower() == ".npz"
+    need = upscale_memory(job, batch_size=batch_size, in_memory=in_memory, looks=looks)
+    ways = ([f"a smaller --batch-size (now {batch_size})"] if batch_size > 1 else []) + (
+        ["an .npy or folder OUTPUT (written frame by frame, not held)"] if in_memory and job.frames > 1 else [])
+    frame = " x ".join(map(str, job.recording.shape))
+    what = (f"upscaling {job.frames} frame{'s' if job.frames > 1 else ''} of {frame} to {job.hr_shape[0]} x "
+            f"{job.hr_shape[1]}")
+    require_memory(need, what, max_memory, remedy="give " + " or ".join(ways) if ways else "")
 
 
 def _check_look_options(video, fps, reference, points, points_colour):
@@ -541,10 +660,10 @@ def _check_look_options(video, fps, reference, points, points_colour):
 
 def upscale(input, output, *, model="default", kind: str | None = None, bins: int | None = None, bin_width=None,
             gate_start=None, span=None, time_unit=None, variable: str | None = None, drop_outside: bool = False,
-            units: str | None = None, frame_format: str = "exr", batch_size: int | None = None,
+            units: str | None = None, frame_format: str | None = None, batch_size: int | None = None,
             min_fps: float | None = None, preview=None, video=None, fps: float | None = None, reference=None,
             points=None, fov_deg: float = DEFAULT_FOV_DEG, points_colour: str | None = "depth",
-            overwrite: bool = False, progress: bool = False, clip_negative: bool = False,
+            overwrite: bool = False, progress: bool = False, clip_negative: bool = False, max_memory=None,
             report: Callable[[str], None] | None = None) -> UpscaleResult:
     """Super-resolve a recording x4 with a trained model and write it: `jaxsr upscale INPUT OUTPUT` in one call.
 
@@ -573,15 +692,21 @@ def upscale(input, output, *, model="default", kind: str | None = None, bins: in
       and output (array outputs in mm, cm or km are float32, inf = no return); default (`guess_units`): normalised
       if the first frame lies in [0, 1], else metres, refused (a ValueError asking for units) for integer arrays
       (millimetres? centimetres?) and for values that could be kilometres; histograms give metres.
-    - frame_format (--frame-format): "exr", "pfm", "tif" or "png", when output is a folder (always metres).
+    - frame_format (--frame-format): "exr" (default), "pfm", "tif" or "png" for a folder output (always metres),
+      refused for any other; 16-bit PNG holds 1 mm .. 65.535 m: a range starting beyond is refused, and deeper
+      pixels are written as 65.535 m with a warning that counts them.
     - batch_size (--batch-size): frames per compiled call; min_fps (--min-fps, model="auto" only): the slowest
       acceptable frames/s; preview (--preview): an input | output PNG strip of the middle frame; overwrite
       (--force): replace output, preview and video; progress (not --no-progress): show a progress bar.
     - video (--video), fps (--fps), reference (--reference): an .mp4 / .gif of every frame, input | output |
       reference, one colour scale in metres; points (--points), fov_deg (--fov), points_colour: a folder of PLY
       point clouds, one per frame (see `write_upscaled`).
+    - max_memory (--max-memory): the memory the command may take, bytes or a size such as "16GB" (default: a
+      share of this machine's RAM, `jaxsr.checks.memory_budget`); an .npz input's array, time tags' histograms
+      and the work (`upscale_memory`) are estimated before they allocate and refused beyond it.
     - report: called with each line of `notes` as soon as it is known (the warnings, then what is read with which
-      model, before the network runs); `jaxsr upscale` prints them.
+      model, before the network runs; after the writing, a warning on what it found, such as PNG depth saturated);
+      `jaxsr upscale` prints them.
 
     Everything is checked before the model runs, in order: the output, preview, video and point clouds' paths
     (and that the reference reads), the model, the input and every frame. Returns an `UpscaleResult` (output
@@ -593,6 +718,7 @@ def upscale(input, output, *, model="default", kind: str | None = None, bins: in
     nothing is left written then.
     """
     _check_look_options(video, fps, reference, points, points_colour)
+    memory_budget(max_memory)  # a bad size is refused before anything is read
     out = None if output is None else check_output(output, force=overwrite)
     if preview is not None:
         check_preview(preview, force=overwrite, output=out)
@@ -605,11 +731,17 @@ def upscale(input, output, *, model="default", kind: str | None = None, bins: in
         open_recording(reference, kind="depth")  # exists and reads (its frames are checked against the job's later)
     job = prepare_upscale(input, model=model, kind=kind, bins=bins, bin_width=bin_width, gate_start=gate_start,
                           span=span, time_unit=time_unit, variable=variable, drop_outside=drop_outside,
-                          units=units, min_fps=min_fps, clip_negative=clip_negative)
-    if report is not None:
-        for w in job.warnings:
-            report(f"warning: {w}")
-        report(job.note)
-    return write_upscaled(job, output, frame_format=frame_format, batch_size=batch_size, preview=preview,
-                          video=video, fps=fps, reference=reference, points=points, fov_deg=fov_deg,
-                          points_colour=points_colour, overwrite=overwrite, progress=progress)
+                          units=units, min_fps=min_fps, clip_negative=clip_negative, max_memory=max_memory)
+    # before the lines below, which say the work starts (write_upscaled checks again, for its own callers)
+    _frame_format(frame_format, out, job)
+    _check_memory(job, out, _batch_size(job, batch_size), video is not None or points is not None, max_memory)
+    early = tuple(f"warning: {w}" for w in job.warnings) + (job.note,)
+    for line in early if report is not None else ():
+        report(line)
+    result = write_upscaled(job, output, frame_format=frame_format, batch_size=batch_size, preview=preview,
+                            video=video, fps=fps, reference=reference, points=points, fov_deg=fov_deg,
+                            points_colour=points_colour, overwrite=overwrite, progress=progress,
+                            max_memory=max_memory)
+    for line in result.notes[len(early):] if report is not None else ():  # what the writing found
+        report(line)
+    return result

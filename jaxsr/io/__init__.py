@@ -3,7 +3,11 @@
 """
 
 from .files import (
+    NotWritableError,
     WriteError,
+    check_writable,
+    refuse_link,
+    remove_stale_temporaries,
     atomic_path,
     write_text_atomic,
     atomic_folder,
@@ -84,7 +88,11 @@ from .simulate import (
 )
 
 __all__ = [
+    "NotWritableError",
     "WriteError",
+    "check_writable",
+    "refuse_link",
+    "remove_stale_temporaries",
     "atomic_path",
     "write_text_atomic",
     "atomic_folder",

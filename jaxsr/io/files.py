@@ -1,8 +1,14 @@
 """Atomic file writes: a temporary file in the destination folder, then `os.replace`, so a crash or an
 exception never leaves a half-written file, and an existing file is only replaced when asked. Folders of
 outputs are written the same way (`atomic_folder`): into a hidden temporary sibling, moved into place at the end.
-A write that the disk refuses (full, over quota, read-only, an I/O error) raises `WriteError`, which names the
-output rather than its hidden temporary file, after the temporary file or folder is removed.
+A write that the disk refuses (full, over quota, an I/O error) raises `WriteError`, and one into a folder this
+process may not write to (no permission, a read-only file system) `NotWritableError`; both name the output rather
+than its hidden temporary file, after the temporary file or folder is removed.
+
+The temporaries are named after their output and their writer, `.NAME.HOST-PID.XXXXXXXX.partial` (a file keeps
+its suffix after that: `.out.HOST-PID.XXXXXXXX.partial.npy`), so that one a killed process left (SIGKILL, a
+power cut: nothing could remove it) is recognised: the next atomic write of the same output on the same host
+removes those whose process no longer runs, with a warning that says so.
 """
 
 from __future__ import annotations
@@ -10,8 +16,11 @@ from __future__ import annotations
 import contextlib
 import errno
 import os
+import re
 import shutil
+import socket
 import tempfile
+import warnings
 from pathlib import Path
 
 
@@ -35,20 +44,160 @@ class WriteError(OSError):
         return self.strerror
 
 
-def _write_error(error: BaseException, path: Path, tmp, partial: str) -> BaseException:
-    """The exception an atomic write of `path` (through its temporary `tmp`, None before it exists) raises for
-    `error`: a disk error becomes a `WriteError` naming `path`, and one an inner atomic write raised for a file
-    inside `tmp` (or for `tmp` itself) names the file's final place; anything else is raised unchanged."""
-    if isinstance(error, WriteError):
+class NotWritableError(PermissionError):
+    """An output in a folder this process may not write to: no permission, or a read-only file system (a path
+    the user chose badly, as a missing folder is). `path` is the output as the caller named it; str() is one
+    line: "cannot write PATH: REASON; choose a folder you can write to"."""
+
+    def __init__(self, errno_: int, path, reason: str, partial: str | None = None):
+        self.path, self.reason, self.partial = Path(path), reason, partial
+        super().__init__(errno_, f"cannot write {path}: {reason}; choose a folder you can write to")
+
+    def __str__(self) -> str:
+        return self.strerror
+
+
+# errno values of a folder that cannot be written into (EPERM, EACCES: permissions; EROFS: a read-only mount)
+_NOT_WRITABLE = (errno.EPERM, errno.EACCES, errno.EROFS)
+
+
+def _reason(number: int) -> str:
+    reason = os.strerror(number)
+    return reason[:1].lower() + reason[1:]
+
+
+def _write_error(error: BaseException, path: Path, home: Path, tmp, partial: str) -> BaseException:
+    """The exception an atomic write of `path` (through its temporary `tmp` in the folder `home`, None before it
+    exists) raises for `error`: a folder that cannot be written into (the error names `home`'s files or `tmp`'s)
+    becomes a `NotWritableError`, another disk error a `WriteError`, both naming `path`; one an inner atomic
+    write raised for a file inside `tmp` (or for `tmp` itself) names the file's final place; anything else is
+    raised unchanged."""
+    if isinstance(error, (WriteError, NotWritableError)):
         inner = error.path
         if tmp is None or not (inner == tmp or tmp in inner.parents):
             return error  # another output's (written beside this one, not into it)
         where = path if inner == tmp else path / inner.relative_to(tmp)
-        return WriteError(error.errno, where, error.reason, partial)
-    if not isinstance(error, OSError) or error.errno is None or isinstance(error, _PATH_ERRORS):
+        return type(error)(error.errno, where, error.reason, partial)
+    if not isinstance(error, OSError) or error.errno is None:
         return error
-    reason = os.strerror(error.errno)
-    return WriteError(error.errno, path, reason[:1].lower() + reason[1:], None if tmp is None else partial)
+    if error.errno in _NOT_WRITABLE and _names_the_write(error, home, tmp):
+        return NotWritableError(error.errno, path, _reason(error.errno))
+    if isinstance(error, _PATH_ERRORS):
+        return error
+    return WriteError(error.errno, path, _reason(error.errno), None if tmp is None else partial)
+
+
+def _names_the_write(error: OSError, home: Path, tmp) -> bool:
+    """Whether `error` is about the write itself: a file in `home` (the temporary's folder) or in `tmp`, not
+    another file the block happened to open."""
+    if error.filename is None:
+        return False
+    where = Path(os.path.abspath(error.filename))
+    return where.parent == Path(os.path.abspath(home)) or (tmp is not None and Path(os.path.abspath(tmp)) in
+                                                           (where, *where.parents))
+
+
+def check_writable(folder, output) -> None:
+    """Refuse (`NotWritableError` naming `output`) an existing `folder` in which this process cannot create
+    files: no write permission, or a read-only file system (which `os.access` reports for root too), before any
+    work. Writes nothing."""
+    folder = Path(folder)
+    if os.access(folder, os.W_OK | os.X_OK):
+        return
+    try:
+        read_only = bool(os.statvfs(folder).f_flag & os.ST_RDONLY)
+    except (OSError, AttributeError):  # no statvfs (not POSIX)
+        read_only = False
+    reason = f"{folder} is on a read-only file system" if read_only else f"{folder} is not writable"
+    raise NotWritableError(errno.EROFS if read_only else errno.EACCES, output, reason)
+
+
+def refuse_link(path, what: str) -> None:
+    """Refuse (ValueError) a symbolic link as the output `path` (`what` names it: "OUTPUT", "the video"): an atomic
+    write moves its output into place by a rename, which would replace the link rather than write where it points
+    (a link to a folder failed after the work). Writes nothing."""
+    path = Path(path)
+    if path.is_symlink():
+        raise ValueError(f"{path} is a symbolic link (to {os.readlink(path)}); {what} is moved into place by a "
+                         "rename, which would replace the link: give the path it points to")
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Temporaries of a writer that was killed
+
+# This host in the temporaries' names: a pid means nothing on another host sharing the folder, or in another
+# container (with its own host name) on this one.
+_HOST = re.sub(r"[^A-Za-z0-9-]", "", socket.gethostname())[:24] or "host"
+_PARTIAL = ".partial"
+
+
+def _temporary_affixes(path: Path, *, folder: bool) -> tuple[str, str]:
+    """(".NAME.", ".partial" + the suffix): what every temporary of the output `path` begins and ends with; a
+    file keeps its suffix last (the writers choose the format by it)."""
+    stem, suffix = (path.name, "") if folder else (path.stem, path.suffix)
+    return f".{stem}.", f"{_PARTIAL}{suffix}"
+
+
+def _temporary_name_parts(path: Path, *, folder: bool) -> tuple[str, str]:
+    """(prefix, suffix) for mkstemp / mkdtemp: this host and process between the output's name and the random
+    part."""
+    start, end = _temporary_affixes(path, folder=folder)
+    return f"{start}{_HOST}-{os.getpid()}.", end
+
+
+def _writer_gone(host: str, pid: int) -> bool:
+    """Whether the process `pid` of `host` that named a temporary is known to have ended: on this host, no such
+    process (a process of another user is alive too; another host's cannot be told). A pid reused since by an
+    unrelated process keeps the temporary: left, never a live writer's removed."""
+    if host != _HOST or pid == os.getpid():
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    except OSError:  # PermissionError: alive, another user's
+        return False
+    return False
+
+
+def remove_stale_temporaries(path, *, folder: bool = False) -> list[Path]:
+    """Remove the temporaries of the output `path` (a file, or a folder with `folder`) that a writer on this host
+    left when it was killed (its process no longer runs), with one warning line that says how many and which
+    output; temporaries of live writers, and of other outputs, are left alone. Returns the paths removed."""
+    path = Path(path)
+    home = path.parent if not folder else _nearest_existing(path.parent)
+    if not home.is_dir() or _own_temporary(home):  # a folder of ours being filled: nothing in it is stale
+        return []
+    start, end = _temporary_affixes(path, folder=folder)
+    pattern = re.compile(re.escape(start) + r"(?P<host>[A-Za-z0-9-]+)-(?P<pid>\d+)\.[a-z0-9_]+" + re.escape(end))
+    removed, pids = [], set()
+    try:
+        with os.scandir(home) as entries:
+            stale = [(e.path, int(m["pid"])) for e in entries if (m := pattern.fullmatch(e.name))
+                     and _writer_gone(m["host"], int(m["pid"]))]
+    except OSError:  # a folder that cannot be listed: the write itself says what is wrong
+        return []
+    for p, pid in stale:
+        try:
+            if os.path.isdir(p) and not os.path.islink(p):
+                shutil.rmtree(p)
+            else:
+                os.remove(p)
+        except OSError:  # gone meanwhile (another run cleaned it), or not ours to remove
+            continue
+        removed.append(Path(p))
+        pids.add(pid)
+    if removed:
+        what = "temporary folder" if folder else "temporary file"
+        warnings.warn(f"removed {len(removed)} {what}{'s' if len(removed) > 1 else ''} of {path} that a stopped "
+                      f"writer left (process {', '.join(map(str, sorted(pids)))}, no longer running)", stacklevel=3)
+    return removed
+
+
+def _own_temporary(folder: Path) -> bool:
+    """Whether `folder` is a temporary folder of this process (its outputs' files are written into it)."""
+    return bool(re.fullmatch(r"\..+\." + re.escape(f"{_HOST}-{os.getpid()}.") + r"[a-z0-9_]+" + re.escape(_PARTIAL),
+                             folder.name))
 
 
 def reserve_space(path) -> None:
@@ -85,7 +234,9 @@ def atomic_path(path, *, overwrite: bool = False, make_parents: bool = False):
     at the end, when it is never replaced; FileNotFoundError if its folder does not exist (unless
     `make_parents`). The file gets the usual permissions (0666 less the umask), not
     mkstemp's private 0600. Any exception, KeyboardInterrupt included, removes the temporary file; an OSError
-    of the disk (full, over quota, read-only, failing) is raised as a `WriteError` naming `path`.
+    of the disk (full, over quota, failing) is raised as a `WriteError` naming `path`, and one of a folder it may
+    not write into (permissions, a read-only file system) as a `NotWritableError`. Temporaries of `path` that a
+    killed writer left are removed first (`remove_stale_temporaries`).
     """
     path = Path(path)
     if path.exists() and not overwrite:
@@ -94,9 +245,11 @@ def atomic_path(path, *, overwrite: bool = False, make_parents: bool = False):
         path.parent.mkdir(parents=True, exist_ok=True)
     elif not path.parent.is_dir():
         raise FileNotFoundError(f"folder {path.parent} does not exist (writing {path.name})")
+    remove_stale_temporaries(path)
     tmp = None
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
+        prefix, suffix = _temporary_name_parts(path, folder=False)
+        fd, tmp = tempfile.mkstemp(prefix=prefix, suffix=suffix, dir=path.parent)
         os.close(fd)
         yield Path(tmp)
         os.chmod(tmp, 0o666 & ~_umask())
@@ -108,7 +261,7 @@ def atomic_path(path, *, overwrite: bool = False, make_parents: bool = False):
         if tmp is not None:
             with contextlib.suppress(FileNotFoundError):
                 os.remove(tmp)
-        error = _write_error(e, path, None if tmp is None else Path(tmp), "file")
+        error = _write_error(e, path, path.parent, None if tmp is None else Path(tmp), "file")
         if error is e:
             raise
         raise error from e
@@ -194,24 +347,28 @@ def _nearest_existing(path: Path) -> Path:
 
 @contextlib.contextmanager
 def atomic_folder(path, *, overwrite: bool = True):
-    """Yield a new hidden temporary folder (`.NAME.XXXX.partial`) for the files of the folder `path`; when the
-    block succeeds, the folder becomes `path` (or, if `path` is an existing folder, its files are moved into
-    it, replacing files of the same name), creating missing parent folders only then. Any exception,
+    """Yield a new hidden temporary folder (`.NAME.HOST-PID.XXXXXXXX.partial`) for the files of the folder `path`;
+    when the block succeeds, the folder becomes `path` (or, if `path` is an existing folder, its files are moved
+    into it, replacing files of the same name), creating missing parent folders only then. Any exception,
     KeyboardInterrupt included, removes the temporary folder, so a partial folder never looks complete.
 
     The caller decides beforehand whether `path` may be written into (`jaxsr.io.recordings.check_output`);
     overwrite=False claims a new folder: FileExistsError at the end, writing nothing into it, if `path` holds
     files by then (another writer's, created while this one ran). Raises FileExistsError if `path` is a file,
-    and a `WriteError` naming `path` (or the file inside it) for an OSError of the disk (full, over quota, ...).
+    and a `WriteError` or `NotWritableError` naming `path` (or the file inside it) for an OSError of the disk
+    (full, over quota, ...) or of a folder it may not write into. Temporaries of `path` that a killed writer left
+    are removed first (`remove_stale_temporaries`).
     """
     path = Path(path)
     if path.is_file():
         raise FileExistsError(f"{path} is a file, not a folder")
     # In the nearest existing ancestor, so the final rename stays on one file system.
     home = _nearest_existing(path.parent)
+    remove_stale_temporaries(path, folder=True)
     tmp = None
     try:
-        tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".partial", dir=home))
+        prefix, suffix = _temporary_name_parts(path, folder=True)
+        tmp = Path(tempfile.mkdtemp(prefix=prefix, suffix=suffix, dir=home))
         yield tmp
         os.chmod(tmp, 0o777 & ~_umask())
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -233,7 +390,7 @@ def atomic_folder(path, *, overwrite: bool = True):
     except BaseException as e:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
-        error = _write_error(e, path, tmp, "folder")
+        error = _write_error(e, path, home, tmp, "folder")
         if error is e:
             raise
         raise error from e

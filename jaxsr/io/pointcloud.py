@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from ..config import SensorConfig
-from .files import atomic_folder, atomic_path
+from .files import _nearest_existing, atomic_folder, atomic_path, check_writable, refuse_link
 from .previews import _colourise
 
 __all__ = ["DEFAULT_FOV_DEG", "depth_points", "write_ply", "write_point_cloud", "write_point_clouds",
@@ -123,17 +123,19 @@ def write_point_cloud(path, depth, *, fov_deg: float = DEFAULT_FOV_DEG, colour=N
 
 
 def check_points_folder(spec, *, force: bool, output=None) -> Path:
-    """A folder for point clouds: refuses a file, a non-empty folder unless `force`, and the OUTPUT path. Writes
-    nothing. Returns the path."""
+    """A folder for point clouds: refuses a file, a non-empty folder unless `force`, a symbolic link, a place
+    this process cannot write into, and the OUTPUT path. Writes nothing. Returns the path."""
     path = Path(spec)
     if path.suffix.lower() == ".ply":
         raise ValueError(f"{path}: point clouds are written into a folder (one .ply per frame), not one file")
     if output is not None and path.resolve() == Path(output).resolve():
         raise ValueError(f"{path}: the point clouds' folder and OUTPUT are the same")
+    refuse_link(path, "the point clouds' folder")
     if path.exists() and not path.is_dir():
         raise FileExistsError(f"{path} is a file; point clouds are written into a folder")
     if path.is_dir() and any(path.iterdir()) and not force:
         raise FileExistsError(f"{path} exists and is not an empty folder; pass --force to write into it")
+    check_writable(_nearest_existing(path.parent), path)
     return path
 
 

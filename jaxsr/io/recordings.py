@@ -19,7 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from . import formats as io
-from ..checks import NORMALISED_SLACK, require_normalised_depth
+from .files import _nearest_existing, check_writable, refuse_link
+from ..checks import NORMALISED_SLACK, npz_array_bytes, require_memory, require_normalised_depth
 from ..config import MIN_LR_SIDE, TRAINED_RANGE_M, DepthScale, Gate, SensorConfig
 from ..sensor.effects import clip_negative_counts
 from ..sensor.gates import from_network_depth, to_network_depth
@@ -106,9 +107,10 @@ def _kind_of(ndim, requested, source):
     return kind
 
 
-def open_recording(spec, *, kind: str | None = None) -> Recording:
-    """Open INPUT: an .npy array, an .npz from `write_sequence` (depth) or `write_histograms` (counts), or a
-    folder or glob pattern of EXR / PFM / TIFF / 16-bit PNG depth frames (sorted by name).
+def open_recording(spec, *, kind: str | None = None, max_memory=None) -> Recording:
+    """Open INPUT: an .npy array (memory-mapped), an .npz from `write_sequence` (depth) or `write_histograms`
+    (counts; only that array is read, whole, once its size passes `jaxsr.checks.require_memory` with
+    `max_memory`), or a folder or glob pattern of EXR / PFM / TIFF / 16-bit PNG depth frames (sorted by name).
     kind: "depth", "histograms" or None (from the data: 4 dimensions or a `counts` array = histograms)."""
     spec = str(spec)
     p = Path(spec)
@@ -122,11 +124,7 @@ def open_recording(spec, *, kind: str | None = None) -> Recording:
             except (ValueError, OSError) as e:
                 raise ValueError(f"cannot read {spec}: truncated or not an NPY file ({e})") from e
         else:
-            z = io.read_npz_arrays(p)
-            name = "counts" if "counts" in z and kind != "depth" else "depth"
-            if name not in z:
-                raise ValueError(f"{spec}: expected an array 'depth' or 'counts', found {sorted(z)}")
-            arr = z[name]
+            arr, fps = _npz_recording(p, kind, max_memory)
         if arr.dtype.kind not in "iuf":
             raise ValueError(f"{spec}: holds {arr.dtype} values; expected real numbers (an integer or floating "
                              "point array)")
@@ -136,7 +134,7 @@ def open_recording(spec, *, kind: str | None = None) -> Recording:
         if arr.shape[0] < 1:
             raise ValueError(f"{spec}: the recording has no frames")
         return Recording(k, arr.shape[0], arr.shape[1:], lambda: iter(arr), spec, array=arr,
-                         fps=None if suffix == ".npy" else _stored_fps(z))
+                         fps=None if suffix == ".npy" else fps)
     if suffix in ARRAY_FORMATS:
         raise ValueError(f"{spec}: patterns select image frames ({', '.join(FRAME_FORMATS)}), not {suffix} arrays")
     if kind == "histograms":
@@ -154,6 +152,28 @@ def open_recording(spec, *, kind: str | None = None) -> Recording:
     return Recording("depth", len(files), first.shape, frames, spec)
 
 
+def _npz_recording(path: Path, kind: str | None, max_memory) -> tuple[np.ndarray, float | None]:
+    """(the recording's array of an .npz, its frame rate or None): 'counts' (unless `kind` is "depth") or
+    'depth', decompressed alone once its size passes the memory budget; the file's other arrays (an .npz of
+    `jaxsr simulate` holds the HR ground truth beside the counts) are never read."""
+    unreadable = f"cannot read {path}: truncated or not an NPZ file"
+    try:
+        z = np.load(path, allow_pickle=False)
+    except Exception as e:  # zipfile.BadZipFile, EOFError, ValueError on truncated files
+        raise ValueError(f"{unreadable} ({e})") from e
+    if not isinstance(z, np.lib.npyio.NpzFile):
+        raise ValueError(f"{unreadable} (it holds one .npy array: name it .npy)")
+    with z:
+        name = "counts" if "counts" in z.files and kind != "depth" else "depth"
+        if name not in z.files:
+            raise ValueError(f"{path}: expected an array 'depth' or 'counts', found {sorted(z.files)}")
+        require_memory(npz_array_bytes(path, [name]), f"{path}: its array '{name}'", max_memory)
+        try:
+            return z[name], _stored_fps(z)
+        except Exception as e:
+            raise ValueError(f"{unreadable} ({e})") from e
+
+
 def _stored_fps(arrays) -> float | None:
     """The frame rate an .npz's JSON metadata gives (`fps`), or None when it gives none (or no usable one: metadata
     that is no JSON object, or too large or deeply nested to read)."""
@@ -164,10 +184,17 @@ def _stored_fps(arrays) -> float | None:
     return fps if np.isfinite(fps) and fps > 0 else None
 
 
-def _chunks(recording: Recording, size: int = 256):
-    """(first frame index, (n, ...) float64 block) over the recording: blocks of an array, else single frames.
-    float64 holds every stored value (float16/32/64, integers) without overflow."""
+# `check_frames` reads an array in blocks of at most this many bytes (as float64): 256 frames of the sensor's
+# histograms, one of a large frame.
+CHECK_BLOCK_BYTES = 64 * 2**20
+
+
+def _chunks(recording: Recording):
+    """(first frame index, (n, ...) float64 block) over the recording: blocks of an array (at most
+    `CHECK_BLOCK_BYTES`, at least a frame), else single frames. float64 holds every stored value (float16/32/64,
+    integers) without overflow."""
     if recording.array is not None:
+        size = max(1, CHECK_BLOCK_BYTES // (8 * int(np.prod(recording.shape))))
         for t in range(0, recording.frames, size):
             yield t, np.asarray(recording.array[t : t + size], np.float64)
     else:
@@ -257,10 +284,11 @@ def gate_frames(com_frames, gate: Gate, scale: DepthScale):
         yield np.concatenate([network[..., None], f[..., 1:]], axis=-1) if f.ndim == 3 else network
 
 
-def time_tag_recording(tags, gate: Gate, *, outside: str = "error") -> Recording:
+def time_tag_recording(tags, gate: Gate, *, outside: str = "error", max_memory=None) -> Recording:
     """A recording of photon counts histogrammed from `jaxsr.sensor.timetags.TimeTags` over `gate`
-    (`histogram_time_tags`): kind "histograms", frames (h, w, gate.bins)."""
-    counts = histogram_time_tags(tags, gate, outside=outside)
+    (`histogram_time_tags`, its memory checked against `max_memory` first): kind "histograms", frames (h, w,
+    gate.bins)."""
+    counts = histogram_time_tags(tags, gate, outside=outside, max_memory=max_memory)
     return Recording("histograms", counts.shape[0], counts.shape[1:], lambda: iter(counts), tags.source, array=counts)
 
 
@@ -321,8 +349,11 @@ def guess_units(recording: Recording, *, ask: str = "pass --units (units=): m, m
 def check_output(spec, *, force: bool) -> Path:
     """OUTPUT: .npy / .npz (one array, in an existing folder) or a folder (one frame file per frame; missing
     parent folders are created when the frames are all written). Refuses to replace an existing file or write
-    into a non-empty folder unless `force`, and a file where a folder is meant in any case. Writes nothing."""
+    into a non-empty folder unless `force`, and in any case a file where a folder is meant, a symbolic link
+    (the output is moved into place by a rename, which would replace the link, not write where it points) and a
+    folder this process cannot write into (`jaxsr.io.files.check_writable`). Writes nothing."""
     out = Path(spec)
+    refuse_link(out, "OUTPUT")
     if out.suffix.lower() in ARRAY_FORMATS:
         _check_new_file(out, force=force, what=f"OUTPUT {out.suffix}")
     elif out.suffix:
@@ -333,17 +364,22 @@ def check_output(spec, *, force: bool) -> Path:
         raise FileExistsError(f"{out} exists and is not an empty folder; pass --force to write into it")
     else:
         _check_ancestors(out)
+        check_writable(_nearest_existing(out.parent), out)  # where the hidden temporary folder goes
+        if out.is_dir():
+            check_writable(out, out)  # with --force its files are moved in
     return out
 
 
 def _check_new_file(path: Path, *, force: bool, what: str) -> None:
-    """A file about to be written: not a folder, not an existing file unless `force`, in an existing folder."""
+    """A file about to be written: not a folder, not an existing file unless `force`, in an existing folder that
+    this process can write into."""
     if path.is_dir():
         raise IsADirectoryError(f"{path} is a folder; {what} is a file")
     if path.exists() and not force:
         raise FileExistsError(f"{path} exists; pass --force to overwrite it")
     if not path.parent.is_dir():
         raise FileNotFoundError(f"no such folder for {what}: {path.parent}")
+    check_writable(path.parent, path)
 
 
 def _check_ancestors(path: Path) -> None:

@@ -7,7 +7,6 @@ ground truth and write the files and previews (`simulate_recording`).
 from __future__ import annotations
 
 import dataclasses
-import os
 from pathlib import Path
 
 import jax
@@ -15,12 +14,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..baselines.interpolation import bicubic
+from ..checks import require_memory
 from ..config import DEFAULT_MEAN_SIGNAL, SensorConfig
 from ..eval.metrics import psnr, ssim
 from ..scenes import KINDS, sequence
 from ..sensor.forward import normalise_depth, require_scalar_levels, simulate_histograms
 from ..sensor.peaks import centre_of_mass
-from .files import atomic_folder
+from .files import _nearest_existing, atomic_folder, check_writable, refuse_link
 from .formats import read_airsim, write_histograms, write_sequence
 from .previews import write_comparison, write_gray_preview, write_preview
 
@@ -58,28 +58,37 @@ class Simulation:
 
 def _check_out(path, overwrite):
     """The output folder, checked (nothing is created yet): refuse (FileExistsError) a file, or a folder that
-    already holds any of `SIMULATION_OUTPUTS` unless `overwrite`."""
+    already holds any of `SIMULATION_OUTPUTS` unless `overwrite`; a symbolic link and a place this process cannot
+    write into in any case."""
     out = Path(path)
+    refuse_link(out, "--out")
     if out.exists() and not out.is_dir():
         raise FileExistsError(f"{out} is a file; --out is a folder")
     clash = [n for n in SIMULATION_OUTPUTS if (out / n).exists()]
     if clash and not overwrite:
         raise FileExistsError(f"{out} already holds {', '.join(clash)}; pass --force to overwrite")
+    check_writable(_nearest_existing(out.parent), out)  # where the hidden temporary folder goes
+    if out.is_dir():
+        check_writable(out, out)  # the files are moved into it
     return out
 
 
-def _check_memory(frames):
-    """Refuse (ValueError) a number of frames that cannot fit this machine's memory: rendering, the photon draw
-    and the outputs hold the whole sequence, about 15 MB per frame (measured: 0.8 GB for 10 frames, 1.8 GB for
-    80)."""
-    need = 0.7e9 + 15e6 * frames
-    try:
-        have = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (ValueError, OSError, AttributeError):  # not a POSIX system: no check
-        return
-    if need > have:
-        raise ValueError(f"--frames {frames} needs about {need / 1e9:.0f} GB of memory (15 MB per frame), more than "
-                         f"this machine's {have / 1e9:.0f} GB; simulate the recording in parts (--seed)")
+def _check_memory(frames: int, max_memory) -> None:
+    """Refuse (ValueError) a number of frames beyond the memory budget (`jaxsr.checks.require_memory`):
+    rendering, the photon draw and the outputs hold the whole sequence, about 15 MB per frame (measured: 0.8 GB
+    for 10 frames, 1.8 GB for 80)."""
+    require_memory(0.7e9 + 15e6 * frames, f"simulating {frames} frames", max_memory,
+                   remedy="simulate the recording in parts (--seed)")
+
+
+def _airsim_frames(folder) -> int:
+    """The frames an AirSim recording lists (the rows of airsim_rec.txt after its header; 0 when there is none:
+    `read_airsim` says what is missing)."""
+    rec = Path(folder) / "airsim_rec.txt"
+    if not rec.is_file():
+        return 0
+    with open(rec, "rb") as f:
+        return max(0, sum(1 for line in f if line.strip()) - 1)
 
 
 def _check_options(kind, frames, fps, snr, mean_signal, camera, seed):
@@ -113,7 +122,7 @@ def _scene(input, kind, frames, fps, camera, seed, sensor):
 
 def simulate_recording(out, *, kind: str = "street", input=None, frames: int = 20, fps: float = 25.0,
                        snr: float = 1.3, mean_signal: float | None = None, camera: str = "static", seed: int = 0,
-                       overwrite: bool = False) -> Simulation:
+                       overwrite: bool = False, max_memory=None) -> Simulation:
     """Simulate a SPAD recording and write it: `jaxsr simulate --out OUT` in one call.
 
     Renders `frames` frames of a procedural scene of `kind` ("street", "road", "courtyard" or "walkers", --kind)
@@ -127,7 +136,10 @@ def simulate_recording(out, *, kind: str = "street", input=None, frames: int = 2
     metadata), com_depth.npy ((T, h, w) normalised depth), gt_depth.npy ((T, H, W) radial metres) and PNG
     previews of the first frame (ground truth, centre of mass, intensity, and a centre of mass | bicubic | ground
     truth strip), written into a hidden temporary folder and moved in when all are written; None writes nothing.
-    overwrite (--force): replace those files in `out`. Options are keyword-only.
+    overwrite (--force): replace those files in `out`. max_memory (--max-memory): the memory the command may take,
+    bytes or a size such as "16GB" (default a share of this machine's RAM, `jaxsr.checks.memory_budget`), checked
+    against an estimate from the frames (rendered or listed by the AirSim recording) before any work. Options are
+    keyword-only.
 
     Returns a `Simulation` (the arrays, the metadata and the bicubic baseline's PSNR / SSIM; `summary()` is the
     command's JSON). Raises FileExistsError (out is a file, or holds the outputs without overwrite), ValueError
@@ -137,8 +149,7 @@ def simulate_recording(out, *, kind: str = "street", input=None, frames: int = 2
     sensor = SensorConfig()
     _check_options(kind, frames, fps, snr, mean_signal, camera, seed)
     out = None if out is None else _check_out(out, overwrite)
-    if input is None:
-        _check_memory(frames)
+    _check_memory(int(frames) if input is None else _airsim_frames(input), max_memory)
     depth, intensity, fps, source = _scene(input, kind, int(frames), fps, camera, int(seed), sensor)
     mean_signal = DEFAULT_MEAN_SIGNAL if mean_signal is None else mean_signal
     counts = simulate_histograms(jax.random.key(int(seed) + 1), jnp.asarray(depth), jnp.asarray(intensity), sensor,

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .files import atomic_path
+from .files import atomic_path, check_writable, refuse_link
 from .previews import NO_RETURN_RGB, _colourise, _to_png
 
 __all__ = ["VIDEO_FORMATS", "DepthVideoWriter", "write_depth_video", "check_video"]
@@ -35,18 +35,21 @@ _DIGIT_W = 7  # pixels per character of the frame number (monospace)
 
 def check_video(spec, *, force: bool, output=None) -> Path:
     """A video path (.mp4 or .gif): refuses another suffix, an existing file unless `force`, a folder, a missing
-    folder, and the OUTPUT path itself. Writes nothing. Returns the path."""
+    folder or one this process cannot write into, a symbolic link, and the OUTPUT path itself. Writes nothing.
+    Returns the path."""
     path = Path(spec)
     if path.suffix.lower() not in VIDEO_FORMATS:
         raise ValueError(f"{path}: the video is an {' or '.join(VIDEO_FORMATS)} file")
     if output is not None and path.resolve() == Path(output).resolve():
         raise ValueError(f"{path}: the video and OUTPUT are the same file")
+    refuse_link(path, "the video")
     if path.is_dir():
         raise IsADirectoryError(f"{path} is a folder; the video is a file")
     if path.exists() and not force:
         raise FileExistsError(f"{path} exists; pass --force (overwrite=True) to overwrite it")
     if not path.parent.is_dir():
         raise FileNotFoundError(f"no such folder for the video: {path.parent}")
+    check_writable(path.parent, path)
     return path
 
 

@@ -54,6 +54,7 @@ from .timetags import (
     read_time_tags,
     histogram_photons,
     gate_of_tags,
+    time_tag_warnings,
     histogram_time_tags,
 )
 
@@ -98,5 +99,6 @@ __all__ = [
     "read_time_tags",
     "histogram_photons",
     "gate_of_tags",
+    "time_tag_warnings",
     "histogram_time_tags",
 ]

@@ -336,3 +336,101 @@ def test_hostile_json_metadata_of_a_recording_is_refused_or_ignored_not_a_traceb
     np.savez(tmp_path / "seq.npz", depth=depth, metadata=np.array('{"fps": 12.5, "snr": [1, [2]]}'))
     assert io.read_sequence(tmp_path / "seq.npz")["metadata"] == {"fps": 12.5, "snr": [1, [2]]}
     assert io.open_recording(tmp_path / "seq.npz").fps == 12.5
+
+
+def _dead_pid() -> int:
+    """The pid of a process that has ended."""
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    return int(done.stdout)
+
+
+def test_temporaries_a_killed_writer_left_are_removed_by_the_next_write_of_that_output(tmp_path):
+    """Issue 37: SIGKILL leaves a hidden partial file or folder that nothing removes. Its name holds the output, the
+    host and the writer's pid, and the next atomic write of that output removes those of writers that no longer
+    run (one warning line), never a live writer's, another host's or another output's."""
+    import subprocess
+    import sys
+
+    from jaxsr.io.files import _HOST, atomic_folder, atomic_path
+
+    dead, live = _dead_pid(), subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        left = {
+            "stale file": tmp_path / f".out.{_HOST}-{dead}.k2j4h6g8.partial.npy",
+            "live writer's": tmp_path / f".out.{_HOST}-{live.pid}.abcdefgh.partial.npy",
+            "another host's": tmp_path / f".out.elsewhere-{dead}.abcdefgh.partial.npy",
+            "another output's": tmp_path / f".out2.{_HOST}-{dead}.abcdefgh.partial.npy",
+            "stale folder": tmp_path / f".frames.{_HOST}-{dead}.q1w2e3r4.partial",
+        }
+        for name, p in left.items():
+            p.mkdir() if "folder" in name else p.write_bytes(b"half")
+        (left["stale folder"] / "frame_000000.exr").write_bytes(b"x")
+        with pytest.warns(UserWarning, match=rf"^removed 1 temporary file of {tmp_path / 'out.npy'} that a stopped "
+                                             rf"writer left \(process {dead}, no longer running\)$"):
+            with atomic_path(tmp_path / "out.npy") as tmp:
+                assert tmp.name.startswith(f".out.{_HOST}-{os.getpid()}.") and tmp.name.endswith(".partial.npy")
+                tmp.write_bytes(b"done")
+        assert not left["stale file"].exists()
+        assert all(left[k].exists() for k in ("live writer's", "another host's", "another output's"))
+        with pytest.warns(UserWarning, match=r"removed 1 temporary folder of .*frames that a stopped writer left"):
+            with atomic_folder(tmp_path / "frames") as tmp:
+                (tmp / "frame_000000.exr").write_bytes(b"y")
+        assert not left["stale folder"].exists() and (tmp_path / "frames" / "frame_000000.exr").read_bytes() == b"y"
+    finally:
+        live.kill()
+        live.wait()
+
+
+def _fail_with(number):
+    def fail(*args, **kwargs):
+        raise OSError(number, os.strerror(number), os.path.join(kwargs.get("dir") or ".", ".tmp"))
+
+    return fail
+
+
+@pytest.mark.parametrize("number,reason", [(errno.EACCES, "permission denied"), (errno.EROFS, "read-only file system")])
+@pytest.mark.parametrize("kind", ["file", "folder"])
+def test_a_folder_that_cannot_be_written_into_is_the_users_and_names_the_output(tmp_path, monkeypatch, number,
+                                                                                reason, kind):
+    """Issue 37: a read-only output folder was an OSError traceback. As root, chmod does not refuse a write, so the
+    system's refusal is injected where the temporary is created: a `NotWritableError` (a PermissionError: exit 2 in
+    the CLI) naming the output, nothing left."""
+    import tempfile
+
+    from jaxsr.io.files import NotWritableError, WriteError, atomic_folder, atomic_path
+
+    out = tmp_path / ("frames" if kind == "folder" else "out.npy")
+    monkeypatch.setattr(tempfile, "mkdtemp" if kind == "folder" else "mkstemp", _fail_with(number))
+    with pytest.raises(NotWritableError) as caught:
+        with (atomic_folder if kind == "folder" else atomic_path)(out):
+            pass
+    assert isinstance(caught.value, PermissionError) and not isinstance(caught.value, WriteError)
+    assert str(caught.value) == f"cannot write {out}: {reason}; choose a folder you can write to"
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_check_writable_refuses_a_folder_this_process_cannot_write_into(tmp_path, monkeypatch):
+    """Before any work (`jaxsr upscale` checks its outputs' folders with it): os.access, which reports a read-only
+    file system to root too, injected here."""
+    from jaxsr.io.files import NotWritableError, check_writable
+
+    check_writable(tmp_path, tmp_path / "out.npy")
+    monkeypatch.setattr(os, "access", lambda path, mode: False)
+    with pytest.raises(NotWritableError, match=rf"^cannot write {tmp_path / 'out.npy'}: {tmp_path} is not writable; "
+                                               "choose a folder you can write to$"):
+        check_writable(tmp_path, tmp_path / "out.npy")
+
+
+def test_frames_are_checked_in_blocks_of_bounded_memory(tmp_path):
+    """Issue 37: `check_frames` read 256 frames at a time as float64, whatever their size (4 GB for frames of
+    1024 x 1024 pixels); now blocks of at most `CHECK_BLOCK_BYTES`, and at least one frame."""
+    from jaxsr.io.recordings import CHECK_BLOCK_BYTES, _chunks, open_recording
+
+    np.save(tmp_path / "big.npy", np.zeros((40, 512, 512), np.float32))
+    blocks = [block for _, block in _chunks(open_recording(tmp_path / "big.npy"))]
+    assert max(b.nbytes for b in blocks) <= CHECK_BLOCK_BYTES and sum(len(b) for b in blocks) == 40
+    np.save(tmp_path / "huge.npy", np.zeros((2, 3000, 3000), np.float32))
+    assert [len(b) for _, b in _chunks(open_recording(tmp_path / "huge.npy"))] == [1, 1]

@@ -1,12 +1,15 @@
 """Photon time tags (jaxsr.sensor.timetags): readers for .mat cell arrays and .npz tables, histogramming in JAX against
 NumPy's `histogram`, and every bad input refused with a message."""
 
+import re
+
 import numpy as np
 import pytest
 import scipy.io
 
 from jaxsr.config import METRES_PER_SECOND, Gate
-from jaxsr.sensor.timetags import gate_of_tags, histogram_time_tags, read_time_tags, time_tags_from_cells
+from jaxsr.sensor.timetags import (TimeTags, gate_of_tags, histogram_time_tags, read_time_tags, time_tag_warnings,
+                                    time_tags_from_cells)
 
 PS = 1e-12
 GATE = Gate.from_time(12, 100 * PS, 5000 * PS)  # 12 bins of 100 ps from 5000 ps
@@ -80,3 +83,87 @@ def test_bad_input_is_a_clear_error(tmp_path, make, match):
 def test_outside_photons_can_be_dropped():
     tags = time_tags_from_cells([[[5050.0, 9999.0, 10.0]]], time_unit_s=PS)
     assert histogram_time_tags(tags, GATE, outside="drop").sum() == 1
+
+
+# --- issue 37: what a recording of time tags can hold ---------------------------------------------------
+
+
+@pytest.mark.parametrize("unit", [1e-12, 8e-12, 1e-9, 1.0])
+def test_the_default_gate_holds_the_first_and_last_photon(unit):
+    """gate_of_tags spans the photons: each of them falls inside, whatever the rounding of the conversion to
+    metres and back (the last, or the first, photon was refused as outside in 13 of 300 random recordings)."""
+    rng = np.random.default_rng(1)
+    for bins in (16, 7, 100_000):
+        for _ in range(40):
+            times = rng.uniform(0, 1e7, 5)
+            tags = time_tags_from_cells([[times, np.round(times)]], time_unit_s=unit)
+            counts = histogram_time_tags(tags, gate_of_tags(tags, bins=bins))
+            assert counts.sum() == 10
+
+
+def test_negative_arrival_times_are_refused_by_the_default_gate_and_dropped_from_a_given_one():
+    tags = time_tags_from_cells([[[-50.0, 5050.0, 5150.0], [-1.0]]], time_unit_s=PS)
+    with pytest.raises(ValueError, match=r"2 of 4 photons arrive at negative times \(from -50, in the tags' unit\); "
+                                         r"expected times >= 0 from the laser pulse"):
+        gate_of_tags(tags)
+    with pytest.raises(ValueError, match="2 of 4 photons arrive outside the gate"):
+        histogram_time_tags(tags, GATE)
+    assert histogram_time_tags(tags, GATE, outside="drop").sum() == 2
+    assert time_tag_warnings(tags, GATE, outside="drop") == [
+        "cells: 2 of 4 photons outside the gate dropped (--drop-outside)"]
+
+
+@pytest.mark.parametrize("unit,got", [
+    (np.array([1e-12, 1e-12]), "an array of shape (2,)"), (-1e-12, "-1e-12"), (np.nan, "nan"),
+    (np.array("1ps"), "'1ps'"), (0, "0"),
+])
+def test_a_time_unit_that_is_not_one_number_above_0_says_what_was_expected(tmp_path, unit, got):
+    """In the file (a vector was a TypeError, a string, negative or NaN "the time unit is unknown") and as the
+    argument alike."""
+    np.savez(tmp_path / "t.npz", pixel=np.arange(4), time=np.full(4, 5050.0), shape=np.array([2, 2]),
+             time_unit_s=unit)
+    want = f"expected one number of seconds per time unit, > 0 (such as 1e-12 for picoseconds; --time-unit 1ps on " \
+           f"the command line), got {got}"
+    with pytest.raises(ValueError, match=re.escape(f"t.npz: 'time_unit_s': {want}")):
+        read_time_tags(tmp_path / "t.npz")
+    with pytest.raises(ValueError, match=re.escape(f"time_unit_s: {want}")):
+        read_time_tags(tmp_path / "t.npz", time_unit_s=unit)
+    assert read_time_tags(tmp_path / "t.npz", time_unit_s=PS).time_unit_s == PS  # the argument overrides the file
+
+
+def test_a_frame_index_of_ten_million_is_refused_with_the_memory_it_would_take(tmp_path):
+    np.savez(tmp_path / "t.npz", pixel=np.arange(4), time=np.full(4, 5050.0), frame=np.array([0, 0, 0, 10**7]),
+             shape=np.array([8, 8]), time_unit_s=PS)
+    tags = read_time_tags(tmp_path / "t.npz")
+    with pytest.raises(ValueError, match=r"histogramming 10000001 frames \(frame indices up to 10000000\) of 8 x 8 "
+                                         r"pixels x 12 bins needs about 61.4 GB of memory, more than the 1.0 GB "
+                                         r"allowed by --max-memory .*check the frame indices"):
+        histogram_time_tags(tags, GATE, max_memory="1GB")
+    with pytest.raises(ValueError, match=r"makes 7,680,000,768 counts .* more than the 2,147,483,647"):
+        histogram_time_tags(tags, GATE, max_memory="1TB")  # within memory, beyond JAX's int32 indices
+
+
+def test_many_bins_are_refused_before_they_are_allocated():
+    tags = TimeTags(np.arange(2048), np.zeros(2048, np.int64), np.full(2048, 5050.0), (32, 64), 1, PS)
+    with pytest.raises(ValueError, match=r"of 32 x 64 pixels x 100000 bins needs about 1.6 GB of memory, more than "
+                                         r"the 500 MB allowed .*give fewer --bins"):
+        histogram_time_tags(tags, Gate.from_time(100_000, 0.012 * PS, 5000 * PS), max_memory="500MB")
+
+
+def test_a_time_unit_1000x_off_names_the_likely_one():
+    """Times in ps read as ns fall outside the gate (refused, or dropped with a warning); read as fs they fall
+    inside a sliver of it: either way the message names the unit that fits."""
+    times = np.random.default_rng(2).uniform(5005, 6195, 200)
+    as_ns = time_tags_from_cells([[times]], time_unit_s=1e-9)
+    with pytest.raises(ValueError, match=r"200 of 200 photons arrive outside the gate .*is the time unit right\? "
+                                         r"with --time-unit 1ps \(not 1ns\) 100% of them would fall inside, over 9\d% "
+                                         r"of the gate"):
+        histogram_time_tags(as_ns, GATE)
+    wide = Gate.from_time(16, 1e-9, 0.0)  # 0 .. 16 ns
+    as_fs = time_tags_from_cells([[times]], time_unit_s=1e-15)
+    counts = histogram_time_tags(as_fs, wide)
+    assert counts[0, 0, 0, 0] == 200  # every photon in the first bin
+    [note] = time_tag_warnings(as_fs, wide)
+    assert re.fullmatch(r"cells: the photons fall inside 0.0\d% of the gate; is the time unit right\? with "
+                        r"--time-unit 1ps \(not 1fs\) 100% of them would fall inside, over 7% of the gate", note), note
+    assert time_tag_warnings(time_tags_from_cells([[times]], time_unit_s=PS), GATE) == []
