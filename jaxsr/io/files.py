@@ -149,7 +149,7 @@ def _writer_gone(host: str, pid: int) -> bool:
     """Whether the process `pid` of `host` that named a temporary is known to have ended: on this host, no such
     process (a process of another user is alive too; another host's cannot be told). A pid reused since by an
     unrelated process keeps the temporary: left, never a live writer's removed."""
-    if host != _HOST or pid == os.getpid():
+    if host != _HOST or pid == os.getpid() or os.name != "posix":  # Windows' os.kill(pid, 0) would end it
         return False
     try:
         os.kill(pid, 0)

@@ -312,21 +312,23 @@ def _nested_deeper(value, limit: int) -> bool:
     return False
 
 
-def read_npz_arrays(path, required=()):
-    """Every array of an .npz file, read eagerly (no pickles); the arrays named in `required` must be there.
+def read_npz_arrays(path, required=(), *, names=None):
+    """The arrays of an .npz file, read eagerly (no pickles): every one, or only those in `names` (the others are
+    never decompressed); the arrays named in `required` must be there.
 
-    Args: path (.npz), required (names). Returns a dict {name: array}; raises FileNotFoundError, or ValueError
-    for a truncated or foreign file or a missing array.
+    Args: path (.npz), required (names), names (names, or None for all). Returns a dict {name: array}; raises
+    FileNotFoundError, or ValueError for a truncated or foreign file or a missing array.
     """
     path = _require_file(path)
     try:
         with np.load(path, allow_pickle=False) as z:
-            out = {k: z[k] for k in z.files}
+            found = list(z.files)
+            out = {k: z[k] for k in found if names is None or k in names}
     except Exception as e:  # zipfile.BadZipFile, EOFError, ValueError on truncated files
         raise ValueError(f"cannot read {path}: truncated or not an NPZ file ({e})") from e
-    missing = [k for k in required if k not in out]
+    missing = [k for k in required if k not in found]
     if missing:
-        raise ValueError(f"{path}: missing arrays {missing}; found {sorted(out)}")
+        raise ValueError(f"{path}: missing arrays {missing}; found {sorted(found)}")
     return out
 
 

@@ -42,7 +42,7 @@ def sequence_data(path, model_cfg: ModelConfig, train_cfg, sensor: SensorConfig)
     if Path(path).suffix.lower() != ".npz":
         raise ValueError(f"--data {path}: expected an .npz file with arrays depth (radial m) and intensity, "
                          "(N, T, H, W)")
-    d = read_npz_arrays(path, ["depth", "intensity"])
+    d = read_npz_arrays(path, ["depth", "intensity"], names=("depth", "intensity"))  # the file's others stay packed
     for name in ("depth", "intensity"):
         if d[name].dtype.kind not in "iuf":
             raise ValueError(f"--data {path}: {name} holds {d[name].dtype} values; expected real numbers")

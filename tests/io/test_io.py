@@ -153,6 +153,19 @@ def test_read_npz_arrays_names_the_file_and_the_missing_array(tmp_path):
         io.read_npz_arrays(tmp_path / "b.npz")
 
 
+def test_read_npz_arrays_reads_only_the_arrays_named(tmp_path, monkeypatch):
+    """Issue 37: the arrays a caller does not use (`jaxsr train --data` reads depth and intensity) are never
+    decompressed."""
+    np.savez_compressed(tmp_path / "d.npz", depth=np.ones((2, 3)), intensity=np.zeros((2, 3)), big=np.zeros(10**6))
+    read = []
+    real = np.lib.npyio.NpzFile.__getitem__
+    monkeypatch.setattr(np.lib.npyio.NpzFile, "__getitem__", lambda self, key: read.append(key) or real(self, key))
+    got = io.read_npz_arrays(tmp_path / "d.npz", ["depth"], names=("depth", "intensity"))
+    assert sorted(got) == ["depth", "intensity"] and sorted(read) == ["depth", "intensity"]
+    with pytest.raises(ValueError, match=r"missing arrays \['x'\]; found \['big', 'depth', 'intensity'\]"):
+        io.read_npz_arrays(tmp_path / "d.npz", ["x"], names=("x",))
+
+
 def _airsim_folder(tmp_path, planar, gray, stamps):
     rec = tmp_path / "rec"
     (rec / "images").mkdir(parents=True)
