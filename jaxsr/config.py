@@ -162,6 +162,13 @@ jax.tree_util.register_dataclass(DepthScale, data_fields=["offset", "span"], met
 TEMPORAL_FORMS = ("window", "sequence")
 
 
+# How the network's convolutions take their products (`jaxsr.nn.layers.conv3d`, `TrainConfig.precision`):
+# "default" (the backend's own: float32 on CPU, TF32 for float32 operands on NVIDIA GPUs since Ampere), "float32"
+# (full float32 products on every backend) or "bfloat16" (operands rounded to bfloat16, products accumulated in
+# float32: the fast path of GPUs' matrix units and of CPUs with AVX512-BF16). Weights, inputs, outputs and everything
+# between the convolutions stay float32.
+PRECISIONS = ("default", "float32", "bfloat16")
+
 # What a network may read per LR pixel (`ModelConfig.inputs`): the centre-of-mass depth, always first (the dynamic
 # filters upsample it), then optionally the photons behind it (`jaxsr.sensor.peak_evidence`, log-encoded by
 # `jaxsr.nn.inputs`): "signal" (photons in the peak above the background) and "background" (ambient photons).
@@ -306,6 +313,7 @@ class TrainConfig:
     `clip_frames`: LR frames per training clip of a sequence-form model (`ModelConfig(temporal="sequence")`),
     at least 2R + 1 (R = 3 + tr); the loss covers the clip's L - 2R frames whose inputs all lie inside it. None:
     2R + `DEFAULT_CLIP_OUTPUTS`. Window-form training ignores it.
+    `precision`: how the network's convolutions multiply in training (`PRECISIONS`; "default": the backend's).
     """
 
     batch_size: int = 4
@@ -330,6 +338,7 @@ class TrainConfig:
     val_mean_signal: float = DEFAULT_MEAN_SIGNAL
     seed: int = 0
     clip_frames: int | None = None
+    precision: str = "default"
 
     def __post_init__(self):
         if self.batch_size < 1 or self.examples_per_epoch < self.batch_size:
@@ -345,6 +354,9 @@ class TrainConfig:
             raise ValueError(f"TrainConfig: snr_range must be 0 < lo <= hi, got {self.snr_range}")
         if not (0 < self.mean_signal_range[0] <= self.mean_signal_range[1]):
             raise ValueError(f"TrainConfig: mean_signal_range must be 0 < lo <= hi, got {self.mean_signal_range}")
+        if self.precision not in PRECISIONS:
+            raise ValueError(f"TrainConfig: precision must be one of {', '.join(map(repr, PRECISIONS))}, "
+                             f"got {self.precision!r}")
 
     def clip_length(self, model: ModelConfig) -> int:
         """L, the frames per training clip of `model` in the sequence form (`clip_frames` or its default);

@@ -26,18 +26,22 @@ from pathlib import Path
 
 
 import jaxsr
-from jaxsr.config import PRESETS, PhotonRegime
+from jaxsr.config import PRECISIONS, PRESETS, PhotonRegime
 from jaxsr.training import regime_batches
 from jaxsr.training.presets import PHOTON_INPUTS, regime_validation
 
 KEPT = Path(__file__).resolve().parents[1] / "photon_weights"
 
 
-def train_config(epochs: int, steps_per_epoch: int, lr: float, seed: int):
-    """The bundle preset's crops and batch, with this run's length and a fine-tuning rate (cut 10x half way)."""
+def train_config(epochs: int, steps_per_epoch: int, lr: float, seed: int, *, batch_size: int | None = None,
+                 decay_epochs: int | None = None, precision: str = "default"):
+    """The bundle preset's crops (and batch, unless given), with this run's length and a fine-tuning rate (cut 10x
+    after `decay_epochs`, default half way)."""
     base = PRESETS["bundle"]
-    return dataclasses.replace(base, examples_per_epoch=steps_per_epoch * base.batch_size, epochs=epochs,
-                               lr=lr, decay_epochs=max(1, epochs // 2), patience=max(3, epochs // 4), seed=seed)
+    batch = batch_size or base.batch_size
+    return dataclasses.replace(base, batch_size=batch, examples_per_epoch=steps_per_epoch * batch, epochs=epochs,
+                               lr=lr, decay_epochs=decay_epochs or max(1, epochs // 2),
+                               patience=max(3, epochs // 4), seed=seed, precision=precision)
 
 
 def main(argv=None) -> None:
@@ -47,6 +51,13 @@ def main(argv=None) -> None:
     parser.add_argument("--epochs", type=int, default=40)
     parser.add_argument("--steps-per-epoch", type=int, default=256)
     parser.add_argument("--lr", type=float, default=1e-4, help="Adam's rate (a fine-tune: 10x below the paper's)")
+    parser.add_argument("--batch-size", type=int, default=None,
+                        help="clips per step (default the bundle preset's 4; an accelerator runs 16 or more well)")
+    parser.add_argument("--decay-epochs", type=int, default=None, help="cut the rate 10x every this many epochs "
+                        "(default half the epochs)")
+    parser.add_argument("--precision", default="default", choices=PRECISIONS,
+                        help="how the convolutions multiply (TrainConfig.precision)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar (logs to a file)")
     parser.add_argument("--val-batches", type=int, default=16, help="batches of 4 regime draws to validate on")
     parser.add_argument("--init", default=None,
                         help="weights to start from (default the bundled tr<N>; e.g. "
@@ -70,13 +81,16 @@ def main(argv=None) -> None:
         return
     sensor, regime = jaxsr.SensorConfig(), PhotonRegime(paper_prob=args.paper_share)
     model_cfg = jaxsr.ModelConfig(tr=args.tr, **(PHOTON_INPUTS if args.photons else {}))
-    train_cfg = train_config(args.epochs, args.steps_per_epoch, args.lr, args.seed)
+    train_cfg = train_config(args.epochs, args.steps_per_epoch, args.lr, args.seed, batch_size=args.batch_size,
+                             decay_epochs=args.decay_epochs, precision=args.precision)
     # validation on the wide regime alone (paper_prob 0): the model is chosen for the regime it is for
     validation = regime_validation(args.tr, train_cfg, PhotonRegime(), batches=args.val_batches, sensor=sensor,
                                    inputs=model_cfg.inputs)
     jaxsr.fit(model_cfg, train_cfg, out=out, make_batch=regime_batches(
         args.tr, train_cfg, regime, sensor=sensor, inputs=model_cfg.inputs), validation=validation, sensor=sensor,
-        resume=True,
+        resume=True, progress=not args.no_progress,
+        callback=lambda r: print(f"{name} epoch {r['epoch']}: val PSNR {r['val_psnr']:.2f} dB, "
+                                 f"{r['epoch_time_s']:.0f} s", flush=True),
         init=args.init or f"tr{args.tr}", checkpoint_every_s=60 * args.checkpoint_minutes,
         card_extra={"regime": regime.to_dict(), "trained_with": "experiments/studies/photon_finetune.py"})
 

@@ -4,7 +4,8 @@
 mode) and `apply_model_train(...) -> (hr, new_state)` (BN with batch statistics) are pure functions of nested
 dicts/lists of arrays (pytree key paths such as `blocks/0/conv2/w` name every array). `Model` bundles params,
 state and config as one pytree; `super_resolve` runs a model over a whole LR sequence. How the convolutions
-are computed (`conv3d_impl`) is an argument of the call, not part of the model's config.
+are computed (`conv3d_impl`) and to what precision (`precision`) are arguments of the call, not part of the model's
+config.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import jax.numpy as jnp
 from ..config import ModelConfig
 from .layers import (
     CONV3D_IMPLS,
+    PRECISIONS,
     batch_norm,
     conv3d,
     depth_to_space,
@@ -248,15 +250,27 @@ def _has_channels(x, cfg: ModelConfig, ndim: int) -> bool:
     return x.ndim == ndim + 1 and x.shape[-1] == cfg.channels
 
 
-def _check_inputs(windows, cfg: ModelConfig, conv3d_impl: str, who: str):
+def _check_inputs(windows, cfg: ModelConfig, conv3d_impl: str, precision: str, who: str):
     if not _has_channels(windows, cfg, 4) or windows.shape[1] != cfg.frames:
         raise ValueError(f"{who}: expected windows {_input_shape(cfg, f'B, {cfg.frames}')} for tr={cfg.tr} and "
                          f"inputs {cfg.inputs}, got shape {windows.shape}")
+    check_conv(conv3d_impl, precision, who)
+
+
+def check_conv(conv3d_impl: str, precision: str, who: str) -> None:
+    """Refuse an unknown `conv3d_impl` or `precision`, naming the caller and the choices."""
     if conv3d_impl not in CONV3D_IMPLS:
         raise ValueError(f"{who}: conv3d_impl must be one of {', '.join(map(repr, CONV3D_IMPLS))}, got {conv3d_impl!r}")
+    if precision not in PRECISIONS:
+        raise ValueError(f"{who}: precision must be one of {', '.join(map(repr, PRECISIONS))}, got {precision!r}")
 
 
-def apply_model(params, state, windows, cfg: ModelConfig, *, conv3d_impl: str = "auto"):
+def convolution(conv3d_impl: str = "auto", precision: str = "default"):
+    """The network's convolution, `conv3d` with its impl and precision fixed: conv(x, w, b, padding=...)."""
+    return functools.partial(conv3d, impl=conv3d_impl, precision=precision)
+
+
+def apply_model(params, state, windows, cfg: ModelConfig, *, conv3d_impl: str = "auto", precision: str = "default"):
     """Super-resolve the centre frame of each window, batch norm in inference mode (running statistics).
 
     windows: `(B, 2*tr+1, H, W)` LR normalised depth (0..1, 1 = no return), the centre frame at index tr; a
@@ -267,22 +281,25 @@ def apply_model(params, state, windows, cfg: ModelConfig, *, conv3d_impl: str = 
     faster one on the current backend), "native" (one 3D convolution), "taps" (a sum of 2D convolutions over
     the temporal taps), "stacked" (the taps' kernels side by side in one 2D convolution) or "stacked-taps-grad"
     (the stacked forward with the taps' gradients, what "auto" trains with on CPU).
+    precision: how the convolutions multiply, `jaxsr.nn.layers.PRECISIONS`: "default" (the backend's), "float32"
+    or "bfloat16" (bfloat16 operands, float32 accumulation); the output is float32 in every case.
     """
-    _check_inputs(windows, cfg, conv3d_impl, "apply_model")
-    out, _ = _forward(params, state, windows, cfg, train=False, impl=conv3d_impl)
+    _check_inputs(windows, cfg, conv3d_impl, precision, "apply_model")
+    out, _ = _forward(params, state, windows, cfg, train=False, conv=convolution(conv3d_impl, precision))
     return merge_no_return(out, cfg)
 
 
-def apply_model_train(params, state, windows, cfg: ModelConfig, *, conv3d_impl: str = "auto"):
+def apply_model_train(params, state, windows, cfg: ModelConfig, *, conv3d_impl: str = "auto",
+                      precision: str = "default"):
     """The network as it trains: batch norm normalises with the batch's own statistics.
 
     windows: as for `apply_model`. Returns (out, new_state): out the raw output, hr `(B, H*r, W*r)`, or with a
     no-return head `(B, H*r, W*r, 2)` [depth, no-return logit] (what the loss needs; `merge_no_return` makes
     it `apply_model`'s output); new_state holds the running BN statistics moved towards this batch's (same
-    structure as `state`). conv3d_impl: as for `apply_model`.
+    structure as `state`). conv3d_impl, precision: as for `apply_model`.
     """
-    _check_inputs(windows, cfg, conv3d_impl, "apply_model_train")
-    return _forward(params, state, windows, cfg, train=True, impl=conv3d_impl)
+    _check_inputs(windows, cfg, conv3d_impl, precision, "apply_model_train")
+    return _forward(params, state, windows, cfg, train=True, conv=convolution(conv3d_impl, precision))
 
 
 def spatial_radius(cfg: ModelConfig) -> int:
@@ -297,7 +314,7 @@ def sequence_radius(cfg: ModelConfig) -> int:
     return cfg.same_blocks + cfg.tr
 
 
-def _check_sequence(lr_seq, cfg: ModelConfig, padding: str, conv3d_impl: str, who: str):
+def _check_sequence(lr_seq, cfg: ModelConfig, padding: str, conv3d_impl: str, precision: str, who: str):
     r = sequence_radius(cfg)
     if padding not in ("edge", "valid"):
         raise ValueError(f"{who}: padding must be 'edge' or 'valid', got {padding!r}")
@@ -307,12 +324,11 @@ def _check_sequence(lr_seq, cfg: ModelConfig, padding: str, conv3d_impl: str, wh
             f"{who}: expected an LR sequence {_input_shape(cfg, 'B, T')} with T >= {need} for tr={cfg.tr} and padding "
             f"{padding!r} (R = {r}), got shape {lr_seq.shape}"
         )
-    if conv3d_impl not in CONV3D_IMPLS:
-        raise ValueError(f"{who}: conv3d_impl must be one of {', '.join(map(repr, CONV3D_IMPLS))}, got {conv3d_impl!r}")
+    check_conv(conv3d_impl, precision, who)
 
 
 def apply_model_sequence(params, state, lr_seq, cfg: ModelConfig, *, padding: str = "edge",
-                         conv3d_impl: str = "auto"):
+                         conv3d_impl: str = "auto", precision: str = "default"):
     """The network in its sequence form, BN in inference mode: every output frame of a sequence in one pass.
 
     All 3 + tr blocks are temporally valid, so with R = `sequence_radius(cfg)` = same_blocks + tr, output t is
@@ -320,15 +336,17 @@ def apply_model_sequence(params, state, lr_seq, cfg: ModelConfig, *, padding: st
     share every intermediate frame. Same parameters as `apply_model` (any checkpoint runs in either form).
     lr_seq: (B, T, H, W) LR normalised depth. padding: "edge" (the ends padded with R copies of the first and
     last frame; T >= 1) returns `(B, T, H*r, W*r)`; "valid" (no padding; T >= 2R + 1) returns the T - 2R
-    frames whose inputs all lie inside the sequence, `(B, T - 2R, H*r, W*r)`. conv3d_impl: as for `apply_model`.
+    frames whose inputs all lie inside the sequence, `(B, T - 2R, H*r, W*r)`. conv3d_impl, precision: as for
+    `apply_model`.
     """
-    _check_sequence(lr_seq, cfg, padding, conv3d_impl, "apply_model_sequence")
-    out, _ = _forward_sequence(params, state, lr_seq, cfg, padding=padding, train=False, impl=conv3d_impl)
+    _check_sequence(lr_seq, cfg, padding, conv3d_impl, precision, "apply_model_sequence")
+    out, _ = _forward_sequence(params, state, lr_seq, cfg, padding=padding, train=False,
+                               conv=convolution(conv3d_impl, precision))
     return merge_no_return(out, cfg)
 
 
 def apply_model_sequence_train(params, state, lr_seq, cfg: ModelConfig, *, padding: str = "valid",
-                               conv3d_impl: str = "auto"):
+                               conv3d_impl: str = "auto", precision: str = "default"):
     """The sequence form as it trains: BN normalises with the statistics of the whole clip, (B, T', H, W).
 
     lr_seq: (B, T, H, W) training clips; padding: "valid" (default: only outputs whose inputs all lie inside
@@ -336,8 +354,9 @@ def apply_model_sequence_train(params, state, lr_seq, cfg: ModelConfig, *, paddi
     the raw output `(B, T', H*r, W*r)` (with a no-return head a last axis [depth, logit], as
     `apply_model_train`), new_state the running BN statistics moved towards the clip's.
     """
-    _check_sequence(lr_seq, cfg, padding, conv3d_impl, "apply_model_sequence_train")
-    return _forward_sequence(params, state, lr_seq, cfg, padding=padding, train=True, impl=conv3d_impl)
+    _check_sequence(lr_seq, cfg, padding, conv3d_impl, precision, "apply_model_sequence_train")
+    return _forward_sequence(params, state, lr_seq, cfg, padding=padding, train=True,
+                             conv=convolution(conv3d_impl, precision))
 
 
 def edge_pad_sequence(lr_seq, radius: int):
@@ -347,31 +366,31 @@ def edge_pad_sequence(lr_seq, radius: int):
     return jnp.concatenate([first, lr_seq, last], axis=1)
 
 
-def _forward_sequence(params, state, lr_seq, cfg: ModelConfig, *, padding: str, train: bool, impl: str):
+def _forward_sequence(params, state, lr_seq, cfg: ModelConfig, *, padding: str, train: bool, conv):
     """The sequence form's body for both BN modes: (hr (B, T', H*r, W*r), new_state)."""
     r = sequence_radius(cfg)
     x_in = edge_pad_sequence(lr_seq, r) if padding == "edge" else lr_seq
     bn = {"train": train, "momentum": cfg.bn_momentum, "eps": cfg.bn_eps}
-    x = _stem(params, x_in, impl=impl)
+    x = _stem(params, x_in, conv=conv)
     new_state = {"blocks": []}
     for p, s in zip(params["blocks"], state["blocks"]):
-        x, s_i = _block(p, s, x, valid=True, bn=bn, impl=impl)
+        x, s_i = _block(p, s, x, valid=True, bn=bn, conv=conv)
         new_state["blocks"].append(s_i)
     hr, new_state["head"] = _head(params, state, x, _depth(x_in[:, r : x_in.shape[1] - r], cfg), cfg, bn=bn,
-                                  impl=impl)
+                                  conv=conv)
     return hr, new_state
 
 
-def _forward(params, state, windows, cfg: ModelConfig, *, train: bool, impl: str):
+def _forward(params, state, windows, cfg: ModelConfig, *, train: bool, conv):
     """The windowed network for both BN modes: (hr (B, H*r, W*r), new_state)."""
     bn = dict(train=train, momentum=cfg.bn_momentum, eps=cfg.bn_eps)
-    x = _stem(params, windows, impl=impl)
+    x = _stem(params, windows, conv=conv)
     new_state = {"blocks": []}
     for i, (p, s) in enumerate(zip(params["blocks"], state["blocks"])):
-        x, s_i = _block(p, s, x, valid=i >= cfg.same_blocks, bn=bn, impl=impl)
+        x, s_i = _block(p, s, x, valid=i >= cfg.same_blocks, bn=bn, conv=conv)
         new_state["blocks"].append(s_i)
     hr, new_state["head"] = _head(params, state, x, _depth(windows[:, cfg.tr : cfg.tr + 1], cfg), cfg, bn=bn,
-                                  impl=impl)
+                                  conv=conv)
     return hr[:, 0], new_state  # T = 1 after tr valid blocks
 
 
@@ -380,42 +399,42 @@ def _depth(lr, cfg: ModelConfig):
     return lr if cfg.channels == 1 else lr[..., 0]
 
 
-def _stem(params, lr, *, impl: str):
+def _stem(params, lr, *, conv):
     """lr (B, T, H, W) or (B, T, H, W, C) -> stem features (B, T, H, W, base): conv 1x3x3, spatial zero padding."""
     x = lr[..., None] if lr.ndim == 4 else lr
-    return conv3d(x, params["stem"]["w"], params["stem"]["b"], padding="same", impl=impl)
+    return conv(x, params["stem"]["w"], params["stem"]["b"], padding="same")
 
 
-def _block_input(p, s, x, *, bn: dict):
+def _block_input(p, s, x, *, bn: dict, conv):
     """The per-frame part of a dense block: BN, ReLU, conv 1x1x1, BN, ReLU; (..., F) -> ((..., F), (s1, s2))."""
     y, s1 = batch_norm(p["bn1"], s["bn1"], x, **bn)
-    y = conv3d(jax.nn.relu(y), p["conv1"]["w"], p["conv1"]["b"])
+    y = conv(jax.nn.relu(y), p["conv1"]["w"], p["conv1"]["b"])
     y, s2 = batch_norm(p["bn2"], s["bn2"], y, **bn)
     return jax.nn.relu(y), {"bn1": s1, "bn2": s2}
 
 
-def _block(p, s, x, *, valid: bool, bn: dict, impl: str):
+def _block(p, s, x, *, valid: bool, bn: dict, conv):
     """One dense block: x (B, T, H, W, F) -> (B, T', H, W, F + growth) and its new BN state.
 
     `valid`: the 3x3x3 conv is not padded in time (T' = T - 2) and the skip path is cropped to the middle
     frames; otherwise T' = T (temporal zero padding 1).
     """
-    y, new_state = _block_input(p, s, x, bn=bn)
+    y, new_state = _block_input(p, s, x, bn=bn, conv=conv)
     pad = ((0, 0) if valid else (1, 1), (1, 1), (1, 1))
-    y = conv3d(y, p["conv2"]["w"], p["conv2"]["b"], padding=pad, impl=impl)
+    y = conv(y, p["conv2"]["w"], p["conv2"]["b"], padding=pad)
     if valid:
         x = x[:, 1:-1]
     return jnp.concatenate([x, y], axis=-1), new_state
 
 
-def _head(params, state, x, centre, cfg: ModelConfig, *, bn: dict, impl: str):
+def _head(params, state, x, centre, cfg: ModelConfig, *, bn: dict, conv):
     """Features (B, T, H, W, F) and the LR frames they belong to, centre (B, T, H, W) -> (hr (B, T, H*r, W*r),
     new head BN state): head conv, residual and filter branches, dynamic upsampling of `centre`."""
     h, sh = batch_norm(params["head"]["bn"], state["head"]["bn"], x, **bn)
-    h = jax.nn.relu(conv3d(jax.nn.relu(h), params["head"]["conv"]["w"], params["head"]["conv"]["b"], impl=impl))
+    h = jax.nn.relu(conv(jax.nn.relu(h), params["head"]["conv"]["w"], params["head"]["conv"]["b"]))
 
-    def dense(p, z):
-        return z @ p["w"][0, 0, 0] + p["b"]
+    def dense(p, z):  # a 1x1x1 convolution: a matrix product
+        return conv(z, p["w"], p["b"])
 
     residual = dense(params["residual"]["conv2"], jax.nn.relu(dense(params["residual"]["conv1"], h)))
     logits = dense(params["filter"]["conv2"], jax.nn.relu(dense(params["filter"]["conv1"], h)))

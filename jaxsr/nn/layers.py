@@ -14,6 +14,8 @@ import math
 import jax
 import jax.numpy as jnp
 
+from ..config import PRECISIONS
+
 __all__ = [
     "CONV3D_IMPLS",
     "batch_norm",
@@ -64,7 +66,7 @@ def conv3d_native(x, w, b=None, *, padding="same"):
     """
     pads = _pads(padding, w.shape[:3])
     y = jax.lax.conv_general_dilated(
-        x, w, window_strides=(1, 1, 1), padding=pads, dimension_numbers=("NDHWC", "DHWIO", "NDHWC")
+        x, w, window_strides=(1, 1, 1), padding=pads, dimension_numbers=("NDHWC", "DHWIO", "NDHWC"), **_dot(x, w)
     )
     return y if b is None else y + b
 
@@ -72,8 +74,15 @@ def conv3d_native(x, w, b=None, *, padding="same"):
 def _conv2d(x, w, pads):
     """2D convolution of (N, H, W, Cin) by (kh, kw, Cin, Cout) with ((h_lo, h_hi), (w_lo, w_hi)) zero padding."""
     return jax.lax.conv_general_dilated(
-        x, w, window_strides=(1, 1), padding=pads, dimension_numbers=("NHWC", "HWIO", "NHWC")
+        x, w, window_strides=(1, 1), padding=pads, dimension_numbers=("NHWC", "HWIO", "NHWC"), **_dot(x, w)
     )
+
+
+def _dot(x, w) -> dict:
+    """The products' accumulator: float32 for bfloat16 operands (`conv3d(precision="bfloat16")`), else theirs."""
+    if x.dtype == jnp.bfloat16 and w.dtype == jnp.bfloat16:
+        return {"preferred_element_type": jnp.float32}
+    return {}
 
 
 def _t_out(t_in, t_lo, t_hi, kt):
@@ -127,7 +136,7 @@ def conv3d_taps(x, w, b=None, *, padding="same"):
     if y is None:  # every tap fell in the padding
         h_out = h + sum(hpad) - w.shape[1] + 1
         w_out = wd + sum(wpad) - w.shape[2] + 1
-        y = jnp.zeros((bsz, t_out, h_out, w_out, w.shape[-1]), jnp.result_type(x, w))
+        y = jnp.zeros((bsz, t_out, h_out, w_out, w.shape[-1]), jnp.promote_types(jnp.result_type(x, w), jnp.float32))
     return y if b is None else y + b
 
 
@@ -186,6 +195,7 @@ _stacked_taps_grad.defvjp(_stacked_taps_grad_fwd, _stacked_taps_grad_bwd)
 # The ways `conv3d` can run a convolution; all give the same result (to float rounding).
 CONV3D_IMPLS = ("auto", "native", "taps", "stacked", "stacked-taps-grad")
 
+
 # `conv3d(impl="auto")` on CPU stacks the temporal taps of a layer when at least this share of the stacked
 # products is used (`stacked_use`); below it the taps are convolved one by one.
 STACKED_MIN_USE = 0.7
@@ -207,20 +217,29 @@ def default_conv3d_impl(backend: str | None = None) -> str:
     return "taps" if backend == "cpu" else "native"
 
 
-def conv3d(x, w, b=None, *, padding="same", impl: str = "auto"):
+def conv3d(x, w, b=None, *, padding="same", impl: str = "auto", precision: str = "default"):
     """3D convolution of (B, T, H, W, Cin) by (kt, kh, kw, Cin, Cout) weights, plus bias.
 
     `impl`: "native", "taps", "stacked", "stacked-taps-grad" or "auto"; all give the same result. "auto" is
     "native" off CPU and, on CPU, the stacked forward where `stacked_use` >= `STACKED_MIN_USE` (with the taps'
     gradients, "stacked-taps-grad", unless `STACKED_GRADIENT` says "stacked"), else "taps". A 1x1x1 kernel is a
-    matrix product whatever `impl` says. See `conv3d_native` for `padding`.
+    matrix product whatever `impl` says. See `conv3d_native` for `padding`. `precision`: how the products are
+    taken, one of `PRECISIONS`; the result is float32 in every case.
     """
     if x.ndim != 5 or w.ndim != 5 or x.shape[-1] != w.shape[3]:
         raise ValueError(
             f"conv3d: expected x (B, T, H, W, Cin) and w (kt, kh, kw, Cin, Cout), got {x.shape} and {w.shape}"
         )
+    if precision not in PRECISIONS:
+        raise ValueError(f"conv3d: precision must be one of {', '.join(map(repr, PRECISIONS))}, got {precision!r}")
+    if precision != "default":
+        # read when traced: `lax.Precision.HIGHEST` (full float32 products) for "float32"; bfloat16 operands
+        # make `_dot` ask for a float32 accumulator
+        with jax.default_matmul_precision("highest" if precision == "float32" else "default"):
+            cast = (lambda a: a.astype(jnp.bfloat16)) if precision == "bfloat16" else (lambda a: a)
+            return conv3d(cast(x), cast(w), b, padding=padding, impl=impl)
     if w.shape[:3] == (1, 1, 1) and padding in ("same", "valid"):
-        y = x @ w[0, 0, 0]
+        y = jnp.matmul(x, w[0, 0, 0], **_dot(x, w))
         return y if b is None else y + b
     if impl == "auto":
         impl = default_conv3d_impl()

@@ -19,8 +19,8 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from ..config import ModelConfig
-from .layers import CONV3D_IMPLS, conv3d
-from .duf import _block_input, _depth, _has_channels, _head, _stem, merge_no_return, sequence_radius
+from .duf import (_block_input, _depth, _has_channels, _head, _stem, check_conv, convolution, merge_no_return,
+                  sequence_radius)
 
 __all__ = ["stream_init", "stream_step"]
 
@@ -43,15 +43,15 @@ def stream_init(cfg: ModelConfig, lr_shape: tuple[int, int], *, batch: int = 1, 
     return {"lr": jnp.zeros((batch, sequence_radius(cfg) + 1, h, w), dtype), "blocks": blocks}
 
 
-def _stream_block(p, s, buf, x, *, bn: dict, impl: str):
+def _stream_block(p, s, buf, x, *, bn: dict, conv):
     """One valid dense block, one frame: input features x (B, 1, h, w, F) of frame m -> (its output for frame
     m - 1, (B, 1, h, w, F + growth), the new buffers)."""
-    z, _ = _block_input(p, s, x, bn=bn)
+    z, _ = _block_input(p, s, x, bn=bn, conv=conv)
     w = p["conv2"]["w"]  # (3, kh, kw, F, G): the taps' kernels side by side, one 2D convolution
     kt, kh, kw, cin, cout = w.shape
     stacked = jnp.moveaxis(w, 0, 3).reshape(1, kh, kw, cin, kt * cout)
     pad = ((0, 0), ((kh - 1) // 2, kh // 2), ((kw - 1) // 2, kw // 2))
-    taps = conv3d(z, stacked, padding=pad, impl=impl)[:, 0]
+    taps = conv(z, stacked, padding=pad)[:, 0]
     taps = taps.reshape(*taps.shape[:-1], kt, cout)
     # frame m is tap 2 of output m - 1, tap 1 of output m and tap 0 of output m + 1
     y = buf["partial"][:, 0] + taps[..., 2, :] + p["conv2"]["b"]
@@ -59,7 +59,8 @@ def _stream_block(p, s, buf, x, *, bn: dict, impl: str):
     return jnp.concatenate([buf["skip"], y], axis=-1)[:, None], {"skip": x[:, 0], "partial": partial}
 
 
-def stream_step(params, state, buffers: dict, frame, cfg: ModelConfig, *, conv3d_impl: str = "auto"):
+def stream_step(params, state, buffers: dict, frame, cfg: ModelConfig, *, conv3d_impl: str = "auto",
+                precision: str = "default"):
     """One step of the stream, BN in inference mode: feed LR frame n, get the output centred on frame n - R.
 
     frame: (B, h, w) LR normalised depth ((B, h, w, C) for a network reading more `cfg.inputs`); buffers: as
@@ -67,23 +68,22 @@ def stream_step(params, state, buffers: dict, frame, cfg: ModelConfig, *, conv3d
     Returns (new buffers, hr `(B, h*r, w*r)`). With the stream's input edge-padded (R + 1 copies of its first
     frame, then the rest, then R copies of the last), the hr of step n >= 2R equals output n - 2R of
     `apply_model_sequence` to float32 rounding. R = `sequence_radius(cfg)`; the weights run in the sequence
-    form whatever `cfg.temporal` says. conv3d_impl: as for `apply_model`.
+    form whatever `cfg.temporal` says. conv3d_impl, precision: as for `apply_model`.
     """
     want = buffers["lr"].shape[:1] + buffers["lr"].shape[2:] + ((cfg.channels,) if cfg.channels > 1 else ())
     if not _has_channels(frame, cfg, 3) or frame.shape != want:
         axes = "(B, h, w)" if cfg.channels == 1 else f"(B, h, w, C) for inputs {cfg.inputs}"
         raise ValueError(f"stream_step: expected a frame {axes} = {want} matching the stream's buffers, got shape "
                          f"{frame.shape}")
-    if conv3d_impl not in CONV3D_IMPLS:
-        raise ValueError(f"stream_step: conv3d_impl must be one of {', '.join(map(repr, CONV3D_IMPLS))}, "
-                         f"got {conv3d_impl!r}")
+    check_conv(conv3d_impl, precision, "stream_step")
+    conv = convolution(conv3d_impl, precision)
     bn = {"train": False, "momentum": cfg.bn_momentum, "eps": cfg.bn_eps}
     depth = _depth(frame[:, None], cfg).astype(buffers["lr"].dtype)
     lr = jnp.concatenate([buffers["lr"][:, 1:], depth], axis=1)
-    x = _stem(params, frame[:, None], impl=conv3d_impl)  # (B, 1, h, w, base)
+    x = _stem(params, frame[:, None], conv=conv)  # (B, 1, h, w, base)
     new_blocks = []
     for p, s, buf in zip(params["blocks"], state["blocks"], buffers["blocks"]):
-        x, buf = _stream_block(p, s, buf, x, bn=bn, impl=conv3d_impl)
+        x, buf = _stream_block(p, s, buf, x, bn=bn, conv=conv)
         new_blocks.append(buf)
-    hr, _ = _head(params, state, x, lr[:, :1], cfg, bn=bn, impl=conv3d_impl)
+    hr, _ = _head(params, state, x, lr[:, :1], cfg, bn=bn, conv=conv)
     return {"lr": lr, "blocks": new_blocks}, merge_no_return(hr[:, 0], cfg)

@@ -53,9 +53,9 @@ def make_train_step(model_cfg: ModelConfig, train_cfg: TrainConfig, make_batch, 
                     conv3d_impl: str = "auto"):
     """The jitted train step: step(params, state, opt_state, key, step) -> (params, state, opt_state, metrics).
 
-    Inside one jit: make_batch(key) -> network with BN in training mode -> Huber loss -> gradients -> Adam
-    with lr = `lr_schedule(train_cfg)(step)`. The network runs in `model_cfg.temporal`'s form (see
-    `sequence_loss` for the sequence form's batches). metrics: {"loss", "psnr" (mean over the batch, prediction
+    Inside one jit: make_batch(key) -> network with BN in training mode (its convolutions at
+    `train_cfg.precision`) -> Huber loss -> gradients -> Adam with lr = `lr_schedule(train_cfg)(step)`. The
+    network runs in `model_cfg.temporal`'s form (see `sequence_loss` for the sequence form's batches). metrics: {"loss", "psnr" (mean over the batch, prediction
     clipped), "lr"}. With a `mesh`, the batch is sharded over its "data" axis and params/state/optimiser
     state are replicated (batch statistics and gradients are reduced over the mesh).
     conv3d_impl: how the network's convolutions run (see `apply_model`).
@@ -82,7 +82,8 @@ def _train_step(model_cfg, train_cfg, make_batch, mesh, conv3d_impl):
         def loss_fn(p):
             if DUF.sequence_form(model_cfg):
                 return sequence_loss(p, state, windows, gt, model_cfg, conv3d_impl=conv3d_impl, train_cfg=train_cfg)
-            out, new_state = apply_model_train(p, state, windows, model_cfg, conv3d_impl=conv3d_impl)
+            out, new_state = apply_model_train(p, state, windows, model_cfg, conv3d_impl=conv3d_impl,
+                                               precision=train_cfg.precision)
             return model_loss(out, gt, model_cfg, train_cfg), (new_state, merge_no_return(out, model_cfg), gt)
 
         (loss, (new_state, hr, gt)), grads = jax.value_and_grad(loss_fn, has_aux=True)(params)
@@ -128,7 +129,8 @@ def sequence_loss(params, state, clips, gt, cfg: ModelConfig, *, delta: float = 
     r = sequence_radius(cfg)
     if gt.ndim != 4 or gt.shape[:2] != clips.shape[:2]:
         raise ValueError(f"sequence_loss: expected gt (B, L, H, W) for clips {clips.shape}, got {gt.shape}")
-    out, new_state = apply_model_sequence_train(params, state, clips, cfg, padding="valid", conv3d_impl=conv3d_impl)
+    out, new_state = apply_model_sequence_train(params, state, clips, cfg, padding="valid", conv3d_impl=conv3d_impl,
+                                                precision=train_cfg.precision)
     gt = gt[:, r : gt.shape[1] - r]
     return model_loss(out, gt, cfg, train_cfg), (new_state, merge_no_return(out, cfg), gt)
 

@@ -174,3 +174,26 @@ def test_depth_to_space_subpixel_convention():
                     assert out[r * yy + dy, r * xx + dx] == 1000 * yy + 100 * xx + dy * r + dx
     with pytest.raises(ValueError, match="divisible"):
         depth_to_space(jnp.zeros((1, 2, 2, 5)), 2)
+
+
+@pytest.mark.parametrize("impl", ["native", "taps", "stacked", "stacked-taps-grad"])
+def test_conv3d_precisions(impl):
+    """float32 matches the loop as closely as the default; bfloat16 operands with float32 accumulation land in
+    bfloat16's band (a few 1e-3 relative), return float32, and their gradients reach float32 weights."""
+    kx, kw = jax.random.split(jax.random.key(4))
+    x = jax.random.normal(kx, (2, 4, 6, 5, 8))
+    w = jax.random.normal(kw, (3, 3, 3, 8, 4))
+    pads = PADS[0]
+    ref = _conv3d_loop(x, w, pads)
+    rel = lambda y: float(np.linalg.norm(np.asarray(y, np.float64) - ref) / np.linalg.norm(ref))  # noqa: E731
+    y32 = conv3d(x, w, padding=pads, impl=impl, precision="float32")
+    ybf = conv3d(x, w, padding=pads, impl=impl, precision="bfloat16")
+    assert y32.dtype == ybf.dtype == jnp.float32
+    assert rel(y32) < 1e-6
+    assert 1e-4 < rel(ybf) < 1e-2  # rounded operands: visibly not float32, but no worse than bfloat16's band
+    g = jax.grad(lambda w: jnp.sum(conv3d(x, w, padding=pads, impl=impl, precision="bfloat16") ** 2))(w)
+    g_ref = jax.grad(lambda w: jnp.sum(conv3d(x, w, padding=pads, impl=impl) ** 2))(w)
+    assert g.dtype == jnp.float32
+    assert float(jnp.linalg.norm(g - g_ref) / jnp.linalg.norm(g_ref)) < 2e-2
+    with pytest.raises(ValueError, match="precision"):
+        conv3d(x, w, precision="tf16")

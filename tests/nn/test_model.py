@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxsr.config import ModelConfig
+from jaxsr.config import ModelConfig, TrainConfig
 from jaxsr.nn import (Model, apply_model, apply_model_sequence, apply_model_train, count_params,
                          flops_per_frame, grow_tr, init_model)
 from jaxsr.temporal import windows as temporal_windows
@@ -76,6 +76,36 @@ def test_conv3d_impls_give_same_network():
     np.testing.assert_allclose(a_t, b_t, rtol=1e-4, atol=1e-5)
     for x, y in zip(jax.tree_util.tree_leaves(sa), jax.tree_util.tree_leaves(sb)):
         np.testing.assert_allclose(x, y, rtol=1e-4, atol=1e-5)
+
+
+def test_precisions_of_the_network():
+    """The network at each precision: float32 output everywhere, bfloat16 products within bfloat16's band of the
+    default, every form (window, sequence, stream) taking the argument, and an unknown precision refused."""
+    from jaxsr.nn import stream_init, stream_step
+    from jaxsr.training.duf import default_data, make_train_step
+    from jaxsr.training.optim import adam_init
+    cfg = ModelConfig(tr=1, **TINY)
+    params, state = init_model(jax.random.key(0), cfg)
+    win = jax.random.uniform(jax.random.key(1), (2, 3, 4, 6))
+    ref = apply_model(params, state, win, cfg)
+    for precision, tol in (("float32", 1e-5), ("bfloat16", 3e-2)):
+        hr = apply_model(params, state, win, cfg, precision=precision)
+        assert hr.dtype == jnp.float32
+        assert float(jnp.linalg.norm(hr - ref) / jnp.linalg.norm(ref)) < tol
+        seq = apply_model_sequence(params, state, win, cfg, precision=precision)
+        assert seq.dtype == jnp.float32 and bool(jnp.all(jnp.isfinite(seq)))
+        _, out = stream_step(params, state, stream_init(cfg, (4, 6), batch=2), win[:, 0], cfg, precision=precision)
+        assert out.dtype == jnp.float32
+    with pytest.raises(ValueError, match="precision"):
+        apply_model(params, state, win, cfg, precision="half")
+    with pytest.raises(ValueError, match="precision"):
+        TrainConfig(precision="tf32")
+    # a training step at bfloat16 keeps float32 weights and state, and its loss is finite
+    train_cfg = TrainConfig(batch_size=2, examples_per_epoch=2, patch=(4, 6), precision="bfloat16")
+    step = make_train_step(cfg, train_cfg, default_data(cfg, train_cfg))
+    p2, s2, _, metrics = step(params, state, adam_init(params), jax.random.key(2), jnp.int32(0))
+    assert np.isfinite(float(metrics["loss"]))
+    assert {str(a.dtype) for a in jax.tree_util.tree_leaves((p2, s2))} == {"float32"}
 
 
 def test_hand_set_head_gives_nearest_upsampling_of_centre_frame():

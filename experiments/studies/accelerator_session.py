@@ -1,0 +1,92 @@
+"""One bounded session on an accelerator: the training-throughput sweep, then photon fine-tunes, within a wall clock.
+
+    python experiments/studies/accelerator_session.py --out OUT --minutes 8 [--runs /tmp/runs]
+
+For a borrowed accelerator with a fixed budget: everything starts at once, so that the sweep's compilations
+(CPU) overlap the fine-tunes' first steps (device). The fine-tunes (`photon_finetune.py`, resumable) are paused
+while the sweep's configurations are timed one by one (`train_throughput.Session`), then train until the budget's
+end, when they are interrupted and each run's `best.npz` (the weights it selected, with their card) and
+`metrics.jsonl` are copied to OUT, flat, with the sweep's results and the logs: what a budget-limited copy back
+can carry (no Adam state: a later session continues from the weights with `--init`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shlex
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from train_throughput import Session, report
+
+HERE = Path(__file__).resolve().parent
+
+# the fine-tunes (photon_finetune.py arguments): each continues a bundled photon model on the wide regime
+FINETUNES = {
+    "tr4-photons": ["--tr", "4", "--photons", "--paper-share", "0.3", "--init", "tr4-photons", "--batch-size", "16",
+                    "--epochs", "14", "--steps-per-epoch", "1000", "--decay-epochs", "6", "--lr", "1e-4"],
+    "tr0-photons": ["--tr", "0", "--photons", "--paper-share", "0.3", "--init", "tr0-photons", "--batch-size", "16",
+                    "--epochs", "14", "--steps-per-epoch", "2000", "--decay-epochs", "6", "--lr", "1e-4"],
+}
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", type=Path, required=True, help="where results, weights and logs go (flat)")
+    ap.add_argument("--runs", type=Path, default=Path("runs/accelerator"), help="the fine-tunes' run folders")
+    ap.add_argument("--minutes", type=float, default=8.0, help="wall-clock budget of the whole session")
+    ap.add_argument("--sweep-tr", type=int, nargs="+", default=[0, 4])
+    ap.add_argument("--sweep-batch", type=int, nargs="+", default=[4, 16, 64])
+    ap.add_argument("--sweep-precision", nargs="+", default=["float32", "default", "bfloat16"])
+    ap.add_argument("--finetunes", nargs="*", default=list(FINETUNES), choices=list(FINETUNES))
+    ap.add_argument("--extra", nargs="*", default=[], help="arguments added to every fine-tune, as one string (e.g. for a test)")
+    args = ap.parse_args(argv)
+    t_end = time.perf_counter() + 60 * args.minutes
+    args.out.mkdir(parents=True, exist_ok=True)
+    log = open(args.out / "workers.log", "ab")
+
+    def say(msg: str) -> None:
+        print(f"[{time.strftime('%H:%M:%S')}] {msg}", flush=True)
+
+    env = dict(os.environ, XLA_PYTHON_CLIENT_PREALLOCATE="false", PYTHONUNBUFFERED="1")
+    trainers = {name: subprocess.Popen(
+        [sys.executable, str(HERE / "photon_finetune.py"), *FINETUNES[name], "--out", str(args.runs / name),
+         "--no-progress", "--checkpoint-minutes", "2", *(a for e in args.extra for a in shlex.split(e))], env=env, stdout=log, stderr=subprocess.STDOUT)
+        for name in args.finetunes}
+    say(f"fine-tunes started: {', '.join(trainers)}")
+    configs = [f"{t},{b},{p}" for t in args.sweep_tr for b in args.sweep_batch for p in args.sweep_precision]
+    if configs:
+        sweep = Session(args.out, configs, log=log)
+        say(f"sweep: {len(configs)} configurations compiling")
+        # the sweep may take at most half the budget; what is not compiled by then is recorded as such
+        sweep.run(compile_timeout_s=max(10.0, (t_end - time.perf_counter()) / 2 - 60), pause=trainers.values())
+        say("sweep timed; fine-tunes continue")
+        print(report(sweep.results), flush=True)
+    while time.perf_counter() < t_end - 20 and any(p.poll() is None for p in trainers.values()):
+        time.sleep(2)
+    for p in trainers.values():
+        if p.poll() is None:
+            p.send_signal(signal.SIGINT)
+    for name, p in trainers.items():
+        try:
+            p.wait(timeout=15)
+        except subprocess.TimeoutExpired:
+            p.kill()
+        for f in ("best.npz", "metrics.jsonl"):
+            if (args.runs / name / f).exists():
+                shutil.copy2(args.runs / name / f, args.out / f"{name}-{f}")
+        epochs = [json.loads(s) for s in (args.runs / name / "metrics.jsonl").read_text().splitlines()
+                  if s.strip()] if (args.runs / name / "metrics.jsonl").exists() else []
+        say(f"{name}: exit {p.returncode}, {len(epochs)} epochs" +
+            (f", last val PSNR {epochs[-1]['val_psnr']:.2f} dB" if epochs else ""))
+    shutil.rmtree(args.out / "sync", ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()
