@@ -1,13 +1,15 @@
-"""One bounded session on an accelerator: the training-throughput sweep, then photon fine-tunes, within a wall clock.
+"""One bounded session on an accelerator: a training-throughput sweep, then photon fine-tunes, within a wall clock.
 
-    python experiments/studies/accelerator_session.py --out OUT --minutes 8 [--runs /tmp/runs]
+    python experiments/studies/accelerator_session.py --out OUT --minutes 8 [--runs /tmp/runs] [--sweep-tr]
 
-For a borrowed accelerator with a fixed budget: everything starts at once, so that the sweep's compilations
-(CPU) overlap the fine-tunes' first steps (device). The fine-tunes (`photon_finetune.py`, resumable) are paused
-while the sweep's configurations are timed one by one (`train_throughput.Session`), then train until the budget's
-end, when they are interrupted and each run's `best.npz` (the weights it selected, with their card) and
-`metrics.jsonl` are copied to OUT, flat, with the sweep's results and the logs: what a budget-limited copy back
-can carry (no Adam state: a later session continues from the weights with `--init`).
+For a borrowed accelerator with a fixed budget. The sweep (`train_throughput.Session`; none with a bare
+`--sweep-tr`) runs alone first, so that its times are the device's alone; then the fine-tunes
+(`photon_finetune.py`, resumable) train side by side until the budget's end, when they are interrupted and each
+run's `best.npz` (the weights it selected, with their card) and `metrics.jsonl` are copied to OUT, flat, with the
+sweep's results and the logs: what a budget-limited copy back can carry (no Adam state: a later session continues
+from the weights with `--init`). On 2026-11-26's H200 a first version that ran both at once, pausing the fine-tunes
+(SIGSTOP) while the sweep was timed, left them making no progress once continued (cause not found); and
+compilation takes a core per process for a minute or more, so the sweep's configurations are few by default.
 """
 
 from __future__ import annotations
@@ -41,11 +43,12 @@ def main(argv=None) -> None:
     ap.add_argument("--out", type=Path, required=True, help="where results, weights and logs go (flat)")
     ap.add_argument("--runs", type=Path, default=Path("runs/accelerator"), help="the fine-tunes' run folders")
     ap.add_argument("--minutes", type=float, default=8.0, help="wall-clock budget of the whole session")
-    ap.add_argument("--sweep-tr", type=int, nargs="+", default=[0, 4])
-    ap.add_argument("--sweep-batch", type=int, nargs="+", default=[4, 16, 64])
-    ap.add_argument("--sweep-precision", nargs="+", default=["float32", "default", "bfloat16"])
+    ap.add_argument("--sweep-tr", type=int, nargs="*", default=[0, 4])
+    ap.add_argument("--sweep-batch", type=int, nargs="+", default=[16, 64])
+    ap.add_argument("--sweep-precision", nargs="+", default=["default", "bfloat16"])
     ap.add_argument("--finetunes", nargs="*", default=list(FINETUNES), choices=list(FINETUNES))
-    ap.add_argument("--extra", nargs="*", default=[], help="arguments added to every fine-tune, as one string (e.g. for a test)")
+    ap.add_argument("--extra", nargs="*", default=[],
+                    help="arguments added to every fine-tune, as one string (e.g. for a test)")
     args = ap.parse_args(argv)
     t_end = time.perf_counter() + 60 * args.minutes
     args.out.mkdir(parents=True, exist_ok=True)
@@ -54,20 +57,20 @@ def main(argv=None) -> None:
     def say(msg: str) -> None:
         print(f"[{time.strftime('%H:%M:%S')}] {msg}", flush=True)
 
-    env = dict(os.environ, XLA_PYTHON_CLIENT_PREALLOCATE="false", PYTHONUNBUFFERED="1")
-    trainers = {name: subprocess.Popen(
-        [sys.executable, str(HERE / "photon_finetune.py"), *FINETUNES[name], "--out", str(args.runs / name),
-         "--no-progress", "--checkpoint-minutes", "2", *(a for e in args.extra for a in shlex.split(e))], env=env, stdout=log, stderr=subprocess.STDOUT)
-        for name in args.finetunes}
-    say(f"fine-tunes started: {', '.join(trainers)}")
     configs = [f"{t},{b},{p}" for t in args.sweep_tr for b in args.sweep_batch for p in args.sweep_precision]
     if configs:
         sweep = Session(args.out, configs, log=log)
         say(f"sweep: {len(configs)} configurations compiling")
         # the sweep may take at most half the budget; what is not compiled by then is recorded as such
-        sweep.run(compile_timeout_s=max(10.0, (t_end - time.perf_counter()) / 2 - 60), pause=trainers.values())
-        say("sweep timed; fine-tunes continue")
+        sweep.run(compile_timeout_s=max(10.0, (t_end - time.perf_counter()) / 2 - 60))
+        say("sweep timed")
         print(report(sweep.results), flush=True)
+    env = dict(os.environ, XLA_PYTHON_CLIENT_PREALLOCATE="false", PYTHONUNBUFFERED="1")
+    trainers = {name: subprocess.Popen(
+        [sys.executable, str(HERE / "photon_finetune.py"), *FINETUNES[name], "--out", str(args.runs / name),
+         "--no-progress", "--checkpoint-minutes", "2", *(a for e in args.extra for a in shlex.split(e))],
+        env=env, stdout=log, stderr=subprocess.STDOUT) for name in args.finetunes}
+    say(f"fine-tunes started: {', '.join(trainers)}")
     while time.perf_counter() < t_end - 20 and any(p.poll() is None for p in trainers.values()):
         time.sleep(2)
     for p in trainers.values():
