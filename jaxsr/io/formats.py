@@ -213,6 +213,23 @@ def write_depth(path, depth, *, overwrite=False):
             _write_oiio(tmp, depth[..., None], "float", attrs)
 
 
+NPY_SIGNATURE = b"\x93NUMPY"
+
+
+def load_npy(path, *, mmap_mode=None):
+    """An .npy file's array (memory-mapped with `mmap_mode`), never unpickled. A file that is not one (random
+    bytes, text, an image renamed; numpy would take it for a pickle and suggest loading it unsafely) or is
+    damaged is a ValueError saying so."""
+    with open(path, "rb") as f:
+        if f.read(len(NPY_SIGNATURE)) != NPY_SIGNATURE:
+            raise ValueError(f"cannot read {path}: not an NPY file (it does not begin with the NPY signature; an "
+                             ".npy is what numpy.save writes)")
+    try:
+        return np.load(path, mmap_mode=mmap_mode, allow_pickle=False)
+    except (ValueError, EOFError, OSError) as e:
+        raise ValueError(f"cannot read {path}: a truncated or damaged NPY file ({e})") from e
+
+
 def read_depth(path):
     """Read a depth frame written by `write_depth` (or AirSim's PFM, or any 1-channel float image): (H, W)
     float32 metres, inf = no return (NaN and, for 16-bit PNG, 0 are read as no return).
@@ -222,10 +239,7 @@ def read_depth(path):
     suffix = _suffix(path)
     if suffix == ".npy":
         path = _require_file(path)
-        try:
-            depth = np.load(path, allow_pickle=False)
-        except (ValueError, EOFError, OSError) as e:
-            raise ValueError(f"cannot read {path}: truncated or not an NPY file ({e})") from e
+        depth = load_npy(path)
         depth = depth[..., None] if depth.ndim == 2 else depth
     elif suffix == ".pfm":
         depth = _read_pfm(path)
@@ -340,10 +354,7 @@ def read_sequence(path):
     """
     if Path(path).suffix.lower() == ".npy":
         path = _require_file(path)
-        try:
-            depth = np.load(path, allow_pickle=False)
-        except (ValueError, EOFError, OSError) as e:
-            raise ValueError(f"cannot read {path}: truncated or not an NPY file ({e})") from e
+        depth = load_npy(path)
         if depth.ndim != 3:
             raise ValueError(f"{path}: expected a (T, H, W) sequence, got {depth.shape}")
         return dict(depth=depth, metadata={})

@@ -119,10 +119,7 @@ def open_recording(spec, *, kind: str | None = None, max_memory=None) -> Recordi
         if not p.is_file():
             raise FileNotFoundError(f"no such file: {spec}")
         if suffix == ".npy":
-            try:
-                arr = np.load(p, mmap_mode="r", allow_pickle=False)
-            except (ValueError, OSError) as e:
-                raise ValueError(f"cannot read {spec}: truncated or not an NPY file ({e})") from e
+            arr = io.load_npy(p, mmap_mode="r")
         else:
             arr, fps = _npz_recording(p, kind, max_memory)
         if arr.dtype.kind not in "iuf":

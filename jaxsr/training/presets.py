@@ -101,6 +101,8 @@ def train(out, *, arch: str = "duf", tr: int = 4, scale: int = 4, temporal: str 
         model_cfg = _BASELINE_CONFIGS[arch]
     sensor = SensorConfig() if scale == 4 else SensorConfig(scale=scale)
     _check_out(out, resume, seeds=seeds)
+    if init is not None and not isinstance(init, Model):
+        read_metadata(resolve_model_path(init))  # a file that holds no model fails now, not after the set-up
     make_batch = sequence_data(data, model_cfg, train_cfg, sensor) if data is not None else None
     return _fit_in_new_folder(out, model_cfg, train_cfg, make_batch=make_batch, sensor=sensor, resume=resume,
                               overwrite=overwrite, progress=progress, init=init,

@@ -114,6 +114,17 @@ CASES = {
                                         np.save(p / "m.npy", np.zeros(3))),
                              ["upscale", "in.npy", "out.npy", "--model", "m.npy"], [".npy array"]),
     "info .npy": (lambda p: np.save(p / "m.npy", np.zeros(3)), ["info", "m.npy"], [".npy array"]),
+    # files that are not what their suffix says: named as such, never "load it unsafely" (numpy's pickle advice)
+    "upscale random bytes as .npy": (lambda p: (p / "in.npy").write_bytes(bytes(range(256)) * 4),
+                                     ["upscale", "in.npy", "out.npy", "--model", "MODEL"], ["not an NPY file"]),
+    "upscale text as .npy": (lambda p: (p / "in.npy").write_text("depth,1,2\n"),
+                             ["upscale", "in.npy", "out.npy", "--model", "MODEL"], ["not an NPY file"]),
+    "upscale --model of random bytes": (lambda p: (np.save(p / "in.npy", np.full((3, 32, 64), 0.5, np.float32)),
+                                                   (p / "m.npz").write_bytes(bytes(range(256)))),
+                                        ["upscale", "in.npy", "out.npy", "--model", "m.npz"], ["not an .npz file"]),
+    # checked before the set-up (rendering the validation sequences took 20-40 s first)
+    "train --init of random bytes": (lambda p: (p / "w.npz").write_bytes(bytes(range(256))),
+                                     ["train", "--tr", "0", "--init", "w.npz", "--out", "run"], ["not an .npz file"]),
     "train --data .npy": (lambda p: np.save(p / "d.npy", np.zeros(3)),
                           ["train", "--data", "d.npy", "--out", "run"], ["expected an .npz"]),
     "train --tr 99": (None, ["train", "--tr", "99", "--out", "run"], ["--tr", "from 0 to 8", "memory"]),

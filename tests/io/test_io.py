@@ -447,3 +447,25 @@ def test_frames_are_checked_in_blocks_of_bounded_memory(tmp_path):
     assert max(b.nbytes for b in blocks) <= CHECK_BLOCK_BYTES and sum(len(b) for b in blocks) == 40
     np.save(tmp_path / "huge.npy", np.zeros((2, 3000, 3000), np.float32))
     assert [len(b) for _, b in _chunks(open_recording(tmp_path / "huge.npy"))] == [1, 1]
+
+
+def test_files_that_are_not_npy_or_npz_are_named_so_without_numpys_pickle_advice(tmp_path):
+    """Random bytes, text or an empty file given as .npy, or as a model's .npz: a ValueError saying what the file
+    is not; numpy alone would take them for pickles and suggest `allow_pickle`."""
+    from jaxsr.io.checkpoint import load_model
+    from jaxsr.io.formats import load_npy
+
+    for name, data in {"bytes.npy": bytes(range(256)), "text.npy": b"1,2,3\n", "empty.npy": b""}.items():
+        (tmp_path / name).write_bytes(data)
+        with pytest.raises(ValueError, match="not an NPY file") as e:
+            load_npy(tmp_path / name)
+        assert "allow_pickle" not in str(e.value)
+    np.save(tmp_path / "ok.npy", np.arange(3.0))
+    (tmp_path / "cut.npy").write_bytes((tmp_path / "ok.npy").read_bytes()[:-8])
+    with pytest.raises(ValueError, match="truncated or damaged"):
+        load_npy(tmp_path / "cut.npy")
+    np.testing.assert_array_equal(load_npy(tmp_path / "ok.npy", mmap_mode="r"), np.arange(3.0))
+    (tmp_path / "m.npz").write_bytes(bytes(range(256)))
+    with pytest.raises(ValueError, match="not an .npz file") as e:
+        load_model(tmp_path / "m.npz")
+    assert "allow_pickle" not in str(e.value)
