@@ -164,9 +164,10 @@ TEMPORAL_FORMS = ("window", "sequence")
 
 # How the network's convolutions take their products (`jaxsr.nn.layers.conv3d`, `TrainConfig.precision`):
 # "default" (the backend's own: float32 on CPU, TF32 for float32 operands on NVIDIA GPUs since Ampere), "float32"
-# (full float32 products on every backend) or "bfloat16" (operands rounded to bfloat16, products accumulated in
-# float32: the fast path of GPUs' matrix units and of CPUs with AVX512-BF16). Weights, inputs, outputs and everything
-# between the convolutions stay float32.
+# (full float32 products on every backend, the dynamic filter's sum included) or "bfloat16" (the convolutions'
+# operands rounded to bfloat16 in the forward pass and both gradients, their sums float32: the fast path of GPUs'
+# matrix units and of CPUs with AVX512-BF16). Weights, inputs, outputs and everything between the convolutions stay
+# float32.
 PRECISIONS = ("default", "float32", "bfloat16")
 
 # What a network may read per LR pixel (`ModelConfig.inputs`): the centre-of-mass depth, always first (the dynamic

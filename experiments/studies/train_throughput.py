@@ -82,7 +82,7 @@ def time_steps(compiled, carry: list) -> dict:
 
 
 def ceilings(size: int | None = None) -> dict:
-    """Matrix-product rates (TFLOP/s) at each precision on the device (size x size products, default 8192 on an
+    """Matrix-product rates (TFLOP/s) at each precision on the device (size x size products, default 4096 on an
     accelerator, 1024 on a CPU), and each one's relative error against float64 on a 1024 x 1024 product (which
     says what the backend's default precision is)."""
     import jax

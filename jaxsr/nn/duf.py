@@ -27,6 +27,7 @@ from .layers import (
     dynamic_upsample,
     glorot_limit,
     init_batch_norm,
+    lax_precision_of,
 )
 from ..sensor.peaks import NO_RETURN
 from .model import Architecture, Model, register_architecture
@@ -285,7 +286,7 @@ def apply_model(params, state, windows, cfg: ModelConfig, *, conv3d_impl: str = 
     or "bfloat16" (bfloat16 operands, float32 accumulation); the output is float32 in every case.
     """
     _check_inputs(windows, cfg, conv3d_impl, precision, "apply_model")
-    out, _ = _forward(params, state, windows, cfg, train=False, conv=convolution(conv3d_impl, precision))
+    out, _ = _forward(params, state, windows, cfg, train=False, conv3d_impl=conv3d_impl, precision=precision)
     return merge_no_return(out, cfg)
 
 
@@ -299,7 +300,7 @@ def apply_model_train(params, state, windows, cfg: ModelConfig, *, conv3d_impl: 
     structure as `state`). conv3d_impl, precision: as for `apply_model`.
     """
     _check_inputs(windows, cfg, conv3d_impl, precision, "apply_model_train")
-    return _forward(params, state, windows, cfg, train=True, conv=convolution(conv3d_impl, precision))
+    return _forward(params, state, windows, cfg, train=True, conv3d_impl=conv3d_impl, precision=precision)
 
 
 def spatial_radius(cfg: ModelConfig) -> int:
@@ -340,8 +341,8 @@ def apply_model_sequence(params, state, lr_seq, cfg: ModelConfig, *, padding: st
     `apply_model`.
     """
     _check_sequence(lr_seq, cfg, padding, conv3d_impl, precision, "apply_model_sequence")
-    out, _ = _forward_sequence(params, state, lr_seq, cfg, padding=padding, train=False,
-                               conv=convolution(conv3d_impl, precision))
+    out, _ = _forward_sequence(params, state, lr_seq, cfg, padding=padding, train=False, conv3d_impl=conv3d_impl,
+                               precision=precision)
     return merge_no_return(out, cfg)
 
 
@@ -355,8 +356,8 @@ def apply_model_sequence_train(params, state, lr_seq, cfg: ModelConfig, *, paddi
     `apply_model_train`), new_state the running BN statistics moved towards the clip's.
     """
     _check_sequence(lr_seq, cfg, padding, conv3d_impl, precision, "apply_model_sequence_train")
-    return _forward_sequence(params, state, lr_seq, cfg, padding=padding, train=True,
-                             conv=convolution(conv3d_impl, precision))
+    return _forward_sequence(params, state, lr_seq, cfg, padding=padding, train=True, conv3d_impl=conv3d_impl,
+                             precision=precision)
 
 
 def edge_pad_sequence(lr_seq, radius: int):
@@ -366,8 +367,10 @@ def edge_pad_sequence(lr_seq, radius: int):
     return jnp.concatenate([first, lr_seq, last], axis=1)
 
 
-def _forward_sequence(params, state, lr_seq, cfg: ModelConfig, *, padding: str, train: bool, conv):
+def _forward_sequence(params, state, lr_seq, cfg: ModelConfig, *, padding: str, train: bool, conv3d_impl: str,
+                      precision: str):
     """The sequence form's body for both BN modes: (hr (B, T', H*r, W*r), new_state)."""
+    conv = convolution(conv3d_impl, precision)
     r = sequence_radius(cfg)
     x_in = edge_pad_sequence(lr_seq, r) if padding == "edge" else lr_seq
     bn = {"train": train, "momentum": cfg.bn_momentum, "eps": cfg.bn_eps}
@@ -377,12 +380,13 @@ def _forward_sequence(params, state, lr_seq, cfg: ModelConfig, *, padding: str, 
         x, s_i = _block(p, s, x, valid=True, bn=bn, conv=conv)
         new_state["blocks"].append(s_i)
     hr, new_state["head"] = _head(params, state, x, _depth(x_in[:, r : x_in.shape[1] - r], cfg), cfg, bn=bn,
-                                  conv=conv)
+                                  conv=conv, precision=precision)
     return hr, new_state
 
 
-def _forward(params, state, windows, cfg: ModelConfig, *, train: bool, conv):
+def _forward(params, state, windows, cfg: ModelConfig, *, train: bool, conv3d_impl: str, precision: str):
     """The windowed network for both BN modes: (hr (B, H*r, W*r), new_state)."""
+    conv = convolution(conv3d_impl, precision)
     bn = dict(train=train, momentum=cfg.bn_momentum, eps=cfg.bn_eps)
     x = _stem(params, windows, conv=conv)
     new_state = {"blocks": []}
@@ -390,7 +394,7 @@ def _forward(params, state, windows, cfg: ModelConfig, *, train: bool, conv):
         x, s_i = _block(p, s, x, valid=i >= cfg.same_blocks, bn=bn, conv=conv)
         new_state["blocks"].append(s_i)
     hr, new_state["head"] = _head(params, state, x, _depth(windows[:, cfg.tr : cfg.tr + 1], cfg), cfg, bn=bn,
-                                  conv=conv)
+                                  conv=conv, precision=precision)
     return hr[:, 0], new_state  # T = 1 after tr valid blocks
 
 
@@ -427,9 +431,10 @@ def _block(p, s, x, *, valid: bool, bn: dict, conv):
     return jnp.concatenate([x, y], axis=-1), new_state
 
 
-def _head(params, state, x, centre, cfg: ModelConfig, *, bn: dict, conv):
+def _head(params, state, x, centre, cfg: ModelConfig, *, bn: dict, conv, precision: str):
     """Features (B, T, H, W, F) and the LR frames they belong to, centre (B, T, H, W) -> (hr (B, T, H*r, W*r),
-    new head BN state): head conv, residual and filter branches, dynamic upsampling of `centre`."""
+    new head BN state): head conv, residual and filter branches, dynamic upsampling of `centre` (at `precision`,
+    float32 for "bfloat16": the filters weigh depths)."""
     h, sh = batch_norm(params["head"]["bn"], state["head"]["bn"], x, **bn)
     h = jax.nn.relu(conv(jax.nn.relu(h), params["head"]["conv"]["w"], params["head"]["conv"]["b"]))
 
@@ -442,7 +447,7 @@ def _head(params, state, x, centre, cfg: ModelConfig, *, bn: dict, conv):
     filters = jax.nn.softmax(logits.reshape(*logits.shape[:-1], cfg.filter_size**2, r2), axis=-2)
     b, t = centre.shape[:2]
     sub = dynamic_upsample(centre.reshape(b * t, *centre.shape[2:]), filters.reshape(b * t, *filters.shape[2:]),
-                           padding=cfg.filter_padding)
+                           padding=cfg.filter_padding, lax_precision=lax_precision_of(precision))
     sub = sub.reshape(b, t, *sub.shape[1:]) + residual  # (B, T, H, W, r^2)
     hr = depth_to_space(sub, cfg.scale)[..., 0]
     if cfg.no_return_head:

@@ -58,31 +58,32 @@ def _pads(padding, kernel) -> tuple[tuple[int, int], ...]:
     return pads
 
 
-def conv3d_native(x, w, b=None, *, padding="same"):
+def conv3d_native(x, w, b=None, *, padding="same", lax_precision=None):
     """3D convolution (cross-correlation, as in Keras) with one `lax.conv_general_dilated` call.
 
     x: (B, T, H, W, Cin); w: (kt, kh, kw, Cin, Cout); b: (Cout,) or None; zero padding per `padding`
     ("same", "valid", or ((t_lo, t_hi), (h_lo, h_hi), (w_lo, w_hi))). Returns (B, T', H', W', Cout).
+    lax_precision: the products' `jax.lax.Precision` (None: the backend's default), here and in the other impls.
     """
     pads = _pads(padding, w.shape[:3])
     y = jax.lax.conv_general_dilated(
-        x, w, window_strides=(1, 1, 1), padding=pads, dimension_numbers=("NDHWC", "DHWIO", "NDHWC"), **_dot(x, w)
+        x, w, window_strides=(1, 1, 1), padding=pads, dimension_numbers=("NDHWC", "DHWIO", "NDHWC"),
+        precision=lax_precision,
     )
     return y if b is None else y + b
 
 
-def _conv2d(x, w, pads):
+def _conv2d(x, w, pads, lax_precision=None):
     """2D convolution of (N, H, W, Cin) by (kh, kw, Cin, Cout) with ((h_lo, h_hi), (w_lo, w_hi)) zero padding."""
     return jax.lax.conv_general_dilated(
-        x, w, window_strides=(1, 1), padding=pads, dimension_numbers=("NHWC", "HWIO", "NHWC"), **_dot(x, w)
+        x, w, window_strides=(1, 1), padding=pads, dimension_numbers=("NHWC", "HWIO", "NHWC"),
+        precision=lax_precision,
     )
 
 
-def _dot(x, w) -> dict:
-    """The products' accumulator: float32 for bfloat16 operands (`conv3d(precision="bfloat16")`), else theirs."""
-    if x.dtype == jnp.bfloat16 and w.dtype == jnp.bfloat16:
-        return {"preferred_element_type": jnp.float32}
-    return {}
+def _widened(y):
+    """y at least float32: partial sums of bfloat16 products (`conv3d(precision="bfloat16")`) add in float32."""
+    return y.astype(jnp.promote_types(y.dtype, jnp.float32))
 
 
 def _t_out(t_in, t_lo, t_hi, kt):
@@ -110,7 +111,7 @@ def stacked_use(t_in: int, padding, kt: int = 3) -> float:
     return used / (t_in * kt)
 
 
-def conv3d_taps(x, w, b=None, *, padding="same"):
+def conv3d_taps(x, w, b=None, *, padding="same", lax_precision=None):
     """The same 3D convolution as `conv3d_native`, as a sum over the kt temporal taps of 2D convolutions.
 
     Tap k convolves the frames t + k (after temporal padding) with w[k]; the batch and output-time axes are
@@ -128,7 +129,7 @@ def conv3d_taps(x, w, b=None, *, padding="same"):
         if t1 <= t0:
             continue
         xs = x[:, t0 + k - t_lo : t1 + k - t_lo].reshape(bsz * (t1 - t0), h, wd, cin)
-        yk = _conv2d(xs, w[k], (hpad, wpad))
+        yk = _widened(_conv2d(xs, w[k], (hpad, wpad), lax_precision))
         yk = yk.reshape(bsz, t1 - t0, *yk.shape[1:])
         if (t0, t1) != (0, t_out):
             yk = jnp.pad(yk, ((0, 0), (t0, t_out - t1), (0, 0), (0, 0), (0, 0)))
@@ -140,7 +141,7 @@ def conv3d_taps(x, w, b=None, *, padding="same"):
     return y if b is None else y + b
 
 
-def conv3d_stacked(x, w, b=None, *, padding="same"):
+def conv3d_stacked(x, w, b=None, *, padding="same", lax_precision=None):
     """The same 3D convolution as `conv3d_native`, as one 2D convolution with the temporal taps side by side.
 
     The kt taps' kernels are stacked along the output channels ((kh, kw, Cin, kt * Cout)) and applied to every
@@ -154,7 +155,8 @@ def conv3d_stacked(x, w, b=None, *, padding="same"):
     kt, kh, kw, cin, cout = w.shape
     bsz, t_in, h, wd, _ = x.shape
     t_out = _t_out(t_in, t_lo, t_hi, kt)
-    z = _conv2d(x.reshape(bsz * t_in, h, wd, cin), jnp.moveaxis(w, 0, 3).reshape(kh, kw, cin, kt * cout), (hpad, wpad))
+    z = _widened(_conv2d(x.reshape(bsz * t_in, h, wd, cin), jnp.moveaxis(w, 0, 3).reshape(kh, kw, cin, kt * cout),
+                         (hpad, wpad), lax_precision))
     z = z.reshape(bsz, t_in, *z.shape[1:3], kt, cout)
     # output frame t takes tap k from (padded) input frame t + k
     z = jnp.pad(z, ((0, 0), (t_lo, t_hi), (0, 0), (0, 0), (0, 0), (0, 0)))
@@ -162,7 +164,7 @@ def conv3d_stacked(x, w, b=None, *, padding="same"):
     return y if b is None else y + b
 
 
-def conv3d_stacked_taps_grad(x, w, b=None, *, padding="same"):
+def conv3d_stacked_taps_grad(x, w, b=None, *, padding="same", lax_precision=None):
     """The same 3D convolution, `conv3d_stacked` forward and `conv3d_taps`' gradients (for training).
 
     The stacked form's forward is the faster one where most of its products are used, but its gradients
@@ -170,22 +172,22 @@ def conv3d_stacked_taps_grad(x, w, b=None, *, padding="same"):
     more than the taps' in XLA:CPU: on TR4's layers the taps' forward + backward ran 1.15-1.4x faster.
     Same arguments and result as `conv3d_native`; gradients equal to float rounding.
     """
-    y = _stacked_taps_grad(x, w, _pads(padding, w.shape[:3]))
+    y = _stacked_taps_grad(x, w, _pads(padding, w.shape[:3]), lax_precision)
     return y if b is None else y + b
 
 
-@functools.partial(jax.custom_vjp, nondiff_argnums=(2,))
-def _stacked_taps_grad(x, w, pads):
-    return conv3d_stacked(x, w, padding=pads)
+@functools.partial(jax.custom_vjp, nondiff_argnums=(2, 3))
+def _stacked_taps_grad(x, w, pads, lax_precision):
+    return conv3d_stacked(x, w, padding=pads, lax_precision=lax_precision)
 
 
-def _stacked_taps_grad_fwd(x, w, pads):
-    return conv3d_stacked(x, w, padding=pads), (x, w)
+def _stacked_taps_grad_fwd(x, w, pads, lax_precision):
+    return conv3d_stacked(x, w, padding=pads, lax_precision=lax_precision), (x, w)
 
 
-def _stacked_taps_grad_bwd(pads, residuals, g):
+def _stacked_taps_grad_bwd(pads, lax_precision, residuals, g):
     # the taps' primal output is not used, so XLA drops its forward convolutions
-    _, vjp = jax.vjp(lambda x, w: conv3d_taps(x, w, padding=pads), *residuals)
+    _, vjp = jax.vjp(lambda x, w: conv3d_taps(x, w, padding=pads, lax_precision=lax_precision), *residuals)
     return vjp(g)
 
 
@@ -224,7 +226,9 @@ def conv3d(x, w, b=None, *, padding="same", impl: str = "auto", precision: str =
     "native" off CPU and, on CPU, the stacked forward where `stacked_use` >= `STACKED_MIN_USE` (with the taps'
     gradients, "stacked-taps-grad", unless `STACKED_GRADIENT` says "stacked"), else "taps". A 1x1x1 kernel is a
     matrix product whatever `impl` says. See `conv3d_native` for `padding`. `precision`: how the products are
-    taken, one of `PRECISIONS`; the result is float32 in every case.
+    taken, one of `PRECISIONS` ("bfloat16": x and w rounded to bfloat16 here, so that the gradients' products
+    take bfloat16 operands too; each convolution's output rounded to bfloat16, the taps' partial sums and the
+    result float32); the result is at least float32 in every case.
     """
     if x.ndim != 5 or w.ndim != 5 or x.shape[-1] != w.shape[3]:
         raise ValueError(
@@ -232,27 +236,35 @@ def conv3d(x, w, b=None, *, padding="same", impl: str = "auto", precision: str =
         )
     if precision not in PRECISIONS:
         raise ValueError(f"conv3d: precision must be one of {', '.join(map(repr, PRECISIONS))}, got {precision!r}")
-    if precision != "default":
-        # read when traced: `lax.Precision.HIGHEST` (full float32 products) for "float32"; bfloat16 operands
-        # make `_dot` ask for a float32 accumulator
-        with jax.default_matmul_precision("highest" if precision == "float32" else "default"):
-            cast = (lambda a: a.astype(jnp.bfloat16)) if precision == "bfloat16" else (lambda a: a)
-            return conv3d(cast(x), cast(w), b, padding=padding, impl=impl)
+    lax_precision = lax_precision_of(precision)
+    if precision == "bfloat16":
+        x, w = x.astype(jnp.bfloat16), w.astype(jnp.bfloat16)
+    y = _widened(_conv3d_by(impl, x, w, padding, lax_precision))
+    return y if b is None else y + b
+
+
+def lax_precision_of(precision: str):
+    """The `jax.lax.Precision` of products at `precision` (one of `PRECISIONS`): HIGHEST for "float32", else None
+    (the backend's default; bfloat16 is set by the operands' dtype)."""
+    return jax.lax.Precision.HIGHEST if precision == "float32" else None
+
+
+def _conv3d_by(impl: str, x, w, padding, lax_precision):
+    """`conv3d` without bias, by `impl` ("auto" chosen here)."""
     if w.shape[:3] == (1, 1, 1) and padding in ("same", "valid"):
-        y = jnp.matmul(x, w[0, 0, 0], **_dot(x, w))
-        return y if b is None else y + b
+        return jnp.matmul(x, w[0, 0, 0], precision=lax_precision)
     if impl == "auto":
         impl = default_conv3d_impl()
         if impl == "taps" and stacked_use(x.shape[1], padding, w.shape[0]) >= STACKED_MIN_USE:
             impl = "stacked-taps-grad" if STACKED_GRADIENT == "taps" else "stacked"
     if impl == "native":
-        return conv3d_native(x, w, b, padding=padding)
+        return conv3d_native(x, w, padding=padding, lax_precision=lax_precision)
     if impl == "taps":
-        return conv3d_taps(x, w, b, padding=padding)
+        return conv3d_taps(x, w, padding=padding, lax_precision=lax_precision)
     if impl == "stacked":
-        return conv3d_stacked(x, w, b, padding=padding)
+        return conv3d_stacked(x, w, padding=padding, lax_precision=lax_precision)
     if impl == "stacked-taps-grad":
-        return conv3d_stacked_taps_grad(x, w, b, padding=padding)
+        return conv3d_stacked_taps_grad(x, w, padding=padding, lax_precision=lax_precision)
     raise ValueError(f"conv3d: impl must be one of {', '.join(map(repr, CONV3D_IMPLS))}, got {impl!r}")
 
 
@@ -303,12 +315,13 @@ def neighbourhoods(frame, *, size: int = 5, padding: str = "edge"):
     return jnp.stack(taps, axis=-1)
 
 
-def dynamic_upsample(frame, filters, *, padding: str = "edge"):
+def dynamic_upsample(frame, filters, *, padding: str = "edge", lax_precision=None):
     """Apply per-pixel dynamic filters to a frame's neighbourhoods (before depth_to_space).
 
     frame: (B, H, W) the centre LR input frame; filters: `(B, H, W, size*size, r*r)`, tap `k = size*i + j` at
     offset (i - size//2, j - size//2) (see `neighbourhoods`), one filter per sub-pixel `s = dy*r + dx`.
     Returns `(B, H, W, r*r)`: sub-pixel s of LR pixel (y, x) = sum_k filters[..., k, s] * neighbourhood[..., k].
+    lax_precision: that sum's `jax.lax.Precision` (None: the backend's default, TF32 on NVIDIA GPUs).
     """
     taps = filters.shape[-2]
     size = math.isqrt(taps)
@@ -317,7 +330,7 @@ def dynamic_upsample(frame, filters, *, padding: str = "edge"):
             f"dynamic_upsample: filters {filters.shape} must be (B, H, W, size*size, r*r) over frame {frame.shape}"
         )
     patches = neighbourhoods(frame, size=size, padding=padding)
-    return jnp.einsum("bhwk,bhwks->bhws", patches, filters)
+    return jnp.einsum("bhwk,bhwks->bhws", patches, filters, precision=lax_precision)
 
 
 def depth_to_space(x, scale: int):

@@ -85,5 +85,5 @@ def stream_step(params, state, buffers: dict, frame, cfg: ModelConfig, *, conv3d
     for p, s, buf in zip(params["blocks"], state["blocks"], buffers["blocks"]):
         x, buf = _stream_block(p, s, buf, x, bn=bn, conv=conv)
         new_blocks.append(buf)
-    hr, _ = _head(params, state, x, lr[:, :1], cfg, bn=bn, conv=conv)
+    hr, _ = _head(params, state, x, lr[:, :1], cfg, bn=bn, conv=conv, precision=precision)
     return {"lr": lr, "blocks": new_blocks}, merge_no_return(hr[:, 0], cfg)

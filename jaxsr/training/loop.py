@@ -218,7 +218,8 @@ def _check_resumable(path: Path, meta: dict, settings: dict):
     arch = architecture(meta.get("architecture", "duf"))
     # through JSON as `settings` went (tuples become lists), with the fields older files lack at their defaults
     saved_cfg = json.loads(json.dumps(config_to_dict(config_from_dict(arch.config_type, meta["config"]))))
-    saved = flat(arch.name, saved_cfg, meta["train_config"], meta.get("pretrain_epochs", 0))
+    saved_train = json.loads(json.dumps(config_to_dict(config_from_dict(TrainConfig, meta["train_config"]))))
+    saved = flat(arch.name, saved_cfg, saved_train, meta.get("pretrain_epochs", 0))
     wanted = flat(settings["architecture"], settings["config"], settings["train_config"],
                   settings.get("pretrain_epochs", 0))
     differ = sorted(k for k in saved.keys() | wanted.keys() if saved.get(k) != wanted.get(k))

@@ -176,14 +176,44 @@ def test_depth_to_space_subpixel_convention():
         depth_to_space(jnp.zeros((1, 2, 2, 5)), 2)
 
 
+def products(f, *args):
+    """(primitive, operand dtypes, precision) of every convolution and matrix product in f's jaxpr, nested jaxprs
+    (custom gradients, jit) included."""
+    found = []
+
+    def walk(jaxpr):
+        for e in jaxpr.eqns:
+            if e.primitive.name in ("conv_general_dilated", "dot_general"):
+                found.append((e.primitive.name, tuple(str(v.aval.dtype) for v in e.invars[:2]),
+                              str(e.params.get("precision"))))
+            for v in e.params.values():
+                for sub in v if isinstance(v, (list, tuple)) else [v]:
+                    inner = getattr(sub, "jaxpr", sub)
+                    if hasattr(inner, "eqns"):
+                        walk(inner)
+
+    walk(jax.make_jaxpr(f)(*args).jaxpr)
+    return found
+
+
 @pytest.mark.parametrize("impl", ["native", "taps", "stacked", "stacked-taps-grad"])
 def test_conv3d_precisions(impl):
-    """float32 matches the loop as closely as the default; bfloat16 operands with float32 accumulation land in
-    bfloat16's band (a few 1e-3 relative), return float32, and their gradients reach float32 weights."""
+    """Each precision reaches every product of the forward pass and of both gradients (read from the jaxpr, so
+    the test holds on a CPU, where float32 and the default compute alike): float32 asks for HIGHEST, bfloat16
+    multiplies bfloat16 operands. Results: float32 as close to the loop as float32 gets, bfloat16 in bfloat16's
+    band, float32 outputs and gradients; an unknown precision refused."""
     kx, kw = jax.random.split(jax.random.key(4))
     x = jax.random.normal(kx, (2, 4, 6, 5, 8))
     w = jax.random.normal(kw, (3, 3, 3, 8, 4))
     pads = PADS[0]
+
+    def loss(w, x, precision):
+        return jnp.sum(conv3d(x, w, padding=pads, impl=impl, precision=precision) ** 2)
+
+    for precision, want in (("float32", (("float32", "float32"), "(Precision.HIGHEST, Precision.HIGHEST)")),
+                            ("bfloat16", (("bfloat16", "bfloat16"), "None"))):
+        found = products(jax.grad(lambda w, x: loss(w, x, precision), argnums=(0, 1)), w, x)
+        assert len(found) >= 3 and {(dtypes, prec) for _, dtypes, prec in found} == {want}, found
     ref = _conv3d_loop(x, w, pads)
     rel = lambda y: float(np.linalg.norm(np.asarray(y, np.float64) - ref) / np.linalg.norm(ref))  # noqa: E731
     y32 = conv3d(x, w, padding=pads, impl=impl, precision="float32")
@@ -191,8 +221,8 @@ def test_conv3d_precisions(impl):
     assert y32.dtype == ybf.dtype == jnp.float32
     assert rel(y32) < 1e-6
     assert 1e-4 < rel(ybf) < 1e-2  # rounded operands: visibly not float32, but no worse than bfloat16's band
-    g = jax.grad(lambda w: jnp.sum(conv3d(x, w, padding=pads, impl=impl, precision="bfloat16") ** 2))(w)
-    g_ref = jax.grad(lambda w: jnp.sum(conv3d(x, w, padding=pads, impl=impl) ** 2))(w)
+    g = jax.grad(lambda w: loss(w, x, "bfloat16"))(w)
+    g_ref = jax.grad(lambda w: loss(w, x, "default"))(w)
     assert g.dtype == jnp.float32
     assert float(jnp.linalg.norm(g - g_ref) / jnp.linalg.norm(g_ref)) < 2e-2
     with pytest.raises(ValueError, match="precision"):

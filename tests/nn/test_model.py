@@ -96,6 +96,13 @@ def test_precisions_of_the_network():
         assert seq.dtype == jnp.float32 and bool(jnp.all(jnp.isfinite(seq)))
         _, out = stream_step(params, state, stream_init(cfg, (4, 6), batch=2), win[:, 0], cfg, precision=precision)
         assert out.dtype == jnp.float32
+    # every product of the network, its dynamic filter included, at the precision asked for
+    from test_layers import products
+    highest = "(Precision.HIGHEST, Precision.HIGHEST)"
+    found = products(lambda p: apply_model(p, state, win, cfg, precision="float32"), params)
+    assert found and {prec for _, _, prec in found} == {highest}
+    found = products(lambda p: apply_model(p, state, win, cfg, precision="bfloat16"), params)
+    assert {dtypes for name, dtypes, _ in found if name == "conv_general_dilated"} == {("bfloat16", "bfloat16")}
     with pytest.raises(ValueError, match="precision"):
         apply_model(params, state, win, cfg, precision="half")
     with pytest.raises(ValueError, match="precision"):

@@ -611,3 +611,18 @@ def test_a_run_resumes_with_the_validation_it_started_with(tmp_path):
               {"kind": "train_state", "train_config": {"val_sequences": old}})
     resumed = resume_config(tmp_path, cfg)
     assert resumed.val_sequences == tuple(old) and dataclasses.replace(resumed, val_sequences=cfg.val_sequences) == cfg
+
+
+def test_a_run_saved_before_a_train_setting_existed_resumes_with_its_default(tmp_path):
+    """A train state written before `TrainConfig.precision` existed (its train_config lacks the field) matches a
+    resume at the field's default; a real difference is still named."""
+    from jaxsr.training.loop import _check_resumable, _settings
+
+    cfg, train_cfg = ModelConfig(tr=0), TrainConfig()
+    settings = _settings(cfg, train_cfg, 0)
+    old = {k: v for k, v in settings["train_config"].items() if k != "precision"}
+    meta = {"kind": "train_state", "architecture": "duf", "config": settings["config"], "train_config": old}
+    _check_resumable(tmp_path / "last.npz", meta, settings)
+    with pytest.raises(ValueError, match="train.precision"):
+        _check_resumable(tmp_path / "last.npz", meta,
+                         _settings(cfg, dataclasses.replace(train_cfg, precision="bfloat16"), 0))
