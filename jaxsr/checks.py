@@ -69,6 +69,17 @@ def require_bins(name, counts, sensor):
     return counts
 
 
+def one_positive_number(value, what: str, expected: str) -> float:
+    """`value` as a float when it is one finite real number > 0 (a Python or NumPy number, a 0-d or one-element
+    array); anything else (several values, 0, a negative, NaN or infinite value, text, None) is a ValueError
+    "WHAT: expected EXPECTED, got ..." (the value, or the shape of an array of several)."""
+    arr = np.asarray(value)
+    if arr.size == 1 and arr.dtype.kind in "iuf" and np.isfinite(arr).all() and arr.item() > 0:
+        return float(arr.item())
+    got = f"an array of shape {arr.shape}" if arr.size != 1 else repr(arr.item())
+    raise ValueError(f"{what}: expected {expected}, got {got}")
+
+
 def require_normalised_depth(name, frame):
     """Check LR normalised depth on the host and return it as float32 NumPy, ready for the network.
 
@@ -136,9 +147,22 @@ def memory_budget(max_memory=None) -> int | None:
     return None if ram is None else int(MEMORY_SHARE * ram)
 
 
-def format_bytes(n: float) -> str:
-    """Bytes as people read them: 7.2 GB, 350 MB."""
-    return f"{n / 1e9:.1f} GB" if n >= 1e9 else f"{max(n, 1e6) / 1e6:.0f} MB"
+def format_bytes(n: float, extra_digits: int = 0) -> str:
+    """Bytes as people read them: 7.2 GB, 350 MB, 131 kB, 512 B; `extra_digits` more decimals (to tell two sizes
+    apart)."""
+    for unit, size, digits in (("GB", 1e9, 1), ("MB", 1e6, 0), ("kB", 1e3, 0)):
+        if n >= size:
+            return f"{n / size:.{digits + extra_digits}f} {unit}"
+    return f"{n:.{extra_digits}f} B"
+
+
+def _two_sizes(need: float, budget: float) -> tuple[str, str]:
+    """`format_bytes` of both, with as many more decimals as it takes (up to 6) to write them differently."""
+    for extra in range(7):
+        texts = format_bytes(need, extra), format_bytes(budget, extra)
+        if texts[0] != texts[1]:
+            break
+    return texts
 
 
 def require_memory(need: float, what: str, max_memory=None, *, remedy: str = "") -> None:
@@ -150,7 +174,8 @@ def require_memory(need: float, what: str, max_memory=None, *, remedy: str = "")
         return
     allowed = ("by --max-memory (max_memory)" if max_memory is not None
                else f"({MEMORY_SHARE:.0%} of this machine's {format_bytes(machine_memory())})")
-    raise ValueError(f"{what} needs about {format_bytes(need)} of memory, more than the {format_bytes(budget)} "
+    need_text, budget_text = _two_sizes(need, budget)
+    raise ValueError(f"{what} needs about {need_text} of memory, more than the {budget_text} "
                      f"allowed {allowed}; {remedy + ', or ' if remedy else ''}give --max-memory "
                      f"{int(np.ceil(need / 1e9))}GB (max_memory=) to try anyway")
 

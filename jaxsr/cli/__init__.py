@@ -14,21 +14,23 @@ add one, write such a module and list it in `COMMANDS`.
 Errors: a user's mistake (a bad argument, a missing or unreadable file, an existing output, a wrongly shaped
 input, a damaged or hostile file) is one line on stderr, `jaxsr CMD: error: ...` (control characters escaped),
 saying what was expected, and exit status 2, with no output or temporary file left behind; options and inputs
-are checked before the long work starts. A traceback
-means a bug. A write the system refuses (a full disk, a quota, a read-only or failing device: any other
-OSError) is one line too, `jaxsr CMD: error: no space left on device while writing OUT; nothing was written
-...`, and exit status 1: the command was right, the machine could not do it; atomic writes
-(`jaxsr.io.files`) have removed their temporary files by then. A folder it may not write to (permissions, a
-read-only file system) is the user's choice: exit status 2. Ctrl-C (SIGINT), SIGTERM and SIGHUP (the terminal
-closed) remove what the command had started to write and exit with 130, 143 and 129 (128 + the signal number)
-after one line saying so (where the terminal is gone, the line is lost). A Python warning is one line too,
-`jaxsr CMD: warning: ...`.
+are checked before the long work starts. A traceback means a bug. A place the user chose that cannot be written
+(no permission, a read-only file system: `jaxsr.io.NotWritableError`, or any OSError EROFS) is such a mistake too:
+exit status 2, `jaxsr CMD: error: cannot write OUT: read-only file system; choose a folder you can write to`. A
+write the system fails (a full disk, a quota, a failing device: any other OSError) is one line too, `jaxsr CMD:
+error: no space left on device while writing OUT; nothing was written ...`, and exit status 1: the command was
+right, the machine could not do it; atomic writes (`jaxsr.io.files`) have removed their temporary files by then.
+Ctrl-C (SIGINT), SIGTERM and SIGHUP (the terminal closed) remove what the command had started to write and exit
+with 130, 143 and 129 (128 + the signal number) after one line saying so (where the terminal is gone, the line
+is lost); a signal ignored when the command starts stays ignored (`nohup jaxsr train ... &` outlives the
+terminal). A Python warning is one line too, `jaxsr CMD: warning: ...`.
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import errno
 import signal
 import sys
 import threading
@@ -96,6 +98,13 @@ def _raise_terminated(signum, frame):
     raise Terminated(signum)
 
 
+def _handle_terminating_signals() -> dict:
+    """Make each of `TERMINATING` end the command as Ctrl-C does (`Terminated`), except one that is ignored
+    when the command starts: `nohup` ignores SIGHUP so that the command outlives the terminal, and it stays
+    ignored. Returns {signal: the handler replaced}, to put back."""
+    return {s: signal.signal(s, _raise_terminated) for s in TERMINATING if signal.getsignal(s) != signal.SIG_IGN}
+
+
 def _print_warning(command: str):
     """A `warnings.showwarning` that prints each warning as one line, `jaxsr COMMAND: warning: ...`."""
 
@@ -109,11 +118,13 @@ def main(argv=None) -> int:
     """Entry point of the `jaxsr` console script.
 
     Args: argv (list of str, default sys.argv[1:]). Returns the exit status: 0 on success; 2 on a user error
-    (see the module docstring), after printing the message to stderr; 1 when the system refused a write or a
-    read (an OSError such as a full disk), after one line; 130 after Ctrl-C, 143 after SIGTERM, 129 after SIGHUP."""
+    (see the module docstring; a place that cannot be written, read-only or without permission, among them),
+    after printing the message to stderr; 1 when the system failed a write or a read (an OSError such as a full
+    disk), after one line; 130 after Ctrl-C, 143 after SIGTERM, 129 after SIGHUP (unless SIGTERM or SIGHUP was
+    ignored when `main` started: it stays ignored)."""
     args = build_parser().parse_args(argv)
     in_main_thread = threading.current_thread() is threading.main_thread()
-    previous = {s: signal.signal(s, _raise_terminated) for s in TERMINATING} if in_main_thread else {}
+    previous = _handle_terminating_signals() if in_main_thread else {}
     with warnings.catch_warnings():
         warnings.showwarning = _print_warning(args.command)
         try:
@@ -138,7 +149,7 @@ def _run(args, argv) -> int:
         return 2
     except OSError as e:  # after USER_ERRORS, which holds OSError's user-mistake subclasses
         print(f"jaxsr {args.command}: error: {_os_error_line(e)}", file=sys.stderr)
-        return 1
+        return 2 if e.errno == errno.EROFS else 1  # a read-only file system: the user's choice of place, as EACCES
     except KeyboardInterrupt as e:
         what = f"terminated ({e.signum.name})" if isinstance(e, Terminated) else "interrupted"
         with contextlib.suppress(OSError):  # SIGHUP: the terminal may be gone, and the line with it

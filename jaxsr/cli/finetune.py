@@ -6,8 +6,6 @@ gate flags."""
 
 from __future__ import annotations
 
-import sys
-import warnings
 from pathlib import Path
 
 from ..config import PRESETS
@@ -67,13 +65,11 @@ def run(args) -> int:
     _, _, info = read_sensor_file(args.sensor)  # a bad file is one error line before anything else
     for line in _summary(info):
         print(line)
-    with warnings.catch_warnings():  # each warning one line on stderr
-        warnings.showwarning = lambda message, *_, **__: print(f"jaxsr finetune: warning: {message}", file=sys.stderr)
-        _, history = finetune(args.out, sensor_file=args.sensor, init=args.init, epochs=args.epochs,
-                              steps_per_epoch=args.steps_per_epoch, val_batches=args.val_batches, preset=args.preset,
-                              photons=True if args.photons else None, seed=args.seed, resume=args.resume,
-                              overwrite=args.force, checkpoint_minutes=args.checkpoint_minutes,
-                              progress=not args.no_progress)
+    _, history = finetune(args.out, sensor_file=args.sensor, init=args.init, epochs=args.epochs,
+                          steps_per_epoch=args.steps_per_epoch, val_batches=args.val_batches, preset=args.preset,
+                          photons=True if args.photons else None, seed=args.seed, resume=args.resume,
+                          overwrite=args.force, checkpoint_minutes=args.checkpoint_minutes,
+                          progress=not args.no_progress)  # a warning: one line on stderr (`jaxsr.cli.main`)
     best = min(history, key=lambda r: r["val_loss"]) if history else None
     if best:
         start = read_metadata(Path(args.out) / "best.npz").get("card", {}).get("finetune", {}).get("start")

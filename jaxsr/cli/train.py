@@ -7,8 +7,6 @@ $JAXSR_PROCESS_ID, or `srun`'s Slurm variables) every process runs this command 
 
 from __future__ import annotations
 
-import sys
-import warnings
 from pathlib import Path
 
 import jax
@@ -80,13 +78,12 @@ def join_processes(args) -> None:
 
 
 def run(args) -> int:
-    """Train as the arguments say; prints the best epoch. Configs and data are built (and checked) before any work."""
-    with warnings.catch_warnings():  # each warning one line on stderr (e.g. a resumed run with nothing to train)
-        warnings.showwarning = lambda message, *_, **__: print(f"jaxsr train: warning: {message}", file=sys.stderr)
-        result = train(args.out, arch=args.arch, tr=args.tr, scale=args.scale, temporal=args.temporal,
-                       preset=args.preset, seed=args.seed, seeds=args.seeds, epochs=args.epochs,
-                       clip_frames=args.clip_frames, data=args.data, init=args.init, resume=args.resume,
-                       overwrite=args.force, checkpoint_minutes=args.checkpoint_minutes, progress=not args.no_progress)
+    """Train as the arguments say; prints the best epoch. Configs and data are built (and checked) before any work.
+    A warning (e.g. a resumed run with nothing to train) is one line on stderr, as `jaxsr.cli.main` prints it."""
+    result = train(args.out, arch=args.arch, tr=args.tr, scale=args.scale, temporal=args.temporal,
+                   preset=args.preset, seed=args.seed, seeds=args.seeds, epochs=args.epochs,
+                   clip_frames=args.clip_frames, data=args.data, init=args.init, resume=args.resume,
+                   overwrite=args.force, checkpoint_minutes=args.checkpoint_minutes, progress=not args.no_progress)
     runs = {None: result} if args.seeds is None else result
     for k, (_, history) in runs.items():
         best = min(history, key=lambda r: r["val_loss"]) if history else None

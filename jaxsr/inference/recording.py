@@ -27,7 +27,7 @@ from typing import Callable, Iterator
 import numpy as np
 from tqdm.auto import tqdm
 
-from ..checks import memory_budget, require_memory
+from ..checks import memory_budget, one_positive_number, require_memory
 from ..config import DepthScale, Gate, SensorConfig
 from ..io.checkpoint import load_model, resolve_model_path
 from ..io.files import atomic_folder, atomic_path, reserve_space
@@ -216,11 +216,7 @@ def _positive(value, what: str, parse, unit: str):
             return parse(value)
         except ValueError as e:
             raise ValueError(f"{what}: {e}") from None
-    arr = np.asarray(value)
-    if arr.size != 1 or arr.dtype.kind not in "iuf" or not (np.isfinite(arr).all() and arr.item() > 0):
-        got = f"an array of shape {arr.shape}" if arr.size != 1 else repr(value)
-        raise ValueError(f"{what}: expected one value > 0 in {unit}, got {got}")
-    return float(arr.item())
+    return one_positive_number(value, what, f"one value > 0 in {unit}")
 
 
 def _span(value) -> float | str | None:
@@ -442,7 +438,7 @@ def write_upscaled(job: UpscaleJob, output, *, frame_format: str | None = None, 
     metres; missing parent folders are created; frame_format: "exr" by default, "pfm", "tif" or "png", refused
     for any other output, and "png" for a range starting beyond its 65.535 m, deeper pixels counted in a
     warning), or None (the (T, H, W) result is returned in `depth`).
-    Everything is written atomically (a folder into a hidden `.NAME.HOST-PID.XXXXXXXX.partial` sibling, renamed
+    Everything is written atomically (a folder into a hidden `.NAME.WRITER-PID.XXXXXXXX.partial` sibling, renamed
     when complete; `jaxsr.io.atomic_folder`); an interrupted or failed run leaves nothing. preview: a .png strip
     of the middle frame, input | output.
     video (--video): an .mp4 or .gif of every frame, input (nearest-neighbour upscaled) | output | reference

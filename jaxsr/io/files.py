@@ -1,20 +1,23 @@
 """Atomic file writes: a temporary file in the destination folder, then `os.replace`, so a crash or an
 exception never leaves a half-written file, and an existing file is only replaced when asked. Folders of
 outputs are written the same way (`atomic_folder`): into a hidden temporary sibling, moved into place at the end.
-A write that the disk refuses (full, over quota, an I/O error) raises `WriteError`, and one into a folder this
-process may not write to (no permission, a read-only file system) `NotWritableError`; both name the output rather
-than its hidden temporary file, after the temporary file or folder is removed.
+A write that the disk fails (full, over quota, an I/O error) raises `WriteError` (exit status 1 in the CLI),
+and one into a place this process may not write to (no permission, a read-only file system: the user's choice
+of path) `NotWritableError` (a PermissionError: exit status 2); both name the output rather than its hidden
+temporary file, after the temporary file or folder is removed.
 
-The temporaries are named after their output and their writer, `.NAME.HOST-PID.XXXXXXXX.partial` (a file keeps
-its suffix after that: `.out.HOST-PID.XXXXXXXX.partial.npy`), so that one a killed process left (SIGKILL, a
-power cut: nothing could remove it) is recognised: the next atomic write of the same output on the same host
-removes those whose process no longer runs, with a warning that says so.
+The temporaries are named after their output and their writer, `.NAME.WRITER-PID.XXXXXXXX.partial` (a file
+keeps its suffix after that: `.out.WRITER-PID.XXXXXXXX.partial.npy`; WRITER a short hash of the full host name
+and the pid namespace, `_writer_tag`), so that one a killed process left (SIGKILL, a power cut: nothing could
+remove it) is recognised: the next atomic write of the same output by a process of the same host and pid
+namespace removes those whose process no longer runs, with a warning that says so.
 """
 
 from __future__ import annotations
 
 import contextlib
 import errno
+import hashlib
 import os
 import re
 import shutil
@@ -24,13 +27,16 @@ import warnings
 from pathlib import Path
 
 
-# OSErrors that are a user's mistake (an existing or missing path, no permission), raised with their own message:
-# the rest, raised inside an atomic write, are the disk's (ENOSPC, EDQUOT, EROFS, EIO, ...) and become WriteError.
+# OSErrors that are a user's mistake (an existing or missing path, no permission), raised with their own message;
+# a place that cannot be written (EPERM, EACCES, EROFS: `_NOT_WRITABLE`) is the user's too, a NotWritableError
+# (`_write_error`; exit 2 in the CLI). The rest, raised inside an atomic write, are the disk's faults (ENOSPC,
+# EDQUOT, EIO, ...) and become WriteError (exit 1).
 _PATH_ERRORS = (FileExistsError, FileNotFoundError, IsADirectoryError, NotADirectoryError, PermissionError)
 
 
 class WriteError(OSError):
-    """An output could not be written (a full disk, a quota, a read-only or failing device). `path` is the
+    """An output could not be written: the disk failed the write (a full disk, a quota, an I/O error of a failing
+    device; a read-only file system or a missing permission is a `NotWritableError` instead). `path` is the
     output as the caller named it (never the hidden temporary file), `reason` the system's words for errno
     (e.g. "no space left on device"); str() is one line: "REASON while writing PATH; nothing was written (the
     partial file was removed)". partial: "file" or "folder", what was removed (None: nothing had been created)."""
@@ -57,7 +63,7 @@ class NotWritableError(PermissionError):
         return self.strerror
 
 
-# errno values of a folder that cannot be written into (EPERM, EACCES: permissions; EROFS: a read-only mount)
+# errno values of a place that cannot be written (EPERM, EACCES: permissions; EROFS: a read-only mount)
 _NOT_WRITABLE = (errno.EPERM, errno.EACCES, errno.EROFS)
 
 
@@ -68,10 +74,12 @@ def _reason(number: int) -> str:
 
 def _write_error(error: BaseException, path: Path, home: Path, tmp, partial: str) -> BaseException:
     """The exception an atomic write of `path` (through its temporary `tmp` in the folder `home`, None before it
-    exists) raises for `error`: a folder that cannot be written into (the error names `home`'s files or `tmp`'s)
-    becomes a `NotWritableError`, another disk error a `WriteError`, both naming `path`; one an inner atomic
-    write raised for a file inside `tmp` (or for `tmp` itself) names the file's final place; anything else is
-    raised unchanged."""
+    exists) raises for `error`: a place that cannot be written becomes a `NotWritableError` (exit status 2 in
+    the CLI, as any PermissionError), naming `path` when the error names the write (`home`'s files or `tmp`'s;
+    for EROFS also no file), else the file it names (EROFS: only writes meet it; a PermissionError naming another
+    file, which may have been read, is raised unchanged); another disk error becomes a `WriteError` naming
+    `path`; one an inner atomic write raised for a file inside `tmp` (or for `tmp` itself) names the file's final
+    place; anything else is raised unchanged."""
     if isinstance(error, (WriteError, NotWritableError)):
         inner = error.path
         if tmp is None or not (inner == tmp or tmp in inner.parents):
@@ -82,6 +90,8 @@ def _write_error(error: BaseException, path: Path, home: Path, tmp, partial: str
         return error
     if error.errno in _NOT_WRITABLE and _names_the_write(error, home, tmp):
         return NotWritableError(error.errno, path, _reason(error.errno))
+    if error.errno == errno.EROFS:  # only a write meets a read-only file system: without a file name, this one's
+        return NotWritableError(error.errno, path if error.filename is None else error.filename, _reason(error.errno))
     if isinstance(error, _PATH_ERRORS):
         return error
     return WriteError(error.errno, path, _reason(error.errno), None if tmp is None else partial)
@@ -108,8 +118,19 @@ def check_writable(folder, output) -> None:
         read_only = bool(os.statvfs(folder).f_flag & os.ST_RDONLY)
     except (OSError, AttributeError):  # no statvfs (not POSIX)
         read_only = False
-    reason = f"{folder} is on a read-only file system" if read_only else f"{folder} is not writable"
+    where = os.path.abspath(folder)  # "." says nothing
+    reason = f"{where} is on a read-only file system" if read_only else f"{where} is not writable"
     raise NotWritableError(errno.EROFS if read_only else errno.EACCES, output, reason)
+
+
+def check_output_folder(folder) -> None:
+    """Refuse (`NotWritableError` naming `folder`) an output folder that `atomic_folder` could not write, before
+    any work: the nearest existing folder above it must take the hidden temporary folder, and `folder`, where it
+    exists, the files moved into it. Writes nothing."""
+    folder = Path(folder)
+    check_writable(_nearest_existing(folder.parent), folder)
+    if folder.is_dir():
+        check_writable(folder, folder)
 
 
 def refuse_link(path, what: str) -> None:
@@ -125,10 +146,23 @@ def refuse_link(path, what: str) -> None:
 # ---------------------------------------------------------------------------------------------------------
 # Temporaries of a writer that was killed
 
-# This host in the temporaries' names: a pid means nothing on another host sharing the folder, or in another
-# container (with its own host name) on this one.
-_HOST = re.sub(r"[^A-Za-z0-9-]", "", socket.gethostname())[:24] or "host"
 _PARTIAL = ".partial"
+
+
+def _pid_namespace() -> str:
+    """This process's pid namespace, the inode of /proc/self/ns/pid (Linux), or "" where the system shows none."""
+    try:
+        return str(os.stat("/proc/self/ns/pid").st_ino)
+    except OSError:
+        return ""
+
+
+def _writer_tag() -> str:
+    """Where this writer's pid means something, in its temporaries' names: 12 hex digits of a hash of the full
+    host name and the pid namespace. A pid means nothing on another host sharing the folder, nor in another
+    container on this one: with its own host name (which may share any start with this one's: Kubernetes pods)
+    or with this host's name but its own pids (docker --network host)."""
+    return hashlib.sha256(f"{socket.gethostname()}\0{_pid_namespace()}".encode(errors="replace")).hexdigest()[:12]
 
 
 def _temporary_affixes(path: Path, *, folder: bool) -> tuple[str, str]:
@@ -139,17 +173,18 @@ def _temporary_affixes(path: Path, *, folder: bool) -> tuple[str, str]:
 
 
 def _temporary_name_parts(path: Path, *, folder: bool) -> tuple[str, str]:
-    """(prefix, suffix) for mkstemp / mkdtemp: this host and process between the output's name and the random
-    part."""
+    """(prefix, suffix) for mkstemp / mkdtemp: this writer (`_writer_tag`, the pid) between the output's name and
+    the random part."""
     start, end = _temporary_affixes(path, folder=folder)
-    return f"{start}{_HOST}-{os.getpid()}.", end
+    return f"{start}{_writer_tag()}-{os.getpid()}.", end
 
 
-def _writer_gone(host: str, pid: int) -> bool:
-    """Whether the process `pid` of `host` that named a temporary is known to have ended: on this host, no such
-    process (a process of another user is alive too; another host's cannot be told). A pid reused since by an
-    unrelated process keeps the temporary: left, never a live writer's removed."""
-    if host != _HOST or pid == os.getpid() or os.name != "posix":  # Windows' os.kill(pid, 0) would end it
+def _writer_gone(tag: str, pid: int) -> bool:
+    """Whether the process `pid` that named a temporary with `tag` (`_writer_tag`) is known to have ended: of this
+    host and pid namespace (the same tag), no such process (a process of another user is alive too; another
+    host's or namespace's cannot be told). A pid reused since by an unrelated process keeps the temporary: left,
+    never a live writer's removed."""
+    if tag != _writer_tag() or pid == os.getpid() or os.name != "posix":  # Windows' os.kill(pid, 0) would end it
         return False
     try:
         os.kill(pid, 0)
@@ -161,20 +196,21 @@ def _writer_gone(host: str, pid: int) -> bool:
 
 
 def remove_stale_temporaries(path, *, folder: bool = False) -> list[Path]:
-    """Remove the temporaries of the output `path` (a file, or a folder with `folder`) that a writer on this host
-    left when it was killed (its process no longer runs), with one warning line that says how many and which
-    output; temporaries of live writers, and of other outputs, are left alone. Returns the paths removed."""
+    """Remove the temporaries of the output `path` (a file, or a folder with `folder`) that a writer of this host
+    and pid namespace left when it was killed (its process no longer runs), with one warning line that says how
+    many and which output; temporaries of live writers, of other hosts and namespaces (whose processes cannot be
+    seen from here) and of other outputs are left alone. Returns the paths removed."""
     path = Path(path)
     home = path.parent if not folder else _nearest_existing(path.parent)
     if not home.is_dir() or _own_temporary(home):  # a folder of ours being filled: nothing in it is stale
         return []
     start, end = _temporary_affixes(path, folder=folder)
-    pattern = re.compile(re.escape(start) + r"(?P<host>[A-Za-z0-9-]+)-(?P<pid>\d+)\.[a-z0-9_]+" + re.escape(end))
+    pattern = re.compile(re.escape(start) + r"(?P<tag>[A-Za-z0-9-]+)-(?P<pid>\d+)\.[a-z0-9_]+" + re.escape(end))
     removed, pids = [], set()
     try:
         with os.scandir(home) as entries:
             stale = [(e.path, int(m["pid"])) for e in entries if (m := pattern.fullmatch(e.name))
-                     and _writer_gone(m["host"], int(m["pid"]))]
+                     and _writer_gone(m["tag"], int(m["pid"]))]
     except OSError:  # a folder that cannot be listed: the write itself says what is wrong
         return []
     for p, pid in stale:
@@ -196,8 +232,8 @@ def remove_stale_temporaries(path, *, folder: bool = False) -> list[Path]:
 
 def _own_temporary(folder: Path) -> bool:
     """Whether `folder` is a temporary folder of this process (its outputs' files are written into it)."""
-    return bool(re.fullmatch(r"\..+\." + re.escape(f"{_HOST}-{os.getpid()}.") + r"[a-z0-9_]+" + re.escape(_PARTIAL),
-                             folder.name))
+    writer = re.escape(f"{_writer_tag()}-{os.getpid()}.")
+    return bool(re.fullmatch(r"\..+\." + writer + r"[a-z0-9_]+" + re.escape(_PARTIAL), folder.name))
 
 
 def reserve_space(path) -> None:
@@ -347,7 +383,7 @@ def _nearest_existing(path: Path) -> Path:
 
 @contextlib.contextmanager
 def atomic_folder(path, *, overwrite: bool = True):
-    """Yield a new hidden temporary folder (`.NAME.HOST-PID.XXXXXXXX.partial`) for the files of the folder `path`;
+    """Yield a new hidden temporary folder (`.NAME.WRITER-PID.XXXXXXXX.partial`) for the files of the folder `path`;
     when the block succeeds, the folder becomes `path` (or, if `path` is an existing folder, its files are moved
     into it, replacing files of the same name), creating missing parent folders only then. Any exception,
     KeyboardInterrupt included, removes the temporary folder, so a partial folder never looks complete.

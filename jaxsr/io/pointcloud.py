@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from ..config import SensorConfig
-from .files import _nearest_existing, atomic_folder, atomic_path, check_writable, refuse_link
+from .files import atomic_folder, atomic_path, check_output_folder, refuse_link
 from .previews import _colourise
 
 __all__ = ["DEFAULT_FOV_DEG", "depth_points", "write_ply", "write_point_cloud", "write_point_clouds",
@@ -135,7 +135,7 @@ def check_points_folder(spec, *, force: bool, output=None) -> Path:
         raise FileExistsError(f"{path} is a file; point clouds are written into a folder")
     if path.is_dir() and any(path.iterdir()) and not force:
         raise FileExistsError(f"{path} exists and is not an empty folder; pass --force to write into it")
-    check_writable(_nearest_existing(path.parent), path)
+    check_output_folder(path)
     return path
 
 

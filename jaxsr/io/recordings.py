@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from . import formats as io
-from .files import _nearest_existing, check_writable, refuse_link
+from .files import check_output_folder, check_writable, refuse_link
 from ..checks import NORMALISED_SLACK, npz_array_bytes, require_memory, require_normalised_depth
 from ..config import MIN_LR_SIDE, TRAINED_RANGE_M, DepthScale, Gate, SensorConfig
 from ..sensor.effects import clip_negative_counts
@@ -156,6 +156,8 @@ def _npz_recording(path: Path, kind: str | None, max_memory) -> tuple[np.ndarray
     unreadable = f"cannot read {path}: truncated or not an NPZ file"
     try:
         z = np.load(path, allow_pickle=False)
+    except MemoryError:  # the machine's fault, not the file's
+        raise
     except Exception as e:  # zipfile.BadZipFile, EOFError, ValueError on truncated files
         raise ValueError(f"{unreadable} ({e})") from e
     if not isinstance(z, np.lib.npyio.NpzFile):
@@ -167,7 +169,9 @@ def _npz_recording(path: Path, kind: str | None, max_memory) -> tuple[np.ndarray
         require_memory(npz_array_bytes(path, [name]), f"{path}: its array '{name}'", max_memory)
         try:
             return z[name], _stored_fps(z)
-        except Exception as e:
+        except MemoryError:  # no room for an array within the budget: the machine's fault, not the file's
+            raise
+        except Exception as e:  # a damaged array: zipfile.BadZipFile, zlib.error, EOFError, ValueError
             raise ValueError(f"{unreadable} ({e})") from e
 
 
@@ -348,7 +352,7 @@ def check_output(spec, *, force: bool) -> Path:
     parent folders are created when the frames are all written). Refuses to replace an existing file or write
     into a non-empty folder unless `force`, and in any case a file where a folder is meant, a symbolic link
     (the output is moved into place by a rename, which would replace the link, not write where it points) and a
-    folder this process cannot write into (`jaxsr.io.files.check_writable`). Writes nothing."""
+    folder this process cannot write into (`jaxsr.io.files.check_output_folder`). Writes nothing."""
     out = Path(spec)
     refuse_link(out, "OUTPUT")
     if out.suffix.lower() in ARRAY_FORMATS:
@@ -361,9 +365,7 @@ def check_output(spec, *, force: bool) -> Path:
         raise FileExistsError(f"{out} exists and is not an empty folder; pass --force to write into it")
     else:
         _check_ancestors(out)
-        check_writable(_nearest_existing(out.parent), out)  # where the hidden temporary folder goes
-        if out.is_dir():
-            check_writable(out, out)  # with --force its files are moved in
+        check_output_folder(out)
     return out
 
 

@@ -20,7 +20,7 @@ from ..eval.metrics import psnr, ssim
 from ..scenes import KINDS, sequence
 from ..sensor.forward import normalise_depth, require_scalar_levels, simulate_histograms
 from ..sensor.peaks import centre_of_mass
-from .files import _nearest_existing, atomic_folder, check_writable, refuse_link
+from .files import atomic_folder, check_output_folder, refuse_link
 from .formats import read_airsim, write_histograms, write_sequence
 from .previews import write_comparison, write_gray_preview, write_preview
 
@@ -67,9 +67,7 @@ def _check_out(path, overwrite):
     clash = [n for n in SIMULATION_OUTPUTS if (out / n).exists()]
     if clash and not overwrite:
         raise FileExistsError(f"{out} already holds {', '.join(clash)}; pass --force to overwrite")
-    check_writable(_nearest_existing(out.parent), out)  # where the hidden temporary folder goes
-    if out.is_dir():
-        check_writable(out, out)  # the files are moved into it
+    check_output_folder(out)
     return out
 
 

@@ -23,7 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..checks import format_bytes, npz_array_bytes, require_memory
+from ..checks import format_bytes, npz_array_bytes, one_positive_number, require_memory
 from ..config import METRES_PER_SECOND, Gate
 from .quantities import TIME_UNITS
 
@@ -241,12 +241,8 @@ def _time_unit(value, where: str) -> float | None:
     A vector, a negative or NaN value or text (such as '1ps' stored in a file) is a ValueError naming `where`."""
     if value is None:
         return None
-    arr = np.asarray(value)
-    if arr.size == 1 and arr.dtype.kind in "iuf" and np.isfinite(arr).all() and arr.item() > 0:
-        return float(arr.item())
-    got = f"an array of shape {arr.shape}" if arr.size != 1 else repr(arr.item())
-    raise ValueError(f"{where}: expected one number of seconds per time unit, > 0 (such as 1e-12 for picoseconds; "
-                     f"--time-unit 1ps on the command line), got {got}")
+    return one_positive_number(value, where, "one number of seconds per time unit, > 0 (such as 1e-12 for "
+                               "picoseconds; --time-unit 1ps on the command line)")
 
 
 def _unit_s(tags: TimeTags) -> float:
@@ -259,10 +255,11 @@ def _unit_s(tags: TimeTags) -> float:
 
 def gate_of_tags(tags: TimeTags, *, bins: int = 16) -> Gate:
     """The gate that just covers the photons seen: `bins` bins from the first to the last arrival time, widened
-    by a millionth of that span (half before the first photon, half after the last) so that both fall inside
-    whatever the rounding of the conversion to metres and back. Returns a Gate in metres; raises ValueError when
-    there are no photons, all arrive at one time, or some at a negative time (before the laser pulse: a gate
-    in negative metres would give negative depth)."""
+    by a millionth of that span (half before the first photon, but never before time 0, the laser pulse; half
+    after the last) so that both fall inside whatever the rounding of the conversion to metres and back. Returns
+    a Gate in metres (its start >= 0, as --gate-start must be); raises ValueError when there are no photons, all
+    arrive at one time, or some at a negative time (before the laser pulse: a gate in negative metres would give
+    negative depth)."""
     if tags.time.size == 0 or tags.time.max() <= tags.time.min():
         raise ValueError(f"{tags.source}: {tags.time.size} photons at one arrival time; give the gate "
                          "(--gate-start, --bin-width)")
@@ -275,7 +272,8 @@ def gate_of_tags(tags: TimeTags, *, bins: int = 16) -> Gate:
     metres = METRES_PER_SECOND * _unit_s(tags)
     t0, t1 = float(tags.time.min()), float(tags.time.max())
     pad = 0.5e-6 * (t1 - t0)
-    return Gate(bins, (t1 - t0 + 2 * pad) / bins * metres, (t0 - pad) * metres)
+    start = max(t0 - pad, 0.0)  # a photon at time 0 starts the gate at 0 m, not a hair before
+    return Gate(bins, (t1 + pad - start) / bins * metres, start * metres)
 
 
 def _bin_positions(tags: TimeTags, gate: Gate, unit_s: float) -> np.ndarray:

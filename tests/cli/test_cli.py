@@ -144,3 +144,46 @@ def test_train_is_one_library_call_for_every_architecture(tmp_path, monkeypatch)
         jaxsr.training.train(tmp_path / "w", tr=1, clip_frames=20)
     with pytest.raises(ValueError, match="no data, init or scale"):
         jaxsr.training.train(tmp_path / "i", arch="iseebetter", init="tr0")
+
+
+def test_a_terminating_signal_ignored_at_the_start_stays_ignored(monkeypatch):
+    """`nohup jaxsr train ... &` ignores SIGHUP; `main` replaced that with its own handler, so the run died with the
+    terminal (exit 129). A signal ignored when `main` starts stays ignored; the others are handled, and put back."""
+    import signal
+
+    seen = {}
+    monkeypatch.setattr(cli, "_run", lambda args, argv: seen.update(
+        hup=signal.getsignal(signal.SIGHUP), term=signal.getsignal(signal.SIGTERM)) or 0)
+    hup, term = signal.signal(signal.SIGHUP, signal.SIG_IGN), signal.getsignal(signal.SIGTERM)
+    try:
+        assert cli.main(["info", "tr0"]) == 0
+        assert seen["hup"] == signal.SIG_IGN and seen["term"] is cli._raise_terminated
+        assert signal.getsignal(signal.SIGHUP) == signal.SIG_IGN and signal.getsignal(signal.SIGTERM) == term
+        signal.signal(signal.SIGHUP, signal.SIG_DFL)
+        assert cli.main(["info", "tr0"]) == 0
+        assert seen["hup"] is cli._raise_terminated and signal.getsignal(signal.SIGHUP) == signal.SIG_DFL
+    finally:
+        signal.signal(signal.SIGHUP, hup)
+
+
+@pytest.mark.parametrize("command", ["train", "finetune"])
+def test_a_warning_of_train_or_finetune_is_one_line(tmp_path, monkeypatch, capsys, command):
+    """`jaxsr train` and `jaxsr finetune` had their own warning printers, which printed a message of several lines
+    as it was; `main`'s prints every subcommand's warning as one line."""
+    import warnings
+
+    import jaxsr.cli.finetune as finetune_command
+    import jaxsr.cli.train as train_command
+
+    def warn(*args, **kwargs):
+        warnings.warn("a resumed run\nhas nothing to train")
+        return None, []
+
+    monkeypatch.setattr(train_command, "train", warn)
+    monkeypatch.setattr(finetune_command, "finetune", warn)
+    (tmp_path / "s.toml").write_text("[sensor]\nbins = 16\nbin_width_m = 2.0\nlr_rows = 8\nlr_cols = 8\n"
+                                     "irf_sigma_bins = 0.5\n\n[photons]\nsignal_range = [2.0, 8.0]\n"
+                                     "snr_range = [5.0, 20.0]\n")
+    argv = (["train", "--tr", "0"] if command == "train" else ["finetune", "--sensor", str(tmp_path / "s.toml")])
+    assert cli.main([*argv, "--out", str(tmp_path / "run"), "--no-progress"]) == 0
+    assert capsys.readouterr().err.splitlines() == [f"jaxsr {command}: warning: a resumed run has nothing to train"]

@@ -156,3 +156,29 @@ def test_an_os_error_outside_the_writes_is_one_line_too(monkeypatch, capsys, err
 
     monkeypatch.setattr(command, "upscale", fail)
     assert run_full(["upscale", "in.npy", "out.npy"], capsys) == (1, f"jaxsr upscale: error: {said}")
+
+
+# --- a read-only file system: the user's choice of place (exit 2), wherever it is met -------------------------
+
+
+@pytest.mark.parametrize("where", ["the write, naming no file", "outside the writes"])
+def test_a_read_only_file_system_is_exit_2_wherever_it_is_met(tmp_path, model_path, monkeypatch, capsys, where):
+    """EROFS was exit 2 only where the error named the output's temporary: through an open file (no name) inside
+    the write, or outside the atomic writes, it was exit 1, as a failing disk is."""
+    import jaxsr.cli.upscale as command
+
+    np.save(tmp_path / "in.npy", np.full((3, 32, 64), 0.5, np.float32))
+
+    def read_only(*args, **kwargs):
+        raise OSError(errno.EROFS, os.strerror(errno.EROFS), *([] if where.startswith("the write") else ["/mnt/x"]))
+
+    monkeypatch.setattr(np, "savez_compressed", read_only)
+    if where == "outside the writes":
+        monkeypatch.setattr(command, "upscale", read_only)
+    monkeypatch.chdir(tmp_path)
+    status, line = run_full(["upscale", "in.npy", "out.npz", "--model", model_path, "--no-progress"], capsys)
+    assert status == 2
+    assert line == ("jaxsr upscale: error: cannot write out.npz: read-only file system; choose a folder you can "
+                    "write to" if where.startswith("the write") else
+                    f"jaxsr upscale: error: {os.strerror(errno.EROFS)}: /mnt/x")
+    assert tree(tmp_path) == ["in.npy"]

@@ -245,6 +245,24 @@ def test_interrupted_upscale_leaves_nothing(tmp_path, model_path, output, sig):
     assert tree(tmp_path) == before  # no partial folder or file, no hidden temporary
 
 
+def test_an_upscale_started_with_sighup_ignored_outlives_the_terminal(tmp_path, model_path):
+    """`nohup jaxsr ... &` ignores SIGHUP so that the command outlives the terminal; `jaxsr` put its own handler in
+    its place and died with the terminal (exit 129). A signal ignored at the start stays ignored."""
+    np.save(tmp_path / "in.npy", np.random.default_rng(0).uniform(0, 1, (40, 32, 64)).astype(np.float32))
+    command = [sys.executable, "-m", "jaxsr.cli", "upscale", "in.npy", "out.npy", "--model", str(model_path),
+               "--no-progress", "--batch-size", "2"]
+    # as nohup does (not with preexec_fn, which forks this process, JAX's threads and all)
+    nohup = f"import os, signal, sys; signal.signal(signal.SIGHUP, signal.SIG_IGN); os.execv(sys.executable, {command})"
+    proc = subprocess.Popen([sys.executable, "-c", nohup], cwd=tmp_path, env=ENV, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    first = proc.stderr.readline()  # "jaxsr upscale: 40 frames ...": the handlers are in place, the network starts
+    assert first.startswith("jaxsr upscale: 40 frames"), first + proc.stderr.read()
+    proc.send_signal(signal.SIGHUP)  # the terminal closes
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 0, first + err
+    assert np.load(tmp_path / "out.npy").shape == (40, 128, 256)
+
+
 def test_the_temporary_a_killed_upscale_left_is_removed_by_the_next_run(tmp_path, model_path):
     """SIGKILL cannot be handled: the hidden temporary stays, named after OUTPUT and the process. The next run on
     that output removes it, saying so in one line, and writes the output."""

@@ -105,7 +105,7 @@ def test_an_npz_input_reads_only_its_recording_and_checks_its_size_first(tmp_pat
     assert status == 0 and json.loads(out)["shape"] == [2, 128, 256]
     assert {key for name, key in read if name == "h.npz"} == {"counts", "metadata"}, read
     refused(["upscale", "h.npz", "out2.npy", "--model", model_path, "--max-memory", "100kB"], capsys, tmp_path,
-            "h.npz: its array 'counts' needs about 1 MB of memory, more than the 1 MB allowed by --max-memory")
+            "h.npz: its array 'counts' needs about 131 kB of memory, more than the 100 kB allowed by --max-memory")
 
 
 def test_time_tags_of_many_bins_or_frames_are_refused_with_the_estimate(tmp_path, model_path, capsys, monkeypatch):

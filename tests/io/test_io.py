@@ -367,8 +367,9 @@ def test_temporaries_a_killed_writer_left_are_removed_by_the_next_write_of_that_
     import subprocess
     import sys
 
-    from jaxsr.io.files import _HOST, atomic_folder, atomic_path
+    from jaxsr.io.files import _writer_tag, atomic_folder, atomic_path
 
+    _HOST = _writer_tag()
     dead, live = _dead_pid(), subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
     try:
         left = {
@@ -395,6 +396,44 @@ def test_temporaries_a_killed_writer_left_are_removed_by_the_next_write_of_that_
     finally:
         live.kill()
         live.wait()
+
+
+def test_only_temporaries_of_this_host_and_pid_namespace_are_removed(tmp_path, monkeypatch):
+    """The writer was named by its host name cut to 24 characters and its pid: a Kubernetes pod whose name shares
+    those 24 characters, or a container with this host's name and its own pids (docker --network host), could
+    remove a live writer's temporary. The name now holds a hash of the full host name and the pid namespace."""
+    import socket
+
+    from jaxsr.io import files
+
+    def tag(host, namespace):  # the writer's tag on that host, in that pid namespace
+        monkeypatch.setattr(socket, "gethostname", lambda: host)
+        monkeypatch.setattr(files, "_pid_namespace", lambda: namespace)
+        return files._writer_tag()
+
+    me = ("train-worker-7d9f8c6b5-0123456789-a", "4026531836")
+    others = {"a pod sharing 24 characters": ("train-worker-7d9f8c6b5-0123456789-b", me[1]),
+              "another pid namespace": (me[0], "4026532410")}
+    dead = _dead_pid()
+    left = {name: tmp_path / f".out.{tag(*other)}-{dead}.abcdefgh.partial.npy" for name, other in others.items()}
+    stale = tmp_path / f".out.{tag(*me)}-{dead}.k2j4h6g8.partial.npy"
+    assert len({tag(*me), *(tag(*other) for other in others.values())}) == 3
+    for p in (stale, *left.values()):
+        p.write_bytes(b"half")
+    tag(*me)  # this writer
+    with pytest.warns(UserWarning, match=rf"removed 1 temporary file of .*out.npy .*\(process {dead}, no longer"):
+        with files.atomic_path(tmp_path / "out.npy") as tmp:
+            assert tmp.name.startswith(f".out.{tag(*me)}-{os.getpid()}.")
+            tmp.write_bytes(b"done")
+    assert not stale.exists() and all(p.exists() for p in left.values())
+
+
+def test_the_pid_namespace_is_the_inode_of_proc_self_ns_pid():
+    from jaxsr.io.files import _pid_namespace
+
+    if not os.path.exists("/proc/self/ns/pid"):
+        pytest.skip("no /proc/self/ns/pid on this system")
+    assert _pid_namespace() == str(os.stat("/proc/self/ns/pid").st_ino) != ""
 
 
 def _fail_with(number):
@@ -425,6 +464,53 @@ def test_a_folder_that_cannot_be_written_into_is_the_users_and_names_the_output(
     assert list(tmp_path.iterdir()) == []
 
 
+def test_a_read_only_file_system_met_in_a_write_is_not_writable_whatever_file_it_names(tmp_path):
+    """EROFS that named no file (a write through an open file) or another file the block wrote was a WriteError
+    (exit 1), unlike the same error naming the temporary (exit 2): a read-only file system is the user's choice of
+    place wherever it is met. A PermissionError naming another file (perhaps one the block read) is its own."""
+    from pathlib import Path
+
+    from jaxsr.io.files import NotWritableError, WriteError, atomic_path
+
+    out = tmp_path / "out.npy"
+    for name, want in [(None, out), ("/elsewhere/x.npy", Path("/elsewhere/x.npy"))]:
+        with pytest.raises(NotWritableError) as caught, atomic_path(out):
+            raise OSError(errno.EROFS, os.strerror(errno.EROFS), *([] if name is None else [name]))
+        assert caught.value.path == want and str(caught.value) == (f"cannot write {want}: read-only file system; "
+                                                                   "choose a folder you can write to")
+    with pytest.raises(PermissionError) as caught, atomic_path(out):
+        raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), "/elsewhere/input.npy")
+    assert not isinstance(caught.value, (NotWritableError, WriteError))
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_check_output_folder_checks_the_folder_above_and_an_existing_folder(tmp_path, monkeypatch):
+    """One check for every output folder (`jaxsr upscale`'s OUTPUT, `jaxsr simulate --out`, `--points`): the
+    point clouds' folder checked only the folder above it, so an existing one that cannot be written failed at
+    the end of the work."""
+    from pathlib import Path
+
+    from jaxsr.io.files import NotWritableError, check_output_folder
+    from jaxsr.io.pointcloud import check_points_folder
+    from jaxsr.io.recordings import check_output
+    from jaxsr.io.simulate import _check_out
+
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / "old.txt").write_text("x")
+    check_output_folder(tmp_path / "out")
+    check_output_folder(tmp_path / "new" / "deeper")
+    refused = {tmp_path / "out"}
+    monkeypatch.setattr(os, "access", lambda path, mode: Path(os.path.abspath(path)) not in refused)
+    for check in (check_output_folder, lambda p: check_output(p, force=True), lambda p: _check_out(p, True),
+                  lambda p: check_points_folder(p, force=True)):
+        with pytest.raises(NotWritableError, match=rf"^cannot write {tmp_path / 'out'}: {tmp_path / 'out'} is not "
+                                                   "writable"):
+            check(tmp_path / "out")
+    refused = {tmp_path}  # where a new folder's hidden temporary goes
+    with pytest.raises(NotWritableError, match=rf"^cannot write {tmp_path / 'new' / 'deeper'}: {tmp_path} is not"):
+        check_output_folder(tmp_path / "new" / "deeper")
+
+
 def test_check_writable_refuses_a_folder_this_process_cannot_write_into(tmp_path, monkeypatch):
     """Before any work (`jaxsr upscale` checks its outputs' folders with it): os.access, which reports a read-only
     file system to root too, injected here."""
@@ -435,6 +521,30 @@ def test_check_writable_refuses_a_folder_this_process_cannot_write_into(tmp_path
     with pytest.raises(NotWritableError, match=rf"^cannot write {tmp_path / 'out.npy'}: {tmp_path} is not writable; "
                                                "choose a folder you can write to$"):
         check_writable(tmp_path, tmp_path / "out.npy")
+
+
+def test_no_memory_for_an_npz_recording_is_not_called_a_damaged_file(tmp_path, monkeypatch):
+    """A MemoryError while an .npz's array is read was "truncated or not an NPZ file" (exit 2, blaming the file):
+    the machine's fault goes through as it is; a damaged array is still named so."""
+    from jaxsr.io.recordings import open_recording
+
+    np.savez(tmp_path / "d.npz", depth=np.full((2, 8, 8), 0.5, np.float32))
+
+    def no_memory(*args, **kwargs):
+        raise MemoryError("Unable to allocate 4.00 GiB")
+
+    real_load = np.load
+    monkeypatch.setattr(np.lib.npyio.NpzFile, "__getitem__", no_memory)  # the array
+    with pytest.raises(MemoryError):
+        open_recording(tmp_path / "d.npz")
+    monkeypatch.setattr(np, "load", no_memory)  # the archive's directory
+    with pytest.raises(MemoryError):
+        open_recording(tmp_path / "d.npz")
+    monkeypatch.undo()
+    (tmp_path / "d.npz").write_bytes((tmp_path / "d.npz").read_bytes()[:-200])
+    assert np.load is real_load
+    with pytest.raises(ValueError, match="truncated or not an NPZ file"):
+        open_recording(tmp_path / "d.npz")
 
 
 def test_frames_are_checked_in_blocks_of_bounded_memory(tmp_path):

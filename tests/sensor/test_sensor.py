@@ -385,7 +385,8 @@ def test_invalid_photon_levels_raise_eagerly_and_are_nan_everywhere_traced(kwarg
 @pytest.mark.parametrize("level", ["snr", "mean_signal"])
 @pytest.mark.parametrize("jit", [False, True])
 def test_an_array_of_photon_levels_is_refused_as_not_a_scalar(level, jit):
-    """An array where one number is expected (issue 37) broadcast into the bins' axis: a TypeError in JAX's words."""
+    """An array where one number is expected (issue 37) was broadcast into the bins' axis (a TypeError in JAX's
+    words): a ValueError saying one number is expected, under jit too."""
     depth, intensity = _scene()
     levels = {"snr": jnp.float32(1.3), "mean_signal": jnp.float32(5.0), level: np.array([1.0, 2.0], np.float32)}
     for fn in (LEVEL_CALLS_JIT if jit else LEVEL_CALLS).values():

@@ -101,6 +101,20 @@ def test_the_default_gate_holds_the_first_and_last_photon(unit):
             assert counts.sum() == 10
 
 
+@pytest.mark.parametrize("first", [0.0, 1e-3, 4.0])
+def test_the_default_gate_never_starts_before_time_0(first):
+    """A photon at t = 0 gave a gate from -7.5e-8 m (half a millionth of the span before it), where --gate-start
+    below 0 is refused: the start is held at 0, and the first photon still falls inside."""
+    tags = time_tags_from_cells([[[first, 5050.0], [first, 6000.0, 10_000.0]]], time_unit_s=PS)
+    for bins in (16, 100_000):
+        gate = gate_of_tags(tags, bins=bins)
+        assert float(gate.start) >= 0.0
+        if first < 1.0:  # within the margin of 0: the gate starts at 0 exactly
+            assert float(gate.start) == 0.0
+        counts = histogram_time_tags(tags, gate)
+        assert counts.sum() == 5 and counts[..., 0].sum() == 2  # both first photons, in the first bin
+
+
 def test_negative_arrival_times_are_refused_by_the_default_gate_and_dropped_from_a_given_one():
     tags = time_tags_from_cells([[[-50.0, 5050.0, 5150.0], [-1.0]]], time_unit_s=PS)
     with pytest.raises(ValueError, match=r"2 of 4 photons arrive at negative times \(from -50, in the tags' unit\); "
