@@ -84,9 +84,11 @@ def _open(path):
     if not path.is_file():
         raise FileNotFoundError(f"checkpoint {str(path)!r} does not exist")
     with open(path, "rb") as f:
-        if f.read(2) != b"PK":  # numpy would take it for a pickle and suggest loading it unsafely
-            raise ValueError(f"checkpoint {str(path)!r} is not an .npz file (not a zip archive); a model is the .npz "
-                             "that jaxsr.save_model or jaxsr train writes")
+        head = f.read(6)
+    # neither an .npz (a zip archive) nor an .npy: numpy would take it for a pickle and suggest loading it unsafely
+    if not head.startswith(b"PK") and head != b"\x93NUMPY":
+        raise ValueError(f"checkpoint {str(path)!r} is not an .npz file (not a zip archive); a model is the .npz "
+                         "that jaxsr.save_model or jaxsr train writes")
     try:
         data = np.load(path, allow_pickle=False)
     except (zipfile.BadZipFile, EOFError, OSError, ValueError) as e:
