@@ -3,14 +3,24 @@
 from photon histograms, and the GFLOP/s it achieves against what this machine's matrix multiply reaches.
 `test_forms_from_histograms` times the network's three forms side by side for TR0-TR4 on 32 frames, end to
 end from histograms: window (the paper), sequence (`super_resolve` of a sequence-form model: chunks of
-`DEFAULT_SEQUENCE_CHUNK` outputs) and stream (`Stream`, one frame at a time).
+`DEFAULT_SEQUENCE_CHUNK` outputs) and stream (`Stream`, one frame at a time). `test_precision_from_histograms`
+times TR0 and TR4 in the window and the sequence form with float32 and bfloat16 convolutions (`precision`), 32
+frames and a 128-frame chunk of the sequence form (the issue's goal: the sequence-form TR4 at 25 frames/s or more
+on 2 CPU cores), each against the matrix-product ceiling of its precision.
 
 Run: pytest benchmarks/bench_inference.py --benchmark-enable      (about 3 min on 2 CPU cores)
 
 Weights are random (speed does not depend on them). 16 frames of 32 x 64 LR per call. `gflops_per_s` uses
-`jaxsr.nn.duf.flops_per_frame` (convolutions and the dynamic filter); `test_matmul_peak` measures the GFLOP/s of
-a large float32 matrix product, the practical ceiling for convolution-bound code on this XLA:CPU build.
+`jaxsr.nn.duf.flops_per_frame` (convolutions and the dynamic filter); `test_matmul_peak[float32]` measures the
+GFLOP/s of a large float32 matrix product, the practical ceiling for convolution-bound code on this XLA:CPU build,
+and `[bfloat16]` the same product of bfloat16 operands with float32 sums (`preferred_element_type`), the ceiling
+of `precision="bfloat16"`. The inference benchmarks record `share_of_matmul_peak`: their GFLOP/s over the ceiling
+of their precision (measured once per run, `matmul_peak`).
 """
+
+import dataclasses
+import functools
+import time
 
 import jax
 import jax.numpy as jnp
@@ -30,6 +40,28 @@ from jaxsr.runtime import compiler_options
 
 SENSOR = SensorConfig()
 FRAMES = 16
+MATMUL = 2048  # the side of the square matrices of the ceiling
+
+
+def _matmul(precision):
+    """A jitted MATMUL^2 product and its operand: float32 at full precision, or bfloat16 operands, float32 sums."""
+    a = jax.random.normal(jax.random.key(3), (MATMUL, MATMUL), jnp.float32)
+    if precision == "bfloat16":
+        return jax.jit(lambda a: jax.lax.dot(a, a, preferred_element_type=jnp.float32)), a.astype(jnp.bfloat16)
+    return jax.jit(lambda a: jnp.matmul(a, a, precision="highest")), a
+
+
+@functools.cache
+def matmul_peak(precision: str = "float32") -> float:
+    """GFLOP/s of the MATMUL^2 product in `precision` ("float32" or "bfloat16"), best of 5 after a warm-up."""
+    f, a = _matmul(precision)
+    f(a).block_until_ready()
+    best = float("inf")
+    for _ in range(5):
+        t0 = time.perf_counter()
+        f(a).block_until_ready()
+        best = min(best, time.perf_counter() - t0)
+    return 2 * MATMUL**3 / best / 1e9
 
 
 def _model(tr, temporal="window"):
@@ -41,17 +73,19 @@ def _lr():
     return np.asarray(jax.random.uniform(jax.random.key(1), (FRAMES, *SENSOR.lr_shape)), np.float32)
 
 
-def _record(benchmark, cfg):
+def _record(benchmark, cfg, frames=FRAMES, precision="float32"):
     if benchmark.stats is not None:
-        fps = FRAMES / benchmark.stats.stats.mean
-        benchmark.extra_info["gflops_per_s"] = fps * flops_per_frame(cfg, SENSOR.lr_shape) / 1e9
+        fps = frames / benchmark.stats.stats.mean
+        gflops = fps * flops_per_frame(cfg, SENSOR.lr_shape) / 1e9
+        benchmark.extra_info["gflops_per_s"] = gflops
+        benchmark.extra_info["share_of_matmul_peak"] = gflops / matmul_peak(precision)
 
 
 @pytest.mark.parametrize("batch", [1, None, 8])
 @pytest.mark.parametrize("tr", [0, 1, 2, 3, 4])
 def test_super_resolve(timed, benchmark, tr, batch):
     model, lr = _model(tr), _lr()
-    timed(lambda: super_resolve(model, lr, batch_size=batch), rounds=3, items=FRAMES)
+    timed(lambda: super_resolve(model, lr, batch_size=batch, form="model"), rounds=3, items=FRAMES)
     if benchmark.stats is not None:
         benchmark.extra_info["batch"] = batch or DEFAULT_BATCH_SIZE * jax.local_device_count()
     _record(benchmark, model.config)
@@ -62,7 +96,7 @@ def test_super_resolve_histograms(timed, benchmark, tr):
     """End to end as a user runs it: counts -> centre of mass -> network, default batch."""
     model = _model(tr)
     counts = np.asarray(jax.random.poisson(jax.random.key(2), 2.0, (FRAMES, *SENSOR.lr_shape, SENSOR.bins)))
-    timed(lambda: super_resolve_histograms(model, counts), rounds=3, items=FRAMES)
+    timed(lambda: super_resolve_histograms(model, counts, form="model"), rounds=3, items=FRAMES)
     _record(benchmark, model.config)
 
 
@@ -83,11 +117,25 @@ def test_forms_from_histograms(timed, benchmark, tr, form):
     frames = 32
     model = _model(tr, "window" if form == "window" else "sequence")
     counts = np.asarray(jax.random.poisson(jax.random.key(2), 2.0, (frames, *SENSOR.lr_shape, SENSOR.bins)))
-    run = stream_histograms if form == "stream" else super_resolve_histograms
+    run = stream_histograms if form == "stream" else functools.partial(super_resolve_histograms, form="model")
     timed(lambda: run(model, counts), rounds=2, items=frames)
+    _record(benchmark, model.config, frames)
+
+
+@pytest.mark.parametrize("precision", ["float32", "bfloat16"])
+@pytest.mark.parametrize("form,frames", [("window", 32), ("sequence", 32), ("sequence", 128)])
+@pytest.mark.parametrize("tr", [0, 4])
+def test_precision_from_histograms(timed, benchmark, tr, form, frames, precision):
+    """End to end from histograms with the network's convolutions in `precision`, the bundled models' shapes:
+    window form (default batch) or sequence form (one chunk of all the frames)."""
+    model = _model(tr)
+    counts = np.asarray(jax.random.poisson(jax.random.key(2), 2.0, (frames, *SENSOR.lr_shape, SENSOR.bins)))
+    batch = frames if form == "sequence" else None
+    timed(lambda: super_resolve_histograms(model, counts, batch_size=batch, precision=precision, form=form),
+          rounds=2, items=frames)
+    _record(benchmark, dataclasses.replace(model.config, temporal=form), frames, precision)
     if benchmark.stats is not None:
-        benchmark.extra_info["gflops_per_s"] = frames / benchmark.stats.stats.mean * flops_per_frame(
-            model.config, SENSOR.lr_shape) / 1e9
+        benchmark.extra_info["precision"] = precision
 
 
 @pytest.mark.parametrize("options", ["xla-defaults", "jaxsr"])
@@ -106,8 +154,9 @@ def test_network_tr4_one_window(timed, benchmark, impl, options):
         benchmark.extra_info["gflops_per_s"] = flops_per_frame(cfg, SENSOR.lr_shape) / benchmark.stats.stats.mean / 1e9
 
 
-def test_matmul_peak(timed, benchmark):
-    a = jax.random.normal(jax.random.key(3), (2048, 2048), jnp.float32)
-    timed(jax.jit(lambda a: a @ a), a, rounds=5)
+@pytest.mark.parametrize("precision", ["float32", "bfloat16"])
+def test_matmul_peak(timed, benchmark, precision):
+    f, a = _matmul(precision)
+    timed(f, a, rounds=5)
     if benchmark.stats is not None:
-        benchmark.extra_info["gflops_per_s"] = 2 * 2048**3 / benchmark.stats.stats.mean / 1e9
+        benchmark.extra_info["gflops_per_s"] = 2 * MATMUL**3 / benchmark.stats.stats.mean / 1e9

@@ -85,7 +85,7 @@ def comparison_video(path, clip, models, scale, *, frames=32, fps=8.0, sensor=Se
 
     n = min(frames, len(clip.lr))
     lr, gt = np.asarray(clip.lr[:n]), np.asarray(clip.gt[:n])
-    outs = [np.asarray(jaxsr.bicubic(lr, scale=scale))] + [np.asarray(jaxsr.super_resolve(m, lr))
+    outs = [np.asarray(jaxsr.bicubic(lr, scale=scale))] + [np.asarray(jaxsr.super_resolve(m, lr, form="model"))
                                                            for m in models.values()]
     metres = lambda a: np.asarray(jaxsr.denormalise_depth(np.clip(a, 0, 1), sensor))  # noqa: E731
     panels = [metres(a) for a in (*outs, gt)]

@@ -17,6 +17,7 @@ import jax
 import jax.numpy as jnp
 
 __all__ = ["MAX_CPU_DEVICES", "use_cpu_cores", "compiler_options", "enable_compilation_cache", "limit_cpu_fusions",
+           "BFLOAT16_CPU_FLAGS", "cpu_bfloat16_features",
            "init_distributed", "distributed_settings", "DISTRIBUTED_ENV"]
 
 # `use_cpu_cores` exposes at most this many: the speed-up was measured on 2 cores only.
@@ -62,6 +63,21 @@ def _host_cpu_flags() -> frozenset | None:
     except OSError:
         pass
     return None
+
+
+# The x86 CPU features that multiply bfloat16 in hardware (/proc/cpuinfo's names): AVX512-BF16's dot products and
+# AMX's tiles. A CPU without them emulates bfloat16 arithmetic.
+BFLOAT16_CPU_FLAGS = ("avx512_bf16", "amx_bf16")
+
+
+def cpu_bfloat16_features(cpu_flags=None) -> tuple[str, ...]:
+    """The host CPU's bfloat16 features among `BFLOAT16_CPU_FLAGS` (e.g. ("avx512_bf16",)), () when it has none
+    or they cannot be read (not x86 Linux). cpu_flags: the feature names to look in (default /proc/cpuinfo's).
+
+    Having them does not make bfloat16 convolutions faster by itself: XLA:CPU must also run them in bfloat16
+    (docs/network.md, "Precision"; experiments/results/inference_forms.md measured whether it does)."""
+    flags = _host_cpu_flags() if cpu_flags is None else frozenset(cpu_flags)
+    return tuple(f for f in BFLOAT16_CPU_FLAGS if flags and f in flags)
 
 
 def _jaxlib_version() -> tuple:

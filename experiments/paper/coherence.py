@@ -81,10 +81,11 @@ def main():
     args.frames = args.frames or SEQUENCE_FRAMES // round(100 / args.fps)
     clip, seq = walkers_at(args.fps, args.frames, seed=args.seed)
     outputs = {"bicubic": np.asarray(jaxsr.bicubic(clip.lr, scale=4))}
-    outputs.update({f"TR{tr}": jaxsr.super_resolve(load_tr(tr, args.weights), clip.lr) for tr in args.trs})
+    outputs.update({f"TR{tr}": jaxsr.super_resolve(load_tr(tr, args.weights), clip.lr, form="model")
+                    for tr in args.trs})
     seed_runs = load_seed_runs(args.seed_runs)
     seed_labels = {f"TR{m.config.tr} ({name})": m for name, m in seed_runs.items()}
-    outputs.update({label: jaxsr.super_resolve(m, clip.lr) for label, m in seed_labels.items()})
+    outputs.update({label: jaxsr.super_resolve(m, clip.lr, form="model") for label, m in seed_labels.items()})
     baselines, cards, skipped = load_baselines(args.baselines, args.baseline_weights)
     outputs.update({label: run_baseline(model, clip) for label, model in baselines.items()})
     rows, counts = [], {}  # counts: per frame pair, at each of EPS

@@ -125,7 +125,7 @@ def main():
     for rec, seq in (("tower", lr), ("two_layer", lr2), ("tof_radar", video)):
         for name, model in models.items():
             t0 = time.time()
-            sr = jaxsr.super_resolve(model, seq)
+            sr = jaxsr.super_resolve(model, seq, form="model")
             timings[(rec, name)] = time.time() - t0
             outputs[(rec, name)] = sr
             rows.append([rec, name, f"{seq.shape[1]} x {seq.shape[2]} x {seq.shape[0]}",
@@ -137,7 +137,7 @@ def main():
 
     # tower, all photons against a subsample: outputs of the subsample on the LR grid against the all-photon depth
     for name in ("TR0", "TR4"):
-        outputs[("tower_sub", name)] = jaxsr.super_resolve(models[name], lr_sub)
+        outputs[("tower_sub", name)] = jaxsr.super_resolve(models[name], lr_sub, form="model")
     outputs[("tower_sub", "bicubic")] = np.asarray(jaxsr.bicubic(lr_sub, scale=4))
     masks = {"with a return": lr < 1.0, f"building (peak bin >= {RELIABLE_PEAK} photons)": peak >= RELIABLE_PEAK}
     estimates = [(f"LR, {args.fraction:.0%} of photons", lr_sub)]

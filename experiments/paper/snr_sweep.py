@@ -74,7 +74,7 @@ def main():
         for i, name in enumerate(TEST_SCENES):
             clip = simulate_clip(jax.random.key(args.seed * 1000 + i), seqs[name], sensor=sensor, snr=snr)
             outputs = {"bicubic": np.asarray(jaxsr.bicubic(clip.lr, scale=sensor.scale))}
-            outputs.update({m: jaxsr.super_resolve(model, clip.lr) for m, model in models.items()})
+            outputs.update({m: jaxsr.super_resolve(model, clip.lr, form="model") for m, model in models.items()})
             outputs.update({m: run_baseline(model, clip) for m, model in baselines.items()})
             for m, sr in outputs.items():
                 finite[m] &= bool(np.all(np.isfinite(sr)))

@@ -91,10 +91,10 @@ def via_trained_pitch(model, counts, ratio: int):
     if ratio > 1:
         t, h, w, k = counts.shape
         binned = counts.reshape(t, h // ratio, ratio, w // ratio, ratio, k).sum(axis=(2, 4))
-        sr = jaxsr.super_resolve(model, np.asarray(jaxsr.centre_of_mass(binned, NATIVE)))
+        sr = jaxsr.super_resolve(model, np.asarray(jaxsr.centre_of_mass(binned, NATIVE)), form="model")
         return np.asarray(jaxsr.bicubic(sr, scale=ratio))
     lr = np.clip(np.asarray(jaxsr.bicubic(jaxsr.centre_of_mass(counts, NATIVE), scale=-ratio)), 0, 1)  # overshoots
-    return block_mean(jaxsr.super_resolve(model, lr), -ratio)
+    return block_mean(jaxsr.super_resolve(model, lr, form="model"), -ratio)
 
 
 def run_setting(setting: Setting, models: dict, *, frames: int, seed: int, sequences: dict):
@@ -108,7 +108,7 @@ def run_setting(setting: Setting, models: dict, *, frames: int, seed: int, seque
                              mean_signal=mean_signal)
         result["bicubic"].append(score(np.asarray(jaxsr.bicubic(clip.lr, scale=sensor.scale)), clip.gt))
         for m, model in models.items():
-            result[m].append(score(jaxsr.super_resolve(model, clip.lr), clip.gt))
+            result[m].append(score(jaxsr.super_resolve(model, clip.lr, form="model"), clip.gt))
             if ratio != 1:
                 result.setdefault(f"{m} at the trained pitch", []).append(
                     score(via_trained_pitch(model, clip.counts, ratio), clip.gt))

@@ -102,7 +102,7 @@ def main():
     clips = test_clips(args.frames)
     rows = []
     for name, (model, cards) in models.items():
-        scores = {n: score(jaxsr.super_resolve(model, c.lr), c.gt) for n, c in clips.items()}
+        scores = {n: score(jaxsr.super_resolve(model, c.lr, form="model"), c.gt) for n, c in clips.items()}
         mean = float(np.mean([s[0] for s in scores.values()]))
         stages = " + ".join(f"{c['steps']}" for c in cards)
         minutes = " + ".join(f"{c['minutes']:.0f}" for c in cards)

@@ -34,7 +34,7 @@ def main():
     sensor = jaxsr.SensorConfig()
     counts = jaxsr.simulate_histograms(jax.random.key(0), seq.depth, seq.intensity, sensor, snr=seq.snr)
     lr = jaxsr.centre_of_mass(counts, sensor)
-    hr = jaxsr.super_resolve(jaxsr.load_model("tr4"), lr)
+    hr = jaxsr.super_resolve(jaxsr.load_model("tr4"), lr, form="model")
     metres = lambda n: np.asarray(jaxsr.denormalise_depth(np.clip(n, 0, 1), sensor))  # noqa: E731
     gt = np.asarray(jaxsr.denormalise_depth(jaxsr.normalise_depth(seq.depth, sensor), sensor))
     n = io.write_depth_video(args.out, metres(lr), metres(hr), gt, fps=args.fps, d_min=0.0,

@@ -65,8 +65,8 @@ def _runners(tr, counts, sensor):
     sequence = jaxsr.load_model(f"tr{tr}", temporal="sequence")
     scan = _scan_fn(sequence)
     return {
-        "window": lambda: jaxsr.super_resolve_histograms(window, counts, sensor),
-        "sequence": lambda: jaxsr.super_resolve_histograms(sequence, counts, sensor),
+        "window": lambda: jaxsr.super_resolve_histograms(window, counts, sensor, form="model"),
+        "sequence": lambda: jaxsr.super_resolve_histograms(sequence, counts, sensor, form="model"),
         "stream (loop)": lambda: _streamed(sequence, counts, sensor),
         "stream (scan)": lambda: np.asarray(scan(sequence, jnp.asarray(counts), sensor)),
     }
@@ -106,7 +106,7 @@ def definition_gap(model, lr, *, batch: int = 4) -> float:
                 compiler_options=compiler_options())
     wins = temporal_windows(jnp.asarray(lr), r)
     loop = np.concatenate([np.asarray(f(model, wins[i : i + batch])) for i in range(0, len(lr), batch)])
-    return float(np.abs(super_resolve(model, lr) - loop).max())
+    return float(np.abs(super_resolve(model, lr, form="model") - loop).max())
 
 
 def main():
@@ -129,7 +129,8 @@ def main():
         sequence = jaxsr.load_model(f"tr{tr}", temporal="sequence")
         gap = definition_gap(sequence, clip.lr[: args.gap_frames])
         lr, gt = clip.lr[: args.score_frames], clip.gt[: args.score_frames]
-        (pw, sw), (ps, ss) = score(super_resolve(window, lr), gt), score(super_resolve(sequence, lr), gt)
+        (pw, sw), (ps, ss) = score(super_resolve(window, lr, form="model"), gt), score(
+            super_resolve(sequence, lr, form="model"), gt)
         accuracy.append([f"TR{tr}", f"{gap:.1e}", f"{pw:.3f}", f"{ps:.3f}", f"{ps - pw:+.3f}", f"{sw:.3f}",
                          f"{ss:.3f}"])
         print(accuracy[-1], flush=True)

@@ -93,7 +93,7 @@ def main():
 
     rows, rate_rows, points = [], [], []
     tr0 = jaxsr.load_model("tr0")
-    tr0_psnr = np.mean([score(jaxsr.super_resolve(tr0, c.lr), c.gt)[0] for c in clips.values()])
+    tr0_psnr = np.mean([score(jaxsr.super_resolve(tr0, c.lr, form="model"), c.gt)[0] for c in clips.values()])
     points.append(("window", model_fps(tr0, clip0), tr0_psnr, "TR0"))
     for tr in args.trs:
         models = models_of(tr)
@@ -101,11 +101,11 @@ def main():
             print(f"TR{tr}: no bundled tr{tr}-seq, skipped", flush=True)
             continue
         for kind, model in models.items():
-            scores = {n: score(jaxsr.super_resolve(model, c.lr), c.gt) for n, c in clips.items()}
+            scores = {n: score(jaxsr.super_resolve(model, c.lr, form="model"), c.gt) for n, c in clips.items()}
             fps = model_fps(model, clip0)
             flops = flops_per_frame(model.config) / 1e9
-            rates = [score(jaxsr.super_resolve(model, walkers[r].lr), walkers[r].gt)[0] for r in RATES]
-            coherence = tc(jaxsr.super_resolve(model, still.lr), still.gt)
+            rates = [score(jaxsr.super_resolve(model, walkers[r].lr, form="model"), walkers[r].gt)[0] for r in RATES]
+            coherence = tc(jaxsr.super_resolve(model, still.lr, form="model"), still.gt)
             card = jaxsr.read_metadata(bundled(f"tr{tr}-seq" if kind == KINDS[2] else f"tr{tr}"))["card"]
             mean = float(np.mean([s[0] for s in scores.values()]))
             rows.append([f"TR{tr}", kind] + [f"{scores[n][0]:.2f} / {scores[n][1]:.3f}" for n in TEST_SCENES]

@@ -18,8 +18,9 @@ from __future__ import annotations
 import json
 import sys
 
-from ..config import TRAINED_RANGE_M
+from ..config import PRECISIONS, TRAINED_RANGE_M
 from ..inference.recording import upscale
+from ..inference.video import DEFAULT_FORM, DEFAULT_PRECISION, FORMS, SEQUENCE_FORM_MIN_FRAMES
 from ..io.pointcloud import DEFAULT_FOV_DEG
 from ..io.recordings import DEPTH_UNITS
 from ..checks import MEMORY_SHARE
@@ -71,7 +72,16 @@ def add_parser(subparsers):
                    help="frame files when OUTPUT is a folder (default exr; always metres; 16-bit png holds 1 mm to "
                    "65.535 m)")
     p.add_argument("--batch-size", type=int_range(1), default=None,
-                   help="frames per compiled call (default: one per CPU core, each core a JAX device)")
+                   help="frames per compiled call (default: one per CPU core, each core a JAX device; in the sequence "
+                   "form the output frames of a chunk, default 32)")
+    p.add_argument("--precision", choices=list(PRECISIONS), default=DEFAULT_PRECISION,
+                   help="how the network's convolutions multiply: default (the backend's: float32 on CPU), float32, "
+                   "or bfloat16 (bfloat16 operands, float32 sums: within 0.05 dB on the test sequences; faster only "
+                   "where the hardware and XLA multiply bfloat16, see docs/cli.md)")
+    p.add_argument("--form", choices=list(FORMS), default=DEFAULT_FORM,
+                   help="the network's temporal form: auto (default: the bundled windowed depth models run in the "
+                   f"sequence form where it was measured as accurate and faster, on {SEQUENCE_FORM_MIN_FRAMES} frames "
+                   "or more), model (as the checkpoint says), window, or sequence")
     p.add_argument("--max-memory", type=memory, default=None, metavar="SIZE",
                    help=f"the memory the command may take, such as 16GB (default {MEMORY_SHARE * 100:.0f}%% of this "
                    "machine's RAM): the input's arrays and the work are estimated before they allocate, and refused beyond it")
@@ -108,7 +118,7 @@ def run(args) -> int:
                      points=args.points, fov_deg=DEFAULT_FOV_DEG if args.fov is None else args.fov,
                      points_colour=None if args.points_colour == "none" else args.points_colour,
                      overwrite=args.force, progress=not args.no_progress, clip_negative=args.clip_negative,
-                     max_memory=args.max_memory,
+                     max_memory=args.max_memory, precision=args.precision, form=args.form,
                      report=lambda line: print(f"jaxsr upscale: {line}", file=sys.stderr, flush=True))
     print(json.dumps(result.summary()))
     return 0

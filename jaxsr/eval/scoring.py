@@ -24,7 +24,7 @@ from jax.sharding import PartitionSpec as P
 import jaxsr
 from jaxsr import scenes
 from jaxsr.config import DEFAULT_MEAN_SIGNAL, PRESETS, ModelConfig, SensorConfig, TrainConfig
-from jaxsr.inference.video import super_resolve, super_resolve_histograms
+from jaxsr.inference.video import in_form, super_resolve, super_resolve_histograms
 from jaxsr.io.checkpoint import resolve_model_path
 from jaxsr.runtime import compiler_options
 from jaxsr.sensor.forward import require_scalar_levels
@@ -161,15 +161,18 @@ def walkers_at(fps: float, frames: int, *, seed: int = 0):
 
 @functools.cache
 def _apply_windows():
-    return jax.jit(jaxsr.apply_model, static_argnames=("cfg",), compiler_options=compiler_options())
+    return jax.jit(jaxsr.apply_model, static_argnames=("cfg", "precision"), compiler_options=compiler_options())
 
 
-def super_resolve_frames(model, lr, frames=None, *, batch: int = 8) -> np.ndarray:
-    """`jaxsr.super_resolve(model, lr)[frames]` (frames: indices, None = all) for normalised LR depth in [0, 1]
-    (no NaN: test clips' centre of mass), computing only those frames' windows in the window form (the sequence
-    form runs the whole sequence, as its outputs share work)."""
+def super_resolve_frames(model, lr, frames=None, *, batch: int = 8, precision: str = "default",
+                         form: str = "model") -> np.ndarray:
+    """`jaxsr.super_resolve(model, lr, precision=precision, form=form)[frames]` (frames: indices, None = all) for
+    normalised LR depth in [0, 1] (no NaN: test clips' centre of mass), computing only those frames' windows in
+    the window form (the sequence form runs the whole sequence, as its outputs share work). form: as
+    `super_resolve`'s, but "model" by default: the experiments score a model in the form its config names."""
+    model = in_form(model, form, frames=len(lr))
     if frames is None or model.architecture.sequence_form(model.config):
-        out = jaxsr.super_resolve(model, lr)
+        out = jaxsr.super_resolve(model, lr, precision=precision, form="model")
         return out if frames is None else out[frames]
     tr = model.config.tr  # windows edge-replicated at the sequence ends, as `jaxsr.windows`
     windows = np.asarray(lr)[np.clip(np.asarray(frames)[:, None] + np.arange(-tr, tr + 1), 0, len(lr) - 1)]
@@ -181,7 +184,7 @@ def super_resolve_frames(model, lr, frames=None, *, batch: int = 8) -> np.ndarra
         chunk = windows[i:i + batch]
         padded = np.concatenate([chunk, np.repeat(chunk[-1:], batch - len(chunk), 0)])  # one compiled shape
         split = jax.device_put(padded, NamedSharding(mesh, P("batch")))
-        out.append(np.asarray(_apply_windows()(params, state, split, model.config))[:len(chunk)])
+        out.append(np.asarray(_apply_windows()(params, state, split, model.config, precision=precision))[:len(chunk)])
     return np.concatenate(out)
 
 
@@ -253,15 +256,17 @@ def frames_per_second(fn, n_frames: int, *, min_time: float = 3.0) -> float:
 
 
 def model_fps(model, clip: Clip, *, batch_size=None, frames: int = 32, histograms: bool = True,
-              min_time: float = 3.0) -> float:
+              min_time: float = 3.0, precision: str = "default", form: str = "model") -> float:
     """End-to-end frames/s of a model on this machine: histograms -> centre of mass -> network (or from the
-    centre-of-mass frames with histograms=False). batch_size None: the default, one frame per device."""
+    centre-of-mass frames with histograms=False). batch_size None: the default, one frame per device. precision,
+    form: as `super_resolve`'s, form "model" by default (the form the model's config names)."""
+    kw = {"batch_size": batch_size, "precision": precision, "form": form}
     if histograms:
         counts = clip.counts[:frames]
-        fn = lambda: super_resolve_histograms(model, counts, batch_size=batch_size)  # noqa: E731
+        fn = lambda: super_resolve_histograms(model, counts, **kw)  # noqa: E731
     else:
         lr = clip.lr[:frames]
-        fn = lambda: super_resolve(model, lr, batch_size=batch_size)  # noqa: E731
+        fn = lambda: super_resolve(model, lr, **kw)  # noqa: E731
     return frames_per_second(fn, frames, min_time=min_time)
 
 

@@ -18,7 +18,7 @@ import jax.numpy as jnp
 
 from ..config import DEFAULT_MEAN_SIGNAL, SensorConfig
 from ..eval.metrics import huber_loss, psnr
-from ..nn.duf import DUF, apply_model, apply_model_sequence
+from ..nn.duf import DUF, apply_model, apply_model_sequence, check_conv
 from ..nn.model import Model
 from ..sensor.peaks import centre_of_mass
 from ..sensor.poisson import PATHWISE_ESTIMATORS
@@ -39,21 +39,22 @@ def _lr_depth(key, depth, intensity, sensor, snr, mean_signal, *, gradient, samp
     return centre_of_mass(hist, sensor, window=window)
 
 
-def _network(model: Model, lr, conv3d_impl):
+def _network(model: Model, lr, conv3d_impl, precision="default"):
     """(T, h, w) LR sequence -> (T, h r, w r), in the model's temporal form, ends edge-replicated, BN in
     inference mode."""
     cfg = model.config
+    conv = {"conv3d_impl": conv3d_impl, "precision": precision}
     if DUF.sequence_form(cfg):
-        return apply_model_sequence(model.params, model.state, lr[None], cfg, conv3d_impl=conv3d_impl)[0]
-    return apply_model(model.params, model.state, windows(lr, cfg.tr), cfg, conv3d_impl=conv3d_impl)
+        return apply_model_sequence(model.params, model.state, lr[None], cfg, **conv)[0]
+    return apply_model(model.params, model.state, windows(lr, cfg.tr), cfg, **conv)
 
 
-@functools.partial(jax.jit, static_argnames=("metric", "gradient", "sampler", "conv3d_impl"))
+@functools.partial(jax.jit, static_argnames=("metric", "gradient", "sampler", "conv3d_impl", "precision"))
 def _pipeline(key, depth, intensity, sensor, model, snr, mean_signal, window, huber_delta, *, metric, gradient,
-              sampler, conv3d_impl):
+              sampler, conv3d_impl, precision="default"):
     lr = _lr_depth(key, depth, intensity, sensor, snr, mean_signal, gradient=gradient, sampler=sampler,
                    window=window)
-    hr = _network(model, lr, conv3d_impl)
+    hr = _network(model, lr, conv3d_impl, precision)
     gt = normalise_depth(depth, sensor)
     score = jnp.mean(psnr(hr, gt)) if metric == "psnr" else huber_loss(hr, gt, delta=huber_delta)
     # Out-of-domain levels or sensor leaves (reachable only traced: under jit, or per element under vmap) give
@@ -76,6 +77,7 @@ def pipeline_metric(
     window=None,
     huber_delta=0.01,
     conv3d_impl: str = "auto",
+    precision: str = "default",
 ):
     """Score of the network's super-resolved output for a scene seen by `sensor`: the whole pipeline, jitted.
 
@@ -104,6 +106,8 @@ def pipeline_metric(
         2 above: a step in the score).
       huber_delta: the Huber loss's delta.
       conv3d_impl: how the network's convolutions run (`apply_model`).
+      precision: how they multiply, `jaxsr.config.PRECISIONS` (`apply_model`): "default", "float32" or
+        "bfloat16" (bfloat16 operands, float32 sums; gradients flow through the rounding as through float32).
     Returns:
       A scalar: the mean over the T frames of the chosen metric; NaN where a value reached only under a trace
       (jit, vmap) is out of its domain (snr <= 0, mean_signal < 0, a sensor leaf <= 0, NaN or inf); concrete
@@ -124,5 +128,6 @@ def pipeline_metric(
         raise ValueError(f"pipeline_metric: gradient must be one of {PATHWISE_ESTIMATORS}, got {gradient!r}")
     if sampler not in ("fast", "exact"):
         raise ValueError(f"pipeline_metric: sampler must be 'fast' or 'exact', got {sampler!r}")
+    check_conv(conv3d_impl, precision, "pipeline_metric")
     return _pipeline(key, depth, intensity, sensor, model, snr, mean_signal, window, huber_delta, metric=metric,
-                     gradient=gradient, sampler=sampler, conv3d_impl=conv3d_impl)
+                     gradient=gradient, sampler=sampler, conv3d_impl=conv3d_impl, precision=precision)

@@ -28,7 +28,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from ..checks import memory_budget, one_positive_number, require_memory
-from ..config import DepthScale, Gate, SensorConfig
+from ..config import PRECISIONS, DepthScale, Gate, SensorConfig
 from ..io.checkpoint import load_model, resolve_model_path
 from ..io.files import atomic_folder, atomic_path, reserve_space
 from ..io.formats import PNG_MAX_M, write_depth, write_sequence
@@ -56,7 +56,8 @@ from ..sensor.gates import gate_warnings
 from ..sensor.quantities import parse_span, parse_time_unit, range_metres
 from ..sensor.timetags import TIME_TAG_FORMATS, TimeTags, gate_of_tags, read_time_tags, time_tag_warnings
 from .adaptive import resolve_model
-from .video import DEFAULT_TILE, _default_batch_size, iter_network_inputs, iter_super_resolve
+from .video import (DEFAULT_FORM, DEFAULT_PRECISION, FORMS, DEFAULT_TILE, _default_batch_size, check_precision, in_form,
+                    iter_network_inputs, iter_super_resolve)
 
 __all__ = ["HEAD_FRAMES", "DEFAULT_MODELS", "FRAME_FORMATS", "UpscaleJob", "UpscaleResult", "prepare_upscale",
            "write_upscaled", "upscale", "upscale_memory"]
@@ -90,7 +91,9 @@ class UpscaleJob:
     and of array outputs; gate: the histogram gate (None for depth); scale: the `DepthScale` between metres and
     the network's [0, 1]; warnings: sentences on what the bundled models never saw in this gate and scale, and on
     negative counts clipped; source: the input as named in messages and in an .npz output's metadata;
-    negative_counts: with `clip_negative`, (negative counts clipped at 0, pixels holding one), else None."""
+    negative_counts: with `clip_negative`, (negative counts clipped at 0, pixels holding one), else None;
+    precision: how the network's convolutions multiply (`jaxsr.config.PRECISIONS`). The model is held in the
+    temporal form it runs in (`form` of `prepare_upscale`: `model.config.temporal`)."""
 
     recording: Recording
     model: object
@@ -102,6 +105,7 @@ class UpscaleJob:
     source: str
     _lr_stream: Callable[[], Iterator[np.ndarray]] = dataclasses.field(repr=False, compare=False)
     negative_counts: tuple[int, int] | None = None
+    precision: str = DEFAULT_PRECISION
 
     @property
     def frames(self) -> int:
@@ -118,7 +122,15 @@ class UpscaleJob:
     def note(self) -> str:
         """One line for people: what is read and with which model (`jaxsr upscale` prints it before the work)."""
         return (f"{self.frames} frames {self.recording.kind} {tuple(self.recording.shape)} from {self.source}, "
-                f"input units {self.units}, model {self.model_name}")
+                f"input units {self.units}, model {self.model_name}{self.how}")
+
+    @property
+    def how(self) -> str:
+        """How the network runs, as `note` ends: ", sequence form" for a DUF model in the sequence form, and
+        ", precision bfloat16" (or float32) where it is not the default; "" otherwise."""
+        seq = getattr(self.model.config, "temporal", None) == "sequence"
+        return (", sequence form" if seq else "") + ("" if self.precision == "default" else
+                                                       f", precision {self.precision}")
 
     @property
     def fps(self) -> float | None:
@@ -140,7 +152,7 @@ class UpscaleJob:
         """The network's output, streamed: (H, W) float32 HR normalised depth (unclipped), one per frame.
         lr_frames: the LR stream to run (default `lr_frames()`)."""
         lr = self.lr_frames() if lr_frames is None else lr_frames
-        return iter_super_resolve(self.model, lr, batch_size=batch_size)
+        return iter_super_resolve(self.model, lr, batch_size=batch_size, precision=self.precision)
 
     def iter_frames(self, *, batch_size: int | None = None, units: str | None = None) -> Iterator[np.ndarray]:
         """The super-resolved recording, streamed: (H, W) float32 frames in `units` (default the job's: "m",
@@ -330,21 +342,23 @@ def _head(frames, n):
 def prepare_upscale(input, *, model="default", kind: str | None = None, bins: int | None = None, bin_width=None,
                     gate_start=None, span=None, time_unit=None, variable: str | None = None,
                     drop_outside: bool = False, units: str | None = None, min_fps: float | None = None,
-                    clip_negative: bool = False, max_memory=None) -> UpscaleJob:
+                    clip_negative: bool = False, max_memory=None, precision: str = DEFAULT_PRECISION,
+                    form: str = DEFAULT_FORM) -> UpscaleJob:
     """Open and check a recording and choose its model, as `jaxsr upscale` does before any output is written.
 
     input: a path (.npy / .npz array of depth (T, h, w) or photon counts (T, h, w, bins); a folder or glob pattern
     of EXR, PFM, TIFF or 16-bit PNG depth frames; with kind="timetags" a .mat cell array or .npz table of photon
     time tags), or an opened `jaxsr.io.recordings.Recording`, a NumPy array (T, h, w) / (T, h, w, bins), or
-    `jaxsr.sensor.TimeTags`. The keyword options are `upscale`'s (see there). Checks, in order: the model, then
-    the input and every one of its frames (frames of any size h, w >= 4); an .npz's array and time tags'
-    histograms are checked against the memory budget (`max_memory`) before they are read.
+    `jaxsr.sensor.TimeTags`. The keyword options are `upscale`'s (see there). Checks, in order: the model (and
+    precision and form), then the input and every one of its frames (frames of any size h, w >= 4); an .npz's
+    array and time tags' histograms are checked against the memory budget (`max_memory`) before they are read.
 
     Returns an `UpscaleJob` (its `iter_frames()` streams the result). Raises ValueError, FileNotFoundError (a
     missing input or model) with the messages `jaxsr upscale` prints, TypeError for an input or model of another
     type (None among them).
     """
     fixed, name = _fixed_model(model, min_fps)
+    _check_precision_form(fixed, precision, form)
     span = _span(span)
     time_unit = _positive(time_unit, "time_unit", parse_time_unit, "seconds")
     rec, gate, source, tag_notes = _open(input, kind, bins=bins, bin_width=bin_width, gate_start=gate_start,
@@ -387,7 +401,21 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
     enable_compilation_cache()
     if fixed is None:
         fixed, name = resolve_model("auto", _head(lr_stream(), HEAD_FRAMES), min_fps=min_fps)
-    return UpscaleJob(rec, fixed, name, units, gate, scale, warnings, source, lr_stream, negatives)
+    fixed = in_form(fixed, form, "form (--form)", frames=rec.frames)
+    precision = check_precision(fixed, precision, "precision (--precision)")
+    return UpscaleJob(rec, fixed, name, units, gate, scale, warnings, source, lr_stream, negatives, precision)
+
+
+def _check_precision_form(model, precision, form) -> None:
+    """Refuse an unknown precision or form before the input is read (they are checked against the model once it is
+    known: a baseline takes neither bfloat16 nor a DUF form)."""
+    if not isinstance(precision, str) or precision not in PRECISIONS:
+        raise ValueError(f"precision (--precision) is one of {', '.join(map(repr, PRECISIONS))}, got {precision!r}")
+    if not isinstance(form, str) or form not in FORMS:
+        raise ValueError(f"form (--form) is one of {', '.join(map(repr, FORMS))}, got {form!r}")
+    if isinstance(model, Model):
+        check_precision(model, precision, "precision (--precision)")
+        in_form(model, form, "form (--form)")
 
 
 def _plural(n: int, noun: str) -> str:
@@ -584,11 +612,16 @@ def _saturated_note(pixels: int) -> str:
             "depth); --frame-format exr, pfm or tif store them")
 
 
-def _network_bytes_per_pixel(model) -> float:
-    """Bytes a model holds per LR pixel of a tile and frame of the batch while it runs (see `NETWORK_BYTES_TR4`)."""
+def _network_bytes_per_pixel(model, batch_size: int = 1) -> float:
+    """Bytes a model holds per LR pixel of a tile and frame of the batch while it runs (see `NETWORK_BYTES_TR4`):
+    a window of features per output frame, or in the sequence form the chunk's batch_size + 2R frames shared by
+    its batch_size outputs."""
     cfg = model.config
     try:
-        window = model.architecture.frames(cfg)
+        if model.architecture.sequence_form(cfg):
+            window = (batch_size + 2 * cfg.input_radius) / batch_size
+        else:
+            window = model.architecture.frames(cfg)
         blocks = 8 * window * (cfg.base + (cfg.same_blocks + cfg.tr) * cfg.growth)
         return blocks + 4 * (cfg.head + cfg.filter_hidden + cfg.filter_size**2 * cfg.scale**2)
     except AttributeError:  # not the DUF network
@@ -614,7 +647,8 @@ def upscale_memory(job: UpscaleJob, *, batch_size: int, in_memory: bool, looks: 
     channels = len(getattr(model.config, "inputs", ("depth",)))
     radius = model.architecture.input_radius(model.config)
     tile = min(h, DEFAULT_TILE) * min(w, DEFAULT_TILE)
-    need += batch_size * tile * _network_bytes_per_pixel(model) + 3 * (batch_size + 2 * radius) * 4.0 * h * w * channels
+    need += (batch_size * tile * _network_bytes_per_pixel(model, batch_size)
+             + 3 * (batch_size + 2 * radius) * 4.0 * h * w * channels)
     need += (2 * batch_size + 1) * hr + (job.frames * hr if in_memory else 0) + (6 * hr if looks else 0)
     return need
 
@@ -660,7 +694,8 @@ def upscale(input, output, *, model="default", kind: str | None = None, bins: in
             min_fps: float | None = None, preview=None, video=None, fps: float | None = None, reference=None,
             points=None, fov_deg: float = DEFAULT_FOV_DEG, points_colour: str | None = "depth",
             overwrite: bool = False, progress: bool = False, clip_negative: bool = False, max_memory=None,
-            report: Callable[[str], None] | None = None) -> UpscaleResult:
+            report: Callable[[str], None] | None = None, precision: str = DEFAULT_PRECISION,
+            form: str = DEFAULT_FORM) -> UpscaleResult:
     """Super-resolve a recording x4 with a trained model and write it: `jaxsr upscale INPUT OUTPUT` in one call.
 
     input: a path (.npy / .npz array of depth (T, h, w) or photon counts (T, h, w, bins); a folder or glob
@@ -691,8 +726,14 @@ def upscale(input, output, *, model="default", kind: str | None = None, bins: in
     - frame_format (--frame-format): "exr" (default), "pfm", "tif" or "png" for a folder output (always metres),
       refused for any other; 16-bit PNG holds 1 mm .. 65.535 m: a range starting beyond is refused, and deeper
       pixels are written as 65.535 m with a warning that counts them.
-    - batch_size (--batch-size): frames per compiled call; min_fps (--min-fps, model="auto" only): the slowest
-      acceptable frames/s; preview (--preview): an input | output PNG strip of the middle frame; overwrite
+    - precision (--precision): how the network's convolutions multiply, "default" (the backend's: float32 on
+      CPU), "float32" or "bfloat16" (bfloat16 operands, float32 sums; `jaxsr.config.PRECISIONS`), for the DUF
+      network only; default `DEFAULT_PRECISION` (docs/cli.md says when bfloat16 pays).
+    - form (--form): the temporal form the DUF network runs in (`jaxsr.inference.video.FORMS`): "auto" (default:
+      the bundled windowed depth models of `SEQUENCE_FORM_TRS` in the sequence form on recordings of at least
+      `SEQUENCE_FORM_MIN_FRAMES` frames, else the model's own), "model", "window" or "sequence".
+    - batch_size (--batch-size): frames per compiled call (output frames per chunk in the sequence form);
+      min_fps (--min-fps, model="auto" only): the slowest acceptable frames/s; preview (--preview): an input | output PNG strip of the middle frame; overwrite
       (--force): replace output, preview and video; progress (not --no-progress): show a progress bar.
     - video (--video), fps (--fps), reference (--reference): an .mp4 / .gif of every frame, input | output |
       reference, one colour scale in metres; points (--points), fov_deg (--fov), points_colour: a folder of PLY
@@ -727,7 +768,8 @@ def upscale(input, output, *, model="default", kind: str | None = None, bins: in
         open_recording(reference, kind="depth")  # exists and reads (its frames are checked against the job's later)
     job = prepare_upscale(input, model=model, kind=kind, bins=bins, bin_width=bin_width, gate_start=gate_start,
                           span=span, time_unit=time_unit, variable=variable, drop_outside=drop_outside,
-                          units=units, min_fps=min_fps, clip_negative=clip_negative, max_memory=max_memory)
+                          units=units, min_fps=min_fps, clip_negative=clip_negative, max_memory=max_memory,
+                          precision=precision, form=form)
     # before the lines below, which say the work starts (write_upscaled checks again, for its own callers)
     _frame_format(frame_format, out, job)
     _check_memory(job, out, _batch_size(job, batch_size), video is not None or points is not None, max_memory)

@@ -18,6 +18,7 @@ benchmarks/bench_inference.py::test_network_tr4_one_window).
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from collections import deque
 from collections.abc import Iterable, Iterator
@@ -29,8 +30,8 @@ from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
 from ..checks import require_normalised_depth
-from ..config import MIN_LR_SIDE, SensorConfig
-from ..nn.duf import apply_model, apply_model_sequence, sequence_radius
+from ..config import MIN_LR_SIDE, PRECISIONS, SensorConfig
+from ..nn.duf import apply_model, apply_model_sequence, check_conv, sequence_radius
 from ..nn.model import Model
 from ..nn.inputs import network_inputs
 from ..runtime import compiler_options
@@ -48,6 +49,27 @@ DEFAULT_ACCELERATOR_BATCH_SIZE = 8
 # one chunk (TR4: 46 LR frames) ran 1.1-1.2x faster than `Stream`'s per-frame step (a `lax.scan` of that step
 # no faster than the loop) and TR4 3.1x faster than the window form (experiments/results/sequence_form.md).
 DEFAULT_SEQUENCE_CHUNK = 32
+# How inference runs the network's convolutions when the caller does not say (`precision`, `jaxsr.config.PRECISIONS`):
+# the backend's own products, float32 on CPU (TF32 for float32 operands on NVIDIA GPUs since Ampere, unchanged).
+# bfloat16 kept the bundled models' PSNR within 0.05 dB on the test sequences but ran no faster on XLA:CPU here,
+# on a CPU with AVX512-BF16, since XLA:CPU converts the convolutions' bfloat16 operands back to float32
+# (experiments/results/inference_forms.md); it is not the default on an accelerator either, where it was not
+# measured.
+DEFAULT_PRECISION = "default"
+# The form `super_resolve` and `super_resolve_histograms` (whole arrays) run a model in when the caller does not say.
+DEFAULT_FORM = "auto"
+# The temporal forms inference can run a DUF model in (`form`): "model" (as `model.config.temporal` says),
+# "window", "sequence" (any weights run in either form), or "auto": the sequence form for a sequence-form model
+# and for windowed depth-only weights whose TR is in `SEQUENCE_FORM_TRS` on at least `SEQUENCE_FORM_MIN_FRAMES`
+# frames (or a stream of unknown length), else the model's own form.
+FORMS = ("auto", "model", "window", "sequence")
+# The TRs whose windowed weights (the bundled depth models) gave their windowed PSNR within 0.1 dB in the sequence
+# form on the test sequences, edge frames included, and ran faster in it (experiments/results/inference_forms.md,
+# 2026-11-26: TR3 -0.04, TR4 +0.02 dB; TR2 -0.07 but -0.10 at the edges, TR1 -0.60, TR0 -0.44).
+SEQUENCE_FORM_TRS = (3, 4)
+# "auto" keeps the window form on fewer frames: a sequence-form call computes 2R frames beyond its outputs at the
+# first block, which a chunk of `DEFAULT_SEQUENCE_CHUNK` outputs pays for and a few frames do not.
+SEQUENCE_FORM_MIN_FRAMES = 32
 # Largest side of a spatial tile, in LR pixels, margins included, when `tile` is not given: frames up to 128 x 128
 # LR pixels (16x the 32 x 64 sensor) run whole; larger ones in tiles, so device memory stays bounded whatever the
 # frame size (a 160 x 160 frame: 2 x 2 tiles of 98 x 98 for TR4).
@@ -62,27 +84,66 @@ def _batch_sharding(batch_size: int) -> NamedSharding | None:
     return NamedSharding(Mesh(np.asarray(devices), ("batch",)), P("batch"))
 
 
-def _windows_through_model(model: Model, chunk, sharding=None, conv3d_impl="auto"):
+def _windows_through_model(model: Model, chunk, sharding=None, conv3d_impl="auto", precision="default"):
     """chunk (B + 2 R, h, w) -> (B, h r, w r), R = `input_radius`. Window form: the centre frame of each of the
     B windows of 2 tr + 1 frames, the windows split over `sharding`'s devices (the model and chunk are
-    replicated). Sequence form: the B outputs of the chunk, "valid" (`apply_model_sequence`)."""
+    replicated). Sequence form: the B outputs of the chunk, "valid" (`apply_model_sequence`). precision: passed
+    to the network only when it is not "default" (the baselines take none)."""
     arch = model.architecture
+    extra = {} if precision == "default" else {"precision": precision}
     if arch.sequence_form(model.config):
         return apply_model_sequence(model.params, model.state, chunk[None], model.config, padding="valid",
-                                    conv3d_impl=conv3d_impl)[0]
+                                    conv3d_impl=conv3d_impl, **extra)[0]
     n = arch.frames(model.config)
     b = chunk.shape[0] - n + 1
     windows = chunk[jnp.arange(b)[:, None] + jnp.arange(n)[None, :]]
     if sharding is not None:
         windows = jax.lax.with_sharding_constraint(windows, sharding)
-    return arch.apply(model.params, model.state, windows, model.config, conv3d_impl=conv3d_impl)
+    return arch.apply(model.params, model.state, windows, model.config, conv3d_impl=conv3d_impl, **extra)
 
 
 @functools.cache
 def _infer_chunk():
     """`_windows_through_model`, jitted once the backend (and so its `compiler_options`) is known."""
-    return jax.jit(_windows_through_model, static_argnames=("sharding", "conv3d_impl"),
+    return jax.jit(_windows_through_model, static_argnames=("sharding", "conv3d_impl", "precision"),
                    compiler_options=compiler_options())
+
+
+def check_precision(model: Model, precision, who: str = "super_resolve") -> str:
+    """`precision` if it is one of `PRECISIONS` and applies to `model`: any of them for the DUF network, only
+    "default" for a network without `precision` (the baselines). Raises ValueError naming the choices."""
+    if not isinstance(precision, str) or precision not in PRECISIONS:
+        raise ValueError(f"{who}: precision must be one of {', '.join(map(repr, PRECISIONS))}, got {precision!r}")
+    if precision != "default" and model.kind != "duf":
+        raise ValueError(f"{who}: precision {precision!r} applies to the DUF network's convolutions; a "
+                         f"{model.kind} model runs with precision 'default'")
+    return precision
+
+
+def in_form(model: Model, form: str = "auto", who: str = "super_resolve", *, frames: int | None = None) -> Model:
+    """`model` in the temporal form `form` asks for (`FORMS`): "model" leaves it as it is; "window" and
+    "sequence" set the DUF config's `temporal` (the same weights; refused for another architecture); "auto"
+    turns windowed depth-only DUF weights of a TR in `SEQUENCE_FORM_TRS` into the sequence form when `frames`
+    (the sequence's length; None: unknown, a stream) is None or at least `SEQUENCE_FORM_MIN_FRAMES`, and leaves
+    any other model as it is. Returns a `Model` (the same one when nothing changes); raises ValueError for an
+    unknown form."""
+    if not isinstance(form, str) or form not in FORMS:
+        raise ValueError(f"{who}: form must be one of {', '.join(map(repr, FORMS))}, got {form!r}")
+    cfg = model.config
+    if model.kind != "duf":
+        if form in ("window", "sequence"):
+            raise ValueError(f"{who}: form {form!r} applies to the DUF network (window or sequence form); a "
+                             f"{model.kind} model runs in its own form ('auto' or 'model')")
+        return model
+    if form == "model":
+        return model
+    if form == "auto":
+        windowed_depth = cfg.temporal == "window" and tuple(cfg.inputs) == ("depth",) and not cfg.no_return_head
+        long = frames is None or frames >= SEQUENCE_FORM_MIN_FRAMES
+        if not (windowed_depth and cfg.tr in SEQUENCE_FORM_TRS and long):
+            return model
+        form = "sequence"
+    return model if cfg.temporal == form else Model(model.params, model.state, dataclasses.replace(cfg, temporal=form))
 
 
 def _default_batch_size(frames, sequence_form: bool) -> int:
@@ -147,7 +208,8 @@ def tile_spans(n: int, radius: int, max_side: int | None) -> tuple[int, list[tup
 
 
 def iter_super_resolve(model: Model, frames: Iterable, *, batch_size: int | None = None,
-                       conv3d_impl: str = "auto", tile: int | None = DEFAULT_TILE) -> Iterator[np.ndarray]:
+                       conv3d_impl: str = "auto", tile: int | None = DEFAULT_TILE, precision: str = DEFAULT_PRECISION,
+                       form: str = "model") -> Iterator[np.ndarray]:
     """Super-resolve a stream of LR frames, yielding HR frames in order, in bounded memory.
 
     frames: an iterable of (h, w) LR normalised depth frames (0..1, 1 or NaN = no return), e.g. a generator reading
@@ -163,13 +225,18 @@ def iter_super_resolve(model: Model, frames: Iterable, *, batch_size: int | None
     receptive radius, `jaxsr.nn.duf.spatial_radius`, so the output equals the whole frame's to float rounding),
     bounding device memory whatever the frame size; None runs whole frames. Any frame size h, w >= `MIN_LR_SIDE`
     runs, compiled once per size; the bundled models were trained on 32 x 64 frames of a 30 deg field of view
-    (README "Frame size").
+    (README "Frame size"). precision: how the network's convolutions multiply (`jaxsr.config.PRECISIONS`,
+    default `DEFAULT_PRECISION`; "bfloat16": bfloat16 operands, float32 sums; only "default" for the baselines).
+    form: the temporal form the model runs in (`FORMS`, `in_form`; default "model": as its config says).
     Yields (h r, w r) float32 NumPy arrays of HR normalised depth (unclipped network output). NaN is read as
     no return (1.0) and values within 1e-6 of [0, 1] are clipped to it; raises ValueError for a frame of
     another shape than the first or smaller than `MIN_LR_SIDE`, or with values further outside [0, 1] (metres,
     negated, inf: the message names the range seen; `jaxsr.normalise_depth` converts metres).
     """
-    arch = _require_model(model, "super_resolve").architecture
+    _require_model(model, "super_resolve")
+    precision = check_precision(model, precision)
+    model = in_form(model, form, frames=len(frames) if hasattr(frames, "__len__") else None)
+    arch = model.architecture
     if frames is None or isinstance(frames, (str, bytes)):
         raise TypeError(f"super_resolve: frames must be an iterable of LR frames, got {type(frames).__name__}")
     if arch.inputs != "depth":
@@ -213,7 +280,8 @@ def iter_super_resolve(model: Model, frames: Iterable, *, batch_size: int | None
             for x0, xlo, xhi in cols:
                 part = chunk[:, y0 : y0 + th, x0 : x0 + tw]
                 part = jnp.asarray(part) if sharding is None else jax.device_put(part, replicated)
-                tiles.append((_infer_chunk()(model, part, sharding, conv3d_impl), y0, ylo, yhi, x0, xlo, xhi))
+                tiles.append((_infer_chunk()(model, part, sharding, conv3d_impl, precision), y0, ylo, yhi, x0, xlo,
+                              xhi))
         return tiles, count
 
     def drain(result):
@@ -256,7 +324,8 @@ def iter_super_resolve(model: Model, frames: Iterable, *, batch_size: int | None
 
 
 def super_resolve(model: Model, lr_seq, *, batch_size: int | None = None, conv3d_impl: str = "auto",
-                  tile: int | None = DEFAULT_TILE) -> np.ndarray:
+                  tile: int | None = DEFAULT_TILE, precision: str = DEFAULT_PRECISION,
+                  form: str = DEFAULT_FORM) -> np.ndarray:
     """Super-resolve a whole LR depth sequence: (T, h, w) -> (T, h r, w r) normalised depth (NumPy, float32), for
     any h, w >= `MIN_LR_SIDE` (large frames in spatial tiles of at most `tile` LR pixels a side, margins included,
     with the same result; see `iter_super_resolve`).
@@ -267,6 +336,7 @@ def super_resolve(model: Model, lr_seq, *, batch_size: int | None = None, conv3d
     bounded by the batch (see `iter_super_resolve`); the HR result is assembled on the host. `lr_seq` is
     normalised depth in [0, 1] (1 or NaN = no return; checked as in `iter_super_resolve`), or (T, h, w, C) for a
     model reading photons too (`jaxsr.nn.network_inputs`). For a differentiable, traceable version, call `apply_model(params, state, jaxsr.windows(lr_seq, tr), cfg)`.
+    precision: as in `iter_super_resolve`. form: the temporal form (`FORMS`, `in_form`), default `DEFAULT_FORM`.
     """
     _require_model(model, "super_resolve")
     if lr_seq is None or isinstance(lr_seq, (str, bytes)):
@@ -283,7 +353,7 @@ def super_resolve(model: Model, lr_seq, *, batch_size: int | None = None, conv3d
     r = model.architecture.scale(model.config)
     out = np.empty((lr_seq.shape[0], lr_seq.shape[1] * r, lr_seq.shape[2] * r), np.float32)
     for t, hr in enumerate(iter_super_resolve(model, lr_seq, batch_size=batch_size, conv3d_impl=conv3d_impl,
-                                              tile=tile)):
+                                              tile=tile, precision=precision, form=form)):
         out[t] = hr
     return out
 
@@ -335,18 +405,20 @@ def iter_network_inputs(counts: Iterable, sensor: SensorConfig = SensorConfig(),
 
 def super_resolve_histograms(model: Model, counts, sensor: SensorConfig = SensorConfig(), *, intensity=None,
                              batch_size: int | None = None, conv3d_impl: str = "auto",
-                             tile: int | None = DEFAULT_TILE) -> np.ndarray:
+                             tile: int | None = DEFAULT_TILE, precision: str = DEFAULT_PRECISION,
+                             form: str = DEFAULT_FORM) -> np.ndarray:
     """Super-resolve photon histograms: (T, h, w, K) counts -> (T, h r, w r) normalised depth (NumPy, float32).
 
     A model that reads depth (the DUF network, iSeeBetter) gets the centre-of-mass depth of each frame
     (`jaxsr.centre_of_mass` with `sensor`, K = `sensor.bins` over the sensor's gate [0, d_max): the normalised
     depth is tau / K), and the photons behind it if its config lists more `inputs` (`jaxsr.nn.network_inputs`),
-    `super_resolve`d, streaming (see `iter_super_resolve`; `batch_size`, `conv3d_impl` and
-    `tile` as there). A model that reads histograms (HistNet) gets the counts themselves with `intensity`
-    (T, h r, w r), the HR intensity in [0, 1] it is guided by (required for it, refused otherwise), frame by
-    frame in batches of `batch_size`. Any h, w >= `MIN_LR_SIDE`; for histograms over another gate, see
+    `super_resolve`d, streaming (see `iter_super_resolve`; `batch_size`, `conv3d_impl`, `tile` and `precision`
+    as there, `form` as in `super_resolve`). A model that reads histograms (HistNet) gets the counts themselves
+    with `intensity` (T, h r, w r), the HR intensity in [0, 1] it is guided by (required for it, refused
+    otherwise), frame by frame in batches of `batch_size`. Any h, w >= `MIN_LR_SIDE`; for histograms over another gate, see
     `jaxsr.Gate` and `jaxsr.sensor.gate_depth`."""
     _require_model(model, "super_resolve_histograms")
+    precision = check_precision(model, precision, "super_resolve_histograms")
     if counts is None or isinstance(counts, (str, bytes)):
         raise TypeError(f"super_resolve_histograms: expected photon counts (T, h, w, {sensor.bins}), got "
                         f"{type(counts).__name__}")
@@ -354,6 +426,7 @@ def super_resolve_histograms(model: Model, counts, sensor: SensorConfig = Sensor
     if counts.ndim != 4 or counts.shape[0] < 1 or min(counts.shape[1:3]) < MIN_LR_SIDE:
         raise ValueError(f"super_resolve_histograms: expected counts (T, h, w, {sensor.bins}) with T >= 1 and h, w >= "
                          f"{MIN_LR_SIDE}, got shape {counts.shape}")
+    model = in_form(model, form, "super_resolve_histograms", frames=counts.shape[0])
     arch = model.architecture
     r = arch.scale(model.config)
     if arch.inputs == "histograms":
@@ -365,7 +438,8 @@ def super_resolve_histograms(model: Model, counts, sensor: SensorConfig = Sensor
     if batch_size is None:  # the frames' count is known here, not in the stream of centre-of-mass frames
         batch_size = _default_batch_size(counts, arch.sequence_form(model.config))
     frames = iter_network_inputs(counts, sensor, getattr(model.config, "inputs", ("depth",)))
-    stream = iter_super_resolve(model, frames, batch_size=batch_size, conv3d_impl=conv3d_impl, tile=tile)
+    stream = iter_super_resolve(model, frames, batch_size=batch_size, conv3d_impl=conv3d_impl, tile=tile,
+                                precision=precision)
     for t, hr in enumerate(stream):
         out[t] = hr
     return out
@@ -400,7 +474,8 @@ def _histograms_through_model(model: Model, counts, intensity, sensor: SensorCon
 @functools.cache
 def _stream_step():
     """`stream_step`, jitted once the backend (and so its `compiler_options`) is known."""
-    return jax.jit(stream_step, static_argnames=("cfg", "conv3d_impl"), compiler_options=compiler_options())
+    return jax.jit(stream_step, static_argnames=("cfg", "conv3d_impl", "precision"),
+                   compiler_options=compiler_options())
 
 
 class Stream:
@@ -415,11 +490,16 @@ class Stream:
     says (a windowed checkpoint streams too, with the sequence form's accuracy). Outputs are float32 NumPy,
     unclipped. Frames are checked as in `iter_super_resolve` (NaN = no return); raises ValueError for a frame of
     another shape than the first or with values outside [0, 1], and for a flush before any frame.
+    precision: how the network's convolutions multiply (`jaxsr.config.PRECISIONS`, default `DEFAULT_PRECISION`),
+    checked here.
     """
 
-    def __init__(self, model: Model, *, conv3d_impl: str = "auto"):
+    def __init__(self, model: Model, *, conv3d_impl: str = "auto", precision: str = DEFAULT_PRECISION):
         self.model = _require_model(model, "Stream")
-        self.conv3d_impl = conv3d_impl
+        if model.kind != "duf":
+            raise ValueError(f"Stream: streams the DUF network's sequence form; got a {model.kind} model")
+        check_conv(conv3d_impl, check_precision(model, precision, "Stream"), "Stream")
+        self.conv3d_impl, self.precision = conv3d_impl, precision
         self.latency = sequence_radius(model.config)
         self._reset()
 
@@ -430,7 +510,7 @@ class Stream:
         """Feed one padded-sequence frame; the output of step n is frame n - 2R of the sequence."""
         m = self.model
         self._buffers, hr = _stream_step()(m.params, m.state, self._buffers, jnp.asarray(frame)[None], m.config,
-                                           conv3d_impl=self.conv3d_impl)
+                                           conv3d_impl=self.conv3d_impl, precision=self.precision)
         self._fed += 1
         return np.asarray(hr[0]) if self._fed > 2 * self.latency else None
 
