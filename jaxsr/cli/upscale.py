@@ -20,7 +20,7 @@ import sys
 
 from ..config import PRECISIONS, TRAINED_RANGE_M
 from ..inference.recording import upscale
-from ..inference.video import DEFAULT_FORM, DEFAULT_PRECISION, FORMS, SEQUENCE_FORM_MIN_FRAMES
+from ..inference.video import DEFAULT_FORM, DEFAULT_PRECISION, FORMS, SEQUENCE_FORM_MIN_FRAMES, SEQUENCE_FORM_TRS
 from ..io.pointcloud import DEFAULT_FOV_DEG
 from ..io.recordings import DEPTH_UNITS
 from ..checks import MEMORY_SHARE
@@ -79,9 +79,10 @@ def add_parser(subparsers):
                    "or bfloat16 (bfloat16 operands, float32 sums: within 0.05 dB on the test sequences; faster only "
                    "where the hardware and XLA multiply bfloat16, see docs/cli.md)")
     p.add_argument("--form", choices=list(FORMS), default=DEFAULT_FORM,
-                   help="the network's temporal form: auto (default: the bundled windowed depth models run in the "
-                   f"sequence form where it was measured as accurate and faster, on {SEQUENCE_FORM_MIN_FRAMES} frames "
-                   "or more), model (as the checkpoint says), window, or sequence")
+                   help="the network's temporal form: auto (default: windowed depth models of TR "
+                   f"{' and '.join(map(str, SEQUENCE_FORM_TRS))} run in the sequence form, measured as accurate and "
+                   f"faster, on {SEQUENCE_FORM_MIN_FRAMES} frames or more; other models in their own form), model (as "
+                   "the checkpoint says), window, or sequence")
     p.add_argument("--max-memory", type=memory, default=None, metavar="SIZE",
                    help=f"the memory the command may take, such as 16GB (default {MEMORY_SHARE * 100:.0f}%% of this "
                    "machine's RAM): the input's arrays and the work are estimated before they allocate, and refused beyond it")

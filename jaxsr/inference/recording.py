@@ -56,8 +56,8 @@ from ..sensor.gates import gate_warnings
 from ..sensor.quantities import parse_span, parse_time_unit, range_metres
 from ..sensor.timetags import TIME_TAG_FORMATS, TimeTags, gate_of_tags, read_time_tags, time_tag_warnings
 from .adaptive import resolve_model
-from .video import (DEFAULT_FORM, DEFAULT_PRECISION, FORMS, DEFAULT_TILE, _default_batch_size, check_precision, in_form,
-                    iter_network_inputs, iter_super_resolve)
+from .video import (DEFAULT_FORM, DEFAULT_PRECISION, DEFAULT_TILE, FORMS, _default_batch_size, check_precision,
+                    in_form, iter_network_inputs, iter_super_resolve)
 
 __all__ = ["HEAD_FRAMES", "DEFAULT_MODELS", "FRAME_FORMATS", "UpscaleJob", "UpscaleResult", "prepare_upscale",
            "write_upscaled", "upscale", "upscale_memory"]
@@ -733,8 +733,9 @@ def upscale(input, output, *, model="default", kind: str | None = None, bins: in
       the bundled windowed depth models of `SEQUENCE_FORM_TRS` in the sequence form on recordings of at least
       `SEQUENCE_FORM_MIN_FRAMES` frames, else the model's own), "model", "window" or "sequence".
     - batch_size (--batch-size): frames per compiled call (output frames per chunk in the sequence form);
-      min_fps (--min-fps, model="auto" only): the slowest acceptable frames/s; preview (--preview): an input | output PNG strip of the middle frame; overwrite
-      (--force): replace output, preview and video; progress (not --no-progress): show a progress bar.
+      min_fps (--min-fps, model="auto" only): the slowest acceptable frames/s; preview (--preview): an input |
+      output PNG strip of the middle frame; overwrite (--force): replace output, preview and video; progress
+      (not --no-progress): show a progress bar.
     - video (--video), fps (--fps), reference (--reference): an .mp4 / .gif of every frame, input | output |
       reference, one colour scale in metres; points (--points), fov_deg (--fov), points_colour: a folder of PLY
       point clouds, one per frame (see `write_upscaled`).

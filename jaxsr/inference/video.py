@@ -330,9 +330,11 @@ def super_resolve(model: Model, lr_seq, *, batch_size: int | None = None, conv3d
     any h, w >= `MIN_LR_SIDE` (large frames in spatial tiles of at most `tile` LR pixels a side, margins included,
     with the same result; see `iter_super_resolve`).
 
-    In the model's form: each frame is the centre of an edge-replicated window of 2 tr + 1 frames
-    (`jaxsr.temporal.windows`) and the result equals `apply_model` on those windows, or (sequence form) the
-    result equals `apply_model_sequence` on the whole sequence (`conv3d_impl` is passed on). Memory on the device is
+    In the form `form` picks (`in_form`; the default "auto" runs the windowed depth TR3 and TR4 in the sequence
+    form on `SEQUENCE_FORM_MIN_FRAMES` frames or more, any other model in its own form): window form, each frame
+    is the centre of an edge-replicated window of 2 tr + 1 frames (`jaxsr.temporal.windows`) and the result
+    equals `apply_model` on those windows; sequence form, the result equals `apply_model_sequence` on the whole
+    sequence (`conv3d_impl` and `precision` are passed on). Memory on the device is
     bounded by the batch (see `iter_super_resolve`); the HR result is assembled on the host. `lr_seq` is
     normalised depth in [0, 1] (1 or NaN = no return; checked as in `iter_super_resolve`), or (T, h, w, C) for a
     model reading photons too (`jaxsr.nn.network_inputs`). For a differentiable, traceable version, call `apply_model(params, state, jaxsr.windows(lr_seq, tr), cfg)`.
@@ -415,8 +417,8 @@ def super_resolve_histograms(model: Model, counts, sensor: SensorConfig = Sensor
     `super_resolve`d, streaming (see `iter_super_resolve`; `batch_size`, `conv3d_impl`, `tile` and `precision`
     as there, `form` as in `super_resolve`). A model that reads histograms (HistNet) gets the counts themselves
     with `intensity` (T, h r, w r), the HR intensity in [0, 1] it is guided by (required for it, refused
-    otherwise), frame by frame in batches of `batch_size`. Any h, w >= `MIN_LR_SIDE`; for histograms over another gate, see
-    `jaxsr.Gate` and `jaxsr.sensor.gate_depth`."""
+    otherwise), frame by frame in batches of `batch_size`. Any h, w >= `MIN_LR_SIDE`; for histograms over
+    another gate, see `jaxsr.Gate` and `jaxsr.sensor.gate_depth`."""
     _require_model(model, "super_resolve_histograms")
     precision = check_precision(model, precision, "super_resolve_histograms")
     if counts is None or isinstance(counts, (str, bytes)):
