@@ -37,21 +37,28 @@ CPU_NOTE = (
     "as `jaxsr upscale` does: `test_super_resolve[tr-None]` is the default batch, one frame per device, "
     "split over them; `[tr-1]` runs one frame at a time on one device; `[tr-8]` splits 8 frames. "
     "GFLOP/s: the network's convolutions and dynamic filter (`flops_per_frame`) per second; "
-    "`test_matmul_peak` is a 2048^2 float32 matrix product, the ceiling XLA:CPU reaches here.\n\n"
+    "`test_matmul_peak[float32]` is a 2048^2 float32 matrix product, the ceiling XLA:CPU reaches here, and "
+    "`[bfloat16]` the same of bfloat16 operands with float32 sums, the ceiling of `precision=\"bfloat16\"`; "
+    "'of ceiling': an inference benchmark's GFLOP/s over the ceiling of its precision, measured in the same run "
+    "(`test_precision_from_histograms` runs the convolutions in bfloat16 where its name says so).\n\n"
 )
 
 
 def table(results: list[dict]) -> str:
-    """One row per benchmark: mean and std per call, items/s and GFLOP/s where it records them."""
+    """One row per benchmark: mean and std per call, items/s, GFLOP/s and the share of the matrix-product ceiling
+    of its precision where it records them (the last column only where some benchmark does)."""
     rows = []
+    shares = any("share_of_matmul_peak" in b.get("extra_info", {}) for b in results)
     for b in results:
         info = b.get("extra_info", {})
         rate = info.get("items_per_s", info.get("examples_per_s"))
         gflops = info.get("gflops_per_s")
+        share = info.get("share_of_matmul_peak")
         rows.append([f"`{b['fullname'].split('/')[-1]}`", f"{1e3 * b['stats']['mean']:.1f}",
                      f"{1e3 * b['stats']['stddev']:.1f}", f"{rate:.1f}" if rate else "",
-                     f"{gflops:.0f}" if gflops else ""])
-    return markdown_table(["benchmark", "mean ms / call", "std ms", "items / s", "GFLOP/s"], rows)
+                     f"{gflops:.0f}" if gflops else ""] + ([f"{100 * share:.0f} %" if share else ""] if shares else []))
+    return markdown_table(["benchmark", "mean ms / call", "std ms", "items / s", "GFLOP/s"]
+                          + (["of ceiling"] if shares else []), rows)
 
 
 def run_suites(k: str | None) -> list[dict]:

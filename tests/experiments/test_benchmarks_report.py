@@ -29,6 +29,16 @@ def test_a_recorded_report_names_its_machine_and_date(tmp_path, monkeypatch):
     assert "| `bench_inference.py::test_super_resolve[4-8]` | 11.3 | 1.6 | 1412.2 | 40202 |" in text
 
 
+def test_the_share_of_the_matmul_ceiling_is_a_column_where_recorded():
+    shared = {"fullname": "benchmarks/bench_inference.py::test_precision_from_histograms[4-sequence-32-bfloat16]",
+              "stats": {"mean": 2.0, "stddev": 0.1},
+              "extra_info": {"items_per_s": 16.0, "gflops_per_s": 147.2, "share_of_matmul_peak": 0.31}}
+    text = benchmarks_report.table([*RECORDED["benchmarks"], shared])
+    assert "| benchmark | mean ms / call | std ms | items / s | GFLOP/s | of ceiling |" in text
+    assert "test_precision_from_histograms[4-sequence-32-bfloat16]` | 2000.0 | 100.0 | 16.0 | 147 | 31 % |" in text
+    assert "test_super_resolve[4-8]` | 11.3 | 1.6 | 1412.2 | 40202 |  |" in text
+
+
 @pytest.mark.parametrize("argv", [["--json", "bench.json"], ["--json", "bench.json", "--out", "x.md", "tr4"],
                                   ["--machine", "one H100"]])
 def test_mismatched_options_are_refused(argv, monkeypatch, capsys):
