@@ -211,7 +211,9 @@ class ModelConfig:
     (inputs (..., H, W)); with photon channels, ("depth", "signal", "background") say, inputs carry a last
     axis of that many channels, built from histograms by `jaxsr.nn.inputs.network_inputs`. `no_return_head`
     adds an output: per HR pixel the logit that it has no return, trained against the ground truth's 1.0;
-    where it is positive the output is 1.0 (no return), elsewhere the upsampled depth.
+    where it is above `no_return_logit` (0.0, p = 0.5, unless calibrated: `jaxsr.training.calibrate_no_return`)
+    the output is 1.0 (no return), elsewhere the upsampled depth. `no_return_logit` is a decision threshold, not a
+    weight: the training loss reads the raw logit, and a model without the head ignores it.
     """
 
     tr: int = 0
@@ -228,6 +230,7 @@ class ModelConfig:
     temporal: str = "window"
     inputs: tuple = ("depth",)
     no_return_head: bool = False
+    no_return_logit: float = 0.0
 
     def __post_init__(self):
         # upper limits too: a config read from a file builds its templates block by block, and a tr of 10^5
@@ -258,6 +261,10 @@ class ModelConfig:
         object.__setattr__(self, "inputs", inputs)  # a list (from JSON) hashes as the tuple it means
         if not isinstance(self.no_return_head, bool):
             raise ValueError(f"ModelConfig: no_return_head must be True or False, got {self.no_return_head!r}")
+        logit = self.no_return_logit
+        if isinstance(logit, bool) or not isinstance(logit, numbers.Real) or not abs(float(logit)) < float("inf"):
+            raise ValueError(f"ModelConfig: no_return_logit must be a finite number (a logit), got {logit!r}")
+        object.__setattr__(self, "no_return_logit", float(logit))  # 0 from JSON hashes and prints as 0.0
 
     @property
     def channels(self) -> int:

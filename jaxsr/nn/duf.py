@@ -37,6 +37,7 @@ NO_RETURN_PRIOR = -4.0  # a new no-return branch's logit: p = 0.018, "a return" 
 __all__ = [
     "init_model",
     "apply_model",
+    "apply_model_raw",
     "apply_model_train",
     "apply_model_sequence",
     "apply_model_sequence_train",
@@ -290,6 +291,18 @@ def apply_model(params, state, windows, cfg: ModelConfig, *, conv3d_impl: str = 
     return merge_no_return(out, cfg)
 
 
+def apply_model_raw(params, state, windows, cfg: ModelConfig, *, conv3d_impl: str = "auto",
+                    precision: str = "default"):
+    """`apply_model` before the no-return decision: BN in inference mode, the output as the network computes it,
+    hr `(B, H*r, W*r)`, or with a no-return head `(B, H*r, W*r, 2)` [depth, no-return logit]; `merge_no_return`
+    of it is `apply_model`'s output. For calibrating the decision (`ModelConfig.no_return_logit`) on logits
+    computed once. windows, conv3d_impl, precision: as for `apply_model`.
+    """
+    _check_inputs(windows, cfg, conv3d_impl, precision, "apply_model_raw")
+    out, _ = _forward(params, state, windows, cfg, train=False, conv3d_impl=conv3d_impl, precision=precision)
+    return out
+
+
 def apply_model_train(params, state, windows, cfg: ModelConfig, *, conv3d_impl: str = "auto",
                       precision: str = "default"):
     """The network as it trains: batch norm normalises with the batch's own statistics.
@@ -459,10 +472,11 @@ def _head(params, state, x, centre, cfg: ModelConfig, *, bn: dict, conv, precisi
 
 def merge_no_return(out, cfg: ModelConfig):
     """The network's depth from its raw output: `out` itself for a model without a no-return head; with one,
-    out[..., 0] where the logit out[..., 1] <= 0 and 1.0 (no return) where it is positive."""
+    out[..., 0] where the logit out[..., 1] <= `cfg.no_return_logit` (0.0 unless calibrated) and 1.0 (no return)
+    where it is above."""
     if not cfg.no_return_head:
         return out
-    return jnp.where(out[..., 1] > 0, NO_RETURN, out[..., 0])
+    return jnp.where(out[..., 1] > cfg.no_return_logit, NO_RETURN, out[..., 0])
 
 
 def _describe(cfg: ModelConfig, lr_shape) -> dict:

@@ -9,6 +9,7 @@ from .data import (
     random_crop,
     regime_batches,
     regime_clips,
+    regime_draws,
     regime_parameters,
     run_keys,
     scene_batches,
@@ -45,11 +46,13 @@ from .baselines import (
 from .loop import RESUME_FILE, RUN_FILES, choose_mesh, fit, replicate, resume_config, seed_folder
 from .presets import FINETUNE_LR_FACTOR, MAX_TR, PHOTON_INPUTS, finetune, regime_validation, sequence_data, train
 from .sensor_file import fit_irf, parse_sensor_file, read_irf_file, read_sensor_file
+from .no_return import (CALIBRATION_SEED, calibrate_no_return, choose_no_return_logit, no_return_outputs,
+                        no_return_set, no_return_table)
 
 __all__ = [
     "AdamState", "adam_init", "adam_update", "lr_schedule", "step_decay",
-    "log_uniform", "random_crop", "regime_batches", "regime_clips", "regime_parameters", "run_keys", "scene_batches",
-    "scene_clips", "sequence_batches", "sequence_clips",
+    "log_uniform", "random_crop", "regime_batches", "regime_clips", "regime_draws", "regime_parameters", "run_keys",
+    "scene_batches", "scene_clips", "sequence_batches", "sequence_clips",
     "validation_set",
     "Recipe", "recipe", "register_recipe",
     "data_mesh", "default_data", "evaluate", "evaluate_sequences", "initial_weights", "make_train_step",
@@ -60,6 +63,8 @@ __all__ = [
     "RESUME_FILE",
     "finetune", "regime_validation", "FINETUNE_LR_FACTOR", "PHOTON_INPUTS",
     "read_sensor_file", "parse_sensor_file", "fit_irf", "read_irf_file",
+    "calibrate_no_return", "choose_no_return_logit", "no_return_outputs", "no_return_set", "no_return_table",
+    "CALIBRATION_SEED",
     # deprecated (jaxsr 0.1): jaxsr.nn.Model, jaxsr.save_model / load_model, jaxsr.super_resolve*, jaxsr.fit
     "BaselineModel", "fit_baseline", "load_baseline", "save_baseline", "super_resolve_baseline",
 ]

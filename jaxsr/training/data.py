@@ -42,6 +42,7 @@ __all__ = [
     "random_crop",
     "regime_batches",
     "regime_clips",
+    "regime_draws",
     "regime_parameters",
     "scene_batches",
     "scene_clips",
@@ -218,7 +219,7 @@ def regime_clips(frames: int, train_cfg: TrainConfig, regime: PhotonRegime = Pho
     r, bins = sensor.scale, sensor.bins
 
     def example(key):
-        k_scene, k_par, k_sky, k_hot, k_dead, k_noise, k_crop = jax.random.split(key, 7)
+        k_scene, k_par, k_sky, k_hot, k_dead, k_noise, k_crop = _regime_example_keys(key)
         depth, intensity = training_clip(k_scene, frames, sensor=sensor, shift_range=train_cfg.motion_range,
                                          motion=regime.motion)
         p = regime_parameters(k_par, regime)
@@ -246,6 +247,22 @@ def regime_clips(frames: int, train_cfg: TrainConfig, regime: PhotonRegime = Pho
     make_batch.description = _regime_description(regime, inputs)
     make_batch.regime = regime.to_dict()
     return make_batch
+
+
+def _regime_example_keys(key):
+    """One regime clip's keys: (scene, parameters, sky, hot, dead, noise, crop)."""
+    return jax.random.split(key, 7)
+
+
+def regime_draws(key, batch_size: int, regime: PhotonRegime = PhotonRegime()) -> dict:
+    """The parameters each clip of a `regime_clips` or `regime_batches` batch of `batch_size` was drawn with:
+    `make_batch(key)`'s clip i has `regime_parameters` entry [i] of `regime_draws(key, batch_size, regime)` (the
+    same keys), a dict of (batch_size,) arrays (mean_signal, snr, ...). For grouping drawn clips by their
+    photon level or SNR (`jaxsr.training.no_return_set`). jit/vmap-able."""
+    def one(k):
+        return regime_parameters(_regime_example_keys(k)[1], regime)
+
+    return jax.vmap(one)(jax.random.split(key, batch_size))
 
 
 def regime_batches(tr: int, train_cfg: TrainConfig, regime: PhotonRegime = PhotonRegime(), *,

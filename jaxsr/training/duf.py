@@ -196,7 +196,8 @@ def initial_weights(k_init, model_cfg: ModelConfig, init) -> tuple[dict, dict]:
     path), which must have `model_cfg`'s architecture (its temporal form may differ: fine-tuning a windowed
     model into the sequence form) or that of a smaller TR (a warm start: `grow_tr` to `model_cfg.tr`, the
     added blocks drawn with `k_init`); a depth-only `init` is widened to `model_cfg`'s photon inputs and
-    no-return head (`with_photon_inputs`)."""
+    no-return head (`with_photon_inputs`). Its no-return decision threshold (`ModelConfig.no_return_logit`, not
+    part of the architecture) may differ too: the run's is `model_cfg`'s."""
     if init is None:
         return init_model(k_init, model_cfg)
     model = init if isinstance(init, Model) else load_model(init)
@@ -206,9 +207,10 @@ def initial_weights(k_init, model_cfg: ModelConfig, init) -> tuple[dict, dict]:
         model = with_photon_inputs(k_init, model, model_cfg.inputs, no_return_head=model_cfg.no_return_head)
     if model.config.tr < model_cfg.tr:
         model = grow_tr(k_init, model, model_cfg.tr)
-    if dataclasses.replace(model.config, temporal=model_cfg.temporal) != model_cfg:
+    if dataclasses.replace(model.config, temporal=model_cfg.temporal,
+                           no_return_logit=model_cfg.no_return_logit) != model_cfg:
         differ = [k for k, v in config_to_dict(model_cfg).items()
-                  if k != "temporal" and getattr(model.config, k) != v]
+                  if k not in ("temporal", "no_return_logit") and getattr(model.config, k) != v]
         raise ValueError("fit: the init model's architecture differs from the model to train: "
                          + ", ".join(f"{k} {getattr(model.config, k)!r} (training {getattr(model_cfg, k)!r})"
                                      for k in differ))

@@ -172,14 +172,16 @@ def regime_validation(tr: int, train_cfg, regime: PhotonRegime, *, batches: int,
 
 def _init_config(init, photons: bool | None) -> ModelConfig:
     """The model a fine-tune trains: the architecture of the weights `init` (read from the file), in the window
-    form, widened to the photon inputs when `photons` (None: as `init` reads)."""
+    form, widened to the photon inputs when `photons` (None: as `init` reads), with the default no-return decision
+    threshold (a calibration of `init`'s weights says nothing about the fine-tuned ones: calibrate those anew)."""
     path = resolve_model_path(init)  # FileNotFoundError naming the model
     meta = read_metadata(path)
     name = meta.get("architecture", meta.get("baseline", "duf"))
     if name != "duf" or "config" not in meta:
         raise ValueError(f"--from {init}: expected a model of the paper's network (tr0..tr4 or a checkpoint of it), "
                          f"got {'a ' + str(name) + ' model' if 'config' in meta else 'a file that holds no model'}")
-    cfg = dataclasses.replace(config_from_dict(ModelConfig, meta["config"]), temporal="window")
+    cfg = dataclasses.replace(config_from_dict(ModelConfig, meta["config"]), temporal="window",
+                              no_return_logit=ModelConfig().no_return_logit)
     if cfg.scale != 4:
         raise ValueError(f"--from {init}: a x{cfg.scale} model; fine-tuning trains x4 models")
     reads_photons = cfg.inputs != ("depth",) or cfg.no_return_head
