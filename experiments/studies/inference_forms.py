@@ -13,9 +13,9 @@ the sequence differently (R copies of the end frame against TR), scored on their
 precision="bfloat16" (bfloat16 operands, float32 sums) against "float32" for the TRs of --bf16-trs.
 
 Speed: frames/s end to end from photon histograms (`super_resolve_histograms`: centre of mass and network) on the
-first frames of Scene 1, best of --rounds rounds interleaved over every configuration after one warm-up call
-each: window form (default batch: one frame per JAX CPU device) and sequence form (chunks of 32 outputs, and of
-128 outputs on 128 frames), float32 and bfloat16. Against the machine's matrix-product ceilings: the GFLOP/s of a
+first frames of Scene 1, --rounds rounds interleaved over every configuration after one warm-up call each:
+window form (default batch: one frame per JAX CPU device) and sequence form (chunks of 32 outputs, and of 128
+outputs on 128 frames), float32 and bfloat16. Against the machine's matrix-product ceilings: the GFLOP/s of a
 2048 x 2048 float32 product and of the same in bfloat16 with float32 accumulation (`preferred_element_type`),
 timed in the same rounds; the network's GFLOP/s from `flops_per_frame` (the sequence form's chunks compute 2R
 frames more than they return, not counted).
@@ -41,6 +41,18 @@ from jaxsr.runtime import compiler_options, cpu_bfloat16_features
 
 PRECISIONS = ("float32", "bfloat16")
 MATMUL = 2048
+
+
+def _commit() -> str:
+    """The git commit the run's code is at, and whether the library or this script differ from it."""
+    import subprocess
+
+    def git(*args):
+        return subprocess.run(["git", *args], capture_output=True, text=True, check=False).stdout.strip()
+
+    head = git("rev-parse", "--short", "HEAD") or "unknown"
+    dirty = git("status", "--porcelain", "--", "jaxsr", "experiments/studies/inference_forms.py")
+    return f"git {head}" + (" with uncommitted changes to jaxsr/ or this script" if dirty else "")
 
 
 def _psnr(sr, gt) -> float:
@@ -90,7 +102,8 @@ def matmul_runners():
 
 
 def speed(trs, bf16_trs, counts, rounds):
-    """{config: best frames/s (or matmul GFLOP/s)}, {config: warm-up s}, {config: (tr, frames, form)}."""
+    """{config: [frames/s (or matmul GFLOP/s) of each round]}, {config: warm-up s}, {config: (tr, frames, form)},
+    [load average after each round]."""
     runners, info = {}, {}
     for tr in trs:
         model = jaxsr.load_model(f"tr{tr}")
@@ -114,7 +127,7 @@ def speed(trs, bf16_trs, counts, rounds):
         fn()
         warm[label] = time.perf_counter() - t0
         print(f"{label}: warm-up {warm[label]:.1f} s", flush=True)
-    best = {}
+    rates, loads = {label: [] for label in runners}, []
     for _ in range(rounds):
         for label, fn in runners.items():
             reps = 5 if info[label][0] is None else 1
@@ -124,9 +137,10 @@ def speed(trs, bf16_trs, counts, rounds):
             dt = (time.perf_counter() - t0) / reps
             tr, n, _ = info[label]
             rate = 2 * MATMUL**3 / dt / 1e9 if tr is None else n / dt
-            best[label] = max(best.get(label, 0.0), rate)
-        print(f"round: {time.strftime('%H:%M:%S')}, load {os.getloadavg()[0]:.1f}", flush=True)
-    return best, warm, info
+            rates[label].append(rate)
+        loads.append(os.getloadavg()[0])
+        print(f"round: {time.strftime('%H:%M:%S')}, load {loads[-1]:.1f}", flush=True)
+    return rates, warm, info, loads
 
 
 def main():
@@ -134,7 +148,7 @@ def main():
     parser.add_argument("--trs", type=int, nargs="+", default=[0, 1, 2, 3, 4])
     parser.add_argument("--bf16-trs", type=int, nargs="+", default=[0, 4], help="TRs also run in bfloat16")
     parser.add_argument("--scored", type=int, default=100, help="frames scored per scene, spread over its 500")
-    parser.add_argument("--rounds", type=int, default=3, help="timed rounds, interleaved over configurations")
+    parser.add_argument("--rounds", type=int, default=6, help="timed rounds, interleaved over configurations")
     parser.add_argument("--skip-accuracy", action="store_true", help="speed only (a quick look)")
     parser.add_argument("--note", default="", help="a sentence on the machine's load, written into the results")
     parser.add_argument("--out", default="experiments/results/inference_forms.md")
@@ -147,11 +161,15 @@ def main():
     if not args.skip_accuracy:
         for tr in args.trs:
             acc[tr] = accuracy(tr, clips, PRECISIONS if tr in args.bf16_trs else ("float32",))
-    best, warm, info = speed(args.trs, args.bf16_trs, clips["scene1_street"].counts, args.rounds)
+    rates, warm, info, loads = speed(args.trs, args.bf16_trs, clips["scene1_street"].counts, args.rounds)
+    best = {label: max(r) for label, r in rates.items()}
+    median = {label: float(np.median(r)) for label, r in rates.items()}
 
     text = header("Inference: the windowed weights in the sequence form, and bfloat16 convolutions", started)
     text = text.rstrip("\n") + "\n"  # the lines below continue the header's list
-    text += (f"- load average at the start (1, 5, 15 min): {', '.join(f'{v:.1f}' for v in load_start)}\n"
+    text += (f"- code: {_commit()}\n"
+             f"- load average at the start (1, 5, 15 min): {', '.join(f'{v:.1f}' for v in load_start)}; after each "
+             f"timed round (1 min): {', '.join(f'{v:.1f}' for v in loads)}\n"
              f"- CPU bfloat16 features (/proc/cpuinfo, `jaxsr.runtime.cpu_bfloat16_features`): "
              f"{', '.join(cpu_bfloat16_features()) or 'none'}; JAX CPU devices: {N_DEVICES}\n")
     if args.note:
@@ -185,7 +203,12 @@ def main():
     peak32 = best["matmul float32"]
     peak16 = best["matmul bfloat16 (float32 sums)"]
     text += (f"Matrix-product ceilings ({MATMUL} x {MATMUL}, best of the rounds): float32 {peak32:.0f} GFLOP/s, "
-             f"bfloat16 with float32 sums {peak16:.0f} GFLOP/s ({peak16 / peak32:.2f}x).\n\n")
+             f"bfloat16 with float32 sums {peak16:.0f} GFLOP/s ({peak16 / peak32:.2f}x); medians "
+             f"{median['matmul float32']:.0f} and {median['matmul bfloat16 (float32 sums)']:.0f}.\n\n"
+             f"frames/s: best and median of the {args.rounds} rounds; bfloat16 / float32: the median over the rounds "
+             "of each round's ratio (both ran within seconds of each other in a round, so its load mostly cancels); "
+             "GFLOP/s "
+             "and the share of the matrix-product ceiling of its precision from the best round.\n\n")
     rows = []
     for label, rate in best.items():
         tr, n, form = info[label]
@@ -195,17 +218,19 @@ def main():
         gflops = rate * flops_per_frame(cfg) / 1e9
         peak = peak16 if label.endswith("bfloat16") else peak32
         pair = label.replace("bfloat16", "float32")
-        ratio = f"{rate / best[pair]:.2f}" if label.endswith("bfloat16") and pair in best else ""
-        rows.append([label, str(n), f"{rate:.1f}", ratio, f"{gflops:.0f}", f"{100 * gflops / peak:.0f} %",
-                     f"{warm[label]:.1f}"])
-    text += markdown_table(["configuration", "frames", "frames/s", "bfloat16 / float32", "network GFLOP/s",
-                            "of its matmul ceiling", "warm-up s"], rows)
+        ratio = ""
+        if label.endswith("bfloat16") and pair in rates:
+            ratio = f"{np.median(np.asarray(rates[label]) / np.asarray(rates[pair])):.2f}"
+        rows.append([label, str(n), f"{rate:.1f}", f"{median[label]:.1f}", ratio, f"{gflops:.0f}",
+                     f"{100 * gflops / peak:.0f} %", f"{warm[label]:.1f}"])
+    text += markdown_table(["configuration", "frames", "frames/s best", "median", "bfloat16 / float32",
+                            "network GFLOP/s", "of its matmul ceiling", "warm-up s"], rows)
     write_atomic(args.out, text)
     json_out = os.path.splitext(args.out)[0] + ".json"
     write_atomic(json_out, json.dumps({
         "accuracy": {str(tr): {f"{f} {p}": v for (f, p), v in a["psnr"].items()} | {"bf16_max_abs": a["bf16_max_abs"]}
                      for tr, a in acc.items()},
-        "speed": best, "warm_up_s": warm}, indent=1) + "\n")
+        "speed_rounds": rates, "round_loads": loads, "warm_up_s": warm}, indent=1) + "\n")
     print(text)
 
 
