@@ -13,7 +13,7 @@ import pytest
 import jaxsr
 from jaxsr import cli
 from jaxsr.config import ModelConfig, SensorConfig
-from jaxsr.inference import prepare_upscale, upscale
+from jaxsr.inference import prepare_upscale, upscale, upscale_memory
 from jaxsr.inference.video import (DEFAULT_FORM, DEFAULT_PRECISION, SEQUENCE_FORM_MIN_FRAMES, SEQUENCE_FORM_TRS,
                                    Stream, in_form, iter_super_resolve, super_resolve, super_resolve_histograms)
 from jaxsr.nn import Model, apply_model_sequence, init_model
@@ -194,6 +194,16 @@ def test_upscale_says_how_the_network_ran(tr3_path, tmp_path, capsys):
     assert "precision bfloat16" in captured.err and "sequence form" not in captured.err
     out = np.load(tmp_path / "out.npy")
     assert np.all(np.isfinite(out)) and np.abs(out - np.clip(window, 0, 1)).max() < BF16_ATOL
+
+
+def test_the_memory_estimate_counts_the_sequence_forms_shared_frames(tr3_path):
+    """A window-form output holds its window's 2 TR + 1 frames of features; a sequence-form chunk of B outputs
+    holds B + 2R frames for all of them, fewer per output once B > 2R / (2 TR)."""
+    lr = _seq(40, seed=8, shape=(8, 8))
+    seq = prepare_upscale(lr, model=tr3_path, units="normalised")
+    win = prepare_upscale(lr, model=tr3_path, units="normalised", form="window")
+    assert seq.model.config.temporal == "sequence" and win.model.config.temporal == "window"
+    assert upscale_memory(seq, batch_size=32, in_memory=False) < upscale_memory(win, batch_size=32, in_memory=False)
 
 
 @pytest.mark.parametrize("option,bad", [("--precision", "half"), ("--form", "windowed")])
