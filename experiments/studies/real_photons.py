@@ -317,7 +317,7 @@ def evaluate(recordings, models: dict, *, levels=LEVELS, max_frames: int = MAX_F
             if tv:
                 outputs["TV"] = tv_output(lr, tv_idx)
             for label, model in models.items():
-                outputs[label] = jaxsr.super_resolve(model, model_input(model, frames))
+                outputs[label] = jaxsr.super_resolve(model, model_input(model, frames), form="model")
             scores = {m: masked_scores(sr, ref, valid) for m, sr in outputs.items()}
             photons_ref = float(frames.counts.sum(-1)[:, covered].mean()) if covered.any() else float("nan")
             out["levels"].append({"level": float(level), "frames": len(lr), "photons_ref": photons_ref,
