@@ -135,6 +135,34 @@ def no_return_rates(sr, gt, threshold: float = NO_RETURN_AT) -> tuple[float, flo
     return float(as_depth_pct), float(dropped_pct)
 
 
+def interior(no_return, margin: int) -> np.ndarray:
+    """(H, W) True for HR pixels farther than `margin` HR pixels from a pixel of the other kind (a no-return
+    pixel from every true return, a return from every no-return pixel): the insides of the regions, away from
+    the edges that an LR pixel's block straddles."""
+    from scipy import ndimage
+
+    no_return = np.asarray(no_return, bool)
+    return np.where(no_return, ndimage.distance_transform_edt(no_return),
+                    ndimage.distance_transform_edt(~no_return)) > margin
+
+
+def lr_pixel_floor(no_return, scale: int) -> np.ndarray:
+    """(H, W) the best decision one LR pixel can make for its whole block, known from the truth: no return where
+    most of its scale x scale HR pixels have none. Its errors are the edges' share that no per-LR-pixel decision
+    avoids; below them only a network that places an edge inside a block."""
+    h, w = np.shape(no_return)
+    blocks = np.asarray(no_return, float).reshape(h // scale, scale, w // scale, scale).mean(axis=(1, 3)) >= 0.5
+    return np.kron(blocks, np.ones((scale, scale))).astype(bool)
+
+
+def _pooled(outputs, keep=None) -> tuple[np.ndarray, np.ndarray]:
+    """[(sr, gt) per scene] -> (sr, gt) of all their pixels (those where `keep`, one mask per scene), flat."""
+    keep = keep or [None] * len(outputs)
+    pick = lambda x, k: np.asarray(x).ravel() if k is None else np.asarray(x)[k]
+    return (np.concatenate([pick(sr, k) for (sr, _), k in zip(outputs, keep)]),
+            np.concatenate([pick(gt, k) for (_, gt), k in zip(outputs, keep)]))
+
+
 def bicubic_output(clip: Clip, scale: int) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(jaxsr.bicubic(clip.lr[clip.scored], scale=scale)), clip.gt[clip.scored]
 
@@ -205,9 +233,16 @@ def evaluate(models: dict, seqs: dict, *, frames: int, photons=PHOTONS, snrs=SNR
             outputs = {"bicubic": [bicubic_output(c, sensor.scale) for c in clips.values()]}
             for label, model in models.items():
                 outputs[label] = [scored_output(model, c) for c in clips.values()]
-            rates = {m: no_return_rates(np.concatenate([sr.ravel() for sr, _ in o]),
-                                        np.concatenate([gt.ravel() for _, gt in o])) for m, o in outputs.items()}
-            results["no_return"].append({"photons": float(p), "snr": NO_RETURN_SNR, "rates": rates})
+            # every frame of a scene shares its mask, so the first frame's truth places the edges
+            inside = [np.broadcast_to(interior(gt[0] >= 1.0, sensor.scale), gt.shape) for _, gt in outputs["bicubic"]]
+            floor = [np.broadcast_to(np.where(lr_pixel_floor(gt[0] >= 1.0, sensor.scale), 1.0, 0.0), gt.shape)
+                     for _, gt in outputs["bicubic"]]
+            outputs["LR-pixel floor"] = [(f, gt) for f, (_, gt) in zip(floor, outputs["bicubic"])]
+            rates = {m: no_return_rates(*_pooled(o)) for m, o in outputs.items()}
+            inner = {m: no_return_rates(*_pooled(o, inside)) for m, o in outputs.items()}
+            results["no_return"].append({"photons": float(p), "snr": NO_RETURN_SNR, "rates": rates,
+                                         "interior": inner, "interior_share": float(np.mean(inside)),
+                                         "margin": sensor.scale})
             log(f"no return, {p:g} photons: " + ", ".join(f"{m} {a:.1f} % as depth, {d:.1f} % dropped"
                                                           for m, (a, d) in rates.items()))
     return results
@@ -327,7 +362,18 @@ def tables(results) -> str:
                                                         for m in nr_methods)] for e in results["no_return"]]
         text.append(f"### No return: % of no-return HR pixels output as depth / % of true returns dropped\n\n"
                     f"Test depth with `no_return_regions` ({100 * NO_RETURN_FRACTION:g} % of the HR pixels, sky weight "
-                    f"{NO_RETURN_SKY:g}), output read as no return at normalised >= {NO_RETURN_AT:g}.\n\n"
+                    f"{NO_RETURN_SKY:g}), output read as no return at normalised >= {NO_RETURN_AT:g}. "
+                    "`LR-pixel floor`: the best decision an LR pixel can make for its whole block, known from the "
+                    "truth (no return where most of its HR pixels have none; `lr_pixel_floor`): the errors at the "
+                    "regions' ragged edges that no per-LR-pixel decision avoids, the same at every photon level.\n\n"
+                    + markdown_table(["photons", "SNR", *nr_methods], rows))
+        share, margin = results["no_return"][0]["interior_share"], results["no_return"][0]["margin"]
+        rows = [[f"{e['photons']:g}", f"{e['snr']:g}", *(f"{e['interior'][m][0]:.2f} / {e['interior'][m][1]:.2f}"
+                                                        for m in nr_methods)] for e in results["no_return"]]
+        text.append("### No return inside the regions: the same, on HR pixels more than one LR pixel "
+                    f"({margin} HR pixels) from an edge\n\n"
+                    f"{100 * share:.0f} % of the HR pixels (`interior`): what the evidence of whole LR pixels "
+                    "decides, where the table above adds the edges.\n\n"
                     + markdown_table(["photons", "SNR", *nr_methods], rows))
     return "\n".join(text)
 
@@ -343,7 +389,10 @@ def raw(results, models_info) -> dict:
             "regimes": [{"photons": r["photons"], "snr": r["snr"] if r["snr"] is not None else PAPER,
                          "scores": scores(r["scores"])} for r in results["regimes"]],
             "no_return": [{"photons": e["photons"], "snr": e["snr"],
-                           "rates": {m: {"as_depth_pct": a, "dropped_pct": d} for m, (a, d) in e["rates"].items()}}
+                           "rates": {m: {"as_depth_pct": a, "dropped_pct": d} for m, (a, d) in e["rates"].items()},
+                           "interior": {m: {"as_depth_pct": a, "dropped_pct": d}
+                                        for m, (a, d) in e["interior"].items()},
+                           "interior_share": e["interior_share"]}
                           for e in results["no_return"]],
             "goals": {m: {k: {kk: vv for kk, vv in v.items() if kk != "cell"} for k, v in g.items()}
                       for m, g in goals(results).items()},
@@ -351,10 +400,20 @@ def raw(results, models_info) -> dict:
                          "no_return_sky": NO_RETURN_SKY, "tv_tr": TV_TR}}
 
 
-def load_models(specs) -> tuple[dict, dict]:
+def load_models(specs, logits=()) -> tuple[dict, dict]:
     """TR0 and TR4 bundled, and each NAME=PATH of --model that exists (PATH a file, a run folder or the name of
-    bundled weights such as tr4-photons; a printed line for one that does not). Returns ({label: Model},
-    {label: source})."""
+    bundled weights such as tr4-photons; a printed line for one that does not), each NAME=LOGIT of
+    --no-return-logit run at that no-return threshold (`jaxsr.nn.with_no_return_logit`). Returns
+    ({label: Model}, {label: source})."""
+    thresholds = {}
+    for spec in logits:
+        name, sep, value = spec.partition("=")
+        try:
+            thresholds[name] = float(value)
+        except ValueError:
+            raise SystemExit(f"--no-return-logit expects NAME=LOGIT, got {spec!r}") from None
+        if not sep or name not in [m.partition("=")[0] for m in specs]:
+            raise SystemExit(f"--no-return-logit {spec!r}: NAME must be one of --model's names")
     models = {"TR0": jaxsr.load_model("tr0"), "TR4": jaxsr.load_model("tr4")}
     info = {"TR0": "bundled tr0", "TR4": "bundled tr4"}
     for spec in specs:
@@ -369,6 +428,9 @@ def load_models(specs) -> tuple[dict, dict]:
             continue
         models[name] = jaxsr.load_model(path)
         info[name] = path
+        if name in thresholds:
+            models[name] = jaxsr.nn.with_no_return_logit(models[name], thresholds[name])
+            info[name] = f"{path} at no-return logit {thresholds[name]:g}"
     return models, info
 
 
@@ -383,12 +445,14 @@ def main(argv=None) -> None:
     parser.add_argument("--tv-frames", type=int, default=2, help="frames per scene TV runs on (default 2)")
     parser.add_argument("--model", action="append", default=[], metavar="NAME=PATH",
                         help="an extra model file to score (skipped with a line when absent); repeatable")
+    parser.add_argument("--no-return-logit", action="append", default=[], metavar="NAME=LOGIT",
+                        help="run --model NAME (one with a no-return head) at this decision threshold; repeatable")
     parser.add_argument("--seed", type=int, default=0, help="noise seed")
     parser.add_argument("--out", default="experiments/results/photon_regimes.md",
                         help="the results file (a .json beside it)")
     args = parser.parse_args(argv)
     started = time.time()
-    models, info = load_models(args.model)
+    models, info = load_models(args.model, args.no_return_logit)
     seqs = jaxsr.scenes.test_sequences(n_frames=SEQUENCE_FRAMES, names=TEST_SCENES)
     results = evaluate(models, seqs, frames=args.frames, photons=args.photons, snrs=args.snr,
                        tv_frames=args.tv_frames if args.tv else 0, seed=args.seed)

@@ -5,6 +5,7 @@ any `--model`), and scored against the depth of all the recording's photons at f
     python experiments/studies/real_photons.py                              # the benchmark (~2 min on 2 cores)
     python experiments/studies/real_photons.py --model TR0-photons=tr0-photons --model TR4-photons=tr4-photons
     python experiments/studies/real_photons.py --levels 2 --frames 3 --tv-frames 1   # a quick look
+    python experiments/studies/real_photons.py --model TR4-photons+2=tr4-photons --no-return-logit TR4-photons+2=2
 
 Data (`--data`, default ../shared/realdata beside the repository; never copied into the project:
 docs/own-sensor.md, "Real recordings", says where each file comes from): tower.mat (160 x 160 pixels, photon
@@ -35,7 +36,9 @@ and comparing the two halves' depths (`reference_noise`).
 Scores per recording, level and method, on the reference's valid pixels and averaged over the frames: PSNR
 (normalised depth, output clipped to [0, 1], peak 1, `jaxsr.psnr` on the valid pixels), MAE (metres for tower,
 bins of the gate for both) with a no-return output counted at its distance, and the share of valid pixels the
-method outputs as no return (normalised >= photon_regimes.NO_RETURN_AT). The goal: TR4 >= bicubic + 3 dB at
+method outputs as no return (normalised >= photon_regimes.NO_RETURN_AT); and the other side of that decision,
+the share of the pixels where all the photons hold no return (`reference_sky`: tower's sky) that the method
+outputs as depth. The goal: TR4 >= bicubic + 3 dB at
 every level (paired over frames; frames are disjoint photon sets, so the interval resamples them one by one).
 
 Writes experiments/results/real_photons.md (or --out), a .json of the raw numbers and a .png (reference | LR |
@@ -70,6 +73,7 @@ LEVELS = (1.0, 2.0, 4.0, 8.0, 16.0)  # photons per LR pixel and frame (mean over
 MAX_FRAMES = 9  # frames per level at most: TR4's window of 2 x 4 + 1
 REF_Z = 3.0  # the reference's peak significance (`centre_of_mass`'s z)
 REF_MIN_PHOTONS = 3  # photons a reference pixel needs at least
+REF_SKY_ALPHA = 1e-3  # false-alarm rate of the all-photon test that finds no return (`reference_sky`)
 GOAL_DB = 3.0  # TR4 - bicubic at every level, at least
 PICTURE_LEVEL = 2.0
 # The results file's commentary is written by hand after a run; a re-run regenerates everything above it.
@@ -233,6 +237,19 @@ def reference_depth(rec: Recording) -> tuple[np.ndarray, np.ndarray]:
     return frames.depth[0], valid[0] & (counts.sum(-1) >= REF_MIN_PHOTONS) & ~competing_return(counts)
 
 
+def reference_sky(rec: Recording) -> np.ndarray:
+    """(H, W) True where all the recording's photons say "no return": the pixel's LR block (the photon video's
+    4 x 4) and its 8 neighbours hold no significant return (`jaxsr.sensor.return_significance` of their
+    all-photon histograms above log REF_SKY_ALPHA: ambient light alone explains them). The neighbours keep
+    mixed blocks at a surface's edge out, where the full-resolution truth is not known."""
+    from scipy import ndimage
+
+    frames, _ = histogram_frames(bin_pixels(rec.tags), rec.gate, rec.scale)
+    significance = np.asarray(jaxsr.sensor.return_significance(frames.counts.sum(0), jaxsr.SensorConfig(bins=BINS)))
+    empty = ndimage.minimum_filter((significance > np.log(REF_SKY_ALPHA)).astype(np.uint8), size=3, mode="nearest")
+    return np.kron(empty, np.ones((FACTOR, FACTOR), np.uint8)).astype(bool)
+
+
 def reference_noise(rec: Recording, valid, *, seed=0) -> dict:
     """The reference's own noise: the photons split into two random halves, each half's depth (centre of mass,
     any peak), compared on the reference's valid pixels where both halves give a return.
@@ -274,14 +291,19 @@ def tv_output(lr, frames) -> np.ndarray:
     return np.stack(out)
 
 
-def masked_scores(sr, ref, valid) -> dict:
+def masked_scores(sr, ref, valid, sky=None) -> dict:
     """Per-frame scores of sr (T, H, W) against the reference on its valid pixels: psnr (dB, `jaxsr.psnr` of
     the valid pixels, output clipped to [0, 1]), mae (normalised; x scale.span for metres, x span / bin width for
-    bins), no_return (share of valid pixels output as no return). Each (T,)."""
-    pred = np.clip(np.asarray(sr, np.float32), 0, 1)[:, valid]  # (T, n)
+    bins), no_return (share of valid pixels output as no return); and, on the reference's no-return pixels
+    (`sky`, `reference_sky`), sky_as_depth (share output as depth; NaN without such pixels). Each (T,)."""
+    out = np.clip(np.asarray(sr, np.float32), 0, 1)
+    pred = out[:, valid]  # (T, n)
     gt = np.broadcast_to(ref[valid], pred.shape)
     psnr = np.asarray(jaxsr.psnr(pred[:, None, :], gt[:, None, :]))
-    return {"psnr": psnr, "mae": np.abs(pred - gt).mean(-1), "no_return": (pred >= NO_RETURN_AT).mean(-1)}
+    sky_as_depth = ((out[:, sky] < NO_RETURN_AT).mean(-1) if sky is not None and sky.any()
+                    else np.full(len(out), np.nan))
+    return {"psnr": psnr, "mae": np.abs(pred - gt).mean(-1), "no_return": (pred >= NO_RETURN_AT).mean(-1),
+            "sky_as_depth": sky_as_depth}
 
 
 def evaluate(recordings, models: dict, *, levels=LEVELS, max_frames: int = MAX_FRAMES, tv_frames: int | None = None,
@@ -294,12 +316,13 @@ def evaluate(recordings, models: dict, *, levels=LEVELS, max_frames: int = MAX_F
     for i, rec in enumerate(recordings):
         started = time.time()
         ref, valid = reference_depth(rec)
+        sky = reference_sky(rec) & ~valid
         noise = reference_noise(rec, valid, seed=seed)
         lr_tags = bin_pixels(rec.tags)
         h, w = lr_tags.shape
         # LR pixels whose block holds a valid reference pixel: where the scores are taken
         covered = valid.reshape(h, FACTOR, w, FACTOR).any(axis=(1, 3))
-        out = {"reference": ref, "valid": valid, "noise": noise, "levels": [], "picture": None,
+        out = {"reference": ref, "valid": valid, "sky": sky, "noise": noise, "levels": [], "picture": None,
                "photons_per_lr_pixel": lr_tags.time.size / (h * w), "lr_shape": (h, w)}
         log(f"{rec.name}: {rec.tags.time.size} photons, {h} x {w} LR, {int(valid.sum())} valid reference pixels "
             f"({valid.mean():.1%}); reference noise: halves {noise['psnr_halves']:.2f} dB")
@@ -318,7 +341,7 @@ def evaluate(recordings, models: dict, *, levels=LEVELS, max_frames: int = MAX_F
                 outputs["TV"] = tv_output(lr, tv_idx)
             for label, model in models.items():
                 outputs[label] = jaxsr.super_resolve(model, model_input(model, frames), form="model")
-            scores = {m: masked_scores(sr, ref, valid) for m, sr in outputs.items()}
+            scores = {m: masked_scores(sr, ref, valid, sky) for m, sr in outputs.items()}
             photons_ref = float(frames.counts.sum(-1)[:, covered].mean()) if covered.any() else float("nan")
             out["levels"].append({"level": float(level), "frames": len(lr), "photons_ref": photons_ref,
                                   "scores": scores, "tv_frames": tv_idx})
@@ -368,7 +391,8 @@ def recording_text(rec: Recording, r) -> str:
     return (f"## {rec.name}\n\n"
             f"{rec.tags.shape[0]} x {rec.tags.shape[1]} pixels, {rec.tags.time.size} photons "
             f"({r['photons_per_lr_pixel']:.1f} per LR pixel of {r['lr_shape'][0]} x {r['lr_shape'][1]}); {gate}. "
-            f"Reference: {n['pixels']} valid pixels ({r['valid'].mean():.1%}).\n\n"
+            f"Reference: {n['pixels']} valid pixels ({r['valid'].mean():.1%}), {int(r['sky'].sum())} without a "
+            f"return ({r['sky'].mean():.1%}).\n\n"
             f"Reference noise: the photons split into two random halves, each half's depth compared on the valid "
             f"pixels where both give a return ({n['both_return']:.1%} of them): PSNR between the halves "
             f"{n['psnr_halves']:.2f} dB, MAE {n['mae_halves'] * k:.3f} {unit}, the same depth in "
@@ -403,6 +427,14 @@ def tables(results, recordings) -> str:
                 for e in r["levels"]]
         text.append(f"### % of the reference's valid pixels output as no return (>= {NO_RETURN_AT:g})\n\n"
                     + markdown_table(["photons", *methods], rows))
+        if r["sky"].any():
+            rows = [[f"{e['level']:g}"] + [f"{100 * e['scores'][m]['sky_as_depth'].mean():.1f}" for m in methods]
+                    for e in r["levels"]]
+            text.append(f"### % of the reference's no-return pixels output as depth (< {NO_RETURN_AT:g})\n\n"
+                        f"{int(r['sky'].sum())} pixels ({r['sky'].mean():.1%}) where all the photons hold no return "
+                        f"(`reference_sky`: the LR block and its 8 neighbours, ambient light alone at a false-alarm "
+                        f"rate of {REF_SKY_ALPHA:g}). The two tables above and this one are the two sides of a "
+                        "model's no-return decision.\n\n" + markdown_table(["photons", *methods], rows))
     return "\n".join(text)
 
 
@@ -459,11 +491,13 @@ def raw(results, info, settings) -> dict:
     def level(e):
         return {"level": e["level"], "frames": e["frames"], "photons_ref": e["photons_ref"],
                 "tv_frames": np.asarray(e["tv_frames"]).tolist(),
-                "scores": {m: {k: np.round(np.asarray(v, float), 5).tolist() for k, v in s.items()}
+                "scores": {m: {k: [None if np.isnan(x) else x for x in np.round(np.asarray(v, float), 5).tolist()]
+                               for k, v in s.items()}
                            for m, s in e["scores"].items()},
                 "goal": {k: v for k, v in (goal(e) or {}).items() if k != "cell"}}
     return {"models": info, "settings": settings,
             "recordings": {name: {"noise": r["noise"], "valid_pixels": int(r["valid"].sum()),
+                                  "no_return_pixels": int(r["sky"].sum()),
                                   "photons_per_lr_pixel": r["photons_per_lr_pixel"],
                                   "levels": [level(e) for e in r["levels"]]} for name, r in results.items()}}
 
@@ -481,6 +515,8 @@ def main(argv=None) -> None:
     parser.add_argument("--no-tv", action="store_true", help="leave TV out")
     parser.add_argument("--model", action="append", default=[], metavar="NAME=PATH",
                         help="an extra model file to score (skipped with a line when absent); repeatable")
+    parser.add_argument("--no-return-logit", action="append", default=[], metavar="NAME=LOGIT",
+                        help="run --model NAME (one with a no-return head) at this decision threshold; repeatable")
     parser.add_argument("--picture-level", type=float, default=PICTURE_LEVEL,
                         help="photons of the pictured frame (default 2)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the photon permutations")
@@ -490,7 +526,7 @@ def main(argv=None) -> None:
     if args.data is None:
         raise SystemExit(f"no recordings: {DEFAULT_DATA} does not exist; give the folder with --data")
     started = time.time()
-    models, info = load_models(args.model)
+    models, info = load_models(args.model, args.no_return_logit)
     recordings = [read_recording(args.data, s) for s in SOURCES]
     results = evaluate(recordings, models, levels=args.levels, max_frames=args.frames, tv_frames=args.tv_frames,
                        tv=not args.no_tv, seed=args.seed, picture_level=args.picture_level)

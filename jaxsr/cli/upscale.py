@@ -24,7 +24,7 @@ from ..inference.video import DEFAULT_FORM, DEFAULT_PRECISION, FORMS, SEQUENCE_F
 from ..io.pointcloud import DEFAULT_FOV_DEG
 from ..io.recordings import DEPTH_UNITS
 from ..checks import MEMORY_SHARE
-from ._args import int_range, memory, positive_float, range_or_time, span, time_unit
+from ._args import finite_float, int_range, memory, positive_float, range_or_time, span, time_unit
 
 
 def add_parser(subparsers):
@@ -83,6 +83,10 @@ def add_parser(subparsers):
                    f"{' and '.join(map(str, SEQUENCE_FORM_TRS))} run in the sequence form, measured as accurate and "
                    f"faster, on {SEQUENCE_FORM_MIN_FRAMES} frames or more; other models in their own form), model (as "
                    "the checkpoint says), window, or sequence")
+    p.add_argument("--no-return-logit", type=finite_float, default=None, metavar="LOGIT",
+                   help="models with a no-return head (tr0-photons, tr4-photons): output no return where the head's "
+                   "logit is above LOGIT (default the model's, 0 = probability 0.5); higher drops fewer true returns "
+                   "and leaves more sky as depth (measured in docs/results/real-photons.md)")
     p.add_argument("--max-memory", type=memory, default=None, metavar="SIZE",
                    help=f"the memory the command may take, such as 16GB (default {MEMORY_SHARE * 100:.0f}%% of this "
                    "machine's RAM): the input's arrays and the work are estimated before they allocate, and refused beyond it")
@@ -120,6 +124,7 @@ def run(args) -> int:
                      points_colour=None if args.points_colour == "none" else args.points_colour,
                      overwrite=args.force, progress=not args.no_progress, clip_negative=args.clip_negative,
                      max_memory=args.max_memory, precision=args.precision, form=args.form,
+                     no_return_logit=args.no_return_logit,
                      report=lambda line: print(f"jaxsr upscale: {line}", file=sys.stderr, flush=True))
     print(json.dumps(result.summary()))
     return 0

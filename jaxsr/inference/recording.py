@@ -50,6 +50,7 @@ from ..io.recordings import (
     to_units,
 )
 from ..io.video import DEFAULT_FPS, DepthVideoWriter, check_video
+from ..nn.duf import with_no_return_logit
 from ..nn.model import Model
 from ..runtime import enable_compilation_cache
 from ..sensor.gates import gate_warnings
@@ -343,7 +344,7 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
                     gate_start=None, span=None, time_unit=None, variable: str | None = None,
                     drop_outside: bool = False, units: str | None = None, min_fps: float | None = None,
                     clip_negative: bool = False, max_memory=None, precision: str = DEFAULT_PRECISION,
-                    form: str = DEFAULT_FORM) -> UpscaleJob:
+                    form: str = DEFAULT_FORM, no_return_logit=None) -> UpscaleJob:
     """Open and check a recording and choose its model, as `jaxsr upscale` does before any output is written.
 
     input: a path (.npy / .npz array of depth (T, h, w) or photon counts (T, h, w, bins); a folder or glob pattern
@@ -359,6 +360,8 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
     """
     fixed, name = _fixed_model(model, min_fps)
     _check_precision_form(fixed, precision, form)
+    if no_return_logit is not None and fixed is not None:  # refused now, before the input is read
+        fixed = with_no_return_logit(fixed, no_return_logit)
     span = _span(span)
     time_unit = _positive(time_unit, "time_unit", parse_time_unit, "seconds")
     rec, gate, source, tag_notes = _open(input, kind, bins=bins, bin_width=bin_width, gate_start=gate_start,
@@ -401,6 +404,8 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
     enable_compilation_cache()
     if fixed is None:
         fixed, name = resolve_model("auto", _head(lr_stream(), HEAD_FRAMES), min_fps=min_fps)
+    if no_return_logit is not None:
+        fixed = with_no_return_logit(fixed, no_return_logit)
     fixed = in_form(fixed, form, "form (--form)", frames=rec.frames)
     precision = check_precision(fixed, precision, "precision (--precision)")
     return UpscaleJob(rec, fixed, name, units, gate, scale, warnings, source, lr_stream, negatives, precision)
@@ -695,7 +700,7 @@ def upscale(input, output, *, model="default", kind: str | None = None, bins: in
             points=None, fov_deg: float = DEFAULT_FOV_DEG, points_colour: str | None = "depth",
             overwrite: bool = False, progress: bool = False, clip_negative: bool = False, max_memory=None,
             report: Callable[[str], None] | None = None, precision: str = DEFAULT_PRECISION,
-            form: str = DEFAULT_FORM) -> UpscaleResult:
+            form: str = DEFAULT_FORM, no_return_logit=None) -> UpscaleResult:
     """Super-resolve a recording x4 with a trained model and write it: `jaxsr upscale INPUT OUTPUT` in one call.
 
     input: a path (.npy / .npz array of depth (T, h, w) or photon counts (T, h, w, bins); a folder or glob
@@ -732,6 +737,10 @@ def upscale(input, output, *, model="default", kind: str | None = None, bins: in
     - form (--form): the temporal form the DUF network runs in (`jaxsr.inference.video.FORMS`): "auto" (default:
       the bundled windowed depth models of `SEQUENCE_FORM_TRS` in the sequence form on recordings of at least
       `SEQUENCE_FORM_MIN_FRAMES` frames, else the model's own), "model", "window" or "sequence".
+    - no_return_logit (--no-return-logit): for a model with a no-return head (tr0-photons, tr4-photons), the
+      logit above which a pixel is output as no return (`jaxsr.nn.with_no_return_logit`; default the model's
+      own, 0.0 = p 0.5): higher drops fewer true returns and leaves more of the sky as depth. Refused for a
+      model without the head.
     - batch_size (--batch-size): frames per compiled call (output frames per chunk in the sequence form);
       min_fps (--min-fps, model="auto" only): the slowest acceptable frames/s; preview (--preview): an input |
       output PNG strip of the middle frame; overwrite (--force): replace output, preview and video; progress
@@ -770,7 +779,7 @@ def upscale(input, output, *, model="default", kind: str | None = None, bins: in
     job = prepare_upscale(input, model=model, kind=kind, bins=bins, bin_width=bin_width, gate_start=gate_start,
                           span=span, time_unit=time_unit, variable=variable, drop_outside=drop_outside,
                           units=units, min_fps=min_fps, clip_negative=clip_negative, max_memory=max_memory,
-                          precision=precision, form=form)
+                          precision=precision, form=form, no_return_logit=no_return_logit)
     # before the lines below, which say the work starts (write_upscaled checks again, for its own callers)
     _frame_format(frame_format, out, job)
     _check_memory(job, out, _batch_size(job, batch_size), video is not None or points is not None, max_memory)

@@ -49,6 +49,7 @@ __all__ = [
     "grow_tr",
     "with_photon_inputs",
     "merge_no_return",
+    "with_no_return_logit",
     "no_return_branch",
 ]
 
@@ -477,6 +478,19 @@ def merge_no_return(out, cfg: ModelConfig):
     if not cfg.no_return_head:
         return out
     return jnp.where(out[..., 1] > cfg.no_return_logit, NO_RETURN, out[..., 0])
+
+
+def with_no_return_logit(model, logit):
+    """The same weights deciding "no return" at another threshold: a copy of `model` (a `Model` whose network
+    has a no-return head) whose output is 1.0 where the head's logit is above `logit`. Raising it drops fewer true
+    returns and leaves more pixels without one as depth (0.0: p = 0.5; +2.0: p = 0.88); the trade is measured
+    in experiments/results/photon_regimes.md and real_photons.md. Raises ValueError for a model without the
+    head or a logit that is not a finite number."""
+    cfg = getattr(model, "config", None)
+    if not getattr(cfg, "no_return_head", False):
+        raise ValueError("no_return_logit applies to models with a no-return head (such as tr0-photons and "
+                         f"tr4-photons); this one has none ({type(cfg).__name__})")
+    return dataclasses.replace(model, config=dataclasses.replace(cfg, no_return_logit=logit))
 
 
 def _describe(cfg: ModelConfig, lr_shape) -> dict:

@@ -31,6 +31,7 @@ from .peaks import (
     default_window,
     centre_of_mass,
     peak_evidence,
+    return_significance,
     maximum_likelihood_depth,
 )
 from .effects import (
@@ -82,6 +83,7 @@ __all__ = [
     "default_window",
     "centre_of_mass",
     "peak_evidence",
+    "return_significance",
     "maximum_likelihood_depth",
     "dark_counts",
     "hot_pixels",

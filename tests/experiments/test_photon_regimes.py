@@ -42,9 +42,11 @@ def test_regimes_methods_and_finite_scores(results):
                 scores = r["scores"][m][metric]
                 assert scores.shape == (1, 2) and np.all(np.isfinite(scores))
     assert [e["photons"] for e in results["no_return"]] == [3.0]
-    rates = results["no_return"][0]["rates"]
-    assert set(rates) == {"bicubic", "TR4"}
-    assert all(0 <= v <= 100 for pair in rates.values() for v in pair)
+    entry = results["no_return"][0]
+    for rates in (entry["rates"], entry["interior"]):
+        assert set(rates) == {"bicubic", "TR4", "LR-pixel floor"}
+        assert all(0 <= v <= 100 for pair in rates.values() for v in pair)
+    assert 0 < entry["interior_share"] < 1
 
 
 def test_tables_and_json(results):
@@ -52,7 +54,7 @@ def test_tables_and_json(results):
     psnr_table = text.split("### Mean PSNR")[1].split("###")[0]
     rows = [line for line in psnr_table.splitlines() if line.startswith("| ") and "photons" not in line]
     assert [row.split("|")[1:3] for row in rows] == [[" 3 ", " 1.3 "], [" 14 ", " own "]]
-    assert "| 3 | 1.3 |" in text.split("### No return")[1]
+    assert "| 3 | 1.3 |" in text.split("### No return")[1] and "| 3 | 1.3 |" in text.split("inside the regions")[1]
     assert "nan" not in text.lower()
     goals = photon_regimes.goals(results)["TR4"]
     assert goals["today"]["value"] == pytest.approx(0.0)  # TR4 against itself
@@ -93,3 +95,20 @@ def test_frames_far_apart_are_resampled_one_by_one():
     assert float(iv.mean) == pytest.approx(3.0) and float(iv.low) < 3.0 < float(iv.high)
     near = photon_regimes.frame_interval(a, b, spacing=1.0)  # consecutive frames: one block of all 4
     assert float(near.low) == pytest.approx(3.0) == pytest.approx(float(near.high))
+
+
+def test_interior_and_the_lr_pixel_floor():
+    """interior: farther than the margin from the other kind, on both sides of an edge; the floor: each 4 x 4
+    block decided by its majority of no-return pixels (a tie is no return)."""
+    big = np.zeros((32, 32), bool)
+    big[4:28, 4:28] = True
+    inside = photon_regimes.interior(big, 4)
+    assert inside[16, 16] and inside[8, 16] and not inside[7, 16]  # 5 and 4 pixels from row 3
+    assert not inside[0, 16] and inside[0, 0]  # 4 from row 4; sqrt(32) from (4, 4)
+    sky = np.zeros((16, 16), bool)
+    sky[2:10, 4:14] = True
+    floor = photon_regimes.lr_pixel_floor(sky, 4)
+    blocks = floor[::4, ::4]
+    assert np.all(floor == np.kron(blocks, np.ones((4, 4), bool)))
+    assert blocks[0, 1] and blocks[1, 1] and blocks[2, 1] and blocks[1, 3]  # half or more of the block
+    assert not blocks[0, 0] and not blocks[0, 3] and not blocks[2, 3] and not blocks[3, 1]  # a quarter or none

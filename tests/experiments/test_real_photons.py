@@ -101,6 +101,10 @@ def test_core_on_crops_of_the_real_recordings(tmp_path):
         for s in entry["scores"].values():
             assert s["psnr"].shape == (2,) and np.all(np.isfinite(s["psnr"]))
             assert np.all((s["no_return"] >= 0) & (s["no_return"] <= 1))
+            sky = s["sky_as_depth"]
+            assert sky.shape == (2,) and (np.all(np.isnan(sky)) if not r["sky"].any() else
+                                          np.all((sky >= 0) & (sky <= 1)))
+        assert not (r["sky"] & r["valid"]).any()
         assert real_photons.goal(entry) is not None
     text = real_photons.tables(results, recordings)
     assert "## tower" in text and "## two_layer" in text
@@ -108,7 +112,8 @@ def test_core_on_crops_of_the_real_recordings(tmp_path):
     assert "TR4 - bicubic" in goals
     real_photons.picture(results, recordings, tmp_path / "p.png")
     assert (tmp_path / "p.png").stat().st_size > 0
-    json.dumps(real_photons.raw(results, {"TR4": "bundled tr0"}, {}))
+    json.dumps(real_photons.raw(results, {"TR4": "bundled tr0"}, {}), allow_nan=False)
+    assert results["tower"]["sky"].any()  # the crop holds sky: the other side of the decision is measured
 
 
 def test_a_photon_model_reads_the_depth_and_the_photons_behind_it():

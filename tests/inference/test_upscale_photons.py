@@ -9,7 +9,7 @@ import pytest
 from jaxsr.config import ModelConfig, SensorConfig
 from jaxsr.inference import DEFAULT_MODELS, prepare_upscale, super_resolve_histograms, upscale
 from jaxsr.io.checkpoint import save_model
-from jaxsr.nn import Model, init_model
+from jaxsr.nn import Model, init_model, with_no_return_logit
 
 SENSOR = SensorConfig()
 TINY = dict(base=8, growth=4, head=16, filter_hidden=16)
@@ -48,3 +48,31 @@ def test_default_fits_the_input(counts):
     assert prepare_upscale(np.full((2, 8, 12), 0.5, np.float32)).model_name == DEFAULT_MODELS["depth"]
     with pytest.raises(TypeError, match="default"):
         prepare_upscale(counts, model=3)
+
+
+def test_no_return_logit_moves_the_decision_and_is_refused_without_a_head(photon_model, counts):
+    """--no-return-logit: a threshold above every logit marks nothing, below every logit everything; the
+    library's `with_no_return_logit` gives the same output; a depth-only model refuses it before reading."""
+    model, path = photon_model
+    never = upscale(counts, None, model=path, units="normalised", no_return_logit=1e6).depth
+    always = upscale(counts, None, model=path, units="normalised", no_return_logit=-1e6).depth
+    assert not (never >= 1.0).any() and (always >= 1.0).all()
+    want = super_resolve_histograms(with_no_return_logit(model, 1e6), counts)
+    np.testing.assert_allclose(never, np.clip(want, 0, 1), atol=1e-6)
+    with pytest.raises(ValueError, match="no-return head"):
+        prepare_upscale(counts, model="tr0", no_return_logit=1.0)
+    with pytest.raises(ValueError, match="finite number"):
+        with_no_return_logit(model, float("nan"))
+
+
+def test_cli_no_return_logit(photon_model, counts, tmp_path, capsys):
+    from jaxsr.cli import main
+    src = tmp_path / "counts.npy"
+    np.save(src, counts)
+    out = tmp_path / "out.npy"
+    assert main(["upscale", str(src), str(out), "--model", str(photon_model[1]), "--no-return-logit", "1e6",
+                 "--units", "normalised", "--no-progress"]) == 0
+    assert not (np.load(out) >= 1.0).any()
+    with pytest.raises(SystemExit) as e:
+        main(["upscale", str(src), str(tmp_path / "b.npy"), "--no-return-logit", "inf"])
+    assert e.value.code == 2 and "finite number" in capsys.readouterr().err

@@ -237,3 +237,77 @@ def test_a_window_that_is_not_a_half_width_is_refused(window):
     counts = np.ones((2, 16), np.float32)
     with pytest.raises(ValueError, match="half-width in bins"):
         jaxsr.centre_of_mass(counts, window=window)
+
+
+# ------------------------------------------------------------------------------------------ return_significance
+
+def reference_log_pvalue(n, width=3):
+    """The scan statistic's Bonferroni p-value, one histogram at a time, from scipy's binomial tail."""
+    from scipy.stats import binom
+    out = []
+    for h in np.asarray(n, np.float64):
+        total = h.sum()
+        scan = max(h[i:i + width].sum() for i in range(K - width + 1))
+        tail = binom.sf(scan - 1, total, width / K) if scan >= 1 else 1.0
+        out.append(np.log(max(min((K - width + 1) * tail, 1.0), np.finfo(np.float32).tiny)))
+    return np.array(out)
+
+
+def test_return_significance_matches_the_binomial_scan_bound():
+    rng = np.random.default_rng(3)
+    counts = rng.poisson(irf_histogram(rng.uniform(1, K - 1, 40), signal=rng.uniform(0, 8, 40)[:, None],
+                                       background=rng.uniform(0.5, 30, 40)[:, None])).astype(np.float32)
+    np.testing.assert_allclose(np.asarray(jaxsr.sensor.return_significance(counts, CFG)),
+                               reference_log_pvalue(counts), rtol=1e-3, atol=1e-4)
+
+
+@pytest.mark.parametrize("per_bin", [0.15, 2.0, 50.0])
+def test_ambient_light_alone_is_a_return_at_most_at_the_false_alarm_rate(per_bin):
+    """Valid at every ambient level without knowing it: ambient-only histograms reach log p <= log a in at most
+    a share a of pixels (plus three binomial standard errors of the draw)."""
+    counts = jax.random.poisson(jax.random.key(0), per_bin, (100_000, K)).astype(jnp.float32)
+    lp = np.asarray(jaxsr.sensor.return_significance(counts, CFG))
+    for a in (0.1, 0.01, 0.001):
+        assert (lp <= np.log(a)).mean() <= a + 3 * np.sqrt(a / lp.size)
+
+
+def test_a_weak_return_summed_over_frames_is_found():
+    """3 signal photons per frame against 2 ambient ones: one frame finds few returns at a = 0.001, nine frames
+    summed find nearly all, and ambient alone summed over nine frames stays at the false-alarm rate."""
+    rng = np.random.default_rng(1)
+    tau = rng.uniform(1, K - 1, 4000)
+    rates = irf_histogram(tau, signal=3.0, background=2.0)
+    frames = rng.poisson(np.repeat(rates[None], 9, 0)).astype(np.float32)
+    f = lambda c: np.asarray(jaxsr.sensor.return_significance(c, CFG)) <= np.log(1e-3)
+    assert f(frames[0]).mean() < 0.3
+    assert f(frames.sum(0)).mean() > 0.95
+    ambient = rng.poisson(2.0 / K, (9, 4000, K)).astype(np.float32)
+    assert f(ambient.sum(0)).mean() < 0.003
+
+
+@pytest.mark.parametrize("jit", [False, True])
+def test_return_significance_at_the_extremes(jit):
+    """No photons, one photon, a flat histogram and 1e37 photons are finite, in [log tiny, 0]; no evidence
+    without photons; an overwhelming peak at the floor; no gradient (a decision statistic)."""
+    f = lambda c: jaxsr.sensor.return_significance(c, CFG)
+    f = jax.jit(f) if jit else f
+    peak = np.zeros(K, np.float32)
+    peak[5] = 1e37
+    counts = np.stack([np.zeros(K), np.eye(K)[3], np.full(K, 1e6), peak]).astype(np.float32)
+    lp = np.asarray(f(counts))
+    assert np.all(np.isfinite(lp)) and np.all(lp <= 0) and np.all(lp >= np.log(np.finfo(np.float32).tiny) - 1e-3)
+    assert lp[0] == 0.0 and lp[1] == 0.0 and lp[2] > -1.0 and lp[3] < -80
+    grad = jax.grad(lambda c: f(c).sum())(counts)
+    assert np.all(np.asarray(grad) == 0.0)
+
+
+def test_return_significance_refuses_bad_counts_eagerly_and_is_no_evidence_traced():
+    counts = np.ones((3, K), np.float32)
+    counts[1, 2] = np.nan
+    with pytest.raises(ValueError, match=r"finite and >= 0"):
+        jaxsr.sensor.return_significance(counts, CFG)
+    counts[2, 4] = 40.0
+    lp = np.asarray(jax.jit(lambda c: jaxsr.sensor.return_significance(c, CFG))(counts))
+    assert lp[1] == 0.0 and lp[2] < np.log(1e-3)
+    with pytest.raises(ValueError, match="half-width in bins"):
+        jaxsr.sensor.return_significance(np.ones((2, K), np.float32), window=1.5)
