@@ -26,12 +26,16 @@ def int_range(lo: int, hi: int | None = None, why: str = ""):
     return parse
 
 
-def positive_float(text: str) -> float:
-    """An argparse type: a finite number > 0 (not nan, inf, 0 or negative)."""
+def _number(text: str) -> float:
     try:
-        value = float(text)
+        return float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+
+
+def positive_float(text: str) -> float:
+    """An argparse type: a finite number > 0 (not nan, inf, 0 or negative)."""
+    value = _number(text)
     if not (math.isfinite(value) and value > 0):
         raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
     return value
@@ -39,10 +43,7 @@ def positive_float(text: str) -> float:
 
 def finite_float(text: str) -> float:
     """An argparse type: a finite number (not nan or inf)."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    value = _number(text)
     if not math.isfinite(value):
         raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
     return value
