@@ -67,9 +67,13 @@ def main(argv=None) -> None:
                         help="read signal and background photons too and mark no return (default: depth only)")
     parser.add_argument("--paper-share", type=float, default=0.0,
                         help="share of clips from the paper's regime (PhotonRegime.paper_prob)")
-    parser.add_argument("--snr-max", type=float, default=PhotonRegime().snr_range[1],
-                        help="the highest frame SNR drawn (PhotonRegime.snr_range; default %(default)g): raise it for "
-                        "sensors with little ambient light, such as indoors or at night (real recordings reach 100)")
+    parser.add_argument("--signal-range", type=float, nargs=2, default=PhotonRegime().signal_range,
+                        metavar=("LO", "HI"), help="signal photons per LR pixel drawn (PhotonRegime.signal_range)")
+    parser.add_argument("--snr-range", type=float, nargs=2, default=PhotonRegime().snr_range, metavar=("LO", "HI"),
+                        help="frame SNR drawn (PhotonRegime.snr_range); a higher HI for sensors with little ambient "
+                        "light, such as indoors or at night (real recordings reach 100)")
+    parser.add_argument("--no-return-prob", type=float, default=PhotonRegime().no_return_prob,
+                        help="share of clips with added no-return regions (PhotonRegime.no_return_prob)")
     parser.add_argument("--checkpoint-minutes", type=float, default=5.0)
     parser.add_argument("--keep", action="store_true", help="copy the run's best weights to experiments/photon_weights")
     args = parser.parse_args(argv)
@@ -82,13 +86,15 @@ def main(argv=None) -> None:
         path = jaxsr.save_model(KEPT / f"{name}.npz", model, card=card, storage_dtype="float16")
         print(f"kept {path} ({card['steps']} steps, validation PSNR {card['validation']['psnr']:.2f} dB)")
         return
-    wide = PhotonRegime(snr_range=(PhotonRegime().snr_range[0], args.snr_max))
-    sensor, regime = jaxsr.SensorConfig(), dataclasses.replace(wide, paper_prob=args.paper_share)
+    sensor = jaxsr.SensorConfig()
+    regime = PhotonRegime(signal_range=tuple(args.signal_range), snr_range=tuple(args.snr_range),
+                          no_return_prob=args.no_return_prob, paper_prob=args.paper_share)
     model_cfg = jaxsr.ModelConfig(tr=args.tr, **(PHOTON_INPUTS if args.photons else {}))
     train_cfg = train_config(args.epochs, args.steps_per_epoch, args.lr, args.seed, batch_size=args.batch_size,
                              decay_epochs=args.decay_epochs, precision=args.precision)
-    # validation on the wide regime alone (paper_prob 0): the model is chosen for the regime it is for
-    validation = regime_validation(args.tr, train_cfg, wide, batches=args.val_batches, sensor=sensor,
+    # validation on the whole wide regime (PhotonRegime(), paper_prob 0) whatever the draws above: a run that
+    # trains on part of it (--signal-range, --snr-range) is still chosen for the regime the photon models serve
+    validation = regime_validation(args.tr, train_cfg, PhotonRegime(), batches=args.val_batches, sensor=sensor,
                                    inputs=model_cfg.inputs)
     jaxsr.fit(model_cfg, train_cfg, out=out, make_batch=regime_batches(
         args.tr, train_cfg, regime, sensor=sensor, inputs=model_cfg.inputs), validation=validation, sensor=sensor,

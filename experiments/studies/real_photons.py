@@ -74,6 +74,7 @@ MAX_FRAMES = 9  # frames per level at most: TR4's window of 2 x 4 + 1
 REF_Z = 3.0  # the reference's peak significance (`centre_of_mass`'s z)
 REF_MIN_PHOTONS = 3  # photons a reference pixel needs at least
 REF_SKY_ALPHA = 1e-3  # false-alarm rate of the all-photon test that finds no return (`reference_sky`)
+REF_SKY_SHARE = 0.1  # ... and the most photons a no-return block may hold, as a share of a typical return's
 GOAL_DB = 3.0  # TR4 - bicubic at every level, at least
 PICTURE_LEVEL = 2.0
 # The results file's commentary is written by hand after a run; a re-run regenerates everything above it.
@@ -237,17 +238,38 @@ def reference_depth(rec: Recording) -> tuple[np.ndarray, np.ndarray]:
     return frames.depth[0], valid[0] & (counts.sum(-1) >= REF_MIN_PHOTONS) & ~competing_return(counts)
 
 
+def lr_all_photons(rec: Recording) -> tuple[np.ndarray, np.ndarray]:
+    """(counts (h, w, K), log p (h, w)): each LR block's histogram of all the recording's photons and its
+    `jaxsr.sensor.return_significance`."""
+    frames, _ = histogram_frames(bin_pixels(rec.tags), rec.gate, rec.scale)
+    counts = np.asarray(frames.counts, np.float32).sum(0)
+    return counts, np.asarray(jaxsr.sensor.return_significance(counts, jaxsr.SensorConfig(bins=BINS)))
+
+
 def reference_sky(rec: Recording) -> np.ndarray:
-    """(H, W) True where all the recording's photons say "no return": the pixel's LR block (the photon video's
-    4 x 4) and its 8 neighbours hold no significant return (`jaxsr.sensor.return_significance` of their
-    all-photon histograms above log REF_SKY_ALPHA: ambient light alone explains them). The neighbours keep
-    mixed blocks at a surface's edge out, where the full-resolution truth is not known."""
+    """(H, W) True where all the recording's photons show no return: the pixel's LR block (the photon video's
+    4 x 4) and its 8 neighbours hold no significant return (log p above log REF_SKY_ALPHA: ambient light alone
+    explains them) and at most REF_SKY_SHARE of the photons of the median block that holds one, so that a return
+    a tenth as bright as the scene's typical one would have been seen. A surface darker than that counts as sky
+    too: the photons cannot tell them apart. The neighbours keep mixed blocks at a surface's edge out."""
     from scipy import ndimage
 
-    frames, _ = histogram_frames(bin_pixels(rec.tags), rec.gate, rec.scale)
-    significance = np.asarray(jaxsr.sensor.return_significance(frames.counts.sum(0), jaxsr.SensorConfig(bins=BINS)))
-    empty = ndimage.minimum_filter((significance > np.log(REF_SKY_ALPHA)).astype(np.uint8), size=3, mode="nearest")
+    counts, log_p = lr_all_photons(rec)
+    photons, found = counts.sum(-1), log_p <= np.log(REF_SKY_ALPHA)
+    typical = float(np.median(photons[found])) if found.any() else np.inf
+    empty = ~found & (photons <= REF_SKY_SHARE * typical)
+    empty = ndimage.minimum_filter(empty.astype(np.uint8), size=3, mode="nearest")
     return np.kron(empty, np.ones((FACTOR, FACTOR), np.uint8)).astype(bool)
+
+
+def recording_snr(rec: Recording) -> float:
+    """The recording's frame SNR as `jaxsr.sensor.calibrate` defines it, signal / ambient photons over the LR
+    blocks with a significant return: ambient = each block's median bin x K, signal = the rest."""
+    counts, log_p = lr_all_photons(rec)
+    found = log_p <= np.log(REF_SKY_ALPHA)
+    ambient = np.median(counts, axis=-1) * counts.shape[-1]
+    signal = counts.sum(-1) - ambient
+    return float(signal[found].mean() / max(ambient[found].mean(), 1e-9)) if found.any() else float("nan")
 
 
 def reference_noise(rec: Recording, valid, *, seed=0) -> dict:
@@ -322,7 +344,7 @@ def evaluate(recordings, models: dict, *, levels=LEVELS, max_frames: int = MAX_F
         h, w = lr_tags.shape
         # LR pixels whose block holds a valid reference pixel: where the scores are taken
         covered = valid.reshape(h, FACTOR, w, FACTOR).any(axis=(1, 3))
-        out = {"reference": ref, "valid": valid, "sky": sky, "noise": noise, "levels": [], "picture": None,
+        out = {"reference": ref, "valid": valid, "sky": sky, "snr": recording_snr(rec), "noise": noise, "levels": [], "picture": None,
                "photons_per_lr_pixel": lr_tags.time.size / (h * w), "lr_shape": (h, w)}
         log(f"{rec.name}: {rec.tags.time.size} photons, {h} x {w} LR, {int(valid.sum())} valid reference pixels "
             f"({valid.mean():.1%}); reference noise: halves {noise['psnr_halves']:.2f} dB")
@@ -392,7 +414,8 @@ def recording_text(rec: Recording, r) -> str:
             f"{rec.tags.shape[0]} x {rec.tags.shape[1]} pixels, {rec.tags.time.size} photons "
             f"({r['photons_per_lr_pixel']:.1f} per LR pixel of {r['lr_shape'][0]} x {r['lr_shape'][1]}); {gate}. "
             f"Reference: {n['pixels']} valid pixels ({r['valid'].mean():.1%}), {int(r['sky'].sum())} without a "
-            f"return ({r['sky'].mean():.1%}).\n\n"
+            f"return ({r['sky'].mean():.1%}). Frame SNR of all the photons (`recording_snr`: signal / ambient "
+            f"photons over the LR blocks with a return): {r['snr']:.0f}.\n\n"
             f"Reference noise: the photons split into two random halves, each half's depth compared on the valid "
             f"pixels where both give a return ({n['both_return']:.1%} of them): PSNR between the halves "
             f"{n['psnr_halves']:.2f} dB, MAE {n['mae_halves'] * k:.3f} {unit}, the same depth in "
@@ -431,10 +454,12 @@ def tables(results, recordings) -> str:
             rows = [[f"{e['level']:g}"] + [f"{100 * e['scores'][m]['sky_as_depth'].mean():.1f}" for m in methods]
                     for e in r["levels"]]
             text.append(f"### % of the reference's no-return pixels output as depth (< {NO_RETURN_AT:g})\n\n"
-                        f"{int(r['sky'].sum())} pixels ({r['sky'].mean():.1%}) where all the photons hold no return "
-                        f"(`reference_sky`: the LR block and its 8 neighbours, ambient light alone at a false-alarm "
-                        f"rate of {REF_SKY_ALPHA:g}). The two tables above and this one are the two sides of a "
-                        "model's no-return decision.\n\n" + markdown_table(["photons", *methods], rows))
+                        f"{int(r['sky'].sum())} pixels ({r['sky'].mean():.1%}) where all the photons show no return "
+                        f"(`reference_sky`: the LR block and its 8 neighbours hold no significant return at a "
+                        f"false-alarm rate of {REF_SKY_ALPHA:g} and at most {REF_SKY_SHARE:g} of a typical return's "
+                        "photons; a surface darker than that would count as sky too). The two tables above and this "
+                        "one are the two sides of a model's no-return decision.\n\n"
+                        + markdown_table(["photons", *methods], rows))
     return "\n".join(text)
 
 
@@ -497,7 +522,7 @@ def raw(results, info, settings) -> dict:
                 "goal": {k: v for k, v in (goal(e) or {}).items() if k != "cell"}}
     return {"models": info, "settings": settings,
             "recordings": {name: {"noise": r["noise"], "valid_pixels": int(r["valid"].sum()),
-                                  "no_return_pixels": int(r["sky"].sum()),
+                                  "no_return_pixels": int(r["sky"].sum()), "snr": r["snr"],
                                   "photons_per_lr_pixel": r["photons_per_lr_pixel"],
                                   "levels": [level(e) for e in r["levels"]]} for name, r in results.items()}}
 
@@ -561,7 +586,8 @@ def main(argv=None) -> None:
             + hand_written_tail(out, HAND_WRITTEN))
     settings = {"levels": args.levels, "max_frames": args.frames, "tv_frames": args.tv_frames, "tv": not args.no_tv,
                 "seed": args.seed, "bins": BINS, "factor": FACTOR, "ref_z": REF_Z, "ref_min_photons": REF_MIN_PHOTONS,
-                "no_return_at": NO_RETURN_AT, "goal_db": GOAL_DB}
+                "ref_sky_alpha": REF_SKY_ALPHA, "ref_sky_share": REF_SKY_SHARE, "no_return_at": NO_RETURN_AT,
+                "goal_db": GOAL_DB}
     write_atomic(out, text)
     write_atomic(out.with_suffix(".json"), json.dumps(raw(results, info, settings), indent=1) + "\n")
     print(goals)

@@ -86,7 +86,7 @@ def add_parser(subparsers):
     p.add_argument("--no-return-logit", type=finite_float, default=None, metavar="LOGIT",
                    help="models with a no-return head (tr0-photons, tr4-photons): output no return where the head's "
                    "logit is above LOGIT (default the model's, 0 = probability 0.5); higher drops fewer true returns "
-                   "and leaves more sky as depth (measured in docs/results/real-photons.md)")
+                   "and leaves more sky as depth (docs/network.md, photon inputs and no return)")
     p.add_argument("--max-memory", type=memory, default=None, metavar="SIZE",
                    help=f"the memory the command may take, such as 16GB (default {MEMORY_SHARE * 100:.0f}%% of this "
                    "machine's RAM): the input's arrays and the work are estimated before they allocate, and refused beyond it")

@@ -29,7 +29,7 @@ from tqdm.auto import tqdm
 
 from ..checks import memory_budget, one_positive_number, require_memory
 from ..config import PRECISIONS, DepthScale, Gate, SensorConfig
-from ..io.checkpoint import load_model, resolve_model_path
+from ..io.checkpoint import load_model, read_metadata, resolve_model_path
 from ..io.files import atomic_folder, atomic_path, reserve_space
 from ..io.formats import PNG_MAX_M, write_depth, write_sequence
 from ..io.pointcloud import DEFAULT_FOV_DEG, PointCloudWriter, check_points_folder
@@ -360,8 +360,7 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
     """
     fixed, name = _fixed_model(model, min_fps)
     _check_precision_form(fixed, precision, form)
-    if no_return_logit is not None and fixed is not None:  # refused now, before the input is read
-        fixed = with_no_return_logit(fixed, no_return_logit)
+    _check_no_return_logit(fixed, name, no_return_logit)
     span = _span(span)
     time_unit = _positive(time_unit, "time_unit", parse_time_unit, "seconds")
     rec, gate, source, tag_notes = _open(input, kind, bins=bins, bin_width=bin_width, gate_start=gate_start,
@@ -406,9 +405,24 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
         fixed, name = resolve_model("auto", _head(lr_stream(), HEAD_FRAMES), min_fps=min_fps)
     if no_return_logit is not None:
         fixed = with_no_return_logit(fixed, no_return_logit)
+        name = f"{name} at no-return logit {float(no_return_logit):g}"
     fixed = in_form(fixed, form, "form (--form)", frames=rec.frames)
     precision = check_precision(fixed, precision, "precision (--precision)")
     return UpscaleJob(rec, fixed, name, units, gate, scale, warnings, source, lr_stream, negatives, precision)
+
+
+def _check_no_return_logit(model, name: str, logit) -> None:
+    """Refuse a no-return threshold before the input is read: for a model without a no-return head, and for
+    "auto" and "default" while none of the models they pick has one."""
+    if logit is None:
+        return
+    if model is not None:
+        with_no_return_logit(model, logit)  # raises for a model without the head, or a logit not finite
+        return
+    picks = [f"tr{k}" for k in range(5)] if name == "auto" else sorted(set(DEFAULT_MODELS.values()))
+    if not any(read_metadata(resolve_model_path(p))["config"].get("no_return_head", False) for p in picks):
+        raise ValueError(f"no_return_logit (--no-return-logit) applies to models with a no-return head; --model {name} "
+                         f"picks {' or '.join(picks)}, which have none: name one that has, such as tr4-photons")
 
 
 def _check_precision_form(model, precision, form) -> None:

@@ -44,7 +44,7 @@ def test_regimes_methods_and_finite_scores(results):
     assert [e["photons"] for e in results["no_return"]] == [3.0]
     entry = results["no_return"][0]
     for rates in (entry["rates"], entry["interior"]):
-        assert set(rates) == {"bicubic", "TR4", "LR-pixel floor"}
+        assert set(rates) == {"bicubic", "TR4", photon_regimes.MAJORITY}
         assert all(0 <= v <= 100 for pair in rates.values() for v in pair)
     assert 0 < entry["interior_share"] < 1
 
@@ -97,18 +97,21 @@ def test_frames_far_apart_are_resampled_one_by_one():
     assert float(near.low) == pytest.approx(3.0) == pytest.approx(float(near.high))
 
 
-def test_interior_and_the_lr_pixel_floor():
-    """interior: farther than the margin from the other kind, on both sides of an edge; the floor: each 4 x 4
-    block decided by its majority of no-return pixels (a tie is no return)."""
+def test_interior_and_the_block_majority():
+    """interior: the pixel's 4 x 4 block and its 8 neighbours of one kind (either kind, so the insides of both);
+    block_majority: each block decided by at least half of its pixels (a tie is no return)."""
     big = np.zeros((32, 32), bool)
-    big[4:28, 4:28] = True
+    big[4:28, 4:28] = True  # blocks 1-6 of 0-7 are all sky, blocks 0 and 7 all returns
     inside = photon_regimes.interior(big, 4)
-    assert inside[16, 16] and inside[8, 16] and not inside[7, 16]  # 5 and 4 pixels from row 3
-    assert not inside[0, 16] and inside[0, 0]  # 4 from row 4; sqrt(32) from (4, 4)
+    blocks = inside[::4, ::4]
+    assert np.all(inside == np.kron(blocks, np.ones((4, 4), bool)))
+    assert blocks[2:6, 2:6].all() and not blocks[1, 1:7].any() and not blocks[1:7, 1].any()  # sky: 2-5 inside
+    assert not blocks[0, :].any()  # a return block beside sky blocks is on the edge
+    assert photon_regimes.interior(np.zeros((16, 16), bool), 4).all()  # one kind everywhere: all inside
     sky = np.zeros((16, 16), bool)
     sky[2:10, 4:14] = True
-    floor = photon_regimes.lr_pixel_floor(sky, 4)
-    blocks = floor[::4, ::4]
-    assert np.all(floor == np.kron(blocks, np.ones((4, 4), bool)))
-    assert blocks[0, 1] and blocks[1, 1] and blocks[2, 1] and blocks[1, 3]  # half or more of the block
-    assert not blocks[0, 0] and not blocks[0, 3] and not blocks[2, 3] and not blocks[3, 1]  # a quarter or none
+    majority = photon_regimes.block_majority(sky, 4)
+    b = majority[::4, ::4]
+    assert np.all(majority == np.kron(b, np.ones((4, 4), bool)))
+    assert b[0, 1] and b[1, 1] and b[2, 1] and b[1, 3]  # half or more of the block
+    assert not b[0, 0] and not b[0, 3] and not b[2, 3] and not b[3, 1]  # a quarter or none

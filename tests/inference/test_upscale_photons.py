@@ -61,6 +61,11 @@ def test_no_return_logit_moves_the_decision_and_is_refused_without_a_head(photon
     np.testing.assert_allclose(never, np.clip(want, 0, 1), atol=1e-6)
     with pytest.raises(ValueError, match="no-return head"):
         prepare_upscale(counts, model="tr0", no_return_logit=1.0)
+    for spec in ("default", "auto"):  # they pick depth-only models: refused before the input is read
+        with pytest.raises(ValueError, match="no-return head"):
+            prepare_upscale("/nonexistent/input.npy", model=spec, no_return_logit=1.0)
+    job = prepare_upscale(counts, model=path, no_return_logit=2.0)
+    assert job.model.config.no_return_logit == 2.0 and job.model_name.endswith("at no-return logit 2")
     with pytest.raises(ValueError, match="finite number"):
         with_no_return_logit(model, float("nan"))
 
