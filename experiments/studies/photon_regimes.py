@@ -241,9 +241,9 @@ def evaluate(models: dict, seqs: dict, *, frames: int, photons=PHOTONS, snrs=SNR
             outputs = {"bicubic": [bicubic_output(c, sensor.scale) for c in clips.values()]}
             for label, model in models.items():
                 outputs[label] = [scored_output(model, c) for c in clips.values()]
-            # every frame of a scene shares its mask, so the first frame's truth places the edges
-            inside = [np.broadcast_to(interior(gt[0] >= 1.0, sensor.scale), gt.shape) for _, gt in outputs["bicubic"]]
-            majority = [np.broadcast_to(np.where(block_majority(gt[0] >= 1.0, sensor.scale), 1.0, 0.0), gt.shape)
+            # per frame: the added regions are one mask, but a scene's own sky moves with its camera
+            inside = [np.stack([interior(g >= 1.0, sensor.scale) for g in gt]) for _, gt in outputs["bicubic"]]
+            majority = [np.stack([block_majority(g >= 1.0, sensor.scale) for g in gt]).astype(np.float32)
                         for _, gt in outputs["bicubic"]]
             outputs[MAJORITY] = [(m, gt) for m, (_, gt) in zip(majority, outputs["bicubic"])]
             rates = {m: no_return_rates(*_pooled(o)) for m, o in outputs.items()}

@@ -104,7 +104,9 @@ def test_core_on_crops_of_the_real_recordings(tmp_path):
             sky = s["sky_as_depth"]
             assert sky.shape == (2,) and (np.all(np.isnan(sky)) if not r["sky"].any() else
                                           np.all((sky >= 0) & (sky <= 1)))
-        assert not (r["sky"] & r["valid"]).any()
+            at_edge = s["dropped_at_edge"]
+            assert at_edge.shape == (2,) and np.all(np.isnan(at_edge) | ((at_edge >= 0) & (at_edge <= 1)))
+        assert not (r["sky"] & r["valid"]).any() and 0 <= r["edge_share"] <= 1
         assert real_photons.goal(entry) is not None
     text = real_photons.tables(results, recordings)
     assert "## tower" in text and "## two_layer" in text
