@@ -36,3 +36,23 @@ def test_exact_method_and_bad_method():
     assert abs(float(draws.mean()) - 3.0) < 0.3
     with pytest.raises(ValueError, match="'fast' or 'exact'"):
         sample_poisson(jax.random.key(1), np.ones(3), method="gauss")
+
+
+@pytest.mark.parametrize("method", ["fast", "exact"])
+@pytest.mark.parametrize("lam", [1e4, 1e6, 1e8])
+def test_huge_rates_have_poisson_mean_and_variance(method, lam):
+    """Mean and variance within 1 % of the rate at 1e4-1e8 photons (jax.random.poisson alone spreads 1.46x at
+    1e8: "exact" hands such rates to the quantile of the fast method); rates at the limit and below keep the
+    draws jax.random.poisson gives with the same key."""
+    draws = np.asarray(sample_poisson(jax.random.key(2), np.full(400_000, lam, np.float32), method=method), float)
+    assert abs(draws.mean() / lam - 1) < 1e-3 and abs(draws.var() / lam - 1) < 0.01
+
+
+def test_exact_draws_below_the_limit_are_jax_poisson():
+    from jaxsr.sensor.poisson import JAX_POISSON_MAX
+    rates = np.array([0.0, 3.0, 500.0, JAX_POISSON_MAX, np.nan, 4 * JAX_POISSON_MAX], np.float32)
+    got = np.asarray(sample_poisson(jax.random.key(3), rates, method="exact"))
+    want = np.asarray(jax.random.poisson(jax.random.key(3), np.where(rates > JAX_POISSON_MAX, 0.0, rates),
+                                         dtype=np.int32), np.float32)
+    np.testing.assert_array_equal(got[:4], want[:4])
+    assert np.isnan(got[4]) and abs(got[5] / rates[5] - 1) < 0.01
