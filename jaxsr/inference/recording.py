@@ -20,6 +20,7 @@ from __future__ import annotations
 import collections
 import contextlib
 import dataclasses
+import itertools
 import os
 from pathlib import Path
 from typing import Callable, Iterator
@@ -28,7 +29,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from ..checks import memory_budget, one_positive_number, require_memory
-from ..config import PRECISIONS, DepthScale, Gate, SensorConfig
+from ..config import PRECISIONS, DepthScale, Gate, PhotonRegime, SensorConfig
 from ..io.checkpoint import load_model, read_metadata, resolve_model_path
 from ..io.files import atomic_folder, atomic_path, reserve_space
 from ..io.formats import PNG_MAX_M, write_depth, write_sequence
@@ -54,6 +55,7 @@ from ..nn.duf import with_no_return_logit
 from ..nn.model import Model
 from ..runtime import enable_compilation_cache
 from ..sensor.gates import gate_warnings
+from ..sensor.peaks import frame_snr
 from ..sensor.quantities import parse_span, parse_time_unit, range_metres
 from ..sensor.timetags import TIME_TAG_FORMATS, TimeTags, gate_of_tags, read_time_tags, time_tag_warnings
 from .adaptive import resolve_model
@@ -387,6 +389,8 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
         if found[0]:
             warnings += (_clipped_note(*found),)
         counts = clipped_recording(rec) if clip_negative else rec
+        if getattr(getattr(fixed, "config", None), "no_return_head", False):
+            warnings += _snr_warnings(counts, gate, _trained_snr_range(None if isinstance(model, Model) else name))
 
         def lr_stream():
             return gate_frames(iter_network_inputs(counts, SensorConfig(bins=gate.bins), inputs, chunk=HISTOGRAM_CHUNK),
@@ -409,6 +413,37 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
     fixed = in_form(fixed, form, "form (--form)", frames=rec.frames)
     precision = check_precision(fixed, precision, "precision (--precision)")
     return UpscaleJob(rec, fixed, name, units, gate, scale, warnings, source, lr_stream, negatives, precision)
+
+
+def _trained_snr_range(spec) -> tuple[float, float]:
+    """The frame SNRs a photon model was trained on: its card's regime where `spec` names a file that has one (None:
+    a model given loaded), else the wide photon regime's (`jaxsr.config.PhotonRegime`), the bundled models'."""
+    default = tuple(PhotonRegime().snr_range)
+    if not isinstance(spec, (str, os.PathLike)):
+        return default
+    card = read_metadata(resolve_model_path(spec)).get("card") or {}
+    found = (card.get("regime") or {}).get("snr_range") if isinstance(card, dict) else None
+    return tuple(found) if isinstance(found, (list, tuple)) and len(found) == 2 else default
+
+
+def _snr_warnings(counts, gate: Gate, trained: tuple[float, float]) -> tuple[str, ...]:
+    """A warning where the recording's frame SNR (`jaxsr.sensor.frame_snr` of its first HEAD_FRAMES frames) lies
+    outside the SNRs a model with a no-return head was trained on: its threshold is then a guess."""
+    head = None  # summed frame by frame: one frame's memory, not HEAD_FRAMES'
+    for frame in itertools.islice(counts, HEAD_FRAMES):
+        head = np.asarray(frame, np.float32) if head is None else head + frame
+    snr = frame_snr(head, SensorConfig(bins=gate.bins))
+    lo, hi = trained
+    if np.isnan(snr) or lo <= snr <= hi:  # NaN: no pixel holds a return in those frames, nothing to say
+        return ()
+    shown = "no ambient light seen" if snr == float("inf") else f"about {snr:.3g}"
+    advice = ("with little ambient light its no-return head may mark dim returns as no return; a higher "
+              "--no-return-logit (such as 2) keeps them and shows more sky as depth" if snr > hi else
+              "with this much ambient light it may show sky as depth; a lower --no-return-logit marks more "
+              "pixels as no return")
+    return (f"the recording's frame SNR (signal / ambient photons, first {min(HEAD_FRAMES, counts.frames)} frames) "
+            f"is {shown}, outside the {lo:g}-{hi:g} this model was trained on: {advice} (docs/network.md, "
+            "choosing the threshold)",)
 
 
 def _check_no_return_logit(model, name: str, logit) -> None:

@@ -32,6 +32,7 @@ from .peaks import (
     centre_of_mass,
     peak_evidence,
     return_significance,
+    frame_snr,
     maximum_likelihood_depth,
 )
 from .effects import (
@@ -84,6 +85,7 @@ __all__ = [
     "centre_of_mass",
     "peak_evidence",
     "return_significance",
+    "frame_snr",
     "maximum_likelihood_depth",
     "dark_counts",
     "hot_pixels",
