@@ -71,7 +71,7 @@ def main(argv=None) -> None:
                         metavar=("LO", "HI"), help="signal photons per LR pixel drawn (PhotonRegime.signal_range)")
     parser.add_argument("--snr-range", type=float, nargs=2, default=PhotonRegime().snr_range, metavar=("LO", "HI"),
                         help="frame SNR drawn (PhotonRegime.snr_range); a higher HI for sensors with little ambient "
-                        "light, such as indoors or at night (real recordings reach 100)")
+                        "light, such as indoors or at night (a real one, tower, reads 45)")
     parser.add_argument("--no-return-prob", type=float, default=PhotonRegime().no_return_prob,
                         help="share of clips with added no-return regions (PhotonRegime.no_return_prob)")
     parser.add_argument("--checkpoint-minutes", type=float, default=5.0)

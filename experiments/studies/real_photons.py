@@ -263,13 +263,10 @@ def reference_sky(rec: Recording) -> np.ndarray:
 
 
 def recording_snr(rec: Recording) -> float:
-    """The recording's frame SNR as `jaxsr.sensor.calibrate` defines it, signal / ambient photons over the LR
-    blocks with a significant return: ambient = each block's median bin x K, signal = the rest."""
-    counts, log_p = lr_all_photons(rec)
-    found = log_p <= np.log(REF_SKY_ALPHA)
-    ambient = np.median(counts, axis=-1) * counts.shape[-1]
-    signal = counts.sum(-1) - ambient
-    return float(signal[found].mean() / max(ambient[found].mean(), 1e-9)) if found.any() else float("nan")
+    """The recording's frame SNR from all its photons in LR blocks (`jaxsr.sensor.frame_snr`: signal / ambient
+    photons over the blocks with a return; a second surface in a block counts as ambient, so two_layer reads low)."""
+    counts, _ = lr_all_photons(rec)
+    return jaxsr.sensor.frame_snr(counts, jaxsr.SensorConfig(bins=BINS))
 
 
 def reference_noise(rec: Recording, valid, *, seed=0) -> dict:
@@ -431,8 +428,8 @@ def recording_text(rec: Recording, r) -> str:
             f"{rec.tags.shape[0]} x {rec.tags.shape[1]} pixels, {rec.tags.time.size} photons "
             f"({r['photons_per_lr_pixel']:.1f} per LR pixel of {r['lr_shape'][0]} x {r['lr_shape'][1]}); {gate}. "
             f"Reference: {n['pixels']} valid pixels ({r['valid'].mean():.1%}), {int(r['sky'].sum())} without a "
-            f"return ({r['sky'].mean():.1%}). Frame SNR of all the photons (`recording_snr`: signal / ambient "
-            f"photons over the LR blocks with a return): {r['snr']:.0f}.\n\n"
+            f"return ({r['sky'].mean():.1%}). Frame SNR of all the photons (`recording_snr`, "
+            f"`jaxsr.sensor.frame_snr`: signal / ambient photons over the LR blocks with a return): {r['snr']:.3g}.\n\n"
             f"Reference noise: the photons split into two random halves, each half's depth compared on the valid "
             f"pixels where both give a return ({n['both_return']:.1%} of them): PSNR between the halves "
             f"{n['psnr_halves']:.2f} dB, MAE {n['mae_halves'] * k:.3f} {unit}, the same depth in "
