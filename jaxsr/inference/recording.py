@@ -389,8 +389,10 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
         if found[0]:
             warnings += (_clipped_note(*found),)
         counts = clipped_recording(rec) if clip_negative else rec
-        if getattr(getattr(fixed, "config", None), "no_return_head", False):
-            warnings += _snr_warnings(counts, gate, _trained_snr_range(None if isinstance(model, Model) else name))
+        if getattr(getattr(fixed, "config", None), "no_return_head", False) and not clip_negative:
+            # (not after --clip-negative: the clipped counts' ambient is no longer the sensor's)
+            warnings += _snr_warnings(counts, gate, _trained_snr_range(None if isinstance(model, Model) else name),
+                                      no_return_logit)
 
         def lr_stream():
             return gate_frames(iter_network_inputs(counts, SensorConfig(bins=gate.bins), inputs, chunk=HISTOGRAM_CHUNK),
@@ -416,33 +418,49 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
 
 
 def _trained_snr_range(spec) -> tuple[float, float]:
-    """The frame SNRs a photon model was trained on: its card's regime where `spec` names a file that has one (None:
-    a model given loaded), else the wide photon regime's (`jaxsr.config.PhotonRegime`), the bundled models'."""
+    """The frame SNRs a photon model was trained on: its card's regime where `spec` names a file that has a valid
+    one (None: a model given loaded), else the wide photon regime's (`jaxsr.config.PhotonRegime`), the bundled
+    models'."""
     default = tuple(PhotonRegime().snr_range)
     if not isinstance(spec, (str, os.PathLike)):
         return default
-    card = read_metadata(resolve_model_path(spec)).get("card") or {}
-    found = (card.get("regime") or {}).get("snr_range") if isinstance(card, dict) else None
-    return tuple(found) if isinstance(found, (list, tuple)) and len(found) == 2 else default
+    card = read_metadata(resolve_model_path(spec)).get("card")
+    regime = card.get("regime") if isinstance(card, dict) else None
+    found = regime.get("snr_range") if isinstance(regime, dict) else None
+    try:
+        lo, hi = (float(x) for x in found)
+    except (TypeError, ValueError):  # absent or malformed: a card is metadata, not a reason to fail
+        return default
+    return (lo, hi) if 0 < lo <= hi < float("inf") else default
 
 
-def _snr_warnings(counts, gate: Gate, trained: tuple[float, float]) -> tuple[str, ...]:
+# `_snr_warnings` speaks beyond this factor outside the trained SNRs: `frame_snr` reads up to 1.5-3x high from a few
+# frames of few bins (noise in the peak's window) and low for moving scenes, so the edge itself is no evidence
+SNR_WARNING_MARGIN = 2.0
+
+
+def _snr_warnings(counts, gate: Gate, trained: tuple[float, float], no_return_logit=None) -> tuple[str, ...]:
     """A warning where the recording's frame SNR (`jaxsr.sensor.frame_snr` of its first HEAD_FRAMES frames) lies
-    outside the SNRs a model with a no-return head was trained on: its threshold is then a guess."""
+    well outside (SNR_WARNING_MARGIN) the SNRs a model with a no-return head was trained on: its threshold is then
+    a guess; with a threshold given (`no_return_logit`), the SNR alone is said."""
     head = None  # summed frame by frame: one frame's memory, not HEAD_FRAMES'
     for frame in itertools.islice(counts, HEAD_FRAMES):
         head = np.asarray(frame, np.float32) if head is None else head + frame
     snr = frame_snr(head, SensorConfig(bins=gate.bins))
     lo, hi = trained
-    if np.isnan(snr) or lo <= snr <= hi:  # NaN: no pixel holds a return in those frames, nothing to say
+    if np.isnan(snr) or lo / SNR_WARNING_MARGIN <= snr <= hi * SNR_WARNING_MARGIN:  # NaN: no return seen, nothing to say
         return ()
     shown = "no ambient light seen" if snr == float("inf") else f"about {snr:.3g}"
-    advice = ("with little ambient light its no-return head may mark dim returns as no return; a higher "
-              "--no-return-logit (such as 2) keeps them and shows more sky as depth" if snr > hi else
-              "with this much ambient light it may show sky as depth; a lower --no-return-logit marks more "
-              "pixels as no return")
+    if no_return_logit is not None:
+        advice = f"its no-return threshold is set to {float(no_return_logit):g}: check a frame (--preview)"
+    elif snr > hi:
+        advice = ("with little ambient light its no-return head may mark dim returns as no return; a higher "
+                  "--no-return-logit (such as 2) keeps them and shows more sky as depth")
+    else:
+        advice = ("with this much ambient light it may show sky as depth; a lower --no-return-logit marks more "
+                  "pixels as no return")
     return (f"the recording's frame SNR (signal / ambient photons, first {min(HEAD_FRAMES, counts.frames)} frames) "
-            f"is {shown}, outside the {lo:g}-{hi:g} this model was trained on: {advice} (docs/network.md, "
+            f"is {shown}, well outside the {lo:g}-{hi:g} this model was trained on: {advice} (docs/network.md, "
             "choosing the threshold)",)
 
 

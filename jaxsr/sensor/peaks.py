@@ -197,10 +197,11 @@ def frame_snr(counts, sensor: SensorConfig = SensorConfig(), *, false_alarm=1e-3
     LR pixel with a return), estimated from its histograms: (T, h, w, K) or (h, w, K) counts, summed over the
     frames first. Over the pixels whose summed histogram holds a return (`return_significance` <= log
     `false_alarm`), ambient = the photons outside the scan's peak window, scaled to the whole gate, and signal =
-    the rest. Indicative, not exact: a scene that moves across the frames smears its peaks and reads lower (a
-    street scene calibrated to SNR 100 read 38-56 over 8 frames), and at SNR 0.1 ambient noise lifts the peak's
-    window and it reads high (0.15-0.25). Returns a Python float: NaN where no pixel holds a return, inf where no
-    ambient photon is seen."""
+    the rest; the window grows in proportion beyond 16 bins. Indicative, not exact: a scene that moves across the
+    frames smears its peaks and reads lower (a street scene calibrated to SNR 100 read 38-56 over 8 frames); few
+    photons (a few frames, few bins) read high, as ambient noise lifts the peak's window (SNR 10 at 20 signal
+    photons read 15 from one frame of 16 bins, 35 from one of 8; SNR 0.1 reads 0.15-0.25); a second surface counts
+    as ambient. Returns a Python float: NaN where no pixel holds a return, inf where no ambient photon is seen."""
     n = np.asarray(counts)
     if n.ndim < 3 or n.shape[-1] != sensor.bins:
         raise ValueError(f"frame_snr: counts must be (T, h, w, {sensor.bins}) or (h, w, {sensor.bins}) histograms, "
@@ -209,8 +210,10 @@ def frame_snr(counts, sensor: SensorConfig = SensorConfig(), *, false_alarm=1e-3
     found = np.asarray(return_significance(n.astype(np.float32), sensor)) <= np.log(false_alarm)
     if not found.any():
         return float("nan")
-    # the peak's window widened by a bin each side, for the pulse's tails and a little motion
-    width = min(2 * int(np.asarray(default_window(sensor))) + 3, sensor.bins - 1)
+    # the peak's window widened by a bin each side, for the pulse's tails and a little motion; wider in proportion
+    # beyond 16 bins (finer bins of a gate hold the same pulse in more of them)
+    width = (2 * int(np.asarray(default_window(sensor))) + 3) * max(1, sensor.bins // 16)
+    width = min(width, sensor.bins - 1)
     windows = np.lib.stride_tricks.sliding_window_view(n[found], width, axis=-1).sum(axis=-1)
     peak = windows.max(axis=-1)
     total = n[found].sum(axis=-1)

@@ -88,11 +88,13 @@ def sample_poisson(key, rates, *, method: str = "fast"):
     """
     rates = jnp.asarray(rates)
     if method == "exact":
-        huge = rates > JAX_POISSON_MAX
+        wide = jnp.promote_types(rates.dtype, jnp.float32)  # the quantile needs float32 or wider (int, float16 rates)
+        huge = rates.astype(wide) > JAX_POISSON_MAX  # (in float16, 1e5 itself would be inf)
         # `key` itself for jax's draws: rates up to the limit draw what they drew before it was added
-        counts = jax.random.poisson(key, jnp.where(huge, 0.0, rates), dtype=jnp.int32).astype(rates.dtype)
-        u = jax.random.uniform(jax.random.fold_in(key, 1), rates.shape, rates.dtype, minval=jnp.finfo(rates.dtype).tiny, maxval=1.0)
-        counts = jnp.where(huge, _cornish_fisher_large(u, jnp.where(huge, rates, EXACT_BELOW)), counts)
+        counts = jax.random.poisson(key, jnp.where(huge, 0, rates), dtype=jnp.int32).astype(rates.dtype)
+        u = jax.random.uniform(jax.random.fold_in(key, 1), rates.shape, wide, minval=jnp.finfo(wide).tiny, maxval=1.0)
+        large = _cornish_fisher_large(u, jnp.where(huge, rates, EXACT_BELOW).astype(wide))
+        counts = jnp.where(huge, jnp.where(jnp.isinf(rates), jnp.inf, large).astype(rates.dtype), counts)
         return jnp.where(jnp.isnan(rates), jnp.nan, counts)  # jax.random.poisson draws -1 for NaN
     if method != "fast":
         raise ValueError(f"sample_poisson: method must be 'fast' or 'exact', got {method!r}")

@@ -106,6 +106,17 @@ def test_a_recording_beyond_the_trained_snr_is_said(photon_model):
     assert "0.05-20" in warning and "--no-return-logit" in warning
     assert not [w for w in prepare_upscale(counts(2.0), model=path).warnings if "frame SNR" in w]
     assert not [w for w in prepare_upscale(counts(1e4), model="tr0").warnings if "frame SNR" in w]
+    set_logit = prepare_upscale(counts(1e4), model=path, no_return_logit=3.0).warnings
+    assert [w for w in set_logit if "frame SNR" in w and "set to 3" in w and "such as 2" not in w]
+    assert not [w for w in prepare_upscale(counts(1e4), model=path, clip_negative=True).warnings if "frame SNR" in w]
+    # a card whose regime is not what it should be: the bundled range, no failure
+    for i, card in enumerate(({"regime": "wide"}, {"regime": {"snr_range": ["a", "b"]}},
+                              {"regime": {"snr_range": [20.0, 0.05]}})):
+        odd = save_model(path.parent / f"odd{i}.npz", model, card=card)
+        assert [w for w in prepare_upscale(counts(1e4), model=odd).warnings if "0.05-20" in w], card
+    # a card's own range is the one compared: SNR 2 is well below 10-20
+    own = save_model(path.parent / "own.npz", model, card={"regime": {"snr_range": [10.0, 20.0]}})
+    assert [w for w in prepare_upscale(counts(2.0), model=own).warnings if "10-20" in w and "this much ambient" in w]
 
 
 def test_frame_snr_reads_the_calibrated_snr():

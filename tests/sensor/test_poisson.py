@@ -1,6 +1,7 @@
 """The fast Poisson sampler against the exact distribution (scipy.stats)."""
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from scipy import stats
@@ -56,3 +57,15 @@ def test_exact_draws_below_the_limit_are_jax_poisson():
                                          dtype=np.int32), np.float32)
     np.testing.assert_array_equal(got[:4], want[:4])
     assert np.isnan(got[4]) and abs(got[5] / rates[5] - 1) < 0.01
+
+
+@pytest.mark.parametrize("dtype", [np.int32, np.float16, "bfloat16", np.float32])
+def test_exact_takes_integer_and_narrow_rates(dtype):
+    """Integer, float16 and bfloat16 rates draw as before the huge-rate branch (which computes in float32);
+    an infinite rate gives an infinite count, NaN a NaN."""
+    rates = jnp.asarray(np.array([0, 3, 40, 2e5 if dtype != np.float16 else 6e4]), dtype)
+    counts = np.asarray(sample_poisson(jax.random.key(4), rates, method="exact"), np.float64)
+    assert np.all(np.isfinite(counts)) and counts[0] == 0 and abs(counts[-1] / float(rates[-1]) - 1) < 0.05
+    if dtype != np.int32:
+        special = np.asarray(sample_poisson(jax.random.key(4), jnp.asarray([np.inf, np.nan], dtype), method="exact"))
+        assert np.isinf(special[0]) and np.isnan(special[1])
