@@ -246,27 +246,31 @@ def lr_all_photons(rec: Recording) -> tuple[np.ndarray, np.ndarray]:
     return counts, np.asarray(jaxsr.sensor.return_significance(counts, jaxsr.SensorConfig(bins=BINS)))
 
 
-def reference_sky(rec: Recording) -> np.ndarray:
-    """(H, W) True where all the recording's photons show no return: the pixel's LR block (the photon video's
+def reference_sky(all_photons) -> np.ndarray:
+    """(H, W) True where all the recording's photons (`lr_all_photons`) show no return: the pixel's LR block (the photon video's
     4 x 4) and its 8 neighbours hold no significant return (log p above log REF_SKY_ALPHA: ambient light alone
     explains them) and at most REF_SKY_SHARE of the photons of the median block that holds one, so that a return
     a tenth as bright as the scene's typical one would have been seen. A surface darker than that counts as sky
     too: the photons cannot tell them apart. The neighbours keep mixed blocks at a surface's edge out."""
     from scipy import ndimage
 
-    counts, log_p = lr_all_photons(rec)
+    counts, log_p = all_photons
     photons, found = counts.sum(-1), log_p <= np.log(REF_SKY_ALPHA)
     typical = float(np.median(photons[found])) if found.any() else np.inf
     empty = ~found & (photons <= REF_SKY_SHARE * typical)
-    empty = ndimage.minimum_filter(empty.astype(np.uint8), size=3, mode="nearest")
-    return np.kron(empty, np.ones((FACTOR, FACTOR), np.uint8)).astype(bool)
+    return _to_hr(ndimage.minimum_filter(empty.astype(np.uint8), size=3, mode="nearest"))
 
 
-def recording_snr(rec: Recording) -> float:
-    """The recording's frame SNR from all its photons in LR blocks (`jaxsr.sensor.frame_snr`: signal / ambient
-    photons over the blocks with a return; a second surface in a block counts as ambient, so two_layer reads low)."""
-    counts, _ = lr_all_photons(rec)
-    return jaxsr.sensor.frame_snr(counts, jaxsr.SensorConfig(bins=BINS))
+def _to_hr(blocks) -> np.ndarray:
+    """(h, w) per LR block -> (H, W) boolean, each block's value on its FACTOR x FACTOR pixels."""
+    return np.kron(blocks, np.ones((FACTOR, FACTOR), np.uint8)).astype(bool)
+
+
+def recording_snr(all_photons) -> float:
+    """The recording's frame SNR from all its photons in LR blocks (`lr_all_photons`; `jaxsr.sensor.frame_snr`:
+    signal / ambient photons over the blocks with a return; a second surface in a block counts as ambient, so
+    two_layer reads low)."""
+    return jaxsr.sensor.frame_snr(all_photons[0], jaxsr.SensorConfig(bins=BINS))
 
 
 def reference_noise(rec: Recording, valid, *, seed=0) -> dict:
@@ -332,14 +336,13 @@ def masked_scores(sr, ref, valid, sky=None, edge=None) -> dict:
             "dropped_at_edge": at_edge, "sky_as_depth": sky_as_depth}
 
 
-def empty_edges(rec: Recording) -> np.ndarray:
+def empty_edges(all_photons) -> np.ndarray:
     """(H, W) True for pixels whose LR block or one of its 8 neighbours holds no significant return in all the
     recording's photons (`lr_all_photons`): the surfaces' edges against sky or nothing."""
     from scipy import ndimage
 
-    _, log_p = lr_all_photons(rec)
-    near = ndimage.maximum_filter((log_p > np.log(REF_SKY_ALPHA)).astype(np.uint8), size=3, mode="nearest")
-    return np.kron(near, np.ones((FACTOR, FACTOR), np.uint8)).astype(bool)
+    log_p = all_photons[1]
+    return _to_hr(ndimage.maximum_filter((log_p > np.log(REF_SKY_ALPHA)).astype(np.uint8), size=3, mode="nearest"))
 
 
 def evaluate(recordings, models: dict, *, levels=LEVELS, max_frames: int = MAX_FRAMES, tv_frames: int | None = None,
@@ -352,13 +355,15 @@ def evaluate(recordings, models: dict, *, levels=LEVELS, max_frames: int = MAX_F
     for i, rec in enumerate(recordings):
         started = time.time()
         ref, valid = reference_depth(rec)
-        sky, edge = reference_sky(rec) & ~valid, empty_edges(rec)
+        all_photons = lr_all_photons(rec)  # once: the sky, the edges and the SNR read it
+        sky, edge = reference_sky(all_photons) & ~valid, empty_edges(all_photons)
         noise = reference_noise(rec, valid, seed=seed)
         lr_tags = bin_pixels(rec.tags)
         h, w = lr_tags.shape
         # LR pixels whose block holds a valid reference pixel: where the scores are taken
         covered = valid.reshape(h, FACTOR, w, FACTOR).any(axis=(1, 3))
-        out = {"reference": ref, "valid": valid, "sky": sky, "edge_share": float(edge[valid].mean()), "snr": recording_snr(rec), "noise": noise, "levels": [], "picture": None,
+        out = {"reference": ref, "valid": valid, "sky": sky, "edge_share": float(edge[valid].mean()),
+               "snr": recording_snr(all_photons), "noise": noise, "levels": [], "picture": None,
                "photons_per_lr_pixel": lr_tags.time.size / (h * w), "lr_shape": (h, w)}
         log(f"{rec.name}: {rec.tags.time.size} photons, {h} x {w} LR, {int(valid.sum())} valid reference pixels "
             f"({valid.mean():.1%}); reference noise: halves {noise['psnr_halves']:.2f} dB")
