@@ -53,8 +53,10 @@ from jaxsr.eval.scoring import (
 )
 from jaxsr.eval.reports import header, markdown_table, write_atomic
 from jaxsr.io.checkpoint import resolve_model_path
+from jaxsr.inference.video import no_return_where
 from jaxsr.nn import network_inputs
-from jaxsr.sensor import calibrate, calibrated_rates, no_return_regions, normalise_depth, sample_poisson
+from jaxsr.sensor import (ambient_only, calibrate, calibrated_rates, no_return_regions, normalise_depth,
+                          sample_poisson)
 
 PHOTONS = (1.0, 3.0, 14.0, 100.0, 1000.0)
 SNRS = (0.1, 1.3, 5.0)
@@ -79,10 +81,13 @@ def _calibration(depth, intensity, snr, mean_signal, sensor):
     return calibrate(depth, intensity, sensor, snr=snr, mean_signal=mean_signal)
 
 
-@functools.partial(jax.jit, static_argnames=("sensor",))
-def _draw(key, depth, intensity, alpha, beta, sensor):
+@functools.partial(jax.jit, static_argnames=("sensor", "tests"))
+def _draw(key, depth, intensity, alpha, beta, sensor, tests=()):
+    """Network inputs, normalised ground truth and, for each false-alarm rate of `tests`, `ambient_only`'s flags
+    (the frames drawn are consecutive around each scored frame, so a scored frame's test sums its own)."""
     counts = sample_poisson(key, calibrated_rates(depth, intensity, alpha, beta, sensor), method="fast")
-    return network_inputs(counts, sensor, MODEL_INPUTS), normalise_depth(depth, sensor)
+    flags = tuple(ambient_only(counts, sensor, alpha=a) for a in tests)
+    return network_inputs(counts, sensor, MODEL_INPUTS), normalise_depth(depth, sensor), flags
 
 
 def needed_frames(scored, total: int, radius: int) -> np.ndarray:
@@ -91,23 +96,27 @@ def needed_frames(scored, total: int, radius: int) -> np.ndarray:
     return np.unique(np.clip(scored[:, None] + np.arange(-radius, radius + 1), 0, total - 1))
 
 
-def regime_clips(seqs: dict, photons: float, snr, *, scored, radius: int, key, sensor=SensorConfig()) -> dict:
+def regime_clips(seqs: dict, photons: float, snr, *, scored, radius: int, key, sensor=SensorConfig(),
+                 tests=()) -> dict:
     """The sequences at one regime: {name: Clip} of the frames the methods need (`needed_frames`), with `scored`
     as positions in them. snr None: each sequence's own. The laser and ambient are calibrated over the whole
-    sequence, as `simulate_histograms` would, and photons are drawn only for those frames."""
-    clips = {}
+    sequence, as `simulate_histograms` would, and photons are drawn only for those frames. Returns (clips,
+    ambient): ambient {name: {alpha: (F, h, w) bool}}, `ambient_only`'s flags of the scored frames at each
+    false-alarm rate of `tests`."""
+    clips, ambient = {}, {}
     for i, (name, seq) in enumerate(seqs.items()):
         s = float(seq.snr if snr is None else snr)
         alpha, beta = _calibration(jnp.asarray(seq.depth), jnp.asarray(seq.intensity), jnp.float32(s),
                                    jnp.float32(photons), sensor)
         keep = needed_frames(scored, len(seq.depth), radius)
-        x, gt = _draw(jax.random.fold_in(key, i), jnp.asarray(seq.depth[keep]), jnp.asarray(seq.intensity[keep]),
-                      alpha, beta, sensor)
+        x, gt, flags = _draw(jax.random.fold_in(key, i), jnp.asarray(seq.depth[keep]),
+                             jnp.asarray(seq.intensity[keep]), alpha, beta, sensor, tuple(tests))
         x = np.asarray(x)
         counts = np.zeros((len(keep), 0), np.float32)  # not kept: the methods read the centre of mass (+ photons)
         clips[name] = Clip(name, x[..., 0], counts, np.asarray(gt), float(seq.fps), s,
                            np.asarray(seq.intensity[keep], np.float32), np.searchsorted(keep, scored), x[..., 1:])
-    return clips
+        ambient[name] = {a: np.asarray(f)[clips[name].scored] for a, f in zip(tests, flags)}
+    return clips, ambient
 
 
 def with_no_return(seqs: dict, *, seed: int = 0, fraction=NO_RETURN_FRACTION, sky=NO_RETURN_SKY) -> dict:
@@ -204,10 +213,13 @@ def frame_interval(a, b, spacing: float, seed: int = 0):
 
 
 def evaluate(models: dict, seqs: dict, *, frames: int, photons=PHOTONS, snrs=SNRS, tv_frames: int = 0,
-             seed: int = 0, sensor=SensorConfig(), paper: bool = True, no_return: bool = True, log=print) -> dict:
+             seed: int = 0, sensor=SensorConfig(), paper: bool = True, no_return: bool = True, ambient=None,
+             log=print) -> dict:
     """Score bicubic, TV (tv_frames > 0) and `models` ({label: Model}) on `seqs` ({name: sequence record with
     depth, intensity, fps, snr}) at every (photons, snr) regime, plus the paper's (14 photons, own SNR), and the
-    no-return measure. Returns the raw results: {"regimes": [{"photons", "snr", "scores": {method: {"psnr",
+    no-return measure. ambient: {label: alpha} for models whose output is also no return where
+    `jaxsr.sensor.ambient_only` flags a pixel at that false-alarm rate (as `ambient_alpha` of
+    `super_resolve_histograms`). Returns the raw results: {"regimes": [{"photons", "snr", "scores": {method: {"psnr",
     "ssim"}: (scenes, T)}, "tv_frames": positions in the scored frames}], "no_return": [...]} (NumPy arrays)."""
     total = len(next(iter(seqs.values())).depth)
     scored = scored_frames(frames, total)
@@ -218,18 +230,27 @@ def evaluate(models: dict, seqs: dict, *, frames: int, photons=PHOTONS, snrs=SNR
     grid = [(float(p), float(s)) for p in photons for s in snrs]
     if paper:
         grid.append((DEFAULT_MEAN_SIGNAL, None))
+    ambient = dict(ambient or {})
+    tests = tuple(sorted(set(ambient.values())))
+
+    def outputs_of(label, model, clips, flags):
+        out = [scored_output(model, c) for c in clips.values()]
+        if label not in ambient:
+            return out
+        return [(no_return_where(sr, flags[name][ambient[label]]), gt) for name, (sr, gt) in zip(clips, out)]
+
     results = {"scored": scored, "tv_idx": tv_idx, "spacing": total / len(scored),
                "tv_spacing": total / max(len(tv_idx), 1), "regimes": [], "no_return": [], "scenes": list(seqs),
                "methods": ["bicubic"] + (["TV"] if tv_frames else []) + list(models)}
     for k, (p, s) in enumerate(grid):
         started = time.time()
         key = jax.random.fold_in(jax.random.key(seed), k)
-        clips = regime_clips(seqs, p, s, scored=scored, radius=radius, key=key, sensor=sensor)
+        clips, flags = regime_clips(seqs, p, s, scored=scored, radius=radius, key=key, sensor=sensor, tests=tests)
         scores = {"bicubic": method_scores([bicubic_output(c, sensor.scale) for c in clips.values()])}
         if tv_frames:
             scores["TV"] = method_scores([tv_output(c, c.scored[tv_idx], sensor.scale) for c in clips.values()])
         for label, model in models.items():
-            scores[label] = method_scores([scored_output(model, c) for c in clips.values()])
+            scores[label] = method_scores(outputs_of(label, model, clips, flags))
         results["regimes"].append({"photons": p, "snr": s, "scores": scores})
         log(f"{regime_label(p, s)}: " + ", ".join(f"{m} {v['psnr'].mean():.2f} dB" for m, v in scores.items())
             + f" ({time.time() - started:.0f} s)")
@@ -237,10 +258,11 @@ def evaluate(models: dict, seqs: dict, *, frames: int, photons=PHOTONS, snrs=SNR
         dark = with_no_return(seqs, seed=seed)
         for k, p in enumerate(q for q in photons if q >= NO_RETURN_MIN_PHOTONS):
             key = jax.random.fold_in(jax.random.key(seed + 1), k)
-            clips = regime_clips(dark, float(p), NO_RETURN_SNR, scored=scored, radius=radius, key=key, sensor=sensor)
+            clips, flags = regime_clips(dark, float(p), NO_RETURN_SNR, scored=scored, radius=radius, key=key,
+                                        sensor=sensor, tests=tests)
             outputs = {"bicubic": [bicubic_output(c, sensor.scale) for c in clips.values()]}
             for label, model in models.items():
-                outputs[label] = [scored_output(model, c) for c in clips.values()]
+                outputs[label] = outputs_of(label, model, clips, flags)
             # per frame: the added regions are one mask, but a scene's own sky moves with its camera
             inside = [np.stack([interior(g >= 1.0, sensor.scale) for g in gt]) for _, gt in outputs["bicubic"]]
             majority = [np.stack([block_majority(g >= 1.0, sensor.scale) for g in gt]).astype(np.float32)
@@ -408,20 +430,16 @@ def raw(results, models_info) -> dict:
                          "no_return_sky": NO_RETURN_SKY, "tv_tr": TV_TR}}
 
 
-def load_models(specs, logits=()) -> tuple[dict, dict]:
+def load_models(specs, logits=(), alphas=()) -> tuple[dict, dict, dict]:
     """TR0 and TR4 bundled, and each NAME=PATH of --model that exists (PATH a file, a run folder or the name of
     bundled weights such as tr4-photons; a printed line for one that does not), each NAME=LOGIT of
-    --no-return-logit run at that no-return threshold (`jaxsr.nn.with_no_return_logit`). Returns
-    ({label: Model}, {label: source})."""
-    thresholds = {}
-    for spec in logits:
-        name, sep, value = spec.partition("=")
-        try:
-            thresholds[name] = float(value)
-        except ValueError:
-            raise SystemExit(f"--no-return-logit expects NAME=LOGIT, got {spec!r}") from None
-        if not sep or name not in [m.partition("=")[0] for m in specs]:
-            raise SystemExit(f"--no-return-logit {spec!r}: NAME must be one of --model's names")
+    --no-return-logit run at that no-return threshold (`jaxsr.nn.with_no_return_logit`), each NAME=ALPHA of
+    --ambient-alpha with the ambient-only test at that false-alarm rate. Returns ({label: Model}, {label:
+    source}, {label: alpha})."""
+    thresholds = _named_numbers(logits, specs, "--no-return-logit", "LOGIT")
+    ambient = _named_numbers(alphas, specs, "--ambient-alpha", "ALPHA")
+    if any(not 0.0 < a < 1.0 for a in ambient.values()):
+        raise SystemExit("--ambient-alpha: ALPHA is a false-alarm rate in (0, 1), such as 0.001")
     models = {"TR0": jaxsr.load_model("tr0"), "TR4": jaxsr.load_model("tr4")}
     info = {"TR0": "bundled tr0", "TR4": "bundled tr4"}
     for spec in specs:
@@ -442,7 +460,23 @@ def load_models(specs, logits=()) -> tuple[dict, dict]:
             except ValueError as e:
                 raise SystemExit(f"--no-return-logit {name}: {e}") from None
             info[name] = f"{path} at no-return logit {thresholds[name]:g}"
-    return models, info
+        if name in ambient:
+            info[name] += f", no return where ambient alone (alpha {ambient[name]:g})"
+    return models, info, {k: v for k, v in ambient.items() if k in models}
+
+
+def _named_numbers(given, specs, flag: str, what: str) -> dict:
+    """{NAME: number} of NAME=NUMBER options, each NAME one of --model's."""
+    out = {}
+    for spec in given:
+        name, sep, value = spec.partition("=")
+        try:
+            out[name] = float(value)
+        except ValueError:
+            raise SystemExit(f"{flag} expects NAME={what}, got {spec!r}") from None
+        if not sep or name not in [m.partition("=")[0] for m in specs]:
+            raise SystemExit(f"{flag} {spec!r}: NAME must be one of --model's names")
+    return out
 
 
 def main(argv=None) -> None:
@@ -458,15 +492,18 @@ def main(argv=None) -> None:
                         help="an extra model file to score (skipped with a line when absent); repeatable")
     parser.add_argument("--no-return-logit", action="append", default=[], metavar="NAME=LOGIT",
                         help="run --model NAME (one with a no-return head) at this decision threshold; repeatable")
+    parser.add_argument("--ambient-alpha", action="append", default=[], metavar="NAME=ALPHA",
+                        help="run --model NAME also marking no return where the photons around a pixel pass for "
+                        "ambient light alone at this false-alarm rate (jaxsr.sensor.ambient_only); repeatable")
     parser.add_argument("--seed", type=int, default=0, help="noise seed")
     parser.add_argument("--out", default="experiments/results/photon_regimes.md",
                         help="the results file (a .json beside it)")
     args = parser.parse_args(argv)
     started = time.time()
-    models, info = load_models(args.model, args.no_return_logit)
+    models, info, ambient = load_models(args.model, args.no_return_logit, args.ambient_alpha)
     seqs = jaxsr.scenes.test_sequences(n_frames=SEQUENCE_FRAMES, names=TEST_SCENES)
     results = evaluate(models, seqs, frames=args.frames, photons=args.photons, snrs=args.snr,
-                       tv_frames=args.tv_frames if args.tv else 0, seed=args.seed)
+                       tv_frames=args.tv_frames if args.tv else 0, seed=args.seed, ambient=ambient)
     full = "python experiments/studies/photon_regimes.py --frames 32 --tv --tv-frames 4"
     small = args.frames < 32 or not args.tv or args.photons != list(PHOTONS) or args.snr != list(SNRS)
     scenes_text = ", ".join(SCENE_LABELS[n] for n in TEST_SCENES)

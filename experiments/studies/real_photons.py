@@ -60,6 +60,7 @@ import jaxsr
 from jaxsr.eval.reports import hand_written_tail, header, markdown_table, save_figure, write_atomic
 from jaxsr.eval.scoring import format_interval
 from jaxsr.inference import iter_network_inputs
+from jaxsr.inference.video import no_return_where
 from jaxsr.io.recordings import gate_frames
 from jaxsr.sensor.timetags import TimeTags
 from photon_regimes import NO_RETURN_AT, TV_TR, load_models  # experiments/studies, beside this script
@@ -346,9 +347,11 @@ def empty_edges(all_photons) -> np.ndarray:
 
 
 def evaluate(recordings, models: dict, *, levels=LEVELS, max_frames: int = MAX_FRAMES, tv_frames: int | None = None,
-             tv: bool = True, seed: int = 0, picture_level: float = PICTURE_LEVEL, log=print) -> dict:
+             tv: bool = True, seed: int = 0, picture_level: float = PICTURE_LEVEL, ambient=None, log=print) -> dict:
     """Score nearest, bicubic, TV and `models` ({label: Model}) on each recording's photon video at every level
-    against its all-photon reference. tv_frames: frames per level TV runs on (None: all). Returns
+    against its all-photon reference. tv_frames: frames per level TV runs on (None: all). ambient: {label:
+    alpha} for models whose output is also no return where `jaxsr.sensor.ambient_only` flags a pixel of the
+    photon video at that false-alarm rate (as `jaxsr upscale --ambient-alpha`). Returns
     {name: {"reference", "noise", "levels": [{"level", "frames", "photons_ref", "scores": {method: {psnr, mae,
     no_return: (T,)}}, "tv_frames"}], "picture": {panel: (H, W)}}}."""
     results = {}
@@ -382,6 +385,10 @@ def evaluate(recordings, models: dict, *, levels=LEVELS, max_frames: int = MAX_F
                 outputs["TV"] = tv_output(lr, tv_idx)
             for label, model in models.items():
                 outputs[label] = jaxsr.super_resolve(model, model_input(model, frames), form="model")
+                if label in (ambient or {}):
+                    flags = jaxsr.sensor.ambient_only(frames.counts, jaxsr.SensorConfig(bins=frames.gate.bins),
+                                                      alpha=ambient[label])
+                    outputs[label] = no_return_where(outputs[label], np.asarray(flags))
             scores = {m: masked_scores(sr, ref, valid, sky, edge) for m, sr in outputs.items()}
             photons_ref = float(frames.counts.sum(-1)[:, covered].mean()) if covered.any() else float("nan")
             out["levels"].append({"level": float(level), "frames": len(lr), "photons_ref": photons_ref,
@@ -580,6 +587,9 @@ def main(argv=None) -> None:
                         help="an extra model file to score (skipped with a line when absent); repeatable")
     parser.add_argument("--no-return-logit", action="append", default=[], metavar="NAME=LOGIT",
                         help="run --model NAME (one with a no-return head) at this decision threshold; repeatable")
+    parser.add_argument("--ambient-alpha", action="append", default=[], metavar="NAME=ALPHA",
+                        help="run --model NAME also marking no return where the photons around a pixel pass for "
+                        "ambient light alone at this false-alarm rate (jaxsr.sensor.ambient_only); repeatable")
     parser.add_argument("--picture-level", type=float, default=PICTURE_LEVEL,
                         help="photons of the pictured frame (default 2)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the photon permutations")
@@ -589,10 +599,10 @@ def main(argv=None) -> None:
     if args.data is None:
         raise SystemExit(f"no recordings: {DEFAULT_DATA} does not exist; give the folder with --data")
     started = time.time()
-    models, info = load_models(args.model, args.no_return_logit)
+    models, info, ambient = load_models(args.model, args.no_return_logit, args.ambient_alpha)
     recordings = [read_recording(args.data, s) for s in SOURCES]
     results = evaluate(recordings, models, levels=args.levels, max_frames=args.frames, tv_frames=args.tv_frames,
-                       tv=not args.no_tv, seed=args.seed, picture_level=args.picture_level)
+                       tv=not args.no_tv, seed=args.seed, picture_level=args.picture_level, ambient=ambient)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     goals, all_met = goal_table(results)

@@ -87,6 +87,11 @@ def add_parser(subparsers):
                    help="models with a no-return head (tr0-photons, tr4-photons): output no return where the head's "
                    "logit is above LOGIT (default the model's, 0 = probability 0.5); higher drops fewer true returns "
                    "and leaves more sky as depth (docs/network.md, photon inputs and no return)")
+    p.add_argument("--ambient-alpha", type=finite_float, default=None, metavar="ALPHA",
+                   help="histograms and time tags: also output no return where the photons of 3 x 3 pixels and 9 "
+                   "frames around a pixel pass for ambient light alone at false-alarm rate ALPHA, such as 0.001 "
+                   "(empties sky that a model shows as depth; drops returns too faint to stand out: from about 3 "
+                   "photons per pixel at SNR 1 up, docs/network.md)")
     p.add_argument("--max-memory", type=memory, default=None, metavar="SIZE",
                    help=f"the memory the command may take, such as 16GB (default {MEMORY_SHARE * 100:.0f}%% of this "
                    "machine's RAM): the input's arrays and the work are estimated before they allocate, and refused beyond it")
@@ -124,7 +129,7 @@ def run(args) -> int:
                      points_colour=None if args.points_colour == "none" else args.points_colour,
                      overwrite=args.force, progress=not args.no_progress, clip_negative=args.clip_negative,
                      max_memory=args.max_memory, precision=args.precision, form=args.form,
-                     no_return_logit=args.no_return_logit,
+                     no_return_logit=args.no_return_logit, ambient_alpha=args.ambient_alpha,
                      report=lambda line: print(f"jaxsr upscale: {line}", file=sys.stderr, flush=True))
     print(json.dumps(result.summary()))
     return 0

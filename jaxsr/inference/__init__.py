@@ -19,6 +19,7 @@ from .video import (
     super_resolve,
     iter_centre_of_mass,
     iter_network_inputs,
+    iter_ambient_only,
     super_resolve_histograms,
     Stream,
 )
@@ -66,6 +67,7 @@ __all__ = [
     "super_resolve",
     "iter_centre_of_mass",
     "iter_network_inputs",
+    "iter_ambient_only",
     "super_resolve_histograms",
     "Stream",
     "STUDY_TABLE",

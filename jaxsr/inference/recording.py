@@ -60,6 +60,7 @@ from ..sensor.quantities import parse_span, parse_time_unit, range_metres
 from ..sensor.timetags import TIME_TAG_FORMATS, TimeTags, gate_of_tags, read_time_tags, time_tag_warnings
 from .adaptive import resolve_model
 from .video import (DEFAULT_FORM, DEFAULT_PRECISION, DEFAULT_TILE, FORMS, _default_batch_size, check_precision,
+                    iter_ambient_only, no_return_where,
                     in_form, iter_network_inputs, iter_super_resolve)
 
 __all__ = ["HEAD_FRAMES", "DEFAULT_MODELS", "FRAME_FORMATS", "UpscaleJob", "UpscaleResult", "prepare_upscale",
@@ -78,6 +79,7 @@ BASE_BYTES = 0.5e9
 # histogram frames turned into the network's input per compiled call (`iter_network_inputs`), and the copies
 # each float32 frame of counts makes there (6x: 16 frames of 2000 bins took 1.6 GB);
 HISTOGRAM_CHUNK, HISTOGRAM_COPIES = 16, 6
+AMBIENT_FRAMES = 9  # frames the no-return test of `ambient_alpha` sums (`iter_ambient_only`'s default)
 # a DUF network's features per LR pixel of a tile and frame of the batch, in bytes per channel: float32 twice
 # over the window (the dense blocks' activations and their batch norm) and once in the head (TR0 5.3 kB, TR4
 # 20 kB per pixel measured; this gives 5.3 and 25). Another architecture counts as TR4.
@@ -96,7 +98,8 @@ class UpscaleJob:
     negative counts clipped; source: the input as named in messages and in an .npz output's metadata;
     negative_counts: with `clip_negative`, (negative counts clipped at 0, pixels holding one), else None;
     precision: how the network's convolutions multiply (`jaxsr.config.PRECISIONS`). The model is held in the
-    temporal form it runs in (`form` of `prepare_upscale`: `model.config.temporal`)."""
+    temporal form it runs in (`form` of `prepare_upscale`: `model.config.temporal`). With `ambient_alpha` of
+    `prepare_upscale`, the output is also no return where `jaxsr.inference.iter_ambient_only` flags a pixel."""
 
     recording: Recording
     model: object
@@ -109,6 +112,9 @@ class UpscaleJob:
     _lr_stream: Callable[[], Iterator[np.ndarray]] = dataclasses.field(repr=False, compare=False)
     negative_counts: tuple[int, int] | None = None
     precision: str = DEFAULT_PRECISION
+    # with ambient_alpha: a fresh stream of (h, w) bool per frame, no return where ambient light alone is seen
+    _ambient_stream: Callable[[], Iterator[np.ndarray]] | None = dataclasses.field(default=None, repr=False,
+                                                                                   compare=False)
 
     @property
     def frames(self) -> int:
@@ -155,7 +161,10 @@ class UpscaleJob:
         """The network's output, streamed: (H, W) float32 HR normalised depth (unclipped), one per frame.
         lr_frames: the LR stream to run (default `lr_frames()`)."""
         lr = self.lr_frames() if lr_frames is None else lr_frames
-        return iter_super_resolve(self.model, lr, batch_size=batch_size, precision=self.precision)
+        out = iter_super_resolve(self.model, lr, batch_size=batch_size, precision=self.precision)
+        if self._ambient_stream is None:
+            return out
+        return (no_return_where(hr, flags) for hr, flags in zip(out, self._ambient_stream(), strict=True))
 
     def iter_frames(self, *, batch_size: int | None = None, units: str | None = None) -> Iterator[np.ndarray]:
         """The super-resolved recording, streamed: (H, W) float32 frames in `units` (default the job's: "m",
@@ -346,7 +355,7 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
                     gate_start=None, span=None, time_unit=None, variable: str | None = None,
                     drop_outside: bool = False, units: str | None = None, min_fps: float | None = None,
                     clip_negative: bool = False, max_memory=None, precision: str = DEFAULT_PRECISION,
-                    form: str = DEFAULT_FORM, no_return_logit=None) -> UpscaleJob:
+                    form: str = DEFAULT_FORM, no_return_logit=None, ambient_alpha=None) -> UpscaleJob:
     """Open and check a recording and choose its model, as `jaxsr upscale` does before any output is written.
 
     input: a path (.npy / .npz array of depth (T, h, w) or photon counts (T, h, w, bins); a folder or glob pattern
@@ -363,6 +372,8 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
     fixed, name = _fixed_model(model, min_fps)
     _check_precision_form(fixed, precision, form)
     _check_no_return_logit(fixed, name, no_return_logit)
+    if ambient_alpha is not None:
+        _check_ambient_alpha(ambient_alpha)
     span = _span(span)
     time_unit = _positive(time_unit, "time_unit", parse_time_unit, "seconds")
     rec, gate, source, tag_notes = _open(input, kind, bins=bins, bin_width=bin_width, gate_start=gate_start,
@@ -397,7 +408,13 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
         def lr_stream():
             return gate_frames(iter_network_inputs(counts, SensorConfig(bins=gate.bins), inputs, chunk=HISTOGRAM_CHUNK),
                                gate, scale)
+
+        def ambient_stream():
+            return iter_ambient_only(counts, SensorConfig(bins=gate.bins), alpha=ambient_alpha, frames=AMBIENT_FRAMES)
     else:
+        if ambient_alpha is not None:
+            raise ValueError("ambient_alpha (--ambient-alpha) tests the photons behind each pixel: give photon "
+                             "histograms or time tags, not depth frames")
         scale = DepthScale(0.0, float(sensor.d_max))
         units = guess_units(rec) if units is None else units
         check_frames(rec, units, gate)
@@ -414,7 +431,10 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
         name = f"{name} at no-return logit {float(no_return_logit):g}"
     fixed = in_form(fixed, form, "form (--form)", frames=rec.frames)
     precision = check_precision(fixed, precision, "precision (--precision)")
-    return UpscaleJob(rec, fixed, name, units, gate, scale, warnings, source, lr_stream, negatives, precision)
+    if ambient_alpha is not None:
+        name = f"{name}, no return where ambient alone (alpha {float(ambient_alpha):g})"
+    return UpscaleJob(rec, fixed, name, units, gate, scale, warnings, source, lr_stream, negatives, precision,
+                      ambient_stream if ambient_alpha is not None else None)
 
 
 def _trained_snr_range(spec) -> tuple[float, float]:
@@ -476,6 +496,13 @@ def _check_no_return_logit(model, name: str, logit) -> None:
     if not any(read_metadata(resolve_model_path(p))["config"].get("no_return_head", False) for p in picks):
         raise ValueError(f"no_return_logit (--no-return-logit) applies to models with a no-return head; --model {name} "
                          f"picks {' or '.join(picks)}, which have none: name one that has, such as tr4-photons")
+
+
+def _check_ambient_alpha(alpha) -> None:
+    """Refuse a false-alarm rate outside (0, 1) before the input is read."""
+    if isinstance(alpha, bool) or not isinstance(alpha, (int, float, np.floating)) or not 0.0 < float(alpha) < 1.0:
+        raise ValueError(f"ambient_alpha (--ambient-alpha) is a false-alarm rate in (0, 1), such as 0.001; got "
+                         f"{alpha!r}")
 
 
 def _check_precision_form(model, precision, form) -> None:
@@ -704,7 +731,8 @@ def upscale_memory(job: UpscaleJob, *, batch_size: int, in_memory: bool, looks: 
     """Bytes `write_upscaled` is estimated to need at its peak, from the job's sizes alone (nothing is run):
     `BASE_BYTES`; the input where it is held whole (an .npz's array, time tags' histograms; an .npy is
     memory-mapped); histogram frames on their way to the network (`HISTOGRAM_CHUNK` x `HISTOGRAM_COPIES`); the
-    network on one tile (at most `DEFAULT_TILE` LR pixels a side) per frame of the batch; the HR frames of two
+    network on one tile (at most `DEFAULT_TILE` LR pixels a side) per frame of the batch; with `ambient_alpha`,
+    three copies of the `AMBIENT_FRAMES` histogram frames its test holds; the HR frames of two
     batches (the one computed and the one drained) and of a frame converted; and the whole result when it is
     held (`in_memory`: an .npz output or none) or drawn (`looks`: the video's panels or a point cloud per
     frame). Measured peaks were 0.6-0.9x of it (frames of 32 x 64 to 2048 x 2048 LR pixels, batches of 1-8)."""
@@ -716,6 +744,8 @@ def upscale_memory(job: UpscaleJob, *, batch_size: int, in_memory: bool, looks: 
         need += rec.array.nbytes
     if rec.kind == "histograms":
         need += HISTOGRAM_COPIES * HISTOGRAM_CHUNK * 4.0 * h * w * int(rec.shape[-1])
+    if job._ambient_stream is not None:  # the frames held, their stack and the padded sums of `ambient_only`
+        need += 3 * AMBIENT_FRAMES * 4.0 * h * w * int(rec.shape[-1])
     channels = len(getattr(model.config, "inputs", ("depth",)))
     radius = model.architecture.input_radius(model.config)
     tile = min(h, DEFAULT_TILE) * min(w, DEFAULT_TILE)
@@ -767,7 +797,7 @@ def upscale(input, output, *, model="default", kind: str | None = None, bins: in
             points=None, fov_deg: float = DEFAULT_FOV_DEG, points_colour: str | None = "depth",
             overwrite: bool = False, progress: bool = False, clip_negative: bool = False, max_memory=None,
             report: Callable[[str], None] | None = None, precision: str = DEFAULT_PRECISION,
-            form: str = DEFAULT_FORM, no_return_logit=None) -> UpscaleResult:
+            form: str = DEFAULT_FORM, no_return_logit=None, ambient_alpha=None) -> UpscaleResult:
     """Super-resolve a recording x4 with a trained model and write it: `jaxsr upscale INPUT OUTPUT` in one call.
 
     input: a path (.npy / .npz array of depth (T, h, w) or photon counts (T, h, w, bins); a folder or glob
@@ -808,6 +838,11 @@ def upscale(input, output, *, model="default", kind: str | None = None, bins: in
       logit above which a pixel is output as no return (`jaxsr.nn.with_no_return_logit`; default the model's
       own, 0.0 = p 0.5): higher drops fewer true returns and leaves more of the sky as depth. Refused for a
       model without the head.
+    - ambient_alpha (--ambient-alpha, histograms and time tags): also output no return wherever the photons of
+      3 x 3 pixels and 9 frames around a pixel pass for ambient light alone at this false-alarm rate
+      (`jaxsr.sensor.ambient_only`; default off), with any model: it empties the insides of sky and absorbing
+      regions, and drops returns too faint to stand out even summed (worth it from about 3 signal photons per
+      pixel at SNR 1 and above, not at SNR 0.1; docs/network.md).
     - batch_size (--batch-size): frames per compiled call (output frames per chunk in the sequence form);
       min_fps (--min-fps, model="auto" only): the slowest acceptable frames/s; preview (--preview): an input |
       output PNG strip of the middle frame; overwrite (--force): replace output, preview and video; progress
@@ -846,7 +881,8 @@ def upscale(input, output, *, model="default", kind: str | None = None, bins: in
     job = prepare_upscale(input, model=model, kind=kind, bins=bins, bin_width=bin_width, gate_start=gate_start,
                           span=span, time_unit=time_unit, variable=variable, drop_outside=drop_outside,
                           units=units, min_fps=min_fps, clip_negative=clip_negative, max_memory=max_memory,
-                          precision=precision, form=form, no_return_logit=no_return_logit)
+                          precision=precision, form=form, no_return_logit=no_return_logit,
+                          ambient_alpha=ambient_alpha)
     # before the lines below, which say the work starts (write_upscaled checks again, for its own callers)
     _frame_format(frame_format, out, job)
     _check_memory(job, out, _batch_size(job, batch_size), video is not None or points is not None, max_memory)

@@ -35,6 +35,7 @@ from ..nn.duf import apply_model, apply_model_sequence, check_conv, sequence_rad
 from ..nn.model import Model
 from ..nn.inputs import network_inputs
 from ..runtime import compiler_options
+from ..sensor.peaks import ambient_only
 from ..nn.streaming import stream_init, stream_step
 
 # Frames per device and batch when `batch_size=None`: on XLA:CPU larger batches are no faster per frame
@@ -405,10 +406,54 @@ def iter_network_inputs(counts: Iterable, sensor: SensorConfig = SensorConfig(),
         yield from flush()
 
 
+@functools.partial(jax.jit, static_argnames=("sensor", "pixels"))
+def _ambient_centre(window, alpha, sensor, pixels):
+    """`ambient_only` of the centre frame of a (frames, h, w, K) window, frames beyond the sequence zero."""
+    frames = window.shape[0]
+    return ambient_only(window, sensor, alpha=alpha, pixels=pixels, frames=frames)[frames // 2]
+
+
+def iter_ambient_only(counts: Iterable, sensor: SensorConfig = SensorConfig(), *, alpha: float = 1e-3,
+                      pixels: int = 3, frames: int = 9) -> Iterator[np.ndarray]:
+    """`jaxsr.sensor.ambient_only` over a stream of histogram frames, frame by frame: (h, w) bool per frame, True
+    where the photons of the `pixels` x `pixels` pixels and `frames` frames around a pixel pass for ambient light
+    alone at false-alarm rate `alpha` (no return to be seen). The same as `ambient_only` of the whole sequence,
+    holding only `frames` frames at a time (frame t comes once frame t + frames // 2 has been read). Counts as
+    `iter_network_inputs` checks them."""
+    ambient_only(np.zeros((1, 1, 1, sensor.bins), np.float32), sensor, alpha=alpha, pixels=pixels, frames=frames)
+    r = frames // 2
+    held = deque()  # frames t - r .. t + r of the next frame t to flag (fewer at the start)
+    t = 0
+
+    def flag(first):  # frame t from `held`, which starts at sequence frame `first`; missing frames are zero
+        zero = np.zeros_like(held[0])
+        window = [held[k - first] if 0 <= k - first < len(held) else zero for k in range(t - r, t + r + 1)]
+        return np.asarray(_ambient_centre(jnp.asarray(np.stack(window)), alpha, sensor, pixels))
+
+    first = 0
+    for i, c in enumerate(counts):
+        c = np.asarray(c, np.float32)
+        if c.ndim != 3 or c.shape[-1] != sensor.bins:
+            raise ValueError(f"iter_ambient_only: frame {i} has shape {c.shape}, expected (h, w, {sensor.bins}) "
+                             "photon counts")
+        if not np.all(np.isfinite(c)) or np.any(c < 0):
+            raise ValueError(f"iter_ambient_only: frame {i} has negative or non-finite counts")
+        held.append(c)
+        if i == t + r:
+            yield flag(first)
+            t += 1
+            if len(held) > 2 * r:
+                held.popleft()
+                first += 1
+    while held and t <= first + len(held) - 1:  # the last r frames: the sequence ends before their windows do
+        yield flag(first)
+        t += 1
+
+
 def super_resolve_histograms(model: Model, counts, sensor: SensorConfig = SensorConfig(), *, intensity=None,
                              batch_size: int | None = None, conv3d_impl: str = "auto",
                              tile: int | None = DEFAULT_TILE, precision: str = DEFAULT_PRECISION,
-                             form: str = DEFAULT_FORM) -> np.ndarray:
+                             form: str = DEFAULT_FORM, ambient_alpha: float | None = None) -> np.ndarray:
     """Super-resolve photon histograms: (T, h, w, K) counts -> (T, h r, w r) normalised depth (NumPy, float32).
 
     A model that reads depth (the DUF network, iSeeBetter) gets the centre-of-mass depth of each frame
@@ -418,7 +463,12 @@ def super_resolve_histograms(model: Model, counts, sensor: SensorConfig = Sensor
     as there, `form` as in `super_resolve`). A model that reads histograms (HistNet) gets the counts themselves
     with `intensity` (T, h r, w r), the HR intensity in [0, 1] it is guided by (required for it, refused
     otherwise), frame by frame in batches of `batch_size`. Any h, w >= `MIN_LR_SIDE`; for histograms over
-    another gate, see `jaxsr.Gate` and `jaxsr.sensor.gate_depth`."""
+    another gate, see `jaxsr.Gate` and `jaxsr.sensor.gate_depth`.
+    ambient_alpha: also output no return (1.0) wherever the photons around an LR pixel pass for ambient light
+    alone at this false-alarm rate (`jaxsr.sensor.ambient_only`: 3 x 3 pixels, 9 frames; default None: off). It
+    empties the insides of sky and absorbing regions that a model shows as depth, and drops returns too faint to
+    stand out even summed: worth it from about 3 signal photons per pixel at SNR 1 and above, not at SNR 0.1
+    (experiments/results/no_return_evidence.md)."""
     _require_model(model, "super_resolve_histograms")
     precision = check_precision(model, precision, "super_resolve_histograms")
     if counts is None or isinstance(counts, (str, bytes)):
@@ -429,10 +479,13 @@ def super_resolve_histograms(model: Model, counts, sensor: SensorConfig = Sensor
         raise ValueError(f"super_resolve_histograms: expected counts (T, h, w, {sensor.bins}) with T >= 1 and h, w >= "
                          f"{MIN_LR_SIDE}, got shape {counts.shape}")
     model = in_form(model, form, "super_resolve_histograms", frames=counts.shape[0])
+    if ambient_alpha is not None:  # refused before any work
+        ambient_only(np.zeros((1, 1, 1, sensor.bins), np.float32), sensor, alpha=ambient_alpha)
     arch = model.architecture
     r = arch.scale(model.config)
     if arch.inputs == "histograms":
-        return _histograms_through_model(model, counts, intensity, sensor, batch_size or DEFAULT_BATCH_SIZE)
+        out = _histograms_through_model(model, counts, intensity, sensor, batch_size or DEFAULT_BATCH_SIZE)
+        return out if ambient_alpha is None else _no_return_where_ambient(out, counts, sensor, ambient_alpha)
     if intensity is not None:
         raise ValueError(f"super_resolve_histograms: a {arch.name} model reads depth, not intensity; "
                          "pass intensity only to a model that reads histograms (HistNet)")
@@ -444,6 +497,19 @@ def super_resolve_histograms(model: Model, counts, sensor: SensorConfig = Sensor
                                 precision=precision)
     for t, hr in enumerate(stream):
         out[t] = hr
+    return out if ambient_alpha is None else _no_return_where_ambient(out, counts, sensor, ambient_alpha)
+
+
+def no_return_where(hr, flags):
+    """HR frames (T, H, W) or one (H, W), normalised, with 1.0 (no return) wherever LR `flags` ((T, h, w) or
+    (h, w) bool, H = r h) say so: each LR pixel's r x r HR pixels."""
+    r = np.shape(hr)[-1] // np.shape(flags)[-1]
+    return np.where(np.repeat(np.repeat(flags, r, axis=-2), r, axis=-1), np.float32(1.0), hr)
+
+
+def _no_return_where_ambient(out, counts, sensor: SensorConfig, alpha: float) -> np.ndarray:
+    for t, flags in enumerate(iter_ambient_only(counts, sensor, alpha=alpha)):
+        out[t] = no_return_where(out[t], flags)
     return out
 
 

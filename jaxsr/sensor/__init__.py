@@ -32,6 +32,7 @@ from .peaks import (
     centre_of_mass,
     peak_evidence,
     return_significance,
+    ambient_only,
     frame_snr,
     maximum_likelihood_depth,
 )
@@ -85,6 +86,7 @@ __all__ = [
     "centre_of_mass",
     "peak_evidence",
     "return_significance",
+    "ambient_only",
     "frame_snr",
     "maximum_likelihood_depth",
     "dark_counts",

@@ -136,3 +136,71 @@ def test_frame_snr_reads_the_calibrated_snr():
         assert abs(frame_snr(np.asarray(c), sensor) / snr - 1) < within
     with pytest.raises(ValueError, match="histograms"):
         frame_snr(np.zeros((4, 8, 8)))
+
+
+@pytest.fixture(scope="module")
+def half_sky():
+    """11 frames of a surface (left half, 4 signal photons per pixel) beside sky (right half), both with 2
+    ambient photons per pixel; LR 8 x 12."""
+    rng = np.random.default_rng(2)
+    counts = rng.poisson(2.0 / 16, (11, 8, 12, 16)).astype(np.float32)
+    counts[:, :, :6, 7] += rng.poisson(4.0, (11, 8, 6))
+    return counts
+
+
+def test_ambient_alpha_empties_the_sky_and_keeps_the_surface(photon_model, half_sky):
+    """The library and `jaxsr upscale` agree; inside the sky every HR pixel is no return, on the surface the
+    output is the model's own; the flags are `ambient_only`'s."""
+    from jaxsr.sensor import ambient_only
+
+    model, path = photon_model
+    plain = super_resolve_histograms(model, half_sky)
+    tested = super_resolve_histograms(model, half_sky, ambient_alpha=1e-3)
+    flags = np.asarray(ambient_only(half_sky, alpha=1e-3))
+    assert not flags[:, :, :6].any() and flags[:, :, 7:].all()  # column 6 sees the surface beside it
+    hr_flags = np.repeat(np.repeat(flags, 4, axis=1), 4, axis=2)
+    assert (tested[hr_flags] == 1.0).all()
+    np.testing.assert_array_equal(tested[~hr_flags], plain[~hr_flags])
+    job = prepare_upscale(half_sky, model=path, ambient_alpha=1e-3)
+    assert "alpha 0.001" in job.model_name
+    result = upscale(half_sky, None, model=path, units="normalised", ambient_alpha=1e-3)
+    np.testing.assert_allclose(result.depth, np.clip(tested, 0, 1), atol=1e-6)
+    metres = upscale(half_sky, None, model="tr0", ambient_alpha=1e-3).depth
+    assert np.isinf(metres[hr_flags]).all()  # no return is inf in metres, with a depth-only model too
+
+
+def test_ambient_alpha_is_refused_for_depth_and_out_of_range(photon_model, half_sky, tmp_path, capsys):
+    from jaxsr.cli import main
+
+    with pytest.raises(ValueError, match="histograms or time tags"):
+        prepare_upscale(np.full((2, 8, 12), 0.5, np.float32), model="tr0", ambient_alpha=1e-3)
+    for bad in (0.0, 1.0, -1e-3, True, "0.001"):
+        with pytest.raises(ValueError, match=r"false-alarm rate in \(0, 1\)"):
+            prepare_upscale("/nonexistent/input.npy", ambient_alpha=bad)  # before the input is read
+    with pytest.raises(ValueError, match=r"in \(0, 1\)"):
+        super_resolve_histograms(photon_model[0], half_sky, ambient_alpha=2.0)
+    src = tmp_path / "counts.npy"
+    np.save(src, half_sky)
+    out = tmp_path / "out.npy"
+    assert main(["upscale", str(src), str(out), "--model", "tr0", "--ambient-alpha", "1e-3", "--units",
+                 "normalised", "--no-progress"]) == 0
+    assert (np.load(out)[:, :, 32:] == 1.0).all()
+    assert main(["upscale", str(src), str(tmp_path / "b.npy"), "--ambient-alpha", "2"]) == 2
+    assert "false-alarm rate" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("frames", [1, 3, 9])
+def test_iter_ambient_only_streams_what_ambient_only_computes(half_sky, frames):
+    """Frame by frame, holding a window, the flags of the whole sequence: short sequences (fewer frames than
+    the window) and the ends included; bad frames refused."""
+    from jaxsr.inference import iter_ambient_only
+    from jaxsr.sensor import ambient_only
+
+    for length in (1, 4, 11):
+        counts = half_sky[:length]
+        got = np.stack(list(iter_ambient_only(iter(counts), alpha=1e-2, frames=frames)))
+        np.testing.assert_array_equal(got, np.asarray(ambient_only(counts, alpha=1e-2, frames=frames)))
+    bad = half_sky[:3].copy()
+    bad[2, 0, 0, 0] = -1.0
+    with pytest.raises(ValueError, match="frame 2 has negative"):
+        list(iter_ambient_only(bad, frames=frames))

@@ -325,3 +325,76 @@ def test_return_significance_refuses_bad_counts_eagerly_and_is_no_evidence_trace
     assert lp[1] == 0.0 and lp[2] < np.log(1e-3)
     with pytest.raises(ValueError, match="half-width in bins"):
         jaxsr.sensor.return_significance(np.ones((2, K), np.float32), window=1.5)
+
+
+# ------------------------------------------------------------------------------------------------ ambient_only
+
+def reference_ambient_only(counts, alpha, pixels, frames):
+    """The neighbourhood sums, cut at the edges (zero padding), then the scan test."""
+    r, q = frames // 2, pixels // 2
+    padded = np.pad(np.asarray(counts, np.float64), ((r, r), (q, q), (q, q), (0, 0)))
+    t, h, w = counts.shape[:3]
+    summed = sum(padded[dt:dt + t, dy:dy + h, dx:dx + w] for dt in range(frames) for dy in range(pixels)
+                 for dx in range(pixels))
+    return np.asarray(jaxsr.sensor.return_significance(summed.astype(np.float32), CFG)) > np.log(alpha)
+
+
+@pytest.mark.parametrize("pixels,frames", [(1, 1), (3, 9), (5, 3)])
+def test_ambient_only_tests_the_neighbourhood_sum(pixels, frames):
+    rng = np.random.default_rng(4)
+    counts = rng.poisson(0.3, (6, 5, 7, K)).astype(np.float32)
+    counts[:, 1:3, 2:5, 6] += rng.poisson(2.0, (6, 2, 3))
+    got = np.asarray(jax.jit(jaxsr.sensor.ambient_only, static_argnames=("pixels", "frames"))(
+        counts, alpha=1e-3, pixels=pixels, frames=frames))
+    np.testing.assert_array_equal(got, reference_ambient_only(counts, 1e-3, pixels, frames))
+    assert got.shape == counts.shape[:3] and got.dtype == bool
+
+
+def test_ambient_only_finds_a_faint_surface_and_the_sky_beside_it():
+    """3 signal photons per pixel and frame against 2 ambient (SNR 1.5) from a slanted surface: summed over 3 x 3
+    pixels and 9 frames, the surface's pixels are not flagged and the sky's are, but for the column beside the
+    surface, whose neighbourhood holds it, and at most about alpha of the others."""
+    rng = np.random.default_rng(5)
+    t, h, w = 9, 24, 24
+    tau = 5.0 + 0.1 * (np.arange(h)[:, None] + np.arange(w // 2)[None, :])
+    rates = np.zeros((h, w, K))
+    rates[:, : w // 2] = irf_histogram(tau.ravel(), signal=3.0, background=2.0).reshape(h, w // 2, K)
+    rates[:, w // 2:] = 2.0 / K
+    counts = rng.poisson(np.broadcast_to(rates, (t, h, w, K))).astype(np.float32)
+    flagged = np.asarray(jaxsr.sensor.ambient_only(counts, CFG, alpha=1e-3))
+    assert flagged[:, :, : w // 2].mean() < 0.01
+    assert flagged[:, :, w // 2 + 1:].mean() > 0.99
+    single = np.asarray(jaxsr.sensor.ambient_only(counts, CFG, alpha=1e-3, pixels=1, frames=1))
+    assert single[:, :, : w // 2].mean() > 0.5  # one histogram alone holds too few photons
+
+
+def test_ambient_only_at_the_extremes():
+    """No photons: ambient only (nothing to see); huge counts stay finite, a flat histogram of 1e37 per bin is
+    ambient and a peak of 1e37 is not; NaN is refused eagerly and, traced, adds nothing to its neighbours."""
+    f = jax.jit(jaxsr.sensor.ambient_only, static_argnames=("pixels", "frames"))
+    assert np.asarray(f(np.zeros((3, 4, 4, K), np.float32))).all()
+    huge = np.full((3, 4, 4, K), 1e37, np.float32)
+    assert np.asarray(f(huge)).all()
+    huge[:, :2, :, 5] *= 3.0
+    flagged = np.asarray(f(huge, pixels=1, frames=1))
+    assert not flagged[:, :2].any() and flagged[:, 2:].all()
+    counts = np.random.default_rng(6).poisson(0.2, (3, 6, 6, K)).astype(np.float32)
+    counts[:, :3, :, 4] += 20.0
+    bad = counts.copy()
+    bad[1, 0, 0, 2] = np.nan
+    with pytest.raises(ValueError, match=r"ambient_only: counts must be finite"):
+        jaxsr.sensor.ambient_only(bad)
+    clean, zeroed = counts.copy(), counts.copy()
+    zeroed[1, 0, 0] = 0.0
+    np.testing.assert_array_equal(np.asarray(f(bad)), np.asarray(f(zeroed)))
+    assert not np.asarray(f(clean))[:, :2].any()
+
+
+@pytest.mark.parametrize("kwargs,match", [({"pixels": 2}, "odd integer"), ({"frames": 0}, "odd integer"),
+                                          ({"pixels": True}, "odd integer"), ({"alpha": 0.0}, r"in \(0, 1\)"),
+                                          ({"alpha": 1.0}, r"in \(0, 1\)")])
+def test_ambient_only_refuses_bad_settings(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        jaxsr.sensor.ambient_only(np.zeros((2, 4, 4, K), np.float32), **kwargs)
+    with pytest.raises(ValueError, match=r"\(T, h, w, 16\)"):
+        jaxsr.sensor.ambient_only(np.zeros((4, 4, K), np.float32))
