@@ -202,10 +202,10 @@ def ambient_only(counts, sensor: SensorConfig = SensorConfig(), *, alpha=1e-3, p
     the edges of the frame and of the sequence, where fewer are summed) and tests the sum: True where its
     `return_significance` p-value is above `alpha`, no return to be seen. Inside a region without a return (sky,
     an absorbing surface) the sum is ambient light alone and the test says so with probability >= 1 - alpha at
-    any light level; a pixel whose neighbourhood holds returns is not flagged. It can flag true returns where
-    their photons are too few to stand out even summed: at 1 signal photon per pixel and SNR 1.3 it flagged
-    about 11 % of the returns of the project's test scenes, at SNR 0.1 44 % (experiments/results/
-    no_return_evidence.md); from 3 photons at SNR 1.3 about 1 %.
+    any light level; a pixel whose neighbourhood holds returns is not flagged. It can flag true returns whose
+    photons are too few to stand out even summed: added to tr4-photons' decision on the project's test scenes,
+    the returns dropped inside their regions went from 0.6 to 1.0 % at 3 signal photons per pixel and SNR 1.3,
+    to 4.5 % at 1 photon, and to 15-31 % at 1-3 photons and SNR 0.1 (experiments/results/no_return_evidence*.md).
 
     Args:
       counts: (T, h, w, K) photon counts of consecutive frames, finite and >= 0 (traced, a histogram that is not
