@@ -66,6 +66,7 @@ NO_RETURN_FRACTION = 0.3
 NO_RETURN_SKY = 0.5
 NO_RETURN_SNR = 1.3
 NO_RETURN_MIN_PHOTONS = 3.0
+AMBIENT_RADIUS = 4  # frames on either side that `ambient_only` sums (its 9 frames)
 MAJORITY = "block majority"  # the no-return tables' column of `block_majority`
 TV_TR = 1  # the TV baseline's temporal radius (its default)
 # The issue's goals (item 5 for PSNR, item 3 for no return)
@@ -108,7 +109,8 @@ def regime_clips(seqs: dict, photons: float, snr, *, scored, radius: int, key, s
         s = float(seq.snr if snr is None else snr)
         alpha, beta = _calibration(jnp.asarray(seq.depth), jnp.asarray(seq.intensity), jnp.float32(s),
                                    jnp.float32(photons), sensor)
-        keep = needed_frames(scored, len(seq.depth), radius)
+        # the ambient-only test sums 9 frames: each scored frame needs its +-4 (else windows far apart would meet)
+        keep = needed_frames(scored, len(seq.depth), max(radius, AMBIENT_RADIUS) if tests else radius)
         x, gt, flags = _draw(jax.random.fold_in(key, i), jnp.asarray(seq.depth[keep]),
                              jnp.asarray(seq.intensity[keep]), alpha, beta, sensor, tuple(tests))
         x = np.asarray(x)

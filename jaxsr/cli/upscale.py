@@ -89,9 +89,10 @@ def add_parser(subparsers):
                    "and leaves more sky as depth (docs/network.md, photon inputs and no return)")
     p.add_argument("--ambient-alpha", type=finite_float, default=None, metavar="ALPHA",
                    help="histograms and time tags: also output no return where the photons of 3 x 3 pixels and 9 "
-                   "frames around a pixel pass for ambient light alone at false-alarm rate ALPHA, such as 0.001 "
-                   "(empties sky that a model shows as depth; drops returns too faint to stand out: from about 3 "
-                   "photons per pixel at SNR 1 up, docs/network.md)")
+                   "frames around a pixel pass for ambient light alone at false-alarm rate ALPHA, such as 0.001: "
+                   "it empties sky that a model shows as depth, and may drop returns too faint to stand out even "
+                   "summed (worth it from about 3 photons per pixel at SNR 1 up; a lower ALPHA empties more and "
+                   "drops more; docs/network.md)")
     p.add_argument("--max-memory", type=memory, default=None, metavar="SIZE",
                    help=f"the memory the command may take, such as 16GB (default {MEMORY_SHARE * 100:.0f}%% of this "
                    "machine's RAM): the input's arrays and the work are estimated before they allocate, and refused beyond it")

@@ -55,7 +55,7 @@ from ..nn.duf import with_no_return_logit
 from ..nn.model import Model
 from ..runtime import enable_compilation_cache
 from ..sensor.gates import gate_warnings
-from ..sensor.peaks import frame_snr
+from ..sensor.peaks import check_false_alarm_rate, frame_snr
 from ..sensor.quantities import parse_span, parse_time_unit, range_metres
 from ..sensor.timetags import TIME_TAG_FORMATS, TimeTags, gate_of_tags, read_time_tags, time_tag_warnings
 from .adaptive import resolve_model
@@ -499,10 +499,8 @@ def _check_no_return_logit(model, name: str, logit) -> None:
 
 
 def _check_ambient_alpha(alpha) -> None:
-    """Refuse a false-alarm rate outside (0, 1) before the input is read."""
-    if isinstance(alpha, bool) or not isinstance(alpha, (int, float, np.floating)) or not 0.0 < float(alpha) < 1.0:
-        raise ValueError(f"ambient_alpha (--ambient-alpha) is a false-alarm rate in (0, 1), such as 0.001; got "
-                         f"{alpha!r}")
+    """Refuse a false-alarm rate out of range before the input is read."""
+    check_false_alarm_rate("ambient_alpha (--ambient-alpha)", alpha)
 
 
 def _check_precision_form(model, precision, form) -> None:

@@ -35,7 +35,7 @@ from ..nn.duf import apply_model, apply_model_sequence, check_conv, sequence_rad
 from ..nn.model import Model
 from ..nn.inputs import network_inputs
 from ..runtime import compiler_options
-from ..sensor.peaks import ambient_only
+from ..sensor.peaks import HUGE_BIN, ambient_only
 from ..nn.streaming import stream_init, stream_step
 
 # Frames per device and batch when `batch_size=None`: on XLA:CPU larger batches are no faster per frame
@@ -406,11 +406,14 @@ def iter_network_inputs(counts: Iterable, sensor: SensorConfig = SensorConfig(),
         yield from flush()
 
 
-@functools.partial(jax.jit, static_argnames=("sensor", "pixels"))
-def _ambient_centre(window, alpha, sensor, pixels):
-    """`ambient_only` of the centre frame of a (frames, h, w, K) window, frames beyond the sequence zero."""
-    frames = window.shape[0]
-    return ambient_only(window, sensor, alpha=alpha, pixels=pixels, frames=frames)[frames // 2]
+@functools.partial(jax.jit, static_argnames=("sensor", "pixels", "frames"))
+def _ambient_centre(window, alpha, sensor, pixels, frames):
+    """`ambient_only` of the centre frame of a (frames, h, w, K) window, frames beyond the sequence zero: the
+    window summed over its frames first (one frame's memory for the test, not the window's)."""
+    capped = window * jnp.minimum(1.0, HUGE_BIN / (pixels * pixels * frames)
+                                  / jnp.maximum(jnp.max(window, axis=-1, keepdims=True), 1.0))
+    summed = jnp.sum(capped, axis=0, keepdims=True)
+    return ambient_only(summed, sensor, alpha=alpha, pixels=pixels, frames=1)[0]
 
 
 def iter_ambient_only(counts: Iterable, sensor: SensorConfig = SensorConfig(), *, alpha: float = 1e-3,
@@ -420,22 +423,22 @@ def iter_ambient_only(counts: Iterable, sensor: SensorConfig = SensorConfig(), *
     alone at false-alarm rate `alpha` (no return to be seen). The same as `ambient_only` of the whole sequence,
     holding only `frames` frames at a time (frame t comes once frame t + frames // 2 has been read). Counts as
     `iter_network_inputs` checks them."""
+    # the settings refused before the first frame is read
     ambient_only(np.zeros((1, 1, 1, sensor.bins), np.float32), sensor, alpha=alpha, pixels=pixels, frames=frames)
     r = frames // 2
     held = deque()  # frames t - r .. t + r of the next frame t to flag (fewer at the start)
-    t = 0
+    t = first = 0  # the next frame to flag; the sequence frame held[0] is
 
     def flag(first):  # frame t from `held`, which starts at sequence frame `first`; missing frames are zero
         zero = np.zeros_like(held[0])
         window = [held[k - first] if 0 <= k - first < len(held) else zero for k in range(t - r, t + r + 1)]
-        return np.asarray(_ambient_centre(jnp.asarray(np.stack(window)), alpha, sensor, pixels))
+        return np.asarray(_ambient_centre(jnp.asarray(np.stack(window)), alpha, sensor, pixels, frames))
 
-    first = 0
     for i, c in enumerate(counts):
         c = np.asarray(c, np.float32)
-        if c.ndim != 3 or c.shape[-1] != sensor.bins:
-            raise ValueError(f"iter_ambient_only: frame {i} has shape {c.shape}, expected (h, w, {sensor.bins}) "
-                             "photon counts")
+        if c.ndim != 3 or c.shape[-1] != sensor.bins or (held and c.shape != held[-1].shape):
+            want = f"{held[-1].shape}, as the frames before it" if held else f"(h, w, {sensor.bins}) photon counts"
+            raise ValueError(f"iter_ambient_only: frame {i} has shape {c.shape}, expected {want}")
         if not np.all(np.isfinite(c)) or np.any(c < 0):
             raise ValueError(f"iter_ambient_only: frame {i} has negative or non-finite counts")
         held.append(c)

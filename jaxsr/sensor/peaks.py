@@ -192,6 +192,20 @@ def return_significance(counts, sensor: SensorConfig = SensorConfig(), *, window
     return jnp.where(usable, log_p, 0.0)
 
 
+# The smallest false-alarm rate `ambient_only` takes: `return_significance` stops at log(float32 tiny) (about
+# 1e-37 with the scan's factor), so a smaller alpha would read every pixel as ambient light alone.
+MIN_FALSE_ALARM_RATE = 1e-30
+
+
+def check_false_alarm_rate(name: str, alpha) -> None:
+    """Refuse a false-alarm rate that is not a number in [MIN_FALSE_ALARM_RATE, 1) (a traced one passes)."""
+    if isinstance(alpha, jax.core.Tracer):
+        return
+    if isinstance(alpha, bool) or not isinstance(alpha, (int, float, np.integer, np.floating)) or not (
+            MIN_FALSE_ALARM_RATE <= float(alpha) < 1.0):
+        raise ValueError(f"{name} is a false-alarm rate in [{MIN_FALSE_ALARM_RATE:g}, 1), such as 0.001; got {alpha!r}")
+
+
 def ambient_only(counts, sensor: SensorConfig = SensorConfig(), *, alpha=1e-3, pixels: int = 3, frames: int = 9,
                  window=None):
     """Where the photons around each pixel are consistent with ambient light alone: the no-return test of a video.
@@ -201,8 +215,8 @@ def ambient_only(counts, sensor: SensorConfig = SensorConfig(), *, alpha=1e-3, p
     sums each pixel's histograms over the `pixels` x `pixels` pixels and `frames` frames centred on it (cut at
     the edges of the frame and of the sequence, where fewer are summed) and tests the sum: True where its
     `return_significance` p-value is above `alpha`, no return to be seen. Inside a region without a return (sky,
-    an absorbing surface) the sum is ambient light alone and the test says so with probability >= 1 - alpha at
-    any light level; a pixel whose neighbourhood holds returns is not flagged. It can flag true returns whose
+    an absorbing surface) the sum is ambient light alone and the test says so with probability about 1 - alpha or
+    more at any light level (the p-value is a bound); a pixel whose neighbourhood holds returns is not flagged. It can flag true returns whose
     photons are too few to stand out even summed: added to tr4-photons' decision on the project's test scenes,
     the returns dropped inside their regions went from 0.6 to 1.0 % at 3 signal photons per pixel and SNR 1.3,
     to 4.5 % at 1 photon, and to 15-31 % at 1-3 photons and SNR 0.1 (experiments/results/no_return_evidence*.md).
@@ -210,7 +224,8 @@ def ambient_only(counts, sensor: SensorConfig = SensorConfig(), *, alpha=1e-3, p
     Args:
       counts: (T, h, w, K) photon counts of consecutive frames, finite and >= 0 (traced, a histogram that is not
         adds nothing to its neighbours' sums and is flagged if they hold no return).
-      alpha: the false-alarm rate of the test per pixel, in (0, 1).
+      alpha: the false-alarm rate of the test per pixel, in [`MIN_FALSE_ALARM_RATE`, 1): below it float32's
+        p-values (floored near 1e-37) would flag every pixel.
       pixels, frames: the odd sides of the neighbourhood summed, in LR pixels and in frames (default 9: a TR4
         window).
       window: half-width in bins of the scan (default: `default_window(sensor)`).
@@ -220,14 +235,16 @@ def ambient_only(counts, sensor: SensorConfig = SensorConfig(), *, alpha=1e-3, p
     for name, value in (("pixels", pixels), ("frames", frames)):
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1 or value % 2 == 0:
             raise ValueError(f"ambient_only: {name} must be an odd integer >= 1, got {value!r}")
-    if is_concrete(alpha) and not 0.0 < float(alpha) < 1.0:
-        raise ValueError(f"ambient_only: alpha must be a false-alarm rate in (0, 1), got {alpha!r}")
+    check_false_alarm_rate("ambient_only: alpha", alpha)
     if jnp.ndim(counts) != 4:
         raise ValueError(f"ambient_only: counts must be (T, h, w, {sensor.bins}) histograms of consecutive frames, "
                          f"got shape {jnp.shape(counts)}")
     # traced, an unusable histogram adds no photons to its neighbours' sums (eagerly it is refused)
     n, _ = _usable(jax.lax.stop_gradient(_check_counts("ambient_only", counts, sensor)))
-    n = n * jnp.minimum(1.0, HUGE_BIN / jnp.maximum(jnp.max(n), 1.0))  # sums of huge counts stay finite
+    # each histogram capped so that sums of huge counts stay finite (pixel by pixel: one corrupt bin does not
+    # rescale the others, and a stream of windows computes what the whole sequence does)
+    cap = HUGE_BIN / (pixels * pixels * frames)
+    n = n * jnp.minimum(1.0, cap / jnp.maximum(jnp.max(n, axis=-1, keepdims=True), 1.0))
     r, q = frames // 2, pixels // 2
     # cut at the edges, not replicated: a repeated histogram's photons are not independent, and repeats of one
     # fluctuation would read as a return

@@ -174,10 +174,10 @@ def test_ambient_alpha_is_refused_for_depth_and_out_of_range(photon_model, half_
 
     with pytest.raises(ValueError, match="histograms or time tags"):
         prepare_upscale(np.full((2, 8, 12), 0.5, np.float32), model="tr0", ambient_alpha=1e-3)
-    for bad in (0.0, 1.0, -1e-3, True, "0.001"):
-        with pytest.raises(ValueError, match=r"false-alarm rate in \(0, 1\)"):
+    for bad in (0.0, 1.0, -1e-3, 1e-35, True, "0.001", [1e-3]):
+        with pytest.raises(ValueError, match=r"false-alarm rate in \[1e-30, 1\)"):
             prepare_upscale("/nonexistent/input.npy", ambient_alpha=bad)  # before the input is read
-    with pytest.raises(ValueError, match=r"in \(0, 1\)"):
+    with pytest.raises(ValueError, match=r"false-alarm rate in \[1e-30, 1\)"):
         super_resolve_histograms(photon_model[0], half_sky, ambient_alpha=2.0)
     src = tmp_path / "counts.npy"
     np.save(src, half_sky)

@@ -370,7 +370,8 @@ def test_ambient_only_finds_a_faint_surface_and_the_sky_beside_it():
 
 def test_ambient_only_at_the_extremes():
     """No photons: ambient only (nothing to see); huge counts stay finite, a flat histogram of 1e37 per bin is
-    ambient and a peak of 1e37 is not; NaN is refused eagerly and, traced, adds nothing to its neighbours."""
+    ambient and a peak of 1e37 is not, and one huge histogram does not change its neighbours' flags; NaN is
+    refused eagerly and, traced, adds nothing to its neighbours."""
     f = jax.jit(jaxsr.sensor.ambient_only, static_argnames=("pixels", "frames"))
     assert np.asarray(f(np.zeros((3, 4, 4, K), np.float32))).all()
     huge = np.full((3, 4, 4, K), 1e37, np.float32)
@@ -380,6 +381,9 @@ def test_ambient_only_at_the_extremes():
     assert not flagged[:, :2].any() and flagged[:, 2:].all()
     counts = np.random.default_rng(6).poisson(0.2, (3, 6, 6, K)).astype(np.float32)
     counts[:, :3, :, 4] += 20.0
+    corrupt = counts.copy()
+    corrupt[1, 5, 5, 2] = 1e35  # far from the returns: their flags stay
+    np.testing.assert_array_equal(np.asarray(f(corrupt))[:, :3], np.asarray(f(counts))[:, :3])
     bad = counts.copy()
     bad[1, 0, 0, 2] = np.nan
     with pytest.raises(ValueError, match=r"ambient_only: counts must be finite"):
@@ -391,8 +395,9 @@ def test_ambient_only_at_the_extremes():
 
 
 @pytest.mark.parametrize("kwargs,match", [({"pixels": 2}, "odd integer"), ({"frames": 0}, "odd integer"),
-                                          ({"pixels": True}, "odd integer"), ({"alpha": 0.0}, r"in \(0, 1\)"),
-                                          ({"alpha": 1.0}, r"in \(0, 1\)")])
+                                          ({"pixels": True}, "odd integer"), ({"alpha": 0.0}, "false-alarm rate"),
+                                          ({"alpha": 1.0}, "false-alarm rate"), ({"alpha": 1e-35}, r"\[1e-30, 1\)"),
+                                          ({"alpha": "0.001"}, "false-alarm rate")])
 def test_ambient_only_refuses_bad_settings(kwargs, match):
     with pytest.raises(ValueError, match=match):
         jaxsr.sensor.ambient_only(np.zeros((2, 4, 4, K), np.float32), **kwargs)
