@@ -78,6 +78,7 @@ def test_conv3d_impls_give_same_network():
         np.testing.assert_allclose(x, y, rtol=1e-4, atol=1e-5)
 
 
+@pytest.mark.slow  # 86 s on 2 Intel Xeon cores, a sixth of the default suite's time there
 def test_precisions_of_the_network():
     """The network at each precision: float32 output everywhere, bfloat16 products within bfloat16's band of the
     default, every form (window, sequence, stream) taking the argument, and an unknown precision refused."""
