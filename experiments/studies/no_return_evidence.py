@@ -40,6 +40,7 @@ from photon_regimes import (  # beside this script
     TEST_SCENES,
     _calibration,
     needed_frames,
+    no_return_rates,
     with_no_return,
 )
 from scipy import ndimage
@@ -108,11 +109,10 @@ def model_output(model, windows, batch: int = 4) -> tuple[np.ndarray, np.ndarray
 
 
 def rates(no_return, gt, keep=None) -> tuple[float, float]:
-    """(% of no-return HR pixels (gt >= 1) output as depth, % of returns dropped), over the pixels where
-    `keep` (default all)."""
-    keep = np.ones(gt.shape, bool) if keep is None else keep
-    sky = gt >= 1.0
-    return 100.0 * float((~no_return)[sky & keep].mean()), 100.0 * float(no_return[~sky & keep].mean())
+    """(% of no-return HR pixels (gt >= 1) output as depth, % of returns dropped) of a no-return decision, over
+    the pixels where `keep` (default all): the benchmark's `no_return_rates` of it."""
+    keep = np.ones(np.shape(gt), bool) if keep is None else keep
+    return no_return_rates(np.where(no_return, 1.0, 0.0)[keep], np.asarray(gt)[keep])
 
 
 def measure(seqs, photons: float, snr: float, model, *, frames: int, seed: int, sensor: SensorConfig) -> dict:

@@ -372,8 +372,8 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
     fixed, name = _fixed_model(model, min_fps)
     _check_precision_form(fixed, precision, form)
     _check_no_return_logit(fixed, name, no_return_logit)
-    if ambient_alpha is not None:
-        _check_ambient_alpha(ambient_alpha)
+    if ambient_alpha is not None:  # before the input is read
+        check_false_alarm_rate("ambient_alpha (--ambient-alpha)", ambient_alpha)
     span = _span(span)
     time_unit = _positive(time_unit, "time_unit", parse_time_unit, "seconds")
     rec, gate, source, tag_notes = _open(input, kind, bins=bins, bin_width=bin_width, gate_start=gate_start,
@@ -496,11 +496,6 @@ def _check_no_return_logit(model, name: str, logit) -> None:
     if not any(read_metadata(resolve_model_path(p))["config"].get("no_return_head", False) for p in picks):
         raise ValueError(f"no_return_logit (--no-return-logit) applies to models with a no-return head; --model {name} "
                          f"picks {' or '.join(picks)}, which have none: name one that has, such as tr4-photons")
-
-
-def _check_ambient_alpha(alpha) -> None:
-    """Refuse a false-alarm rate out of range before the input is read."""
-    check_false_alarm_rate("ambient_alpha (--ambient-alpha)", alpha)
 
 
 def _check_precision_form(model, precision, form) -> None:

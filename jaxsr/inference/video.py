@@ -35,7 +35,7 @@ from ..nn.duf import apply_model, apply_model_sequence, check_conv, sequence_rad
 from ..nn.model import Model
 from ..nn.inputs import network_inputs
 from ..runtime import compiler_options
-from ..sensor.peaks import HUGE_BIN, ambient_only
+from ..sensor.peaks import ambient_only, capped_for_sum, check_ambient_settings, check_false_alarm_rate
 from ..nn.streaming import stream_init, stream_step
 
 # Frames per device and batch when `batch_size=None`: on XLA:CPU larger batches are no faster per frame
@@ -410,9 +410,7 @@ def iter_network_inputs(counts: Iterable, sensor: SensorConfig = SensorConfig(),
 def _ambient_centre(window, alpha, sensor, pixels, frames):
     """`ambient_only` of the centre frame of a (frames, h, w, K) window, frames beyond the sequence zero: the
     window summed over its frames first (one frame's memory for the test, not the window's)."""
-    capped = window * jnp.minimum(1.0, HUGE_BIN / (pixels * pixels * frames)
-                                  / jnp.maximum(jnp.max(window, axis=-1, keepdims=True), 1.0))
-    summed = jnp.sum(capped, axis=0, keepdims=True)
+    summed = jnp.sum(capped_for_sum(window, pixels * pixels * frames), axis=0, keepdims=True)
     return ambient_only(summed, sensor, alpha=alpha, pixels=pixels, frames=1)[0]
 
 
@@ -423,8 +421,7 @@ def iter_ambient_only(counts: Iterable, sensor: SensorConfig = SensorConfig(), *
     alone at false-alarm rate `alpha` (no return to be seen). The same as `ambient_only` of the whole sequence,
     holding only `frames` frames at a time (frame t comes once frame t + frames // 2 has been read). Counts as
     `iter_network_inputs` checks them."""
-    # the settings refused before the first frame is read
-    ambient_only(np.zeros((1, 1, 1, sensor.bins), np.float32), sensor, alpha=alpha, pixels=pixels, frames=frames)
+    check_ambient_settings("iter_ambient_only", alpha, pixels, frames)  # before the first frame is read
     r = frames // 2
     held = deque()  # frames t - r .. t + r of the next frame t to flag (fewer at the start)
     t = first = 0  # the next frame to flag; the sequence frame held[0] is
@@ -483,7 +480,7 @@ def super_resolve_histograms(model: Model, counts, sensor: SensorConfig = Sensor
                          f"{MIN_LR_SIDE}, got shape {counts.shape}")
     model = in_form(model, form, "super_resolve_histograms", frames=counts.shape[0])
     if ambient_alpha is not None:  # refused before any work
-        ambient_only(np.zeros((1, 1, 1, sensor.bins), np.float32), sensor, alpha=ambient_alpha)
+        check_false_alarm_rate("super_resolve_histograms: ambient_alpha", ambient_alpha)
     arch = model.architecture
     r = arch.scale(model.config)
     if arch.inputs == "histograms":

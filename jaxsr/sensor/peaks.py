@@ -206,6 +206,21 @@ def check_false_alarm_rate(name: str, alpha) -> None:
         raise ValueError(f"{name} is a false-alarm rate in [{MIN_FALSE_ALARM_RATE:g}, 1), such as 0.001; got {alpha!r}")
 
 
+def check_ambient_settings(name: str, alpha, pixels: int = 3, frames: int = 9) -> None:
+    """Refuse settings of `ambient_only` before any work: odd sides >= 1, a false-alarm rate in range."""
+    for side, value in (("pixels", pixels), ("frames", frames)):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1 or value % 2 == 0:
+            raise ValueError(f"{name}: {side} must be an odd integer >= 1, got {value!r}")
+    check_false_alarm_rate(f"{name}: alpha", alpha)
+
+
+def capped_for_sum(counts, histograms: int):
+    """Each (..., K) histogram scaled down where its largest bin exceeds HUGE_BIN / `histograms`, so that a sum of
+    that many stays finite (pixel by pixel: one corrupt bin does not rescale the others)."""
+    cap = HUGE_BIN / histograms
+    return counts * jnp.minimum(1.0, cap / jnp.maximum(jnp.max(counts, axis=-1, keepdims=True), 1.0))
+
+
 def ambient_only(counts, sensor: SensorConfig = SensorConfig(), *, alpha=1e-3, pixels: int = 3, frames: int = 9,
                  window=None):
     """Where the photons around each pixel are consistent with ambient light alone: the no-return test of a video.
@@ -232,10 +247,7 @@ def ambient_only(counts, sensor: SensorConfig = SensorConfig(), *, alpha=1e-3, p
     Returns:
       (T, h, w) bool. jit-able with `pixels` and `frames` static; no gradient.
     """
-    for name, value in (("pixels", pixels), ("frames", frames)):
-        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1 or value % 2 == 0:
-            raise ValueError(f"ambient_only: {name} must be an odd integer >= 1, got {value!r}")
-    check_false_alarm_rate("ambient_only: alpha", alpha)
+    check_ambient_settings("ambient_only", alpha, pixels, frames)
     if jnp.ndim(counts) != 4:
         raise ValueError(f"ambient_only: counts must be (T, h, w, {sensor.bins}) histograms of consecutive frames, "
                          f"got shape {jnp.shape(counts)}")
@@ -243,8 +255,7 @@ def ambient_only(counts, sensor: SensorConfig = SensorConfig(), *, alpha=1e-3, p
     n, _ = _usable(jax.lax.stop_gradient(_check_counts("ambient_only", counts, sensor)))
     # each histogram capped so that sums of huge counts stay finite (pixel by pixel: one corrupt bin does not
     # rescale the others, and a stream of windows computes what the whole sequence does)
-    cap = HUGE_BIN / (pixels * pixels * frames)
-    n = n * jnp.minimum(1.0, cap / jnp.maximum(jnp.max(n, axis=-1, keepdims=True), 1.0))
+    n = capped_for_sum(n, pixels * pixels * frames)
     r, q = frames // 2, pixels // 2
     # cut at the edges, not replicated: a repeated histogram's photons are not independent, and repeats of one
     # fluctuation would read as a return
