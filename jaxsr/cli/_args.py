@@ -49,6 +49,16 @@ def finite_float(text: str) -> float:
     return value
 
 
+def ambient_alpha(text: str):
+    """An argparse type for --ambient-alpha: "auto", "off" (None) or a finite number (checked as a rate later)."""
+    if text in ("auto", "off"):
+        return None if text == "off" else text
+    try:
+        return finite_float(text)
+    except argparse.ArgumentTypeError:
+        raise argparse.ArgumentTypeError(f"expected auto, off or a false-alarm rate such as 0.001, got {text!r}") from None
+
+
 # Random seeds: jax.random.key takes a 64-bit integer; 32 bits are plenty and keep `seed + 1` in range.
 seed = int_range(0, 2**32 - 1)
 

@@ -19,12 +19,12 @@ import json
 import sys
 
 from ..config import PRECISIONS, TRAINED_RANGE_M
-from ..inference.recording import upscale
+from ..inference.recording import AUTO_AMBIENT_ALPHA, AUTO_AMBIENT_MIN_SNR, upscale
 from ..inference.video import DEFAULT_FORM, DEFAULT_PRECISION, FORMS, SEQUENCE_FORM_MIN_FRAMES, SEQUENCE_FORM_TRS
 from ..io.pointcloud import DEFAULT_FOV_DEG
 from ..io.recordings import DEPTH_UNITS
 from ..checks import MEMORY_SHARE
-from ._args import finite_float, int_range, memory, positive_float, range_or_time, span, time_unit
+from ._args import ambient_alpha, finite_float, int_range, memory, positive_float, range_or_time, span, time_unit
 
 
 def add_parser(subparsers):
@@ -87,12 +87,13 @@ def add_parser(subparsers):
                    help="models with a no-return head (tr0-photons, tr4-photons): output no return where the head's "
                    "logit is above LOGIT (default the model's, 0 = probability 0.5); higher drops fewer true returns "
                    "and leaves more sky as depth (docs/network.md, photon inputs and no return)")
-    p.add_argument("--ambient-alpha", type=finite_float, default=None, metavar="ALPHA",
+    p.add_argument("--ambient-alpha", type=ambient_alpha, default="auto", metavar="{auto,off,ALPHA}",
                    help="histograms and time tags: also output no return where the photons of 3 x 3 pixels and 9 "
                    "frames around a pixel pass for ambient light alone at false-alarm rate ALPHA, such as 0.001: "
                    "it empties sky that a model shows as depth, and may drop returns too faint to stand out even "
-                   "summed (worth it from about 3 photons per pixel at SNR 1 up; a lower ALPHA empties more and "
-                   "drops more; docs/network.md)")
+                   "summed (a lower ALPHA empties more and drops more). auto (default): "
+                   f"{AUTO_AMBIENT_ALPHA:g} where the recording's frame SNR is {AUTO_AMBIENT_MIN_SNR:g} or more, "
+                   "else off (docs/network.md); off: never")
     p.add_argument("--max-memory", type=memory, default=None, metavar="SIZE",
                    help=f"the memory the command may take, such as 16GB (default {MEMORY_SHARE * 100:.0f}%% of this "
                    "machine's RAM): the input's arrays and the work are estimated before they allocate, and refused beyond it")

@@ -41,7 +41,11 @@ from .pipeline import (
     pipeline_metric,
 )
 from .recording import (
+    AUTO_AMBIENT_ALPHA,
+    AUTO_AMBIENT_MIN_SNR,
     DEFAULT_MODELS,
+    auto_ambient_alpha,
+    head_frame_snr,
     UpscaleJob,
     UpscaleResult,
     prepare_upscale,
@@ -68,6 +72,10 @@ __all__ = [
     "iter_centre_of_mass",
     "iter_network_inputs",
     "iter_ambient_only",
+    "AUTO_AMBIENT_ALPHA",
+    "AUTO_AMBIENT_MIN_SNR",
+    "auto_ambient_alpha",
+    "head_frame_snr",
     "super_resolve_histograms",
     "Stream",
     "STUDY_TABLE",

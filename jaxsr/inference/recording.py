@@ -63,10 +63,16 @@ from .video import (DEFAULT_FORM, DEFAULT_PRECISION, DEFAULT_TILE, FORMS, _defau
                     iter_ambient_only, no_return_where,
                     in_form, iter_network_inputs, iter_super_resolve)
 
-__all__ = ["HEAD_FRAMES", "DEFAULT_MODELS", "FRAME_FORMATS", "UpscaleJob", "UpscaleResult", "prepare_upscale",
+__all__ = ["HEAD_FRAMES", "DEFAULT_MODELS", "AUTO_AMBIENT_ALPHA", "AUTO_AMBIENT_MIN_SNR", "auto_ambient_alpha",
+           "head_frame_snr", "FRAME_FORMATS", "UpscaleJob", "UpscaleResult", "prepare_upscale",
            "write_upscaled", "upscale", "upscale_memory"]
 
-HEAD_FRAMES = 64  # frames model="auto" measures the motion on
+HEAD_FRAMES = 64  # frames model="auto" measures the motion on, and the frame SNR is estimated from
+# ambient_alpha="auto" (the default for histograms and time tags): the ambient-only test at this false-alarm rate
+# where the recording's estimated frame SNR is at least AUTO_AMBIENT_MIN_SNR (experiments/results/ambient_rule.md)
+AUTO = "auto"
+AUTO_AMBIENT_ALPHA = 1e-3
+AUTO_AMBIENT_MIN_SNR = 1.0
 # model="default": the bundled model that fits the input. Depth gives only the centre of mass, which the paper's
 # TR4 reads; histograms and time tags also give the photons behind it, which a photon model reads
 # (experiments/results/photon_regimes.md says why this one).
@@ -98,8 +104,9 @@ class UpscaleJob:
     negative counts clipped; source: the input as named in messages and in an .npz output's metadata;
     negative_counts: with `clip_negative`, (negative counts clipped at 0, pixels holding one), else None;
     precision: how the network's convolutions multiply (`jaxsr.config.PRECISIONS`). The model is held in the
-    temporal form it runs in (`form` of `prepare_upscale`: `model.config.temporal`). With `ambient_alpha` of
-    `prepare_upscale`, the output is also no return where `jaxsr.inference.iter_ambient_only` flags a pixel."""
+    temporal form it runs in (`form` of `prepare_upscale`: `model.config.temporal`). Where `ambient_alpha` of
+    `prepare_upscale` sets or picks a rate, the output is also no return where `jaxsr.inference.iter_ambient_only`
+    flags a pixel."""
 
     recording: Recording
     model: object
@@ -355,7 +362,7 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
                     gate_start=None, span=None, time_unit=None, variable: str | None = None,
                     drop_outside: bool = False, units: str | None = None, min_fps: float | None = None,
                     clip_negative: bool = False, max_memory=None, precision: str = DEFAULT_PRECISION,
-                    form: str = DEFAULT_FORM, no_return_logit=None, ambient_alpha=None) -> UpscaleJob:
+                    form: str = DEFAULT_FORM, no_return_logit=None, ambient_alpha=AUTO) -> UpscaleJob:
     """Open and check a recording and choose its model, as `jaxsr upscale` does before any output is written.
 
     input: a path (.npy / .npz array of depth (T, h, w) or photon counts (T, h, w, bins); a folder or glob pattern
@@ -372,7 +379,7 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
     fixed, name = _fixed_model(model, min_fps)
     _check_precision_form(fixed, precision, form)
     _check_no_return_logit(fixed, name, no_return_logit)
-    if ambient_alpha is not None:  # before the input is read
+    if ambient_alpha is not None and not _is_auto(ambient_alpha):  # before the input is read
         check_false_alarm_rate("ambient_alpha (--ambient-alpha)", ambient_alpha)
     span = _span(span)
     time_unit = _positive(time_unit, "time_unit", parse_time_unit, "seconds")
@@ -400,10 +407,14 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
         if found[0]:
             warnings += (_clipped_note(*found),)
         counts = clipped_recording(rec) if clip_negative else rec
-        if getattr(getattr(fixed, "config", None), "no_return_head", False) and not clip_negative:
-            # (not after --clip-negative: the clipped counts' ambient is no longer the sensor's)
+        # the frame SNR, where a choice needs it (not after --clip-negative: the clipped counts' ambient is no
+        # longer the sensor's)
+        head = getattr(getattr(fixed, "config", None), "no_return_head", False) and not clip_negative
+        snr = head_frame_snr(counts, gate.bins) if (head or _is_auto(ambient_alpha)) and not clip_negative else None
+        if head:
             warnings += _snr_warnings(counts, gate, _trained_snr_range(None if isinstance(model, Model) else name),
-                                      no_return_logit)
+                                      no_return_logit, snr=snr)
+        ambient_alpha, ambient_why = _ambient_choice(ambient_alpha, snr, clip_negative)
 
         def lr_stream():
             return gate_frames(iter_network_inputs(counts, SensorConfig(bins=gate.bins), inputs, chunk=HISTOGRAM_CHUNK),
@@ -412,7 +423,7 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
         def ambient_stream():
             return iter_ambient_only(counts, SensorConfig(bins=gate.bins), alpha=ambient_alpha, frames=AMBIENT_FRAMES)
     else:
-        if ambient_alpha is not None:
+        if not _is_auto(ambient_alpha) and ambient_alpha is not None:
             raise ValueError("ambient_alpha (--ambient-alpha) tests the photons behind each pixel: give photon "
                              "histograms or time tags, not depth frames")
         scale = DepthScale(0.0, float(sensor.d_max))
@@ -422,7 +433,7 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
         def lr_stream():
             return normalised_frames(rec, units, sensor)
 
-        gate = None
+        gate, ambient_alpha, ambient_why = None, None, ""
     enable_compilation_cache()
     if fixed is None:
         fixed, name = resolve_model("auto", _head(lr_stream(), HEAD_FRAMES), min_fps=min_fps)
@@ -432,7 +443,9 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
     fixed = in_form(fixed, form, "form (--form)", frames=rec.frames)
     precision = check_precision(fixed, precision, "precision (--precision)")
     if ambient_alpha is not None:
-        name = f"{name}, no return where ambient alone (alpha {float(ambient_alpha):g})"
+        name = f"{name}, no return where ambient alone (alpha {float(ambient_alpha):g}{ambient_why})"
+    elif ambient_why:
+        name = f"{name}{ambient_why}"
     return UpscaleJob(rec, fixed, name, units, gate, scale, warnings, source, lr_stream, negatives, precision,
                       ambient_stream if ambient_alpha is not None else None)
 
@@ -459,14 +472,46 @@ def _trained_snr_range(spec) -> tuple[float, float]:
 SNR_WARNING_MARGIN = 2.0
 
 
-def _snr_warnings(counts, gate: Gate, trained: tuple[float, float], no_return_logit=None) -> tuple[str, ...]:
-    """A warning where the recording's frame SNR (`jaxsr.sensor.frame_snr` of its first HEAD_FRAMES frames) lies
-    well outside (SNR_WARNING_MARGIN) the SNRs a model with a no-return head was trained on: its threshold is then
-    a guess; with a threshold given (`no_return_logit`), the SNR alone is said."""
-    head = None  # summed frame by frame: one frame's memory, not HEAD_FRAMES'
+def head_frame_snr(counts, bins: int) -> float:
+    """`jaxsr.sensor.frame_snr` of a recording's first HEAD_FRAMES frames of (h, w, bins) counts (any iterable of
+    frames), summed frame by frame: one frame's memory, not HEAD_FRAMES'. NaN where no return is seen."""
+    head = None
     for frame in itertools.islice(counts, HEAD_FRAMES):
         head = np.asarray(frame, np.float32) if head is None else head + frame
-    snr = frame_snr(head, SensorConfig(bins=gate.bins))
+    return frame_snr(head, SensorConfig(bins=bins))
+
+
+def auto_ambient_alpha(snr: float) -> float | None:
+    """The false-alarm rate `ambient_alpha="auto"` picks for a recording whose `head_frame_snr` is `snr`:
+    AUTO_AMBIENT_ALPHA from AUTO_AMBIENT_MIN_SNR up, None (no test) below it or where no return is seen (NaN).
+    Below that SNR the summed photons of a faint return no longer stand out from the ambient light, and the test
+    drops more returns than it empties sky (experiments/results/ambient_rule.md measures where)."""
+    return AUTO_AMBIENT_ALPHA if snr >= AUTO_AMBIENT_MIN_SNR else None  # NaN compares False
+
+
+def _is_auto(setting) -> bool:
+    return isinstance(setting, str) and setting == AUTO
+
+
+def _ambient_choice(setting, snr: float, clip_negative: bool) -> tuple[float | None, str]:
+    """`ambient_alpha` as set (None, a rate) or, for "auto", `auto_ambient_alpha` of the recording's frame SNR;
+    and the words that say why, for the model's name ("" where set)."""
+    if not _is_auto(setting):
+        return setting, ""
+    if clip_negative:  # background subtracted: the ambient light the test looks for is gone
+        return None, " (ambient test off: background-subtracted counts)"
+    alpha = auto_ambient_alpha(snr)
+    shown = "no return seen" if np.isnan(snr) else f"frame SNR about {snr:.2g}"
+    if alpha is None:
+        return None, f" (ambient test off: {shown}, below {AUTO_AMBIENT_MIN_SNR:g})"
+    return alpha, f"; auto: {shown}"
+
+
+def _snr_warnings(counts, gate: Gate, trained: tuple[float, float], no_return_logit=None, snr=None) -> tuple[str, ...]:
+    """A warning where the recording's frame SNR (`head_frame_snr`, or `snr` where already measured) lies well
+    outside (SNR_WARNING_MARGIN) the SNRs a model with a no-return head was trained on: its threshold is then a
+    guess; with a threshold given (`no_return_logit`), the SNR alone is said."""
+    snr = head_frame_snr(counts, gate.bins) if snr is None else snr
     lo, hi = trained
     if np.isnan(snr) or lo / SNR_WARNING_MARGIN <= snr <= hi * SNR_WARNING_MARGIN:  # NaN: no return seen, nothing to say
         return ()
@@ -790,7 +835,7 @@ def upscale(input, output, *, model="default", kind: str | None = None, bins: in
             points=None, fov_deg: float = DEFAULT_FOV_DEG, points_colour: str | None = "depth",
             overwrite: bool = False, progress: bool = False, clip_negative: bool = False, max_memory=None,
             report: Callable[[str], None] | None = None, precision: str = DEFAULT_PRECISION,
-            form: str = DEFAULT_FORM, no_return_logit=None, ambient_alpha=None) -> UpscaleResult:
+            form: str = DEFAULT_FORM, no_return_logit=None, ambient_alpha=AUTO) -> UpscaleResult:
     """Super-resolve a recording x4 with a trained model and write it: `jaxsr upscale INPUT OUTPUT` in one call.
 
     input: a path (.npy / .npz array of depth (T, h, w) or photon counts (T, h, w, bins); a folder or glob
@@ -833,9 +878,11 @@ def upscale(input, output, *, model="default", kind: str | None = None, bins: in
       model without the head.
     - ambient_alpha (--ambient-alpha, histograms and time tags): also output no return wherever the photons of
       3 x 3 pixels and 9 frames around a pixel pass for ambient light alone at this false-alarm rate
-      (`jaxsr.sensor.ambient_only`; default off), with any model: it empties the insides of sky and absorbing
-      regions, and drops returns too faint to stand out even summed (worth it from about 3 signal photons per
-      pixel at SNR 1 and above, not at SNR 0.1; docs/network.md).
+      (`jaxsr.sensor.ambient_only`), with any model: it empties the insides of sky and absorbing regions, and
+      drops returns too faint to stand out even summed. "auto" (default): `AUTO_AMBIENT_ALPHA` where the
+      recording's frame SNR (`head_frame_snr`) is at least `AUTO_AMBIENT_MIN_SNR`, else off (and off for
+      background-subtracted counts, `clip_negative`); the model's name in `notes` says which and why. None: off.
+      Depth input: "auto" is off, a rate is refused.
     - batch_size (--batch-size): frames per compiled call (output frames per chunk in the sequence form);
       min_fps (--min-fps, model="auto" only): the slowest acceptable frames/s; preview (--preview): an input |
       output PNG strip of the middle frame; overwrite (--force): replace output, preview and video; progress

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from jaxsr.config import ModelConfig, SensorConfig
-from jaxsr.inference import DEFAULT_MODELS, prepare_upscale, super_resolve_histograms, upscale
+from jaxsr.inference import (AUTO_AMBIENT_ALPHA, AUTO_AMBIENT_MIN_SNR, DEFAULT_MODELS, auto_ambient_alpha,
+                             head_frame_snr, prepare_upscale, super_resolve_histograms, upscale)
 from jaxsr.io.checkpoint import save_model
 from jaxsr.nn import Model, init_model, with_no_return_logit
 
@@ -31,10 +32,13 @@ def counts():
 
 
 def test_histograms_through_a_photon_model_equal_the_library(photon_model, counts):
+    """The default ambient test included: the library's functions compose to what `upscale` does."""
     model, path = photon_model
     result = upscale(counts, None, model=path, units="normalised")
-    want = super_resolve_histograms(model, counts)
+    want = super_resolve_histograms(model, counts, ambient_alpha=auto_ambient_alpha(head_frame_snr(counts, 16)))
     np.testing.assert_allclose(result.depth, np.clip(want, 0, 1), atol=1e-6)
+    off = upscale(counts, None, model=path, units="normalised", ambient_alpha=None)
+    np.testing.assert_allclose(off.depth, np.clip(super_resolve_histograms(model, counts), 0, 1), atol=1e-6)
 
 
 def test_depth_to_a_photon_model_is_refused(photon_model):
@@ -44,7 +48,7 @@ def test_depth_to_a_photon_model_is_refused(photon_model):
 
 
 def test_default_fits_the_input(counts):
-    assert prepare_upscale(counts).model_name == DEFAULT_MODELS["histograms"]
+    assert prepare_upscale(counts, ambient_alpha=None).model_name == DEFAULT_MODELS["histograms"]
     assert prepare_upscale(np.full((2, 8, 12), 0.5, np.float32)).model_name == DEFAULT_MODELS["depth"]
     with pytest.raises(TypeError, match="default"):
         prepare_upscale(counts, model=3)
@@ -64,7 +68,7 @@ def test_no_return_logit_moves_the_decision_and_is_refused_without_a_head(photon
     for spec in ("default", "auto"):  # they pick depth-only models: refused before the input is read
         with pytest.raises(ValueError, match="no-return head"):
             prepare_upscale("/nonexistent/input.npy", model=spec, no_return_logit=1.0)
-    job = prepare_upscale(counts, model=path, no_return_logit=2.0)
+    job = prepare_upscale(counts, model=path, no_return_logit=2.0, ambient_alpha=None)
     assert job.model.config.no_return_logit == 2.0 and job.model_name.endswith("at no-return logit 2")
     with pytest.raises(ValueError, match="finite number"):
         with_no_return_logit(model, float("nan"))
@@ -187,6 +191,45 @@ def test_ambient_alpha_is_refused_for_depth_and_out_of_range(photon_model, half_
     assert (np.load(out)[:, :, 32:] == 1.0).all()
     assert main(["upscale", str(src), str(tmp_path / "b.npy"), "--ambient-alpha", "2"]) == 2
     assert "false-alarm rate" in capsys.readouterr().err
+
+
+def test_auto_ambient_alpha_tests_from_the_threshold_snr_up():
+    assert auto_ambient_alpha(float("nan")) is None  # no return seen: nothing to tell the sky from
+    assert auto_ambient_alpha(0.0) is None and auto_ambient_alpha(AUTO_AMBIENT_MIN_SNR * 0.99) is None
+    assert auto_ambient_alpha(AUTO_AMBIENT_MIN_SNR) == AUTO_AMBIENT_ALPHA
+    assert auto_ambient_alpha(float("inf")) == AUTO_AMBIENT_ALPHA  # no ambient photon seen
+
+
+def test_ambient_alpha_auto_is_the_default_and_follows_the_recording(photon_model, half_sky, tmp_path, capsys):
+    """By default histograms at a frame SNR of about 2 get the test (said in the model's name, the output the
+    explicit rate's), the same scene under 20x the ambient light (SNR about 0.1) does not; depth input, counts
+    after --clip-negative and ambient_alpha=None never do; the CLI takes auto, off or a rate, and refuses
+    anything else with the choices."""
+    from jaxsr.cli import main
+
+    model, path = photon_model
+    job = prepare_upscale(half_sky, model=path)
+    assert f"alpha {AUTO_AMBIENT_ALPHA:g}; auto: frame SNR about" in job.model_name
+    explicit = upscale(half_sky, None, model=path, units="normalised", ambient_alpha=AUTO_AMBIENT_ALPHA).depth
+    np.testing.assert_array_equal(upscale(half_sky, None, model=path, units="normalised").depth, explicit)
+    rng = np.random.default_rng(3)
+    bright = half_sky + rng.poisson(40.0 / 16, half_sky.shape).astype(np.float32)
+    dim = prepare_upscale(bright, model=path)
+    assert "ambient test off: frame SNR about" in dim.model_name and dim._ambient_stream is None
+    assert "ambient" not in prepare_upscale(half_sky, model=path, ambient_alpha=None).model_name
+    assert "ambient" not in prepare_upscale(np.full((2, 8, 12), 0.5, np.float32), model="tr0").model_name
+    clipped = prepare_upscale(half_sky, model=path, clip_negative=True)
+    assert "ambient test off: background-subtracted" in clipped.model_name
+    src = tmp_path / "counts.npy"
+    np.save(src, half_sky)
+    for setting, tested in (("auto", True), ("off", False), ("1e-3", True)):
+        out = tmp_path / f"{setting}.npy"
+        assert main(["upscale", str(src), str(out), "--model", str(path), "--ambient-alpha", setting,
+                     "--units", "normalised", "--no-progress"]) == 0
+        assert np.array_equal(np.load(out), explicit) == tested, setting
+    with pytest.raises(SystemExit) as e:
+        main(["upscale", str(src), str(tmp_path / "b.npy"), "--ambient-alpha", "sometimes"])
+    assert e.value.code == 2 and "auto, off or a false-alarm rate" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("frames", [1, 3, 9])
