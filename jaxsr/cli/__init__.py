@@ -106,6 +106,22 @@ def _handle_terminating_signals() -> dict:
     return {s: signal.signal(s, _raise_terminated) for s in TERMINATING if signal.getsignal(s) != signal.SIG_IGN}
 
 
+def _redeliver_dropped_interruptions(previous):
+    """A `sys.unraisablehook` that delivers again an interruption Python dropped: a signal handler's exception
+    raised while a callback runs that Python cannot raise from (XLA's garbage-collection callback among them) is
+    printed as "Exception ignored" and the command went on to exit 0 with its output written. Other exceptions
+    go to `previous`."""
+
+    def hook(unraisable):
+        error = unraisable.exc_value
+        if isinstance(error, KeyboardInterrupt):  # Terminated included
+            signal.raise_signal(error.signum if isinstance(error, Terminated) else signal.SIGINT)
+            return
+        previous(unraisable)
+
+    return hook
+
+
 def _print_warning(command: str):
     """A `warnings.showwarning` that prints each warning as one line, `jaxsr COMMAND: warning: ...`."""
 
@@ -126,6 +142,9 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     in_main_thread = threading.current_thread() is threading.main_thread()
     previous = _handle_terminating_signals() if in_main_thread else {}
+    unraisable_hook = sys.unraisablehook
+    if in_main_thread:
+        sys.unraisablehook = _redeliver_dropped_interruptions(unraisable_hook)
     with warnings.catch_warnings():
         warnings.showwarning = _print_warning(args.command)
         try:
@@ -133,6 +152,7 @@ def main(argv=None) -> int:
         finally:
             for s, handler in previous.items():
                 signal.signal(s, handler)
+            sys.unraisablehook = unraisable_hook
     if argv is None and status > 128:  # a program interrupted: its outputs are cleaned up by now
         _exit_now(status)
     return status

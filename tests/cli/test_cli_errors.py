@@ -210,6 +210,32 @@ def test_negative_counts_are_refused_with_the_hint_then_clipped_with_clip_negati
     np.testing.assert_array_equal(np.load(tmp_path / "out.npy"), np.load(tmp_path / "want.npy"))
 
 
+@pytest.mark.parametrize("error,sig", [("terminated", signal.SIGTERM), ("interrupted", signal.SIGINT)])
+def test_an_interruption_python_dropped_is_delivered_again(error, sig):
+    """A signal handler's exception raised inside a garbage-collection callback (XLA has one) is dropped by Python
+    ("Exception ignored"), and the command went on to exit 0 with its output written: the unraisable hook `main`
+    installs sends the signal again; other exceptions go to the previous hook."""
+    from types import SimpleNamespace
+
+    from jaxsr.cli import Terminated, _redeliver_dropped_interruptions
+
+    seen, passed = [], []
+    hook = _redeliver_dropped_interruptions(passed.append)
+    handler = signal.signal(sig, lambda signum, frame: seen.append(signum))
+    try:
+        hook(SimpleNamespace(exc_value=Terminated(sig) if error == "terminated" else KeyboardInterrupt()))
+        for _ in range(100):  # the handler runs at the main thread's next bytecode
+            if seen:
+                break
+            time.sleep(0.01)
+    finally:
+        signal.signal(sig, handler)
+    assert seen == [sig] and not passed
+    other = SimpleNamespace(exc_value=ValueError("x"))
+    hook(other)
+    assert passed == [other]
+
+
 def _interrupt(tmp_path, model_path, output, sig):
     """Start `jaxsr upscale` on a long recording into `output`, send `sig` while frames are being written, and
     return (the finished process, its stderr, the folder before)."""
