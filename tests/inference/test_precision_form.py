@@ -236,7 +236,7 @@ def _psnr(sr, gt):
     return float(np.mean(jaxsr.psnr(np.clip(sr, 0, 1), gt)))
 
 
-@pytest.mark.parametrize("name", ["tr0", "tr4"])
+@pytest.mark.parametrize("name", ["tr0", pytest.param("tr4", marks=pytest.mark.slow)])  # tr4: 25 s on 2 cores
 def test_bundled_models_in_bfloat16_stay_within_their_tolerance(name, scene):
     model = jaxsr.load_model(name)
     for form in ("window", "sequence"):
@@ -251,7 +251,7 @@ def test_bundled_models_in_bfloat16_stay_within_their_tolerance(name, scene):
 FORM_DB = 0.1
 
 
-@pytest.mark.parametrize("name", ["tr3", "tr4"])
+@pytest.mark.parametrize("name", [pytest.param("tr3", marks=pytest.mark.slow), "tr4"])  # tr3: 16 s on 2 cores
 def test_bundled_models_auto_picks_keep_their_windowed_psnr(name, scene):
     """`form="auto"` runs them in the sequence form on this 32-frame clip (14 of whose frames are within R of an
     end for TR4), within the measured tolerance of the window form."""
