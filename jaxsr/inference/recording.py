@@ -23,7 +23,7 @@ import dataclasses
 import itertools
 import os
 from pathlib import Path
-from typing import Callable, Iterator
+from typing import Callable, Iterator, NamedTuple
 
 import numpy as np
 from tqdm.auto import tqdm
@@ -55,7 +55,7 @@ from ..nn.duf import with_no_return_logit
 from ..nn.model import Model
 from ..runtime import enable_compilation_cache
 from ..sensor.gates import gate_warnings
-from ..sensor.peaks import check_false_alarm_rate, frame_snr
+from ..sensor.peaks import check_false_alarm_rate, frame_snr, signal_photons
 from ..sensor.quantities import parse_span, parse_time_unit, range_metres
 from ..sensor.timetags import TIME_TAG_FORMATS, TimeTags, gate_of_tags, read_time_tags, time_tag_warnings
 from .adaptive import resolve_model
@@ -63,16 +63,24 @@ from .video import (DEFAULT_FORM, DEFAULT_PRECISION, DEFAULT_TILE, FORMS, _defau
                     iter_ambient_only, no_return_where,
                     in_form, iter_network_inputs, iter_super_resolve)
 
-__all__ = ["HEAD_FRAMES", "DEFAULT_MODELS", "AUTO_AMBIENT_ALPHA", "AUTO_AMBIENT_MIN_SNR", "auto_ambient_alpha",
-           "head_frame_snr", "FRAME_FORMATS", "UpscaleJob", "UpscaleResult", "prepare_upscale",
-           "write_upscaled", "upscale", "upscale_memory"]
+__all__ = ["HEAD_FRAMES", "DEFAULT_MODELS", "AUTO_AMBIENT_ALPHA", "AUTO_AMBIENT_MIN_SNR",
+           "AUTO_AMBIENT_MIN_FRAMES", "auto_ambient_alpha",
+           "FEW_PHOTONS", "PhotonLevels", "photon_levels", "FRAME_FORMATS", "UpscaleJob", "UpscaleResult",
+           "prepare_upscale", "write_upscaled", "upscale", "upscale_memory"]
 
 HEAD_FRAMES = 64  # frames model="auto" measures the motion on, and the frame SNR is estimated from
 # ambient_alpha="auto" (the default for histograms and time tags): the ambient-only test at this false-alarm rate
-# where the recording's estimated frame SNR is at least AUTO_AMBIENT_MIN_SNR (experiments/results/ambient_rule.md)
+# where the recording's estimated frame SNR is at least AUTO_AMBIENT_MIN_SNR (experiments/results/upscale_defaults.md)
 AUTO = "auto"
 AUTO_AMBIENT_ALPHA = 1e-3
 AUTO_AMBIENT_MIN_SNR = 1.0
+# frames the SNR is read from before "auto" trusts it: fewer read high at a few photons (at SNR 0.8 and 3 photons,
+# 0.91-0.99 from 16 frames, 1.09-1.29 from 8, 3.2-4.0 from one), and the rule was measured on 64
+AUTO_AMBIENT_MIN_FRAMES = 16
+# below this many estimated signal photons per LR pixel and frame, a model reading depth alone is told that the
+# photon model may serve better (experiments/results/upscale_defaults.md: +5.8 dB on the simulated test scenes
+# there, but not on every real recording, so it stays a hint)
+FEW_PHOTONS = 3.0
 # model="default": the bundled model that fits the input. Depth gives only the centre of mass, which the paper's
 # TR4 reads; histograms and time tags also give the photons behind it, which a photon model reads
 # (experiments/results/photon_regimes.md says why this one).
@@ -104,9 +112,9 @@ class UpscaleJob:
     negative counts clipped; source: the input as named in messages and in an .npz output's metadata;
     negative_counts: with `clip_negative`, (negative counts clipped at 0, pixels holding one), else None;
     precision: how the network's convolutions multiply (`jaxsr.config.PRECISIONS`). The model is held in the
-    temporal form it runs in (`form` of `prepare_upscale`: `model.config.temporal`). Where `ambient_alpha` of
-    `prepare_upscale` sets or picks a rate, the output is also no return where `jaxsr.inference.iter_ambient_only`
-    flags a pixel."""
+    temporal form it runs in (`form` of `prepare_upscale`: `model.config.temporal`). ambient_alpha: the
+    false-alarm rate `prepare_upscale`'s `ambient_alpha` set or picked (None: no test); with one, the output is
+    also no return where `jaxsr.inference.iter_ambient_only` flags a pixel."""
 
     recording: Recording
     model: object
@@ -122,6 +130,7 @@ class UpscaleJob:
     # with ambient_alpha: a fresh stream of (h, w) bool per frame, no return where ambient light alone is seen
     _ambient_stream: Callable[[], Iterator[np.ndarray]] | None = dataclasses.field(default=None, repr=False,
                                                                                    compare=False)
+    ambient_alpha: float | None = None
 
     @property
     def frames(self) -> int:
@@ -192,7 +201,8 @@ class UpscaleResult:
     ...", then what was read with which model, then warnings on what the writing found); video: the side-by-side
     video written, or None; points: the folder of PLY point clouds, or None; negative_counts: with
     `clip_negative`, (negative counts clipped at 0, pixels holding one), else None; input_units: the input's
-    units (`UpscaleJob.units`), where they differ from `units`."""
+    units (`UpscaleJob.units`), where they differ from `units`; ambient_alpha: the ambient-only test's
+    false-alarm rate (`UpscaleJob.ambient_alpha`, None: no test)."""
 
     output: Path | None
     depth: np.ndarray | None
@@ -210,12 +220,13 @@ class UpscaleResult:
     points: Path | None = None
     negative_counts: tuple[int, int] | None = None
     input_units: str | None = None
+    ambient_alpha: float | None = None
 
     def summary(self) -> dict:
         """The JSON summary `jaxsr upscale` prints: frames, output, shape, units (of the output; input_units too
-        where the input's differ), model, for histograms the
-        gate and the depth scale (metres), the video and point clouds' folder where written, and with
-        --clip-negative the negative counts clipped and the pixels holding them."""
+        where the input's differ), model, for histograms the gate, the depth scale (metres) and the ambient-only
+        test's rate (null: none), the video and point clouds' folder where written, and with --clip-negative the
+        negative counts clipped and the pixels holding them."""
         out = {"frames": self.frames, "output": None if self.output is None else str(self.output),
                "shape": list(self.shape), "units": self.units, "model": self.model}
         if self.input_units is not None:
@@ -230,6 +241,8 @@ class UpscaleResult:
                        scale={"offset_m": float(self.scale.offset), "span_m": float(self.scale.span)})
         if self.negative_counts is not None:
             out["negative_counts_clipped"] = dict(zip(("counts", "pixels"), self.negative_counts))
+        if self.kind == "histograms":
+            out["ambient_alpha"] = self.ambient_alpha
         return out
 
 
@@ -379,8 +392,7 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
     fixed, name = _fixed_model(model, min_fps)
     _check_precision_form(fixed, precision, form)
     _check_no_return_logit(fixed, name, no_return_logit)
-    if ambient_alpha is not None and not _is_auto(ambient_alpha):  # before the input is read
-        check_false_alarm_rate("ambient_alpha (--ambient-alpha)", ambient_alpha)
+    _check_ambient_setting(ambient_alpha)  # before the input is read
     span = _span(span)
     time_unit = _positive(time_unit, "time_unit", parse_time_unit, "seconds")
     rec, gate, source, tag_notes = _open(input, kind, bins=bins, bin_width=bin_width, gate_start=gate_start,
@@ -407,14 +419,21 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
         if found[0]:
             warnings += (_clipped_note(*found),)
         counts = clipped_recording(rec) if clip_negative else rec
-        # the frame SNR, where a choice needs it (not after --clip-negative: the clipped counts' ambient is no
-        # longer the sensor's)
-        head = getattr(getattr(fixed, "config", None), "no_return_head", False) and not clip_negative
-        snr = head_frame_snr(counts, gate.bins) if (head or _is_auto(ambient_alpha)) and not clip_negative else None
-        if head:
-            warnings += _snr_warnings(counts, gate, _trained_snr_range(None if isinstance(model, Model) else name),
-                                      no_return_logit, snr=snr)
-        ambient_alpha, ambient_why = _ambient_choice(ambient_alpha, snr, clip_negative)
+        # what the photons say, read once (not after --clip-negative: the clipped counts' ambient is no longer
+        # the sensor's)
+        levels = None if clip_negative else photon_levels(counts, gate.bins)
+        if levels is not None:
+            if getattr(getattr(fixed, "config", None), "no_return_head", False):
+                warnings += _snr_warnings(_trained_snr_range(None if isinstance(model, Model) else name), levels.snr,
+                                          min(HEAD_FRAMES, rec.frames), no_return_logit)
+            elif inputs == ("depth",) and getattr(getattr(fixed, "architecture", None), "inputs", "") != "histograms":
+                # a model reading depth alone (fixed None: "auto", which picks among TR0-TR4)
+                warnings += _few_photons_warnings(levels.signal, min(HEAD_FRAMES, rec.frames))
+        marks_no_return = getattr(getattr(fixed, "config", None), "no_return_head", False)
+        if clip_negative and ambient_alpha is not None and not _is_auto(ambient_alpha):
+            warnings += ("--ambient-alpha on background-subtracted counts: the test assumes raw counts, whose "
+                         "ambient light it looks for, and was measured on those only",)
+        ambient_alpha, ambient_why = _ambient_choice(ambient_alpha, levels, marks_no_return, rec.frames)
 
         def lr_stream():
             return gate_frames(iter_network_inputs(counts, SensorConfig(bins=gate.bins), inputs, chunk=HISTOGRAM_CHUNK),
@@ -447,7 +466,7 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
     elif ambient_why:
         name = f"{name}{ambient_why}"
     return UpscaleJob(rec, fixed, name, units, gate, scale, warnings, source, lr_stream, negatives, precision,
-                      ambient_stream if ambient_alpha is not None else None)
+                      ambient_stream if ambient_alpha is not None else None, ambient_alpha)
 
 
 def _trained_snr_range(spec) -> tuple[float, float]:
@@ -472,20 +491,31 @@ def _trained_snr_range(spec) -> tuple[float, float]:
 SNR_WARNING_MARGIN = 2.0
 
 
-def head_frame_snr(counts, bins: int) -> float:
-    """`jaxsr.sensor.frame_snr` of a recording's first HEAD_FRAMES frames of (h, w, bins) counts (any iterable of
-    frames), summed frame by frame: one frame's memory, not HEAD_FRAMES'. NaN where no return is seen."""
-    head = None
+class PhotonLevels(NamedTuple):
+    """What a recording's photons say about it (`photon_levels`): its frame SNR (`jaxsr.sensor.frame_snr`) and
+    its signal photons per LR pixel with a return and frame (`jaxsr.sensor.signal_photons`); NaN where no
+    return is seen."""
+
+    snr: float
+    signal: float
+
+
+def photon_levels(counts, bins: int) -> PhotonLevels:
+    """The `PhotonLevels` of a recording's first HEAD_FRAMES frames of (h, w, bins) counts (any iterable of
+    frames), summed frame by frame: one frame's memory, not HEAD_FRAMES'."""
+    head, frames = None, 0
     for frame in itertools.islice(counts, HEAD_FRAMES):
         head = np.asarray(frame, np.float32) if head is None else head + frame
-    return frame_snr(head, SensorConfig(bins=bins))
+        frames += 1
+    sensor = SensorConfig(bins=bins)
+    return PhotonLevels(frame_snr(head, sensor), signal_photons(head, sensor) / frames)
 
 
 def auto_ambient_alpha(snr: float) -> float | None:
-    """The false-alarm rate `ambient_alpha="auto"` picks for a recording whose `head_frame_snr` is `snr`:
-    AUTO_AMBIENT_ALPHA from AUTO_AMBIENT_MIN_SNR up, None (no test) below it or where no return is seen (NaN).
-    Below that SNR the summed photons of a faint return no longer stand out from the ambient light, and the test
-    drops more returns than it empties sky (experiments/results/ambient_rule.md measures where)."""
+    """The false-alarm rate `ambient_alpha="auto"` picks for a recording whose frame SNR (`photon_levels`) is
+    `snr`: AUTO_AMBIENT_ALPHA from AUTO_AMBIENT_MIN_SNR up, None (no test) below it or where no return is seen
+    (NaN). Below that SNR the summed photons of a faint return no longer stand out from the ambient light, and the
+    test cost the paper's TR4 PSNR on the test scenes (experiments/results/upscale_defaults.md measures where)."""
     return AUTO_AMBIENT_ALPHA if snr >= AUTO_AMBIENT_MIN_SNR else None  # NaN compares False
 
 
@@ -493,25 +523,55 @@ def _is_auto(setting) -> bool:
     return isinstance(setting, str) and setting == AUTO
 
 
-def _ambient_choice(setting, snr: float, clip_negative: bool) -> tuple[float | None, str]:
+def _check_ambient_setting(setting) -> None:
+    """Refuse an `ambient_alpha` that is not "auto", None or a false-alarm rate in range."""
+    if isinstance(setting, str) and setting != AUTO:
+        raise ValueError(f"ambient_alpha (--ambient-alpha) is 'auto', None (off) or a false-alarm rate such as 0.001, "
+                         f"got {setting!r}")
+    if setting is not None and not _is_auto(setting):
+        check_false_alarm_rate("ambient_alpha (--ambient-alpha)", setting)
+
+
+def _ambient_choice(setting, levels: PhotonLevels | None, marks_no_return: bool,
+                    frames: int) -> tuple[float | None, str]:
     """`ambient_alpha` as set (None, a rate) or, for "auto", `auto_ambient_alpha` of the recording's frame SNR;
-    and the words that say why, for the model's name ("" where set)."""
+    and the words that say why, for the model's name ("" where set). "auto" is off where the rule was not measured
+    to hold: background-subtracted counts (`levels` None: their ambient light is gone), a model with a no-return
+    head (it marks no return itself, and the test cost tr4-photons 4.9 dB at worst), fewer than
+    AUTO_AMBIENT_MIN_FRAMES frames (the SNR reads high)."""
     if not _is_auto(setting):
         return setting, ""
-    if clip_negative:  # background subtracted: the ambient light the test looks for is gone
+    if levels is None:
         return None, " (ambient test off: background-subtracted counts)"
-    alpha = auto_ambient_alpha(snr)
-    shown = "no return seen" if np.isnan(snr) else f"frame SNR about {snr:.2g}"
+    if marks_no_return:
+        return None, " (ambient test off: the model marks no return itself)"
+    if frames < AUTO_AMBIENT_MIN_FRAMES:
+        return None, (f" (ambient test off: {frames} frames, too few to read the SNR; --ambient-alpha 0.001 "
+                      "sets it)")
+    if np.isnan(levels.snr):
+        return None, " (ambient test off: no return seen)"
+    shown = "no ambient light seen" if np.isinf(levels.snr) else f"frame SNR about {levels.snr:.2g}"
+    alpha = auto_ambient_alpha(levels.snr)
     if alpha is None:
         return None, f" (ambient test off: {shown}, below {AUTO_AMBIENT_MIN_SNR:g})"
     return alpha, f"; auto: {shown}"
 
 
-def _snr_warnings(counts, gate: Gate, trained: tuple[float, float], no_return_logit=None, snr=None) -> tuple[str, ...]:
-    """A warning where the recording's frame SNR (`head_frame_snr`, or `snr` where already measured) lies well
-    outside (SNR_WARNING_MARGIN) the SNRs a model with a no-return head was trained on: its threshold is then a
-    guess; with a threshold given (`no_return_logit`), the SNR alone is said."""
-    snr = head_frame_snr(counts, gate.bins) if snr is None else snr
+def _few_photons_warnings(signal: float, frames: int) -> tuple[str, ...]:
+    """A hint where a model reading depth alone gets a recording of fewer than FEW_PHOTONS signal photons per
+    pixel and frame (`photon_levels`), where the paper's models fall below bicubic."""
+    if not signal < FEW_PHOTONS:  # NaN (no return seen): nothing to say
+        return ()
+    return ((f"about {signal:.2g} signal photons per pixel and frame (first {frames} frames): below "
+             f"{FEW_PHOTONS:g} a model reading depth alone falls behind; --model tr4-photons also reads the photons "
+             "behind each depth (check a frame, --preview: on one real recording it lost at 2-3 photons; "
+             "docs/results/photon-regimes.md)"),)
+
+
+def _snr_warnings(trained: tuple[float, float], snr: float, frames: int, no_return_logit=None) -> tuple[str, ...]:
+    """A warning where the recording's frame SNR (`photon_levels`) lies well outside (SNR_WARNING_MARGIN) the SNRs
+    a model with a no-return head was trained on: its threshold is then a guess; with a threshold given
+    (`no_return_logit`), the SNR alone is said."""
     lo, hi = trained
     if np.isnan(snr) or lo / SNR_WARNING_MARGIN <= snr <= hi * SNR_WARNING_MARGIN:  # NaN: no return seen, nothing to say
         return ()
@@ -524,9 +584,9 @@ def _snr_warnings(counts, gate: Gate, trained: tuple[float, float], no_return_lo
     else:
         advice = ("with this much ambient light it may show sky as depth; a lower --no-return-logit marks more "
                   "pixels as no return")
-    return (f"the recording's frame SNR (signal / ambient photons, first {min(HEAD_FRAMES, counts.frames)} frames) "
-            f"is {shown}, well outside the {lo:g}-{hi:g} this model was trained on: {advice} (docs/network.md, "
-            "choosing the threshold)",)
+    return ((f"the recording's frame SNR (signal / ambient photons, first {frames} frames) is {shown}, well "
+             f"outside the {lo:g}-{hi:g} this model was trained on: {advice} (docs/network.md, choosing the "
+             "threshold)"),)
 
 
 def _check_no_return_logit(model, name: str, logit) -> None:
@@ -723,7 +783,8 @@ def write_upscaled(job: UpscaleJob, output, *, frame_format: str | None = None, 
     notes = tuple(f"warning: {w}" for w in job.warnings) + (job.note,) + tuple(f"warning: {w}" for w in late)
     units = "m" if out is not None and out.suffix.lower() not in ARRAY_FORMATS else job.units
     return UpscaleResult(out, depth, job.frames, shape, rec.kind, units, job.model_name, job.gate, scale, preview,
-                         warnings, notes, video, points, job.negative_counts, None if units == job.units else job.units)
+                         warnings, notes, video, points, job.negative_counts, None if units == job.units else job.units,
+                         job.ambient_alpha)
 
 
 def _frame_format(frame_format: str | None, out: Path | None, job: UpscaleJob) -> str | None:
@@ -809,7 +870,8 @@ def _check_memory(job: UpscaleJob, out, batch_size: int, looks: bool, max_memory
     in_memory = out is None or out.suffix.lower() == ".npz"
     need = upscale_memory(job, batch_size=batch_size, in_memory=in_memory, looks=looks)
     ways = ([f"a smaller --batch-size (now {batch_size})"] if batch_size > 1 else []) + (
-        ["an .npy or folder OUTPUT (written frame by frame, not held)"] if in_memory and job.frames > 1 else [])
+        ["an .npy or folder OUTPUT (written frame by frame, not held)"] if in_memory and job.frames > 1 else []) + (
+        ["--ambient-alpha off (its test sums 9 frames)"] if job.ambient_alpha is not None else [])
     frame = " x ".join(map(str, job.recording.shape))
     what = (f"upscaling {job.frames} frame{'s' if job.frames > 1 else ''} of {frame} to {job.hr_shape[0]} x "
             f"{job.hr_shape[1]}")
@@ -880,9 +942,11 @@ def upscale(input, output, *, model="default", kind: str | None = None, bins: in
       3 x 3 pixels and 9 frames around a pixel pass for ambient light alone at this false-alarm rate
       (`jaxsr.sensor.ambient_only`), with any model: it empties the insides of sky and absorbing regions, and
       drops returns too faint to stand out even summed. "auto" (default): `AUTO_AMBIENT_ALPHA` where the
-      recording's frame SNR (`head_frame_snr`) is at least `AUTO_AMBIENT_MIN_SNR`, else off (and off for
-      background-subtracted counts, `clip_negative`); the model's name in `notes` says which and why. None: off.
-      Depth input: "auto" is off, a rate is refused.
+      recording's frame SNR (`photon_levels`) is at least `AUTO_AMBIENT_MIN_SNR`, else off; off too for
+      background-subtracted counts (`clip_negative`), for a model with a no-return head and for recordings of
+      fewer than `AUTO_AMBIENT_MIN_FRAMES` frames; the model's name in `notes` says which and why, and
+      `UpscaleJob.ambient_alpha` / the summary's "ambient_alpha" the rate. None: off. Depth input: "auto" is off,
+      a rate is refused.
     - batch_size (--batch-size): frames per compiled call (output frames per chunk in the sequence form);
       min_fps (--min-fps, model="auto" only): the slowest acceptable frames/s; preview (--preview): an input |
       output PNG strip of the middle frame; overwrite (--force): replace output, preview and video; progress

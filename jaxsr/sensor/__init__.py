@@ -34,6 +34,7 @@ from .peaks import (
     return_significance,
     ambient_only,
     frame_snr,
+    signal_photons,
     maximum_likelihood_depth,
 )
 from .effects import (
@@ -88,6 +89,7 @@ __all__ = [
     "return_significance",
     "ambient_only",
     "frame_snr",
+    "signal_photons",
     "maximum_likelihood_depth",
     "dark_counts",
     "hot_pixels",

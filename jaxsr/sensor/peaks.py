@@ -274,14 +274,35 @@ def frame_snr(counts, sensor: SensorConfig = SensorConfig(), *, false_alarm=1e-3
     photons (a few frames, few bins) read high, as ambient noise lifts the peak's window (SNR 10 at 20 signal
     photons read 15 from one frame of 16 bins, 35 from one of 8; SNR 0.1 reads 0.15-0.25); a second surface counts
     as ambient. Returns a Python float: NaN where no pixel holds a return, inf where no ambient photon is seen."""
+    signal, ambient, _ = _signal_and_ambient("frame_snr", counts, sensor, false_alarm)
+    if signal.size == 0:
+        return float("nan")
+    return float(signal.mean() / ambient.mean()) if ambient.mean() > 0 else float("inf")
+
+
+def signal_photons(counts, sensor: SensorConfig = SensorConfig(), *, false_alarm=1e-3):
+    """The mean signal photons per LR pixel with a return and per frame a recording was made at (`calibrate`'s
+    `mean_signal`), estimated as `frame_snr` estimates the SNR (the same pixels, signal = the photons beyond the
+    ambient level, over the frames summed, divided by their number). Pixels whose returns are too faint to be
+    found in the sum are left out, so few photons read high. Returns a Python float, NaN where no pixel holds a
+    return."""
+    signal, _, frames = _signal_and_ambient("signal_photons", counts, sensor, false_alarm)
+    return float(signal.mean() / frames) if signal.size else float("nan")
+
+
+def _signal_and_ambient(name, counts, sensor, false_alarm):
+    """Per pixel with a return in the frames' sum: (signal photons, ambient photons over the gate) and the number
+    of frames summed (see `frame_snr`)."""
     n = np.asarray(counts)
     if n.ndim < 3 or n.shape[-1] != sensor.bins:
-        raise ValueError(f"frame_snr: counts must be (T, h, w, {sensor.bins}) or (h, w, {sensor.bins}) histograms, "
+        raise ValueError(f"{name}: counts must be (T, h, w, {sensor.bins}) or (h, w, {sensor.bins}) histograms, "
                          f"got shape {n.shape}")
-    n = n.reshape(-1, *n.shape[-3:]).sum(axis=0, dtype=np.float64)
+    n = n.reshape(-1, *n.shape[-3:])
+    frames = n.shape[0]
+    n = n.sum(axis=0, dtype=np.float64)
     found = np.asarray(return_significance(n.astype(np.float32), sensor)) <= np.log(false_alarm)
     if not found.any():
-        return float("nan")
+        return np.zeros(0), np.zeros(0), frames
     # the peak's window widened by a bin each side, for the pulse's tails and a little motion; wider in proportion
     # beyond 16 bins (finer bins of a gate hold the same pulse in more of them)
     width = (2 * int(np.asarray(default_window(sensor))) + 3) * max(1, sensor.bins // 16)
@@ -290,8 +311,7 @@ def frame_snr(counts, sensor: SensorConfig = SensorConfig(), *, false_alarm=1e-3
     peak = windows.max(axis=-1)
     total = n[found].sum(axis=-1)
     ambient = (total - peak) * sensor.bins / max(sensor.bins - width, 1)
-    signal = np.maximum(total - ambient, 0.0)
-    return float(signal.mean() / ambient.mean()) if ambient.mean() > 0 else float("inf")
+    return np.maximum(total - ambient, 0.0), ambient, frames
 
 
 def _log_binomial_tail(s, n, p):

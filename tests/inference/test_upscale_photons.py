@@ -7,8 +7,18 @@ import numpy as np
 import pytest
 
 from jaxsr.config import ModelConfig, SensorConfig
-from jaxsr.inference import (AUTO_AMBIENT_ALPHA, AUTO_AMBIENT_MIN_SNR, DEFAULT_MODELS, auto_ambient_alpha,
-                             head_frame_snr, prepare_upscale, super_resolve_histograms, upscale)
+from jaxsr.inference import (
+    AUTO_AMBIENT_ALPHA,
+    AUTO_AMBIENT_MIN_FRAMES,
+    AUTO_AMBIENT_MIN_SNR,
+    DEFAULT_MODELS,
+    FEW_PHOTONS,
+    auto_ambient_alpha,
+    photon_levels,
+    prepare_upscale,
+    super_resolve_histograms,
+    upscale,
+)
 from jaxsr.io.checkpoint import save_model
 from jaxsr.nn import Model, init_model, with_no_return_logit
 
@@ -31,14 +41,19 @@ def counts():
     return np.asarray(jax.random.poisson(jax.random.key(1), 0.8, (2, 8, 12, 16)), np.float32)
 
 
+@pytest.fixture(scope="module")
+def depth_model(tmp_path_factory):
+    """A tiny depth-only model's file (the default "auto" ambient test applies to such models)."""
+    cfg = ModelConfig(tr=0, **TINY)
+    return save_model(tmp_path_factory.mktemp("d") / "depth.npz", Model(*init_model(jax.random.key(5), cfg), cfg))
+
+
 def test_histograms_through_a_photon_model_equal_the_library(photon_model, counts):
-    """The default ambient test included: the library's functions compose to what `upscale` does."""
+    """A model with a no-return head marks no return itself: "auto" leaves the ambient test off for it."""
     model, path = photon_model
     result = upscale(counts, None, model=path, units="normalised")
-    want = super_resolve_histograms(model, counts, ambient_alpha=auto_ambient_alpha(head_frame_snr(counts, 16)))
-    np.testing.assert_allclose(result.depth, np.clip(want, 0, 1), atol=1e-6)
-    off = upscale(counts, None, model=path, units="normalised", ambient_alpha=None)
-    np.testing.assert_allclose(off.depth, np.clip(super_resolve_histograms(model, counts), 0, 1), atol=1e-6)
+    np.testing.assert_allclose(result.depth, np.clip(super_resolve_histograms(model, counts), 0, 1), atol=1e-6)
+    assert result.ambient_alpha is None and result.summary()["ambient_alpha"] is None
 
 
 def test_depth_to_a_photon_model_is_refused(photon_model):
@@ -142,13 +157,35 @@ def test_frame_snr_reads_the_calibrated_snr():
         frame_snr(np.zeros((4, 8, 8)))
 
 
+def test_signal_photons_reads_the_calibrated_signal():
+    """signal_photons on simulated histograms of a static scene (6 frames) comes within 30 % of the signal photons
+    per pixel they were calibrated to from 14 photons up at SNR 0.3-5, and reads high, not low, at 1-3 photons
+    (the returns too faint to be found are left out, and noise lifts the peak's window); NaN without a return."""
+    import jax.numpy as jnp
+
+    from jaxsr.sensor import signal_photons, simulate_histograms
+
+    depth = np.broadcast_to(np.linspace(8.0, 30.0, 48, dtype=np.float32)[None, None], (6, 32, 48)).copy()
+    intensity = np.full_like(depth, 0.6)
+    sensor = SensorConfig(hr_shape=(32, 48))
+    for snr in (0.3, 5.0):
+        for photons in (1.0, 3.0, 14.0, 100.0):
+            c = simulate_histograms(jax.random.key(1), jnp.asarray(depth), jnp.asarray(intensity), sensor, snr=snr,
+                                    mean_signal=photons)
+            read = signal_photons(np.asarray(c), sensor)
+            assert (abs(read / photons - 1) < 0.3) if photons >= 14 else (photons <= read < 4 * photons), (snr, photons)
+    assert np.isnan(signal_photons(np.zeros((2, 8, 8, 16), np.float32)))
+    with pytest.raises(ValueError, match="histograms"):
+        signal_photons(np.zeros((4, 8, 8)))
+
+
 @pytest.fixture(scope="module")
 def half_sky():
-    """11 frames of a surface (left half, 4 signal photons per pixel) beside sky (right half), both with 2
-    ambient photons per pixel; LR 8 x 12."""
+    """17 frames (enough for "auto" to read the SNR) of a surface (left half, 4 signal photons per pixel) beside
+    sky (right half), both with 2 ambient photons per pixel; LR 8 x 12."""
     rng = np.random.default_rng(2)
-    counts = rng.poisson(2.0 / 16, (11, 8, 12, 16)).astype(np.float32)
-    counts[:, :, :6, 7] += rng.poisson(4.0, (11, 8, 6))
+    counts = rng.poisson(2.0 / 16, (17, 8, 12, 16)).astype(np.float32)
+    counts[:, :, :6, 7] += rng.poisson(4.0, (17, 8, 6))
     return counts
 
 
@@ -178,7 +215,7 @@ def test_ambient_alpha_is_refused_for_depth_and_out_of_range(photon_model, half_
 
     with pytest.raises(ValueError, match="histograms or time tags"):
         prepare_upscale(np.full((2, 8, 12), 0.5, np.float32), model="tr0", ambient_alpha=1e-3)
-    for bad in (0.0, 1.0, -1e-3, 1e-35, True, "0.001", [1e-3]):
+    for bad in (0.0, 1.0, -1e-3, 1e-35, True, [1e-3]):
         with pytest.raises(ValueError, match=r"false-alarm rate in \[1e-30, 1\)"):
             prepare_upscale("/nonexistent/input.npy", ambient_alpha=bad)  # before the input is read
     with pytest.raises(ValueError, match=r"false-alarm rate in \[1e-30, 1\)"):
@@ -200,18 +237,35 @@ def test_auto_ambient_alpha_tests_from_the_threshold_snr_up():
     assert auto_ambient_alpha(float("inf")) == AUTO_AMBIENT_ALPHA  # no ambient photon seen
 
 
-def test_ambient_alpha_auto_is_the_default_and_follows_the_recording(photon_model, half_sky, tmp_path, capsys):
-    """By default histograms at a frame SNR of about 2 get the test (said in the model's name, the output the
-    explicit rate's), the same scene under 20x the ambient light (SNR about 0.1) does not; depth input, counts
-    after --clip-negative and ambient_alpha=None never do; the CLI takes auto, off or a rate, and refuses
+def test_ambient_alpha_auto_is_the_default_and_follows_the_recording(photon_model, depth_model, half_sky,
+                                                                     tmp_path, capsys):
+    """By default histograms at a frame SNR of about 2 get the test (said in the model's name, the rate in the job,
+    the result and the summary, the output the explicit rate's and what the library's functions compose to), the
+    same scene under 20x the ambient light (SNR about 0.1) does not, nor do fewer than AUTO_AMBIENT_MIN_FRAMES
+    frames, a model with a no-return head, depth input, counts after --clip-negative and ambient_alpha=None; a
+    string other than "auto" is refused naming the choices; the CLI takes auto, off or a rate, and refuses
     anything else with the choices."""
     from jaxsr.cli import main
+    from jaxsr.io.checkpoint import load_model
 
-    model, path = photon_model
+    path = depth_model
     job = prepare_upscale(half_sky, model=path)
     assert f"alpha {AUTO_AMBIENT_ALPHA:g}; auto: frame SNR about" in job.model_name
+    assert job.ambient_alpha == AUTO_AMBIENT_ALPHA
     explicit = upscale(half_sky, None, model=path, units="normalised", ambient_alpha=AUTO_AMBIENT_ALPHA).depth
-    np.testing.assert_array_equal(upscale(half_sky, None, model=path, units="normalised").depth, explicit)
+    result = upscale(half_sky, None, model=path, units="normalised")
+    np.testing.assert_array_equal(result.depth, explicit)
+    assert result.summary()["ambient_alpha"] == AUTO_AMBIENT_ALPHA
+    composed = super_resolve_histograms(load_model(path), half_sky,
+                                        ambient_alpha=auto_ambient_alpha(photon_levels(half_sky, 16).snr))
+    np.testing.assert_allclose(result.depth, np.clip(composed, 0, 1), atol=1e-6)
+    short = prepare_upscale(half_sky[:AUTO_AMBIENT_MIN_FRAMES - 1], model=path)
+    assert f"{AUTO_AMBIENT_MIN_FRAMES - 1} frames, too few to read the SNR" in short.model_name
+    assert short.ambient_alpha is None
+    assert "the model marks no return itself" in prepare_upscale(half_sky, model=photon_model[1]).model_name
+    for bad in ("off", "Auto", "0.001"):
+        with pytest.raises(ValueError, match="'auto', None"):
+            prepare_upscale(half_sky, model=path, ambient_alpha=bad)
     rng = np.random.default_rng(3)
     bright = half_sky + rng.poisson(40.0 / 16, half_sky.shape).astype(np.float32)
     dim = prepare_upscale(bright, model=path)
@@ -230,6 +284,36 @@ def test_ambient_alpha_auto_is_the_default_and_follows_the_recording(photon_mode
     with pytest.raises(SystemExit) as e:
         main(["upscale", str(src), str(tmp_path / "b.npy"), "--ambient-alpha", "sometimes"])
     assert e.value.code == 2 and "auto, off or a false-alarm rate" in capsys.readouterr().err
+
+
+def test_the_test_is_named_where_memory_is_short_and_said_on_clipped_counts(depth_model, half_sky):
+    """A job refused for memory names --ambient-alpha off among the ways out when the test runs (its 9 frames);
+    a rate given for background-subtracted counts is applied with a warning (the test assumes raw counts)."""
+    with pytest.raises(ValueError, match=r"--ambient-alpha off \(its test sums 9 frames\)"):
+        upscale(half_sky, None, model=depth_model, max_memory="100MB")
+    with pytest.raises(ValueError) as refused:
+        upscale(half_sky, None, model=depth_model, max_memory="100MB", ambient_alpha=None)
+    assert "--ambient-alpha" not in str(refused.value)
+    job = prepare_upscale(half_sky, model=depth_model, clip_negative=True, ambient_alpha=1e-3)
+    assert job.ambient_alpha == 1e-3 and [w for w in job.warnings if "background-subtracted counts" in w]
+    assert not [w for w in prepare_upscale(half_sky, model=depth_model, clip_negative=True).warnings
+                if "--ambient-alpha" in w]
+
+
+def test_few_photons_get_a_hint_towards_the_photon_model(photon_model, half_sky):
+    """Below FEW_PHOTONS estimated signal photons per pixel, a model reading depth alone (the default, auto, a
+    named TR) gets a warning naming tr4-photons; at 4 photons (half_sky), a photon model, and counts clipped after
+    background subtraction get none."""
+    rng = np.random.default_rng(4)
+    dim = rng.poisson(2.0 / 16, half_sky.shape).astype(np.float32)
+    dim[:, :, :6, 7] += rng.poisson(1.0, dim.shape[:2] + (6,))
+    assert photon_levels(dim, 16).signal < FEW_PHOTONS < photon_levels(half_sky, 16).signal
+    for model in ("default", "tr0"):
+        (hint,) = [w for w in prepare_upscale(dim, model=model).warnings if "signal photons per pixel" in w]
+        assert "--model tr4-photons" in hint and f"below {FEW_PHOTONS:g}" in hint
+        assert not [w for w in prepare_upscale(half_sky, model=model).warnings if "signal photons per pixel" in w]
+    assert not [w for w in prepare_upscale(dim, model=photon_model[1]).warnings if "signal photons per pixel" in w]
+    assert not [w for w in prepare_upscale(dim, clip_negative=True).warnings if "signal photons per pixel" in w]
 
 
 @pytest.mark.parametrize("frames", [1, 3, 9])
