@@ -431,8 +431,8 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
                 warnings += _few_photons_warnings(levels.signal, min(HEAD_FRAMES, rec.frames))
         marks_no_return = getattr(getattr(fixed, "config", None), "no_return_head", False)
         if clip_negative and ambient_alpha is not None and not _is_auto(ambient_alpha):
-            warnings += ("--ambient-alpha on background-subtracted counts: the test assumes raw counts, whose "
-                         "ambient light it looks for, and was measured on those only",)
+            warnings += (("--ambient-alpha on background-subtracted counts: the test assumes raw counts, whose "
+                          "ambient light it looks for, and was measured on those only"),)
         ambient_alpha, ambient_why = _ambient_choice(ambient_alpha, levels, marks_no_return, rec.frames)
 
         def lr_stream():
