@@ -114,7 +114,8 @@ class UpscaleJob:
     precision: how the network's convolutions multiply (`jaxsr.config.PRECISIONS`). The model is held in the
     temporal form it runs in (`form` of `prepare_upscale`: `model.config.temporal`). ambient_alpha: the
     false-alarm rate `prepare_upscale`'s `ambient_alpha` set or picked (None: no test); with one, the output is
-    also no return where `jaxsr.inference.iter_ambient_only` flags a pixel."""
+    also no return where `jaxsr.inference.iter_ambient_only` flags a pixel. label: the model's name for pictures
+    (previews, videos: `model_name` without the ambient test's note, which would not fit a panel)."""
 
     recording: Recording
     model: object
@@ -131,6 +132,7 @@ class UpscaleJob:
     _ambient_stream: Callable[[], Iterator[np.ndarray]] | None = dataclasses.field(default=None, repr=False,
                                                                                    compare=False)
     ambient_alpha: float | None = None
+    label: str = ""
 
     @property
     def frames(self) -> int:
@@ -461,12 +463,13 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
         name = f"{name} at no-return logit {float(no_return_logit):g}"
     fixed = in_form(fixed, form, "form (--form)", frames=rec.frames)
     precision = check_precision(fixed, precision, "precision (--precision)")
+    label = name
     if ambient_alpha is not None:
         name = f"{name}, no return where ambient alone (alpha {float(ambient_alpha):g}{ambient_why})"
     elif ambient_why:
         name = f"{name}{ambient_why}"
     return UpscaleJob(rec, fixed, name, units, gate, scale, warnings, source, lr_stream, negatives, precision,
-                      ambient_stream if ambient_alpha is not None else None, ambient_alpha)
+                      ambient_stream if ambient_alpha is not None else None, ambient_alpha, label)
 
 
 def _trained_snr_range(spec) -> tuple[float, float]:
@@ -716,7 +719,7 @@ def write_upscaled(job: UpscaleJob, output, *, frame_format: str | None = None, 
     with contextlib.ExitStack() as looks:  # the video and point clouds: committed after the output
         film = clouds = None
         if video is not None:
-            labels = (input_label, job.model_name) + (() if ref is None else ("reference",))
+            labels = (input_label, job.label or job.model_name) + (() if ref is None else ("reference",))
             rate = fps if fps is not None else job.fps if job.fps is not None else DEFAULT_FPS
             film = looks.enter_context(DepthVideoWriter(video, job.hr_shape, labels=labels, fps=rate, d_min=d_min,
                                                         d_max=d_max, frames=job.frames, overwrite=overwrite))
@@ -743,7 +746,7 @@ def write_upscaled(job: UpscaleJob, output, *, frame_format: str | None = None, 
         def finish():  # inside the output's atomic block: a failed preview or video leaves no output either
             if preview is not None:
                 write_comparison(preview, to_units(preview_lr[0], "m", scale), to_units(preview_hr[0], "m", scale),
-                                 d_min=d_min, d_max=d_max, labels=(input_label, job.model_name),
+                                 d_min=d_min, d_max=d_max, labels=(input_label, job.label or job.model_name),
                                  overwrite=overwrite)
             if film is not None:
                 film.finish()

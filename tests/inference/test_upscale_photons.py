@@ -251,7 +251,7 @@ def test_ambient_alpha_auto_is_the_default_and_follows_the_recording(photon_mode
     path = depth_model
     job = prepare_upscale(half_sky, model=path)
     assert f"alpha {AUTO_AMBIENT_ALPHA:g}; auto: frame SNR about" in job.model_name
-    assert job.ambient_alpha == AUTO_AMBIENT_ALPHA
+    assert job.ambient_alpha == AUTO_AMBIENT_ALPHA and job.label == str(path)  # pictures: the model alone
     explicit = upscale(half_sky, None, model=path, units="normalised", ambient_alpha=AUTO_AMBIENT_ALPHA).depth
     result = upscale(half_sky, None, model=path, units="normalised")
     np.testing.assert_array_equal(result.depth, explicit)
