@@ -55,7 +55,7 @@ from ..nn.duf import with_no_return_logit
 from ..nn.model import Model
 from ..runtime import enable_compilation_cache
 from ..sensor.gates import gate_warnings
-from ..sensor.peaks import check_false_alarm_rate, frame_snr, signal_photons
+from ..sensor.peaks import check_false_alarm_rate, frame_levels
 from ..sensor.quantities import parse_span, parse_time_unit, range_metres
 from ..sensor.timetags import TIME_TAG_FORMATS, TimeTags, gate_of_tags, read_time_tags, time_tag_warnings
 from .adaptive import resolve_model
@@ -424,14 +424,14 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
         # what the photons say, read once (not after --clip-negative: the clipped counts' ambient is no longer
         # the sensor's)
         levels = None if clip_negative else photon_levels(counts, gate.bins)
+        marks_no_return = getattr(getattr(fixed, "config", None), "no_return_head", False)
         if levels is not None:
-            if getattr(getattr(fixed, "config", None), "no_return_head", False):
+            if marks_no_return:
                 warnings += _snr_warnings(_trained_snr_range(None if isinstance(model, Model) else name), levels.snr,
                                           min(HEAD_FRAMES, rec.frames), no_return_logit)
             elif inputs == ("depth",) and getattr(getattr(fixed, "architecture", None), "inputs", "") != "histograms":
                 # a model reading depth alone (fixed None: "auto", which picks among TR0-TR4)
                 warnings += _few_photons_warnings(levels.signal, min(HEAD_FRAMES, rec.frames))
-        marks_no_return = getattr(getattr(fixed, "config", None), "no_return_head", False)
         if clip_negative and ambient_alpha is not None and not _is_auto(ambient_alpha):
             warnings += (("--ambient-alpha on background-subtracted counts: the test assumes raw counts, whose "
                           "ambient light it looks for, and was measured on those only"),)
@@ -510,8 +510,8 @@ def photon_levels(counts, bins: int) -> PhotonLevels:
     for frame in itertools.islice(counts, HEAD_FRAMES):
         head = np.asarray(frame, np.float32) if head is None else head + frame
         frames += 1
-    sensor = SensorConfig(bins=bins)
-    return PhotonLevels(frame_snr(head, sensor), signal_photons(head, sensor) / frames)
+    snr, signal = frame_levels(head, SensorConfig(bins=bins))  # of the sum: one frame's worth of signal
+    return PhotonLevels(snr, signal / frames)
 
 
 def auto_ambient_alpha(snr: float) -> float | None:

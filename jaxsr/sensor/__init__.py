@@ -34,6 +34,7 @@ from .peaks import (
     return_significance,
     ambient_only,
     frame_snr,
+    frame_levels,
     signal_photons,
     maximum_likelihood_depth,
 )
@@ -89,6 +90,7 @@ __all__ = [
     "return_significance",
     "ambient_only",
     "frame_snr",
+    "frame_levels",
     "signal_photons",
     "maximum_likelihood_depth",
     "dark_counts",

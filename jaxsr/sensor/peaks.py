@@ -274,10 +274,7 @@ def frame_snr(counts, sensor: SensorConfig = SensorConfig(), *, false_alarm=1e-3
     photons (a few frames, few bins) read high, as ambient noise lifts the peak's window (SNR 10 at 20 signal
     photons read 15 from one frame of 16 bins, 35 from one of 8; SNR 0.1 reads 0.15-0.25); a second surface counts
     as ambient. Returns a Python float: NaN where no pixel holds a return, inf where no ambient photon is seen."""
-    signal, ambient, _ = _signal_and_ambient("frame_snr", counts, sensor, false_alarm)
-    if signal.size == 0:
-        return float("nan")
-    return float(signal.mean() / ambient.mean()) if ambient.mean() > 0 else float("inf")
+    return _levels("frame_snr", counts, sensor, false_alarm)[0]
 
 
 def signal_photons(counts, sensor: SensorConfig = SensorConfig(), *, false_alarm=1e-3):
@@ -286,8 +283,20 @@ def signal_photons(counts, sensor: SensorConfig = SensorConfig(), *, false_alarm
     ambient level, over the frames summed, divided by their number). Pixels whose returns are too faint to be
     found in the sum are left out, so few photons read high. Returns a Python float, NaN where no pixel holds a
     return."""
-    signal, _, frames = _signal_and_ambient("signal_photons", counts, sensor, false_alarm)
-    return float(signal.mean() / frames) if signal.size else float("nan")
+    return _levels("signal_photons", counts, sensor, false_alarm)[1]
+
+
+def frame_levels(counts, sensor: SensorConfig = SensorConfig(), *, false_alarm=1e-3) -> tuple[float, float]:
+    """(`frame_snr`, `signal_photons`) of the same counts from one significance scan (each alone scans again)."""
+    return _levels("frame_levels", counts, sensor, false_alarm)
+
+
+def _levels(name, counts, sensor, false_alarm) -> tuple[float, float]:
+    signal, ambient, frames = _signal_and_ambient(name, counts, sensor, false_alarm)
+    if signal.size == 0:
+        return float("nan"), float("nan")
+    snr = float(signal.mean() / ambient.mean()) if ambient.mean() > 0 else float("inf")
+    return snr, float(signal.mean() / frames)
 
 
 def _signal_and_ambient(name, counts, sensor, false_alarm):

@@ -163,7 +163,7 @@ def test_signal_photons_reads_the_calibrated_signal():
     (the returns too faint to be found are left out, and noise lifts the peak's window); NaN without a return."""
     import jax.numpy as jnp
 
-    from jaxsr.sensor import signal_photons, simulate_histograms
+    from jaxsr.sensor import frame_levels, frame_snr, signal_photons, simulate_histograms
 
     depth = np.broadcast_to(np.linspace(8.0, 30.0, 48, dtype=np.float32)[None, None], (6, 32, 48)).copy()
     intensity = np.full_like(depth, 0.6)
@@ -173,6 +173,7 @@ def test_signal_photons_reads_the_calibrated_signal():
             c = simulate_histograms(jax.random.key(1), jnp.asarray(depth), jnp.asarray(intensity), sensor, snr=snr,
                                     mean_signal=photons)
             read = signal_photons(np.asarray(c), sensor)
+            assert frame_levels(np.asarray(c), sensor) == (frame_snr(np.asarray(c), sensor), read)  # one scan, both
             assert (abs(read / photons - 1) < 0.3) if photons >= 14 else (photons <= read < 4 * photons), (snr, photons)
     assert np.isnan(signal_photons(np.zeros((2, 8, 8, 16), np.float32)))
     with pytest.raises(ValueError, match="histograms"):
