@@ -33,7 +33,7 @@ def test_the_edge_lands_inside_its_block():
     per_lr = said["3x3x9 test"]
     # the 3 x 3 test misses the column of sky next to the half block: two LR columns from the edge stay depth
     assert study.no_return_rates(np.where(per_lr, 1.0, 0.0), gt)[0] > 20.0
-    for label in [k for k in said if k.startswith("grown + edges (median")]:
+    for label in ("grown + edges", "grown + edges, guarded"):
         np.testing.assert_array_equal(said[label], gt >= 1.0)  # exact: the share 0.5 puts the edge mid-block
     np.testing.assert_array_equal(said["true shares, interpolated (truth)"], gt >= 1.0)
     # the best decision per LR block paints the half block one way or the other
@@ -60,9 +60,23 @@ def test_edge_shares_reads_the_excess_against_its_neighbours():
     region = np.zeros((3, 5), bool)
     region[:, 3:] = True
     excess = np.array([[40.0, 40.0, 10.0, 0.0, 0.0]] * 3)
-    share = study.edge_shares(region, excess, excess > 30.0, statistic="median", size=5)
+    share = study.edge_shares(region, excess, excess > 30.0)
     assert share[1, 2] == pytest.approx(0.75)  # a quarter of the returns' excess: three quarters sky
     assert (share[:, :2] == 0.0).all() and (share[:, 3:] == 1.0).all()
     # no significant pixel around: its own excess is the reference, no sky
-    alone = study.edge_shares(region, excess, np.zeros_like(region), statistic="largest", size=3)
+    alone = study.edge_shares(region, excess, np.zeros_like(region))
     assert alone[1, 2] == 0.0
+    guarded = study.edge_shares(region, excess, excess > 30.0, guard=np.zeros_like(region))
+    assert (guarded == region).all()  # nowhere allowed: the region alone
+
+
+def test_the_guard_needs_photons_enough_to_tell():
+    """Half the returns' excess over a pixel's ambient level: significant with hundreds of photons, not with a
+    few against a bright background."""
+    sensor = SensorConfig()
+    significant = np.ones((5, 5), bool)
+    for excess, ambient, want in ((500.0, 20.0, True), (10.0, 20.0, False)):
+        summed = np.full((5, 5, sensor.bins), ambient, np.float32)
+        summed[..., 3] += excess
+        got = study.detectable(jnp.asarray(summed), np.full((5, 5), excess), significant, sensor)
+        assert got.all() == want and got.any() == want
