@@ -16,15 +16,14 @@ not reused), at HR, against the truth (no model: what each decision alone output
 model such as the paper's TR4 adds almost nothing, see photon_regimes.md):
 - "3x3x9 test": `ambient_only`'s flags, each painting its LR pixel's block (what `--ambient-alpha 0.001` does).
 - "grown": those flags, plus LR pixels whose own 9-frame histogram passes for ambient alone (p > `GROW_ALPHA`),
-  connected to them, and seeds of that kind whose photon excess is below `SEED_SHARE` of the strongest
-  significant excess within 2 LR pixels (regions too narrow for the 3 x 3 test).
+  connected to them.
 - "grown + edges": as grown, and each LR pixel bordering the region gets a share of no return, 1 - its excess /
   the median excess of the significant non-region pixels within 2 LR pixels; the shares are interpolated
   bilinearly to HR and an HR pixel is no return where its share is at least one half.
-- "guarded": both steps only at pixels where a return of half that reference excess, over the pixel's own
-  ambient level, would have been significant at `POWER_ALPHA` (`return_significance` of the expected
-  histogram): where it would not, one pixel's photons cannot tell a dim return from sky, and the pixel keeps the
-  3 x 3 test's decision.
+- "guarded": `jaxsr.sensor.no_return_shares`: both steps, only at pixels where a
+  return of half that reference excess, over the pixel's own ambient level, would have been significant
+  (`jaxsr.sensor.no_return.DETECTABLE_AT`): where it would not, one pixel's photons cannot tell a dim return from
+  sky, and the pixel keeps the 3 x 3 test's decision.
 - Two decisions known from the truth: "block majority" (no return where half of the block has none: the best
   per-LR-pixel decision) and "true shares, interpolated" (the blocks' true shares through the same interpolation:
   what the edge step could reach with exact shares).
@@ -64,26 +63,25 @@ import jaxsr
 from jaxsr.config import SensorConfig
 from jaxsr.eval.reports import header, markdown_table, write_atomic
 from jaxsr.eval.scoring import scored_frames
+from jaxsr.inference import no_return_where
 from jaxsr.sensor import (
     ambient_only,
     calibrated_rates,
-    default_window,
+    no_return,
     normalise_depth,
     return_significance,
     sample_poisson,
+    share_of_window,
 )
 
 SCRIPT = "experiments/studies/no_return_edges.py"
 PHOTONS = (3.0, 14.0, 100.0, 1000.0)
 R = 4  # frames on either side: the test sums a TR4 window's 2R + 1
 TEST_ALPHA = 1e-3  # the 3 x 3 x 9 test's false-alarm rate (`jaxsr.inference.AUTO_AMBIENT_ALPHA`)
-GROW_ALPHA = 1e-2  # an LR pixel joins a region where its own 9-frame p-value is above this
-RETURN_ALPHA = 1e-3  # ... and its excess counts as a reference where its p-value is at most this
-SEED_SHARE = 0.25  # a seed outside the 3 x 3 test: excess below this share of the strongest return nearby
-REFERENCE_PIXELS = 5  # the side of the square whose returns' median excess a border pixel is read against
-# the guard: a pixel may join a region, or get a share, only where a return of half the reference excess over its
-# own ambient level would have read as one at this p-value (where it would not, its photons cannot tell)
-POWER_ALPHA = 1e-4
+# the library's rules (jaxsr.sensor.no_return), here without its guard
+GROW_ALPHA, RETURN_ALPHA = no_return.JOIN_ABOVE, no_return.RETURN_AT
+REFERENCE_PIXELS = no_return.REFERENCE_SIDE
+GUARDED = "grown + edges, guarded (jaxsr.sensor.no_return_shares)"
 
 
 def blocks(flags, scale: int) -> np.ndarray:
@@ -102,15 +100,12 @@ def next_to(region) -> np.ndarray:
     return ndimage.binary_dilation(region, structure=np.ones((3, 3), bool)) & ~region
 
 
-def grown(flags, ambient, excess, significant) -> np.ndarray:
-    """The region flagged by the 3 x 3 x 9 test (`flags`), with weak seeds added, grown through the `ambient`
-    pixels (their own sum passes for ambient alone) connected to it. All (h, w); the guarded form passes
-    `ambient` & the guard."""
-    strongest = ndimage.maximum_filter(np.where(significant, excess, 0.0), size=5, mode="nearest")
-    seeds = flags | (ambient & (excess < SEED_SHARE * strongest))
-    labels, _ = ndimage.label(ambient | seeds, structure=np.ones((3, 3), bool))
-    keep = np.unique(labels[seeds])
-    return seeds | (np.isin(labels, keep[keep > 0]) & ambient)
+def grown(flags, ambient) -> np.ndarray:
+    """The region flagged by the 3 x 3 x 9 test (`flags`), grown through the `ambient` pixels (their own sum
+    passes for ambient alone) connected to it (8-neighbours). All (h, w)."""
+    labels, _ = ndimage.label(ambient | flags, structure=np.ones((3, 3), bool))
+    keep = np.unique(labels[flags])
+    return flags | (np.isin(labels, keep[keep > 0]) & ambient)
 
 
 def square_median(values, size: int = REFERENCE_PIXELS) -> np.ndarray:
@@ -123,32 +118,14 @@ def square_median(values, size: int = REFERENCE_PIXELS) -> np.ndarray:
     return np.where(none, np.nan, np.nanmedian(np.where(none[None], 0.0, square), axis=0))
 
 
-def edge_shares(region, excess, significant, guard=None) -> np.ndarray:
-    """(h, w) share of no return: 1 in the region; next to it (and where `guard`, if given) 1 - excess /
+def edge_shares(region, excess, significant) -> np.ndarray:
+    """(h, w) share of no return: 1 in the region; next to it 1 - excess /
     reference, clipped to [0, 1], reference the median excess of the significant non-region pixels within
     REFERENCE_PIXELS // 2 (the pixel's own excess where there are none: share 0); 0 elsewhere."""
     reference = square_median(np.where(significant & ~region, excess, np.nan))
     reference = np.where(np.isnan(reference), excess, reference)
     share = 1.0 - np.clip(excess / np.maximum(reference, 1e-6), 0.0, 1.0)
-    border = next_to(region) if guard is None else next_to(region) & guard
-    return np.where(region, 1.0, np.where(border, share, 0.0))
-
-
-def ambient_per_bin(summed, sensor: SensorConfig) -> np.ndarray:
-    """(h, w, K) -> (h, w) photons per bin outside the peak window (the window of `statistics`' excess)."""
-    n = np.asarray(summed, np.float64)
-    k = np.arange(n.shape[-1])
-    window = np.abs(k - np.argmax(n, axis=-1)[..., None]) <= int(default_window(sensor))
-    return (n.sum(-1) - np.where(window, n, 0.0).sum(-1)) / np.maximum(n.shape[-1] - window.sum(-1), 1)
-
-
-def detectable(summed, excess, significant, sensor: SensorConfig) -> np.ndarray:
-    """(h, w) the guard: True where a return of half the reference excess (the median significant excess within
-    REFERENCE_PIXELS // 2) over the pixel's own ambient level would have been significant at `POWER_ALPHA`."""
-    reference = np.nan_to_num(square_median(np.where(significant, excess, np.nan)), nan=0.0)
-    expected = np.repeat(ambient_per_bin(summed, sensor)[..., None], sensor.bins, axis=-1)
-    expected[..., sensor.bins // 2] += 0.5 * reference
-    return np.asarray(return_significance(jnp.asarray(expected, jnp.float32), sensor)) <= np.log(POWER_ALPHA)
+    return np.where(region, 1.0, np.where(next_to(region), share, 0.0))
 
 
 def decisions(flags, summed, gt, sensor: SensorConfig) -> dict:
@@ -158,12 +135,10 @@ def decisions(flags, summed, gt, sensor: SensorConfig) -> dict:
     log_p = np.asarray(return_significance(summed, sensor))
     excess = np.maximum(np.asarray(statistics(summed, sensor)["excess"]), 0.0)
     ambient, significant = log_p > np.log(GROW_ALPHA), log_p <= np.log(RETURN_ALPHA)
-    guard = detectable(summed, excess, significant, sensor)
-    out = {"3x3x9 test": blocks(flags, s)}
-    for label, may in (("", None), (", guarded", guard)):
-        region = grown(flags, ambient if may is None else ambient & may, excess, significant)
-        out["grown" + label] = blocks(region, s)
-        out["grown + edges" + label] = interpolated(edge_shares(region, excess, significant, may), s) >= 0.5
+    region = grown(flags, ambient)
+    out = {"3x3x9 test": blocks(flags, s), "grown": blocks(region, s),
+           "grown + edges": interpolated(edge_shares(region, excess, significant), s) >= 0.5,
+           GUARDED: no_return_where(np.zeros(gt.shape, np.float32), share_of_window(summed, sensor)) >= 1.0}
     truth = gt >= 1.0
     out["block majority (truth)"] = block_majority(truth, s)
     out["true shares, interpolated (truth)"] = interpolated(_block_share(truth, s), s) >= 0.5

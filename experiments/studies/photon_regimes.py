@@ -55,8 +55,8 @@ from jaxsr.eval.reports import header, markdown_table, write_atomic
 from jaxsr.io.checkpoint import resolve_model_path
 from jaxsr.inference.video import no_return_where
 from jaxsr.nn import network_inputs
-from jaxsr.sensor import (ambient_only, calibrate, calibrated_rates, no_return_regions, normalise_depth,
-                          sample_poisson)
+from jaxsr.sensor import (ambient_only, calibrate, calibrated_rates, no_return_regions, no_return_shares,
+                          normalise_depth, sample_poisson)
 
 PHOTONS = (1.0, 3.0, 14.0, 100.0, 1000.0)
 SNRS = (0.1, 1.3, 5.0)
@@ -84,10 +84,11 @@ def _calibration(depth, intensity, snr, mean_signal, sensor):
 
 @functools.partial(jax.jit, static_argnames=("sensor", "tests"))
 def _draw(key, depth, intensity, alpha, beta, sensor, tests=()):
-    """Network inputs, normalised ground truth and, for each false-alarm rate of `tests`, `ambient_only`'s flags
+    """Network inputs, normalised ground truth and, for each (kind, alpha) of `tests`, `ambient_only`'s flags
+    ("flags") or `no_return_shares` ("shares")
     (the frames drawn are consecutive around each scored frame, so a scored frame's test sums its own)."""
     counts = sample_poisson(key, calibrated_rates(depth, intensity, alpha, beta, sensor), method="fast")
-    flags = tuple(ambient_only(counts, sensor, alpha=a) for a in tests)
+    flags = tuple((ambient_only if kind == "flags" else no_return_shares)(counts, sensor, alpha=a) for kind, a in tests)
     return network_inputs(counts, sensor, MODEL_INPUTS), normalise_depth(depth, sensor), flags
 
 
@@ -102,8 +103,8 @@ def regime_clips(seqs: dict, photons: float, snr, *, scored, radius: int, key, s
     """The sequences at one regime: {name: Clip} of the frames the methods need (`needed_frames`), with `scored`
     as positions in them. snr None: each sequence's own. The laser and ambient are calibrated over the whole
     sequence, as `simulate_histograms` would, and photons are drawn only for those frames. Returns (clips,
-    ambient): ambient {name: {alpha: (F, h, w) bool}}, `ambient_only`'s flags of the scored frames at each
-    false-alarm rate of `tests`."""
+    ambient): ambient {name: {(kind, alpha): (F, h, w)}}, `ambient_only`'s flags or `no_return_shares` of the
+    scored frames for each test of `tests`."""
     clips, ambient = {}, {}
     for i, (name, seq) in enumerate(seqs.items()):
         s = float(seq.snr if snr is None else snr)
@@ -221,7 +222,7 @@ def evaluate(models: dict, seqs: dict, *, frames: int, photons=PHOTONS, snrs=SNR
     depth, intensity, fps, snr}) at every (photons, snr) regime, plus the paper's (14 photons, own SNR), and the
     no-return measure. ambient: {label: alpha} for models whose output is also no return where
     `jaxsr.sensor.ambient_only` flags a pixel at that false-alarm rate (as `ambient_alpha` of
-    `super_resolve_histograms`). Returns the raw results: {"regimes": [{"photons", "snr", "scores": {method: {"psnr",
+    `super_resolve_histograms`), or {label: ("shares", alpha)} where `jaxsr.sensor.no_return_shares` say so. Returns the raw results: {"regimes": [{"photons", "snr", "scores": {method: {"psnr",
     "ssim"}: (scenes, T)}, "tv_frames": positions in the scored frames}], "no_return": [...]} (NumPy arrays)."""
     total = len(next(iter(seqs.values())).depth)
     scored = scored_frames(frames, total)
@@ -232,7 +233,7 @@ def evaluate(models: dict, seqs: dict, *, frames: int, photons=PHOTONS, snrs=SNR
     grid = [(float(p), float(s)) for p in photons for s in snrs]
     if paper:
         grid.append((DEFAULT_MEAN_SIGNAL, None))
-    ambient = dict(ambient or {})
+    ambient = {label: test_of(v) for label, v in (ambient or {}).items()}
     tests = tuple(sorted(set(ambient.values())))
 
     def outputs_of(label, model, clips, flags):
@@ -432,16 +433,22 @@ def raw(results, models_info) -> dict:
                          "no_return_sky": NO_RETURN_SKY, "tv_tr": TV_TR}}
 
 
-def load_models(specs, logits=(), alphas=()) -> tuple[dict, dict, dict]:
+def test_of(setting) -> tuple[str, float]:
+    """An `ambient` setting of `evaluate` as its test: an alpha -> ("flags", alpha); ("shares", alpha) kept."""
+    return (str(setting[0]), float(setting[1])) if isinstance(setting, tuple) else ("flags", float(setting))
+
+
+def load_models(specs, logits=(), alphas=(), shares=()) -> tuple[dict, dict, dict]:
     """TR0 and TR4 bundled, and each NAME=PATH of --model that exists (PATH a file, a run folder or the name of
     bundled weights such as tr4-photons; a printed line for one that does not), each NAME=LOGIT of
     --no-return-logit run at that no-return threshold (`jaxsr.nn.with_no_return_logit`), each NAME=ALPHA of
-    --ambient-alpha with the ambient-only test at that false-alarm rate. Returns ({label: Model}, {label:
-    source}, {label: alpha})."""
+    --ambient-alpha with the ambient-only test at that false-alarm rate, each of --no-return-shares with
+    `no_return_shares` at it. Returns ({label: Model}, {label: source}, {label: alpha or ("shares", alpha)})."""
     thresholds = _named_numbers(logits, specs, "--no-return-logit", "LOGIT")
     ambient = _named_numbers(alphas, specs, "--ambient-alpha", "ALPHA")
-    if any(not 0.0 < a < 1.0 for a in ambient.values()):
-        raise SystemExit("--ambient-alpha: ALPHA is a false-alarm rate in (0, 1), such as 0.001")
+    ambient.update({k: ("shares", v) for k, v in _named_numbers(shares, specs, "--no-return-shares", "ALPHA").items()})
+    if any(not 0.0 < test_of(a)[1] < 1.0 for a in ambient.values()):
+        raise SystemExit("--ambient-alpha, --no-return-shares: ALPHA is a false-alarm rate in (0, 1), such as 0.001")
     models = {"TR0": jaxsr.load_model("tr0"), "TR4": jaxsr.load_model("tr4")}
     info = {"TR0": "bundled tr0", "TR4": "bundled tr4"}
     for spec in specs:
@@ -463,7 +470,9 @@ def load_models(specs, logits=(), alphas=()) -> tuple[dict, dict, dict]:
                 raise SystemExit(f"--no-return-logit {name}: {e}") from None
             info[name] = f"{path} at no-return logit {thresholds[name]:g}"
         if name in ambient:
-            info[name] += f", no return where ambient alone (alpha {ambient[name]:g})"
+            kind, a = test_of(ambient[name])
+            info[name] += (f", no return where ambient alone (alpha {a:g})" if kind == "flags" else
+                           f", no return by no_return_shares (alpha {a:g})")
     return models, info, {k: v for k, v in ambient.items() if k in models}
 
 
@@ -497,12 +506,15 @@ def main(argv=None) -> None:
     parser.add_argument("--ambient-alpha", action="append", default=[], metavar="NAME=ALPHA",
                         help="run --model NAME also marking no return where the photons around a pixel pass for "
                         "ambient light alone at this false-alarm rate (jaxsr.sensor.ambient_only); repeatable")
+    parser.add_argument("--no-return-shares", action="append", default=[], metavar="NAME=ALPHA",
+                        help="run --model NAME also marking no return where jaxsr.sensor.no_return_shares (the "
+                        "ambient-only test grown to the regions' edges, at this false-alarm rate) say so; repeatable")
     parser.add_argument("--seed", type=int, default=0, help="noise seed")
     parser.add_argument("--out", default="experiments/results/photon_regimes.md",
                         help="the results file (a .json beside it)")
     args = parser.parse_args(argv)
     started = time.time()
-    models, info, ambient = load_models(args.model, args.no_return_logit, args.ambient_alpha)
+    models, info, ambient = load_models(args.model, args.no_return_logit, args.ambient_alpha, args.no_return_shares)
     seqs = jaxsr.scenes.test_sequences(n_frames=SEQUENCE_FRAMES, names=TEST_SCENES)
     results = evaluate(models, seqs, frames=args.frames, photons=args.photons, snrs=args.snr,
                        tv_frames=args.tv_frames if args.tv else 0, seed=args.seed, ambient=ambient)

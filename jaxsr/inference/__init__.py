@@ -20,6 +20,7 @@ from .video import (
     iter_centre_of_mass,
     iter_network_inputs,
     iter_ambient_only,
+    no_return_where,
     super_resolve_histograms,
     Stream,
 )
@@ -75,6 +76,7 @@ __all__ = [
     "iter_centre_of_mass",
     "iter_network_inputs",
     "iter_ambient_only",
+    "no_return_where",
     "AUTO_AMBIENT_ALPHA",
     "AUTO_AMBIENT_MIN_SNR",
     "AUTO_AMBIENT_MIN_FRAMES",

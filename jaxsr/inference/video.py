@@ -501,10 +501,22 @@ def super_resolve_histograms(model: Model, counts, sensor: SensorConfig = Sensor
 
 
 def no_return_where(hr, flags):
-    """HR frames (T, H, W) or one (H, W), normalised, with 1.0 (no return) wherever LR `flags` ((T, h, w) or
-    (h, w) bool, H = r h) say so: each LR pixel's r x r HR pixels."""
+    """HR frames (T, H, W) or one (H, W), normalised, with 1.0 (no return) where LR `flags` ((T, h, w) or (h, w),
+    H = r h) say so. Booleans (`jaxsr.sensor.ambient_only`) paint each LR pixel's r x r HR pixels; shares of no
+    return in [0, 1] (`jaxsr.sensor.no_return_shares`) are interpolated bilinearly between the LR pixels'
+    centres and mark the HR pixels where they reach one half, so that an edge falls inside its block."""
     r = np.shape(hr)[-1] // np.shape(flags)[-1]
-    return np.where(np.repeat(np.repeat(flags, r, axis=-2), r, axis=-1), np.float32(1.0), hr)
+    if np.asarray(flags).dtype == bool:
+        marked = np.repeat(np.repeat(flags, r, axis=-2), r, axis=-1)
+    else:
+        marked = np.asarray(_shares_at_hr(jnp.asarray(flags, jnp.float32), r)) >= 0.5
+    return np.where(marked, np.float32(1.0), hr)
+
+
+@functools.partial(jax.jit, static_argnames=("scale",))
+def _shares_at_hr(shares, scale: int):
+    *lead, h, w = shares.shape
+    return jax.image.resize(shares, (*lead, h * scale, w * scale), "linear")
 
 
 def _no_return_where_ambient(out, counts, sensor: SensorConfig, alpha: float) -> np.ndarray:

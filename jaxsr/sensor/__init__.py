@@ -38,6 +38,10 @@ from .peaks import (
     signal_photons,
     maximum_likelihood_depth,
 )
+from .no_return import (
+    no_return_shares,
+    share_of_window,
+)
 from .effects import (
     dark_counts,
     hot_pixels,
@@ -93,6 +97,8 @@ __all__ = [
     "frame_levels",
     "signal_photons",
     "maximum_likelihood_depth",
+    "no_return_shares",
+    "share_of_window",
     "dark_counts",
     "hot_pixels",
     "dead_pixels",

@@ -85,12 +85,16 @@ def test_no_return_regions_reach_the_ground_truth():
     assert np.all(sky[0] == sky[1])  # one mask for the whole sequence
     assert sky[0].mean() == pytest.approx(photon_regimes.NO_RETURN_FRACTION, abs=0.01)
     clips, flags = photon_regimes.regime_clips({"s": dark}, 100.0, 1.3, scored=np.array([1]), radius=1,
-                                               key=jax.random.key(0), tests=(1e-3,))
+                                               key=jax.random.key(0), tests=(("flags", 1e-3), ("shares", 1e-3)))
     assert np.array_equal(clips["s"].gt[0] >= 1.0, sky[0])
     # the ambient-only test of the scored frame: most of the sky's LR blocks, almost none of the returns'
-    (flag,) = flags["s"][1e-3]
+    (flag,) = flags["s"][("flags", 1e-3)]
     blocks = sky[1].reshape(flag.shape[0], 4, flag.shape[1], 4).mean(axis=(1, 3))
     assert flag[blocks == 1.0].mean() > 0.5 and flag[blocks == 0.0].mean() < 0.01
+    # the shares grow from the flags: more of the sky, still almost none of the returns
+    (share,) = flags["s"][("shares", 1e-3)]
+    assert (share[flag] == 1.0).all() and (share[blocks == 1.0] == 1.0).mean() > flag[blocks == 1.0].mean()
+    assert (share[blocks == 0.0] >= 0.5).mean() < 0.01
 
 
 def test_frames_far_apart_are_resampled_one_by_one():
