@@ -1,4 +1,5 @@
-"""jaxsr.sensor.no_return: the share of each LR pixel without a return, placed to within an LR block."""
+"""jaxsr.sensor.no_return: the share of each LR pixel without a return, placed to within an LR block (named apart
+from tests/training/test_no_return.py: pytest imports test files by their base name)."""
 
 import jax
 import numpy as np
