@@ -233,7 +233,7 @@ def evaluate(models: dict, seqs: dict, *, frames: int, photons=PHOTONS, snrs=SNR
     grid = [(float(p), float(s)) for p in photons for s in snrs]
     if paper:
         grid.append((DEFAULT_MEAN_SIGNAL, None))
-    ambient = {label: test_of(v) for label, v in (ambient or {}).items()}
+    ambient = {label: decision_of(v) for label, v in (ambient or {}).items()}
     tests = tuple(sorted(set(ambient.values())))
 
     def outputs_of(label, model, clips, flags):
@@ -433,7 +433,7 @@ def raw(results, models_info) -> dict:
                          "no_return_sky": NO_RETURN_SKY, "tv_tr": TV_TR}}
 
 
-def test_of(setting) -> tuple[str, float]:
+def decision_of(setting) -> tuple[str, float]:
     """An `ambient` setting of `evaluate` as its test: an alpha -> ("flags", alpha); ("shares", alpha) kept."""
     return (str(setting[0]), float(setting[1])) if isinstance(setting, tuple) else ("flags", float(setting))
 
@@ -447,7 +447,7 @@ def load_models(specs, logits=(), alphas=(), shares=()) -> tuple[dict, dict, dic
     thresholds = _named_numbers(logits, specs, "--no-return-logit", "LOGIT")
     ambient = _named_numbers(alphas, specs, "--ambient-alpha", "ALPHA")
     ambient.update({k: ("shares", v) for k, v in _named_numbers(shares, specs, "--no-return-shares", "ALPHA").items()})
-    if any(not 0.0 < test_of(a)[1] < 1.0 for a in ambient.values()):
+    if any(not 0.0 < decision_of(a)[1] < 1.0 for a in ambient.values()):
         raise SystemExit("--ambient-alpha, --no-return-shares: ALPHA is a false-alarm rate in (0, 1), such as 0.001")
     models = {"TR0": jaxsr.load_model("tr0"), "TR4": jaxsr.load_model("tr4")}
     info = {"TR0": "bundled tr0", "TR4": "bundled tr4"}
@@ -470,7 +470,7 @@ def load_models(specs, logits=(), alphas=(), shares=()) -> tuple[dict, dict, dic
                 raise SystemExit(f"--no-return-logit {name}: {e}") from None
             info[name] = f"{path} at no-return logit {thresholds[name]:g}"
         if name in ambient:
-            kind, a = test_of(ambient[name])
+            kind, a = decision_of(ambient[name])
             info[name] += (f", no return where ambient alone (alpha {a:g})" if kind == "flags" else
                            f", no return by no_return_shares (alpha {a:g})")
     return models, info, {k: v for k, v in ambient.items() if k in models}

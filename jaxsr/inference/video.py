@@ -502,12 +502,12 @@ def super_resolve_histograms(model: Model, counts, sensor: SensorConfig = Sensor
 
 def no_return_where(hr, flags):
     """HR frames (T, H, W) or one (H, W), normalised, with 1.0 (no return) where LR `flags` ((T, h, w) or (h, w),
-    H = r h) say so. Booleans (`jaxsr.sensor.ambient_only`) paint each LR pixel's r x r HR pixels; shares of no
-    return in [0, 1] (`jaxsr.sensor.no_return_shares`) are interpolated bilinearly between the LR pixels'
+    H = r h) say so. Booleans (`jaxsr.sensor.ambient_only`; integers too) paint each LR pixel's r x r HR pixels;
+    floating shares of no return in [0, 1] (`jaxsr.sensor.no_return_shares`) are interpolated bilinearly between the LR pixels'
     centres and mark the HR pixels where they reach one half, so that an edge falls inside its block."""
     r = np.shape(hr)[-1] // np.shape(flags)[-1]
-    if np.asarray(flags).dtype == bool:
-        marked = np.repeat(np.repeat(flags, r, axis=-2), r, axis=-1)
+    if not np.issubdtype(np.asarray(flags).dtype, np.floating):  # bool (or 0/1 integer) flags: blocks
+        marked = np.repeat(np.repeat(np.asarray(flags, bool), r, axis=-2), r, axis=-1)
     else:
         marked = np.asarray(_shares_at_hr(jnp.asarray(flags, jnp.float32), r)) >= 0.5
     return np.where(marked, np.float32(1.0), hr)

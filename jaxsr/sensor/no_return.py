@@ -18,9 +18,12 @@ place an edge inside its block.
 On the project's test scenes with regions of no return (SNR 1.3, 8 frames each; experiments/results/
 no_return_edges.md) the share of the no-return pixels output as depth goes from 30 / 45 / 55 / 61 % (the test
 alone) to 22 / 25 / 9 / 10 % at 3 / 14 / 100 / 1000 signal photons per pixel, while the returns dropped go from
-1.6 / 0.2 / 0.0 / 0.0 % to 2.9 / 0.9 / 0.8 / 0.6 %; applied to the paper's TR4 its PSNR is within 0.15 dB of the
-test's in 10 of 11 regimes of 1-1000 photons at SNR 0.1 and 1.3, 0.52 lower at 14 photons and SNR 0.1
-(photon_regimes_shares.md). The rules' constants were chosen on those scenes.
+1.6 / 0.2 / 0.0 / 0.0 % to 2.9 / 0.9 / 0.8 / 0.6 % (the decision alone; with the paper's TR4 and its own noise draws
+3.7 % and 1.2 % at 3 and 14 photons, the test 2.5 % and 0.3 %); TR4's PSNR with it is within 0.15 dB of the test's
+in 10 of 11 regimes (1-1000 photons at SNR 0.1 and 1.3, and the paper's), 0.52 lower at 14 photons and SNR 0.1
+(photon_regimes_shares.md). The rules' constants were chosen on those scenes. Beyond about 1e28 photons per bin
+each histogram is scaled down on its own (to keep sums finite), and the border shares, still finite, are no
+longer to be trusted.
 """
 
 from __future__ import annotations
@@ -115,12 +118,14 @@ def share_of_window(summed, sensor: SensorConfig = SensorConfig(), *, alpha=1e-3
     half_return = jnp.broadcast_to(ambient_per_bin[..., None], n.shape).at[..., sensor.bins // 2].add(0.5 * reference)
     can_tell = return_significance(half_return, sensor) <= jnp.log(DETECTABLE_AT)
     joins = (log_p > jnp.log(JOIN_ABOVE)) & can_tell
-    # no region starts outside the test: a dim surface beside a bright one would (seeds of that kind cost 2.4 dB
-    # at 3 photons per pixel on the test scenes, experiments/results/photon_regimes_shares.md)
+    # no region starts outside the test: a dim surface beside a bright one would (seeds of that kind cost TR4
+    # 2.4 dB at 3 photons per pixel on the test scenes in a run that was not kept; docs/results/photon-regimes.md)
     region = _grow(flags, joins)
     # the share of return at the borders: the excess against the returns' around it, outside the region
     beside = _square_median(jnp.where(significant & ~region, excess, jnp.nan))
-    beside = jnp.where(jnp.isnan(beside), excess, beside)  # none around: its own (share 0)
+    # none around: its own excess (a share of 0, or 1 for no excess; the guard has no reference there either, so
+    # such a pixel takes no share)
+    beside = jnp.where(jnp.isnan(beside), excess, beside)
     share = 1.0 - jnp.clip(excess / jnp.maximum(beside, jnp.finfo(jnp.float32).tiny), 0.0, 1.0)
     border = _next_to(region) & can_tell
     return jnp.where(region, 1.0, jnp.where(border, share, 0.0)).astype(jnp.float32)

@@ -43,16 +43,29 @@ def test_the_edge_falls_inside_its_block():
     np.testing.assert_allclose(shares[:, 4], 0.5, atol=1e-6)  # half the neighbours' excess
     marked = no_return_where(np.zeros(truth.shape, np.float32), shares) == 1.0
     np.testing.assert_array_equal(marked, truth)
-    # booleans still paint blocks
+    # booleans, and 0/1 integers, still paint blocks
     np.testing.assert_array_equal(no_return_where(np.zeros(truth.shape, np.float32), flags) == 1.0, blocks)
+    np.testing.assert_array_equal(no_return_where(np.zeros(truth.shape, np.float32), flags.astype(np.uint8)) == 1.0,
+                                  blocks)
 
 
 def test_where_the_photons_cannot_tell_the_test_alone_decides():
-    """A return too faint against the ambient light for one pixel's sum to tell (the guard): no growth, no
-    shares; the shares are the 3 x 3 test's flags."""
+    """The guard, on either side of its threshold. 60 signal photons a frame against 32 ambient: the sky's first
+    column, which the 3 x 3 test leaves, joins the region. 14 against 400: the returns are significant pixel by
+    pixel (p <= 0.001 over 9 frames) and the half block passes for ambient light beside the flagged sky, but half a
+    return would not stand out there (p > DETECTABLE_AT): nothing joins, no share, the shares are the test's
+    flags. A faint return in bright light (1 against 40): no reference at all, the same."""
+    counts, _ = split_scene(60.0, 32.0)
+    flags = np.asarray(ambient_only(counts))
+    assert not flags[4, :, 5].any() and (np.asarray(no_return_shares(counts))[4, :, 5] == 1.0).all()
+    counts, _ = split_scene(14.0, 400.0)
+    log_p = np.asarray(jaxsr.sensor.return_significance(counts.sum(axis=0)))
+    assert (log_p[:, :4] <= np.log(1e-3)).all() and (log_p[:, 4] > np.log(0.01)).all()
+    flags = np.asarray(ambient_only(counts))
+    assert flags[4, :, 5].all() and not flags[4, :, 4].any()
+    np.testing.assert_array_equal(np.asarray(no_return_shares(counts)), flags.astype(np.float32))
     counts, _ = split_scene(1.0, 40.0, seed=3)
-    shares = np.asarray(no_return_shares(counts))
-    np.testing.assert_array_equal(shares, np.asarray(ambient_only(counts)).astype(np.float32))
+    np.testing.assert_array_equal(np.asarray(no_return_shares(counts)), np.asarray(ambient_only(counts)).astype(np.float32))
 
 
 def test_at_a_few_photons_drawn_the_sky_empties_and_the_surface_stays():
