@@ -84,15 +84,10 @@ REFERENCE_PIXELS = no_return.REFERENCE_SIDE
 GUARDED = "grown + edges, guarded (jaxsr.sensor.no_return_shares)"
 
 
-def blocks(flags, scale: int) -> np.ndarray:
-    """(h, w) LR decisions -> (H, W): each paints its scale x scale block."""
-    return np.kron(flags, np.ones((scale, scale), np.uint8)).astype(bool)
-
-
-def interpolated(share, scale: int) -> np.ndarray:
-    """(h, w) shares at the LR pixels' centres -> (H, W) by bilinear interpolation (edges held)."""
-    h, w = np.shape(share)
-    return np.asarray(jax.image.resize(jnp.asarray(share, jnp.float32), (h * scale, w * scale), "linear"))
+def marked(decision, hr_shape) -> np.ndarray:
+    """(h, w) LR flags (bool: each paints its block) or shares (float: interpolated, cut at one half) -> (H, W)
+    bool no return, as `jaxsr.inference.no_return_where` marks a model's output."""
+    return no_return_where(np.zeros(hr_shape, np.float32), decision) >= 1.0
 
 
 def next_to(region) -> np.ndarray:
@@ -131,17 +126,17 @@ def edge_shares(region, excess, significant) -> np.ndarray:
 def decisions(flags, summed, gt, sensor: SensorConfig) -> dict:
     """{label: (H, W) bool no return} for one frame: `flags` its (h, w) 3 x 3 x 9 test, `summed` its (h, w, K)
     histograms summed over its 9 frames, `gt` its (H, W) normalised truth (for the two decisions known from it)."""
-    s = sensor.scale
+    s, hr = sensor.scale, np.shape(gt)
     log_p = np.asarray(return_significance(summed, sensor))
     excess = np.maximum(np.asarray(statistics(summed, sensor)["excess"]), 0.0)
     ambient, significant = log_p > np.log(GROW_ALPHA), log_p <= np.log(RETURN_ALPHA)
     region = grown(flags, ambient)
-    out = {"3x3x9 test": blocks(flags, s), "grown": blocks(region, s),
-           "grown + edges": interpolated(edge_shares(region, excess, significant), s) >= 0.5,
-           GUARDED: no_return_where(np.zeros(gt.shape, np.float32), share_of_window(summed, sensor)) >= 1.0}
+    out = {"3x3x9 test": marked(flags, hr), "grown": marked(region, hr),
+           "grown + edges": marked(edge_shares(region, excess, significant), hr),
+           GUARDED: marked(np.asarray(share_of_window(summed, sensor)), hr)}
     truth = gt >= 1.0
     out["block majority (truth)"] = block_majority(truth, s)
-    out["true shares, interpolated (truth)"] = interpolated(_block_share(truth, s), s) >= 0.5
+    out["true shares, interpolated (truth)"] = marked(_block_share(truth, s), hr)
     return out
 
 
