@@ -59,11 +59,10 @@ import numpy as np
 import jaxsr
 from jaxsr.eval.reports import hand_written_tail, header, markdown_table, save_figure, write_atomic
 from jaxsr.eval.scoring import format_interval
-from jaxsr.inference import iter_network_inputs
-from jaxsr.inference.video import no_return_where
+from jaxsr.inference import iter_network_inputs, no_return_where
 from jaxsr.io.recordings import gate_frames
 from jaxsr.sensor.timetags import TimeTags
-from photon_regimes import NO_RETURN_AT, TV_TR, load_models  # experiments/studies, beside this script
+from photon_regimes import NO_RETURN_AT, TV_TR, decision_of, load_models  # experiments/studies, beside this script
 
 ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_DATA = ROOT.parent / "shared" / "realdata"
@@ -351,7 +350,8 @@ def evaluate(recordings, models: dict, *, levels=LEVELS, max_frames: int = MAX_F
     """Score nearest, bicubic, TV and `models` ({label: Model}) on each recording's photon video at every level
     against its all-photon reference. tv_frames: frames per level TV runs on (None: all). ambient: {label:
     alpha} for models whose output is also no return where `jaxsr.sensor.ambient_only` flags a pixel of the
-    photon video at that false-alarm rate (as `jaxsr upscale --ambient-alpha`). Returns
+    photon video at that false-alarm rate (as `jaxsr upscale --ambient-alpha`), or {label: ("shares", alpha)}
+    where `jaxsr.sensor.no_return_shares` say so. Returns
     {name: {"reference", "noise", "levels": [{"level", "frames", "photons_ref", "scores": {method: {psnr, mae,
     no_return: (T,)}}, "tv_frames"}], "picture": {panel: (H, W)}}}."""
     results = {}
@@ -386,8 +386,9 @@ def evaluate(recordings, models: dict, *, levels=LEVELS, max_frames: int = MAX_F
             for label, model in models.items():
                 outputs[label] = jaxsr.super_resolve(model, model_input(model, frames), form="model")
                 if label in (ambient or {}):
-                    flags = jaxsr.sensor.ambient_only(frames.counts, jaxsr.SensorConfig(bins=frames.gate.bins),
-                                                      alpha=ambient[label])
+                    kind, alpha = decision_of(ambient[label])
+                    decide = jaxsr.sensor.ambient_only if kind == "flags" else jaxsr.sensor.no_return_shares
+                    flags = decide(frames.counts, jaxsr.SensorConfig(bins=frames.gate.bins), alpha=alpha)
                     outputs[label] = no_return_where(outputs[label], np.asarray(flags))
             scores = {m: masked_scores(sr, ref, valid, sky, edge) for m, sr in outputs.items()}
             photons_ref = float(frames.counts.sum(-1)[:, covered].mean()) if covered.any() else float("nan")
@@ -590,6 +591,9 @@ def main(argv=None) -> None:
     parser.add_argument("--ambient-alpha", action="append", default=[], metavar="NAME=ALPHA",
                         help="run --model NAME also marking no return where the photons around a pixel pass for "
                         "ambient light alone at this false-alarm rate (jaxsr.sensor.ambient_only); repeatable")
+    parser.add_argument("--no-return-shares", action="append", default=[], metavar="NAME=ALPHA",
+                        help="run --model NAME also marking no return where jaxsr.sensor.no_return_shares (the "
+                        "ambient-only test grown to the regions' edges, at this false-alarm rate) say so; repeatable")
     parser.add_argument("--picture-level", type=float, default=PICTURE_LEVEL,
                         help="photons of the pictured frame (default 2)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the photon permutations")
@@ -599,7 +603,8 @@ def main(argv=None) -> None:
     if args.data is None:
         raise SystemExit(f"no recordings: {DEFAULT_DATA} does not exist; give the folder with --data")
     started = time.time()
-    models, info, ambient = load_models(args.model, args.no_return_logit, args.ambient_alpha)
+    models, info, ambient = load_models(args.model, args.no_return_logit, args.ambient_alpha,
+                                       args.no_return_shares)
     recordings = [read_recording(args.data, s) for s in SOURCES]
     results = evaluate(recordings, models, levels=args.levels, max_frames=args.frames, tv_frames=args.tv_frames,
                        tv=not args.no_tv, seed=args.seed, picture_level=args.picture_level, ambient=ambient)

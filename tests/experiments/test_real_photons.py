@@ -89,15 +89,23 @@ def test_core_on_crops_of_the_real_recordings(tmp_path):
                   real_photons.read_recording(DATA, real_photons.SOURCES[1], crop=(24, 24, 48))]
     assert [r.tags.shape for r in recordings] == [(48, 48), (48, 48)]
     # the bundled TR0, labelled TR4 so that the goal (TR4 against bicubic) has its model: it compiles faster
+    # and the same with the no-return decisions applied (only adds no return; the same model: no new compile)
     models = {"TR4": jaxsr.load_model("tr0")}
-    results = real_photons.evaluate(recordings, models, levels=[2.0], max_frames=2, log=lambda _: None)
+    models.update({"TR4+test": models["TR4"], "TR4+shares": models["TR4"]})
+    results = real_photons.evaluate(recordings, models, levels=[2.0], max_frames=2, log=lambda _: None,
+                                    ambient={"TR4+test": 1e-3, "TR4+shares": ("shares", 1e-3)})
     for rec in recordings:
         r = results[rec.name]
         assert r["lr_shape"] == (12, 12) and r["valid"].any()
         assert 0 < r["noise"]["both_return"] <= 1 and np.isfinite(r["noise"]["psnr_halves"])
         (entry,) = r["levels"]
         assert entry["frames"] == 2
-        assert set(entry["scores"]) == {"nearest", "bicubic", "TV", "TR4"}
+        assert set(entry["scores"]) == {"nearest", "bicubic", "TV", "TR4", "TR4+test", "TR4+shares"}
+        plain = entry["scores"]["TR4"]
+        for decided in ("TR4+test", "TR4+shares"):
+            assert np.all(entry["scores"][decided]["no_return"] >= plain["no_return"])
+            assert np.all(np.nan_to_num(entry["scores"][decided]["sky_as_depth"], nan=0.0)
+                          <= np.nan_to_num(plain["sky_as_depth"], nan=0.0))
         for s in entry["scores"].values():
             assert s["psnr"].shape == (2,) and np.all(np.isfinite(s["psnr"]))
             assert np.all((s["no_return"] >= 0) & (s["no_return"] <= 1))
@@ -116,6 +124,8 @@ def test_core_on_crops_of_the_real_recordings(tmp_path):
     assert (tmp_path / "p.png").stat().st_size > 0
     json.dumps(real_photons.raw(results, {"TR4": "bundled tr0"}, {}), allow_nan=False)
     assert results["tower"]["sky"].any()  # the crop holds sky: the other side of the decision is measured
+    tower = results["tower"]["levels"][0]["scores"]  # and both decisions empty some of what TR4 alone shows of it
+    assert all(tower[d]["sky_as_depth"].sum() < tower["TR4"]["sky_as_depth"].sum() for d in ("TR4+test", "TR4+shares"))
 
 
 def test_a_photon_model_reads_the_depth_and_the_photons_behind_it():
