@@ -331,6 +331,7 @@ def test_one_fit_trains_a_baseline_checkpoints_every_epoch_resumes_and_refuses_o
         jaxsr.fit(TINY_HISTNET, cfg1, out=tmp_path / "pre", pretrain_epochs=1, **kw)
 
 
+@pytest.mark.slow  # a GAN training run (9 s)
 def test_one_fit_trains_iseebetter_as_a_gan_with_two_optimisers(tmp_path):
     cfg = jaxsr.baselines.RBPNConfig(base_filter=8, feat=4, n_resblock=1, frames=3, disc_widths=(4, 4),
                                      disc_hidden=8, flow_levels=2, flow_iterations=2)

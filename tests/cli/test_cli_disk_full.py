@@ -86,6 +86,7 @@ def test_upscale_on_a_full_disk_exits_1_with_one_line_and_leaves_nothing(tmp_pat
     assert tree(tmp_path) == before  # no output, no hidden temporary
 
 
+@pytest.mark.slow  # renders a scene sequence (10 s)
 def test_simulate_on_a_full_disk_exits_1_and_leaves_no_folder(tmp_path, monkeypatch, capsys):
     """The first file (histograms.npz, written into the hidden temporary folder) fails: the message names its
     final place, and neither OUT nor the temporary folder is left."""

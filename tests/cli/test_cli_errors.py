@@ -168,6 +168,7 @@ DTYPES = st.sampled_from(["<f4", "<f8", "<f2", "<i2", "|u1", "|b1", "<c8", "<U2"
 
 
 # No shrinking: each example is a subprocess of seconds; the failing example is printed as found.
+@pytest.mark.slow  # 8 subprocesses of arbitrary arrays (25 s); the one-line refusals are the cases above
 @settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture],
           phases=[Phase.explicit, Phase.generate])
 @given(arr=hnp.arrays(DTYPES, SHAPES), units=st.sampled_from([None, "m", "normalised"]))

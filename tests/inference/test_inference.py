@@ -149,6 +149,7 @@ _SHARDED_SCRIPT = textwrap.dedent(
 )
 
 
+@pytest.mark.slow  # a subprocess with 4 emulated devices (11 s)
 def test_batches_split_over_devices_equal_the_window_loop():
     """Two CPU devices: the default batch (one frame per device) and batch 4 are split over them, batch 3 is
     not; all three equal the one-window-at-a-time reference, the padded last batch included."""

@@ -71,6 +71,7 @@ def test_bfloat16_applies_to_the_duf_network_only():
         Stream(histnet)
 
 
+@pytest.mark.slow  # 7 s a case; bfloat16 is emulated on most CPUs
 @pytest.mark.parametrize("tr,frames,form", [(0, 5, "window"), (1, 7, "window"), (1, 12, "sequence")])
 def test_bfloat16_is_finite_and_near_float32(tr, frames, form):
     model, seq = _model(tr), _seq(frames, seed=tr + frames)
@@ -83,6 +84,7 @@ def test_bfloat16_is_finite_and_near_float32(tr, frames, form):
         np.testing.assert_allclose(super_resolve(model, seq, batch_size=4, form=form), f32, atol=1e-6)
 
 
+@pytest.mark.slow  # 15 s; bfloat16 is emulated on most CPUs
 def test_bfloat16_reaches_the_stream_and_the_histograms():
     model, seq = _model(1), _seq(6, seed=3)
     want = super_resolve(model, seq, precision="bfloat16", form="sequence")
@@ -95,6 +97,7 @@ def test_bfloat16_reaches_the_stream_and_the_histograms():
                                super_resolve(model, lr, precision="bfloat16", batch_size=2), atol=1e-6)
 
 
+@pytest.mark.slow  # 7 s; bfloat16 is emulated on most CPUs
 def test_pipeline_metric_takes_a_precision(model_path):
     model = jaxsr.load_model(model_path)
     sensor = SensorConfig(hr_shape=(32, 32))
@@ -141,6 +144,7 @@ def test_in_form_follows_the_measured_rule():
         in_form(histnet, "sequence")
 
 
+@pytest.mark.slow  # 22 s of TR3/TR4 compiles in both forms
 def test_whole_arrays_run_in_the_form_auto_picks():
     model = _model(3)
     long = _seq(SEQUENCE_FORM_MIN_FRAMES, seed=5)
@@ -236,7 +240,8 @@ def _psnr(sr, gt):
     return float(np.mean(jaxsr.psnr(np.clip(sr, 0, 1), gt)))
 
 
-@pytest.mark.parametrize("name", ["tr0", pytest.param("tr4", marks=pytest.mark.slow)])  # tr4: 25 s on 2 cores
+@pytest.mark.slow  # 7-25 s per model; bfloat16 is emulated on most CPUs
+@pytest.mark.parametrize("name", ["tr0", "tr4"])
 def test_bundled_models_in_bfloat16_stay_within_their_tolerance(name, scene):
     model = jaxsr.load_model(name)
     for form in ("window", "sequence"):
@@ -251,7 +256,8 @@ def test_bundled_models_in_bfloat16_stay_within_their_tolerance(name, scene):
 FORM_DB = 0.1
 
 
-@pytest.mark.parametrize("name", [pytest.param("tr3", marks=pytest.mark.slow), "tr4"])  # tr3: 16 s on 2 cores
+@pytest.mark.slow  # 15 s per bundled model
+@pytest.mark.parametrize("name", ["tr3", "tr4"])
 def test_bundled_models_auto_picks_keep_their_windowed_psnr(name, scene):
     """`form="auto"` runs them in the sequence form on this 32-frame clip (14 of whose frames are within R of an
     end for TR4), within the measured tolerance of the window form."""

@@ -177,6 +177,7 @@ def test_write_upscaled_checks_its_output(tmp_path, model_path, metres):
     assert (tmp_path / "out.npz").read_bytes() == b"keep" and not (tmp_path / "frames").exists()
 
 
+@pytest.mark.slow  # renders a scene sequence twice (15 s)
 def test_simulate_recording_equals_the_command(tmp_path, capsys):
     """`jaxsr.simulate_recording`, the library call behind `jaxsr simulate`: the same files and summary."""
     result = jaxsr.simulate_recording(tmp_path / "api", kind="walkers", frames=2, seed=3)

@@ -196,6 +196,7 @@ def products(f, *args):
     return found
 
 
+@pytest.mark.slow  # 3.4 s a case; bfloat16 is emulated on most CPUs
 @pytest.mark.parametrize("impl", ["native", "taps", "stacked", "stacked-taps-grad"])
 def test_conv3d_precisions(impl):
     """Each precision reaches every product of the forward pass and of both gradients (read from the jaxpr, so

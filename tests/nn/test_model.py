@@ -211,6 +211,7 @@ def test_grow_tr_has_the_larger_networks_shapes_and_refuses_to_shrink():
         grow_tr(jax.random.key(3), grown, 1)
 
 
+@pytest.mark.slow  # 15 s of compiles in both forms
 def test_grow_tr_starts_from_the_trained_function_in_the_sequence_form():
     """The added block's features reach the head through zero weights: the grown TR1 computes the TR0's output
     exactly, cropped by the added radius (1 frame) at each end."""

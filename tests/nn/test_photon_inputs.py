@@ -134,6 +134,7 @@ def test_no_return_head_marks_pixels_and_its_loss_learns_them():
     assert float(model_loss(out.at[:, 16:, :, 0].add(0.3), gt, cfg, train_cfg)) > float(loss(0.0))
 
 
+@pytest.mark.slow  # every inference path compiled (15 s)
 def test_photon_model_runs_the_same_through_every_inference_path():
     model = with_photon_inputs(jax.random.key(1), _tiny_depth_model())
     head = model.params["no_return"]["conv2"]

@@ -233,6 +233,7 @@ def _toy_setup(n_val=6):
     return clip, val
 
 
+@pytest.mark.slow  # a training run in the sequence form (9 s)
 def test_fit_in_the_sequence_form_fine_tunes_a_windowed_model(tmp_path):
     """`fit(init=...)` starts from a windowed checkpoint's weights (lr 0 keeps them: BN statistics still move),
     trains on clips, validates on whole sequences, and records the form and the init."""

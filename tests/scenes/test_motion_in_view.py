@@ -304,6 +304,7 @@ def test_seen_motion_over_200_draws():
     check_seen(*clips_of(indices, "seen"), indices)
 
 
+@pytest.mark.slow  # 14 s of scene rendering
 def test_moving_share_sees_depth_motion_not_image_motion():
     """A wall facing a camera that moves sideways: its image moves (`in_view_lr_shift` > 0), its depth does not
     (`moving_share` 0, the still clips' case); a narrow box crossing in front of it moves depth."""

@@ -47,6 +47,7 @@ def stacked(tmp_path_factory):
     return out, result, told
 
 
+@pytest.mark.slow  # the stacked fixture trains 2 seeds twice (18 s)
 def test_each_seed_of_a_stacked_run_equals_its_run_alone(stacked, tmp_path):
     out, result, told = stacked
     assert sorted(result) == SEEDS
@@ -64,6 +65,7 @@ def test_each_seed_of_a_stacked_run_equals_its_run_alone(stacked, tmp_path):
     assert [(r["seed"], r["epoch"]) for r in told] == [(0, 1), (1, 1), (0, 2), (1, 2)]
 
 
+@pytest.mark.slow  # the stacked fixture (18 s)
 def test_each_seed_has_its_own_run_folder_and_card(stacked):
     out, result, _ = stacked
     assert sorted(p.name for p in out.iterdir()) == ["seed0", "seed1"]
@@ -106,6 +108,7 @@ def test_bad_seeds_are_refused(tmp_path, seeds, message):
     assert not (tmp_path / "x").exists()
 
 
+@pytest.mark.slow  # the stacked fixture and 2 runs
 def test_a_stacked_run_killed_between_its_seeds_resumes_to_the_uninterrupted_one(stacked, tmp_path):
     """Killed after seed 0 saved epoch 2, before seed 1 did: seed 1 resumes from epoch 1 and trains epoch 2 alone
     (seed 0 masked: it waits), and both end as the uninterrupted stacked run."""
@@ -148,6 +151,7 @@ def _worse_for_seed_0(real: recipes.Recipe, stop_seed_1_at: int) -> recipes.Reci
     return real._replace(validation=validation, evaluate=evaluate)
 
 
+@pytest.mark.slow  # a stacked run of 2 seeds (10 s)
 def test_a_seed_that_stops_early_stops_while_the_others_train_on(tmp_path, monkeypatch):
     """Patience 1: seed 0 stops after epoch 2 (no progress after its first), seed 1 after epoch 3; the stacked run
     ends then, short of its 5 epochs, and seed 0's folder is not written after it stopped."""
@@ -221,6 +225,7 @@ def test_train_seeds_reach_fit_and_each_seed_is_reported(tmp_path, monkeypatch, 
         presets.train(tmp_path / "x", tr=0, seed=1, seeds=[0, 1])
 
 
+@pytest.mark.slow  # 2 stacked runs (8 s)
 def test_a_stacked_run_killed_inside_an_epoch_between_its_seeds_saves_resumes_to_the_uninterrupted_one(
         stacked, tmp_path, monkeypatch):
     """Saving after every step (checkpoint_every_s=0), killed inside epoch 2 after seed 0 saved step spe + 1 and

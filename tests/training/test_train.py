@@ -3,6 +3,7 @@ learns, bit-identical resume (also from a checkpoint of an older version), shard
 sources and validation set of `jaxsr.training.data`."""
 
 import dataclasses
+import functools
 import json
 import os
 import subprocess
@@ -33,9 +34,12 @@ TINY = ModelConfig(tr=1, base=8, growth=4, head=16, filter_hidden=16, bn_momentu
 LR_SHAPE = (8, 16)
 
 
+@functools.lru_cache(maxsize=None)
 def toy_batches(tr, batch, *, lr_shape=LR_SHAPE, scale=4, noise=0.1):
     """A stand-in data source: a rectangle at a random depth before a far wall (HR), its 4x4 block mean plus
-    Gaussian noise in every frame of the window (LR). Pure and jittable, like the real one."""
+    Gaussian noise in every frame of the window (LR). Pure and jittable, like the real one. One function object
+    per setting (cached), so that the tests' runs share their compiled train steps (`fit` caches them per data
+    source)."""
     hh, ww = lr_shape[0] * scale, lr_shape[1] * scale
     yy, xx = jnp.mgrid[:hh, :ww]
 
@@ -549,6 +553,7 @@ def test_sequence_batches_from_hr_arrays():
         sequence_batches(depth, intensity[..., :16], 2, cfg, sensor=sensor)
 
 
+@pytest.mark.slow  # renders the validation sequences (16 s)
 def test_validation_set_from_the_named_sequences():
     """The default validation data: the first frames of the scenes module's named validation sequences."""
     cfg = dataclasses.replace(PRESETS["cpu"], val_frames=2)
@@ -570,6 +575,7 @@ def test_validation_set_from_the_named_sequences():
     np.testing.assert_array_equal(w[0::2, 2], lr[1::2])
 
 
+@pytest.mark.slow  # renders and simulates a validation set (10 s)
 def test_validation_set_simulates_each_sequence_at_its_own_snr():
     """The same flat wall at SNR 1000 and 0.01: centre of mass finds it in the first; in the second the ambient
     light often hides the peak (errors of a tenth of the range). Sequences may be dicts or objects with fields."""
