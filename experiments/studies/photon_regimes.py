@@ -446,7 +446,11 @@ def load_models(specs, logits=(), alphas=(), shares=()) -> tuple[dict, dict, dic
     `no_return_shares` at it. Returns ({label: Model}, {label: source}, {label: alpha or ("shares", alpha)})."""
     thresholds = _named_numbers(logits, specs, "--no-return-logit", "LOGIT")
     ambient = _named_numbers(alphas, specs, "--ambient-alpha", "ALPHA")
-    ambient.update({k: ("shares", v) for k, v in _named_numbers(shares, specs, "--no-return-shares", "ALPHA").items()})
+    shared = _named_numbers(shares, specs, "--no-return-shares", "ALPHA")
+    if set(ambient) & set(shared):
+        raise SystemExit(f"--ambient-alpha and --no-return-shares both name {sorted(set(ambient) & set(shared))}: "
+                         "one decision per model name")
+    ambient.update({k: ("shares", v) for k, v in shared.items()})
     if any(not 0.0 < decision_of(a)[1] < 1.0 for a in ambient.values()):
         raise SystemExit("--ambient-alpha, --no-return-shares: ALPHA is a false-alarm rate in (0, 1), such as 0.001")
     models = {"TR0": jaxsr.load_model("tr0"), "TR4": jaxsr.load_model("tr4")}

@@ -14,10 +14,14 @@ The two choices:
   stand out from the ambient light. Rule: test where the estimated SNR is at least t. What the test is for, sky and
   dark surfaces left empty, PSNR on these scenes shows only in part (Scene 2's sky), so t is chosen not to cost
   PSNR: the lowest t here at which the rule's mean change (TR4 with the test where it applies, against TR4 alone)
-  is not negative. The library's `AUTO_AMBIENT_MIN_SNR` is compared with it.
+  is not negative. The library's `AUTO_AMBIENT_MIN_SNR` is compared with it. Then the library's rule, which also
+  tests where the estimated signal photons times the SNR (signal^2 / ambient photons per pixel and frame) reach c:
+  the SNR alone leaves the test off at many photons and low SNR, where a return stands out all the same; c over
+  a grid, the library's `AUTO_AMBIENT_MIN_SIGNAL_SNR` among them. The report names the lowest c with the highest
+  mean change among those that lose no more scene-regimes than the SNR alone, and compares the library's.
 - The model: the paper's TR4 reads the centre of mass only and falls below bicubic at 1 photon per pixel; the
   bundled tr4-photons also reads the photons behind it. Rule: tr4-photons where the estimated signal photons are
-  below P, the paper's TR4 from P up, each with the test by the SNR rule or (for tr4-photons) without it. The
+  below P, the paper's TR4 from P up, each with the test by the library's rule or (for tr4-photons) without it. The
   report names the rule with the highest mean PSNR over the grid and the best that loses no scene-regime more than
   `TOLERANCE_DB`. `jaxsr upscale` keeps the paper's TR4 whatever they say, as real recordings disagree
   (docs/results/photon-regimes.md), and hints at tr4-photons below `FEW_PHOTONS` estimated photons.
@@ -46,13 +50,17 @@ import jaxsr
 from jaxsr.config import SensorConfig
 from jaxsr.eval.reports import header, markdown_table, write_atomic
 from jaxsr.eval.scoring import SCENE_LABELS
-from jaxsr.inference import AUTO_AMBIENT_ALPHA, AUTO_AMBIENT_MIN_SNR, FEW_PHOTONS, photon_levels
+from jaxsr.inference import (AUTO_AMBIENT_ALPHA, AUTO_AMBIENT_MIN_SIGNAL_SNR, AUTO_AMBIENT_MIN_SNR, FEW_PHOTONS,
+                             auto_ambient_alpha, photon_levels)
 from jaxsr.inference.recording import HEAD_FRAMES
 from jaxsr.sensor import calibrated_rates, sample_poisson
 
 SNRS = (0.1, 0.2, 0.3, 0.5, 0.8, 1.3, 5.0)
 PHOTONS = (1.0, 3.0, 14.0, 100.0)
 SNR_THRESHOLDS = (0.0, 0.2, 0.3, 0.4, 0.5, 0.7, 0.8, 1.0, 1.5, float("inf"))  # 0: always test; inf: never
+# c of "the test where the SNR >= AUTO_AMBIENT_MIN_SNR or signal x SNR >= c" (inf: the SNR alone)
+SIGNAL_SNR_THRESHOLDS = tuple(sorted({1.0, 2.0, 3.0, 4.0, 6.0, 8.0, 10.0, 20.0, AUTO_AMBIENT_MIN_SIGNAL_SNR,
+                                       float("inf")}))
 PHOTON_THRESHOLDS = (0.0, 2.0, 3.0, 4.0, 6.0, 8.0)  # 0: never tr4-photons
 TOLERANCE_DB = 0.3  # a row losing more than this to the old default is counted (the issue's tolerance)
 TR4, TR4_TEST, PHOTON, PHOTON_TEST = "TR4", "TR4+test", "TR4-photons", "TR4-photons+test"
@@ -92,11 +100,21 @@ def ambient_rule(t: float, plain: str = TR4, tested: str = TR4_TEST):
     return lambda row: tested if row["snr_est"] >= t else plain
 
 
-def model_rule(p: float, *, test_photon_model: bool, t: float = AUTO_AMBIENT_MIN_SNR):
-    """tr4-photons where the estimated signal photons are below p (with the test by the SNR rule, or never), else
-    the paper's TR4 with the test by the SNR rule."""
+def combined_rule(c: float, plain: str = TR4, tested: str = TR4_TEST, t: float = AUTO_AMBIENT_MIN_SNR):
+    """The test where the estimated SNR >= t or the estimated signal photons x SNR >= c."""
+    return lambda row: tested if row["snr_est"] >= t or row["photons_est"] * row["snr_est"] >= c else plain
+
+
+def library_rule(plain: str = TR4, tested: str = TR4_TEST):
+    """What `jaxsr upscale --ambient-alpha auto` picks from the estimates (`auto_ambient_alpha`)."""
+    return lambda row: tested if auto_ambient_alpha(row["snr_est"], row["photons_est"]) is not None else plain
+
+
+def model_rule(p: float, *, test_photon_model: bool):
+    """tr4-photons where the estimated signal photons are below p (with the test by the library's rule, or never),
+    else the paper's TR4 with the test by the library's rule."""
     def pick(row):
-        tested = row["snr_est"] >= t
+        tested = library_rule()(row) == TR4_TEST
         if row["photons_est"] < p:
             return PHOTON_TEST if tested and test_photon_model else PHOTON
         return TR4_TEST if tested else TR4
@@ -116,28 +134,45 @@ def ambient_rules(rows, thresholds=SNR_THRESHOLDS) -> list[dict]:
     return [{"threshold": t, **policy_score(rows, ambient_rule(t))} for t in thresholds]
 
 
+def combined_rules(rows, thresholds=SIGNAL_SNR_THRESHOLDS) -> list[dict]:
+    return [{"threshold": c, **policy_score(rows, combined_rule(c))} for c in thresholds]
+
+
 def model_rules(rows, thresholds=PHOTON_THRESHOLDS) -> list[dict]:
     return [{"threshold": p, "test_photon_model": tp, **policy_score(rows, model_rule(p, test_photon_model=tp))}
             for p in thresholds for tp in ((False,) if p == 0 else (False, True))]
 
 
 def photon_model_tested(rows) -> dict:
-    """tr4-photons with the test by the library's SNR rule, against tr4-photons alone."""
-    return policy_score(rows, ambient_rule(AUTO_AMBIENT_MIN_SNR, PHOTON, PHOTON_TEST), base=PHOTON)
+    """tr4-photons with the test by the library's rule, against tr4-photons alone."""
+    return policy_score(rows, library_rule(PHOTON, PHOTON_TEST), base=PHOTON)
 
 
 def raw_results(rows, tests, models, *, frames: int, seed: int) -> dict:
     """What the .json beside the report holds (non-finite numbers as None)."""
-    return _finite({"rows": rows, "ambient_rules": tests, "model_rules": models,
+    combined = combined_rules(rows)
+    return _finite({"rows": rows, "ambient_rules": tests, "combined_rules": combined,
+                    "chosen_signal_snr": chosen_signal_snr_threshold(
+                        combined, policy_score(rows, ambient_rule(AUTO_AMBIENT_MIN_SNR))),
+                    "library_rule": policy_score(rows, library_rule()), "model_rules": models,
                     "chosen_snr": chosen_snr_threshold(tests), "photon_model_tested": photon_model_tested(rows),
                     "best_model_rule": chosen_model_rule(models), "safe_model_rule": chosen_model_rule(models, safe=True),
                     "frames": frames, "seed": seed, "alpha": AUTO_AMBIENT_ALPHA,
-                    "library": {"snr": AUTO_AMBIENT_MIN_SNR, "few_photons": FEW_PHOTONS}})
+                    "library": {"snr": AUTO_AMBIENT_MIN_SNR, "signal_snr": AUTO_AMBIENT_MIN_SIGNAL_SNR,
+                                "few_photons": FEW_PHOTONS}})
 
 
 def chosen_snr_threshold(scores) -> float:
     """The lowest threshold at which the test's rule costs no PSNR on average (inf, never test, if none)."""
     return min((s["threshold"] for s in scores if s["mean"] >= 0.0), default=float("inf"))
+
+
+def chosen_signal_snr_threshold(scores, snr_only: dict) -> float:
+    """The lowest c with the highest mean change among the combined rules that lose no more rows than the SNR
+    alone (`snr_only`, its score; inf, the SNR alone, if none beats it)."""
+    fair = [s for s in scores if s["losing"] <= snr_only["losing"]]
+    best = max((s["mean"] for s in fair), default=snr_only["mean"])
+    return min((s["threshold"] for s in fair if s["mean"] == best), default=float("inf"))
 
 
 def chosen_model_rule(scores, *, safe: bool = False) -> dict:
@@ -180,6 +215,15 @@ def report(rows, tests, models, *, started, frames: int, seed: int) -> str:
         ["TR4, the test where the estimated SNR >="] + cols,
         [[_threshold(s["threshold"]), f"{s['mean']:+.4f}", f"{s['worst']:+.2f}", str(s["losing"]), _picked(s)]
          for s in tests])
+    combined = combined_rules(rows)
+    lib, snr_only = policy_score(rows, library_rule()), policy_score(rows, ambient_rule(AUTO_AMBIENT_MIN_SNR))
+    c = chosen_signal_snr_threshold(combined, snr_only)
+    c_agree = ("equals it" if c == AUTO_AMBIENT_MIN_SIGNAL_SNR
+               else f"differs from it: the library has {AUTO_AMBIENT_MIN_SIGNAL_SNR:g}")
+    combined_table = markdown_table(
+        [f"TR4, the test where the estimated SNR >= {AUTO_AMBIENT_MIN_SNR:g} or signal x SNR >="] + cols,
+        [[_threshold(s["threshold"]), f"{s['mean']:+.4f}", f"{s['worst']:+.2f}", str(s["losing"]), _picked(s)]
+         for s in combined])
     model_table = markdown_table(
         ["tr4-photons where the estimated photons <", "tr4-photons tested"] + cols,
         [["never" if s["threshold"] == 0 else f"{s['threshold']:g}", "yes" if s["test_photon_model"] else "no",
@@ -200,11 +244,23 @@ def report(rows, tests, models, *, started, frames: int, seed: int) -> str:
             f"**{_threshold(snr_t)}**; the library's `AUTO_AMBIENT_MIN_SNR` {snr_agree}. Chosen on these rows, and "
             "level rather than a gain there: a mean this close to 0 has no established sign, and a higher threshold "
             "can lose less PSNR by testing fewer regimes, where the test's purpose (sky left empty) is not in the "
-            "PSNR. tr4-photons, whose own head marks no return, with the test at the library's SNR rule against "
+            "PSNR. tr4-photons, whose own head marks no return, with the test by the library's rule (below) against "
             f"tr4-photons alone: mean {photon['mean']:+.3f} dB, worst {photon['worst']:+.2f} dB, "
             f"{photon['losing']} rows losing more than {TOLERANCE_DB:g} dB (`jaxsr upscale` leaves the test off for "
             "models with a no-return head).\n\n"
-            f"## The model, by photon threshold (the test at SNR >= {AUTO_AMBIENT_MIN_SNR:g})\n\n" + model_table
+            "## The library's rule: the SNR, or the signal photons times the SNR\n\n"
+            "Signal photons x SNR = signal^2 / ambient photons per pixel and frame: how far one pixel's return "
+            "stands out of its ambient light, which the SNR alone does not say (100 photons at SNR 0.1 stand out "
+            "more than 3 at SNR 1.3).\n\n" + combined_table
+            + f"\n\nThe library (`AUTO_AMBIENT_MIN_SIGNAL_SNR` = {AUTO_AMBIENT_MIN_SIGNAL_SNR:g}, "
+            f"`auto_ambient_alpha`): mean {lib['mean']:+.4f} dB, worst {lib['worst']:+.2f} dB, rows losing more "
+            f"than {TOLERANCE_DB:g} dB: {lib['losing']}, tested: {lib['picked'].get(TR4_TEST, 0)} of {len(rows)}; "
+            f"the SNR alone (>= {AUTO_AMBIENT_MIN_SNR:g}): mean {snr_only['mean']:+.4f} dB, worst "
+            f"{snr_only['worst']:+.2f} dB, losing: {snr_only['losing']}, tested: "
+            f"{snr_only['picked'].get(TR4_TEST, 0)}. The lowest c with the highest mean change among those losing no "
+            f"more rows than the SNR alone: **{_threshold(c)}**; the library's `AUTO_AMBIENT_MIN_SIGNAL_SNR` "
+            f"{c_agree}. Chosen on these rows too.\n\n"
+            "## The model, by photon threshold (the test by the library's rule)\n\n" + model_table
             + f"\n\nThe rule with the highest mean: {_model_rule_text(model)}; the best that loses no scene-regime "
             f"more than {TOLERANCE_DB:g} dB: {_model_rule_text(safe)}. `jaxsr upscale` keeps the paper's TR4 (real "
             "recordings disagree: docs/results/photon-regimes.md) and hints at tr4-photons below "

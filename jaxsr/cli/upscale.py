@@ -19,7 +19,8 @@ import json
 import sys
 
 from ..config import PRECISIONS, TRAINED_RANGE_M
-from ..inference.recording import AUTO_AMBIENT_ALPHA, AUTO_AMBIENT_MIN_FRAMES, AUTO_AMBIENT_MIN_SNR, upscale
+from ..inference.recording import (AUTO_AMBIENT_ALPHA, AUTO_AMBIENT_MIN_FRAMES, AUTO_AMBIENT_MIN_SIGNAL_SNR,
+                                   AUTO_AMBIENT_MIN_SNR, upscale)
 from ..inference.video import DEFAULT_FORM, DEFAULT_PRECISION, FORMS, SEQUENCE_FORM_MIN_FRAMES, SEQUENCE_FORM_TRS
 from ..io.pointcloud import DEFAULT_FOV_DEG
 from ..io.recordings import DEPTH_UNITS
@@ -92,7 +93,8 @@ def add_parser(subparsers):
                    "frames around a pixel pass for ambient light alone at false-alarm rate ALPHA, such as 0.001: "
                    "it empties sky that a model shows as depth, and may drop returns too faint to stand out even "
                    "summed (a lower ALPHA empties more and drops more). auto (default): "
-                   f"{AUTO_AMBIENT_ALPHA:g} where the recording's frame SNR is {AUTO_AMBIENT_MIN_SNR:g} or more, "
+                   f"{AUTO_AMBIENT_ALPHA:g} where the recording's frame SNR is {AUTO_AMBIENT_MIN_SNR:g} or more or its "
+                   f"signal photons per pixel and frame times that SNR {AUTO_AMBIENT_MIN_SIGNAL_SNR:g} or more, "
                    f"else off, and off for --clip-negative counts, models with a no-return head and recordings of "
                    f"fewer than {AUTO_AMBIENT_MIN_FRAMES} frames (docs/network.md); off: never")
     p.add_argument("--max-memory", type=memory, default=None, metavar="SIZE",

@@ -64,16 +64,19 @@ from .video import (DEFAULT_FORM, DEFAULT_PRECISION, DEFAULT_TILE, FORMS, _defau
                     in_form, iter_network_inputs, iter_super_resolve)
 
 __all__ = ["HEAD_FRAMES", "DEFAULT_MODELS", "AUTO_AMBIENT_ALPHA", "AUTO_AMBIENT_MIN_SNR",
-           "AUTO_AMBIENT_MIN_FRAMES", "auto_ambient_alpha",
+           "AUTO_AMBIENT_MIN_SIGNAL_SNR", "AUTO_AMBIENT_MIN_FRAMES", "auto_ambient_alpha",
            "FEW_PHOTONS", "PhotonLevels", "photon_levels", "FRAME_FORMATS", "UpscaleJob", "UpscaleResult",
            "prepare_upscale", "write_upscaled", "upscale", "upscale_memory"]
 
 HEAD_FRAMES = 64  # frames model="auto" measures the motion on, and the frame SNR is estimated from
 # ambient_alpha="auto" (the default for histograms and time tags): the ambient-only test at this false-alarm rate
-# where the recording's estimated frame SNR is at least AUTO_AMBIENT_MIN_SNR (experiments/results/upscale_defaults.md)
+# where the recording's estimated frame SNR is at least AUTO_AMBIENT_MIN_SNR, or its signal photons per pixel and
+# frame times that SNR (signal^2 / ambient photons: how far one pixel's return stands out of its ambient light) at
+# least AUTO_AMBIENT_MIN_SIGNAL_SNR (experiments/results/upscale_defaults.md)
 AUTO = "auto"
 AUTO_AMBIENT_ALPHA = 1e-3
 AUTO_AMBIENT_MIN_SNR = 1.0
+AUTO_AMBIENT_MIN_SIGNAL_SNR = 5.0
 # frames the SNR is read from before "auto" trusts it: fewer read high at a few photons (at SNR 0.8 and 3 photons,
 # 0.91-0.99 from 16 frames, 1.09-1.29 from 8, 3.2-4.0 from one), and the rule was measured on 64
 AUTO_AMBIENT_MIN_FRAMES = 16
@@ -514,12 +517,16 @@ def photon_levels(counts, bins: int) -> PhotonLevels:
     return PhotonLevels(snr, signal / frames)
 
 
-def auto_ambient_alpha(snr: float) -> float | None:
-    """The false-alarm rate `ambient_alpha="auto"` picks for a recording whose frame SNR (`photon_levels`) is
-    `snr`: AUTO_AMBIENT_ALPHA from AUTO_AMBIENT_MIN_SNR up, None (no test) below it or where no return is seen
-    (NaN). Below that SNR the summed photons of a faint return no longer stand out from the ambient light, and the
-    test cost the paper's TR4 PSNR on the test scenes (experiments/results/upscale_defaults.md measures where)."""
-    return AUTO_AMBIENT_ALPHA if snr >= AUTO_AMBIENT_MIN_SNR else None  # NaN compares False
+def auto_ambient_alpha(snr: float, signal: float = float("nan")) -> float | None:
+    """The false-alarm rate `ambient_alpha="auto"` picks for a recording whose frame SNR and signal photons per
+    LR pixel and frame (`photon_levels`) are `snr` and `signal`: AUTO_AMBIENT_ALPHA where the SNR is at least
+    AUTO_AMBIENT_MIN_SNR or signal x SNR (signal^2 / ambient photons) at least AUTO_AMBIENT_MIN_SIGNAL_SNR; None
+    (no test) elsewhere and where no return is seen (NaN). Below both, the summed photons of a faint return no
+    longer stand out from the ambient light, and the test cost the paper's TR4 PSNR on the test scenes; from
+    either up it cost at most 0.33 dB there, and gained up to 0.8 dB on sky at many photons and low SNR
+    (experiments/results/upscale_defaults.md)."""
+    tested = snr >= AUTO_AMBIENT_MIN_SNR or signal * snr >= AUTO_AMBIENT_MIN_SIGNAL_SNR  # NaN compares False
+    return AUTO_AMBIENT_ALPHA if tested else None
 
 
 def _is_auto(setting) -> bool:
@@ -537,7 +544,7 @@ def _check_ambient_setting(setting) -> None:
 
 def _ambient_choice(setting, levels: PhotonLevels | None, marks_no_return: bool,
                     frames: int) -> tuple[float | None, str]:
-    """`ambient_alpha` as set (None, a rate) or, for "auto", `auto_ambient_alpha` of the recording's frame SNR;
+    """`ambient_alpha` as set (None, a rate) or, for "auto", `auto_ambient_alpha` of the recording's levels;
     and the words that say why, for the model's name ("" where set). "auto" is off where the rule was not measured
     to hold: background-subtracted counts (`levels` None: their ambient light is gone), a model with a no-return
     head (it marks no return itself, and the test cost tr4-photons 4.9 dB at worst), fewer than
@@ -553,10 +560,12 @@ def _ambient_choice(setting, levels: PhotonLevels | None, marks_no_return: bool,
                       "sets it)")
     if np.isnan(levels.snr):
         return None, " (ambient test off: no return seen)"
-    shown = "no ambient light seen" if np.isinf(levels.snr) else f"frame SNR about {levels.snr:.2g}"
-    alpha = auto_ambient_alpha(levels.snr)
+    shown = ("no ambient light seen" if np.isinf(levels.snr) else
+             f"frame SNR about {levels.snr:.2g}, {levels.signal:.3g} signal photons per pixel and frame")
+    alpha = auto_ambient_alpha(levels.snr, levels.signal)
     if alpha is None:
-        return None, f" (ambient test off: {shown}, below {AUTO_AMBIENT_MIN_SNR:g})"
+        return None, (f" (ambient test off: {shown}, SNR below {AUTO_AMBIENT_MIN_SNR:g} and signal x SNR below "
+                      f"{AUTO_AMBIENT_MIN_SIGNAL_SNR:g})")
     return alpha, f"; auto: {shown}"
 
 
@@ -945,7 +954,8 @@ def upscale(input, output, *, model="default", kind: str | None = None, bins: in
       3 x 3 pixels and 9 frames around a pixel pass for ambient light alone at this false-alarm rate
       (`jaxsr.sensor.ambient_only`), with any model: it empties the insides of sky and absorbing regions, and
       drops returns too faint to stand out even summed. "auto" (default): `AUTO_AMBIENT_ALPHA` where the
-      recording's frame SNR (`photon_levels`) is at least `AUTO_AMBIENT_MIN_SNR`, else off; off too for
+      recording's frame SNR (`photon_levels`) is at least `AUTO_AMBIENT_MIN_SNR` or its signal photons per pixel
+      and frame times that SNR at least `AUTO_AMBIENT_MIN_SIGNAL_SNR` (`auto_ambient_alpha`), else off; off too for
       background-subtracted counts (`clip_negative`), for a model with a no-return head and for recordings of
       fewer than `AUTO_AMBIENT_MIN_FRAMES` frames; the model's name in `notes` says which and why, and
       `UpscaleJob.ambient_alpha` / the summary's "ambient_alpha" the rate. None: off. Depth input: "auto" is off,

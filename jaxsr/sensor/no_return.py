@@ -23,7 +23,7 @@ alone) to 22 / 25 / 9 / 10 % at 3 / 14 / 100 / 1000 signal photons per pixel, wh
 in 10 of 11 regimes (1-1000 photons at SNR 0.1 and 1.3, and the paper's), 0.52 lower at 14 photons and SNR 0.1
 (photon_regimes_shares.md). On a real recording with a lot of outline against dark sky (tower, in
 experiments/results/real_photons_ambient.md) it marks 1.7-5.9 % of the building as no return, at the outline, and
-costs TR4 4.6-12.8 dB against the test alone at 4-16 photons: `jaxsr upscale --ambient-alpha` applies the test,
+costs TR4 6.1-12.8 dB against the test alone at 4-16 photons: `jaxsr upscale --ambient-alpha` applies the test,
 not this. The rules' constants were chosen on the simulated scenes. Beyond about 1e28 photons per bin
 each histogram is scaled down on its own (to keep sums finite), and the border shares, still finite, are no
 longer to be trusted.

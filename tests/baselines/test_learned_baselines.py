@@ -398,7 +398,7 @@ def test_iseebetter_plan_prices_its_generator_only_epochs_at_their_own_step_time
     assert p["steps_per_epoch"] == math.ceil(p["tr_steps"] * 0.2 / mean / script.EPOCHS)  # TR2's card steps
 
 
-@pytest.mark.slow  # 30 s on 2 cores; test_one_fit_trains_iseebetter_as_a_gan_with_two_optimisers sees the switch too
+@pytest.mark.slow  # 30 s on 2 cores; test_one_fit_trains_iseebetter_as_a_gan_with_two_optimisers (slow too) sees the switch
 def test_iseebetter_pretraining_moves_the_generator_alone_then_the_gan_starts():
     how = jaxsr.training.recipe("iseebetter")
 

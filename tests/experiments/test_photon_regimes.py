@@ -123,3 +123,15 @@ def test_interior_and_the_block_majority():
     assert np.all(majority == np.kron(b, np.ones((4, 4), bool)))
     assert b[0, 1] and b[1, 1] and b[2, 1] and b[1, 3]  # half or more of the block
     assert not b[0, 0] and not b[0, 3] and not b[2, 3] and not b[3, 1]  # a quarter or none
+
+
+def test_load_models_gives_each_name_one_no_return_decision():
+    """--ambient-alpha gives a rate (the test's flags), --no-return-shares ("shares", rate); one name in both is
+    refused, as is a rate out of (0, 1)."""
+    _, _, ambient = photon_regimes.load_models(["A=tr4", "B=tr4"], (), ["A=0.001"], ["B=0.01"])
+    assert ambient == {"A": 0.001, "B": ("shares", 0.01)}
+    assert [photon_regimes.decision_of(v) for v in ambient.values()] == [("flags", 0.001), ("shares", 0.01)]
+    with pytest.raises(SystemExit, match="both name"):
+        photon_regimes.load_models(["A=tr4"], (), ["A=0.001"], ["A=0.001"])
+    with pytest.raises(SystemExit, match=r"false-alarm rate in \(0, 1\)"):
+        photon_regimes.load_models(["A=tr4"], (), (), ["A=2"])

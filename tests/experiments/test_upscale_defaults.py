@@ -34,7 +34,7 @@ def test_the_model_rule_picks_the_photon_model_below_its_threshold():
     pick = study.model_rule(4.0, test_photon_model=False)
     assert [pick(r) for r in rows] == [PHOTON, PHOTON, TEST]
     assert [study.model_rule(4.0, test_photon_model=True)(r) for r in rows] == [PHOTON_TEST, PHOTON_TEST, TEST]
-    assert study.model_rule(4.0, test_photon_model=True)(_row(0.5, 1.0, 9.0, 9.0)) == PHOTON  # below the SNR rule
+    assert study.model_rule(4.0, test_photon_model=True)(_row(0.5, 1.0, 9.0, 9.0)) == PHOTON  # below the library's rule
     scores = study.model_rules(rows, thresholds=(0.0, 2.0, 4.0))
     assert len(scores) == 5  # "never" once, then untested and tested at each threshold
     best = study.chosen_model_rule(scores)
@@ -43,6 +43,24 @@ def test_the_model_rule_picks_the_photon_model_below_its_threshold():
     rows.append(_row(1.3, 3.5, 25.0, 25.0, photon=20.0))  # a row the photon model loses at 4, not at 2
     safe = study.chosen_model_rule(study.model_rules(rows, thresholds=(0.0, 2.0, 4.0)), safe=True)
     assert (safe["threshold"], safe["losing"]) == (2.0, 0)
+
+
+def test_the_library_rule_is_the_combined_rule_at_its_constant_and_tests_many_photons_at_low_snr():
+    """SNR >= 1, or signal photons x SNR >= c; NaN estimates (no return seen) never tested, no ambient (inf SNR)
+    always; the library's `auto_ambient_alpha` picks what combined_rule(AUTO_AMBIENT_MIN_SIGNAL_SNR) picks."""
+    nan, inf = float("nan"), float("inf")
+    rows = [_row(0.1, 100.0, 20.0, 20.8), _row(0.1, 10.0, 20.0, 19.0), _row(1.3, 1.0, 20.0, 19.9),
+            _row(nan, 100.0, 20.0, 11.0), _row(inf, nan, 20.0, 20.0), _row(0.5, 14.0, 20.0, 20.0)]
+    c = study.AUTO_AMBIENT_MIN_SIGNAL_SNR
+    assert c in study.SIGNAL_SNR_THRESHOLDS
+    library, combined = study.library_rule(), study.combined_rule(c)
+    assert [library(r) for r in rows] == [combined(r) for r in rows] == [TEST, TR4, TEST, TR4, TEST, TEST]
+    assert [study.combined_rule(inf)(r) for r in rows] == [TR4, TR4, TEST, TR4, TEST, TR4]  # the SNR alone
+    scores = {s["threshold"]: s for s in study.combined_rules(rows, thresholds=(0.5, c, inf))}
+    assert scores[c]["mean"] == pytest.approx((0.8 - 0.1) / 6) and scores[c]["losing"] == 0
+    assert scores[0.5]["losing"] == 1  # 10 photons at SNR 0.1 tested too: -1 dB
+    snr_only = study.policy_score(rows, study.ambient_rule(1.0))
+    assert study.chosen_signal_snr_threshold(list(scores.values()), snr_only) == c
 
 
 def test_rows_pair_each_scene_with_its_estimates():
@@ -68,8 +86,11 @@ def test_the_report_and_its_json_are_made_from_rows():
     tests, models = study.ambient_rules(rows), study.model_rules(rows)
     text = study.report(rows, tests, models, started=time.time(), frames=2, seed=0)
     for part in ("## The ambient-only test, by SNR threshold", "## The model, by photon threshold",
-                 "## Per scene and regime", "tr4-photons alone: mean"):
+                 "## Per scene and regime", "tr4-photons alone: mean",
+                 "## The library's rule: the SNR, or the signal photons times the SNR", "The library (`AUTO_AMBIENT_"):
         assert part in text
     raw = json.loads(json.dumps(study.raw_results(rows, tests, models, frames=2, seed=0), allow_nan=False))
     assert raw["photon_model_tested"]["mean"] == pytest.approx(-2.0 / 3)  # tested in 2 of 3 rows, -1 dB each
     assert raw["chosen_snr"] == 0.0 and raw["frames"] == 2
+    assert len(raw["combined_rules"]) == len(study.SIGNAL_SNR_THRESHOLDS)
+    assert raw["library_rule"]["picked"] == {TR4: 1, TEST: 2}  # SNR 0.3 x 1 photon: untested

@@ -10,6 +10,7 @@ from jaxsr.config import ModelConfig, SensorConfig
 from jaxsr.inference import (
     AUTO_AMBIENT_ALPHA,
     AUTO_AMBIENT_MIN_FRAMES,
+    AUTO_AMBIENT_MIN_SIGNAL_SNR,
     AUTO_AMBIENT_MIN_SNR,
     DEFAULT_MODELS,
     FEW_PHOTONS,
@@ -231,18 +232,25 @@ def test_ambient_alpha_is_refused_for_depth_and_out_of_range(photon_model, half_
     assert "false-alarm rate" in capsys.readouterr().err
 
 
-def test_auto_ambient_alpha_tests_from_the_threshold_snr_up():
+def test_auto_ambient_alpha_tests_from_the_threshold_snr_or_signal_times_snr_up():
     assert auto_ambient_alpha(float("nan")) is None  # no return seen: nothing to tell the sky from
+    assert auto_ambient_alpha(float("nan"), 100.0) is None
     assert auto_ambient_alpha(0.0) is None and auto_ambient_alpha(AUTO_AMBIENT_MIN_SNR * 0.99) is None
     assert auto_ambient_alpha(AUTO_AMBIENT_MIN_SNR) == AUTO_AMBIENT_ALPHA
     assert auto_ambient_alpha(float("inf")) == AUTO_AMBIENT_ALPHA  # no ambient photon seen
+    # below the SNR threshold, many signal photons still stand out: signal x SNR decides
+    low = AUTO_AMBIENT_MIN_SNR / 10
+    assert auto_ambient_alpha(low, 0.99 * AUTO_AMBIENT_MIN_SIGNAL_SNR / low) is None
+    assert auto_ambient_alpha(low, AUTO_AMBIENT_MIN_SIGNAL_SNR / low) == AUTO_AMBIENT_ALPHA
+    assert auto_ambient_alpha(AUTO_AMBIENT_MIN_SNR, 0.01) == AUTO_AMBIENT_ALPHA  # the SNR alone suffices
 
 
 def test_ambient_alpha_auto_is_the_default_and_follows_the_recording(photon_model, depth_model, half_sky,
                                                                      tmp_path, capsys):
     """By default histograms at a frame SNR of about 2 get the test (said in the model's name, the rate in the job,
     the result and the summary, the output the explicit rate's and what the library's functions compose to), the
-    same scene under 20x the ambient light (SNR about 0.1) does not, nor do fewer than AUTO_AMBIENT_MIN_FRAMES
+    same scene under 20x the ambient light (SNR about 0.1) does not, but does with 25x the photons as well (signal x
+    SNR above AUTO_AMBIENT_MIN_SIGNAL_SNR), nor do fewer than AUTO_AMBIENT_MIN_FRAMES
     frames, a model with a no-return head, depth input, counts after --clip-negative and ambient_alpha=None; a
     string other than "auto" is refused naming the choices; the CLI takes auto, off or a rate, and refuses
     anything else with the choices."""
@@ -258,7 +266,7 @@ def test_ambient_alpha_auto_is_the_default_and_follows_the_recording(photon_mode
     np.testing.assert_array_equal(result.depth, explicit)
     assert result.summary()["ambient_alpha"] == AUTO_AMBIENT_ALPHA
     composed = super_resolve_histograms(load_model(path), half_sky,
-                                        ambient_alpha=auto_ambient_alpha(photon_levels(half_sky, 16).snr))
+                                        ambient_alpha=auto_ambient_alpha(*photon_levels(half_sky, 16)))
     np.testing.assert_allclose(result.depth, np.clip(composed, 0, 1), atol=1e-6)
     short = prepare_upscale(half_sky[:AUTO_AMBIENT_MIN_FRAMES - 1], model=path)
     assert f"{AUTO_AMBIENT_MIN_FRAMES - 1} frames, too few to read the SNR" in short.model_name
@@ -271,6 +279,14 @@ def test_ambient_alpha_auto_is_the_default_and_follows_the_recording(photon_mode
     bright = half_sky + rng.poisson(40.0 / 16, half_sky.shape).astype(np.float32)
     dim = prepare_upscale(bright, model=path)
     assert "ambient test off: frame SNR about" in dim.model_name and dim._ambient_stream is None
+    assert f"signal x SNR below {AUTO_AMBIENT_MIN_SIGNAL_SNR:g}" in dim.model_name
+    # the same SNR with 25x the photons (100 signal per pixel against 1000 ambient): the returns stand out, tested
+    many = rng.poisson(1000.0 / 16, half_sky.shape).astype(np.float32)
+    many[:, :, :6, 7] += rng.poisson(100.0, many.shape[:2] + (6,))
+    levels = photon_levels(many, 16)
+    assert levels.snr < AUTO_AMBIENT_MIN_SNR and levels.snr * levels.signal >= AUTO_AMBIENT_MIN_SIGNAL_SNR
+    bright_many = prepare_upscale(many, model=path)
+    assert "; auto: frame SNR about" in bright_many.model_name and bright_many.ambient_alpha == AUTO_AMBIENT_ALPHA
     assert "ambient" not in prepare_upscale(half_sky, model=path, ambient_alpha=None).model_name
     assert "ambient" not in prepare_upscale(np.full((2, 8, 12), 0.5, np.float32), model="tr0").model_name
     clipped = prepare_upscale(half_sky, model=path, clip_negative=True)

@@ -575,7 +575,7 @@ def test_validation_set_from_the_named_sequences():
     np.testing.assert_array_equal(w[0::2, 2], lr[1::2])
 
 
-@pytest.mark.slow  # renders and simulates a validation set (10 s)
+@pytest.mark.slow  # simulates a validation set at two SNRs (10 s)
 def test_validation_set_simulates_each_sequence_at_its_own_snr():
     """The same flat wall at SNR 1000 and 0.01: centre of mass finds it in the first; in the second the ambient
     light often hides the peak (errors of a tenth of the range). Sequences may be dicts or objects with fields."""
