@@ -192,6 +192,7 @@ def test_upscale_any_array_is_upscaled_or_refused_cleanly(tmp_path_factory, mode
         assert_refused(done, "upscale", folder, before)
 
 
+@pytest.mark.slow  # 3 commands (15 s); the refusal is a case above, the clipping is tested in test_upscale_api
 def test_negative_counts_are_refused_with_the_hint_then_clipped_with_clip_negative(tmp_path, model_path):
     """Background-subtracted histograms (issue 35): refused by default, naming --clip-negative; with it, clipped
     at 0, the count and the pixels said on a warning line and in the summary, and the output that of the

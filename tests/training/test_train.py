@@ -271,7 +271,8 @@ def _add_legacy_conv3d_impl(path):
 
 
 def test_a_folder_holding_a_run_is_refused_without_resume_or_overwrite(tmp_path):
-    cfg = tiny_train_cfg(examples_per_epoch=8, epochs=1)
+    # the kill tests' steps and schedule (shared compiled train step), one epoch
+    cfg = tiny_train_cfg(examples_per_epoch=12, epochs=1, decay_epochs=1)
     val = toy_validation(TINY.tr, n=4)
     make_batch = toy_batches(TINY.tr, 4)
     fit(TINY, cfg, out=tmp_path, make_batch=make_batch, validation=val, progress=False)
