@@ -193,6 +193,12 @@ def test_median_of_many_bins_takes_memory_linear_in_the_bins():
 # --- the traced path (jit, vmap, grad): what the eager call refuses has a defined meaning -------------------
 
 
+# each depth extraction with its mask, jitted once: the traced cases share their compiles
+EXTRACTIONS = {fn: (lambda c, fn=fn: getattr(jaxsr, fn)(c, CFG, return_mask=True))
+               for fn in ("centre_of_mass", "maximum_likelihood_depth")}
+TRACED_EXTRACTIONS = {fn: jax.jit(f) for fn, f in EXTRACTIONS.items()}
+
+
 @pytest.mark.parametrize("jit", [False, True])
 @pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf, -1.0, -1e-3])
 @pytest.mark.parametrize("fn", ["centre_of_mass", "maximum_likelihood_depth"])
@@ -201,14 +207,14 @@ def test_unusable_counts_raise_eagerly_and_are_no_return_traced(jit, bad, fn):
     invalid) and leaves every other pixel exactly as it would be without it."""
     rng = np.random.default_rng(7)
     counts = rng.poisson(irf_histogram(rng.uniform(1, K - 1, 6), signal=40.0, background=20.0)).astype(np.float32)
-    f = lambda c: getattr(jaxsr, fn)(c, CFG, return_mask=True)
+    f = EXTRACTIONS[fn]
     broken = counts.copy()
     broken[[1, 4], [3, 0]] = bad
     if not jit:
         with pytest.raises(ValueError, match=r"finite and >= 0"):
             f(broken)
         return
-    depth, valid = jax.jit(f)(broken)[:2]
+    depth, valid = TRACED_EXTRACTIONS[fn](broken)[:2]
     want, want_valid = f(counts)[:2]
     np.testing.assert_array_equal(np.asarray(depth)[[1, 4]], [1.0, 1.0])
     assert not np.any(np.asarray(valid)[[1, 4]])

@@ -330,20 +330,25 @@ def test_traced_intensity_outside_0_1_is_clipped_and_non_finite_is_black(bad, me
     assert all(np.all(np.isfinite(x)) for x in jax.tree_util.tree_leaves(got))
 
 
+# The calls of the no-return cases, with depth and intensity as arguments: the traced cases share their compiles.
+RATES_OF = lambda d, i: jaxsr.expected_histograms(d, i, SMALL, snr=1.3, mean_signal=5.0)
+SIMULATED = lambda k, d, i: jaxsr.simulate_histograms(k, d, i, SMALL, snr=1.3)
+TRACED = {RATES_OF: jax.jit(RATES_OF), SIMULATED: jax.jit(SIMULATED)}
+
+
 @pytest.mark.parametrize("jit", [False, True])
 @pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf, -3.0, 1e30])
 def test_depth_without_a_return_is_the_same_eager_and_traced(jit, bad):
     """NaN, inf, negative and beyond-d_max depth mean "no return" (signal weight 0) in both paths."""
     depth, intensity = _scene()
-    f = lambda d: jaxsr.expected_histograms(d, intensity, SMALL, snr=1.3, mean_signal=5.0)
-    f = jax.jit(f) if jit else f
+    rates = TRACED[RATES_OF] if jit else RATES_OF
+    f = lambda d: rates(d, intensity)
     bad_d, sky_d = depth.copy(), depth.copy()
     bad_d[2, :] = bad
     sky_d[2, :] = np.inf
     np.testing.assert_allclose(f(bad_d), f(sky_d), rtol=1e-6)
     key = jax.random.key(1)
-    sim = lambda k, d, i: jaxsr.simulate_histograms(k, d, i, SMALL, snr=1.3)
-    sim = jax.jit(sim) if jit else sim
+    sim = TRACED[SIMULATED] if jit else SIMULATED
     bad_i = intensity.copy()
     bad_i[0, 0] = np.nan if jit else 0.5  # the issue's case: one NaN pixel used to make every count NaN
     assert np.all(np.isfinite(sim(key, bad_d, bad_i)))
