@@ -88,7 +88,7 @@ def _draw(key, depth, intensity, alpha, beta, sensor, tests=()):
     ("flags") or `no_return_shares` ("shares")
     (the frames drawn are consecutive around each scored frame, so a scored frame's test sums its own)."""
     counts = sample_poisson(key, calibrated_rates(depth, intensity, alpha, beta, sensor), method="fast")
-    flags = tuple((ambient_only if kind == "flags" else no_return_shares)(counts, sensor, alpha=a) for kind, a in tests)
+    flags = tuple(no_return_decision(counts, sensor, test) for test in tests)
     return network_inputs(counts, sensor, MODEL_INPUTS), normalise_depth(depth, sensor), flags
 
 
@@ -431,6 +431,13 @@ def raw(results, models_info) -> dict:
                       for m, g in goals(results).items()},
             "settings": {"no_return_at": NO_RETURN_AT, "no_return_fraction": NO_RETURN_FRACTION,
                          "no_return_sky": NO_RETURN_SKY, "tv_tr": TV_TR}}
+
+
+def no_return_decision(counts, sensor, setting):
+    """(T, h, w) no-return decision of (T, h, w, K) counts for an `ambient` setting (`decision_of`):
+    `ambient_only`'s flags or `no_return_shares`, at its false-alarm rate."""
+    kind, alpha = decision_of(setting)
+    return (ambient_only if kind == "flags" else no_return_shares)(counts, sensor, alpha=alpha)
 
 
 def decision_of(setting) -> tuple[str, float]:

@@ -62,7 +62,7 @@ from jaxsr.eval.scoring import format_interval
 from jaxsr.inference import iter_network_inputs, no_return_where
 from jaxsr.io.recordings import gate_frames
 from jaxsr.sensor.timetags import TimeTags
-from photon_regimes import NO_RETURN_AT, TV_TR, decision_of, load_models  # experiments/studies, beside this script
+from photon_regimes import NO_RETURN_AT, TV_TR, load_models, no_return_decision  # experiments/studies, beside this script
 
 ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_DATA = ROOT.parent / "shared" / "realdata"
@@ -386,9 +386,8 @@ def evaluate(recordings, models: dict, *, levels=LEVELS, max_frames: int = MAX_F
             for label, model in models.items():
                 outputs[label] = jaxsr.super_resolve(model, model_input(model, frames), form="model")
                 if label in (ambient or {}):
-                    kind, alpha = decision_of(ambient[label])
-                    decide = jaxsr.sensor.ambient_only if kind == "flags" else jaxsr.sensor.no_return_shares
-                    flags = decide(frames.counts, jaxsr.SensorConfig(bins=frames.gate.bins), alpha=alpha)
+                    flags = no_return_decision(frames.counts, jaxsr.SensorConfig(bins=frames.gate.bins),
+                                               ambient[label])
                     outputs[label] = no_return_where(outputs[label], np.asarray(flags))
             scores = {m: masked_scores(sr, ref, valid, sky, edge) for m, sr in outputs.items()}
             photons_ref = float(frames.counts.sum(-1)[:, covered].mean()) if covered.any() else float("nan")

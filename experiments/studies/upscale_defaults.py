@@ -97,17 +97,21 @@ def rows_of(results, estimates) -> list[dict]:
 
 def ambient_rule(t: float, plain: str = TR4, tested: str = TR4_TEST):
     """The ambient-only test's rule: the model with the test where the estimated SNR >= t (NaN: never)."""
-    return lambda row: tested if row["snr_est"] >= t else plain
+    return combined_rule(float("inf"), plain, tested, t=t)
 
 
 def combined_rule(c: float, plain: str = TR4, tested: str = TR4_TEST, t: float = AUTO_AMBIENT_MIN_SNR):
-    """The test where the estimated SNR >= t or the estimated signal photons x SNR >= c."""
-    return lambda row: tested if row["snr_est"] >= t or row["photons_est"] * row["snr_est"] >= c else plain
+    """The test where the estimated SNR >= t or the estimated signal photons x SNR >= c (`auto_ambient_alpha`
+    with those thresholds)."""
+    def pick(row):
+        alpha = auto_ambient_alpha(row["snr_est"], row["photons_est"], min_snr=t, min_signal_snr=c)
+        return plain if alpha is None else tested
+    return pick
 
 
 def library_rule(plain: str = TR4, tested: str = TR4_TEST):
-    """What `jaxsr upscale --ambient-alpha auto` picks from the estimates (`auto_ambient_alpha`)."""
-    return lambda row: tested if auto_ambient_alpha(row["snr_est"], row["photons_est"]) is not None else plain
+    """What `jaxsr upscale --ambient-alpha auto` picks from the estimates (`auto_ambient_alpha`'s thresholds)."""
+    return combined_rule(AUTO_AMBIENT_MIN_SIGNAL_SNR, plain, tested)
 
 
 def model_rule(p: float, *, test_photon_model: bool):

@@ -517,15 +517,17 @@ def photon_levels(counts, bins: int) -> PhotonLevels:
     return PhotonLevels(snr, signal / frames)
 
 
-def auto_ambient_alpha(snr: float, signal: float = float("nan")) -> float | None:
+def auto_ambient_alpha(snr: float, signal: float = float("nan"), *, min_snr: float = AUTO_AMBIENT_MIN_SNR,
+                       min_signal_snr: float = AUTO_AMBIENT_MIN_SIGNAL_SNR) -> float | None:
     """The false-alarm rate `ambient_alpha="auto"` picks for a recording whose frame SNR and signal photons per
     LR pixel and frame (`photon_levels`) are `snr` and `signal`: AUTO_AMBIENT_ALPHA where the SNR is at least
     AUTO_AMBIENT_MIN_SNR or signal x SNR (signal^2 / ambient photons) at least AUTO_AMBIENT_MIN_SIGNAL_SNR; None
     (no test) elsewhere and where no return is seen (NaN). Below both, the summed photons of a faint return no
     longer stand out from the ambient light, and the test cost the paper's TR4 PSNR on the test scenes; from
     either up it cost at most 0.33 dB there, and gained up to 0.8 dB on sky at many photons and low SNR
-    (experiments/results/upscale_defaults.md)."""
-    tested = snr >= AUTO_AMBIENT_MIN_SNR or signal * snr >= AUTO_AMBIENT_MIN_SIGNAL_SNR  # NaN compares False
+    (experiments/results/upscale_defaults.md). min_snr, min_signal_snr: the two thresholds (the study that
+    chose them scores others)."""
+    tested = snr >= min_snr or signal * snr >= min_signal_snr  # NaN compares False
     return AUTO_AMBIENT_ALPHA if tested else None
 
 

@@ -333,7 +333,7 @@ def test_traced_intensity_outside_0_1_is_clipped_and_non_finite_is_black(bad, me
 # The calls of the no-return cases, with depth and intensity as arguments: the traced cases share their compiles.
 RATES_OF = lambda d, i: jaxsr.expected_histograms(d, i, SMALL, snr=1.3, mean_signal=5.0)
 SIMULATED = lambda k, d, i: jaxsr.simulate_histograms(k, d, i, SMALL, snr=1.3)
-TRACED = {RATES_OF: jax.jit(RATES_OF), SIMULATED: jax.jit(SIMULATED)}
+TRACED_RATES_OF, TRACED_SIMULATED = jax.jit(RATES_OF), jax.jit(SIMULATED)
 
 
 @pytest.mark.parametrize("jit", [False, True])
@@ -341,14 +341,14 @@ TRACED = {RATES_OF: jax.jit(RATES_OF), SIMULATED: jax.jit(SIMULATED)}
 def test_depth_without_a_return_is_the_same_eager_and_traced(jit, bad):
     """NaN, inf, negative and beyond-d_max depth mean "no return" (signal weight 0) in both paths."""
     depth, intensity = _scene()
-    rates = TRACED[RATES_OF] if jit else RATES_OF
+    rates = TRACED_RATES_OF if jit else RATES_OF
     f = lambda d: rates(d, intensity)
     bad_d, sky_d = depth.copy(), depth.copy()
     bad_d[2, :] = bad
     sky_d[2, :] = np.inf
     np.testing.assert_allclose(f(bad_d), f(sky_d), rtol=1e-6)
     key = jax.random.key(1)
-    sim = TRACED[SIMULATED] if jit else SIMULATED
+    sim = TRACED_SIMULATED if jit else SIMULATED
     bad_i = intensity.copy()
     bad_i[0, 0] = np.nan if jit else 0.5  # the issue's case: one NaN pixel used to make every count NaN
     assert np.all(np.isfinite(sim(key, bad_d, bad_i)))
