@@ -5,7 +5,7 @@ from photon histograms, and the GFLOP/s it achieves against what this machine's 
 end from histograms: window (the paper), sequence (`super_resolve` of a sequence-form model: chunks of
 `DEFAULT_SEQUENCE_CHUNK` outputs) and stream (`Stream`, one frame at a time). `test_precision_from_histograms`
 times TR0 and TR4 in the window and the sequence form with float32 and bfloat16 convolutions (`precision`), 32
-frames and a 128-frame chunk of the sequence form (the issue's goal: the sequence-form TR4 at 25 frames/s or more
+frames and a 128-frame chunk of the sequence form (the goal: the sequence-form TR4 at 25 frames/s or more
 on 2 CPU cores), each against the matrix-product ceiling of its precision.
 
 Run: pytest benchmarks/bench_inference.py --benchmark-enable      (about 3 min on 2 CPU cores)

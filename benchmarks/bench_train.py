@@ -4,7 +4,7 @@ implementations side by side.
 
     pytest benchmarks/bench_train.py --benchmark-only            (about 5 min on 2 CPU cores)
     pytest benchmarks/bench_train.py --benchmark-only -k today_vs_new -s   (windowed TR0/TR4 and sequence TR4:
-        the step of issue 14's baseline, of main, and the new one, in one run)
+        the step of the 2026-11-22 baseline, of main, and the new one, in one run)
 
 The train-step benchmarks draw windows from a fixed synthetic HR sequence with `sequence_batches` (sensor
 simulation + centre of mass inside the step, no scene rendering), so they time the network and the sensor
@@ -139,16 +139,16 @@ def test_conv3d_forward_backward(benchmark, impl):
     benchmark.pedantic(lambda: jax.block_until_ready(g(_X, _W)), rounds=5, iterations=1)
 
 
-# Issue 14 part 2 and issue 15's sequence step: three train steps timed in interleaved rounds of one run, so that a
+# Three train steps timed in interleaved rounds of one run, so that a
 # background load slows them alike (only the ratios carry over to another machine):
-# - "issue-14": the step of 2026-11-22, every example's whole 32 x 64 clip simulated, then cropped; the gradients
+# - "2026-11-22": the step of 2026-11-22, every example's whole 32 x 64 clip simulated, then cropped; the gradients
 #   of the layers `conv3d(impl="auto")` stacks taken through the stacked form; one device;
 # - "main": the step of 2026-11-23 (photons drawn for the crop only, `jaxsr.training.data`), still stacked gradients;
 # - "new": main's data, the stacked layers' gradients through their temporal taps (`layers.STACKED_GRADIENT`),
 #   on one device and with the batch split over both cores as devices (what `fit(mesh="auto")` does).
 # The network's forward pass at inference (BN from running statistics, `compiler_options`, same inputs) is timed
 # in the same rounds as the reference arithmetic rate.
-def _issue14_clips(depth, intensity, frames, train_cfg):
+def _clips_2026_11_22(depth, intensity, frames, train_cfg):
     """The data source of 2026-11-22: each clip of `frames` frames simulated whole, then a random crop kept.
     Returns make_batch: key -> (clips (B, frames, h, w), gt (B, frames, H, W))."""
     sensor = SensorConfig()
@@ -200,7 +200,7 @@ def _step_variants(form, tr):
     depth, intensity = (jnp.asarray(a) for a in hr)
     params, state = init_model(jax.random.key(0), cfg)
     args = (params, state, adam_init(params))
-    old = _issue14_clips(depth, intensity, frames, train_cfg)
+    old = _clips_2026_11_22(depth, intensity, frames, train_cfg)
     new = sequence_clips(depth, intensity, frames, train_cfg)
     if form == "window":  # the centre frame's ground truth only
         old, new = (_centre_gt(f, tr) for f in (old, new))
@@ -208,7 +208,7 @@ def _step_variants(form, tr):
     def step(make_batch, mesh=None):  # a new make_batch function per variant: its own jitted step
         return make_train_step(cfg, train_cfg, lambda key: make_batch(key), mesh=mesh)
 
-    variants = {"issue-14": (step(old), args, "stacked"), "main": (step(new), args, "stacked"),
+    variants = {"2026-11-22": (step(old), args, "stacked"), "main": (step(new), args, "stacked"),
                 "new-1-device": (step(new), args, "taps")}
     if jax.device_count() > 1 and train_cfg.batch_size % jax.device_count() == 0:
         mesh = data_mesh()
@@ -253,10 +253,10 @@ def test_train_step_today_vs_new(benchmark, form, tr):
         info = {"step_s": t, "examples_per_s": train_cfg.batch_size / t,
                 "frames_per_s": train_cfg.batch_size * outputs / t,
                 "gflop_per_s": (1 if name == "inference" else 3) * flops / t / 1e9,
-                "speed_up_vs_issue_14": best["issue-14"] / t, "speed_up_vs_main": best["main"] / t}
+                "speed_up_vs_2026_11_22": best["2026-11-22"] / t, "speed_up_vs_main": best["main"] / t}
         benchmark.extra_info[name] = info
         print(f"{form} TR{tr} {name:16s} {1e3 * t:8.1f} ms/step  {info['examples_per_s']:6.2f} examples/s  "
               f"{info['frames_per_s']:6.2f} frames/s  {info['gflop_per_s']:6.1f} GFLOP/s  "
-              f"x{info['speed_up_vs_issue_14']:.2f} "
-              f"vs issue-14  x{info['speed_up_vs_main']:.2f} vs main")
+              f"x{info['speed_up_vs_2026_11_22']:.2f} "
+              f"vs 2026-11-22  x{info['speed_up_vs_main']:.2f} vs main")
     benchmark.extra_info["patch"] = train_cfg.patch

@@ -1,4 +1,4 @@
-"""Three public recordings end to end (issue 16): two single-photon lidar scans of photon time tags and a ToF
+"""Three public recordings end to end: two single-photon lidar scans of photon time tags and a ToF
 camera depth video, each super-resolved x4 by the bundled TR0 and TR4 models and TR4 in the sequence form.
 
     python experiments/paper/real_data.py --data ../shared/realdata [--fraction 0.1] [--seed 0]

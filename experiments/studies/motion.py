@@ -1,5 +1,5 @@
 """How much of each sequence moves: the test sequences, the frame-rate study's walkers at each of its rates, and
-the training clips, before and after the scenes were made to keep their motion in view (issue 14).
+the training clips, before and after the scenes were made to keep their motion in view.
 
     python experiments/studies/motion.py [--clips 400] [--frames 500] [--before /path/to/older/checkout]
 
@@ -13,8 +13,8 @@ Motion in LR pixels per frame is given two ways: `mean_lr_shift` (what fps_study
 every moving object near the frame) and `in_view_lr_shift` (only what is in sight: the nearest hit on a grid of
 rays); a sequence's in-view motion is its mean over the frames where something in sight moves.
 
-Training clips: `--clips` draws of `training_clip` (keys `jax.random.key(s)` for s = 500, 501, ..., 3 frames,
-the issue's check; the first 40 are its seeds 500-539). Per clip: the largest depth change (a clip whose
+Training clips: `--clips` draws of `training_clip` (keys `jax.random.key(s)` for s = 500, 501, ..., 3 frames;
+the first 40 are the seeds 500-539 of the original check). Per clip: the largest depth change (a clip whose
 largest change is <= 1 cm is static), the share of moving pixels, and the in-view motion at the middle frame.
 
 Before: with `--before DIR` (a checkout of the code before the change, e.g. `git worktree add DIR <commit>`),

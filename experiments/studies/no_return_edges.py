@@ -4,7 +4,7 @@ an LR block recovers.
     python experiments/studies/no_return_edges.py                    # 3, 14, 100 and 1000 photons, 8 frames
     python experiments/studies/no_return_edges.py --photons 14 --frames 4
 
-The photons issue asks that at most 5 % of the no-return pixels come out as depth and at most 2 % of the true
+The goal is that at most 5 % of the no-return pixels come out as depth and at most 2 % of the true
 returns are dropped, from 3 signal photons per LR pixel up (SNR 1.3). Inside the regions the ambient-only test
 (`jaxsr.sensor.ambient_only`: 3 x 3 LR pixels x 9 frames, alpha 0.001) meets it; over all pixels it does not,
 for two reasons this study separates. The test flags a pixel only when its whole 3 x 3 neighbourhood is ambient,

@@ -3,7 +3,7 @@
     python experiments/studies/no_return_evidence.py                   # 3, 14 and 100 photons, tr4-photons
     python experiments/studies/no_return_evidence.py --photons 1 3 --frames 8
 
-The photons issue asks that at most 5 % of the pixels inside a no-return region come out as depth while at most
+The goal is that at most 5 % of the pixels inside a no-return region come out as depth while at most
 2 % of true returns are dropped, from 3 signal photons per LR pixel up (SNR 1.3). This measures how much of that
 the photons around a pixel allow, before any network: on the benchmark's scenes with no-return regions
 (experiments/studies/photon_regimes.py: the same scenes, regions, photon levels and SNR; noise keys of its own),

@@ -1,4 +1,4 @@
-"""Benchmark across photon regimes (the photons issue, items 3 and 5): PSNR and SSIM of bicubic, the TV
+"""Benchmark across photon regimes: PSNR and SSIM of bicubic, the TV
 reconstruction, TR0, TR4 and any extra models at 1, 3, 14, 100 and 1000 signal photons per LR pixel and frame SNR
 0.1, 1.3 and 5 on the three test scenes, the goals checked, and how models treat regions with no return.
 
@@ -69,7 +69,7 @@ NO_RETURN_MIN_PHOTONS = 3.0
 AMBIENT_RADIUS = 4  # frames on either side that `ambient_only` sums (its 9 frames)
 MAJORITY = "block majority"  # the no-return tables' column of `block_majority`
 TV_TR = 1  # the TV baseline's temporal radius (its default)
-# The issue's goals (item 5 for PSNR, item 3 for no return)
+# The goals, for PSNR and for no return
 GOAL_LOW = 6.0  # dB over bicubic, mean over 1-3 photons
 GOAL_100 = 3.0  # dB over bicubic at 100 photons
 GOAL_TODAY = -0.3  # dB against the bundled TR4 at the paper's regime
@@ -532,7 +532,7 @@ def main(argv=None) -> None:
     full = "python experiments/studies/photon_regimes.py --frames 32 --tv --tv-frames 4"
     small = args.frames < 32 or not args.tv or args.photons != list(PHOTONS) or args.snr != list(SNRS)
     scenes_text = ", ".join(SCENE_LABELS[n] for n in TEST_SCENES)
-    text = (header("Benchmark across photon regimes (photons issue, items 3 and 5)", started)
+    text = (header("Benchmark across photon regimes", started)
             + (f"**A small run** ({args.frames} frames per scene{'' if args.tv else ', no TV'}): the differences "
                f"carry wide intervals. The full benchmark: `{full}`.\n\n" if small else "")
             + f"{scenes_text}: {args.frames} frames each, spread over the {SEQUENCE_FRAMES} "

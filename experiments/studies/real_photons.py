@@ -1,4 +1,4 @@
-"""Real photons with a reference (issue 35, item 6): two real single-photon recordings made into low-resolution
+"""Real photons with a reference: two real single-photon recordings made into low-resolution
 photon videos at 1-16 photons per LR pixel and frame, upscaled x4 by bicubic, TV, the bundled TR0 and TR4 (and
 any `--model`), and scored against the depth of all the recording's photons at full resolution.
 
@@ -612,7 +612,7 @@ def main(argv=None) -> None:
     goals, all_met = goal_table(results)
     png = out.with_suffix(".png")
     picture(results, recordings, png)
-    text = (header("Real photons against an all-photon reference (issue 35, item 6)", started)
+    text = (header("Real photons against an all-photon reference", started)
             + "Two real single-photon recordings made into LR photon videos and upscaled x4; each method's output "
             "is scored against the depth from all the recording's photons at full resolution. How the video and "
             "the reference are made: the docstring of experiments/studies/real_photons.py. In short: 4 x 4 pixels "

@@ -1,9 +1,10 @@
-"""Training throughput (issue 14 part 2, issue 15's sequence step): today's train steps against the new one.
+"""Training throughput: the train steps of 2026-11-22, of main before the sequence step, and the new one.
 
     python experiments/studies/train_speed.py            (about 15 minutes on 2 busy CPU cores)
 
-Runs `benchmarks/bench_train.py -k today_vs_new` (windowed TR0 and TR4, sequence-form TR4; the step of issue 14's
-baseline, of main before this change, and the new one on 1 and 2 devices, timed in interleaved rounds of one run)
+Runs `benchmarks/bench_train.py -k today_vs_new` (windowed TR0 and TR4, sequence-form TR4; the step of the
+2026-11-22 baseline, of main before this change, and the new one on 1 and 2 devices, timed in interleaved
+rounds of one run)
 and writes its table to experiments/results/train_speed.md; the hand-written profile and reading at the end of
 that file (from "## Reading") are kept on re-runs.
 """
@@ -43,22 +44,22 @@ def table(records: list[dict]) -> str:
                 continue
             rows.append([form, tr, name, f"{1e3 * info['step_s']:.1f}", f"{info['examples_per_s']:.2f}",
                          f"{info['frames_per_s']:.2f}", f"{info['gflop_per_s']:.1f}",
-                         "" if name == "inference" else f"{info['speed_up_vs_issue_14']:.2f}",
+                         "" if name == "inference" else f"{info['speed_up_vs_2026_11_22']:.2f}",
                          "" if name == "inference" else f"{info['speed_up_vs_main']:.2f}"])
     return markdown_table(["form", "TR", "step", "ms/step (fastest round)", "examples/s", "supervised frames/s",
-                           "GFLOP/s", "speed-up vs issue-14", "speed-up vs main"], rows)
+                           "GFLOP/s", "speed-up vs 2026-11-22", "speed-up vs main"], rows)
 
 
 def main():
     started = time.time()
     records = run_benchmark()
-    text = header("Training throughput (issue 14 part 2, issue 15's sequence-form step)", started)
+    text = header("Training throughput: windowed and sequence-form train steps", started)
     text += (
         "Interleaved rounds of one run (`benchmarks/bench_train.py::test_train_step_today_vs_new`), the fastest "
         "round of each step; only the ratios carry over to another machine. The `cpu` preset: batch 4, 16 x 32 LR "
         "crops; the windowed form on windows of 2 TR + 1 frames, the sequence form on clips of 2R + 8 frames "
         "(loss on the 8 inner frames); data simulated inside the step from a synthetic HR sequence "
-        "(`sequence_clips`, no rendering). Steps: issue-14 = the step of 2026-11-22 (each example's whole clip "
+        "(`sequence_clips`, no rendering). Steps: 2026-11-22 = the step of 2026-11-22 (each example's whole clip "
         "simulated, then cropped; stacked layers' gradients through the stacked form; one device); main = the "
         "step before this change (photons drawn for the crop only); new = main's data with the stacked layers' "
         "gradients through the temporal taps (`jaxsr.nn.layers.STACKED_GRADIENT`), on one device and split over "

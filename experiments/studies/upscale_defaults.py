@@ -62,7 +62,7 @@ SNR_THRESHOLDS = (0.0, 0.2, 0.3, 0.4, 0.5, 0.7, 0.8, 1.0, 1.5, float("inf"))  # 
 SIGNAL_SNR_THRESHOLDS = tuple(sorted({1.0, 2.0, 3.0, 4.0, 6.0, 8.0, 10.0, 20.0, AUTO_AMBIENT_MIN_SIGNAL_SNR,
                                        float("inf")}))
 PHOTON_THRESHOLDS = (0.0, 2.0, 3.0, 4.0, 6.0, 8.0)  # 0: never tr4-photons
-TOLERANCE_DB = 0.3  # a row losing more than this to the old default is counted (the tolerance)
+TOLERANCE_DB = 0.3  # a row losing more than this to the old default is counted (the tolerance for switching a default)
 TR4, TR4_TEST, PHOTON, PHOTON_TEST = "TR4", "TR4+test", "TR4-photons", "TR4-photons+test"
 METHODS = (TR4, TR4_TEST, PHOTON, PHOTON_TEST)
 

@@ -44,7 +44,7 @@ class TestSequence(NamedTuple):
 
 # name: (kind, seed, fps, snr, camera, layout options, description). The seed and options are the recipe the
 # stored scene was drawn from (see the file's metadata for the sampler that drew it). scene2_road and
-# walkers_100fps were redrawn on 2026-11-23 (issue 14) to keep traffic and people in view in every frame;
+# walkers_100fps were redrawn on 2026-11-23 to keep traffic and people in view in every frame;
 # scene2_road's seed is the first from 1002 whose queues hold exactly one truck, as the paper's scene 2.
 TEST_SEQUENCES = {
     "scene1_street": ("street", 1001, 30.0, 1.3, "static", {"n_people": (4, 5), "n_cyclists": (2, 2)},
@@ -60,7 +60,7 @@ TEST_SEQUENCES = {
                   "validation: a road with traffic (SNR 1.3)"),
     "val3_courtyard": ("courtyard", 2003, 30.0, 3.0, "moving", {"n_people": (1, 2)},
                        "validation: a courtyard, moving camera (SNR 3)"),
-    # val4_street and val5_courtyard (2026-11-24, issue 14) replace val1_street and val3_courtyard in the presets'
+    # val4_street and val5_courtyard (2026-11-24) replace val1_street and val3_courtyard in the presets'
     # validation: those move the camera at 0.5-8 m/s and leave the modelled scene within their 500 frames (31 % of
     # val1's pixels end beyond the depth range). These keep the camera still, as the test scenes do. val4_street's
     # seed is the first from 2004 with motion in at least 99 % of its frame pairs (it has motion in 498 of 499);

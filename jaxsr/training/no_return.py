@@ -60,7 +60,7 @@ PHOTON_EDGES = (0.5, 1.0, 3.0, 5.0, 10.0, 30.0, 100.0, 300.0, 1000.0)
 CALIBRATION_SEED = 2**31 - 2
 # Candidate thresholds: logits -8 .. 8 in steps of 0.25 (p = 0.0003 .. 0.9997)
 DEFAULT_THRESHOLDS = tuple(float(t) for t in np.arange(-32, 33) / 4)
-TARGET_DROPPED = 2.0  # % of true returns dropped, at most (the photons issue's goal)
+TARGET_DROPPED = 2.0  # % of true returns dropped, at most (the no-return goal, docs/results/photon-regimes.md)
 
 
 def no_return_set(tr: int, *, draws: int, photon_range=CALIBRATION_PHOTONS, regime: PhotonRegime = PhotonRegime(),

@@ -1,4 +1,4 @@
-"""HistNet, iSeeBetter (RBPN + SRGAN discriminator) and the Lucas-Kanade flow (issue 18).
+"""HistNet, iSeeBetter (RBPN + SRGAN discriminator) and the Lucas-Kanade flow.
 
 Parameter counts are checked against layer lists written out here from the published code (HWQuantum/HistNet
 `model_network_hist.py`; alterzero/RBPN-PyTorch and amanchadha/iSeeBetter `rbpn.py`, `dbpns.py`,

@@ -1,7 +1,7 @@
 """The real `jaxsr` command (a subprocess, as a user runs it) on user mistakes: each exits with status 2 and
 ONE line on stderr, `jaxsr CMD: error: ...`, saying what was expected, with no traceback and no file or folder
 left behind (hidden temporaries and empty output folders included); checks run before the long work. Ctrl-C and
-SIGTERM remove what the command had started to write. The cases are a few per class of the hardening issue:
+SIGTERM remove what the command had started to write. The cases are a few per class:
 shapes the models were not made for, tracebacks that should be messages, options checked late, a run folder
 replaced, interruptions; a hypothesis test throws arbitrary arrays at `jaxsr upscale`.
 
@@ -80,7 +80,7 @@ def _negative_counts():
 
 # (setup(folder), arguments, words the message must hold). `MODEL` is replaced by the tiny checkpoint.
 CASES = {
-    # shapes no network runs on (any h, w >= 4 does: issue 16), and histograms of other than --bins bins
+    # shapes no network runs on (any h, w >= 4 does), and histograms of other than --bins bins
     "upscale 3x64 array": (lambda p: np.save(p / "in.npy", np.full((3, 3, 64), 0.5, np.float32)),
                            ["upscale", "in.npy", "out.npy", "--model", "MODEL"], ["3 x 64", "at least 4 x 4"]),
     "upscale folder of 64x3 frames": (lambda p: _frames(p, (64, 3)),
@@ -194,7 +194,7 @@ def test_upscale_any_array_is_upscaled_or_refused_cleanly(tmp_path_factory, mode
 
 @pytest.mark.slow  # 3 commands (15 s); the refusal is a case above, the clipping is tested in test_upscale_api
 def test_negative_counts_are_refused_with_the_hint_then_clipped_with_clip_negative(tmp_path, model_path):
-    """Background-subtracted histograms (issue 35): refused by default, naming --clip-negative; with it, clipped
+    """Background-subtracted histograms: refused by default, naming --clip-negative; with it, clipped
     at 0, the count and the pixels said on a warning line and in the summary, and the output that of the
     histograms clipped beforehand."""
     np.save(tmp_path / "in.npy", _negative_counts())
@@ -318,7 +318,7 @@ def test_the_temporary_a_killed_upscale_left_is_removed_by_the_next_run(tmp_path
 
 @pytest.mark.slow
 def test_a_finished_run_is_refused_then_replaced_with_force(tmp_path):
-    """The issue's case: a finished run, then the same command with fewer epochs and no --resume."""
+    """A finished run, then the same command with fewer epochs and no --resume."""
     args = ["train", "--tr", "0", "--preset", "cpu", "--no-progress", "--out", "R"]
     assert jaxsr(tmp_path, *args, "--epochs", "1", timeout=1800).returncode == 0
     before = tree(tmp_path)

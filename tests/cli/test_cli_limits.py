@@ -1,4 +1,4 @@
-"""Issue 37 ("Harden 3"): `jaxsr upscale` and `jaxsr simulate` at the limits of memory and of their output paths,
+"""`jaxsr upscale` and `jaxsr simulate` at the limits of memory and of their output paths,
 in-process. Each refusal is one line `jaxsr CMD: error: ...` saying what was expected, exit status 2, before the
 work and with nothing written; a result the format cannot hold exactly comes with a warning line that counts it.
 Memory budgets are given (--max-memory) so that the machine's RAM does not decide the outcome."""

@@ -1,4 +1,4 @@
-"""`jaxsr info` on damaged or hostile checkpoints (issue 37): what the file says never reaches the terminal raw
+"""`jaxsr info` on damaged or hostile checkpoints: what the file says never reaches the terminal raw
 (control characters and ANSI escapes escaped), and a deeply nested or huge card is refused with one line and exit
 status 2, quickly, instead of a traceback or minutes of parsing. In-process (`jaxsr.cli.main`), tiny models."""
 

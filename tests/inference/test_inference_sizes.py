@@ -1,4 +1,4 @@
-"""Any LR frame size through inference (issue 16): (T, h, w) -> (T, 4h, 4w), spatial tiles that reproduce the
+"""Any LR frame size through inference: (T, h, w) -> (T, 4h, 4w), spatial tiles that reproduce the
 whole frame, the receptive radius the tiles' margins rely on, and sizes that are refused."""
 
 import jax

@@ -199,7 +199,7 @@ def test_simulate_recording_equals_the_command(tmp_path, capsys):
 
 
 def test_simulate_clip_refuses_an_array_snr():
-    """`jaxsr.eval.scoring.simulate_clip` takes one SNR for the clip (issue 37: a TypeError before)."""
+    """`jaxsr.eval.scoring.simulate_clip` takes one SNR for the clip (a TypeError before)."""
     from jaxsr.eval.scoring import simulate_clip
 
     record = SimpleNamespace(name="x", depth=np.full((2, 128, 256), 8.0, np.float32),

@@ -1,4 +1,4 @@
-"""`jaxsr upscale` with another sensor (issue 16): other frame sizes, histograms over a gate, photon time tags;
+"""`jaxsr upscale` with another sensor: other frame sizes, histograms over a gate, photon time tags;
 each output checked against the library pipeline it should equal."""
 
 import json

@@ -1,4 +1,4 @@
-"""Depth units (issue 37): `jaxsr upscale` never reads millimetres as metres. Integer arrays (16-bit millimetres,
+"""Depth units: `jaxsr upscale` never reads millimetres as metres. Integer arrays (16-bit millimetres,
 centimetres) and values that could be kilometres are refused by the guess with a message asking for --units;
 --units mm / cm / km convert to metres on the way in and back on the way out; float metres and normalised input
 are guessed as before. Only the input's normalisation runs here, no network (a tiny zero-weight model)."""

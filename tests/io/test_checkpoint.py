@@ -237,7 +237,7 @@ def test_a_config_beyond_the_limits_is_refused_before_building_anything(tmp_path
     ("iseebetter", "disc_widths", [8] * 10**5),
 ])
 def test_a_baseline_config_beyond_the_limits_is_refused_before_building_anything(tmp_path, kind, field, value):
-    """HistNet's and iSeeBetter's configs are bounded like ModelConfig's (issue 37): n_resblock=10^6 in a file would
+    """HistNet's and iSeeBetter's configs are bounded like ModelConfig's: n_resblock=10^6 in a file would
     trace 3 x 10^6 residual blocks' templates (2000 took 10 s) before any shape is checked."""
     import time
 

@@ -154,7 +154,7 @@ def test_read_npz_arrays_names_the_file_and_the_missing_array(tmp_path):
 
 
 def test_read_npz_arrays_reads_only_the_arrays_named(tmp_path, monkeypatch):
-    """Issue 37: the arrays a caller does not use (`jaxsr train --data` reads depth and intensity) are never
+    """The arrays a caller does not use (`jaxsr train --data` reads depth and intensity) are never
     decompressed."""
     np.savez_compressed(tmp_path / "d.npz", depth=np.ones((2, 3)), intensity=np.zeros((2, 3)), big=np.zeros(10**6))
     read = []
@@ -334,7 +334,7 @@ def test_reserve_space_turns_a_full_disk_into_enospc_before_the_map_is_written(t
 
 
 def test_hostile_json_metadata_of_a_recording_is_refused_or_ignored_not_a_traceback(tmp_path):
-    """Issue 37: metadata nested 100000 levels deep (a RecursionError in json.loads) is a ValueError naming the file
+    """Metadata nested 100000 levels deep (a RecursionError in json.loads) is a ValueError naming the file
     where the metadata is read, and ignored where only its fps is looked for (`jaxsr upscale` on the recording)."""
     depth = np.full((2, 4, 4), 5.0, np.float32)
     for nested in ("[" * 100_000 + "]" * 100_000, "[" * 100 + "]" * 100):
@@ -361,7 +361,7 @@ def _dead_pid() -> int:
 
 
 def test_temporaries_a_killed_writer_left_are_removed_by_the_next_write_of_that_output(tmp_path):
-    """Issue 37: SIGKILL leaves a hidden partial file or folder that nothing removes. Its name holds the output, the
+    """SIGKILL leaves a hidden partial file or folder that nothing removes. Its name holds the output, the
     host and the writer's pid, and the next atomic write of that output removes those of writers that no longer
     run (one warning line), never a live writer's, another host's or another output's."""
     import subprocess
@@ -447,7 +447,7 @@ def _fail_with(number):
 @pytest.mark.parametrize("kind", ["file", "folder"])
 def test_a_folder_that_cannot_be_written_into_is_the_users_and_names_the_output(tmp_path, monkeypatch, number,
                                                                                 reason, kind):
-    """Issue 37: a read-only output folder was an OSError traceback. As root, chmod does not refuse a write, so the
+    """A read-only output folder was an OSError traceback. As root, chmod does not refuse a write, so the
     system's refusal is injected where the temporary is created: a `NotWritableError` (a PermissionError: exit 2 in
     the CLI) naming the output, nothing left."""
     import tempfile
@@ -548,7 +548,7 @@ def test_no_memory_for_an_npz_recording_is_not_called_a_damaged_file(tmp_path, m
 
 
 def test_frames_are_checked_in_blocks_of_bounded_memory(tmp_path):
-    """Issue 37: `check_frames` read 256 frames at a time as float64, whatever their size (4 GB for frames of
+    """`check_frames` read 256 frames at a time as float64, whatever their size (4 GB for frames of
     1024 x 1024 pixels); now blocks of at most `CHECK_BLOCK_BYTES`, and at least one frame."""
     from jaxsr.io.recordings import CHECK_BLOCK_BYTES, _chunks, open_recording
 

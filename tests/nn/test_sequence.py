@@ -277,7 +277,7 @@ def test_fit_in_the_sequence_form_learns(tmp_path):
 
 
 def test_flops_of_the_sequence_form():
-    """The issue's counts (GFLOP per 32 x 64 frame, each layer computing each frame once), a clip's count
+    """The counts (GFLOP per 32 x 64 frame, each layer computing each frame once), a clip's count
     tending to them, and the TR4 count about a third of the windowed one."""
     expect = {1: 5.3, 2: 6.4, 3: 7.7, 4: 9.2}
     for tr, gflop in expect.items():

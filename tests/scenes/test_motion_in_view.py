@@ -1,4 +1,4 @@
-"""Motion in view (issue 14): the frame-rate study's walkers keep people in sight at every time the study uses,
+"""Motion in view: the frame-rate study's walkers keep people in sight at every time the study uses,
 scene 2 keeps a moving vehicle in sight in every frame, and the training clips show the motion they draw.
 
 "In sight" is `jaxsr.scenes.seen_primitives`: the primitives that are the nearest hit on a 16 x 32 grid of rays
@@ -226,7 +226,7 @@ def test_every_frame_has_moving_pixels(name):
 
 @pytest.mark.slow
 def test_every_training_clip_moves_in_view():
-    """The issue's check: 40 `training_clip` draws (seeds 500-539, 3 frames) each move some pixel by > 1 cm
+    """40 `training_clip` draws (seeds 500-539, 3 frames) each move some pixel by > 1 cm
     (before the change, 9 of them moved none)."""
     keys = jnp.stack([jax.random.key(s) for s in range(500, 540)])
     depth, _, info = jax.jit(jax.vmap(lambda k: scenes.training_clip(k, 3, return_info=True)))(keys)
@@ -275,7 +275,7 @@ def check_seen(largest, info, indices):
 
 @pytest.mark.slow
 def test_seen_motion_fixes_the_still_clips():
-    """Without rendering: the issue's clips' scenes show no depth motion on the ray grid from their centre frame
+    """Without rendering: the 40 clips' scenes show no depth motion on the ray grid from their centre frame
     to the next with motion="drawn" though they report a shift; with motion="seen" each does."""
     keys = jax.random.split(jax.random.key(SEEN_KEYS_ROOT), SEEN_DRAWS)[np.asarray(STILL_WITH_DRAWN)]
 
@@ -296,7 +296,7 @@ def test_seen_motion_fixes_the_still_clips():
 
 @pytest.mark.slow
 def test_seen_motion_over_200_draws():
-    """The issue's check over all 200 draws, rendered (about 2.5 min on 2 cores): none is still with
+    """The check over all 200 draws, rendered (about 2.5 min on 2 cores): none is still with
     motion="seen"; with "drawn", the four of `STILL_WITH_DRAWN` are, and their info says `moving` 0."""
     largest, info = clips_of(STILL_WITH_DRAWN, "drawn")
     assert np.all(largest <= MOVING_DEPTH) and np.all(info["shift"] > 0.1) and np.all(info["moving"] == 0)

@@ -18,7 +18,7 @@ T = 8  # frames rendered per sequence (the renderer compiled for the other scene
 # name: (SHA-256 of the scene's parameters, first 16 hex digits; per rendered frame 0 and T-1: mean depth of the
 # pixels with a return (m), share of sky pixels, mean intensity). Written 2026-11-23 from the stored scenes (which
 # reproduce the sequences of every result committed up to then, bit for bit); scene2_road and walkers_100fps
-# re-pinned the same day after they were redrawn to keep traffic and people in view (issue 14): results scored on
+# re-pinned the same day after they were redrawn to keep traffic and people in view: results scored on
 # them before are stale.
 PINNED = {
     "scene1_street": ("dc19483ab656d479",
@@ -33,7 +33,7 @@ PINNED = {
         [7.79277897, 0, 0.471930802, 8.66818333, 0, 0.449263185]),
     "val3_courtyard": ("1df148d32a31a0a4",
         [9.03281593, 0, 0.301124305, 9.02857208, 0, 0.300740302]),
-    # val4_street and val5_courtyard added 2026-11-24 (static-camera validation, issue 14)
+    # val4_street and val5_courtyard added 2026-11-24 (static-camera validation)
     "val4_street": ("03c72d73f76a603a",
         [23.2554569, 0.0453491211, 0.365278065, 23.2469559, 0.0483398438, 0.364586443]),
     "val5_courtyard": ("2bf2535d9621bdc5",

@@ -181,7 +181,7 @@ def test_median_of_bins_equals_numpy_median_with_ties(k):
 
 
 def test_median_of_many_bins_takes_memory_linear_in_the_bins():
-    """Issue 37: 16 frames of 32 x 64 pixels with 2000 bins (`jaxsr upscale --bins 2000`) asked XLA for 540 GB
+    """16 frames of 32 x 64 pixels with 2000 bins (`jaxsr upscale --bins 2000`) asked XLA for 540 GB
     (K^2 comparisons per histogram); compiled now, the median's scratch memory is about the input's."""
     from jaxsr.sensor.peaks import median_of_bins
 

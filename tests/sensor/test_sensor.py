@@ -350,7 +350,7 @@ def test_depth_without_a_return_is_the_same_eager_and_traced(jit, bad):
     key = jax.random.key(1)
     sim = TRACED_SIMULATED if jit else SIMULATED
     bad_i = intensity.copy()
-    bad_i[0, 0] = np.nan if jit else 0.5  # the issue's case: one NaN pixel used to make every count NaN
+    bad_i[0, 0] = np.nan if jit else 0.5  # one NaN pixel used to make every count NaN
     assert np.all(np.isfinite(sim(key, bad_d, bad_i)))
 
 
@@ -390,7 +390,7 @@ def test_invalid_photon_levels_raise_eagerly_and_are_nan_everywhere_traced(kwarg
 @pytest.mark.parametrize("level", ["snr", "mean_signal"])
 @pytest.mark.parametrize("jit", [False, True])
 def test_an_array_of_photon_levels_is_refused_as_not_a_scalar(level, jit):
-    """An array where one number is expected (issue 37) was broadcast into the bins' axis (a TypeError in JAX's
+    """An array where one number is expected was broadcast into the bins' axis (a TypeError in JAX's
     words): a ValueError saying one number is expected, under jit too."""
     depth, intensity = _scene()
     levels = {"snr": jnp.float32(1.3), "mean_signal": jnp.float32(5.0), level: np.array([1.0, 2.0], np.float32)}

@@ -85,7 +85,7 @@ def test_outside_photons_can_be_dropped():
     assert histogram_time_tags(tags, GATE, outside="drop").sum() == 1
 
 
-# --- issue 37: what a recording of time tags can hold ---------------------------------------------------
+# --- what a recording of time tags can hold ---------------------------------------------------
 
 
 @pytest.mark.parametrize("unit", [1e-12, 8e-12, 1e-9, 1.0])
