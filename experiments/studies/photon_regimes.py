@@ -55,6 +55,7 @@ from jaxsr.eval.reports import header, markdown_table, write_atomic
 from jaxsr.io.checkpoint import resolve_model_path
 from jaxsr.inference.video import no_return_where
 from jaxsr.nn import network_inputs
+from jaxsr.training.no_return import no_return_outputs
 from jaxsr.sensor import (ambient_only, calibrate, calibrated_rates, no_return_regions, no_return_shares,
                           normalise_depth, sample_poisson)
 
@@ -237,6 +238,9 @@ def evaluate(models: dict, seqs: dict, *, frames: int, photons=PHOTONS, snrs=SNR
     tests = tuple(sorted(set(ambient.values())))
 
     def outputs_of(label, model, clips, flags):
+        if ambient.get(label, ("",))[0] == "keep":
+            return [(returns_kept(model, c.network_input(model.config.inputs), c.scored, flags[name][ambient[label]]),
+                     c.gt[c.scored]) for name, c in clips.items()]
         out = [scored_output(model, c) for c in clips.values()]
         if label not in ambient:
             return out
@@ -435,31 +439,59 @@ def raw(results, models_info) -> dict:
 
 def no_return_decision(counts, sensor, setting):
     """(T, h, w) no-return decision of (T, h, w, K) counts for an `ambient` setting (`decision_of`):
-    `ambient_only`'s flags or `no_return_shares`, at its false-alarm rate."""
+    `ambient_only`'s flags or `no_return_shares`, at its false-alarm rate; for ("keep", alpha), where a head may
+    mark no return (`returns_kept`): `ambient_only` of each pixel's own photons over its 9 frames."""
     kind, alpha = decision_of(setting)
-    return (ambient_only if kind == "flags" else no_return_shares)(counts, sensor, alpha=alpha)
+    tests = {"flags": ambient_only, "shares": no_return_shares, "keep": functools.partial(ambient_only, pixels=1)}
+    if kind not in tests:
+        raise ValueError(f"no_return_decision: unknown decision {kind!r}; expected one of {sorted(tests)}")
+    return tests[kind](counts, sensor, alpha=alpha)
+
+
+def returns_kept(model, x, frames, quiet) -> np.ndarray:
+    """HR output (F, H, W) of `model` (one with a no-return head) on `frames` (indices) of its input `x` (T, h,
+    w[, C]), its no-return decision overruled where the LR block's own photons show a return: a pixel is no return
+    only where the head says so AND `quiet` (F, h, w: `no_return_decision` of ("keep", alpha), the block's
+    histograms summed over 9 frames passing for ambient light alone). A head trained where ambient light is common
+    can call a dim surface of a dark scene sky (a couple of photons in one bin, no ambient light around); summed
+    over the frames those photons stand out. A block that a sky edge crosses holds a return, so its sky part is
+    output as depth: the price, on the regions' edges. Windows edge-replicated as `super_resolve_frames`'."""
+    tr = model.config.tr
+    windows = np.asarray(x)[np.clip(np.asarray(frames)[:, None] + np.arange(-tr, tr + 1), 0, len(x) - 1)]
+    depth, logit = no_return_outputs(model, windows)
+    r = depth.shape[-1] // np.shape(quiet)[-1]
+    quiet = np.repeat(np.repeat(np.asarray(quiet, bool), r, axis=-2), r, axis=-1)
+    return np.where((logit > model.config.no_return_logit) & quiet, np.float32(1.0), depth)
 
 
 def decision_of(setting) -> tuple[str, float]:
-    """An `ambient` setting of `evaluate` as its test: an alpha -> ("flags", alpha); ("shares", alpha) kept."""
+    """An `ambient` setting of `evaluate` as its test: an alpha -> ("flags", alpha); ("shares", alpha) and
+    ("keep", alpha) kept."""
     return (str(setting[0]), float(setting[1])) if isinstance(setting, tuple) else ("flags", float(setting))
 
 
-def load_models(specs, logits=(), alphas=(), shares=()) -> tuple[dict, dict, dict]:
+def load_models(specs, logits=(), alphas=(), shares=(), keep=()) -> tuple[dict, dict, dict]:
     """TR0 and TR4 bundled, and each NAME=PATH of --model that exists (PATH a file, a run folder or the name of
     bundled weights such as tr4-photons; a printed line for one that does not), each NAME=LOGIT of
     --no-return-logit run at that no-return threshold (`jaxsr.nn.with_no_return_logit`), each NAME=ALPHA of
     --ambient-alpha with the ambient-only test at that false-alarm rate, each of --no-return-shares with
-    `no_return_shares` at it. Returns ({label: Model}, {label: source}, {label: alpha or ("shares", alpha)})."""
+    `no_return_shares` at it, each of `keep` (real_photons' --keep-returns) keeping the returns its block's own
+    photons show. Returns ({label: Model}, {label: source}, {label: alpha, ("shares", alpha) or ("keep", alpha)})."""
     thresholds = _named_numbers(logits, specs, "--no-return-logit", "LOGIT")
-    ambient = _named_numbers(alphas, specs, "--ambient-alpha", "ALPHA")
-    shared = _named_numbers(shares, specs, "--no-return-shares", "ALPHA")
-    if set(ambient) & set(shared):
-        raise SystemExit(f"--ambient-alpha and --no-return-shares both name {sorted(set(ambient) & set(shared))}: "
+    decisions = {"--ambient-alpha": _named_numbers(alphas, specs, "--ambient-alpha", "ALPHA"),
+                 "--no-return-shares": _named_numbers(shares, specs, "--no-return-shares", "ALPHA"),
+                 "--keep-returns": _named_numbers(keep, specs, "--keep-returns", "ALPHA")}
+    named = [name for given in decisions.values() for name in given]
+    if len(named) != len(set(named)):
+        twice = sorted({n for n in named if named.count(n) > 1})
+        raise SystemExit(f"{', '.join(f for f, g in decisions.items() if set(g) & set(twice))} all name {twice}: "
                          "one decision per model name")
-    ambient.update({k: ("shares", v) for k, v in shared.items()})
+    ambient = dict(decisions["--ambient-alpha"])
+    ambient.update({k: ("shares", v) for k, v in decisions["--no-return-shares"].items()})
+    ambient.update({k: ("keep", v) for k, v in decisions["--keep-returns"].items()})
     if any(not 0.0 < decision_of(a)[1] < 1.0 for a in ambient.values()):
-        raise SystemExit("--ambient-alpha, --no-return-shares: ALPHA is a false-alarm rate in (0, 1), such as 0.001")
+        raise SystemExit(f"{', '.join(f for f, g in decisions.items() if g)}: ALPHA is a false-alarm rate in (0, 1), "
+                         "such as 0.001")
     models = {"TR0": jaxsr.load_model("tr0"), "TR4": jaxsr.load_model("tr4")}
     info = {"TR0": "bundled tr0", "TR4": "bundled tr4"}
     for spec in specs:
@@ -482,8 +514,12 @@ def load_models(specs, logits=(), alphas=(), shares=()) -> tuple[dict, dict, dic
             info[name] = f"{path} at no-return logit {thresholds[name]:g}"
         if name in ambient:
             kind, a = decision_of(ambient[name])
-            info[name] += (f", no return where ambient alone (alpha {a:g})" if kind == "flags" else
-                           f", no return by no_return_shares (alpha {a:g})")
+            if kind == "keep" and not getattr(models[name].config, "no_return_head", False):
+                raise SystemExit(f"--keep-returns {name}: the model has no no-return head, so no decision to overrule")
+            info[name] += {"flags": f", no return where ambient alone (alpha {a:g})",
+                           "shares": f", no return by no_return_shares (alpha {a:g})",
+                           "keep": f", its no return overruled where the block's own photons over 9 frames "
+                                   f"show a return (alpha {a:g})"}[kind]
     return models, info, {k: v for k, v in ambient.items() if k in models}
 
 
@@ -520,12 +556,17 @@ def main(argv=None) -> None:
     parser.add_argument("--no-return-shares", action="append", default=[], metavar="NAME=ALPHA",
                         help="run --model NAME also marking no return where jaxsr.sensor.no_return_shares (the "
                         "ambient-only test grown to the regions' edges, at this false-alarm rate) say so; repeatable")
+    parser.add_argument("--keep-returns", action="append", default=[], metavar="NAME=ALPHA",
+                        help="run --model NAME (one with a no-return head) outputting depth wherever the LR pixel's "
+                        "own photons over 9 frames show a return at this false-alarm rate, whatever the head says "
+                        "(returns_kept); repeatable")
     parser.add_argument("--seed", type=int, default=0, help="noise seed")
     parser.add_argument("--out", default="experiments/results/photon_regimes.md",
                         help="the results file (a .json beside it)")
     args = parser.parse_args(argv)
     started = time.time()
-    models, info, ambient = load_models(args.model, args.no_return_logit, args.ambient_alpha, args.no_return_shares)
+    models, info, ambient = load_models(args.model, args.no_return_logit, args.ambient_alpha, args.no_return_shares,
+                                        args.keep_returns)
     seqs = jaxsr.scenes.test_sequences(n_frames=SEQUENCE_FRAMES, names=TEST_SCENES)
     results = evaluate(models, seqs, frames=args.frames, photons=args.photons, snrs=args.snr,
                        tv_frames=args.tv_frames if args.tv else 0, seed=args.seed, ambient=ambient)

@@ -6,6 +6,7 @@ any `--model`), and scored against the depth of all the recording's photons at f
     python experiments/studies/real_photons.py --model TR0-photons=tr0-photons --model TR4-photons=tr4-photons
     python experiments/studies/real_photons.py --levels 2 --frames 3 --tv-frames 1   # a quick look
     python experiments/studies/real_photons.py --model TR4-photons+2=tr4-photons --no-return-logit TR4-photons+2=2
+    python experiments/studies/real_photons.py --model K=tr4-photons --no-return-logit K=2 --keep-returns K=0.001
 
 Data (`--data`, default ../shared/realdata beside the repository; never copied into the project:
 docs/own-sensor.md, "Real recordings", says where each file comes from): tower.mat (160 x 160 pixels, photon
@@ -62,7 +63,8 @@ from jaxsr.eval.scoring import format_interval
 from jaxsr.inference import iter_network_inputs, no_return_where
 from jaxsr.io.recordings import gate_frames
 from jaxsr.sensor.timetags import TimeTags
-from photon_regimes import NO_RETURN_AT, TV_TR, load_models, no_return_decision  # experiments/studies, beside this script
+from photon_regimes import (NO_RETURN_AT, TV_TR, decision_of, load_models, no_return_decision,  # experiments/studies
+                            returns_kept)
 
 ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_DATA = ROOT.parent / "shared" / "realdata"
@@ -350,8 +352,8 @@ def evaluate(recordings, models: dict, *, levels=LEVELS, max_frames: int = MAX_F
     """Score nearest, bicubic, TV and `models` ({label: Model}) on each recording's photon video at every level
     against its all-photon reference. tv_frames: frames per level TV runs on (None: all). ambient: {label:
     alpha} for models whose output is also no return where `jaxsr.sensor.ambient_only` flags a pixel of the
-    photon video at that false-alarm rate (as `jaxsr upscale --ambient-alpha`), or {label: ("shares", alpha)}
-    where `jaxsr.sensor.no_return_shares` say so. Returns
+    photon video at that false-alarm rate (as `jaxsr upscale --ambient-alpha`), {label: ("shares", alpha)}
+    where `jaxsr.sensor.no_return_shares` say so, or {label: ("keep", alpha)} for `photon_regimes.returns_kept`. Returns
     {name: {"reference", "noise", "levels": [{"level", "frames", "photons_ref", "scores": {method: {psnr, mae,
     no_return: (T,)}}, "tv_frames"}], "picture": {panel: (H, W)}}}."""
     results = {}
@@ -384,6 +386,11 @@ def evaluate(recordings, models: dict, *, levels=LEVELS, max_frames: int = MAX_F
             if tv:
                 outputs["TV"] = tv_output(lr, tv_idx)
             for label, model in models.items():
+                if decision_of((ambient or {}).get(label, ("", 0.0)))[0] == "keep":
+                    quiet = no_return_decision(frames.counts, jaxsr.SensorConfig(bins=frames.gate.bins),
+                                               ambient[label])
+                    outputs[label] = returns_kept(model, model_input(model, frames), np.arange(len(lr)), quiet)
+                    continue
                 outputs[label] = jaxsr.super_resolve(model, model_input(model, frames), form="model")
                 if label in (ambient or {}):
                     flags = no_return_decision(frames.counts, jaxsr.SensorConfig(bins=frames.gate.bins),
@@ -593,6 +600,10 @@ def main(argv=None) -> None:
     parser.add_argument("--no-return-shares", action="append", default=[], metavar="NAME=ALPHA",
                         help="run --model NAME also marking no return where jaxsr.sensor.no_return_shares (the "
                         "ambient-only test grown to the regions' edges, at this false-alarm rate) say so; repeatable")
+    parser.add_argument("--keep-returns", action="append", default=[], metavar="NAME=ALPHA",
+                        help="run --model NAME (one with a no-return head) outputting depth wherever the LR block's "
+                        "own photons over 9 frames show a return at this false-alarm rate, whatever the head says "
+                        "(photon_regimes.returns_kept); repeatable")
     parser.add_argument("--picture-level", type=float, default=PICTURE_LEVEL,
                         help="photons of the pictured frame (default 2)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the photon permutations")
@@ -603,7 +614,7 @@ def main(argv=None) -> None:
         raise SystemExit(f"no recordings: {DEFAULT_DATA} does not exist; give the folder with --data")
     started = time.time()
     models, info, ambient = load_models(args.model, args.no_return_logit, args.ambient_alpha,
-                                       args.no_return_shares)
+                                       args.no_return_shares, args.keep_returns)
     recordings = [read_recording(args.data, s) for s in SOURCES]
     results = evaluate(recordings, models, levels=args.levels, max_frames=args.frames, tv_frames=args.tv_frames,
                        tv=not args.no_tv, seed=args.seed, picture_level=args.picture_level, ambient=ambient)

@@ -126,12 +126,40 @@ def test_interior_and_the_block_majority():
 
 
 def test_load_models_gives_each_name_one_no_return_decision():
-    """--ambient-alpha gives a rate (the test's flags), --no-return-shares ("shares", rate); one name in both is
-    refused, as is a rate out of (0, 1)."""
-    _, _, ambient = photon_regimes.load_models(["A=tr4", "B=tr4"], (), ["A=0.001"], ["B=0.01"])
-    assert ambient == {"A": 0.001, "B": ("shares", 0.01)}
-    assert [photon_regimes.decision_of(v) for v in ambient.values()] == [("flags", 0.001), ("shares", 0.01)]
-    with pytest.raises(SystemExit, match="both name"):
+    """--ambient-alpha gives a rate (the test's flags), --no-return-shares ("shares", rate), real_photons'
+    --keep-returns ("keep", rate), which only a model with a no-return head takes; an unknown kind is refused;
+    one name in two of them is refused, as is a rate out of (0, 1)."""
+    _, _, ambient = photon_regimes.load_models(["A=tr4", "B=tr4", "C=tr4-photons"], (), ["A=0.001"], ["B=0.01"],
+                                               ["C=0.001"])
+    assert ambient == {"A": 0.001, "B": ("shares", 0.01), "C": ("keep", 0.001)}
+    assert [photon_regimes.decision_of(v) for v in ambient.values()] == [("flags", 0.001), ("shares", 0.01),
+                                                                         ("keep", 0.001)]
+    with pytest.raises(SystemExit, match="one decision per model name"):
         photon_regimes.load_models(["A=tr4"], (), ["A=0.001"], ["A=0.001"])
+    with pytest.raises(SystemExit, match="one decision per model name"):
+        photon_regimes.load_models(["A=tr4-photons"], (), ["A=0.001"], (), ["A=0.001"])
+    with pytest.raises(SystemExit, match="no no-return head"):
+        photon_regimes.load_models(["A=tr4"], (), (), (), ["A=0.001"])
+    with pytest.raises(ValueError, match="unknown decision 'sky'"):
+        photon_regimes.no_return_decision(np.zeros((1, 2, 2, 16), np.float32), SensorConfig(), ("sky", 1e-3))
     with pytest.raises(SystemExit, match=r"false-alarm rate in \(0, 1\)"):
         photon_regimes.load_models(["A=tr4"], (), (), ["A=2"])
+
+
+@pytest.mark.slow  # a second `evaluate` (18 s on 2 cores); `returns_kept` itself: test_real_photons
+def test_keep_returns_gives_back_the_returns_a_head_drops():
+    """--keep-returns through `evaluate`: a head that calls every pixel sky drops every return of the no-return
+    test; kept where each pixel's own photons over 9 frames show a return, more than half come back (3 photons,
+    SNR 1.3: here 63 % of single pixels over 9 frames stand out at alpha 0.001)."""
+    cfg = ModelConfig(tr=1, inputs=("depth", "signal", "background"), no_return_head=True, **TINY)
+    params, state = init_model(jax.random.key(0), cfg)
+    params["no_return"]["conv2"]["b"] = params["no_return"]["conv2"]["b"] + 50.0
+    sky = Model(params, state, cfg)
+    results = photon_regimes.evaluate({"P": sky, "P+keep": sky}, {"synthetic": synthetic_sequence()}, frames=1,
+                                      photons=[3.0], snrs=[1.3], paper=False, ambient={"P+keep": ("keep", 1e-3)},
+                                      log=lambda _: None)
+    (entry,) = results["no_return"]
+    as_depth, dropped = entry["rates"]["P"]
+    kept_as_depth, kept_dropped = entry["rates"]["P+keep"]
+    assert as_depth == 0.0 and dropped == 100.0
+    assert kept_dropped < dropped / 2 and kept_as_depth >= as_depth
