@@ -2,8 +2,8 @@
 
     python experiments/studies/finetune_sequence.py [--tr 1] [--runs runs/finetune-seq] [--frames 100]
 
-Does a windowed checkpoint fine-tuned into the sequence form beats a sequence model trained from
-scratch at equal CPU time. The budget T of TR`tr` is the windowed bundle's (1280 steps of the `bundle` preset);
+Does a windowed checkpoint fine-tuned into the sequence form beat a sequence model trained from
+scratch at equal CPU time? The budget T of TR`tr` is the windowed bundle's (1280 steps of the `bundle` preset);
 the bundled `trN-seq` had the same T as sequence steps (experiments/studies/train_sequence_bundle.py: 1280 x window
 step / sequence step, timed in one run; its plan.json). Arms, all run in the sequence form and scored alike:
 

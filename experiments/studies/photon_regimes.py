@@ -17,7 +17,7 @@ as long as `jaxsr.eval.scoring.interval`'s in sequence frames, so frames spread 
 TV (`--tv`, slow: seconds per frame on a CPU) runs on `--tv-frames` of the scored frames per scene and is compared
 on those only.
 
-No return (item 3): the test depth with `no_return_regions` (a `NO_RETURN_FRACTION` share of the HR pixels, sky
+No return: the test depth with `no_return_regions` (a `NO_RETURN_FRACTION` share of the HR pixels, sky
 weight `NO_RETURN_SKY`, one mask per scene) at 3 photons and above, SNR 1.3. A pixel with no return (ground truth
 1.0) counts as output as depth where the normalised output is below `NO_RETURN_AT` (0.99); a true return
 (ground truth below 1) counts as dropped where the output is at or above it.
@@ -85,8 +85,7 @@ def _calibration(depth, intensity, snr, mean_signal, sensor):
 
 @functools.partial(jax.jit, static_argnames=("sensor", "tests"))
 def _draw(key, depth, intensity, alpha, beta, sensor, tests=()):
-    """Network inputs, normalised ground truth and, for each (kind, alpha) of `tests`, `ambient_only`'s flags
-    ("flags") or `no_return_shares` ("shares")
+    """Network inputs, normalised ground truth and, for each (kind, alpha) of `tests`, its `no_return_decision`
     (the frames drawn are consecutive around each scored frame, so a scored frame's test sums its own)."""
     counts = sample_poisson(key, calibrated_rates(depth, intensity, alpha, beta, sensor), method="fast")
     flags = tuple(no_return_decision(counts, sensor, test) for test in tests)
@@ -104,8 +103,8 @@ def regime_clips(seqs: dict, photons: float, snr, *, scored, radius: int, key, s
     """The sequences at one regime: {name: Clip} of the frames the methods need (`needed_frames`), with `scored`
     as positions in them. snr None: each sequence's own. The laser and ambient are calibrated over the whole
     sequence, as `simulate_histograms` would, and photons are drawn only for those frames. Returns (clips,
-    ambient): ambient {name: {(kind, alpha): (F, h, w)}}, `ambient_only`'s flags or `no_return_shares` of the
-    scored frames for each test of `tests`."""
+    ambient): ambient {name: {(kind, alpha): (F, h, w)}}, the `no_return_decision` of the scored frames for each
+    test of `tests`."""
     clips, ambient = {}, {}
     for i, (name, seq) in enumerate(seqs.items()):
         s = float(seq.snr if snr is None else snr)
@@ -223,8 +222,10 @@ def evaluate(models: dict, seqs: dict, *, frames: int, photons=PHOTONS, snrs=SNR
     depth, intensity, fps, snr}) at every (photons, snr) regime, plus the paper's (14 photons, own SNR), and the
     no-return measure. ambient: {label: alpha} for models whose output is also no return where
     `jaxsr.sensor.ambient_only` flags a pixel at that false-alarm rate (as `ambient_alpha` of
-    `super_resolve_histograms`), or {label: ("shares", alpha)} where `jaxsr.sensor.no_return_shares` say so. Returns the raw results: {"regimes": [{"photons", "snr", "scores": {method: {"psnr",
-    "ssim"}: (scenes, T)}, "tv_frames": positions in the scored frames}], "no_return": [...]} (NumPy arrays)."""
+    `super_resolve_histograms`), {label: ("shares", alpha)} where `jaxsr.sensor.no_return_shares` say so, or
+    {label: ("keep", alpha)} for `returns_kept`. Returns the raw results: {"regimes": [{"photons", "snr", "scores":
+    {method: {"psnr", "ssim"}: (scenes, T)}, "tv_frames": positions in the scored frames}], "no_return": [...]}
+    (NumPy arrays)."""
     total = len(next(iter(seqs.values())).depth)
     scored = scored_frames(frames, total)
     # TV's frames: tv_frames of the scored ones, spread over them (positions in `scored`)

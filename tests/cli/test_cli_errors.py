@@ -1,7 +1,7 @@
 """The real `jaxsr` command (a subprocess, as a user runs it) on user mistakes: each exits with status 2 and
 ONE line on stderr, `jaxsr CMD: error: ...`, saying what was expected, with no traceback and no file or folder
 left behind (hidden temporaries and empty output folders included); checks run before the long work. Ctrl-C and
-SIGTERM remove what the command had started to write. The cases are a few per class:
+SIGTERM remove what the command had started to write. The cases are a few per kind of failure:
 shapes the models were not made for, tracebacks that should be messages, options checked late, a run folder
 replaced, interruptions; a hypothesis test throws arbitrary arrays at `jaxsr upscale`.
 

@@ -153,8 +153,9 @@ def test_a_photon_model_reads_the_depth_and_the_photons_behind_it():
 
 
 def test_returns_kept_overrules_the_head_only_where_the_block_shows_a_return():
-    """--keep-returns: where a block's own photons over the model's window show a return, the output is the depth
-    under the head whatever the head says; elsewhere it is the model's own decision (super_resolve's output)."""
+    """--keep-returns: where a block's own photons over 9 frames show a return, the output is the depth under the
+    head whatever the head says; elsewhere it is the model's own decision (super_resolve's output); a head that
+    marks nothing is left as it is."""
     import jax
 
     import photon_regimes
@@ -163,21 +164,30 @@ def test_returns_kept_overrules_the_head_only_where_the_block_shows_a_return():
 
     rng = np.random.default_rng(1)
     counts = rng.poisson(0.05, (3, 6, 6, 16)).astype(np.float32)  # ambient alone: next to no photons
-    counts[:, :3, :, 7] += 6.0  # the top half: a return of 6 photons in one bin, every frame
+    counts[:, :3, :, 7] += 6.0 + np.arange(3)[:, None, None]  # the top half: a return of 6-8 photons in one bin
     gate, scale = jaxsr.Gate(16, 35.0 / 16, 0.0), jaxsr.DepthScale()
     depth, _ = real_photons._network_depth(counts, gate, scale, 0.0)
     frames = real_photons.PhotonFrames(counts, np.asarray(depth, np.float32), gate, scale)
     cfg = ModelConfig(tr=1, base=8, growth=4, head=16, filter_hidden=16, same_blocks=1,
                       inputs=("depth", "signal", "background"), no_return_head=True)
     params, state = init_model(jax.random.key(0), cfg)
-    params["no_return"]["conv2"]["b"] = params["no_return"]["conv2"]["b"] + 50.0  # a head that calls all sky
-    model = Model(params, state, cfg)
-    x = real_photons.model_input(model, frames)
-    decided = np.asarray(jaxsr.super_resolve(model, x, form="model"))
-    assert np.all(decided == 1.0)
+    bias = params["no_return"]["conv2"]["b"]
     quiet = photon_regimes.no_return_decision(counts, jaxsr.SensorConfig(), ("keep", 1e-3))
-    kept = photon_regimes.returns_kept(model, x, np.arange(3), quiet)
-    assert kept.shape == decided.shape == (3, 24, 24)
-    assert np.all(kept[:, 12:] == 1.0)  # ambient alone: the head's no return stands
-    assert np.all(kept[:, :12] < 1.0)  # the return's blocks: depth, as the head's depth channel has it
+    assert quiet.shape == (3, 6, 6) and not quiet[:, :3].any() and quiet[:, 3:].all()
+    for shift, calls_sky in ((50.0, True), (-50.0, False)):  # a head that calls everything sky, then nothing
+        params["no_return"]["conv2"]["b"] = bias + shift
+        model = Model(params, state, cfg)
+        x = real_photons.model_input(model, frames)
+        decided = np.asarray(jaxsr.super_resolve(model, x, form="model"))
+        kept = photon_regimes.returns_kept(model, x, np.arange(3), quiet)
+        assert kept.shape == decided.shape == (3, 24, 24)
+        if not calls_sky:
+            np.testing.assert_allclose(kept, decided, atol=1e-6)
+            continue
+        assert np.all(decided == 1.0)
+        assert np.all(kept[:, 12:] == 1.0)  # ambient alone: the head's no return stands
+        # the return's blocks: the depth under the head, frame by frame (as the head-less decision gives it)
+        never = jaxsr.nn.with_no_return_logit(model, 1e9)
+        np.testing.assert_allclose(kept[:, :12], np.asarray(jaxsr.super_resolve(never, x, form="model"))[:, :12],
+                                   atol=1e-6)
 
