@@ -172,8 +172,10 @@ PRECISIONS = ("default", "float32", "bfloat16")
 
 # What a network may read per LR pixel (`ModelConfig.inputs`): the centre-of-mass depth, always first (the dynamic
 # filters upsample it), then optionally the photons behind it (`jaxsr.sensor.peak_evidence`, log-encoded by
-# `jaxsr.nn.inputs`): "signal" (photons in the peak above the background) and "background" (ambient photons).
-MODEL_INPUTS = ("depth", "signal", "background")
+# `jaxsr.nn.inputs`): "signal" (photons in the peak above the background), "background" (ambient photons, the
+# median bin x K) and "ambient" (ambient photons from the mean of the bins outside the peak,
+# `jaxsr.sensor.ambient_photons`, which unlike the median does not read 0 at a few photons per pixel).
+MODEL_INPUTS = ("depth", "signal", "background", "ambient")
 # Bounds of `ModelConfig` far beyond the paper's network (TR 0-4, x4 or x8, widths up to 512), so that no
 # config (one read from a checkpoint above all) builds an absurd network: 3 + tr blocks of up to `width` channels.
 # The baselines' configs (`jaxsr.baselines.HistNetConfig`, `RBPNConfig`) are bounded by the same table: "width" bounds

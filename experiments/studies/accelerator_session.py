@@ -35,6 +35,13 @@ FINETUNES = {
                     "--epochs", "14", "--steps-per-epoch", "1000", "--decay-epochs", "6", "--lr", "1e-4"],
     "tr0-photons": ["--tr", "0", "--photons", "--paper-share", "0.3", "--init", "tr0-photons", "--batch-size", "16",
                     "--epochs", "14", "--steps-per-epoch", "2000", "--decay-epochs", "6", "--lr", "1e-4"],
+    # the photon models widened to the ambient channel, on SNR up to 100 (a real recording, tower, reads 45)
+    "tr4-ambient": ["--tr", "4", "--photons", "--ambient", "--paper-share", "0.3", "--snr-range", "0.05", "100",
+                    "--batch-size", "16", "--epochs", "30", "--steps-per-epoch", "500", "--decay-epochs", "8",
+                    "--lr", "1e-4", "--val-batches", "64"],
+    "tr0-ambient": ["--tr", "0", "--photons", "--ambient", "--paper-share", "0.3", "--snr-range", "0.05", "100",
+                    "--batch-size", "16", "--epochs", "30", "--steps-per-epoch", "1500", "--decay-epochs", "8",
+                    "--lr", "1e-4", "--val-batches", "64"],
 }
 
 

@@ -10,6 +10,7 @@ regime: 0.5-1000 signal photons per LR pixel, SNR 0.05-20, pulse widths 0.3-3 bi
 pixels, no-return regions with ground truth 1.0 (`jaxsr.training.regime_batches`). `--photons` widens the model
 first (`jaxsr.nn.with_photon_inputs`): it also reads the photons behind each depth (signal and background,
 `jaxsr.nn.network_inputs`) and marks no return with a head of its own, starting from the bundled function;
+`--ambient` widens a photon model once more, to read the ambient level from the mean of the bins outside the peak;
 `--paper-share` of the clips come from the paper's regime, so that it keeps its accuracy there. Validation draws from the
 same regime with fixed keys (model selection on the regime the model is for; the paper's fixed sequences at 14
 photons measure the cost there separately). Every run resumes where it stopped (a session's end, a kill):
@@ -65,6 +66,10 @@ def main(argv=None) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--photons", action="store_true",
                         help="read signal and background photons too and mark no return (default: depth only)")
+    parser.add_argument("--ambient", action="store_true",
+                        help="with --photons, read the ambient channel too (jaxsr.sensor.ambient_photons: the mean "
+                        "of the bins outside the peak, which tells the ambient level at a few photons); the run "
+                        "is runs/photons/tr<N>-ambient, started from the bundled tr<N>-photons unless --init")
     parser.add_argument("--paper-share", type=float, default=0.0,
                         help="share of clips from the paper's regime (PhotonRegime.paper_prob)")
     parser.add_argument("--signal-range", type=float, nargs=2, default=PhotonRegime().signal_range,
@@ -77,7 +82,9 @@ def main(argv=None) -> None:
     parser.add_argument("--checkpoint-minutes", type=float, default=5.0)
     parser.add_argument("--keep", action="store_true", help="copy the run's best weights to experiments/photon_weights")
     args = parser.parse_args(argv)
-    name = f"tr{args.tr}-photons" if args.photons else f"tr{args.tr}"
+    if args.ambient and not args.photons:
+        parser.error("--ambient widens a photon model: give --photons too")
+    name = f"tr{args.tr}-ambient" if args.ambient else f"tr{args.tr}-photons" if args.photons else f"tr{args.tr}"
     out = Path(args.out or f"runs/photons/{name}")
     if args.keep:
         model = jaxsr.load_model(out / "best.npz")
@@ -90,6 +97,8 @@ def main(argv=None) -> None:
     regime = PhotonRegime(signal_range=tuple(args.signal_range), snr_range=tuple(args.snr_range),
                           no_return_prob=args.no_return_prob, paper_prob=args.paper_share)
     model_cfg = jaxsr.ModelConfig(tr=args.tr, **(PHOTON_INPUTS if args.photons else {}))
+    if args.ambient:
+        model_cfg = dataclasses.replace(model_cfg, inputs=(*model_cfg.inputs, "ambient"))
     train_cfg = train_config(args.epochs, args.steps_per_epoch, args.lr, args.seed, batch_size=args.batch_size,
                              decay_epochs=args.decay_epochs, precision=args.precision)
     # validation on the whole wide regime (PhotonRegime(), paper_prob 0) whatever the draws above: a run that
@@ -101,7 +110,7 @@ def main(argv=None) -> None:
         resume=True, progress=not args.no_progress,
         callback=lambda r: print(f"{name} epoch {r['epoch']}: val PSNR {r['val_psnr']:.2f} dB, "
                                  f"{r['epoch_time_s']:.0f} s", flush=True),
-        init=args.init or f"tr{args.tr}", checkpoint_every_s=60 * args.checkpoint_minutes,
+        init=args.init or (f"tr{args.tr}-photons" if args.ambient else f"tr{args.tr}"), checkpoint_every_s=60 * args.checkpoint_minutes,
         card_extra={"regime": regime.to_dict(), "trained_with": "experiments/studies/photon_finetune.py"})
 
 

@@ -23,7 +23,7 @@ from jax.sharding import PartitionSpec as P
 
 import jaxsr
 from jaxsr import scenes
-from jaxsr.config import DEFAULT_MEAN_SIGNAL, PRESETS, ModelConfig, SensorConfig, TrainConfig
+from jaxsr.config import DEFAULT_MEAN_SIGNAL, MODEL_INPUTS, PRESETS, ModelConfig, SensorConfig, TrainConfig
 from jaxsr.inference.video import in_form, super_resolve, super_resolve_histograms
 from jaxsr.io.checkpoint import resolve_model_path
 from jaxsr.runtime import compiler_options
@@ -63,8 +63,8 @@ class Clip:
     snr: float
     intensity: np.ndarray | None = None  # the HR intensity (T, H, W) in [0, 1], HistNet's guide image
     scored: np.ndarray | None = None  # the frames a test scores (`scored_frames`); None: every frame
-    # the photons behind each LR depth, (T, h, w, 2) encoded signal and background (`jaxsr.nn.network_inputs`),
-    # for networks that read them; None when the clip was made without them
+    # the photons behind each LR depth, (T, h, w, C) encoded channels (`jaxsr.nn.network_inputs`) named by the
+    # first C of MODEL_INPUTS after "depth", for networks that read them; None when made without them
     photons: np.ndarray | None = None
 
     def network_input(self, inputs=("depth",)) -> np.ndarray:
@@ -74,7 +74,11 @@ class Clip:
             return self.lr
         if self.photons is None:
             raise ValueError(f"clip {self.name!r} was made without its photons; a model reading {inputs} needs them")
-        channel = {"depth": self.lr, "signal": self.photons[..., 0], "background": self.photons[..., 1]}
+        channel = {"depth": self.lr, **dict(zip(MODEL_INPUTS[1:], np.moveaxis(self.photons, -1, 0)))}
+        missing = [name for name in inputs if name not in channel]
+        if missing:
+            raise ValueError(f"clip {self.name!r} was made without the channels {missing}; a model reading {inputs} "
+                             "needs them")
         return np.stack([channel[name] for name in inputs], axis=-1)
 
     def at(self, frames) -> Clip:

@@ -128,19 +128,24 @@ def no_return_branch(conv1, cfg: ModelConfig) -> dict:
 
 def with_photon_inputs(key, model: Model, inputs=("depth", "signal", "background"), *,
                        no_return_head: bool = True) -> Model:
-    """A depth-only model widened to read `inputs` and (optionally) to mark no return, computing exactly what
-    `model` computes until training moves the new weights: the stem's kernels on the added channels are zero,
-    and the no-return branch (first convolution drawn from `key`) starts at "return everywhere".
+    """A model widened to read more `inputs` and (optionally) to mark no return, computing exactly what `model`
+    computes until training moves the new weights: the stem's kernels on the added channels are zero (those on
+    the channels `model` reads are its own, by name), and a new no-return branch (first convolution drawn from
+    `key`) starts at "return everywhere"; a head `model` has is kept. `inputs` must hold every input of `model`.
     Returns the widened `Model` (same form, widths and TR)."""
     cfg = model.config
-    if cfg.inputs != ("depth",) or cfg.no_return_head:
-        raise ValueError(f"with_photon_inputs: expects a depth-only model without a no-return head, got inputs "
-                         f"{cfg.inputs} and no_return_head {cfg.no_return_head}")
-    new_cfg = dataclasses.replace(cfg, inputs=tuple(inputs), no_return_head=no_return_head)
+    inputs = tuple(inputs)
+    if (not set(cfg.inputs) <= set(inputs) or (cfg.no_return_head and not no_return_head)
+            or (inputs == cfg.inputs and no_return_head == cfg.no_return_head)):
+        raise ValueError(f"with_photon_inputs: expects a model to widen: its inputs {cfg.inputs} within {inputs} "
+                         f"and its no-return head ({cfg.no_return_head}) kept, with something added")
+    new_cfg = dataclasses.replace(cfg, inputs=inputs, no_return_head=no_return_head)
     stem = model.params["stem"]
     w = jnp.zeros((*stem["w"].shape[:3], new_cfg.channels, stem["w"].shape[-1]), stem["w"].dtype)
-    params = {**model.params, "stem": {"w": w.at[..., :1, :].set(stem["w"]), "b": stem["b"]}}
-    if no_return_head:
+    for i, name in enumerate(cfg.inputs):
+        w = w.at[..., inputs.index(name), :].set(stem["w"][..., i, :])
+    params = {**model.params, "stem": {"w": w, "b": stem["b"]}}
+    if no_return_head and not cfg.no_return_head:
         fresh, _ = init_model(key, new_cfg)
         params["no_return"] = fresh["no_return"]
     return Model(params, model.state, new_cfg)

@@ -5,7 +5,9 @@
 above the background, and the ambient photons of the whole gate, each encoded as log(1 + photons) /
 log(1 + PHOTON_SCALE), so that 1 to 1000 photons span [0.1, 1] evenly in ratio and a network sees the same
 range at every light level. With them a network can tell "no return" (little signal against the background)
-from a surface in mid-gate, which the centre of mass alone cannot.
+from a surface in mid-gate, which the centre of mass alone cannot. "ambient" is the ambient photons again, from
+the mean of the bins outside the peak (`jaxsr.sensor.ambient_photons`): the median that "background" takes is 0
+in most pixels at a few photons whatever the ambient light, so only this channel tells SNR 1 from SNR 50 there.
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from ..config import MODEL_INPUTS, SensorConfig
-from ..sensor.peaks import centre_of_mass, peak_evidence
+from ..sensor.peaks import ambient_photons, centre_of_mass, peak_evidence
 
 __all__ = ["PHOTON_SCALE", "encode_photons", "network_inputs"]
 
@@ -38,4 +40,6 @@ def network_inputs(counts, sensor: SensorConfig = SensorConfig(), inputs=("depth
         return depth
     signal, background = peak_evidence(counts, sensor)
     channel = {"depth": depth, "signal": encode_photons(signal), "background": encode_photons(background)}
+    if "ambient" in inputs:
+        channel["ambient"] = encode_photons(ambient_photons(counts, sensor))
     return jnp.stack([channel[name] for name in inputs], axis=-1).astype(depth.dtype)

@@ -143,6 +143,30 @@ def peak_evidence(counts, sensor: SensorConfig = SensorConfig(), *, window=None)
     return jnp.where(usable, signal, 0.0), jnp.where(usable, background * sensor.bins, 0.0)
 
 
+def ambient_photons(counts, sensor: SensorConfig = SensorConfig(), *, window=None):
+    """The ambient (and dark) photons of the whole gate, estimated from the mean of the bins outside the peak's
+    window: photons outside x K / (bins outside).
+
+    Unlike `peak_evidence`'s background (the median bin x K), it does not read 0 when most bins are empty: at a
+    few photons per pixel the median is 0 whatever the ambient light (measured: 99.5 % of pixels at 3 signal
+    photons and SNR 1.3, every pixel at SNR 45), while the mean outside the window is an unbiased estimate of
+    the ambient level (the return lies inside the window but for a wide pulse's tails). A pixel's estimate is
+    noisy at low counts; over a neighbourhood and 2 TR + 1 frames it tells SNR 1 from SNR 50. Same rules for
+    counts as `centre_of_mass` (an unusable histogram, or a window that covers the gate, gives 0); finite for
+    counts up to float32's maximum.
+
+    Returns an array of shape counts.shape[:-1], float32 (or wider).
+    """
+    n, usable = _usable(_check_counts("ambient_photons", counts, sensor))
+    k = jnp.arange(sensor.bins)
+    in_window = jnp.abs(k - jnp.argmax(n, axis=-1)[..., None]) <= _window(sensor, window)
+    outside = jnp.sum(~in_window, axis=-1)
+    # the mean of the bins outside (<= the largest count, so finite), then x K within float range
+    mean = jnp.sum(jnp.where(in_window, 0.0, n / jnp.maximum(outside, 1)[..., None]), axis=-1)
+    photons = jnp.minimum(mean, jnp.finfo(mean.dtype).max / sensor.bins) * sensor.bins
+    return jnp.where(usable & (outside > 0), photons, 0.0)
+
+
 # `return_significance` takes the binomial tail from the incomplete beta function up to this many photons per
 # histogram; above, float32's betainc is too coarse (ambient alone at 3e5 photons per bin read as a return in 7 %
 # of pixels at a = 0.001), and the Chernoff bound takes over: looser, so the test only grows more careful.

@@ -195,15 +195,16 @@ def initial_weights(k_init, model_cfg: ModelConfig, init) -> tuple[dict, dict]:
     """(params, state) to start from: drawn with `k_init`, or those of `init` (a `Model` or a checkpoint
     path), which must have `model_cfg`'s architecture (its temporal form may differ: fine-tuning a windowed
     model into the sequence form) or that of a smaller TR (a warm start: `grow_tr` to `model_cfg.tr`, the
-    added blocks drawn with `k_init`); a depth-only `init` is widened to `model_cfg`'s photon inputs and
-    no-return head (`with_photon_inputs`). Its no-return decision threshold (`ModelConfig.no_return_logit`, not
-    part of the architecture) may differ too: the run's is `model_cfg`'s."""
+    added blocks drawn with `k_init`); an `init` that reads fewer inputs (or has no no-return head) is widened
+    to `model_cfg`'s inputs and head (`with_photon_inputs`). Its no-return decision threshold
+    (`ModelConfig.no_return_logit`, not part of the architecture) may differ too: the run's is `model_cfg`'s."""
     if init is None:
         return init_model(k_init, model_cfg)
     model = init if isinstance(init, Model) else load_model(init)
-    if model.config.inputs == ("depth",) and not model.config.no_return_head and (
-            model_cfg.inputs != ("depth",) or model_cfg.no_return_head):
-        # the photon inputs and the no-return head start from a depth-only model's function
+    if set(model.config.inputs) <= set(model_cfg.inputs) and (
+            model.config.inputs != model_cfg.inputs
+            or model_cfg.no_return_head and not model.config.no_return_head):
+        # the added inputs and the no-return head start from the trained model's function
         model = with_photon_inputs(k_init, model, model_cfg.inputs, no_return_head=model_cfg.no_return_head)
     if model.config.tr < model_cfg.tr:
         model = grow_tr(k_init, model, model_cfg.tr)

@@ -14,7 +14,7 @@ from jaxsr.inference import Stream, super_resolve, super_resolve_histograms
 from jaxsr.io.checkpoint import load_model, save_model
 from jaxsr.nn import (Model, apply_model, apply_model_train, encode_photons, flops_per_frame, init_model,
                       merge_no_return, network_inputs, with_photon_inputs)
-from jaxsr.sensor import centre_of_mass, peak_evidence
+from jaxsr.sensor import ambient_photons, centre_of_mass, peak_evidence
 from jaxsr.temporal import windows as temporal_windows
 from jaxsr.training import regime_batches, regime_parameters
 from jaxsr.training.duf import initial_weights, model_loss
@@ -22,6 +22,7 @@ from jaxsr.training.duf import initial_weights, model_loss
 SENSOR = SensorConfig()
 TINY = dict(base=8, growth=4, head=16, filter_hidden=16)
 PHOTONS = ("depth", "signal", "background")
+AMBIENT = (*PHOTONS, "ambient")
 
 
 def _histogram(signal_bin=None, signal=0.0, background=0.0):
@@ -52,6 +53,36 @@ def test_peak_evidence_tells_ambient_light_from_a_mid_gate_surface():
     assert float(jnp.quantile(s_amb, 0.99)) < float(jnp.quantile(s_sur, 0.01))
 
 
+def test_ambient_photons_from_the_bins_outside_the_peak():
+    flat = _histogram(None, 0.0, 16.0)
+    sparse = np.zeros(16, np.float32)
+    sparse[[1, 13]], sparse[8] = 1.0, 3.0  # 3 signal photons, 2 ambient ones: the median bin is 0
+    counts = np.stack([_histogram(5, 30.0, 16.0), flat, sparse, np.zeros(16, np.float32)])
+    # the window is the peak +- 1 bin at the default pulse: 13 bins outside
+    np.testing.assert_allclose(ambient_photons(counts, SENSOR), [16.0, 16.0, 2.0 * 16 / 13, 0.0], rtol=1e-5)
+    assert float(peak_evidence(sparse, SENSOR)[1]) == 0.0  # what the median-based background reads there
+    np.testing.assert_allclose(ambient_photons(counts[:1], SENSOR, window=0), [16.0], rtol=1e-5)
+    assert float(ambient_photons(flat, SENSOR, window=16)) == 0.0  # the window covers the gate: no estimate
+    huge = np.asarray(ambient_photons(np.full((1, 16), 3e38, np.float32), SENSOR))
+    assert np.all(np.isfinite(huge)) and huge[0] > 1e38
+    with pytest.raises(ValueError, match="ambient_photons"):
+        ambient_photons(-counts[:1], SENSOR)
+
+
+@pytest.mark.parametrize("ambient_per_bin", [0.05, 0.5, 5.0])
+def test_ambient_photons_is_unbiased_where_the_median_reads_nothing(ambient_per_bin):
+    """At 3 signal photons the median-based background is 0 in most pixels at low ambient light; the mean outside
+    the peak estimates the ambient photons without bias at every level, so the levels stay apart."""
+    key = jax.random.key(3)
+    n = jax.random.poisson(key, ambient_per_bin, (20000, 16)).astype(jnp.float32)
+    n = n.at[:, 9].add(jax.random.poisson(jax.random.fold_in(key, 1), 3.0, (20000,)))
+    estimate = np.asarray(ambient_photons(n, SENSOR))
+    # the argmax sits on the ambient photons' own maximum now and then, which biases the estimate low by a little
+    assert abs(estimate.mean() / (16 * ambient_per_bin) - 1) < 0.1
+    if ambient_per_bin < 1:
+        assert float(jnp.mean(peak_evidence(n, SENSOR)[1] == 0)) > 0.5  # 100 % at 0.05, 64 % at 0.5
+
+
 def test_encoding_and_inputs():
     assert float(encode_photons(0.0)) == 0.0 and abs(float(encode_photons(1000.0)) - 1.0) < 1e-6
     assert np.all(np.isfinite(np.asarray(encode_photons(jnp.asarray([0.0, 1e30, 3e38])))))
@@ -62,6 +93,9 @@ def test_encoding_and_inputs():
     np.testing.assert_allclose(x[0, 1:], encode_photons(jnp.asarray([30.0, 16.0])), rtol=1e-5)
     np.testing.assert_array_equal(network_inputs(counts, SENSOR), centre_of_mass(counts, SENSOR))
     np.testing.assert_allclose(network_inputs(counts, SENSOR, ("depth", "background"))[0, 1], x[0, 2])
+    xa = network_inputs(counts, SENSOR, AMBIENT)
+    np.testing.assert_array_equal(xa[..., :3], x)
+    np.testing.assert_allclose(xa[:, 3], encode_photons(ambient_photons(counts, SENSOR)))
     for bad in ((), ("signal",), ("depth", "colour")):
         with pytest.raises(ValueError, match="inputs"):
             network_inputs(counts, SENSOR, bad)
@@ -69,7 +103,7 @@ def test_encoding_and_inputs():
 
 def test_inputs_have_finite_gradients_at_zero_and_huge_counts():
     counts = jnp.asarray(np.stack([np.zeros(16, np.float32), _histogram(3, 3e30, 1e30)]))
-    grad = jax.grad(lambda c: jnp.sum(network_inputs(c, SENSOR, PHOTONS)))(counts)
+    grad = jax.grad(lambda c: jnp.sum(network_inputs(c, SENSOR, AMBIENT)))(counts)
     assert np.all(np.isfinite(np.asarray(grad)))
 
 
@@ -104,8 +138,12 @@ def test_widened_model_computes_the_depth_only_function():
     win = temporal_windows(x, 1)
     np.testing.assert_array_equal(apply_model(wide.params, wide.state, win, wide.config),
                                   apply_model(model.params, model.state, win[..., 0], model.config))
-    with pytest.raises(ValueError, match="depth-only"):
+    with pytest.raises(ValueError, match="widen"):  # nothing to add
         with_photon_inputs(jax.random.key(5), wide)
+    with pytest.raises(ValueError, match="widen"):  # an input dropped
+        with_photon_inputs(jax.random.key(5), wide, ("depth", "ambient"))
+    with pytest.raises(ValueError, match="widen"):  # the head dropped
+        with_photon_inputs(jax.random.key(5), wide, AMBIENT, no_return_head=False)
     with pytest.raises(ValueError, match="inputs"):  # depth alone to a photon network
         apply_model(wide.params, wide.state, win[..., 0], wide.config)
     assert flops_per_frame(wide.config) > flops_per_frame(model.config)
@@ -172,6 +210,26 @@ def test_initial_weights_widen_a_depth_only_init():
     params, state = initial_weights(jax.random.key(0), cfg, model)
     assert params["stem"]["w"].shape[-2] == 3 and "no_return" in params
     np.testing.assert_array_equal(params["stem"]["w"][..., 1:, :], 0.0)
+
+
+def test_a_photon_model_widened_to_the_ambient_channel_computes_its_function():
+    """The ambient model starts from a trained photon model: its head kept, the new channel's kernels zero, the
+    others carried by name (also when the order of the inputs differs)."""
+    photon = with_photon_inputs(jax.random.key(1), _tiny_depth_model())
+    photon = Model({**photon.params, "stem": {**photon.params["stem"],
+                                              "w": photon.params["stem"]["w"] + 0.01}}, photon.state, photon.config)
+    counts, x = _photon_frames()
+    xa = np.asarray(network_inputs(counts, SENSOR, AMBIENT))
+    for order in (AMBIENT, ("depth", "ambient", "signal", "background")):
+        cfg = dataclasses.replace(photon.config, inputs=order)
+        params, state = initial_weights(jax.random.key(0), cfg, photon)
+        jax.tree_util.tree_map(np.testing.assert_array_equal, params["no_return"], photon.params["no_return"])
+        win = temporal_windows(xa[..., [AMBIENT.index(name) for name in order]], 1)
+        np.testing.assert_allclose(apply_model(params, state, win, cfg),
+                                   apply_model(photon.params, photon.state, temporal_windows(x, 1), photon.config),
+                                   rtol=1e-6, atol=1e-6)
+    with pytest.raises(ValueError, match="architecture"):  # a channel dropped is not a widening
+        initial_weights(jax.random.key(0), dataclasses.replace(photon.config, inputs=("depth", "signal")), photon)
 
 
 @pytest.mark.slow  # compiles the regime's rendering and sensor (about 2 min on 2 busy cores)
