@@ -85,7 +85,8 @@ def add_parser(subparsers):
                    f"faster, on {SEQUENCE_FORM_MIN_FRAMES} frames or more; other models in their own form), model (as "
                    "the checkpoint says), window, or sequence")
     p.add_argument("--no-return-logit", type=finite_float, default=None, metavar="LOGIT",
-                   help="models with a no-return head (tr0-photons, tr4-photons): output no return where the head's "
+                   help="models with a no-return head (tr0-photons, tr4-photons, tr0-ambient, tr4-ambient): output "
+                   "no return where the head's "
                    "logit is above LOGIT (default the model's, 0 = probability 0.5); higher drops fewer true returns "
                    "and leaves more sky as depth (docs/network.md, photon inputs and no return)")
     p.add_argument("--ambient-alpha", type=ambient_alpha, default="auto", metavar="{auto,off,ALPHA}",
@@ -97,6 +98,11 @@ def add_parser(subparsers):
                    f"signal photons per pixel and frame times that SNR {AUTO_AMBIENT_MIN_SIGNAL_SNR:g} or more, "
                    f"else off, and off for --clip-negative counts, models with a no-return head and recordings of "
                    f"fewer than {AUTO_AMBIENT_MIN_FRAMES} frames (docs/network.md); off: never")
+    p.add_argument("--keep-returns", type=finite_float, default=None, metavar="ALPHA",
+                   help="histograms and time tags, models with a no-return head: output no return only where the "
+                   "head says so and the pixel's own photons over 9 frames pass for ambient light alone at "
+                   "false-alarm rate ALPHA, such as 0.001; elsewhere the network's depth. For dark scenes whose "
+                   "dim surfaces a head calls sky; it shows some sky as depth at the regions' edges (docs/network.md)")
     p.add_argument("--max-memory", type=memory, default=None, metavar="SIZE",
                    help=f"the memory the command may take, such as 16GB (default {MEMORY_SHARE * 100:.0f}%% of this "
                    "machine's RAM): the input's arrays and the work are estimated before they allocate, and refused beyond it")
@@ -135,6 +141,7 @@ def run(args) -> int:
                      overwrite=args.force, progress=not args.no_progress, clip_negative=args.clip_negative,
                      max_memory=args.max_memory, precision=args.precision, form=args.form,
                      no_return_logit=args.no_return_logit, ambient_alpha=args.ambient_alpha,
+                     keep_returns=args.keep_returns,
                      report=lambda line: print(f"jaxsr upscale: {line}", file=sys.stderr, flush=True))
     print(json.dumps(result.summary()))
     return 0

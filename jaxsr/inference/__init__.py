@@ -21,6 +21,8 @@ from .video import (
     iter_network_inputs,
     iter_ambient_only,
     no_return_where,
+    overrule_no_return,
+    lr_blocks,
     super_resolve_histograms,
     Stream,
 )
@@ -78,6 +80,8 @@ __all__ = [
     "iter_network_inputs",
     "iter_ambient_only",
     "no_return_where",
+    "overrule_no_return",
+    "lr_blocks",
     "AUTO_AMBIENT_ALPHA",
     "AUTO_AMBIENT_MIN_SNR",
     "AUTO_AMBIENT_MIN_SIGNAL_SNR",

@@ -60,7 +60,7 @@ from ..sensor.quantities import parse_span, parse_time_unit, range_metres
 from ..sensor.timetags import TIME_TAG_FORMATS, TimeTags, gate_of_tags, read_time_tags, time_tag_warnings
 from .adaptive import resolve_model
 from .video import (DEFAULT_FORM, DEFAULT_PRECISION, DEFAULT_TILE, FORMS, _default_batch_size, check_precision,
-                    iter_ambient_only, no_return_where,
+                    iter_ambient_only, no_return_where, overrule_no_return,
                     in_form, iter_network_inputs, iter_super_resolve)
 
 __all__ = ["HEAD_FRAMES", "DEFAULT_MODELS", "AUTO_AMBIENT_ALPHA", "AUTO_AMBIENT_MIN_SNR",
@@ -118,7 +118,9 @@ class UpscaleJob:
     temporal form it runs in (`form` of `prepare_upscale`: `model.config.temporal`). ambient_alpha: the
     false-alarm rate `prepare_upscale`'s `ambient_alpha` set or picked (None: no test); with one, the output is
     also no return where `jaxsr.inference.iter_ambient_only` flags a pixel. label: the model's name for pictures
-    (previews, videos: `model_name` without the ambient test's note, which would not fit a panel)."""
+    (previews, videos: `model_name` without the ambient test's note, which would not fit a panel). keep_alpha:
+    the false-alarm rate of `prepare_upscale`'s `keep_returns` (None: the model's own decision); with one, the
+    output is no return only where the model's head says so and the pixel's photons agree (`overrule_no_return`)."""
 
     recording: Recording
     model: object
@@ -136,6 +138,11 @@ class UpscaleJob:
                                                                                    compare=False)
     ambient_alpha: float | None = None
     label: str = ""
+    # with keep_alpha: a fresh stream of (h, w) bool per frame, True where a pixel's own photons over 9 frames
+    # pass for ambient light alone (the only pixels where the model's no return is kept)
+    _keep_stream: Callable[[], Iterator[np.ndarray]] | None = dataclasses.field(default=None, repr=False,
+                                                                                compare=False)
+    keep_alpha: float | None = None
 
     @property
     def frames(self) -> int:
@@ -182,6 +189,10 @@ class UpscaleJob:
         """The network's output, streamed: (H, W) float32 HR normalised depth (unclipped), one per frame.
         lr_frames: the LR stream to run (default `lr_frames()`)."""
         lr = self.lr_frames() if lr_frames is None else lr_frames
+        if self._keep_stream is not None:
+            raw = iter_super_resolve(self.model, lr, batch_size=batch_size, precision=self.precision, raw=True)
+            threshold = self.model.config.no_return_logit
+            return (overrule_no_return(hr, quiet, threshold) for hr, quiet in zip(raw, self._keep_stream(), strict=True))
         out = iter_super_resolve(self.model, lr, batch_size=batch_size, precision=self.precision)
         if self._ambient_stream is None:
             return out
@@ -207,7 +218,8 @@ class UpscaleResult:
     video written, or None; points: the folder of PLY point clouds, or None; negative_counts: with
     `clip_negative`, (negative counts clipped at 0, pixels holding one), else None; input_units: the input's
     units (`UpscaleJob.units`), where they differ from `units`; ambient_alpha: the ambient-only test's
-    false-alarm rate (`UpscaleJob.ambient_alpha`, None: no test)."""
+    false-alarm rate (`UpscaleJob.ambient_alpha`, None: no test); keep_returns: `upscale`'s keep_returns rate
+    (`UpscaleJob.keep_alpha`; in the summary only when set)."""
 
     output: Path | None
     depth: np.ndarray | None
@@ -226,6 +238,7 @@ class UpscaleResult:
     negative_counts: tuple[int, int] | None = None
     input_units: str | None = None
     ambient_alpha: float | None = None
+    keep_returns: float | None = None
 
     def summary(self) -> dict:
         """The JSON summary `jaxsr upscale` prints: frames, output, shape, units (of the output; input_units too
@@ -248,6 +261,8 @@ class UpscaleResult:
             out["negative_counts_clipped"] = dict(zip(("counts", "pixels"), self.negative_counts))
         if self.kind == "histograms":
             out["ambient_alpha"] = self.ambient_alpha
+        if self.keep_returns is not None:
+            out["keep_returns"] = self.keep_returns
         return out
 
 
@@ -380,7 +395,8 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
                     gate_start=None, span=None, time_unit=None, variable: str | None = None,
                     drop_outside: bool = False, units: str | None = None, min_fps: float | None = None,
                     clip_negative: bool = False, max_memory=None, precision: str = DEFAULT_PRECISION,
-                    form: str = DEFAULT_FORM, no_return_logit=None, ambient_alpha=AUTO) -> UpscaleJob:
+                    form: str = DEFAULT_FORM, no_return_logit=None, ambient_alpha=AUTO,
+                    keep_returns=None) -> UpscaleJob:
     """Open and check a recording and choose its model, as `jaxsr upscale` does before any output is written.
 
     input: a path (.npy / .npz array of depth (T, h, w) or photon counts (T, h, w, bins); a folder or glob pattern
@@ -398,6 +414,7 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
     _check_precision_form(fixed, precision, form)
     _check_no_return_logit(fixed, name, no_return_logit)
     _check_ambient_setting(ambient_alpha)  # before the input is read
+    _check_keep_returns(keep_returns, ambient_alpha)
     span = _span(span)
     time_unit = _positive(time_unit, "time_unit", parse_time_unit, "seconds")
     rec, gate, source, tag_notes = _open(input, kind, bins=bins, bin_width=bin_width, gate_start=gate_start,
@@ -446,10 +463,16 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
 
         def ambient_stream():
             return iter_ambient_only(counts, SensorConfig(bins=gate.bins), alpha=ambient_alpha, frames=AMBIENT_FRAMES)
+
+        def keep_stream():  # each pixel's own photons (pixels=1): a return in the block keeps the block's depth
+            return iter_ambient_only(counts, SensorConfig(bins=gate.bins), alpha=keep_returns, pixels=1,
+                                     frames=AMBIENT_FRAMES)
     else:
-        if not _is_auto(ambient_alpha) and ambient_alpha is not None:
-            raise ValueError("ambient_alpha (--ambient-alpha) tests the photons behind each pixel: give photon "
-                             "histograms or time tags, not depth frames")
+        for what, setting in (("ambient_alpha (--ambient-alpha)", ambient_alpha),
+                              ("keep_returns (--keep-returns)", keep_returns)):
+            if not _is_auto(setting) and setting is not None:
+                raise ValueError(f"{what} tests the photons behind each pixel: give photon histograms or time "
+                                 "tags, not depth frames")
         scale = DepthScale(0.0, float(sensor.d_max))
         units = guess_units(rec) if units is None else units
         check_frames(rec, units, gate)
@@ -461,6 +484,9 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
     enable_compilation_cache()
     if fixed is None:
         fixed, name = resolve_model("auto", _head(lr_stream(), HEAD_FRAMES), min_fps=min_fps)
+    if keep_returns is not None and not getattr(getattr(fixed, "config", None), "no_return_head", False):
+        raise ValueError(f"keep_returns (--keep-returns) overrules a no-return head's decision; model {name} has no "
+                         "head: give one that has (tr4-ambient, tr0-ambient, tr4-photons, tr0-photons)")
     if no_return_logit is not None:
         fixed = with_no_return_logit(fixed, no_return_logit)
         name = f"{name} at no-return logit {float(no_return_logit):g}"
@@ -471,8 +497,12 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
         name = f"{name}, no return where ambient alone (alpha {float(ambient_alpha):g}{ambient_why})"
     elif ambient_why:
         name = f"{name}{ambient_why}"
+    if keep_returns is not None:
+        name = (f"{name}, its no return kept only where the pixel's photons over {AMBIENT_FRAMES} frames pass for "
+                f"ambient alone (alpha {float(keep_returns):g})")
     return UpscaleJob(rec, fixed, name, units, gate, scale, warnings, source, lr_stream, negatives, precision,
-                      ambient_stream if ambient_alpha is not None else None, ambient_alpha, label)
+                      ambient_stream if ambient_alpha is not None else None, ambient_alpha, label,
+                      keep_stream if keep_returns is not None else None, keep_returns)
 
 
 def _trained_snr_range(spec) -> tuple[float, float]:
@@ -533,6 +563,17 @@ def auto_ambient_alpha(snr: float, signal: float = float("nan"), *, min_snr: flo
 
 def _is_auto(setting) -> bool:
     return isinstance(setting, str) and setting == AUTO
+
+
+def _check_keep_returns(setting, ambient_alpha) -> None:
+    """Refuse a `keep_returns` that is not None or a false-alarm rate, or one given with an `ambient_alpha` rate:
+    one adds no return where the photons show none, the other keeps returns the photons show; one decision."""
+    if setting is None:
+        return
+    check_false_alarm_rate("keep_returns (--keep-returns)", setting)
+    if ambient_alpha is not None and not _is_auto(ambient_alpha):
+        raise ValueError("keep_returns (--keep-returns) and ambient_alpha (--ambient-alpha) are two decisions on no "
+                         "return: give one (--ambient-alpha off with --keep-returns)")
 
 
 def _check_ambient_setting(setting) -> None:
@@ -798,7 +839,7 @@ def write_upscaled(job: UpscaleJob, output, *, frame_format: str | None = None, 
     units = "m" if out is not None and out.suffix.lower() not in ARRAY_FORMATS else job.units
     return UpscaleResult(out, depth, job.frames, shape, rec.kind, units, job.model_name, job.gate, scale, preview,
                          warnings, notes, video, points, job.negative_counts, None if units == job.units else job.units,
-                         job.ambient_alpha)
+                         job.ambient_alpha, job.keep_alpha)
 
 
 def _frame_format(frame_format: str | None, out: Path | None, job: UpscaleJob) -> str | None:
@@ -857,14 +898,16 @@ def upscale_memory(job: UpscaleJob, *, batch_size: int, in_memory: bool, looks: 
         need += rec.array.nbytes
     if rec.kind == "histograms":
         need += HISTOGRAM_COPIES * HISTOGRAM_CHUNK * 4.0 * h * w * int(rec.shape[-1])
-    if job._ambient_stream is not None:  # the frames held, their stack and the padded sums of `ambient_only`
+    if job._ambient_stream is not None or job._keep_stream is not None:
+        # the frames held, their stack and the padded sums of `ambient_only`
         need += 3 * AMBIENT_FRAMES * 4.0 * h * w * int(rec.shape[-1])
     channels = len(getattr(model.config, "inputs", ("depth",)))
     radius = model.architecture.input_radius(model.config)
     tile = min(h, DEFAULT_TILE) * min(w, DEFAULT_TILE)
     need += (batch_size * tile * _network_bytes_per_pixel(model, batch_size)
              + 3 * (batch_size + 2 * radius) * 4.0 * h * w * channels)
-    need += (2 * batch_size + 1) * hr + (job.frames * hr if in_memory else 0) + (6 * hr if looks else 0)
+    need += (2 * batch_size + 1) * hr * (2 if job._keep_stream is not None else 1)  # raw: depth and logit
+    need += (job.frames * hr if in_memory else 0) + (6 * hr if looks else 0)
     return need
 
 
@@ -911,7 +954,8 @@ def upscale(input, output, *, model="default", kind: str | None = None, bins: in
             points=None, fov_deg: float = DEFAULT_FOV_DEG, points_colour: str | None = "depth",
             overwrite: bool = False, progress: bool = False, clip_negative: bool = False, max_memory=None,
             report: Callable[[str], None] | None = None, precision: str = DEFAULT_PRECISION,
-            form: str = DEFAULT_FORM, no_return_logit=None, ambient_alpha=AUTO) -> UpscaleResult:
+            form: str = DEFAULT_FORM, no_return_logit=None, ambient_alpha=AUTO,
+            keep_returns=None) -> UpscaleResult:
     """Super-resolve a recording x4 with a trained model and write it: `jaxsr upscale INPUT OUTPUT` in one call.
 
     input: a path (.npy / .npz array of depth (T, h, w) or photon counts (T, h, w, bins); a folder or glob
@@ -962,6 +1006,11 @@ def upscale(input, output, *, model="default", kind: str | None = None, bins: in
       fewer than `AUTO_AMBIENT_MIN_FRAMES` frames; the model's name in `notes` says which and why, and
       `UpscaleJob.ambient_alpha` / the summary's "ambient_alpha" the rate. None: off. Depth input: "auto" is off,
       a rate is refused.
+    - keep_returns (--keep-returns, histograms and time tags, a model with a no-return head): a false-alarm rate
+      such as 0.001; output no return only where the model's head says so AND the pixel's own photons over 9
+      frames pass for ambient light alone at it (`jaxsr.inference.overrule_no_return`), elsewhere the network's depth:
+      for dark scenes whose dim surfaces a head calls sky. It gives up some sky at the edges of sky regions.
+      None (default): the head decides alone. Not with an `ambient_alpha` rate.
     - batch_size (--batch-size): frames per compiled call (output frames per chunk in the sequence form);
       min_fps (--min-fps, model="auto" only): the slowest acceptable frames/s; preview (--preview): an input |
       output PNG strip of the middle frame; overwrite (--force): replace output, preview and video; progress
@@ -1001,7 +1050,7 @@ def upscale(input, output, *, model="default", kind: str | None = None, bins: in
                           span=span, time_unit=time_unit, variable=variable, drop_outside=drop_outside,
                           units=units, min_fps=min_fps, clip_negative=clip_negative, max_memory=max_memory,
                           precision=precision, form=form, no_return_logit=no_return_logit,
-                          ambient_alpha=ambient_alpha)
+                          ambient_alpha=ambient_alpha, keep_returns=keep_returns)
     # before the lines below, which say the work starts (write_upscaled checks again, for its own callers)
     _frame_format(frame_format, out, job)
     _check_memory(job, out, _batch_size(job, batch_size), video is not None or points is not None, max_memory)

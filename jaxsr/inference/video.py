@@ -31,7 +31,7 @@ from jax.sharding import PartitionSpec as P
 
 from ..checks import require_normalised_depth
 from ..config import MIN_LR_SIDE, PRECISIONS, SensorConfig
-from ..nn.duf import apply_model, apply_model_sequence, check_conv, sequence_radius
+from ..nn.duf import apply_model, apply_model_raw, apply_model_sequence, check_conv, sequence_radius
 from ..nn.model import Model
 from ..nn.inputs import network_inputs
 from ..runtime import compiler_options
@@ -85,13 +85,16 @@ def _batch_sharding(batch_size: int) -> NamedSharding | None:
     return NamedSharding(Mesh(np.asarray(devices), ("batch",)), P("batch"))
 
 
-def _windows_through_model(model: Model, chunk, sharding=None, conv3d_impl="auto", precision="default"):
+def _windows_through_model(model: Model, chunk, sharding=None, conv3d_impl="auto", precision="default", raw=False):
     """chunk (B + 2 R, h, w) -> (B, h r, w r), R = `input_radius`. Window form: the centre frame of each of the
     B windows of 2 tr + 1 frames, the windows split over `sharding`'s devices (the model and chunk are
     replicated). Sequence form: the B outputs of the chunk, "valid" (`apply_model_sequence`). precision: passed
-    to the network only when it is not "default" (the baselines take none)."""
+    to the network only when it is not "default" (the baselines take none). raw (a DUF model with a no-return
+    head): (B, h r, w r, 2) [depth, logit] before the decision (`apply_model_raw`)."""
     arch = model.architecture
     extra = {} if precision == "default" else {"precision": precision}
+    if raw:
+        extra["raw"] = True
     if arch.sequence_form(model.config):
         return apply_model_sequence(model.params, model.state, chunk[None], model.config, padding="valid",
                                     conv3d_impl=conv3d_impl, **extra)[0]
@@ -100,13 +103,16 @@ def _windows_through_model(model: Model, chunk, sharding=None, conv3d_impl="auto
     windows = chunk[jnp.arange(b)[:, None] + jnp.arange(n)[None, :]]
     if sharding is not None:
         windows = jax.lax.with_sharding_constraint(windows, sharding)
-    return arch.apply(model.params, model.state, windows, model.config, conv3d_impl=conv3d_impl, **extra)
+    apply = arch.apply
+    if extra.pop("raw", False):
+        apply = apply_model_raw
+    return apply(model.params, model.state, windows, model.config, conv3d_impl=conv3d_impl, **extra)
 
 
 @functools.cache
 def _infer_chunk():
     """`_windows_through_model`, jitted once the backend (and so its `compiler_options`) is known."""
-    return jax.jit(_windows_through_model, static_argnames=("sharding", "conv3d_impl", "precision"),
+    return jax.jit(_windows_through_model, static_argnames=("sharding", "conv3d_impl", "precision", "raw"),
                    compiler_options=compiler_options())
 
 
@@ -210,7 +216,7 @@ def tile_spans(n: int, radius: int, max_side: int | None) -> tuple[int, list[tup
 
 def iter_super_resolve(model: Model, frames: Iterable, *, batch_size: int | None = None,
                        conv3d_impl: str = "auto", tile: int | None = DEFAULT_TILE, precision: str = DEFAULT_PRECISION,
-                       form: str = "model") -> Iterator[np.ndarray]:
+                       form: str = "model", raw: bool = False) -> Iterator[np.ndarray]:
     """Super-resolve a stream of LR frames, yielding HR frames in order, in bounded memory.
 
     frames: an iterable of (h, w) LR normalised depth frames (0..1, 1 or NaN = no return), e.g. a generator reading
@@ -229,12 +235,17 @@ def iter_super_resolve(model: Model, frames: Iterable, *, batch_size: int | None
     (README "Frame size"). precision: how the network's convolutions multiply (`jaxsr.config.PRECISIONS`,
     default `DEFAULT_PRECISION`; "bfloat16": bfloat16 operands, float32 sums; only "default" for the baselines).
     form: the temporal form the model runs in (`FORMS`, `in_form`; default "model": as its config says).
+    raw: for a model with a no-return head, yield (h r, w r, 2) [depth, no-return logit] before the decision
+    (`jaxsr.nn.apply_model_raw`), for a decision of one's own (`overrule_no_return`).
     Yields (h r, w r) float32 NumPy arrays of HR normalised depth (unclipped network output). NaN is read as
     no return (1.0) and values within 1e-6 of [0, 1] are clipped to it; raises ValueError for a frame of
     another shape than the first or smaller than `MIN_LR_SIDE`, or with values further outside [0, 1] (metres,
     negated, inf: the message names the range seen; `jaxsr.normalise_depth` converts metres).
     """
     _require_model(model, "super_resolve")
+    if raw and not getattr(model.config, "no_return_head", False):
+        raise ValueError("super_resolve: raw gives the depth and the no-return logit of a model with a no-return "
+                         "head (such as tr4-ambient); this one has none")
     precision = check_precision(model, precision)
     model = in_form(model, form, frames=len(frames) if hasattr(frames, "__len__") else None)
     arch = model.architecture
@@ -281,8 +292,8 @@ def iter_super_resolve(model: Model, frames: Iterable, *, batch_size: int | None
             for x0, xlo, xhi in cols:
                 part = chunk[:, y0 : y0 + th, x0 : x0 + tw]
                 part = jnp.asarray(part) if sharding is None else jax.device_put(part, replicated)
-                tiles.append((_infer_chunk()(model, part, sharding, conv3d_impl, precision), y0, ylo, yhi, x0, xlo,
-                              xhi))
+                tiles.append((_infer_chunk()(model, part, sharding, conv3d_impl, precision, raw), y0, ylo, yhi, x0,
+                              xlo, xhi))
         return tiles, count
 
     def drain(result):
@@ -291,7 +302,7 @@ def iter_super_resolve(model: Model, frames: Iterable, *, batch_size: int | None
             yield from np.asarray(tiles[0][0])[:count]
             return
         r = arch.scale(model.config)
-        out = np.empty((count, shape[0] * r, shape[1] * r), np.float32)
+        out = np.empty((count, shape[0] * r, shape[1] * r, *tiles[0][0].shape[3:]), np.float32)
         for hr, y0, ylo, yhi, x0, xlo, xhi in tiles:
             out[:, ylo * r : yhi * r, xlo * r : xhi * r] = np.asarray(hr)[:count, (ylo - y0) * r : (yhi - y0) * r,
                                                                           (xlo - x0) * r : (xhi - x0) * r]
@@ -507,10 +518,29 @@ def no_return_where(hr, flags):
     centres and mark the HR pixels where they reach one half, so that an edge falls inside its block."""
     r = np.shape(hr)[-1] // np.shape(flags)[-1]
     if not np.issubdtype(np.asarray(flags).dtype, np.floating):  # bool (or 0/1 integer) flags: blocks
-        marked = np.repeat(np.repeat(np.asarray(flags, bool), r, axis=-2), r, axis=-1)
+        marked = lr_blocks(flags, r)
     else:
         marked = np.asarray(_shares_at_hr(jnp.asarray(flags, jnp.float32), r)) >= 0.5
     return np.where(marked, np.float32(1.0), hr)
+
+
+def lr_blocks(flags, scale: int) -> np.ndarray:
+    """LR pixel flags (..., h, w) painted onto their scale x scale HR pixels: (..., h scale, w scale) bool."""
+    return np.repeat(np.repeat(np.asarray(flags, bool), scale, axis=-2), scale, axis=-1)
+
+
+def overrule_no_return(raw, quiet, threshold: float) -> np.ndarray:
+    """A no-return head's decision, kept only where the photons agree: HR (..., H, W) normalised depth from `raw`
+    (..., H, W, 2) [depth, logit] (`iter_super_resolve(raw=True)`), 1.0 (no return) where the logit is above
+    `threshold` AND the pixel's LR block is `quiet` (..., h, w) bool: its own photons pass for ambient light
+    alone (`jaxsr.sensor.ambient_only` with pixels=1 over 9 frames). A head trained where ambient light is common
+    can call a dim surface of a dark scene no return (a couple of photons in one bin and nothing around); summed
+    over the frames those photons stand out, and the depth is kept. The price: a block that a sky edge crosses
+    holds a return, so its sky part is output as depth."""
+    raw = np.asarray(raw, np.float32)
+    r = raw.shape[-2] // np.shape(quiet)[-1]
+    head = raw[..., 1] > np.float32(threshold)
+    return np.where(head & lr_blocks(quiet, r), np.float32(1.0), raw[..., 0])
 
 
 @functools.partial(jax.jit, static_argnames=("scale",))

@@ -247,7 +247,8 @@ def resolve_model_path(path) -> Path:
     """
     if isinstance(path, str) and not path.strip():
         raise FileNotFoundError("no checkpoint named '': expected a file, a run folder or the name of bundled "
-                                "weights (tr0 .. tr4, tr0-photons, tr4-photons, paper-tr0 .. paper-tr4)")
+                                "weights (tr0 .. tr4, tr0-photons, tr4-photons, tr0-ambient, tr4-ambient, "
+                                "paper-tr0 .. paper-tr4)")
     p = Path(path)
     if p.is_file():
         return p

@@ -348,7 +348,7 @@ def _check_sequence(lr_seq, cfg: ModelConfig, padding: str, conv3d_impl: str, pr
 
 
 def apply_model_sequence(params, state, lr_seq, cfg: ModelConfig, *, padding: str = "edge",
-                         conv3d_impl: str = "auto", precision: str = "default"):
+                         conv3d_impl: str = "auto", precision: str = "default", raw: bool = False):
     """The network in its sequence form, BN in inference mode: every output frame of a sequence in one pass.
 
     All 3 + tr blocks are temporally valid, so with R = `sequence_radius(cfg)` = same_blocks + tr, output t is
@@ -357,12 +357,13 @@ def apply_model_sequence(params, state, lr_seq, cfg: ModelConfig, *, padding: st
     lr_seq: (B, T, H, W) LR normalised depth. padding: "edge" (the ends padded with R copies of the first and
     last frame; T >= 1) returns `(B, T, H*r, W*r)`; "valid" (no padding; T >= 2R + 1) returns the T - 2R
     frames whose inputs all lie inside the sequence, `(B, T - 2R, H*r, W*r)`. conv3d_impl, precision: as for
-    `apply_model`.
+    `apply_model`. raw: the output before the no-return decision, as `apply_model_raw` gives it (with a
+    no-return head a last axis [depth, logit]).
     """
     _check_sequence(lr_seq, cfg, padding, conv3d_impl, precision, "apply_model_sequence")
     out, _ = _forward_sequence(params, state, lr_seq, cfg, padding=padding, train=False, conv3d_impl=conv3d_impl,
                                precision=precision)
-    return merge_no_return(out, cfg)
+    return out if raw else merge_no_return(out, cfg)
 
 
 def apply_model_sequence_train(params, state, lr_seq, cfg: ModelConfig, *, padding: str = "valid",

@@ -348,3 +348,68 @@ def test_iter_ambient_only_streams_what_ambient_only_computes(half_sky, frames):
     bad[2, 0, 0, 0] = -1.0
     with pytest.raises(ValueError, match="frame 2 has negative"):
         list(iter_ambient_only(bad, frames=frames))
+
+
+@pytest.fixture(scope="module")
+def sky_everywhere(tmp_path_factory):
+    """A photon model whose head calls every pixel no return (the case `keep_returns` is for)."""
+    cfg = ModelConfig(tr=0, inputs=("depth", "signal", "background"), no_return_head=True, **TINY)
+    params, state = init_model(jax.random.key(3), cfg)
+    params["no_return"]["conv2"]["b"] = params["no_return"]["conv2"]["b"] + 100.0
+    model = Model(params, state, cfg)
+    return model, save_model(tmp_path_factory.mktemp("k") / "sky.npz", model)
+
+
+def test_raw_output_streams_depth_and_logit_in_tiles_and_in_the_sequence_form(sky_everywhere, half_sky):
+    from jaxsr.inference import in_form, iter_network_inputs, iter_super_resolve
+    from jaxsr.nn import apply_model_raw, apply_model_sequence
+    from jaxsr.temporal import windows
+
+    model = sky_everywhere[0]
+    x = np.stack(list(iter_network_inputs(half_sky[:5], SENSOR, model.config.inputs)))
+    want = np.asarray(apply_model_raw(model.params, model.state, windows(x, 0), model.config))
+    for tile in (None, 11):  # 11 < 12 LR columns: two tiles stitched
+        got = np.stack(list(iter_super_resolve(model, x, raw=True, tile=tile, batch_size=2)))
+        assert got.shape == (5, 32, 48, 2)
+        np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-5)
+    seq = in_form(model, "sequence")
+    got = np.stack(list(iter_super_resolve(seq, x, raw=True)))
+    np.testing.assert_allclose(got, apply_model_sequence(seq.params, seq.state, x[None], seq.config, raw=True)[0],
+                               rtol=1e-5, atol=1e-5)
+    with pytest.raises(ValueError, match="no-return head"):
+        next(iter_super_resolve(Model(*init_model(jax.random.key(0), ModelConfig(tr=0, **TINY)),
+                                      ModelConfig(tr=0, **TINY)), x[..., 0], raw=True))
+
+
+def test_keep_returns_keeps_the_surface_a_head_calls_sky(sky_everywhere, half_sky, tmp_path, capsys):
+    """The head calls everything no return; with keep_returns the surface (4 photons a pixel and frame) comes out
+    as the network's depth and the sky stays no return: the flags are each pixel's own `ambient_only`."""
+    from jaxsr.cli import main
+    from jaxsr.sensor import ambient_only
+
+    model, path = sky_everywhere
+    assert (upscale(half_sky, None, model=path, units="normalised").depth == 1.0).all()
+    result = upscale(half_sky, None, model=path, units="normalised", keep_returns=1e-3)
+    quiet = np.asarray(ambient_only(half_sky, alpha=1e-3, pixels=1))
+    assert quiet[:, :, :6].mean() < 0.01 and quiet[:, :, 6:].all()  # one surface pixel of a first frame passes
+    hr_quiet = np.repeat(np.repeat(quiet, 4, axis=1), 4, axis=2)
+    depth = super_resolve_histograms(with_no_return_logit(model, 1e6), half_sky)  # the depth under the head
+    np.testing.assert_allclose(result.depth, np.clip(np.where(hr_quiet, 1.0, depth), 0, 1), atol=1e-6)
+    assert result.summary()["keep_returns"] == 1e-3 and "alpha 0.001" in result.model
+    src, out = tmp_path / "counts.npy", tmp_path / "out.npy"
+    np.save(src, half_sky)
+    assert main(["upscale", str(src), str(out), "--model", str(path), "--keep-returns", "1e-3", "--units",
+                 "normalised", "--no-progress"]) == 0
+    np.testing.assert_allclose(np.load(out), result.depth, atol=1e-6)
+    capsys.readouterr()
+    # refused: without a head, for depth, beside an ambient rate, out of range (each before any work)
+    with pytest.raises(ValueError, match="has no head"):
+        prepare_upscale(half_sky, model="tr0", keep_returns=1e-3)
+    with pytest.raises(ValueError, match="histograms or time tags"):
+        prepare_upscale(np.full((2, 8, 12), 0.5, np.float32), model="tr0", keep_returns=1e-3)
+    with pytest.raises(ValueError, match="give one"):
+        prepare_upscale("/nonexistent/input.npy", keep_returns=1e-3, ambient_alpha=1e-3)
+    with pytest.raises(ValueError, match=r"false-alarm rate in \[1e-30, 1\)"):
+        prepare_upscale("/nonexistent/input.npy", keep_returns=2.0)
+    assert main(["upscale", str(src), str(tmp_path / "b.npy"), "--keep-returns", "0"]) == 2
+    assert "false-alarm rate" in capsys.readouterr().err

@@ -28,6 +28,19 @@ def test_bundled_photon_models_read_photons_and_mark_no_return(name):
     assert card["regime"]["paper_prob"] > 0 and first["init"] == name.split("-")[0]
 
 
+@pytest.mark.parametrize("name", ["tr0-ambient", "tr4-ambient"])
+def test_bundled_ambient_models_continue_the_photon_models(name):
+    from jaxsr.io.checkpoint import read_metadata
+
+    meta = read_metadata(resolve_model_path(name))
+    assert meta["config"]["inputs"] == ["depth", "signal", "background", "ambient"]
+    assert meta["config"]["no_return_head"]
+    card = meta["card"]
+    # started from the photon model of the same TR, whose stages it lists before its own
+    assert card["init"] == name.replace("ambient", "photons") and card["regime"]["snr_range"][1] > 20
+    assert card["earlier_stages"][0]["init"] == name.split("-")[0]
+
+
 def test_an_empty_name_is_refused_with_what_is_expected():
     with pytest.raises(FileNotFoundError, match="bundled weights"):
         resolve_model_path("")

@@ -61,7 +61,7 @@ def toy_batches(tr, batch, *, lr_shape=LR_SHAPE, scale=4, noise=0.1):
 
 
 def toy_validation(tr, n=8):
-    windows, gt = toy_batches(tr, n)(jax.random.key(123))
+    windows, gt = jax.jit(toy_batches(tr, n))(jax.random.key(123))  # eagerly, each op compiles alone: 5 s
     return {"windows": windows, "gt": gt, "lr": windows[:, tr], "names": ["toy"]}
 
 
@@ -101,7 +101,7 @@ def test_huber_per_frame_and_in_validation():
     # 5 frames in chunks of 4: the padded last chunk must not count
     params, state = init_model(jax.random.key(0), TINY)
     val = toy_validation(TINY.tr, n=5)
-    hr = apply_model(params, state, val["windows"], TINY)
+    hr = jax.jit(apply_model, static_argnames="cfg")(params, state, val["windows"], cfg=TINY)
     res = evaluate(params, state, val["windows"], val["gt"], TINY, delta=d, batch_size=4)
     assert res["loss"] == pytest.approx(float(huber_loss(hr, val["gt"], delta=d)), rel=1e-5)
     assert res["psnr"] == pytest.approx(float(jnp.mean(psnr(hr, val["gt"]))), rel=1e-5)
