@@ -110,7 +110,8 @@ def main(argv=None) -> None:
         resume=True, progress=not args.no_progress,
         callback=lambda r: print(f"{name} epoch {r['epoch']}: val PSNR {r['val_psnr']:.2f} dB, "
                                  f"{r['epoch_time_s']:.0f} s", flush=True),
-        init=args.init or (f"tr{args.tr}-photons" if args.ambient else f"tr{args.tr}"), checkpoint_every_s=60 * args.checkpoint_minutes,
+        init=args.init or (f"tr{args.tr}-photons" if args.ambient else f"tr{args.tr}"),
+        checkpoint_every_s=60 * args.checkpoint_minutes,
         card_extra={"regime": regime.to_dict(), "trained_with": "experiments/studies/photon_finetune.py"})
 
 

@@ -53,7 +53,7 @@ from jaxsr.eval.scoring import (
 )
 from jaxsr.eval.reports import header, markdown_table, write_atomic
 from jaxsr.io.checkpoint import resolve_model_path
-from jaxsr.inference.video import no_return_where
+from jaxsr.inference.video import no_return_where, overrule_no_return
 from jaxsr.nn import network_inputs
 from jaxsr.training.no_return import no_return_outputs
 from jaxsr.sensor import (ambient_only, calibrate, calibrated_rates, no_return_regions, no_return_shares,
@@ -460,9 +460,7 @@ def returns_kept(model, x, frames, quiet) -> np.ndarray:
     tr = model.config.tr
     windows = np.asarray(x)[np.clip(np.asarray(frames)[:, None] + np.arange(-tr, tr + 1), 0, len(x) - 1)]
     depth, logit = no_return_outputs(model, windows)
-    r = depth.shape[-1] // np.shape(quiet)[-1]
-    quiet = np.repeat(np.repeat(np.asarray(quiet, bool), r, axis=-2), r, axis=-1)
-    return np.where((logit > model.config.no_return_logit) & quiet, np.float32(1.0), depth)
+    return overrule_no_return(np.stack([depth, logit], axis=-1), quiet, model.config.no_return_logit)
 
 
 def decision_of(setting) -> tuple[str, float]:

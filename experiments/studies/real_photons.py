@@ -60,7 +60,7 @@ import numpy as np
 import jaxsr
 from jaxsr.eval.reports import hand_written_tail, header, markdown_table, save_figure, write_atomic
 from jaxsr.eval.scoring import format_interval
-from jaxsr.inference import iter_network_inputs, no_return_where
+from jaxsr.inference import iter_network_inputs, lr_blocks, no_return_where
 from jaxsr.io.recordings import gate_frames
 from jaxsr.sensor.timetags import TimeTags
 from photon_regimes import (NO_RETURN_AT, TV_TR, decision_of, load_models, no_return_decision,  # experiments/studies
@@ -260,12 +260,7 @@ def reference_sky(all_photons) -> np.ndarray:
     photons, found = counts.sum(-1), log_p <= np.log(REF_SKY_ALPHA)
     typical = float(np.median(photons[found])) if found.any() else np.inf
     empty = ~found & (photons <= REF_SKY_SHARE * typical)
-    return _to_hr(ndimage.minimum_filter(empty.astype(np.uint8), size=3, mode="nearest"))
-
-
-def _to_hr(blocks) -> np.ndarray:
-    """(h, w) per LR block -> (H, W) boolean, each block's value on its FACTOR x FACTOR pixels."""
-    return np.kron(blocks, np.ones((FACTOR, FACTOR), np.uint8)).astype(bool)
+    return lr_blocks(ndimage.minimum_filter(empty.astype(np.uint8), size=3, mode="nearest"), FACTOR)
 
 
 def recording_snr(all_photons) -> float:
@@ -344,7 +339,8 @@ def empty_edges(all_photons) -> np.ndarray:
     from scipy import ndimage
 
     log_p = all_photons[1]
-    return _to_hr(ndimage.maximum_filter((log_p > np.log(REF_SKY_ALPHA)).astype(np.uint8), size=3, mode="nearest"))
+    return lr_blocks(ndimage.maximum_filter((log_p > np.log(REF_SKY_ALPHA)).astype(np.uint8), size=3,
+                                     mode="nearest"), FACTOR)
 
 
 def evaluate(recordings, models: dict, *, levels=LEVELS, max_frames: int = MAX_FRAMES, tv_frames: int | None = None,

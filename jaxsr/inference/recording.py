@@ -192,7 +192,8 @@ class UpscaleJob:
         if self._keep_stream is not None:
             raw = iter_super_resolve(self.model, lr, batch_size=batch_size, precision=self.precision, raw=True)
             threshold = self.model.config.no_return_logit
-            return (overrule_no_return(hr, quiet, threshold) for hr, quiet in zip(raw, self._keep_stream(), strict=True))
+            return (overrule_no_return(hr, quiet, threshold)
+                    for hr, quiet in zip(raw, self._keep_stream(), strict=True))
         out = iter_super_resolve(self.model, lr, batch_size=batch_size, precision=self.precision)
         if self._ambient_stream is None:
             return out
@@ -618,9 +619,9 @@ def _few_photons_warnings(signal: float, frames: int) -> tuple[str, ...]:
     if not signal < FEW_PHOTONS:  # NaN (no return seen): nothing to say
         return ()
     return ((f"about {signal:.2g} signal photons per pixel and frame (first {frames} frames): below "
-             f"{FEW_PHOTONS:g} a model reading depth alone falls behind; --model tr4-photons also reads the photons "
-             "behind each depth (check a frame, --preview: on one real recording it lost at 2-3 photons; "
-             "docs/results/photon-regimes.md)"),)
+             f"{FEW_PHOTONS:g} a model reading depth alone falls behind; --model tr4-ambient also reads the photons "
+             "behind each depth (check a frame, --preview; on a dark scene add --no-return-logit 2 --keep-returns "
+             "0.001; docs/results/real-photons.md)"),)
 
 
 def _snr_warnings(trained: tuple[float, float], snr: float, frames: int, no_return_logit=None) -> tuple[str, ...]:
@@ -992,7 +993,7 @@ def upscale(input, output, *, model="default", kind: str | None = None, bins: in
     - form (--form): the temporal form the DUF network runs in (`jaxsr.inference.video.FORMS`): "auto" (default:
       the bundled windowed depth models of `SEQUENCE_FORM_TRS` in the sequence form on recordings of at least
       `SEQUENCE_FORM_MIN_FRAMES` frames, else the model's own), "model", "window" or "sequence".
-    - no_return_logit (--no-return-logit): for a model with a no-return head (tr0-photons, tr4-photons), the
+    - no_return_logit (--no-return-logit): for a model with a no-return head (tr4-ambient, tr4-photons, ...), the
       logit above which a pixel is output as no return (`jaxsr.nn.with_no_return_logit`; default the model's
       own, 0.0 = p 0.5): higher drops fewer true returns and leaves more of the sky as depth. Refused for a
       model without the head.

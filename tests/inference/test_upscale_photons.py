@@ -319,7 +319,7 @@ def test_the_test_is_named_where_memory_is_short_and_said_on_clipped_counts(dept
 
 def test_few_photons_get_a_hint_towards_the_photon_model(photon_model, half_sky):
     """Below FEW_PHOTONS estimated signal photons per pixel, a model reading depth alone (the default, auto, a
-    named TR) gets a warning naming tr4-photons; at 4 photons (half_sky), a photon model, and counts clipped after
+    named TR) gets a warning naming tr4-ambient; at 4 photons (half_sky), a photon model, and counts clipped after
     background subtraction get none."""
     rng = np.random.default_rng(4)
     dim = rng.poisson(2.0 / 16, half_sky.shape).astype(np.float32)
@@ -327,7 +327,7 @@ def test_few_photons_get_a_hint_towards_the_photon_model(photon_model, half_sky)
     assert photon_levels(dim, 16).signal < FEW_PHOTONS < photon_levels(half_sky, 16).signal
     for model in ("default", "tr0"):
         (hint,) = [w for w in prepare_upscale(dim, model=model).warnings if "signal photons per pixel" in w]
-        assert "--model tr4-photons" in hint and f"below {FEW_PHOTONS:g}" in hint
+        assert "--model tr4-ambient" in hint and f"below {FEW_PHOTONS:g}" in hint
         assert not [w for w in prepare_upscale(half_sky, model=model).warnings if "signal photons per pixel" in w]
     assert not [w for w in prepare_upscale(dim, model=photon_model[1]).warnings if "signal photons per pixel" in w]
     assert not [w for w in prepare_upscale(dim, clip_negative=True).warnings if "signal photons per pixel" in w]
