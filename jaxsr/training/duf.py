@@ -58,25 +58,34 @@ def make_train_step(model_cfg: ModelConfig, train_cfg: TrainConfig, make_batch, 
     network runs in `model_cfg.temporal`'s form (see `sequence_loss` for the sequence form's batches). metrics: {"loss", "psnr" (mean over the batch, prediction
     clipped), "lr"}. With a `mesh`, the batch is sharded over its "data" axis and params/state/optimiser
     state are replicated (batch statistics and gradients are reduced over the mesh).
-    conv3d_impl: how the network's convolutions run (see `apply_model`).
+    conv3d_impl: how the network's convolutions run (see `apply_model`). `step.jitted(params, state, opt_state,
+    key, lr)` is the jitted function underneath (for `.lower`), which takes the learning rate itself.
     """
-    # the step does not read the seed, the length of the run or the stopping rule: runs that differ only in
-    # those (other seeds, more epochs on resume) share one compiled step
-    step_cfg = dataclasses.replace(train_cfg, seed=0, epochs=1, patience=1)
-    return _train_step(model_cfg, step_cfg, make_batch, mesh, conv3d_impl)
+    # the compiled step does not read the seed, the length of the run, the stopping rule or the learning rate
+    # (an argument, from the schedule): runs that differ only in those (other seeds, more epochs on resume,
+    # another rate or decay) share one compiled step
+    step_cfg = dataclasses.replace(train_cfg, seed=0, epochs=1, patience=1, lr=1.0, lr_decay=1.0, decay_epochs=1,
+                                   examples_per_epoch=train_cfg.batch_size)
+    compiled = _train_step(model_cfg, step_cfg, make_batch, mesh, conv3d_impl)
+    schedule = lr_schedule(train_cfg)
+
+    def step(params, state, opt_state, key, i):
+        return compiled(params, state, opt_state, key, jnp.asarray(schedule(i), jnp.float32))
+
+    step.jitted = compiled  # the compiled step itself, which takes the learning rate in place of the step index
+    return step
 
 
 @functools.lru_cache(maxsize=16)
 def _train_step(model_cfg, train_cfg, make_batch, mesh, conv3d_impl):
     # cached: fitting again with the same configs and data source (e.g. a resume) does not recompile
-    schedule = lr_schedule(train_cfg)
 
     def constrain(tree, spec):
         if mesh is None:
             return tree
         return jax.lax.with_sharding_constraint(tree, NamedSharding(mesh, spec))
 
-    def step_fn(params, state, opt_state, key, step):
+    def step_fn(params, state, opt_state, key, lr):
         windows, gt = constrain(make_batch(key), P("data"))
 
         def loss_fn(p):
@@ -87,7 +96,6 @@ def _train_step(model_cfg, train_cfg, make_batch, mesh, conv3d_impl):
             return model_loss(out, gt, model_cfg, train_cfg), (new_state, merge_no_return(out, model_cfg), gt)
 
         (loss, (new_state, hr, gt)), grads = jax.value_and_grad(loss_fn, has_aux=True)(params)
-        lr = schedule(step)
         params, opt_state = adam_update(
             grads, opt_state, params, lr=lr, b1=train_cfg.adam_b1, b2=train_cfg.adam_b2, eps=train_cfg.adam_eps
         )
