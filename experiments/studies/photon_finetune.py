@@ -15,8 +15,9 @@ first (`jaxsr.nn.with_photon_inputs`): it also reads the photons behind each dep
 same regime with fixed keys (model selection on the regime the model is for; the paper's fixed sequences at 14
 photons measure the cost there separately). Every run resumes where it stopped (a session's end, a kill):
 `--checkpoint-minutes` of training are lost at most. `--keep` copies the run's best weights (float16, with the
-training card, which records the regime) to experiments/photon_weights/tr<N>[-photons].npz; the bundled
-`tr0-photons` and `tr4-photons` (jaxsr/weights/) are such files, copied there.
+training card, which records the regime) to experiments/photon_weights/tr<N>[-photons|-ambient].npz; the bundled
+`tr0-photons` and `tr4-photons` (jaxsr/weights/) are such files, copied there (the `-ambient` ones were saved from
+the run's best.npz with the photon model's card appended to their stages: experiments/photon_weights/README.md).
 """
 
 from __future__ import annotations

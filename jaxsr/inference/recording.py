@@ -96,7 +96,7 @@ BASE_BYTES = 0.5e9
 # histogram frames turned into the network's input per compiled call (`iter_network_inputs`), and the copies
 # each float32 frame of counts makes there (6x: 16 frames of 2000 bins took 1.6 GB);
 HISTOGRAM_CHUNK, HISTOGRAM_COPIES = 16, 6
-AMBIENT_FRAMES = 9  # frames the no-return test of `ambient_alpha` sums (`iter_ambient_only`'s default)
+AMBIENT_FRAMES = 9  # frames the no-return tests of `ambient_alpha` and `keep_returns` sum (`iter_ambient_only`'s)
 # a DUF network's features per LR pixel of a tile and frame of the batch, in bytes per channel: float32 twice
 # over the window (the dense blocks' activations and their batch norm) and once in the head (TR0 5.3 kB, TR4
 # 20 kB per pixel measured; this gives 5.3 and 25). Another architecture counts as TR4.
@@ -118,7 +118,7 @@ class UpscaleJob:
     temporal form it runs in (`form` of `prepare_upscale`: `model.config.temporal`). ambient_alpha: the
     false-alarm rate `prepare_upscale`'s `ambient_alpha` set or picked (None: no test); with one, the output is
     also no return where `jaxsr.inference.iter_ambient_only` flags a pixel. label: the model's name for pictures
-    (previews, videos: `model_name` without the ambient test's note, which would not fit a panel). keep_alpha:
+    (previews, videos: `model_name` without the ambient test's note, which would not fit a panel). keep_returns:
     the false-alarm rate of `prepare_upscale`'s `keep_returns` (None: the model's own decision); with one, the
     output is no return only where the model's head says so and the pixel's photons agree (`overrule_no_return`)."""
 
@@ -138,11 +138,11 @@ class UpscaleJob:
                                                                                    compare=False)
     ambient_alpha: float | None = None
     label: str = ""
-    # with keep_alpha: a fresh stream of (h, w) bool per frame, True where a pixel's own photons over 9 frames
+    # with keep_returns: a fresh stream of (h, w) bool per frame, True where a pixel's own photons over 9 frames
     # pass for ambient light alone (the only pixels where the model's no return is kept)
     _keep_stream: Callable[[], Iterator[np.ndarray]] | None = dataclasses.field(default=None, repr=False,
                                                                                 compare=False)
-    keep_alpha: float | None = None
+    keep_returns: float | None = None
 
     @property
     def frames(self) -> int:
@@ -220,7 +220,7 @@ class UpscaleResult:
     `clip_negative`, (negative counts clipped at 0, pixels holding one), else None; input_units: the input's
     units (`UpscaleJob.units`), where they differ from `units`; ambient_alpha: the ambient-only test's
     false-alarm rate (`UpscaleJob.ambient_alpha`, None: no test); keep_returns: `upscale`'s keep_returns rate
-    (`UpscaleJob.keep_alpha`; in the summary only when set)."""
+    (`UpscaleJob.keep_returns`; in the summary only when set)."""
 
     output: Path | None
     depth: np.ndarray | None
@@ -244,8 +244,8 @@ class UpscaleResult:
     def summary(self) -> dict:
         """The JSON summary `jaxsr upscale` prints: frames, output, shape, units (of the output; input_units too
         where the input's differ), model, for histograms the gate, the depth scale (metres) and the ambient-only
-        test's rate (null: none), the video and point clouds' folder where written, and with --clip-negative the
-        negative counts clipped and the pixels holding them."""
+        test's rate (null: none) and `keep_returns`' where set, the video and point clouds' folder where written,
+        and with --clip-negative the negative counts clipped and the pixels holding them."""
         out = {"frames": self.frames, "output": None if self.output is None else str(self.output),
                "shape": list(self.shape), "units": self.units, "model": self.model}
         if self.input_units is not None:
@@ -415,7 +415,7 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
     _check_precision_form(fixed, precision, form)
     _check_no_return_logit(fixed, name, no_return_logit)
     _check_ambient_setting(ambient_alpha)  # before the input is read
-    _check_keep_returns(keep_returns, ambient_alpha)
+    _check_keep_returns(keep_returns, ambient_alpha, fixed, name)
     span = _span(span)
     time_unit = _positive(time_unit, "time_unit", parse_time_unit, "seconds")
     rec, gate, source, tag_notes = _open(input, kind, bins=bins, bin_width=bin_width, gate_start=gate_start,
@@ -456,6 +456,9 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
         if clip_negative and ambient_alpha is not None and not _is_auto(ambient_alpha):
             warnings += (("--ambient-alpha on background-subtracted counts: the test assumes raw counts, whose "
                           "ambient light it looks for, and was measured on those only"),)
+        if clip_negative and keep_returns is not None:
+            warnings += (("--keep-returns on background-subtracted counts: its test assumes raw counts, whose "
+                          "ambient light it looks for, and was measured on those only"),)
         ambient_alpha, ambient_why = _ambient_choice(ambient_alpha, levels, marks_no_return, rec.frames)
 
         def lr_stream():
@@ -485,9 +488,6 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
     enable_compilation_cache()
     if fixed is None:
         fixed, name = resolve_model("auto", _head(lr_stream(), HEAD_FRAMES), min_fps=min_fps)
-    if keep_returns is not None and not getattr(getattr(fixed, "config", None), "no_return_head", False):
-        raise ValueError(f"keep_returns (--keep-returns) overrules a no-return head's decision; model {name} has no "
-                         "head: give one that has (tr4-ambient, tr0-ambient, tr4-photons, tr0-photons)")
     if no_return_logit is not None:
         fixed = with_no_return_logit(fixed, no_return_logit)
         name = f"{name} at no-return logit {float(no_return_logit):g}"
@@ -566,15 +566,21 @@ def _is_auto(setting) -> bool:
     return isinstance(setting, str) and setting == AUTO
 
 
-def _check_keep_returns(setting, ambient_alpha) -> None:
-    """Refuse a `keep_returns` that is not None or a false-alarm rate, or one given with an `ambient_alpha` rate:
-    one adds no return where the photons show none, the other keeps returns the photons show; one decision."""
+def _check_keep_returns(setting, ambient_alpha, model, name: str) -> None:
+    """Refuse, before the input is read, a `keep_returns` that is not None or a false-alarm rate, one given with an
+    `ambient_alpha` rate (one adds no return where the photons show none, the other keeps returns the photons
+    show: one decision), and one for a model without a no-return head ("auto" and "default" pick none that has)."""
     if setting is None:
         return
     check_false_alarm_rate("keep_returns (--keep-returns)", setting)
     if ambient_alpha is not None and not _is_auto(ambient_alpha):
         raise ValueError("keep_returns (--keep-returns) and ambient_alpha (--ambient-alpha) are two decisions on no "
                          "return: give one (--ambient-alpha off with --keep-returns)")
+    heads = ([getattr(model.config, "no_return_head", False)] if model is not None else
+             [read_metadata(resolve_model_path(p))["config"].get("no_return_head", False) for p in _picks(name)])
+    if not all(heads):  # "auto" and "default" must not pick a model without one
+        raise ValueError(f"keep_returns (--keep-returns) overrules a no-return head's decision; model {name} has no "
+                         "head: give one that has (tr4-ambient, tr0-ambient, tr4-photons, tr0-photons)")
 
 
 def _check_ambient_setting(setting) -> None:
@@ -653,10 +659,15 @@ def _check_no_return_logit(model, name: str, logit) -> None:
     if model is not None:
         with_no_return_logit(model, logit)  # raises for a model without the head, or a logit not finite
         return
-    picks = [f"tr{k}" for k in range(5)] if name == "auto" else sorted(set(DEFAULT_MODELS.values()))
+    picks = _picks(name)
     if not any(read_metadata(resolve_model_path(p))["config"].get("no_return_head", False) for p in picks):
         raise ValueError(f"no_return_logit (--no-return-logit) applies to models with a no-return head; --model {name} "
-                         f"picks {' or '.join(picks)}, which have none: name one that has, such as tr4-photons")
+                         f"picks {' or '.join(picks)}, which have none: name one that has, such as tr4-ambient")
+
+
+def _picks(name: str) -> list[str]:
+    """The bundled models that "auto" or "default" may pick."""
+    return [f"tr{k}" for k in range(5)] if name == "auto" else sorted(set(DEFAULT_MODELS.values()))
 
 
 def _check_precision_form(model, precision, form) -> None:
@@ -840,7 +851,7 @@ def write_upscaled(job: UpscaleJob, output, *, frame_format: str | None = None, 
     units = "m" if out is not None and out.suffix.lower() not in ARRAY_FORMATS else job.units
     return UpscaleResult(out, depth, job.frames, shape, rec.kind, units, job.model_name, job.gate, scale, preview,
                          warnings, notes, video, points, job.negative_counts, None if units == job.units else job.units,
-                         job.ambient_alpha, job.keep_alpha)
+                         job.ambient_alpha, job.keep_returns)
 
 
 def _frame_format(frame_format: str | None, out: Path | None, job: UpscaleJob) -> str | None:
@@ -886,9 +897,10 @@ def upscale_memory(job: UpscaleJob, *, batch_size: int, in_memory: bool, looks: 
     """Bytes `write_upscaled` is estimated to need at its peak, from the job's sizes alone (nothing is run):
     `BASE_BYTES`; the input where it is held whole (an .npz's array, time tags' histograms; an .npy is
     memory-mapped); histogram frames on their way to the network (`HISTOGRAM_CHUNK` x `HISTOGRAM_COPIES`); the
-    network on one tile (at most `DEFAULT_TILE` LR pixels a side) per frame of the batch; with `ambient_alpha`,
-    three copies of the `AMBIENT_FRAMES` histogram frames its test holds; the HR frames of two
-    batches (the one computed and the one drained) and of a frame converted; and the whole result when it is
+    network on one tile (at most `DEFAULT_TILE` LR pixels a side) per frame of the batch; with `ambient_alpha` or
+    `keep_returns`, three copies of the `AMBIENT_FRAMES` histogram frames its test holds; the HR frames of two
+    batches (the one computed and the one drained; twice over with `keep_returns`: depth and logit) and of a
+    frame converted; and the whole result when it is
     held (`in_memory`: an .npz output or none) or drawn (`looks`: the video's panels or a point cloud per
     frame). Measured peaks were 0.6-0.9x of it (frames of 32 x 64 to 2048 x 2048 LR pixels, batches of 1-8)."""
     rec, model = job.recording, job.model

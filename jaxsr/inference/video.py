@@ -538,7 +538,11 @@ def overrule_no_return(raw, quiet, threshold: float) -> np.ndarray:
     over the frames those photons stand out, and the depth is kept. The price: a block that a sky edge crosses
     holds a return, so its sky part is output as depth."""
     raw = np.asarray(raw, np.float32)
-    r = raw.shape[-2] // np.shape(quiet)[-1]
+    h, w = np.shape(quiet)[-2:]
+    r = raw.shape[-2] // w if raw.ndim >= 3 else 0
+    if raw.ndim < 3 or raw.shape[-1] != 2 or r < 1 or raw.shape[-3:-1] != (h * r, w * r):
+        raise ValueError(f"overrule_no_return: raw must be (..., H, W, 2) [depth, logit] with H, W a multiple of "
+                         f"quiet's (h, w) = {(h, w)}, got raw {raw.shape}")
     head = raw[..., 1] > np.float32(threshold)
     return np.where(head & lr_blocks(quiet, r), np.float32(1.0), raw[..., 0])
 

@@ -494,7 +494,7 @@ def with_no_return_logit(model, logit):
     head or a logit that is not a finite number."""
     cfg = getattr(model, "config", None)
     if not getattr(cfg, "no_return_head", False):
-        raise ValueError("no_return_logit applies to models with a no-return head (such as tr0-photons and "
+        raise ValueError("no_return_logit applies to models with a no-return head (such as tr4-ambient and "
                          f"tr4-photons); this one has none ({type(cfg).__name__})")
     return dataclasses.replace(model, config=dataclasses.replace(cfg, no_return_logit=logit))
 

@@ -185,8 +185,9 @@ def _init_config(init, photons: bool | None) -> ModelConfig:
     if cfg.scale != 4:
         raise ValueError(f"--from {init}: a x{cfg.scale} model; fine-tuning trains x4 models")
     reads_photons = cfg.inputs != ("depth",) or cfg.no_return_head
-    if photons:
-        return dataclasses.replace(cfg, **PHOTON_INPUTS)
+    if photons:  # the photon inputs added to what the model reads (tr4-ambient keeps its ambient channel)
+        inputs = cfg.inputs + tuple(n for n in PHOTON_INPUTS["inputs"] if n not in cfg.inputs)
+        return dataclasses.replace(cfg, inputs=inputs, no_return_head=True)
     if photons is False and reads_photons:
         raise ValueError(f"--from {init}: the model reads {', '.join(cfg.inputs)}; a model cannot be narrowed to "
                          "depth alone (leave photons unset to keep its inputs)")

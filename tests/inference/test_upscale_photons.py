@@ -27,14 +27,19 @@ SENSOR = SensorConfig()
 TINY = dict(base=8, growth=4, head=16, filter_hidden=16)
 
 
+def _photon_model(folder, seed: int, head_bias: float):
+    """A tiny photon model with a no-return head whose logits are raised by `head_bias`, and its file."""
+    cfg = ModelConfig(tr=0, inputs=("depth", "signal", "background"), no_return_head=True, **TINY)
+    params, state = init_model(jax.random.key(seed), cfg)
+    params["no_return"]["conv2"]["b"] = params["no_return"]["conv2"]["b"] + head_bias
+    model = Model(params, state, cfg)
+    return model, save_model(folder / "photons.npz", model)
+
+
 @pytest.fixture(scope="module")
 def photon_model(tmp_path_factory):
-    cfg = ModelConfig(tr=0, inputs=("depth", "signal", "background"), no_return_head=True, **TINY)
-    params, state = init_model(jax.random.key(0), cfg)
     # a head that marks some pixels, so that the no-return output is exercised
-    params["no_return"]["conv2"]["b"] = params["no_return"]["conv2"]["b"] + 4.0
-    model = Model(params, state, cfg)
-    return model, save_model(tmp_path_factory.mktemp("m") / "photons.npz", model)
+    return _photon_model(tmp_path_factory.mktemp("m"), 0, 4.0)
 
 
 @pytest.fixture(scope="module")
@@ -353,16 +358,14 @@ def test_iter_ambient_only_streams_what_ambient_only_computes(half_sky, frames):
 @pytest.fixture(scope="module")
 def sky_everywhere(tmp_path_factory):
     """A photon model whose head calls every pixel no return (the case `keep_returns` is for)."""
-    cfg = ModelConfig(tr=0, inputs=("depth", "signal", "background"), no_return_head=True, **TINY)
-    params, state = init_model(jax.random.key(3), cfg)
-    params["no_return"]["conv2"]["b"] = params["no_return"]["conv2"]["b"] + 100.0
-    model = Model(params, state, cfg)
-    return model, save_model(tmp_path_factory.mktemp("k") / "sky.npz", model)
+    return _photon_model(tmp_path_factory.mktemp("k"), 3, 100.0)
 
 
 def test_raw_output_streams_depth_and_logit_in_tiles_and_in_the_sequence_form(sky_everywhere, half_sky):
-    from jaxsr.inference import in_form, iter_network_inputs, iter_super_resolve
-    from jaxsr.nn import apply_model_raw, apply_model_sequence
+    import jax.numpy as jnp
+
+    from jaxsr.inference import in_form, iter_network_inputs, iter_super_resolve, overrule_no_return
+    from jaxsr.nn import apply_model_raw, apply_model_sequence, merge_no_return
     from jaxsr.temporal import windows
 
     model = sky_everywhere[0]
@@ -374,8 +377,14 @@ def test_raw_output_streams_depth_and_logit_in_tiles_and_in_the_sequence_form(sk
         np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-5)
     seq = in_form(model, "sequence")
     got = np.stack(list(iter_super_resolve(seq, x, raw=True)))
+    assert got.shape == (5, 32, 48, 2)
     np.testing.assert_allclose(got, apply_model_sequence(seq.params, seq.state, x[None], seq.config, raw=True)[0],
                                rtol=1e-5, atol=1e-5)
+    # the decision on the raw stream is the stream's own
+    np.testing.assert_allclose(merge_no_return(jnp.asarray(got), seq.config), np.stack(list(iter_super_resolve(seq, x))),
+                               rtol=1e-5, atol=1e-5)
+    with pytest.raises(ValueError, match=r"\(\.\.\., H, W, 2\)"):  # a merged output is not raw
+        overrule_no_return(want[..., 0], np.zeros((5, 8, 12), bool), 0.0)
     with pytest.raises(ValueError, match="no-return head"):
         next(iter_super_resolve(Model(*init_model(jax.random.key(0), ModelConfig(tr=0, **TINY)),
                                       ModelConfig(tr=0, **TINY)), x[..., 0], raw=True))
@@ -403,10 +412,11 @@ def test_keep_returns_keeps_the_surface_a_head_calls_sky(sky_everywhere, half_sk
     np.testing.assert_allclose(np.load(out), result.depth, atol=1e-6)
     capsys.readouterr()
     # refused: without a head, for depth, beside an ambient rate, out of range (each before any work)
-    with pytest.raises(ValueError, match="has no head"):
-        prepare_upscale(half_sky, model="tr0", keep_returns=1e-3)
+    for model_name in ("tr0", "default"):  # refused before the input is read
+        with pytest.raises(ValueError, match="has no head"):
+            prepare_upscale("/nonexistent/input.npy", model=model_name, keep_returns=1e-3)
     with pytest.raises(ValueError, match="histograms or time tags"):
-        prepare_upscale(np.full((2, 8, 12), 0.5, np.float32), model="tr0", keep_returns=1e-3)
+        prepare_upscale(np.full((2, 8, 12), 0.5, np.float32), model=path, keep_returns=1e-3)
     with pytest.raises(ValueError, match="give one"):
         prepare_upscale("/nonexistent/input.npy", keep_returns=1e-3, ambient_alpha=1e-3)
     with pytest.raises(ValueError, match=r"false-alarm rate in \[1e-30, 1\)"):

@@ -99,7 +99,7 @@ def test_old_checkpoints_load_at_the_default_with_identical_outputs(tmp_path):
     assert back.config.no_return_logit == -1.25
     # the bundled photon models decide at the uncalibrated default (tr0-photons saved before the field, tr4-photons
     # after it, with 0.0)
-    for name in ("tr0-photons", "tr4-photons"):
+    for name in ("tr0-photons", "tr4-photons", "tr0-ambient", "tr4-ambient"):
         assert read_metadata(ROOT / "jaxsr" / "weights" / f"{name}.npz")["config"].get("no_return_logit", 0.0) == 0.0
         assert load_model(name).config.no_return_logit == 0.0
 
@@ -114,6 +114,14 @@ def test_a_calibrated_model_is_a_valid_init(tmp_path):
     np.testing.assert_array_equal(params["no_return"]["conv2"]["b"], model.params["no_return"]["conv2"]["b"])
     with pytest.raises(ValueError, match="head 16 .training 32"):  # other fields still must agree
         initial_weights(jax.random.key(0), dataclasses.replace(model.config, head=32), calibrated)
+
+
+def test_a_fine_tune_with_photons_keeps_what_its_init_reads():
+    """--photons adds the photon inputs to a model's own: a depth model gets them, an ambient model keeps its fourth
+    channel (narrowing it would fail only once the run has built its data)."""
+    assert _init_config("tr1", True).inputs == ("depth", "signal", "background")
+    assert _init_config("tr4-ambient", True).inputs == ("depth", "signal", "background", "ambient")
+    assert _init_config("tr4-ambient", None).no_return_head
 
 
 def test_table_counts_pixels_as_the_benchmark_reads_them():
