@@ -464,7 +464,8 @@ def iter_ambient_only(counts: Iterable, sensor: SensorConfig = SensorConfig(), *
 def super_resolve_histograms(model: Model, counts, sensor: SensorConfig = SensorConfig(), *, intensity=None,
                              batch_size: int | None = None, conv3d_impl: str = "auto",
                              tile: int | None = DEFAULT_TILE, precision: str = DEFAULT_PRECISION,
-                             form: str = DEFAULT_FORM, ambient_alpha: float | None = None) -> np.ndarray:
+                             form: str = DEFAULT_FORM, ambient_alpha: float | None = None,
+                             keep_returns: float | None = None) -> np.ndarray:
     """Super-resolve photon histograms: (T, h, w, K) counts -> (T, h r, w r) normalised depth (NumPy, float32).
 
     A model that reads depth (the DUF network, iSeeBetter) gets the centre-of-mass depth of each frame
@@ -479,7 +480,11 @@ def super_resolve_histograms(model: Model, counts, sensor: SensorConfig = Sensor
     alone at this false-alarm rate (`jaxsr.sensor.ambient_only`: 3 x 3 pixels, 9 frames; default None: off). It
     empties the insides of sky and absorbing regions that a model shows as depth, and drops returns too faint to
     stand out even summed: worth it from about 3 signal photons per pixel at SNR 1 and above, not at SNR 0.1
-    (experiments/results/no_return_evidence.md)."""
+    (experiments/results/no_return_evidence.md).
+    keep_returns: for a model with a no-return head, a false-alarm rate: its no return is kept only where each LR
+    pixel's own photons over 9 frames pass for ambient light alone at it, elsewhere the network's depth
+    (`overrule_no_return`; `jaxsr upscale --keep-returns`); default None: the head decides. Not with
+    ambient_alpha."""
     _require_model(model, "super_resolve_histograms")
     precision = check_precision(model, precision, "super_resolve_histograms")
     if counts is None or isinstance(counts, (str, bytes)):
@@ -492,6 +497,14 @@ def super_resolve_histograms(model: Model, counts, sensor: SensorConfig = Sensor
     model = in_form(model, form, "super_resolve_histograms", frames=counts.shape[0])
     if ambient_alpha is not None:  # refused before any work
         check_false_alarm_rate("super_resolve_histograms: ambient_alpha", ambient_alpha)
+    if keep_returns is not None:
+        check_false_alarm_rate("super_resolve_histograms: keep_returns", keep_returns)
+        if ambient_alpha is not None:
+            raise ValueError("super_resolve_histograms: keep_returns and ambient_alpha are two decisions on no return: "
+                             "give one")
+        if not getattr(model.config, "no_return_head", False):
+            raise ValueError("super_resolve_histograms: keep_returns overrules a no-return head's decision; this "
+                             "model has none")
     arch = model.architecture
     r = arch.scale(model.config)
     if arch.inputs == "histograms":
@@ -505,7 +518,10 @@ def super_resolve_histograms(model: Model, counts, sensor: SensorConfig = Sensor
         batch_size = _default_batch_size(counts, arch.sequence_form(model.config))
     frames = iter_network_inputs(counts, sensor, getattr(model.config, "inputs", ("depth",)))
     stream = iter_super_resolve(model, frames, batch_size=batch_size, conv3d_impl=conv3d_impl, tile=tile,
-                                precision=precision)
+                                precision=precision, raw=keep_returns is not None)
+    if keep_returns is not None:
+        quiet = iter_ambient_only(counts, sensor, alpha=keep_returns, pixels=1)
+        stream = (overrule_no_return(hr, q, model.config.no_return_logit) for hr, q in zip(stream, quiet, strict=True))
     for t, hr in enumerate(stream):
         out[t] = hr
     return out if ambient_alpha is None else _no_return_where_ambient(out, counts, sensor, ambient_alpha)

@@ -20,7 +20,7 @@ from jaxsr.inference import (
     super_resolve_histograms,
     upscale,
 )
-from jaxsr.io.checkpoint import save_model
+from jaxsr.io.checkpoint import load_model, save_model
 from jaxsr.nn import Model, init_model, with_no_return_logit
 
 SENSOR = SensorConfig()
@@ -405,6 +405,13 @@ def test_keep_returns_keeps_the_surface_a_head_calls_sky(sky_everywhere, half_sk
     depth = super_resolve_histograms(with_no_return_logit(model, 1e6), half_sky)  # the depth under the head
     np.testing.assert_allclose(result.depth, np.clip(np.where(hr_quiet, 1.0, depth), 0, 1), atol=1e-6)
     assert result.summary()["keep_returns"] == 1e-3 and "alpha 0.001" in result.model
+    np.testing.assert_allclose(np.clip(super_resolve_histograms(model, half_sky, keep_returns=1e-3), 0, 1),
+                               result.depth, atol=1e-6)  # the library's form
+    for bad, match in (({"keep_returns": 1e-3, "ambient_alpha": 1e-3}, "give one"), ({"keep_returns": 0.0}, "rate")):
+        with pytest.raises(ValueError, match=match):
+            super_resolve_histograms(model, half_sky, **bad)
+    with pytest.raises(ValueError, match="has none"):
+        super_resolve_histograms(load_model("tr0"), half_sky, keep_returns=1e-3)
     src, out = tmp_path / "counts.npy", tmp_path / "out.npy"
     np.save(src, half_sky)
     assert main(["upscale", str(src), str(out), "--model", str(path), "--keep-returns", "1e-3", "--units",
