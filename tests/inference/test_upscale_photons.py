@@ -370,7 +370,8 @@ def test_raw_output_streams_depth_and_logit_in_tiles_and_in_the_sequence_form(sk
 
     model = sky_everywhere[0]
     x = np.stack(list(iter_network_inputs(half_sky[:5], SENSOR, model.config.inputs)))
-    want = np.asarray(apply_model_raw(model.params, model.state, windows(x, 0), model.config))
+    want = np.asarray(jax.jit(apply_model_raw, static_argnames="cfg")(model.params, model.state, windows(x, 0),
+                                                                      model.config))
     for tile in (None, 11):  # 11 < 12 LR columns: two tiles stitched
         got = np.stack(list(iter_super_resolve(model, x, raw=True, tile=tile, batch_size=2)))
         assert got.shape == (5, 32, 48, 2)

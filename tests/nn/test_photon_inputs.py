@@ -22,6 +22,9 @@ from jaxsr.training.duf import initial_weights, model_loss
 SENSOR = SensorConfig()
 TINY = dict(base=8, growth=4, head=16, filter_hidden=16)
 PHOTONS = ("depth", "signal", "background")
+# the network compiled whole: eagerly each of its ops compiles on its own (seconds per test)
+_apply = jax.jit(apply_model, static_argnames="cfg")
+_inputs = jax.jit(network_inputs, static_argnames="inputs")
 AMBIENT = (*PHOTONS, "ambient")
 
 
@@ -119,15 +122,17 @@ def test_config_checks_inputs():
 
 def _tiny_depth_model(tr=1, seed=0):
     cfg = ModelConfig(tr=tr, **TINY)
-    params, state = init_model(jax.random.key(seed), cfg)
-    # BN statistics away from their initial values, so that the comparison below is not trivial
-    state = jax.tree_util.tree_map(lambda v: v + 0.1 * jax.random.uniform(jax.random.key(seed + 1), v.shape), state)
+    params, state = jax.jit(init_model, static_argnames="cfg")(jax.random.key(seed), cfg)
+    # BN statistics away from their initial values, so that the comparison below is not trivial (NumPy draws: a
+    # JAX one per leaf shape compiles a kernel each)
+    rng = np.random.default_rng(seed + 1)
+    state = jax.tree_util.tree_map(lambda v: v + 0.1 * rng.uniform(size=v.shape).astype(np.float32), state)
     return Model(params, state, cfg)
 
 
 def _photon_frames(t=5, h=8, w=10, seed=2):
     counts = jax.random.poisson(jax.random.key(seed), 1.5, (t, h, w, SENSOR.bins)).astype(jnp.float32)
-    return counts, np.asarray(network_inputs(counts, SENSOR, PHOTONS))
+    return counts, np.asarray(_inputs(counts, SENSOR, PHOTONS))
 
 
 def test_widened_model_computes_the_depth_only_function():
@@ -136,8 +141,8 @@ def test_widened_model_computes_the_depth_only_function():
     assert wide.config.inputs == PHOTONS and wide.config.no_return_head
     _, x = _photon_frames()
     win = temporal_windows(x, 1)
-    np.testing.assert_array_equal(apply_model(wide.params, wide.state, win, wide.config),
-                                  apply_model(model.params, model.state, win[..., 0], model.config))
+    np.testing.assert_allclose(_apply(wide.params, wide.state, win, wide.config),
+                               _apply(model.params, model.state, win[..., 0], model.config), rtol=1e-6, atol=1e-6)
     with pytest.raises(ValueError, match="widen"):  # nothing to add
         with_photon_inputs(jax.random.key(5), wide)
     with pytest.raises(ValueError, match="widen"):  # an input dropped
@@ -151,9 +156,9 @@ def test_widened_model_computes_the_depth_only_function():
 
 def test_no_return_head_marks_pixels_and_its_loss_learns_them():
     cfg = ModelConfig(tr=0, inputs=PHOTONS, no_return_head=True, **TINY)
-    params, state = init_model(jax.random.key(0), cfg)
+    params, state = jax.jit(init_model, static_argnames="cfg")(jax.random.key(0), cfg)
     _, x = _photon_frames(t=2)
-    out, _ = apply_model_train(params, state, x[:, None], cfg)
+    out, _ = jax.jit(apply_model_train, static_argnames="cfg")(params, state, x[:, None], cfg)
     assert out.shape == (2, 32, 40, 2)
     np.testing.assert_array_equal(out[..., 1], -4.0)  # a new head says "return" everywhere
     merged = merge_no_return(out.at[0, :4, :, 1].set(3.0), cfg)
@@ -179,7 +184,7 @@ def test_photon_model_runs_the_same_through_every_inference_path():
     model.params["no_return"]["conv2"] = {"w": 0.3 * jax.random.normal(jax.random.key(4), head["w"].shape),
                                           "b": head["b"] + 4.0}
     counts, x = _photon_frames(t=5, h=8, w=30)
-    want = np.asarray(apply_model(model.params, model.state, temporal_windows(x, 1), model.config))
+    want = np.asarray(_apply(model.params, model.state, temporal_windows(x, 1), model.config))
     assert 0.05 < np.mean(want == 1.0) < 0.95  # the head marks some pixels
     np.testing.assert_allclose(super_resolve(model, x), want, atol=1e-5)
     np.testing.assert_allclose(super_resolve(model, x, tile=16), want, atol=1e-5)
@@ -225,8 +230,8 @@ def test_a_photon_model_widened_to_the_ambient_channel_computes_its_function():
         params, state = initial_weights(jax.random.key(0), cfg, photon)
         jax.tree_util.tree_map(np.testing.assert_array_equal, params["no_return"], photon.params["no_return"])
         win = temporal_windows(xa[..., [AMBIENT.index(name) for name in order]], 1)
-        np.testing.assert_allclose(apply_model(params, state, win, cfg),
-                                   apply_model(photon.params, photon.state, temporal_windows(x, 1), photon.config),
+        np.testing.assert_allclose(_apply(params, state, win, cfg),
+                                   _apply(photon.params, photon.state, temporal_windows(x, 1), photon.config),
                                    rtol=1e-6, atol=1e-6)
     with pytest.raises(ValueError, match="architecture"):  # a channel dropped is not a widening
         initial_weights(jax.random.key(0), dataclasses.replace(photon.config, inputs=("depth", "signal")), photon)
