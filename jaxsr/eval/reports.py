@@ -65,8 +65,8 @@ def header(title: str, started: float) -> str:
         f"- date: {datetime.date.today().isoformat()}\n"
         f"- wall time: {time.time() - started:.0f} s\n"
         f"- load average at the end (1, 5, 15 min): {', '.join(f'{v:.1f}' for v in os.getloadavg())} "
-        "(the run itself keeps the cores busy; well above the core count, other work shared the CPU and "
-        "timings are low)\n"
+        "(the run itself keeps the cores busy; a load well above the core count would mean other work shared "
+        "the CPU and timings are low)\n"
         + _steal_line()
         + "\n"
     )
