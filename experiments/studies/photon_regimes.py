@@ -117,7 +117,8 @@ def regime_clips(seqs: dict, photons: float, snr, *, scored, radius: int, key, s
         x = np.asarray(x)
         counts = np.zeros((len(keep), 0), np.float32)  # not kept: the methods read the centre of mass (+ photons)
         clips[name] = Clip(name, x[..., 0], counts, np.asarray(gt), float(seq.fps), s,
-                           np.asarray(seq.intensity[keep], np.float32), np.searchsorted(keep, scored), x[..., 1:])
+                           np.asarray(seq.intensity[keep], np.float32), np.searchsorted(keep, scored), x[..., 1:],
+                           channels=MODEL_INPUTS[1:])
         ambient[name] = {a: np.asarray(f)[clips[name].scored] for a, f in zip(tests, flags)}
     return clips, ambient
 

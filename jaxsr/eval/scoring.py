@@ -63,9 +63,10 @@ class Clip:
     snr: float
     intensity: np.ndarray | None = None  # the HR intensity (T, H, W) in [0, 1], HistNet's guide image
     scored: np.ndarray | None = None  # the frames a test scores (`scored_frames`); None: every frame
-    # the photons behind each LR depth, (T, h, w, C) encoded channels (`jaxsr.nn.network_inputs`) named by the
-    # first C of MODEL_INPUTS after "depth", for networks that read them; None when made without them
+    # the photons behind each LR depth, (T, h, w, C) encoded channels (`jaxsr.nn.network_inputs`), for networks
+    # that read them; None when made without them. `channels` names them, in order.
     photons: np.ndarray | None = None
+    channels: tuple[str, ...] = MODEL_INPUTS[1:]
 
     def network_input(self, inputs=("depth",)) -> np.ndarray:
         """What a network reading `inputs` (`ModelConfig.inputs`) gets: lr, or (T, h, w, C) channels."""
@@ -74,7 +75,10 @@ class Clip:
             return self.lr
         if self.photons is None:
             raise ValueError(f"clip {self.name!r} was made without its photons; a model reading {inputs} needs them")
-        channel = {"depth": self.lr, **dict(zip(MODEL_INPUTS[1:], np.moveaxis(self.photons, -1, 0)))}
+        if len(self.channels) != self.photons.shape[-1]:
+            raise ValueError(f"clip {self.name!r}: its photons hold {self.photons.shape[-1]} channels but "
+                             f"channels names {len(self.channels)}: {self.channels}")
+        channel = {"depth": self.lr, **dict(zip(self.channels, np.moveaxis(self.photons, -1, 0)))}
         missing = [name for name in inputs if name not in channel]
         if missing:
             raise ValueError(f"clip {self.name!r} was made without the channels {missing}; a model reading {inputs} "

@@ -93,19 +93,15 @@ def _windows_through_model(model: Model, chunk, sharding=None, conv3d_impl="auto
     head): (B, h r, w r, 2) [depth, logit] before the decision (`apply_model_raw`)."""
     arch = model.architecture
     extra = {} if precision == "default" else {"precision": precision}
-    if raw:
-        extra["raw"] = True
-    if arch.sequence_form(model.config):
+    if arch.sequence_form(model.config):  # the DUF network's sequence form
         return apply_model_sequence(model.params, model.state, chunk[None], model.config, padding="valid",
-                                    conv3d_impl=conv3d_impl, **extra)[0]
+                                    conv3d_impl=conv3d_impl, raw=raw, **extra)[0]
     n = arch.frames(model.config)
     b = chunk.shape[0] - n + 1
     windows = chunk[jnp.arange(b)[:, None] + jnp.arange(n)[None, :]]
     if sharding is not None:
         windows = jax.lax.with_sharding_constraint(windows, sharding)
-    apply = arch.apply
-    if extra.pop("raw", False):
-        apply = apply_model_raw
+    apply = apply_model_raw if raw else arch.apply
     return apply(model.params, model.state, windows, model.config, conv3d_impl=conv3d_impl, **extra)
 
 

@@ -104,3 +104,21 @@ def test_budget_models_refuse_another_checkpoint_and_skip_a_missing_one(tmp_path
     assert models == {} and "skipped" in skipped[0]
     assert _baselines.load_budget_models({"HistNet (retrained here)": {}}) == ({}, [])  # no plan: no row
 
+
+
+def test_a_clip_gives_each_network_the_channels_it_reads_by_name():
+    """A clip's photon channels are named (`Clip.channels`); a model reading them in another order or a subset
+    gets its own stack, one reading a channel the clip lacks is told which."""
+    t, h, w = 2, 4, 6
+    lr = np.full((t, h, w), 0.5, np.float32)
+    photons = np.stack([np.full((t, h, w), v, np.float32) for v in (0.1, 0.2, 0.3)], axis=-1)
+    clip = scoring.Clip("c", lr, np.zeros((t, 0), np.float32), lr, 25.0, 1.3, photons=photons,
+                        channels=("signal", "background", "ambient"))
+    assert clip.network_input() is lr
+    x = clip.network_input(("depth", "ambient", "signal"))
+    np.testing.assert_allclose(x[0, 0, 0], [0.5, 0.3, 0.1], rtol=1e-6)
+    two = dataclasses.replace(clip, photons=photons[..., :2], channels=("signal", "background"))
+    with pytest.raises(ValueError, match=r"without the channels \['ambient'\]"):
+        two.network_input(("depth", "signal", "background", "ambient"))
+    with pytest.raises(ValueError, match="hold 2 channels but channels names 3"):
+        dataclasses.replace(clip, photons=photons[..., :2]).network_input(("depth", "signal"))
