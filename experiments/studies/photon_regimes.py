@@ -48,6 +48,7 @@ from jaxsr.eval.scoring import (
     Clip,
     format_interval,
     frame_scores,
+    frame_windows,
     scored_frames,
     scored_output,
 )
@@ -192,7 +193,7 @@ def tv_output(clip: Clip, frames, scale: int) -> tuple[np.ndarray, np.ndarray]:
     """TV on the clip's frames at positions `frames` (each solved with its own window of 2 TV_TR + 1 frames)."""
     out = []
     for t in frames:
-        window = clip.lr[np.clip(t + np.arange(-TV_TR, TV_TR + 1), 0, len(clip.lr) - 1)]
+        window = frame_windows(clip.lr, [t], TV_TR)[0]
         out.append(np.asarray(jaxsr.tv_super_resolve(window, scale=scale, tr=TV_TR))[TV_TR])
     return np.stack(out), clip.gt[frames]
 
@@ -458,9 +459,7 @@ def returns_kept(model, x, frames, quiet) -> np.ndarray:
     can call a dim surface of a dark scene sky (a couple of photons in one bin, no ambient light around); summed
     over the frames those photons stand out. A block that a sky edge crosses holds a return, so its sky part is
     output as depth: the price, on the regions' edges. Windows edge-replicated as `super_resolve_frames`'."""
-    tr = model.config.tr
-    windows = np.asarray(x)[np.clip(np.asarray(frames)[:, None] + np.arange(-tr, tr + 1), 0, len(x) - 1)]
-    depth, logit = no_return_outputs(model, windows)
+    depth, logit = no_return_outputs(model, frame_windows(x, frames, model.config.tr))
     return overrule_no_return(np.stack([depth, logit], axis=-1), quiet, model.config.no_return_logit)
 
 

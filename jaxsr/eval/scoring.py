@@ -172,6 +172,12 @@ def _apply_windows():
     return jax.jit(jaxsr.apply_model, static_argnames=("cfg", "precision"), compiler_options=compiler_options())
 
 
+def frame_windows(lr, frames, tr: int) -> np.ndarray:
+    """The windows of 2 tr + 1 frames around `frames` (indices) of `lr` (T, ...), edge-replicated at the sequence
+    ends as `jaxsr.windows`: (len(frames), 2 tr + 1, ...)."""
+    return np.asarray(lr)[np.clip(np.asarray(frames)[:, None] + np.arange(-tr, tr + 1), 0, len(lr) - 1)]
+
+
 def super_resolve_frames(model, lr, frames=None, *, batch: int = 8, precision: str = "default",
                          form: str = "model") -> np.ndarray:
     """`jaxsr.super_resolve(model, lr, precision=precision, form=form)[frames]` (frames: indices, None = all) for
@@ -182,8 +188,7 @@ def super_resolve_frames(model, lr, frames=None, *, batch: int = 8, precision: s
     if frames is None or model.architecture.sequence_form(model.config):
         out = jaxsr.super_resolve(model, lr, precision=precision, form="model")
         return out if frames is None else out[frames]
-    tr = model.config.tr  # windows edge-replicated at the sequence ends, as `jaxsr.windows`
-    windows = np.asarray(lr)[np.clip(np.asarray(frames)[:, None] + np.arange(-tr, tr + 1), 0, len(lr) - 1)]
+    windows = frame_windows(lr, frames, model.config.tr)
     mesh = Mesh(np.asarray(jax.local_devices()), ("batch",))  # each batch split over the cores, as super_resolve does
     batch = -(-batch // mesh.size) * mesh.size
     params, state = jax.device_put((model.params, model.state), NamedSharding(mesh, P()))

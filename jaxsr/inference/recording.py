@@ -576,9 +576,7 @@ def _check_keep_returns(setting, ambient_alpha, model, name: str) -> None:
     if ambient_alpha is not None and not _is_auto(ambient_alpha):
         raise ValueError("keep_returns (--keep-returns) and ambient_alpha (--ambient-alpha) are two decisions on no "
                          "return: give one (--ambient-alpha off with --keep-returns)")
-    heads = ([getattr(model.config, "no_return_head", False)] if model is not None else
-             [read_metadata(resolve_model_path(p))["config"].get("no_return_head", False) for p in _picks(name)])
-    if not all(heads):  # "auto" and "default" must not pick a model without one
+    if not all(_heads(model, name)):  # "auto" and "default" must not pick a model without one
         raise ValueError(f"keep_returns (--keep-returns) overrules a no-return head's decision; model {name} has no "
                          "head: give one that has (tr4-ambient, tr0-ambient, tr4-photons, tr0-photons)")
 
@@ -659,15 +657,22 @@ def _check_no_return_logit(model, name: str, logit) -> None:
     if model is not None:
         with_no_return_logit(model, logit)  # raises for a model without the head, or a logit not finite
         return
-    picks = _picks(name)
-    if not any(read_metadata(resolve_model_path(p))["config"].get("no_return_head", False) for p in picks):
+    if not any(_heads(None, name)):
         raise ValueError(f"no_return_logit (--no-return-logit) applies to models with a no-return head; --model {name} "
-                         f"picks {' or '.join(picks)}, which have none: name one that has, such as tr4-ambient")
+                         f"picks {' or '.join(_picks(name))}, which have none: name one that has, such as tr4-ambient")
 
 
 def _picks(name: str) -> list[str]:
     """The bundled models that "auto" or "default" may pick."""
     return [f"tr{k}" for k in range(5)] if name == "auto" else sorted(set(DEFAULT_MODELS.values()))
+
+
+def _heads(model, name: str) -> list[bool]:
+    """Whether the model has a no-return head: [that of `model`], or for "auto" and "default" (model None) one
+    per model they may pick, read from the bundled files' metadata."""
+    if model is not None:
+        return [bool(getattr(getattr(model, "config", None), "no_return_head", False))]
+    return [read_metadata(resolve_model_path(p))["config"].get("no_return_head", False) for p in _picks(name)]
 
 
 def _check_precision_form(model, precision, form) -> None:

@@ -117,12 +117,15 @@ def _window(sensor: SensorConfig, window):
     return window
 
 
+def _peak_window(n, sensor: SensorConfig, window):
+    """(..., K) bool: the bins within the half-width of the first argmax (clipped to the gate)."""
+    return jnp.abs(jnp.arange(sensor.bins) - jnp.argmax(n, axis=-1)[..., None]) <= _window(sensor, window)
+
+
 def _peak_excess(n, sensor: SensorConfig, window):
     """(counts above the median background in the window around the first argmax (..., K), the median (...))."""
-    k = jnp.arange(sensor.bins)
-    w = _window(sensor, window)
     background = median_of_bins(n)
-    in_window = jnp.abs(k - jnp.argmax(n, axis=-1)[..., None]) <= w
+    in_window = _peak_window(n, sensor, window)
     return jnp.where(in_window, jnp.maximum(n - background[..., None], 0.0), 0.0), background
 
 
@@ -160,8 +163,7 @@ def ambient_photons(counts, sensor: SensorConfig = SensorConfig(), *, window=Non
     Returns an array of shape counts.shape[:-1], float32 (or wider).
     """
     n, usable = _usable(_check_counts("ambient_photons", counts, sensor))
-    k = jnp.arange(sensor.bins)
-    in_window = jnp.abs(k - jnp.argmax(n, axis=-1)[..., None]) <= _window(sensor, window)
+    in_window = _peak_window(n, sensor, window)
     outside = jnp.sum(~in_window, axis=-1)
     # the mean of the bins outside (<= the largest count, so finite), then x K within float range
     mean = jnp.sum(jnp.where(in_window, 0.0, n / jnp.maximum(outside, 1)[..., None]), axis=-1)
