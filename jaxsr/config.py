@@ -410,6 +410,9 @@ class PhotonRegime:
     - no return (sky, absorbing surfaces): with probability `no_return_prob`, a fraction uniform in
       `no_return_fraction` of the HR pixels (`jaxsr.sensor.no_return_regions`, sky weight uniform in [0, 1],
       blobs of `blob_size` HR pixels), on top of the scene's own sky;
+    - thin returns across them: with probability `thin_prob` (of the clips with drawn no-return regions), 1 to
+      `thin_lines_max` lines (uniform) of width log-uniform in `thin_width_range` HR pixels keep the scene's
+      depth (`jaxsr.sensor.thin_returns`: poles, cables, a lattice tower's beams against the sky);
     - `motion`: `jaxsr.scenes.training_clip`'s motion mode ("seen": every clip's motion shows in its depth);
     - `paper_prob`: the share of clips drawn from the paper's regime instead (`PAPER_REGIME`'s signal and SNR
       ranges, the IRF `irf_paper`, no dark counts, hot or dead pixels and no added no-return regions),
@@ -432,16 +435,20 @@ class PhotonRegime:
     no_return_prob: float = 0.5
     no_return_fraction: tuple[float, float] = (0.05, 0.6)
     blob_size: int = 16
+    thin_prob: float = 0.0
+    thin_lines_max: int = 8
+    thin_width_range: tuple[float, float] = (1.0, 8.0)
     motion: str = "seen"
     paper_prob: float = 0.0
 
     def __post_init__(self):
         who = "PhotonRegime"
-        for name in ("signal_range", "snr_range", "irf_sigma_range", "dark_range", "hot_level_range"):
+        for name in ("signal_range", "snr_range", "irf_sigma_range", "dark_range", "hot_level_range",
+                     "thin_width_range"):
             _check_range(who, name, getattr(self, name))
         _check_range(who, "no_return_fraction", self.no_return_fraction, strict=False, hi=1.0)
         for name in ("irf_paper_prob", "dark_prob", "hot_prob", "hot_fraction_max", "dead_prob",
-                     "dead_fraction_max", "no_return_prob", "paper_prob"):
+                     "dead_fraction_max", "no_return_prob", "thin_prob", "paper_prob"):
             v = float(getattr(self, name))
             if not 0.0 <= v <= 1.0:
                 raise ValueError(f"{who}: {name} must be in [0, 1], got {v}")
@@ -450,6 +457,8 @@ class PhotonRegime:
                              f"{self.irf_power}")
         if int(self.blob_size) != self.blob_size or self.blob_size < 1:
             raise ValueError(f"{who}: blob_size must be an integer >= 1, got {self.blob_size}")
+        if int(self.thin_lines_max) != self.thin_lines_max or self.thin_lines_max < 1:
+            raise ValueError(f"{who}: thin_lines_max must be an integer >= 1, got {self.thin_lines_max}")
         if self.motion not in ("drawn", "seen"):
             raise ValueError(f"{who}: motion must be 'drawn' or 'seen', got {self.motion!r}")
 

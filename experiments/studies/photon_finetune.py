@@ -80,6 +80,9 @@ def main(argv=None) -> None:
                         "light, such as indoors or at night (a real one, tower, reads 45)")
     parser.add_argument("--no-return-prob", type=float, default=PhotonRegime().no_return_prob,
                         help="share of clips with added no-return regions (PhotonRegime.no_return_prob)")
+    parser.add_argument("--thin-prob", type=float, default=PhotonRegime().thin_prob,
+                        help="share of the clips with no-return regions that thin returns cross (poles, cables, a "
+                        "lattice tower's beams: PhotonRegime.thin_prob); validation draws them as often")
     parser.add_argument("--checkpoint-minutes", type=float, default=5.0)
     parser.add_argument("--keep", action="store_true", help="copy the run's best weights to experiments/photon_weights")
     args = parser.parse_args(argv)
@@ -96,16 +99,17 @@ def main(argv=None) -> None:
         return
     sensor = jaxsr.SensorConfig()
     regime = PhotonRegime(signal_range=tuple(args.signal_range), snr_range=tuple(args.snr_range),
-                          no_return_prob=args.no_return_prob, paper_prob=args.paper_share)
+                          no_return_prob=args.no_return_prob, thin_prob=args.thin_prob, paper_prob=args.paper_share)
     model_cfg = jaxsr.ModelConfig(tr=args.tr, **(PHOTON_INPUTS if args.photons else {}))
     if args.ambient:
         model_cfg = dataclasses.replace(model_cfg, inputs=(*model_cfg.inputs, "ambient"))
     train_cfg = train_config(args.epochs, args.steps_per_epoch, args.lr, args.seed, batch_size=args.batch_size,
                              decay_epochs=args.decay_epochs, precision=args.precision)
     # validation on the whole wide regime (PhotonRegime(), paper_prob 0) whatever the draws above: a run that
-    # trains on part of it (--signal-range, --snr-range) is still chosen for the regime the photon models serve
-    validation = regime_validation(args.tr, train_cfg, PhotonRegime(), batches=args.val_batches, sensor=sensor,
-                                   inputs=model_cfg.inputs)
+    # trains on part of it (--signal-range, --snr-range) is still chosen for the regime the photon models serve;
+    # thin returns, a kind of scene rather than a range, are validated on as often as trained on
+    validation = regime_validation(args.tr, train_cfg, PhotonRegime(thin_prob=args.thin_prob),
+                                   batches=args.val_batches, sensor=sensor, inputs=model_cfg.inputs)
     jaxsr.fit(model_cfg, train_cfg, out=out, make_batch=regime_batches(
         args.tr, train_cfg, regime, sensor=sensor, inputs=model_cfg.inputs), validation=validation, sensor=sensor,
         resume=True, progress=not args.no_progress,

@@ -48,6 +48,7 @@ from .effects import (
     hot_pixels,
     dead_pixels,
     no_return_regions,
+    thin_returns,
     with_irf_sigma,
     clip_negative_counts,
 )
@@ -105,6 +106,7 @@ __all__ = [
     "hot_pixels",
     "dead_pixels",
     "no_return_regions",
+    "thin_returns",
     "with_irf_sigma",
     "clip_negative_counts",
     "gate_depth",

@@ -4,7 +4,8 @@ a per-clip IRF width, and background-subtracted (negative) counts.
 docs/sensor-model.md, section 2 ("Sensor effects"). The forward model gives Poisson rates (..., h, w, K) per LR
 pixel and bin (`expected_histograms`, `calibrated_rates`); the effects here act on those rates before the
 Poisson draw (`dark_counts`, `hot_pixels`, `dead_pixels`), on the HR radial depth before the rates are computed
-(`no_return_regions`), on the sensor config (`with_irf_sigma`), or on measured counts (`clip_negative_counts`).
+(`no_return_regions`, `thin_returns`), on the sensor config (`with_irf_sigma`), or on measured counts
+(`clip_negative_counts`).
 Every function is pure and jit/vmap compatible, takes its key first and its options by keyword. Eagerly, an
 option out of its domain is a `ValueError`; traced (under `jit`, `vmap` or `grad`), a scalar out of its domain
 makes the result NaN, as in `jaxsr.sensor.forward`.
@@ -30,6 +31,7 @@ __all__ = [
     "hot_pixels",
     "dead_pixels",
     "no_return_regions",
+    "thin_returns",
     "with_irf_sigma",
     "clip_negative_counts",
 ]
@@ -169,6 +171,46 @@ def no_return_regions(key, depth, *, fraction, sky=0.5, blob_size=16, return_mas
     out = jnp.where(mask, jnp.inf, depth)
     out = jnp.where(ok, out, jnp.nan)
     return (out, mask) if return_mask else out
+
+
+def thin_returns(key, shape, *, lines, width_range=(1.0, 8.0), max_lines: int = 8):
+    """Thin structures in front of the regions with no return: poles, masts, cables, a lattice tower's beams
+    against the sky. A surface one LR pixel wide with sky on both sides is what a head trained on blobs of sky
+    calls sky (measured on a real recording of a lattice tower: its beams, 10-50 photons in one bin per frame,
+    output as no return).
+
+    `lines` straight lines (the first `lines` of `max_lines` drawn), each through a uniform random point of the
+    frame at a uniform random angle, as wide as a log-uniform draw in `width_range` (HR pixels). A caller keeps
+    the scene's depth on them inside its no-return regions (`jaxsr.training.regime_clips`).
+
+    Args:
+      key: a `jax.random` key.
+      shape: (H, W) HR pixels.
+      lines: how many lines, an integer in [0, max_lines] (may be traced: one draw per clip).
+      width_range: (lo, hi) widths in HR pixels, 0 < lo <= hi (static).
+      max_lines: the most lines (static int >= 0).
+    Returns:
+      (H, W) bool, True on the lines. jit/vmap-able; eagerly an option out of its domain is a `ValueError`.
+    """
+    if int(max_lines) != max_lines or max_lines < 0:
+        raise ValueError(f"thin_returns: max_lines must be an integer >= 0, got {max_lines}")
+    lo, hi = (float(v) for v in width_range)
+    if not (0.0 < lo <= hi < float("inf")):
+        raise ValueError(f"thin_returns: width_range must be (lo, hi) HR pixels with 0 < lo <= hi, got {width_range}")
+    if is_concrete(lines) and not (int(lines) == lines and 0 <= lines <= max_lines):
+        raise ValueError(f"thin_returns: lines must be an integer in [0, {max_lines}], got {lines}")
+    h, w = (int(v) for v in shape)
+    k_point, k_angle, k_width = jax.random.split(key, 3)
+    centre = jax.random.uniform(k_point, (int(max_lines), 2)) * jnp.array([h, w], jnp.float32)
+    angle = jax.random.uniform(k_angle, (int(max_lines),), maxval=jnp.pi)
+    width = jnp.exp(jax.random.uniform(k_width, (int(max_lines),), minval=np.log(lo), maxval=np.log(hi)))
+    y = jnp.arange(h, dtype=jnp.float32)[:, None] + 0.5
+    x = jnp.arange(w, dtype=jnp.float32)[None, :] + 0.5
+    # distance of each pixel centre from each line: |(p - c) . n| with n the line's unit normal
+    dist = jnp.abs((y[None] - centre[:, 0, None, None]) * jnp.cos(angle)[:, None, None]
+                   - (x[None] - centre[:, 1, None, None]) * jnp.sin(angle)[:, None, None])
+    on = (dist < width[:, None, None] / 2) & (jnp.arange(int(max_lines)) < lines)[:, None, None]
+    return on.any(0)
 
 
 def with_irf_sigma(sensor: SensorConfig, irf_sigma):

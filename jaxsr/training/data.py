@@ -29,7 +29,7 @@ import jax.numpy as jnp
 import json
 
 from ..config import PAPER_REGIME, PhotonRegime, SensorConfig, TrainConfig
-from ..sensor.effects import dark_counts, dead_pixels, hot_pixels, no_return_regions, with_irf_sigma
+from ..sensor.effects import dark_counts, dead_pixels, hot_pixels, no_return_regions, thin_returns, with_irf_sigma
 from ..nn.inputs import network_inputs
 from ..sensor.poisson import sample_poisson
 from ..scenes import test_sequences, training_clip
@@ -160,9 +160,10 @@ def scene_clips(frames: int, train_cfg: TrainConfig, *, sensor: SensorConfig = _
 def regime_parameters(key, regime: PhotonRegime = PhotonRegime()):
     """One clip's draw from `regime` (see `PhotonRegime`): a dict of scalars `mean_signal` (photons per LR pixel
     with a return), `snr`, `irf_sigma` (bins), `dark` (photons per bin), `hot_fraction`, `hot_level` (extra
-    photons of a hot pixel over all bins, times `mean_signal`), `dead_fraction`, `no_return_fraction` and `sky`
-    (the weight of the sky band). An effect not drawn for the clip has fraction or rate 0; a clip of the
-    paper's regime (`regime.paper_prob`) has the paper's signal, SNR and IRF and no effects. jit/vmap-able."""
+    photons of a hot pixel over all bins, times `mean_signal`), `dead_fraction`, `no_return_fraction`, `sky`
+    (the weight of the sky band) and `thin_lines` (thin returns across the no-return regions). An effect not
+    drawn for the clip has fraction, rate or count 0; a clip of the paper's regime (`regime.paper_prob`) has the
+    paper's signal, SNR and IRF and no effects. jit/vmap-able."""
     k = iter(jax.random.split(key, 14))
 
     def chance(p):
@@ -185,19 +186,24 @@ def regime_parameters(key, regime: PhotonRegime = PhotonRegime()):
         no_return_fraction=jnp.where(chance(regime.no_return_prob), uniform(*regime.no_return_fraction), 0.0),
         sky=uniform(0.0, 1.0),
     )
+    # drawn from keys of their own (as the paper's regime below), so that thin_prob = 0 leaves every draw as it was
+    k_thin, k_lines = jax.random.split(jax.random.fold_in(key, 15))
+    lines = jax.random.randint(k_lines, (), 1, regime.thin_lines_max + 1)
+    wide["thin_lines"] = jnp.where((jax.random.uniform(k_thin) < regime.thin_prob)
+                                   & (wide["no_return_fraction"] > 0), lines, 0)
     # the paper's regime, drawn from keys of its own so that paper_prob = 0 leaves every other draw as it was
     k_paper, k_sig, k_snr = jax.random.split(jax.random.fold_in(key, 14), 3)
     paper = dict(wide, mean_signal=log_uniform(k_sig, *PAPER_REGIME.signal_range),
                  snr=log_uniform(k_snr, *PAPER_REGIME.snr_range), irf_sigma=jnp.asarray(regime.irf_paper, jnp.float32),
-                 dark=0.0, hot_fraction=0.0, dead_fraction=0.0, no_return_fraction=0.0)
+                 dark=0.0, hot_fraction=0.0, dead_fraction=0.0, no_return_fraction=0.0, thin_lines=0)
     is_paper = jax.random.uniform(k_paper) < regime.paper_prob
     return {name: jnp.where(is_paper, paper[name], wide[name]) for name in wide}
 
 
 def _regime_description(regime: PhotonRegime, inputs=("depth",)):
     return (f"jaxsr.scenes.training_clip(motion={regime.motion!r}) -> PhotonRegime "
-            f"{json.dumps(regime.to_dict(), sort_keys=True)} -> no_return_regions -> calibrated_rates (per-clip IRF) "
-            "-> dark_counts, hot_pixels, dead_pixels -> sample_poisson -> "
+            f"{json.dumps(regime.to_dict(), sort_keys=True)} -> no_return_regions, thin_returns -> calibrated_rates "
+            "(per-clip IRF) -> dark_counts, hot_pixels, dead_pixels -> sample_poisson -> "
             + ("centre_of_mass" if tuple(inputs) == ("depth",) else f"network_inputs{tuple(inputs)}"))
 
 
@@ -207,12 +213,13 @@ def regime_clips(frames: int, train_cfg: TrainConfig, regime: PhotonRegime = Pho
     every parameter of `regime` drawn per clip (`regime_parameters`).
 
     Per clip: `jaxsr.scenes.training_clip` (motion log-uniform in `train_cfg.motion_range`, `regime.motion`) ->
-    `no_return_regions` on the HR depth -> calibration over the whole clip to the drawn SNR and photon level with
-    the drawn IRF width (`with_irf_sigma`) -> rates of the kept crop (`train_cfg.patch`) -> `dark_counts`,
-    `hot_pixels`, `dead_pixels` (one mask per clip) -> Poisson draw -> `centre_of_mass` with `sensor` (the
-    nominal IRF's window, as a recording is read at inference). GT = `normalise_depth` of the depth with its
-    no-return regions: 1.0 there. `train_cfg.snr_range` and `mean_signal_range` are not used. `inputs`: what
-    the network reads (`jaxsr.nn.inputs.network_inputs`; more than depth adds a last axis of channels).
+    `no_return_regions` on the HR depth, crossed by `thin_returns` -> calibration over the whole clip to the
+    drawn SNR and photon level with the drawn IRF width (`with_irf_sigma`) -> rates of the kept crop
+    (`train_cfg.patch`) -> `dark_counts`, `hot_pixels`, `dead_pixels` (one mask per clip) -> Poisson draw ->
+    `centre_of_mass` with `sensor` (the nominal IRF's window, as a recording is read at inference). GT =
+    `normalise_depth` of the depth with its no-return regions: 1.0 there. `train_cfg.snr_range` and
+    `mean_signal_range` are not used. `inputs`: what the network reads (`jaxsr.nn.inputs.network_inputs`; more
+    than depth adds a last axis of channels).
     Returns make_batch: key -> (clips (B, frames, h, w) LR normalised depth, gt `(B, frames, h*r, w*r)`), with
     `description` (the regime as JSON) and `regime` (`regime.to_dict()`).
     """
@@ -223,8 +230,11 @@ def regime_clips(frames: int, train_cfg: TrainConfig, regime: PhotonRegime = Pho
         depth, intensity = training_clip(k_scene, frames, sensor=sensor, shift_range=train_cfg.motion_range,
                                          motion=regime.motion)
         p = regime_parameters(k_par, regime)
-        depth = no_return_regions(k_sky, depth, fraction=p["no_return_fraction"], sky=p["sky"],
+        holed = no_return_regions(k_sky, depth, fraction=p["no_return_fraction"], sky=p["sky"],
                                   blob_size=regime.blob_size)
+        thin = thin_returns(jax.random.fold_in(k_sky, 1), depth.shape[-2:], lines=p["thin_lines"],
+                            width_range=regime.thin_width_range, max_lines=regime.thin_lines_max)
+        depth = jnp.where(thin, depth, holed)
         gt = normalise_depth(depth, sensor)
         clip_sensor = with_irf_sigma(sensor, p["irf_sigma"])
         alpha, beta = calibrate(depth, intensity, clip_sensor, snr=p["snr"], mean_signal=p["mean_signal"])

@@ -145,6 +145,7 @@ _PHOTON_KEYS = {
     "dead_prob": _probability, "dead_fraction_max": _probability,
     "no_return_prob": _probability, "no_return_fraction": _pair(0.0, 1.0, strict=False),
     "blob_size": _integer(1, 4096),
+    "thin_prob": _probability, "thin_lines_max": _integer(1, 64), "thin_width_range": _pair(),
     "motion": _choice("seen", "drawn"),
     "paper_prob": _probability,
 }

@@ -20,6 +20,7 @@ from jaxsr.sensor import (
     irf_bin_weights,
     no_return_regions,
     sample_poisson,
+    thin_returns,
     with_irf_sigma,
 )
 
@@ -99,6 +100,25 @@ def test_no_return_regions_give_zero_signal():
     lam = expected_histograms(holed, intensity, SENSOR, snr=1e4, mean_signal=100.0)
     top = np.asarray(lam)[0, 0]  # the top LR row: sky, background only (flat)
     np.testing.assert_allclose(top, top[..., :1] * np.ones(K), rtol=1e-5)
+
+
+def test_thin_returns_are_lines_of_the_width_asked():
+    key = jax.random.key(2)
+    assert not thin_returns(key, (H, W), lines=0).any()
+    masks = [np.asarray(thin_returns(key, (H, W), lines=n)) for n in range(4)]
+    for fewer, more in zip(masks, masks[1:]):  # the first n lines of the same draws
+        assert np.all(more[fewer]) and more.sum() > fewer.sum()
+    # one line of width 3: about 3 pixels across it in every row or column it crosses
+    one = np.asarray(thin_returns(jax.random.key(4), (H, W), lines=1, width_range=(3.0, 3.0), max_lines=1))
+    across = np.concatenate([one.sum(0)[one.any(0)], one.sum(1)[one.any(1)]])
+    assert one.any() and 2 <= np.median(across) and np.min(across) >= 1
+    traced = jax.jit(jax.vmap(lambda k, n: thin_returns(k, (H, W), lines=n)))(
+        jax.random.split(key, 3), jnp.array([0, 2, 8]))
+    assert traced.shape == (3, H, W) and not traced[0].any() and traced[2].sum() > traced[1].sum()
+    for bad in (dict(lines=9), dict(lines=1, width_range=(0.0, 2.0)), dict(lines=1, width_range=(4.0, 2.0)),
+                dict(lines=1, max_lines=-1), dict(lines=1.5)):
+        with pytest.raises(ValueError, match="thin_returns"):
+            thin_returns(key, (H, W), **bad)
 
 
 def test_with_irf_sigma_widens_the_pulse_and_traces():

@@ -35,6 +35,7 @@ irf_sigma_bins = 0.8
 signal_range = [2.0, 8.0]
 snr_range = [1.0, 10.0]
 no_return_prob = 0.2
+thin_prob = 0.5
 dark_prob = 0.0
 motion = "drawn"
 """
@@ -65,6 +66,7 @@ def test_a_good_file_gives_the_sensor_the_regime_and_the_gate():
     assert sensor.irf_sigma == jaxsr.SensorConfig().irf_sigma  # read out as jaxsr upscale reads (1-bin window)
     assert regime.signal_range == (2.0, 8.0) and regime.snr_range == (1.0, 10.0)
     assert regime.no_return_prob == 0.2 and regime.dark_prob == 0.0 and regime.motion == "drawn"
+    assert regime.thin_prob == 0.5 and regime.thin_lines_max == PhotonRegime().thin_lines_max
     assert regime.hot_prob == PhotonRegime().hot_prob  # unset keys: the wide regime's
     assert regime.irf_paper == regime.irf_sigma_range[0] == regime.irf_sigma_range[1] == 0.8
     assert regime.irf_paper_prob == 1.0  # every clip with the sensor's pulse

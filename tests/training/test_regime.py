@@ -22,7 +22,8 @@ def test_regime_is_json_ready_and_checked():
     assert PAPER_REGIME.signal_range == TrainConfig().mean_signal_range
     for change in (dict(signal_range=(0.0, 10.0)), dict(snr_range=(5.0, 1.0)), dict(dark_prob=1.5),
                    dict(no_return_fraction=(0.2, 1.5)), dict(blob_size=0), dict(motion="fast"),
-                   dict(irf_sigma_range=(0.3, float("inf")))):
+                   dict(irf_sigma_range=(0.3, float("inf"))), dict(thin_prob=1.5), dict(thin_lines_max=0),
+                   dict(thin_width_range=(0.0, 2.0))):
         with pytest.raises(ValueError, match="PhotonRegime"):
             PhotonRegime(**change)
 
@@ -77,3 +78,38 @@ def test_low_photons_and_no_return_regions():
     np.testing.assert_array_equal(again, windows)
     other, _ = make_batch(jax.random.key(4))
     assert not np.array_equal(np.asarray(other), windows)
+
+
+def test_thin_returns_are_drawn_apart_and_only_across_no_return_regions():
+    """thin_prob draws line counts from keys of their own: every other parameter is what thin_prob = 0 draws, so
+    older regimes' clips stay as they were; lines come only with drawn no-return regions, and never in clips of
+    the paper's regime."""
+    keys = jax.random.split(jax.random.key(1), 2000)
+
+    def draw(regime):
+        return {k: np.asarray(v) for k, v in jax.jit(jax.vmap(lambda k: regime_parameters(k, regime)))(keys).items()}
+
+    plain, thin = draw(PhotonRegime(paper_prob=0.2)), draw(PhotonRegime(paper_prob=0.2, thin_prob=0.5))
+    for name in plain:
+        if name != "thin_lines":
+            np.testing.assert_array_equal(plain[name], thin[name], err_msg=name)
+    assert not plain["thin_lines"].any()
+    lines, holed = thin["thin_lines"], thin["no_return_fraction"] > 0
+    assert not lines[~holed].any() and 1 <= lines[lines > 0].min() and lines.max() == PhotonRegime().thin_lines_max
+    assert np.mean(lines[holed] > 0) == pytest.approx(0.5, abs=0.05)
+
+
+def test_thin_returns_keep_the_scene_depth_inside_no_return_regions():
+    """With every clip holed and crossed, the ground truth holds returns (< 1) where the regions alone would
+    have none: the lines show through the sky."""
+    base = dict(signal_range=(20.0, 20.0), snr_range=(5.0, 5.0), no_return_prob=1.0, no_return_fraction=(0.5, 0.5),
+                motion="drawn", paper_prob=0.0)
+    cfg = dataclasses.replace(TrainConfig(), batch_size=2, patch=None)
+    batches = [jax.jit(regime_batches(0, cfg, PhotonRegime(**base, thin_prob=p), sensor=SENSOR))(jax.random.key(3))
+               for p in (0.0, 1.0)]
+    (_, holed), (_, crossed) = ([np.asarray(a) for a in b] for b in batches)
+    sky = holed == 1.0
+    assert np.all(sky.mean(axis=(1, 2)) >= 0.5 - 1e-3)
+    shows = sky & (crossed < 1.0)
+    assert np.all(shows.mean(axis=(1, 2)) > 0.002)  # every clip: some sky crossed
+    np.testing.assert_array_equal(crossed[~sky], holed[~sky])  # nothing changes outside the regions
