@@ -83,6 +83,9 @@ def main(argv=None) -> None:
     parser.add_argument("--thin-prob", type=float, default=PhotonRegime().thin_prob,
                         help="share of the clips with no-return regions that thin returns cross (poles, cables, a "
                         "lattice tower's beams: PhotonRegime.thin_prob); validation draws them as often")
+    parser.add_argument("--val-snrs", type=float, nargs="+", default=None, metavar="SNR",
+                        help="validate at these frame SNRs, in equal shares, instead of the regime's range (e.g. 0.1 "
+                        "1.3 5 45: model selection that sees a recording as dark as tower as often as the rest)")
     parser.add_argument("--checkpoint-minutes", type=float, default=5.0)
     parser.add_argument("--keep", action="store_true", help="copy the run's best weights to experiments/photon_weights")
     args = parser.parse_args(argv)
@@ -109,7 +112,8 @@ def main(argv=None) -> None:
     # trains on part of it (--signal-range, --snr-range) is still chosen for the regime the photon models serve;
     # thin returns, a kind of scene rather than a range, are validated on as often as trained on
     validation = regime_validation(args.tr, train_cfg, PhotonRegime(thin_prob=args.thin_prob),
-                                   batches=args.val_batches, sensor=sensor, inputs=model_cfg.inputs)
+                                   batches=args.val_batches, sensor=sensor, inputs=model_cfg.inputs,
+                                   snrs=args.val_snrs)
     jaxsr.fit(model_cfg, train_cfg, out=out, make_batch=regime_batches(
         args.tr, train_cfg, regime, sensor=sensor, inputs=model_cfg.inputs), validation=validation, sensor=sensor,
         resume=True, progress=not args.no_progress,

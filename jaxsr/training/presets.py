@@ -155,19 +155,28 @@ PHOTON_INPUTS = {"inputs": ("depth", "signal", "background"), "no_return_head": 
 
 
 def regime_validation(tr: int, train_cfg, regime: PhotonRegime, *, batches: int, sensor: SensorConfig,
-                      inputs=("depth",), key=None) -> dict:
+                      inputs=("depth",), key=None, snrs=None) -> dict:
     """A fixed validation set drawn from a photon regime: `batches` batches of `regime_batches(tr, train_cfg,
     regime, ...)` drawn with keys folded from `key` (default a fixed key independent of any training keys), as
     `fit` takes it (and `jaxsr.training.evaluate` reads it): {"windows", "gt", "lr" (the centre frames, for the
-    bicubic reference), "names"}. Model selection on the regime the model is for."""
+    bicubic reference), "names"}. Model selection on the regime the model is for.
+
+    snrs: frame SNRs to validate at instead of the regime's log-uniform range, the batches shared out among them
+    in turn (at least one each): a selection that sees every SNR named as often, such as a real recording's 45
+    that a draw up to 100 reaches in a few clips only."""
     if not (isinstance(batches, int) and batches >= 1):
         raise ValueError(f"regime_validation: batches must be an integer >= 1, got {batches!r}")
     key = jax.random.key(2**31 - 1) if key is None else key
-    make_batch = jax.jit(regime_batches(tr, train_cfg, regime, sensor=sensor, inputs=inputs))
-    drawn = [make_batch(jax.random.fold_in(key, i)) for i in range(batches)]
+    grid = [regime] if snrs is None else [dataclasses.replace(regime, snr_range=(float(s), float(s))) for s in snrs]
+    if not grid:
+        raise ValueError("regime_validation: snrs must name at least one SNR, or be None")
+    sources = [jax.jit(regime_batches(tr, train_cfg, r, sensor=sensor, inputs=inputs)) for r in grid]
+    drawn = [sources[i % len(grid)](jax.random.fold_in(key, i)) for i in range(max(batches, len(grid)))]
     windows = jnp.concatenate([w for w, _ in drawn])
     gt = jnp.concatenate([g for _, g in drawn])
-    return {"windows": windows, "gt": gt, "lr": windows[:, tr], "names": [f"regime draws x{windows.shape[0]}"]}
+    names = [f"regime draws x{windows.shape[0]}" + ("" if snrs is None else
+                                                      f" at SNR {', '.join(f'{float(s):g}' for s in snrs)}")]
+    return {"windows": windows, "gt": gt, "lr": windows[:, tr], "names": names}
 
 
 def _init_config(init, photons: bool | None) -> ModelConfig:

@@ -99,9 +99,10 @@ def test_thin_returns_are_drawn_apart_and_only_across_no_return_regions():
     assert np.mean(lines[holed] > 0) == pytest.approx(0.5, abs=0.05)
 
 
+@pytest.mark.slow
 def test_thin_returns_keep_the_scene_depth_inside_no_return_regions():
     """With every clip holed and crossed, the ground truth holds returns (< 1) where the regions alone would
-    have none: the lines show through the sky."""
+    have none: the lines show through the sky. (Slow: two whole data sources compiled, about a minute.)"""
     base = dict(signal_range=(20.0, 20.0), snr_range=(5.0, 5.0), no_return_prob=1.0, no_return_fraction=(0.5, 0.5),
                 motion="drawn", paper_prob=0.0)
     cfg = dataclasses.replace(TrainConfig(), batch_size=2, patch=None)
@@ -113,3 +114,28 @@ def test_thin_returns_keep_the_scene_depth_inside_no_return_regions():
     shows = sky & (crossed < 1.0)
     assert np.all(shows.mean(axis=(1, 2)) > 0.002)  # every clip: some sky crossed
     np.testing.assert_array_equal(crossed[~sky], holed[~sky])  # nothing changes outside the regions
+
+
+def test_validation_needs_an_snr_if_given_a_grid():
+    from jaxsr.training import regime_validation
+
+    with pytest.raises(ValueError, match="snrs"):
+        regime_validation(0, TrainConfig(), PAPER_REGIME, batches=2, sensor=SENSOR, snrs=())
+
+
+@pytest.mark.slow
+def test_validation_at_fixed_snrs_shares_the_batches_out_in_turn():
+    """regime_validation(snrs=...) draws its batches at each SNR named, in turn: the ambient channel reads far
+    higher at SNR 0.1 than at 100; without snrs the set is the regime's, as before. (Slow: three data sources
+    compiled, about a minute each on a busy core.)"""
+    from jaxsr.training import regime_validation
+
+    cfg = dataclasses.replace(TrainConfig(), batch_size=2, patch=(8, 16))
+    regime = dataclasses.replace(PAPER_REGIME, signal_range=(20.0, 20.0))
+    inputs = ("depth", "signal", "background", "ambient")
+    val = regime_validation(0, cfg, regime, batches=3, sensor=SENSOR, inputs=inputs, snrs=(0.1, 100.0))
+    ambient = np.asarray(val["windows"])[..., 3].reshape(3, 2, -1).mean(axis=(1, 2))  # per batch
+    assert val["windows"].shape == (6, 1, 8, 16, 4) and "SNR 0.1, 100" in val["names"][0]
+    assert ambient[0] > 2 * ambient[1] and ambient[2] > 2 * ambient[1]  # 0.1, 100, 0.1
+    plain = regime_validation(0, cfg, regime, batches=2, sensor=SENSOR, inputs=inputs)
+    assert plain["windows"].shape[0] == 4 and "SNR" not in plain["names"][0]
