@@ -412,7 +412,8 @@ class PhotonRegime:
       blobs of `blob_size` HR pixels), on top of the scene's own sky;
     - thin returns across them: with probability `thin_prob` (of the clips with drawn no-return regions), 1 to
       `thin_lines_max` lines (uniform) of width log-uniform in `thin_width_range` HR pixels keep the scene's
-      depth (`jaxsr.sensor.thin_returns`: poles, cables, a lattice tower's beams against the sky);
+      depth (`jaxsr.sensor.thin_returns`: poles, cables, a lattice tower's beams against the sky; one mask for
+      the clip's frames, as the regions');
     - `motion`: `jaxsr.scenes.training_clip`'s motion mode ("seen": every clip's motion shows in its depth);
     - `paper_prob`: the share of clips drawn from the paper's regime instead (`PAPER_REGIME`'s signal and SNR
       ranges, the IRF `irf_paper`, no dark counts, hot or dead pixels and no added no-return regions),

@@ -59,7 +59,8 @@ def main(argv=None) -> None:
     ap.add_argument("--sweep-tr", type=int, nargs="*", default=[0, 4])
     ap.add_argument("--sweep-batch", type=int, nargs="+", default=[16, 64])
     ap.add_argument("--sweep-precision", nargs="+", default=["default", "bfloat16"])
-    ap.add_argument("--finetunes", nargs="*", default=list(FINETUNES), choices=list(FINETUNES))
+    ap.add_argument("--finetunes", nargs="*", default=["tr4-ambient-more"], choices=list(FINETUNES),
+                    help="which to train side by side (default: the next planned, tr4-ambient-more)")
     ap.add_argument("--extra", nargs="*", default=[],
                     help="arguments added to every fine-tune, as one string (e.g. for a test)")
     args = ap.parse_args(argv)

@@ -12,7 +12,7 @@ first (`jaxsr.nn.with_photon_inputs`): it also reads the photons behind each dep
 `jaxsr.nn.network_inputs`) and marks no return with a head of its own, starting from the bundled function;
 `--ambient` widens a photon model once more, to read the ambient level from the mean of the bins outside the peak;
 `--paper-share` of the clips come from the paper's regime, so that it keeps its accuracy there. Validation draws from the
-same regime with fixed keys (model selection on the regime the model is for; the paper's fixed sequences at 14
+same regime with fixed keys, or at the SNRs of `--val-snrs` (model selection on the regime the model is for; the paper's fixed sequences at 14
 photons measure the cost there separately). Every run resumes where it stopped (a session's end, a kill):
 `--checkpoint-minutes` of training are lost at most. `--keep` copies the run's best weights (float16, with the
 training card, which records the regime) to experiments/photon_weights/tr<N>[-photons|-ambient].npz; the bundled
@@ -97,6 +97,9 @@ def main(argv=None) -> None:
         model = jaxsr.load_model(out / "best.npz")
         card = jaxsr.read_metadata(out / "best.npz")["card"]
         KEPT.mkdir(exist_ok=True)
+        if (KEPT / f"{name}.npz").exists():
+            raise SystemExit(f"{KEPT / f'{name}.npz'} exists: move it away first (a kept model is not replaced "
+                             "silently)")
         path = jaxsr.save_model(KEPT / f"{name}.npz", model, card=card, storage_dtype="float16")
         print(f"kept {path} ({card['steps']} steps, validation PSNR {card['validation']['psnr']:.2f} dB)")
         return
@@ -108,9 +111,10 @@ def main(argv=None) -> None:
         model_cfg = dataclasses.replace(model_cfg, inputs=(*model_cfg.inputs, "ambient"))
     train_cfg = train_config(args.epochs, args.steps_per_epoch, args.lr, args.seed, batch_size=args.batch_size,
                              decay_epochs=args.decay_epochs, precision=args.precision)
-    # validation on the whole wide regime (PhotonRegime(), paper_prob 0) whatever the draws above: a run that
-    # trains on part of it (--signal-range, --snr-range) is still chosen for the regime the photon models serve;
-    # thin returns, a kind of scene rather than a range, are validated on as often as trained on
+    # validation on the whole wide regime (PhotonRegime(), paper_prob 0) whatever the draws above, or at the SNRs
+    # of --val-snrs: a run that trains on part of it (--signal-range, --snr-range) is still chosen for the regime
+    # the photon models serve; thin returns, a kind of scene rather than a range, are validated on as often as
+    # trained on
     validation = regime_validation(args.tr, train_cfg, PhotonRegime(thin_prob=args.thin_prob),
                                    batches=args.val_batches, sensor=sensor, inputs=model_cfg.inputs,
                                    snrs=args.val_snrs)

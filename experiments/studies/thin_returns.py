@@ -1,13 +1,12 @@
 """Thin returns against the sky: do the no-return heads keep a pole, a cable or a lattice tower's beams?
 
     python experiments/studies/thin_returns.py                                  # tr4-photons and tr4-ambient
-    python experiments/studies/thin_returns.py --model TR4-thin=runs/photons/tr4-thin/best.npz --widths 4 8
+    python experiments/studies/thin_returns.py --model NAME=runs/photons/RUN/best.npz --widths 4 8
 
 Why: on the real tower recording (experiments/studies/real_photons.py), a lattice tower against a dark sky,
-tr4-ambient's head outputs 1.6-4.3 % of the tower's returns as no return, half or more of them next to the sky
-(its beams, and the returns seen through the lattice), though their LR blocks hold a median of 6-10 photons per
-frame in one bin at 4-16 photons per pixel; without the decision its depth is 4-15 dB above bicubic there, with
-it up to 12 dB below. The models' training drew its no-return regions as blobs and bands
+tr4-ambient's head outputs 1.6-4.3 % of the tower's returns as no return, 43-73 % of them next to the sky (its
+beams, and the returns seen through the lattice); without the decision its depth is 4-15 dB above bicubic there,
+with it up to 12 dB below (experiments/results/real_photons_decisions.md). The models' training drew its no-return regions as blobs and bands
 (`jaxsr.sensor.no_return_regions`), with no thin structure in front of them.
 
 Data: the regime benchmark's test depth with no-return regions (experiments/studies/photon_regimes.py,
@@ -16,7 +15,9 @@ per scene (`jaxsr.sensor.thin_returns`, widths log-uniform in `--widths` HR pixe
 scene's own depth on them) at `--photons` signal photons per LR pixel and frame SNR `--snr` (45: a recording
 with little ambient light, as tower's), `--frames` frames per scene. Scored per method, pooled over scenes and
 frames: the share of the lines' HR pixels inside the regions output as no return (normalised >= 0.99), the share
-of the regions' other pixels output as depth, the share of the other returns dropped, and the mean PSNR.
+of the pixels without a return (the regions' and the scenes' own sky) output as depth, the share of the other
+returns dropped, and the mean PSNR. Each regime's noise comes from its photons and SNR, so a run of a few
+regimes draws what the full run draws for them.
 
 Writes experiments/results/thin_returns.md (or --out) and a .json of the numbers beside it.
 """
@@ -62,22 +63,40 @@ def crossed(seqs: dict, *, lines: int = LINES, widths=WIDTHS, seed: int = 0) -> 
 
 
 def shares(sr, gt, lines) -> dict:
-    """% of the lines' pixels output as no return, % of the regions' other pixels (gt 1) output as depth, % of
-    the other returns dropped: (T, H, W) output and truth, (H, W) line mask."""
+    """Counts of one scene's pixels by kind and fate, (T, H, W) output and truth, (H, W) line mask: the lines'
+    pixels with a return (`lines`, `lines_dropped`: output as no return), the pixels without one (`sky`: the
+    regions and the scene's own sky; `sky_as_depth`), the other returns (`returns`, `returns_dropped`)."""
     sr, gt = np.asarray(sr), np.asarray(gt)
     gone = ~(sr < NO_RETURN_AT)  # NaN counts as no return
     on = np.broadcast_to(lines, sr.shape) & (gt < 1.0)
     sky = gt >= 1.0
     other = ~sky & ~on
-    return {"lines_dropped": 100.0 * gone[on].mean(), "sky_as_depth": 100.0 * (~gone[sky]).mean(),
-            "returns_dropped": 100.0 * gone[other].mean(), "line_pixels": int(on.sum())}
+    return {"lines": int(on.sum()), "lines_dropped": int(gone[on].sum()), "sky": int(sky.sum()),
+            "sky_as_depth": int((~gone[sky]).sum()), "returns": int(other.sum()),
+            "returns_dropped": int(gone[other].sum())}
 
 
-def majority_output(clip) -> tuple[np.ndarray, np.ndarray]:
+def pooled_shares(counts) -> dict:
+    """% of each kind over all the scenes' pixels together (`shares` of each scene summed); NaN for a kind
+    without pixels."""
+    total = {k: sum(c[k] for c in counts) for k in counts[0]}
+    share = lambda part, whole: 100.0 * total[part] / total[whole] if total[whole] else float("nan")
+    return {"lines_dropped": share("lines_dropped", "lines"), "sky_as_depth": share("sky_as_depth", "sky"),
+            "returns_dropped": share("returns_dropped", "returns"), "line_pixels": total["lines"]}
+
+
+def majority_output(clip, scale: int = 4) -> tuple[np.ndarray, np.ndarray]:
     """The truth with one no-return decision per LR block known from it (`block_majority`: no return where half
     the block has none): what any decision made per LR pixel costs thin returns, with exact depth elsewhere."""
     gt = clip.gt[clip.scored]
-    return np.stack([np.where(block_majority(g >= 1.0, 4), 1.0, g) for g in gt]), gt
+    return np.stack([np.where(block_majority(g >= 1.0, scale), 1.0, g) for g in gt]), gt
+
+
+def regime_key(seed: int, photons: float, snr: float):
+    """The noise key of a regime, from its photons and SNR: a run of a few regimes draws what the full run
+    draws for them."""
+    return jax.random.fold_in(jax.random.fold_in(jax.random.key(seed + 2), round(1000 * photons)),
+                              round(1000 * snr))
 
 
 def evaluate(models: dict, seqs: dict, masks: dict, *, frames: int, photons=PHOTONS, snrs=SNRS, seed: int = 0,
@@ -86,21 +105,16 @@ def evaluate(models: dict, seqs: dict, masks: dict, *, frames: int, photons=PHOT
     scored = scored_frames(frames, total)
     radius = max(m.config.tr for m in models.values())
     rows = []
-    for k, (p, s) in enumerate((float(p), float(s)) for p in photons for s in snrs):
+    for p, s in ((float(p), float(s)) for p in photons for s in snrs):
         started = time.time()
-        clips, _ = regime_clips(seqs, p, s, scored=scored, radius=radius, key=jax.random.fold_in(
-            jax.random.key(seed + 2), k))
+        clips, _ = regime_clips(seqs, p, s, scored=scored, radius=radius, key=regime_key(seed, p, s))
         row = {"photons": p, "snr": s, "methods": {}}
         for label, model in {"bicubic": None, **models, MAJORITY: None}.items():
             outs = [majority_output(c) if label == MAJORITY else scored_output(model, c) if model else
                     (np.asarray(jaxsr.bicubic(c.lr[c.scored], scale=4)), c.gt[c.scored]) for c in clips.values()]
-            pooled = [shares(sr, gt, masks[name]) for name, (sr, gt) in zip(clips, outs)]
-            n = np.array([q["line_pixels"] for q in pooled], float)
-            row["methods"][label] = {
-                "lines_dropped": float(np.average([q["lines_dropped"] for q in pooled], weights=n)),
-                "sky_as_depth": float(np.mean([q["sky_as_depth"] for q in pooled])),
-                "returns_dropped": float(np.mean([q["returns_dropped"] for q in pooled])),
-                "psnr": float(method_scores(outs)["psnr"].mean())}
+            row["methods"][label] = {**pooled_shares([shares(sr, gt, masks[name])
+                                                      for name, (sr, gt) in zip(clips, outs)]),
+                                     "psnr": float(method_scores(outs)["psnr"].mean())}
         rows.append(row)
         log(f"{p:g} photons, SNR {s:g}: " + ", ".join(
             f"{m} lines dropped {v['lines_dropped']:.1f} %, sky as depth {v['sky_as_depth']:.1f} %"
@@ -113,7 +127,7 @@ def tables(rows) -> str:
     head = ["photons", "SNR"] + methods
     text = ""
     for key, title in (("lines_dropped", "% of the thin returns' pixels output as no return"),
-                       ("sky_as_depth", "% of the regions' other pixels (no return) output as depth"),
+                       ("sky_as_depth", "% of the pixels without a return (the regions', the scenes' own sky) output as depth"),
                        ("returns_dropped", "% of the other true returns output as no return"),
                        ("psnr", "Mean PSNR (dB; outputs clipped to [0, 1])")):
         fmt = "{:.2f}" if key == "psnr" else "{:.1f}"

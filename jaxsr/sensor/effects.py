@@ -175,9 +175,7 @@ def no_return_regions(key, depth, *, fraction, sky=0.5, blob_size=16, return_mas
 
 def thin_returns(key, shape, *, lines, width_range=(1.0, 8.0), max_lines: int = 8):
     """Thin structures in front of the regions with no return: poles, masts, cables, a lattice tower's beams
-    against the sky. A surface one LR pixel wide with sky on both sides is what a head trained on blobs of sky
-    calls sky (measured on a real recording of a lattice tower: its beams, 10-50 photons in one bin per frame,
-    output as no return).
+    against the sky, which blobs and bands of sky (`no_return_regions`) never show a network.
 
     `lines` straight lines (the first `lines` of `max_lines` drawn), each through a uniform random point of the
     frame at a uniform random angle, as wide as a log-uniform draw in `width_range` (HR pixels). A caller keeps
@@ -186,11 +184,13 @@ def thin_returns(key, shape, *, lines, width_range=(1.0, 8.0), max_lines: int = 
     Args:
       key: a `jax.random` key.
       shape: (H, W) HR pixels.
-      lines: how many lines, an integer in [0, max_lines] (may be traced: one draw per clip).
+      lines: how many lines, an integer in [0, max_lines] (may be traced: one draw per clip; traced, a count
+        outside the range is clipped to it, as a mask cannot carry NaN).
       width_range: (lo, hi) widths in HR pixels, 0 < lo <= hi (static).
       max_lines: the most lines (static int >= 0).
     Returns:
-      (H, W) bool, True on the lines. jit/vmap-able; eagerly an option out of its domain is a `ValueError`.
+      (H, W) bool, True on the lines: one mask, for every frame of a clip (as `no_return_regions`' is).
+      jit/vmap-able; eagerly an option out of its domain is a `ValueError`.
     """
     if int(max_lines) != max_lines or max_lines < 0:
         raise ValueError(f"thin_returns: max_lines must be an integer >= 0, got {max_lines}")

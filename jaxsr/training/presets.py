@@ -162,12 +162,14 @@ def regime_validation(tr: int, train_cfg, regime: PhotonRegime, *, batches: int,
     bicubic reference), "names"}. Model selection on the regime the model is for.
 
     snrs: frame SNRs to validate at instead of the regime's log-uniform range, the batches shared out among them
-    in turn (at least one each): a selection that sees every SNR named as often, such as a real recording's 45
-    that a draw up to 100 reaches in a few clips only."""
+    in turn (at least one each), every clip at that SNR (no clips of the paper's regime, whose SNR is its own): a
+    selection that sees every SNR named as often, such as a real recording's 45, beyond the wide regime's 20."""
     if not (isinstance(batches, int) and batches >= 1):
         raise ValueError(f"regime_validation: batches must be an integer >= 1, got {batches!r}")
     key = jax.random.key(2**31 - 1) if key is None else key
-    grid = [regime] if snrs is None else [dataclasses.replace(regime, snr_range=(float(s), float(s))) for s in snrs]
+    snrs = None if snrs is None else tuple(snrs)
+    grid = [regime] if snrs is None else [dataclasses.replace(regime, snr_range=(float(s), float(s)), paper_prob=0.0)
+                                          for s in snrs]
     if not grid:
         raise ValueError("regime_validation: snrs must name at least one SNR, or be None")
     sources = [jax.jit(regime_batches(tr, train_cfg, r, sensor=sensor, inputs=inputs)) for r in grid]

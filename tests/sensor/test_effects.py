@@ -108,10 +108,13 @@ def test_thin_returns_are_lines_of_the_width_asked():
     masks = [np.asarray(thin_returns(key, (H, W), lines=n)) for n in range(4)]
     for fewer, more in zip(masks, masks[1:]):  # the first n lines of the same draws
         assert np.all(more[fewer]) and more.sum() > fewer.sum()
-    # one line of width 3: about 3 pixels across it in every row or column it crosses
-    one = np.asarray(thin_returns(jax.random.key(4), (H, W), lines=1, width_range=(3.0, 3.0), max_lines=1))
-    across = np.concatenate([one.sum(0)[one.any(0)], one.sum(1)[one.any(1)]])
-    assert one.any() and 2 <= np.median(across) and np.min(across) >= 1
+    # one line: its pixels' area over its length (their extent along the line's direction) is its width
+    for width in (3.0, 6.0, 12.0):
+        one = np.asarray(thin_returns(jax.random.key(4), (H, W), lines=1, width_range=(width, width), max_lines=1))
+        yx = np.argwhere(one).astype(float)
+        direction = np.linalg.svd(yx - yx.mean(0), full_matrices=False)[2][0]
+        length = np.ptp(yx @ direction) + 1.0
+        assert one.sum() / length == pytest.approx(width, rel=0.2), width
     traced = jax.jit(jax.vmap(lambda k, n: thin_returns(k, (H, W), lines=n)))(
         jax.random.split(key, 3), jnp.array([0, 2, 8]))
     assert traced.shape == (3, H, W) and not traced[0].any() and traced[2].sum() > traced[1].sum()

@@ -139,3 +139,7 @@ def test_validation_at_fixed_snrs_shares_the_batches_out_in_turn():
     assert ambient[0] > 2 * ambient[1] and ambient[2] > 2 * ambient[1]  # 0.1, 100, 0.1
     plain = regime_validation(0, cfg, regime, batches=2, sensor=SENSOR, inputs=inputs)
     assert plain["windows"].shape[0] == 4 and "SNR" not in plain["names"][0]
+    source = jax.jit(regime_batches(0, cfg, regime, sensor=SENSOR, inputs=inputs))
+    for i in range(2):  # as before: batch i from the fixed key folded with i
+        windows, _ = source(jax.random.fold_in(jax.random.key(2**31 - 1), i))
+        np.testing.assert_array_equal(np.asarray(plain["windows"][2 * i:2 * i + 2]), np.asarray(windows))
