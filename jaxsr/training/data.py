@@ -230,11 +230,7 @@ def regime_clips(frames: int, train_cfg: TrainConfig, regime: PhotonRegime = Pho
         depth, intensity = training_clip(k_scene, frames, sensor=sensor, shift_range=train_cfg.motion_range,
                                          motion=regime.motion)
         p = regime_parameters(k_par, regime)
-        holed = no_return_regions(k_sky, depth, fraction=p["no_return_fraction"], sky=p["sky"],
-                                  blob_size=regime.blob_size)
-        thin = thin_returns(jax.random.fold_in(k_sky, 1), depth.shape[-2:], lines=p["thin_lines"],
-                            width_range=regime.thin_width_range, max_lines=regime.thin_lines_max)
-        depth = jnp.where(thin, depth, holed)
+        depth = _regime_no_return(k_sky, depth, p, regime)
         gt = normalise_depth(depth, sensor)
         clip_sensor = with_irf_sigma(sensor, p["irf_sigma"])
         alpha, beta = calibrate(depth, intensity, clip_sensor, snr=p["snr"], mean_signal=p["mean_signal"])
@@ -257,6 +253,16 @@ def regime_clips(frames: int, train_cfg: TrainConfig, regime: PhotonRegime = Pho
     make_batch.description = _regime_description(regime, inputs)
     make_batch.regime = regime.to_dict()
     return make_batch
+
+
+def _regime_no_return(key, depth, p: dict, regime: PhotonRegime):
+    """A clip's HR depth (..., H, W) with its drawn no-return regions (`no_return_regions` at `p`'s fraction and
+    sky weight) crossed by its drawn thin returns (`thin_returns`, `p["thin_lines"]` of them, the scene's depth
+    on them): `regime_clips`' sky, from `regime_parameters`' draw `p`. jit/vmap-able."""
+    holed = no_return_regions(key, depth, fraction=p["no_return_fraction"], sky=p["sky"], blob_size=regime.blob_size)
+    thin = thin_returns(jax.random.fold_in(key, 1), jnp.shape(depth)[-2:], lines=p["thin_lines"],
+                        width_range=regime.thin_width_range, max_lines=regime.thin_lines_max)
+    return jnp.where(thin, depth, holed)
 
 
 def _regime_example_keys(key):

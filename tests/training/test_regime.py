@@ -143,3 +143,23 @@ def test_validation_at_fixed_snrs_shares_the_batches_out_in_turn():
     for i in range(2):  # as before: batch i from the fixed key folded with i
         windows, _ = source(jax.random.fold_in(jax.random.key(2**31 - 1), i))
         np.testing.assert_array_equal(np.asarray(plain["windows"][2 * i:2 * i + 2]), np.asarray(windows))
+
+
+def test_the_clips_sky_is_the_regions_crossed_by_the_drawn_lines():
+    """regime_clips' no-return step (`_regime_no_return`) on a constant depth: without lines it is exactly
+    `no_return_regions`; with them, the regions lose the lines' pixels and the scene's depth shows there."""
+    from jaxsr.sensor import no_return_regions, thin_returns
+    from jaxsr.training.data import _regime_no_return
+
+    h, w = SENSOR.hr_shape
+    depth = np.full((2, h, w), 9.0, np.float32)
+    regime = PhotonRegime(thin_prob=1.0)
+    key = jax.random.key(3)
+    p = {"no_return_fraction": 0.5, "sky": 0.5, "thin_lines": 0}
+    plain = np.asarray(_regime_no_return(key, depth, p, regime))
+    np.testing.assert_array_equal(plain, np.asarray(no_return_regions(key, depth, fraction=0.5, sky=0.5)))
+    crossed = np.asarray(jax.jit(_regime_no_return, static_argnums=3)(key, depth, dict(p, thin_lines=4), regime))
+    lines = np.asarray(thin_returns(jax.random.fold_in(key, 1), (h, w), lines=4))
+    sky = np.isinf(plain[0])
+    assert (sky & lines).any() and np.all(crossed[:, sky & lines] == 9.0)
+    np.testing.assert_array_equal(crossed[:, ~lines], plain[:, ~lines])
