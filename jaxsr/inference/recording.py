@@ -60,7 +60,7 @@ from ..sensor.quantities import parse_span, parse_time_unit, range_metres
 from ..sensor.timetags import TIME_TAG_FORMATS, TimeTags, gate_of_tags, read_time_tags, time_tag_warnings
 from .adaptive import resolve_model
 from .video import (DEFAULT_FORM, DEFAULT_PRECISION, DEFAULT_TILE, FORMS, _default_batch_size, check_precision,
-                    iter_ambient_only, no_return_where, overrule_no_return,
+                    iter_ambient_only, iter_returns_kept, no_return_where,
                     in_form, iter_network_inputs, iter_super_resolve)
 
 __all__ = ["HEAD_FRAMES", "DEFAULT_MODELS", "AUTO_AMBIENT_ALPHA", "AUTO_AMBIENT_MIN_SNR",
@@ -190,10 +190,8 @@ class UpscaleJob:
         lr_frames: the LR stream to run (default `lr_frames()`)."""
         lr = self.lr_frames() if lr_frames is None else lr_frames
         if self._keep_stream is not None:
-            raw = iter_super_resolve(self.model, lr, batch_size=batch_size, precision=self.precision, raw=True)
-            threshold = self.model.config.no_return_logit
-            return (overrule_no_return(hr, quiet, threshold)
-                    for hr, quiet in zip(raw, self._keep_stream(), strict=True))
+            return iter_returns_kept(self.model, lr, self._keep_stream(), batch_size=batch_size,
+                                     precision=self.precision)
         out = iter_super_resolve(self.model, lr, batch_size=batch_size, precision=self.precision)
         if self._ambient_stream is None:
             return out

@@ -31,7 +31,7 @@ from jax.sharding import PartitionSpec as P
 
 from ..checks import require_normalised_depth
 from ..config import MIN_LR_SIDE, PRECISIONS, SensorConfig
-from ..nn.duf import apply_model, apply_model_raw, apply_model_sequence, check_conv, sequence_radius
+from ..nn.duf import apply_model_raw, apply_model_sequence, check_conv, sequence_radius
 from ..nn.model import Model
 from ..nn.inputs import network_inputs
 from ..runtime import compiler_options
@@ -513,11 +513,12 @@ def super_resolve_histograms(model: Model, counts, sensor: SensorConfig = Sensor
     if batch_size is None:  # the frames' count is known here, not in the stream of centre-of-mass frames
         batch_size = _default_batch_size(counts, arch.sequence_form(model.config))
     frames = iter_network_inputs(counts, sensor, getattr(model.config, "inputs", ("depth",)))
-    stream = iter_super_resolve(model, frames, batch_size=batch_size, conv3d_impl=conv3d_impl, tile=tile,
-                                precision=precision, raw=keep_returns is not None)
-    if keep_returns is not None:
-        quiet = iter_ambient_only(counts, sensor, alpha=keep_returns, pixels=1)
-        stream = (overrule_no_return(hr, q, model.config.no_return_logit) for hr, q in zip(stream, quiet, strict=True))
+    options = dict(batch_size=batch_size, conv3d_impl=conv3d_impl, tile=tile, precision=precision)
+    if keep_returns is None:
+        stream = iter_super_resolve(model, frames, **options)
+    else:
+        stream = iter_returns_kept(model, frames, iter_ambient_only(counts, sensor, alpha=keep_returns, pixels=1),
+                                   **options)
     for t, hr in enumerate(stream):
         out[t] = hr
     return out if ambient_alpha is None else _no_return_where_ambient(out, counts, sensor, ambient_alpha)
@@ -539,6 +540,16 @@ def no_return_where(hr, flags):
 def lr_blocks(flags, scale: int) -> np.ndarray:
     """LR pixel flags (..., h, w) painted onto their scale x scale HR pixels: (..., h scale, w scale) bool."""
     return np.repeat(np.repeat(np.asarray(flags, bool), scale, axis=-2), scale, axis=-1)
+
+
+def iter_returns_kept(model: Model, frames: Iterable, quiet: Iterable, **options) -> Iterator[np.ndarray]:
+    """`iter_super_resolve(model, frames, **options)` for a model with a no-return head, its no return kept only
+    where `quiet` ((h, w) bool per frame, such as `iter_ambient_only(..., pixels=1)`: the pixel's own photons
+    pass for ambient light alone) says so, elsewhere the network's depth (`overrule_no_return` at the model's
+    threshold): the keep_returns decision of `super_resolve_histograms` and `jaxsr upscale`, streamed."""
+    raw = iter_super_resolve(model, frames, raw=True, **options)
+    threshold = model.config.no_return_logit
+    return (overrule_no_return(hr, q, threshold) for hr, q in zip(raw, quiet, strict=True))
 
 
 def overrule_no_return(raw, quiet, threshold: float) -> np.ndarray:

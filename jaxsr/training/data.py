@@ -260,6 +260,8 @@ def _regime_no_return(key, depth, p: dict, regime: PhotonRegime):
     sky weight) crossed by its drawn thin returns (`thin_returns`, `p["thin_lines"]` of them, the scene's depth
     on them): `regime_clips`' sky, from `regime_parameters`' draw `p`. jit/vmap-able."""
     holed = no_return_regions(key, depth, fraction=p["no_return_fraction"], sky=p["sky"], blob_size=regime.blob_size)
+    if regime.thin_prob == 0:  # no line is ever drawn: spare every training step the lines' distance maps
+        return holed
     thin = thin_returns(jax.random.fold_in(key, 1), jnp.shape(depth)[-2:], lines=p["thin_lines"],
                         width_range=regime.thin_width_range, max_lines=regime.thin_lines_max)
     return jnp.where(thin, depth, holed)

@@ -158,6 +158,8 @@ def test_the_clips_sky_is_the_regions_crossed_by_the_drawn_lines():
     p = {"no_return_fraction": 0.5, "sky": 0.5, "thin_lines": 0}
     plain = np.asarray(_regime_no_return(key, depth, p, regime))
     np.testing.assert_array_equal(plain, np.asarray(no_return_regions(key, depth, fraction=0.5, sky=0.5)))
+    never = np.asarray(_regime_no_return(key, depth, dict(p, thin_lines=4), PhotonRegime()))  # thin_prob 0
+    np.testing.assert_array_equal(never, plain)
     crossed = np.asarray(jax.jit(_regime_no_return, static_argnums=3)(key, depth, dict(p, thin_lines=4), regime))
     lines = np.asarray(thin_returns(jax.random.fold_in(key, 1), (h, w), lines=4))
     sky = np.isinf(plain[0])
