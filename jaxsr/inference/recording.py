@@ -59,8 +59,8 @@ from ..sensor.peaks import check_false_alarm_rate, frame_levels
 from ..sensor.quantities import parse_span, parse_time_unit, range_metres
 from ..sensor.timetags import TIME_TAG_FORMATS, TimeTags, gate_of_tags, read_time_tags, time_tag_warnings
 from .adaptive import resolve_model
-from .video import (DEFAULT_FORM, DEFAULT_PRECISION, DEFAULT_TILE, FORMS, _default_batch_size, check_precision,
-                    iter_ambient_only, iter_returns_kept, no_return_where,
+from .video import (DEFAULT_FORM, DEFAULT_PRECISION, DEFAULT_TILE, FORMS, _default_batch_size, check_keep_returns,
+                    check_precision, iter_ambient_only, iter_returns_kept, no_return_where,
                     in_form, iter_network_inputs, iter_super_resolve)
 
 __all__ = ["HEAD_FRAMES", "DEFAULT_MODELS", "AUTO_AMBIENT_ALPHA", "AUTO_AMBIENT_MIN_SNR",
@@ -413,7 +413,8 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
     _check_precision_form(fixed, precision, form)
     _check_no_return_logit(fixed, name, no_return_logit)
     _check_ambient_setting(ambient_alpha)  # before the input is read
-    _check_keep_returns(keep_returns, ambient_alpha, fixed, name)
+    # "auto" and "default" must not pick a model without a head; an "auto" ambient rate gives way to keep_returns
+    check_keep_returns(keep_returns, None if _is_auto(ambient_alpha) else ambient_alpha, all(_heads(fixed, name)))
     span = _span(span)
     time_unit = _positive(time_unit, "time_unit", parse_time_unit, "seconds")
     rec, gate, source, tag_notes = _open(input, kind, bins=bins, bin_width=bin_width, gate_start=gate_start,
@@ -562,21 +563,6 @@ def auto_ambient_alpha(snr: float, signal: float = float("nan"), *, min_snr: flo
 
 def _is_auto(setting) -> bool:
     return isinstance(setting, str) and setting == AUTO
-
-
-def _check_keep_returns(setting, ambient_alpha, model, name: str) -> None:
-    """Refuse, before the input is read, a `keep_returns` that is not None or a false-alarm rate, one given with an
-    `ambient_alpha` rate (one adds no return where the photons show none, the other keeps returns the photons
-    show: one decision), and one for a model without a no-return head ("auto" and "default" pick none that has)."""
-    if setting is None:
-        return
-    check_false_alarm_rate("keep_returns (--keep-returns)", setting)
-    if ambient_alpha is not None and not _is_auto(ambient_alpha):
-        raise ValueError("keep_returns (--keep-returns) and ambient_alpha (--ambient-alpha) are two decisions on no "
-                         "return: give one (--ambient-alpha off with --keep-returns)")
-    if not all(_heads(model, name)):  # "auto" and "default" must not pick a model without one
-        raise ValueError(f"keep_returns (--keep-returns) overrules a no-return head's decision; model {name} has no "
-                         "head: give one that has (tr4-ambient, tr0-ambient, tr4-photons, tr0-photons)")
 
 
 def _check_ambient_setting(setting) -> None:

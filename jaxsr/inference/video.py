@@ -457,6 +457,22 @@ def iter_ambient_only(counts: Iterable, sensor: SensorConfig = SensorConfig(), *
         t += 1
 
 
+def check_keep_returns(keep_returns, ambient_alpha, has_head: bool, where: str = "") -> None:
+    """Refuse, before any work, a `keep_returns` that is not None or a false-alarm rate, one given beside an
+    `ambient_alpha` rate (one marks no return where the photons show none, the other keeps the returns they show:
+    one decision at a time), and one for a model without a no-return head (nothing to overrule). `where` prefixes
+    the messages (the caller's name)."""
+    if keep_returns is None:
+        return
+    check_false_alarm_rate(f"{where}keep_returns (--keep-returns)", keep_returns)
+    if ambient_alpha is not None:
+        raise ValueError(f"{where}keep_returns (--keep-returns) and ambient_alpha (--ambient-alpha) are two decisions "
+                         "on no return: give one (ambient_alpha None, --ambient-alpha off)")
+    if not has_head:
+        raise ValueError(f"{where}keep_returns (--keep-returns) overrules a no-return head's decision and this model "
+                         "has no head: give one that has (tr4-ambient, tr0-ambient, tr4-photons, tr0-photons)")
+
+
 def super_resolve_histograms(model: Model, counts, sensor: SensorConfig = SensorConfig(), *, intensity=None,
                              batch_size: int | None = None, conv3d_impl: str = "auto",
                              tile: int | None = DEFAULT_TILE, precision: str = DEFAULT_PRECISION,
@@ -493,14 +509,8 @@ def super_resolve_histograms(model: Model, counts, sensor: SensorConfig = Sensor
     model = in_form(model, form, "super_resolve_histograms", frames=counts.shape[0])
     if ambient_alpha is not None:  # refused before any work
         check_false_alarm_rate("super_resolve_histograms: ambient_alpha", ambient_alpha)
-    if keep_returns is not None:
-        check_false_alarm_rate("super_resolve_histograms: keep_returns", keep_returns)
-        if ambient_alpha is not None:
-            raise ValueError("super_resolve_histograms: keep_returns and ambient_alpha are two decisions on no return: "
-                             "give one")
-        if not getattr(model.config, "no_return_head", False):
-            raise ValueError("super_resolve_histograms: keep_returns overrules a no-return head's decision; this "
-                             "model has none")
+    check_keep_returns(keep_returns, ambient_alpha, getattr(model.config, "no_return_head", False),
+                       "super_resolve_histograms: ")
     arch = model.architecture
     r = arch.scale(model.config)
     if arch.inputs == "histograms":

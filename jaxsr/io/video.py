@@ -131,7 +131,7 @@ class DepthVideoWriter:
         from matplotlib.ticker import FuncFormatter, MaxNLocator
 
         W, H = self.size
-        ph, pw = self.shape[0] * self.zoom, self.shape[1] * self.zoom
+        ph = self.shape[0] * self.zoom
 
         def draw(fig):
             for (x, y), label in zip(self._panel_xy, self.labels):

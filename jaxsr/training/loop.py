@@ -35,7 +35,8 @@ from jax.sharding import PartitionSpec as P
 from ..baselines.interpolation import bicubic
 from ..config import SensorConfig, TrainConfig
 from ..eval.metrics import psnr
-from ..io.checkpoint import config_from_dict, config_to_dict, load_tree, read_metadata, save_model, save_tree
+from ..io.checkpoint import (config_from_dict, config_to_dict, load_tree, read_metadata, resolve_model_path, save_model,
+                             save_tree)
 from ..io.files import folder_lock, write_text_atomic
 from ..nn.model import Model, architecture
 from .data import run_keys
@@ -447,7 +448,26 @@ def _training_card(run: _Run, *, train_cfg: TrainConfig, settings: dict, sensor:
         "train_config": settings["train_config"],
         "init": settings.get("init"),
         "seed": train_cfg.seed,
+        "date": time.strftime("%Y-%m-%d", time.gmtime()),
     }
+
+
+_LINEAGE_KEYS = ("earlier_stages", "total_steps", "total_examples")
+
+
+def _init_lineage(init) -> dict:
+    """The training behind `init` (a checkpoint's name or path; a Model carries none): its card's stages, oldest
+    first, with its own card last, and their steps and examples, so that a fine-tune's card says all the training
+    its weights have seen. {} where `init` has no card."""
+    if init is None or isinstance(init, Model):
+        return {}
+    card = read_metadata(resolve_model_path(init)).get("card") or {}
+    if not card:
+        return {}
+    stages = [*card.get("earlier_stages", []), {k: v for k, v in card.items() if k not in _LINEAGE_KEYS}]
+    return {"earlier_stages": stages,
+            "total_steps": card.get("total_steps", card.get("steps", 0)),
+            "total_examples": card.get("total_examples", card.get("examples", 0))}
 
 
 RESUME_FILE = "resume.npz"  # the train state inside an epoch; last.npz keeps the last epoch's end
@@ -537,7 +557,9 @@ def fit(
     convolutions run (see `jaxsr.apply_model`; not saved, a run may resume with another). Everything random
     follows `train_cfg.seed`. init (DUF): start from these weights instead of random ones (a `Model` or a
     checkpoint path, the same architecture in either temporal form, or a smaller TR grown to this one by
-    `jaxsr.nn.grow_tr`); recorded in the training card, ignored when resuming. card_extra: entries added to
+    `jaxsr.nn.grow_tr`); recorded in the training card with the training behind it (a checkpoint's card: its
+    stages under "earlier_stages", oldest first, and "total_steps" and "total_examples" with this run's),
+    ignored when resuming. card_extra: entries added to
     the training card.
 
     Across processes and hosts (a data-parallel recipe: the DUF network), after `jaxsr.runtime.init_distributed`
@@ -683,6 +705,7 @@ def _fit_in(folders: list, model_cfg, cfgs: list, *, by_seed: bool, make_batch, 
     if data_description is None:
         data_description = getattr(make_batch, "description", "user-supplied make_batch")
     seats, states, runs = [], [], []
+    lineage = _init_lineage(init)
     start = _start_or_resume if processes == 1 else _start_across_processes
     for out, cfg in zip(folders, cfgs):
         k_init, k_data, k_val = run_keys(cfg.seed)
@@ -721,6 +744,10 @@ def _fit_in(folders: list, model_cfg, cfgs: list, *, by_seed: bool, make_batch, 
                               validation=seat.validation, bicubic_psnr=seat.val_bicubic, data=data_description)
         if pretrain_epochs:
             card["pretrain_epochs"] = pretrain_epochs
+        if lineage:  # a fine-tune: the training before it, and the sums with this run's
+            card = {**card, "earlier_stages": lineage["earlier_stages"],
+                    "total_steps": lineage["total_steps"] + run.step,
+                    "total_examples": lineage["total_examples"] + run.step * seat.train_cfg.batch_size}
         if by_seed:
             card["stacked_seeds"] = [s.train_cfg.seed for s in seats]
         return {**card, **(card_extra or {})}

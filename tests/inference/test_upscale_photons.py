@@ -411,7 +411,7 @@ def test_keep_returns_keeps_the_surface_a_head_calls_sky(sky_everywhere, half_sk
     for bad, match in (({"keep_returns": 1e-3, "ambient_alpha": 1e-3}, "give one"), ({"keep_returns": 0.0}, "rate")):
         with pytest.raises(ValueError, match=match):
             super_resolve_histograms(model, half_sky, **bad)
-    with pytest.raises(ValueError, match="has none"):
+    with pytest.raises(ValueError, match="has no head"):
         super_resolve_histograms(load_model("tr0"), half_sky, keep_returns=1e-3)
     src, out = tmp_path / "counts.npy", tmp_path / "out.npy"
     np.save(src, half_sky)

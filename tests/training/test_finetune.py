@@ -193,9 +193,12 @@ def test_bad_irf_files_are_refused(tmp_path, content, message):
         parse_sensor_file(GOOD.replace("irf_sigma_bins = 0.8", 'irf_file = "none.txt"'), base_dir=tmp_path)
 
 
+TINY_CARD = {"steps": 5, "examples": 20, "trained_with": "a test"}  # the training behind the starting model
+
+
 def _tiny_model(path):
     params, state = init_model(jax.random.key(0), TINY)
-    return save_model(path, Model(params, state, TINY))
+    return save_model(path, Model(params, state, TINY), card=TINY_CARD)
 
 
 def test_finetune_builds_on_train_and_records_the_sensor(tmp_path, monkeypatch):
@@ -316,12 +319,17 @@ def test_finetune_end_to_end_resume_and_upscale(tmp_path, capsys):
     assert card["sensor_file"]["text"] == TINY_TOML and card["regime"]["signal_range"] == [2.0, 8.0]
     assert card["train_config"]["lr"] == pytest.approx(PRESETS["bundle"].lr / 10)
     assert "the starting model" in printed and card["finetune"]["start"]["val_psnr"] > 0
+    # the card carries the starting model's training: its card as the stage before, and the sums
+    assert card["earlier_stages"] == [TINY_CARD] and card["init"] == str(tmp_path / "tiny.npz")
+    assert (card["total_steps"], card["total_examples"]) == (5 + card["steps"], 20 + card["examples"])
     # a changed sensor is refused on resume; the same one continues
     (tmp_path / "other.toml").write_text(TINY_TOML.replace("[5.0, 20.0]", "[1.0, 20.0]"))
     assert cli.main([*args, "--epochs", "2", "--resume", "--sensor", str(tmp_path / "other.toml")]) == 2
     assert "describes another sensor" in capsys.readouterr().err
     assert cli.main([*args, "--epochs", "2", "--resume"]) == 0
     assert len((out / "metrics.jsonl").read_text().splitlines()) == 2
+    card = jaxsr.read_metadata(out / "last.npz")["card"]  # resumed: the lineage still there, the sums grown
+    assert card["earlier_stages"] == [TINY_CARD] and card["total_steps"] == 5 + card["steps"] == 5 + 4
     counts = np.random.default_rng(0).poisson(0.3, (2, 8, 8, 16)).astype(np.float32)
     counts[..., 5] += 4
     np.save(tmp_path / "counts.npy", counts)
