@@ -24,11 +24,13 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import time
 from pathlib import Path
 
 
 import jaxsr
 from jaxsr.config import PRECISIONS, PRESETS, PhotonRegime
+from jaxsr.runtime import enable_compilation_cache
 from jaxsr.training import regime_batches
 from jaxsr.training.presets import PHOTON_INPUTS, regime_validation
 
@@ -103,6 +105,11 @@ def main(argv=None) -> None:
         path = jaxsr.save_model(KEPT / f"{name}.npz", model, card=card, storage_dtype="float16")
         print(f"kept {path} ({card['steps']} steps, validation PSNR {card['validation']['psnr']:.2f} dB)")
         return
+    # a restart on the same machine (a resumed lease) skips XLA's compilation; the stages' times go to the log so
+    # that a call that trains no epoch says where its time went
+    enable_compilation_cache()
+    started = time.perf_counter()
+    say = lambda msg: print(f"{name} [{time.perf_counter() - started:.0f} s] {msg}", flush=True)  # noqa: E731
     sensor = jaxsr.SensorConfig()
     regime = PhotonRegime(signal_range=tuple(args.signal_range), snr_range=tuple(args.snr_range),
                           no_return_prob=args.no_return_prob, thin_prob=args.thin_prob, paper_prob=args.paper_share)
@@ -118,11 +125,11 @@ def main(argv=None) -> None:
     validation = regime_validation(args.tr, train_cfg, PhotonRegime(thin_prob=args.thin_prob),
                                    batches=args.val_batches, sensor=sensor, inputs=model_cfg.inputs,
                                    snrs=args.val_snrs)
+    say(f"validation set drawn ({args.val_batches} batches); training{' (resuming)' if (out / 'last.npz').exists() else ''}")
     jaxsr.fit(model_cfg, train_cfg, out=out, make_batch=regime_batches(
         args.tr, train_cfg, regime, sensor=sensor, inputs=model_cfg.inputs), validation=validation, sensor=sensor,
         resume=True, progress=not args.no_progress,
-        callback=lambda r: print(f"{name} epoch {r['epoch']}: val PSNR {r['val_psnr']:.2f} dB, "
-                                 f"{r['epoch_time_s']:.0f} s", flush=True),
+        callback=lambda r: say(f"epoch {r['epoch']}: val PSNR {r['val_psnr']:.2f} dB, {r['epoch_time_s']:.0f} s"),
         init=args.init or (f"tr{args.tr}-photons" if args.ambient else f"tr{args.tr}"),
         checkpoint_every_s=60 * args.checkpoint_minutes,
         card_extra={"regime": regime.to_dict(), "trained_with": "experiments/studies/photon_finetune.py"})

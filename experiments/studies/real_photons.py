@@ -311,18 +311,24 @@ def tv_output(lr, frames) -> np.ndarray:
     return np.stack(out)
 
 
-def masked_scores(sr, ref, valid, sky=None, edge=None) -> dict:
+def masked_scores(sr, ref, valid, sky=None, edge=None, near=None) -> dict:
     """Per-frame scores of sr (T, H, W) against the reference on its valid pixels: psnr (dB, `jaxsr.psnr` of
     the valid pixels, output clipped to [0, 1]), mae (normalised; x scale.span for metres, x span / bin width for
     bins), no_return (share of valid pixels output as no return), and of those dropped, the share at an edge
-    (`edge`, `empty_edges`: next to an LR block without a return; NaN where none is dropped); and, on the
+    (`edge`, `empty_edges`: next to an LR block without a return; NaN where none is dropped); on the
     reference's no-return pixels (`sky`, `reference_sky`), sky_as_depth (share output as depth; NaN without such
-    pixels). Each (T,)."""
+    pixels); and psnr_near / psnr_away, the PSNR of the valid pixels in `near` (`near_gaps`) and of the others
+    (NaN where there are none). Each (T,)."""
     out = np.clip(np.asarray(sr, np.float32), 0, 1)
     pred = out[:, valid]  # (T, n)
     gt = np.broadcast_to(ref[valid], pred.shape)
     psnr = np.asarray(jaxsr.psnr(pred[:, None, :], gt[:, None, :]))
     nan = np.full(len(out), np.nan)
+    split = {}
+    for key, part in (("psnr_near", near), ("psnr_away", None if near is None else ~near)):
+        where = None if part is None else part[valid]
+        split[key] = (np.asarray(jaxsr.psnr(pred[:, None, where], gt[:, None, where]))
+                      if where is not None and where.any() else nan)
     sky_as_depth = (out[:, sky] < NO_RETURN_AT).mean(-1) if sky is not None and sky.any() else nan
     dropped = pred >= NO_RETURN_AT
     at_edge = nan
@@ -330,7 +336,18 @@ def masked_scores(sr, ref, valid, sky=None, edge=None) -> dict:
         with np.errstate(invalid="ignore", divide="ignore"):
             at_edge = (dropped & edge[valid]).sum(-1) / dropped.sum(-1)
     return {"psnr": psnr, "mae": np.abs(pred - gt).mean(-1), "no_return": dropped.mean(-1),
-            "dropped_at_edge": at_edge, "sky_as_depth": sky_as_depth}
+            "dropped_at_edge": at_edge, "sky_as_depth": sky_as_depth, **split}
+
+
+def near_gaps(valid) -> np.ndarray:
+    """(H, W) True for valid pixels whose LR block or one of its 8 neighbours holds a pixel without a reference
+    depth (sky, two rival returns, too few photons): where the LR photons mix what the reference scores with what
+    it cannot, so that an output must place an edge inside a block (two_layer's two surfaces meet there)."""
+    from scipy import ndimage
+
+    h, w = valid.shape[0] // FACTOR, valid.shape[1] // FACTOR
+    gap = (~valid).reshape(h, FACTOR, w, FACTOR).any(axis=(1, 3))
+    return lr_blocks(ndimage.maximum_filter(gap.astype(np.uint8), size=3, mode="nearest"), FACTOR) & valid
 
 
 def empty_edges(all_photons) -> np.ndarray:
@@ -357,13 +374,14 @@ def evaluate(recordings, models: dict, *, levels=LEVELS, max_frames: int = MAX_F
         started = time.time()
         ref, valid = reference_depth(rec)
         all_photons = lr_all_photons(rec)  # once: the sky, the edges and the SNR read it
-        sky, edge = reference_sky(all_photons) & ~valid, empty_edges(all_photons)
+        sky, edge, near = reference_sky(all_photons) & ~valid, empty_edges(all_photons), near_gaps(valid)
         noise = reference_noise(rec, valid, seed=seed)
         lr_tags = bin_pixels(rec.tags)
         h, w = lr_tags.shape
         # LR pixels whose block holds a valid reference pixel: where the scores are taken
         covered = valid.reshape(h, FACTOR, w, FACTOR).any(axis=(1, 3))
         out = {"reference": ref, "valid": valid, "sky": sky, "edge_share": float(edge[valid].mean()),
+               "near_share": float(near[valid].mean()),
                "snr": recording_snr(all_photons), "noise": noise, "levels": [], "picture": None,
                "photons_per_lr_pixel": lr_tags.time.size / (h * w), "lr_shape": (h, w)}
         log(f"{rec.name}: {rec.tags.time.size} photons, {h} x {w} LR, {int(valid.sum())} valid reference pixels "
@@ -392,7 +410,7 @@ def evaluate(recordings, models: dict, *, levels=LEVELS, max_frames: int = MAX_F
                     flags = no_return_decision(frames.counts, jaxsr.SensorConfig(bins=frames.gate.bins),
                                                ambient[label])
                     outputs[label] = no_return_where(outputs[label], np.asarray(flags))
-            scores = {m: masked_scores(sr, ref, valid, sky, edge) for m, sr in outputs.items()}
+            scores = {m: masked_scores(sr, ref, valid, sky, edge, near) for m, sr in outputs.items()}
             photons_ref = float(frames.counts.sum(-1)[:, covered].mean()) if covered.any() else float("nan")
             out["levels"].append({"level": float(level), "frames": len(lr), "photons_ref": photons_ref,
                                   "scores": scores, "tv_frames": tv_idx})
@@ -470,6 +488,14 @@ def tables(results, recordings) -> str:
         text.append("### PSNR (dB) against the reference, mean over frames" + (" (TV: on its frames only)" if tv_subset
                                                                                else "") + "\n\n"
                     + markdown_table(["photons", "frames", "photons / LR pixel on the reference", *methods], rows))
+        rows = [[f"{e['level']:g}"] + [f"{_mean_db(e['scores'][m]['psnr_near'])} / "
+                                       f"{_mean_db(e['scores'][m]['psnr_away'])}" for m in methods]
+                for e in r["levels"]]
+        text.append("### PSNR (dB) next to the reference's gaps / away from them\n\n"
+                    f"Next (`near_gaps`): valid pixels whose LR block or one of its 8 neighbours holds a pixel "
+                    f"without a reference depth (sky, two rival returns, too few photons), "
+                    f"{100 * r['near_share']:.1f} % of the valid pixels: there an output must place an edge inside "
+                    "an LR block.\n\n" + markdown_table(["photons", *methods], rows))
         unit, k = _mae_unit(rec)
         rows = [[f"{e['level']:g}"] + [f"{e['scores'][m]['mae'].mean() * k:.3f}" for m in methods]
                 for e in r["levels"]]
@@ -496,6 +522,13 @@ def tables(results, recordings) -> str:
                         "one are the two sides of a model's no-return decision.\n\n"
                         + markdown_table(["photons", *methods], rows))
     return "\n".join(text)
+
+
+def _mean_db(values) -> str:
+    """The mean of the finite values in dB, "-" where none is (no pixel of that kind)."""
+    values = np.asarray(values, float)
+    values = values[np.isfinite(values)]
+    return "-" if not values.size else f"{values.mean():.2f}"
 
 
 def _percent(shares) -> str:
@@ -570,7 +603,7 @@ def raw(results, info, settings) -> dict:
     return {"models": info, "settings": settings,
             "recordings": {name: {"noise": r["noise"], "valid_pixels": int(r["valid"].sum()),
                                   "no_return_pixels": int(r["sky"].sum()), "snr": r["snr"],
-                                  "edge_share": r["edge_share"],
+                                  "edge_share": r["edge_share"], "near_share": r["near_share"],
                                   "photons_per_lr_pixel": r["photons_per_lr_pixel"],
                                   "levels": [level(e) for e in r["levels"]]} for name, r in results.items()}}
 

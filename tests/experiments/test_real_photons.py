@@ -84,6 +84,26 @@ DATA = real_photons.DEFAULT_DATA
 @pytest.mark.skipif(not all((DATA / s.file).is_file() for s in real_photons.SOURCES),
                     reason=f"the real recordings (tower.mat, two_layer.mat) are not in {DATA}; they are not part of "
                            "the project (docs/own-sensor.md, 'Real recordings', says where to get them)")
+def test_near_gaps_and_the_psnr_split():
+    """near_gaps: the valid pixels whose LR block or one of its 8 neighbours holds a pixel without a reference;
+    psnr_near and psnr_away split the valid pixels' squared error between them."""
+    valid = np.ones((16, 16), bool)  # 4 x 4 LR blocks of 4 x 4
+    valid[0, 0] = False  # a gap in LR block (0, 0): its block and the three beside it are near
+    near = real_photons.near_gaps(valid)
+    expected = np.zeros((16, 16), bool)
+    expected[:8, :8] = True
+    np.testing.assert_array_equal(near, expected & valid)
+    rng = np.random.default_rng(0)
+    ref = rng.uniform(0.2, 0.8, (16, 16))
+    sr = ref[None] + rng.normal(0, 0.05, (2, 16, 16))
+    s = real_photons.masked_scores(sr, ref, valid, near=near)
+    share = near[valid].mean()
+    mse = lambda db: 10 ** (-np.asarray(db) / 10)  # noqa: E731  peak 1
+    np.testing.assert_allclose(mse(s["psnr"]), share * mse(s["psnr_near"]) + (1 - share) * mse(s["psnr_away"]),
+                               rtol=1e-4)
+    assert np.isnan(real_photons.masked_scores(sr, ref, valid)["psnr_near"]).all()
+
+
 def test_core_on_crops_of_the_real_recordings(tmp_path):
     recordings = [real_photons.read_recording(DATA, real_photons.SOURCES[0], crop=(64, 64, 48)),
                   real_photons.read_recording(DATA, real_photons.SOURCES[1], crop=(24, 24, 48))]
@@ -114,10 +134,10 @@ def test_core_on_crops_of_the_real_recordings(tmp_path):
                                           np.all((sky >= 0) & (sky <= 1)))
             at_edge = s["dropped_at_edge"]
             assert at_edge.shape == (2,) and np.all(np.isnan(at_edge) | ((at_edge >= 0) & (at_edge <= 1)))
-        assert not (r["sky"] & r["valid"]).any() and 0 <= r["edge_share"] <= 1
+        assert not (r["sky"] & r["valid"]).any() and 0 <= r["edge_share"] <= 1 and 0 <= r["near_share"] <= 1
         assert real_photons.goal(entry) is not None
     text = real_photons.tables(results, recordings)
-    assert "## tower" in text and "## two_layer" in text
+    assert "## tower" in text and "## two_layer" in text and "next to the reference's gaps" in text
     goals, _ = real_photons.goal_table(results)
     assert "TR4 - bicubic" in goals
     real_photons.picture(results, recordings, tmp_path / "p.png")

@@ -36,9 +36,12 @@ def test_bundled_ambient_models_continue_the_photon_models(name):
     assert meta["config"]["inputs"] == ["depth", "signal", "background", "ambient"]
     assert meta["config"]["no_return_head"]
     card = meta["card"]
-    # started from the photon model of the same TR, whose stages it lists before its own
-    assert card["init"] == name.replace("ambient", "photons") and card["regime"]["snr_range"][1] > 20
-    assert card["earlier_stages"][0]["init"] == name.split("-")[0]
+    # widened from the photon model of the same TR (itself from the paper's network), whose stages it lists
+    # before its own, oldest first, with the steps of them all
+    stages = [*card["earlier_stages"], card]
+    assert name.replace("ambient", "photons") in [s["init"] for s in stages] and card["regime"]["snr_range"][1] > 20
+    assert stages[0]["init"] == name.split("-")[0]
+    assert card["total_steps"] == sum(s["steps"] for s in stages)
 
 
 def test_an_empty_name_is_refused_with_what_is_expected():
