@@ -20,7 +20,7 @@ import sys
 
 from ..config import PRECISIONS, TRAINED_RANGE_M
 from ..inference.recording import (AUTO_AMBIENT_ALPHA, AUTO_AMBIENT_MIN_FRAMES, AUTO_AMBIENT_MIN_SIGNAL_SNR,
-                                   AUTO_AMBIENT_MIN_SNR, upscale)
+                                   AUTO_AMBIENT_MIN_SNR, AUTO_KEEP_RETURNS, upscale)
 from ..inference.video import DEFAULT_FORM, DEFAULT_PRECISION, FORMS, SEQUENCE_FORM_MIN_FRAMES, SEQUENCE_FORM_TRS
 from ..io.pointcloud import DEFAULT_FOV_DEG
 from ..io.recordings import DEPTH_UNITS
@@ -98,11 +98,14 @@ def add_parser(subparsers):
                    f"signal photons per pixel and frame times that SNR {AUTO_AMBIENT_MIN_SIGNAL_SNR:g} or more, "
                    f"else off, and off for --clip-negative counts, models with a no-return head and recordings of "
                    f"fewer than {AUTO_AMBIENT_MIN_FRAMES} frames (docs/network.md); off: never")
-    p.add_argument("--keep-returns", type=finite_float, default=None, metavar="ALPHA",
+    p.add_argument("--keep-returns", type=ambient_alpha, default="auto", metavar="{auto,off,ALPHA}",
                    help="histograms and time tags, models with a no-return head: output no return only where the "
                    "head says so and the pixel's own photons over 9 frames pass for ambient light alone at "
-                   "false-alarm rate ALPHA, such as 0.001; elsewhere the network's depth. For dark scenes whose "
-                   "dim surfaces a head calls sky; it shows some sky as depth at the regions' edges (docs/network.md)")
+                   "false-alarm rate ALPHA, such as 0.001; elsewhere the network's depth. It keeps dim surfaces a "
+                   "head calls sky and shows some sky as depth at the regions' edges. auto (default): "
+                   f"{AUTO_KEEP_RETURNS:g} for a model with a no-return head (the default model of histograms and "
+                   "time tags has one), off without one, beside an --ambient-alpha rate and for --clip-negative "
+                   "counts; off: the head decides alone (docs/network.md)")
     p.add_argument("--max-memory", type=memory, default=None, metavar="SIZE",
                    help=f"the memory the command may take, such as 16GB (default {MEMORY_SHARE * 100:.0f}%% of this "
                    "machine's RAM): the input's arrays and the work are estimated before they allocate, and refused beyond it")

@@ -45,6 +45,7 @@ from .pipeline import (
 )
 from .recording import (
     AUTO_AMBIENT_ALPHA,
+    AUTO_KEEP_RETURNS,
     AUTO_AMBIENT_MIN_FRAMES,
     AUTO_AMBIENT_MIN_SNR,
     AUTO_AMBIENT_MIN_SIGNAL_SNR,
@@ -83,6 +84,7 @@ __all__ = [
     "overrule_no_return",
     "lr_blocks",
     "AUTO_AMBIENT_ALPHA",
+    "AUTO_KEEP_RETURNS",
     "AUTO_AMBIENT_MIN_SNR",
     "AUTO_AMBIENT_MIN_SIGNAL_SNR",
     "AUTO_AMBIENT_MIN_FRAMES",

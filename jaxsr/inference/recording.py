@@ -63,7 +63,7 @@ from .video import (DEFAULT_FORM, DEFAULT_PRECISION, DEFAULT_TILE, FORMS, _defau
                     check_precision, iter_ambient_only, iter_returns_kept, no_return_where,
                     in_form, iter_network_inputs, iter_super_resolve)
 
-__all__ = ["HEAD_FRAMES", "DEFAULT_MODELS", "AUTO_AMBIENT_ALPHA", "AUTO_AMBIENT_MIN_SNR",
+__all__ = ["HEAD_FRAMES", "DEFAULT_MODELS", "AUTO_KEEP_RETURNS", "AUTO_AMBIENT_ALPHA", "AUTO_AMBIENT_MIN_SNR",
            "AUTO_AMBIENT_MIN_SIGNAL_SNR", "AUTO_AMBIENT_MIN_FRAMES", "auto_ambient_alpha",
            "FEW_PHOTONS", "PhotonLevels", "photon_levels", "FRAME_FORMATS", "UpscaleJob", "UpscaleResult",
            "prepare_upscale", "write_upscaled", "upscale", "upscale_memory"]
@@ -85,9 +85,14 @@ AUTO_AMBIENT_MIN_FRAMES = 16
 # there, but not on every real recording, so it stays a hint)
 FEW_PHOTONS = 3.0
 # model="default": the bundled model that fits the input. Depth gives only the centre of mass, which the paper's
-# TR4 reads; histograms and time tags also give the photons behind it, which a photon model reads
-# (experiments/results/photon_regimes.md says why this one).
-DEFAULT_MODELS = {"depth": "tr4", "histograms": "tr4"}
+# TR4 reads; histograms and time tags also give the photons behind it, which tr4-ambient reads: ahead of TR4 in
+# every simulated regime and by 2 dB on average on two real recordings (docs/results/photon-regimes.md, the default)
+DEFAULT_MODELS = {"depth": "tr4", "histograms": "tr4-ambient"}
+# keep_returns="auto": for a model with a no-return head on histograms and time tags, its no return kept only where
+# the pixel's own photons pass for ambient light alone at this rate. On the real tower recording it lifted
+# tr4-ambient's head from below bicubic on a dim building to 3.5-4.7 dB above it at 1-8 photons, for 0.1-0.5 dB
+# in simulation at 100-1000 photons (the sky at the edges of sky regions shown as depth)
+AUTO_KEEP_RETURNS = 1e-3
 FRAME_FORMATS = ("exr", "pfm", "tif", "png")  # frame files of a folder OUTPUT
 KINDS = ("depth", "histograms", "timetags")
 # Memory of `write_upscaled` (`upscale_memory`), measured on XLA:CPU with peak resident sizes (2026, 2 cores):
@@ -395,7 +400,7 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
                     drop_outside: bool = False, units: str | None = None, min_fps: float | None = None,
                     clip_negative: bool = False, max_memory=None, precision: str = DEFAULT_PRECISION,
                     form: str = DEFAULT_FORM, no_return_logit=None, ambient_alpha=AUTO,
-                    keep_returns=None) -> UpscaleJob:
+                    keep_returns=AUTO) -> UpscaleJob:
     """Open and check a recording and choose its model, as `jaxsr upscale` does before any output is written.
 
     input: a path (.npy / .npz array of depth (T, h, w) or photon counts (T, h, w, bins); a folder or glob pattern
@@ -413,8 +418,9 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
     _check_precision_form(fixed, precision, form)
     _check_no_return_logit(fixed, name, no_return_logit)
     _check_ambient_setting(ambient_alpha)  # before the input is read
-    # "auto" and "default" must not pick a model without a head; an "auto" ambient rate gives way to keep_returns
-    check_keep_returns(keep_returns, None if _is_auto(ambient_alpha) else ambient_alpha, all(_heads(fixed, name)))
+    if not _is_auto(keep_returns):  # a rate: "auto" and "default" must not pick a model without a head, and an
+        # "auto" ambient rate gives way to it
+        check_keep_returns(keep_returns, None if _is_auto(ambient_alpha) else ambient_alpha, all(_heads(fixed, name)))
     span = _span(span)
     time_unit = _positive(time_unit, "time_unit", parse_time_unit, "seconds")
     rec, gate, source, tag_notes = _open(input, kind, bins=bins, bin_width=bin_width, gate_start=gate_start,
@@ -455,10 +461,14 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
         if clip_negative and ambient_alpha is not None and not _is_auto(ambient_alpha):
             warnings += (("--ambient-alpha on background-subtracted counts: the test assumes raw counts, whose "
                           "ambient light it looks for, and was measured on those only"),)
-        if clip_negative and keep_returns is not None:
+        if clip_negative and keep_returns is not None and not _is_auto(keep_returns):
             warnings += (("--keep-returns on background-subtracted counts: its test assumes raw counts, whose "
                           "ambient light it looks for, and was measured on those only"),)
         ambient_alpha, ambient_why = _ambient_choice(ambient_alpha, levels, marks_no_return, rec.frames)
+        if _is_auto(keep_returns):  # on for a head, unless the counts are background-subtracted or an ambient
+            # rate decides no return instead
+            keep_returns = (AUTO_KEEP_RETURNS if marks_no_return and levels is not None and ambient_alpha is None
+                            else None)
 
         def lr_stream():
             return gate_frames(iter_network_inputs(counts, SensorConfig(bins=gate.bins), inputs, chunk=HISTOGRAM_CHUNK),
@@ -476,6 +486,7 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
             if not _is_auto(setting) and setting is not None:
                 raise ValueError(f"{what} tests the photons behind each pixel: give photon histograms or time "
                                  "tags, not depth frames")
+        keep_returns = None
         scale = DepthScale(0.0, float(sensor.d_max))
         units = guess_units(rec) if units is None else units
         check_frames(rec, units, gate)
@@ -957,7 +968,7 @@ def upscale(input, output, *, model="default", kind: str | None = None, bins: in
             overwrite: bool = False, progress: bool = False, clip_negative: bool = False, max_memory=None,
             report: Callable[[str], None] | None = None, precision: str = DEFAULT_PRECISION,
             form: str = DEFAULT_FORM, no_return_logit=None, ambient_alpha=AUTO,
-            keep_returns=None) -> UpscaleResult:
+            keep_returns=AUTO) -> UpscaleResult:
     """Super-resolve a recording x4 with a trained model and write it: `jaxsr upscale INPUT OUTPUT` in one call.
 
     input: a path (.npy / .npz array of depth (T, h, w) or photon counts (T, h, w, bins); a folder or glob
@@ -1012,7 +1023,10 @@ def upscale(input, output, *, model="default", kind: str | None = None, bins: in
       such as 0.001; output no return only where the model's head says so AND the pixel's own photons over 9
       frames pass for ambient light alone at it (`jaxsr.inference.overrule_no_return`), elsewhere the network's depth:
       for dark scenes whose dim surfaces a head calls sky. It gives up some sky at the edges of sky regions.
-      None (default): the head decides alone. Not with an `ambient_alpha` rate.
+      "auto" (default): `AUTO_KEEP_RETURNS` for a model with a no-return head (the default model of histograms
+      and time tags has one), off for a model without, for depth, beside an `ambient_alpha` rate and for
+      background-subtracted counts. None: off, the head decides alone. A rate is refused with an `ambient_alpha`
+      rate and for a model without a head.
     - batch_size (--batch-size): frames per compiled call (output frames per chunk in the sequence form);
       min_fps (--min-fps, model="auto" only): the slowest acceptable frames/s; preview (--preview): an input |
       output PNG strip of the middle frame; overwrite (--force): replace output, preview and video; progress

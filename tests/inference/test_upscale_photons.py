@@ -12,6 +12,7 @@ from jaxsr.inference import (
     AUTO_AMBIENT_MIN_FRAMES,
     AUTO_AMBIENT_MIN_SIGNAL_SNR,
     AUTO_AMBIENT_MIN_SNR,
+    AUTO_KEEP_RETURNS,
     DEFAULT_MODELS,
     FEW_PHOTONS,
     auto_ambient_alpha,
@@ -69,7 +70,12 @@ def test_depth_to_a_photon_model_is_refused(photon_model):
 
 
 def test_default_fits_the_input(counts):
-    assert prepare_upscale(counts, ambient_alpha=None).model_name == DEFAULT_MODELS["histograms"]
+    """Histograms get the default photon model, its no return checked by each pixel's photons (keep_returns
+    "auto"; off: the head alone); depth the depth model."""
+    job = prepare_upscale(counts)
+    assert job.model_name.startswith(DEFAULT_MODELS["histograms"]) and "its no return kept only where" in job.model_name
+    assert job.keep_returns == AUTO_KEEP_RETURNS and job.ambient_alpha is None  # auto: no ambient test for a head
+    assert "kept" not in prepare_upscale(counts, keep_returns=None).model_name
     assert prepare_upscale(np.full((2, 8, 12), 0.5, np.float32)).model_name == DEFAULT_MODELS["depth"]
     with pytest.raises(TypeError, match="default"):
         prepare_upscale(counts, model=3)
@@ -80,16 +86,16 @@ def test_no_return_logit_moves_the_decision_and_is_refused_without_a_head(photon
     library's `with_no_return_logit` gives the same output; a depth-only model refuses it before reading."""
     model, path = photon_model
     never = upscale(counts, None, model=path, units="normalised", no_return_logit=1e6).depth
-    always = upscale(counts, None, model=path, units="normalised", no_return_logit=-1e6).depth
+    always = upscale(counts, None, model=path, units="normalised", no_return_logit=-1e6, keep_returns=None).depth
     assert not (never >= 1.0).any() and (always >= 1.0).all()
     want = super_resolve_histograms(with_no_return_logit(model, 1e6), counts)
     np.testing.assert_allclose(never, np.clip(want, 0, 1), atol=1e-6)
     with pytest.raises(ValueError, match="no-return head"):
         prepare_upscale(counts, model="tr0", no_return_logit=1.0)
-    for spec in ("default", "auto"):  # they pick depth-only models: refused before the input is read
-        with pytest.raises(ValueError, match="no-return head"):
-            prepare_upscale("/nonexistent/input.npy", model=spec, no_return_logit=1.0)
-    job = prepare_upscale(counts, model=path, no_return_logit=2.0, ambient_alpha=None)
+    with pytest.raises(ValueError, match="no-return head"):  # auto picks depth-only models: refused before reading
+        prepare_upscale("/nonexistent/input.npy", model="auto", no_return_logit=1.0)
+    assert prepare_upscale(counts, no_return_logit=1.0).model.config.no_return_logit == 1.0  # the default's head
+    job = prepare_upscale(counts, model=path, no_return_logit=2.0, ambient_alpha=None, keep_returns=None)
     assert job.model.config.no_return_logit == 2.0 and job.model_name.endswith("at no-return logit 2")
     with pytest.raises(ValueError, match="finite number"):
         with_no_return_logit(model, float("nan"))
@@ -323,19 +329,21 @@ def test_the_test_is_named_where_memory_is_short_and_said_on_clipped_counts(dept
 
 
 def test_few_photons_get_a_hint_towards_the_photon_model(photon_model, half_sky):
-    """Below FEW_PHOTONS estimated signal photons per pixel, a model reading depth alone (the default, auto, a
-    named TR) gets a warning naming tr4-ambient; at 4 photons (half_sky), a photon model, and counts clipped after
-    background subtraction get none."""
+    """Below FEW_PHOTONS estimated signal photons per pixel, a model reading depth alone (a named TR, auto) gets a
+    warning naming tr4-ambient; at 4 photons (half_sky), a photon model (the default among them), and counts
+    clipped after background subtraction get none."""
     rng = np.random.default_rng(4)
     dim = rng.poisson(2.0 / 16, half_sky.shape).astype(np.float32)
     dim[:, :, :6, 7] += rng.poisson(1.0, dim.shape[:2] + (6,))
     assert photon_levels(dim, 16).signal < FEW_PHOTONS < photon_levels(half_sky, 16).signal
-    for model in ("default", "tr0"):
+    for model in ("tr0",):
         (hint,) = [w for w in prepare_upscale(dim, model=model).warnings if "signal photons per pixel" in w]
         assert "--model tr4-ambient" in hint and f"below {FEW_PHOTONS:g}" in hint
         assert not [w for w in prepare_upscale(half_sky, model=model).warnings if "signal photons per pixel" in w]
-    assert not [w for w in prepare_upscale(dim, model=photon_model[1]).warnings if "signal photons per pixel" in w]
-    assert not [w for w in prepare_upscale(dim, clip_negative=True).warnings if "signal photons per pixel" in w]
+    for model in (photon_model[1], "default"):
+        assert not [w for w in prepare_upscale(dim, model=model).warnings if "signal photons per pixel" in w]
+    assert not [w for w in prepare_upscale(dim, model="tr0", clip_negative=True).warnings
+                if "signal photons per pixel" in w]
 
 
 @pytest.mark.parametrize("frames", [1, 3, 9])
@@ -392,14 +400,17 @@ def test_raw_output_streams_depth_and_logit_in_tiles_and_in_the_sequence_form(sk
 
 
 def test_keep_returns_keeps_the_surface_a_head_calls_sky(sky_everywhere, half_sky, tmp_path, capsys):
-    """The head calls everything no return; with keep_returns the surface (4 photons a pixel and frame) comes out
-    as the network's depth and the sky stays no return: the flags are each pixel's own `ambient_only`."""
+    """The head calls everything no return; with keep_returns (by default "auto": AUTO_KEEP_RETURNS for a model with
+    a head) the surface (4 photons a pixel and frame) comes out as the network's depth and the sky stays no return:
+    the flags are each pixel's own `ambient_only`. Off (None, --keep-returns off), the head decides alone."""
     from jaxsr.cli import main
     from jaxsr.sensor import ambient_only
 
     model, path = sky_everywhere
-    assert (upscale(half_sky, None, model=path, units="normalised").depth == 1.0).all()
+    assert (upscale(half_sky, None, model=path, units="normalised", keep_returns=None).depth == 1.0).all()
     result = upscale(half_sky, None, model=path, units="normalised", keep_returns=1e-3)
+    assert AUTO_KEEP_RETURNS == 1e-3
+    np.testing.assert_array_equal(upscale(half_sky, None, model=path, units="normalised").depth, result.depth)
     quiet = np.asarray(ambient_only(half_sky, alpha=1e-3, pixels=1))
     assert quiet[:, :, :6].mean() < 0.01 and quiet[:, :, 6:].all()  # one surface pixel of a first frame passes
     hr_quiet = np.repeat(np.repeat(quiet, 4, axis=1), 4, axis=2)
@@ -418,9 +429,12 @@ def test_keep_returns_keeps_the_surface_a_head_calls_sky(sky_everywhere, half_sk
     assert main(["upscale", str(src), str(out), "--model", str(path), "--keep-returns", "1e-3", "--units",
                  "normalised", "--no-progress"]) == 0
     np.testing.assert_allclose(np.load(out), result.depth, atol=1e-6)
+    assert main(["upscale", str(src), str(tmp_path / "off.npy"), "--model", str(path), "--keep-returns", "off",
+                 "--units", "normalised", "--no-progress"]) == 0
+    assert (np.load(tmp_path / "off.npy") == 1.0).all()
     capsys.readouterr()
     # refused: without a head, for depth, beside an ambient rate, out of range (each before any work)
-    for model_name in ("tr0", "default"):  # refused before the input is read
+    for model_name in ("tr0", "auto"):  # refused before the input is read (auto picks among TR0-TR4)
         with pytest.raises(ValueError, match="has no head"):
             prepare_upscale("/nonexistent/input.npy", model=model_name, keep_returns=1e-3)
     with pytest.raises(ValueError, match="histograms or time tags"):
