@@ -23,8 +23,8 @@ The two choices:
   bundled tr4-photons also reads the photons behind it. Rule: tr4-photons where the estimated signal photons are
   below P, the paper's TR4 from P up, each with the test by the library's rule or (for tr4-photons) without it. The
   report names the rule with the highest mean PSNR over the grid and the best that loses no scene-regime more than
-  `TOLERANCE_DB`. `jaxsr upscale` keeps the paper's TR4 whatever they say, as real recordings disagree
-  (docs/results/photon-regimes.md), and hints at tr4-photons below `FEW_PHOTONS` estimated photons.
+  `TOLERANCE_DB`. It informs, and does not set, `jaxsr upscale`'s default for photons (tr4-ambient since
+  2026-11-27, chosen on the simulated regimes and the real recordings: docs/results/photon-regimes.md).
 
 Per scene and regime: the PSNR of TR4, TR4 + test, tr4-photons and tr4-photons + test on the same noise (mean over
 the scored frames), and the estimates. Scenes, frames, calibration, noise and scoring are the photon benchmark's
@@ -266,8 +266,9 @@ def report(rows, tests, models, *, started, frames: int, seed: int) -> str:
             f"{c_agree}. Chosen on these rows too.\n\n"
             "## The model, by photon threshold (the test by the library's rule)\n\n" + model_table
             + f"\n\nThe rule with the highest mean: {_model_rule_text(model)}; the best that loses no scene-regime "
-            f"more than {TOLERANCE_DB:g} dB: {_model_rule_text(safe)}. `jaxsr upscale` keeps the paper's TR4 (real "
-            "recordings disagree: docs/results/photon-regimes.md) and hints at tr4-photons below "
+            f"more than {TOLERANCE_DB:g} dB: {_model_rule_text(safe)}. `jaxsr upscale`'s default for photons is "
+            "chosen on the simulated regimes and the real recordings, not by this rule "
+            "(docs/results/photon-regimes.md); a depth model gets a hint below "
             f"{FEW_PHOTONS:g} estimated photons.\n\n## Per scene and regime\n\n" + detail + "\n")
 
 

@@ -89,9 +89,9 @@ FEW_PHOTONS = 3.0
 # every simulated regime and by 2 dB on average on two real recordings (docs/results/photon-regimes.md, the default)
 DEFAULT_MODELS = {"depth": "tr4", "histograms": "tr4-ambient"}
 # keep_returns="auto": for a model with a no-return head on histograms and time tags, its no return kept only where
-# the pixel's own photons pass for ambient light alone at this rate. On the real tower recording it lifted
-# tr4-ambient's head from below bicubic on a dim building to 3.5-4.7 dB above it at 1-8 photons, for 0.1-0.5 dB
-# in simulation at 100-1000 photons (the sky at the edges of sky regions shown as depth)
+# the pixel's own photons pass for ambient light alone at this rate. On the real tower recording it turned
+# tr4-ambient's head alone (+2.4 to -10.4 dB against bicubic on a dim building at 1-8 photons) into +3.5 to +4.7 dB,
+# for 0.1-0.5 dB in simulation at 100-1000 photons (the sky at the edges of sky regions shown as depth)
 AUTO_KEEP_RETURNS = 1e-3
 FRAME_FORMATS = ("exr", "pfm", "tif", "png")  # frame files of a folder OUTPUT
 KINDS = ("depth", "histograms", "timetags")
@@ -418,9 +418,10 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
     _check_precision_form(fixed, precision, form)
     _check_no_return_logit(fixed, name, no_return_logit)
     _check_ambient_setting(ambient_alpha)  # before the input is read
-    if not _is_auto(keep_returns):  # a rate: "auto" and "default" must not pick a model without a head, and an
-        # "auto" ambient rate gives way to it
-        check_keep_returns(keep_returns, None if _is_auto(ambient_alpha) else ambient_alpha, all(_heads(fixed, name)))
+    if not _is_auto(keep_returns):  # a rate: "auto" must not pick a model without a head ("default" is checked
+        # once the input says which it picks), and an "auto" ambient rate gives way to it
+        check_keep_returns(keep_returns, None if _is_auto(ambient_alpha) else ambient_alpha,
+                           name == "default" or all(_heads(fixed, name)))
     span = _span(span)
     time_unit = _positive(time_unit, "time_unit", parse_time_unit, "seconds")
     rec, gate, source, tag_notes = _open(input, kind, bins=bins, bin_width=bin_width, gate_start=gate_start,
@@ -429,6 +430,8 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
     if name == "default":  # the bundled model that fits the input
         name = DEFAULT_MODELS[rec.kind]
         fixed = load_model(name)
+        if rec.kind == "histograms" and not _is_auto(keep_returns):  # depth refuses a rate below
+            check_keep_returns(keep_returns, None, bool(getattr(fixed.config, "no_return_head", False)))
     inputs = tuple(getattr(getattr(fixed, "config", None), "inputs", ("depth",)))
     if rec.kind != "histograms" and inputs != ("depth",):
         raise ValueError(f"model {name} reads {', '.join(inputs)} per pixel, which depth frames do not hold: give it "
@@ -618,9 +621,9 @@ def _few_photons_warnings(signal: float, frames: int) -> tuple[str, ...]:
     if not signal < FEW_PHOTONS:  # NaN (no return seen): nothing to say
         return ()
     return ((f"about {signal:.2g} signal photons per pixel and frame (first {frames} frames): below "
-             f"{FEW_PHOTONS:g} a model reading depth alone falls behind; --model tr4-ambient also reads the photons "
-             "behind each depth (check a frame, --preview; on a dark scene add --no-return-logit 2 --keep-returns "
-             "0.001; docs/results/real-photons.md)"),)
+             f"{FEW_PHOTONS:g} a model reading depth alone falls behind; tr4-ambient, the default model of "
+             "histograms and time tags (--model default), also reads the photons behind each depth (check a frame, "
+             "--preview; docs/results/real-photons.md)"),)
 
 
 def _snr_warnings(trained: tuple[float, float], snr: float, frames: int, no_return_logit=None) -> tuple[str, ...]:
@@ -977,8 +980,8 @@ def upscale(input, output, *, model="default", kind: str | None = None, bins: in
     a NumPy array or `TimeTags` (see `prepare_upscale`). output: .npy / .npz, a folder of frames, or None (the
     result is returned in `UpscaleResult.depth`, (T, H, W) float32). Options, keyword-only, as the command's:
 
-    - model (--model): "default" (the bundled model that fits the input, `DEFAULT_MODELS`: tr4 for depth and
-      for histograms and time tags), "tr0".."tr4" (bundled weights; "paper-tr0".."paper-tr4" always the
+    - model (--model): "default" (the bundled model that fits the input, `DEFAULT_MODELS`: tr4 for depth,
+      tr4-ambient for histograms and time tags), "tr0".."tr4" (bundled weights; "paper-tr0".."paper-tr4" always the
       paper's), "auto" (the TR `choose_tr` picks from the motion of the first 64 frames, within min_fps), a
       checkpoint path, or a `Model`; a model reading photons (`ModelConfig.inputs`) needs histograms or time tags.
     - kind (--input): "depth", "histograms" or "timetags" (default: depth or histograms from the data).

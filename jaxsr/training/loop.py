@@ -455,19 +455,47 @@ def _training_card(run: _Run, *, train_cfg: TrainConfig, settings: dict, sensor:
 _LINEAGE_KEYS = ("earlier_stages", "total_steps", "total_examples")
 
 
-def _init_lineage(init) -> dict:
-    """The training behind `init` (a checkpoint's name or path; a Model carries none): its card's stages, oldest
-    first, with its own card last, and their steps and examples, so that a fine-tune's card says all the training
-    its weights have seen. {} where `init` has no card."""
+def _count(x) -> bool:
+    return isinstance(x, numbers.Real) and not isinstance(x, bool) and math.isfinite(x) and x >= 0
+
+
+def _lineage_after(card) -> dict:
+    """The lineage of a run that starts from the weights `card` describes: the card's stages (oldest first) with the
+    card itself last, and the steps and examples of them all. {} where the card has no such shape (a card is
+    metadata: `save_model` takes any JSON), so that a lineage never stops a run."""
+    if not isinstance(card, dict) or not card:
+        return {}
+    earlier = card.get("earlier_stages", [])
+    steps, examples = (card.get(f"total_{k}", card.get(k, 0)) for k in ("steps", "examples"))
+    if not (isinstance(earlier, list) and all(isinstance(e, dict) for e in earlier) and _count(steps)
+            and _count(examples)):
+        return {}
+    return {"earlier_stages": [*earlier, {k: v for k, v in card.items() if k not in _LINEAGE_KEYS}],
+            "total_steps": steps, "total_examples": examples}
+
+
+def _run_lineage(out: Path, init, resume: bool) -> dict:
+    """The training behind a run's starting weights, for its card: when resuming, what its saved card recorded
+    (the starting checkpoint may have moved or been replaced since); else that of `init` (a checkpoint's name or
+    path; a Model carries none), {} where it has none or cannot be read."""
+    path = _latest_state(out) if resume else None
+    if path is not None:
+        card = read_metadata(path).get("card")
+        if not isinstance(card, dict) or "earlier_stages" not in card:
+            return {}  # a run begun without a lineage keeps none
+        saved = {k: card.get(k) for k in _LINEAGE_KEYS}
+        steps, examples = saved["total_steps"], saved["total_examples"]
+        if not (_count(steps) and _count(examples) and _count(card.get("steps")) and _count(card.get("examples"))):
+            return {}
+        return {"earlier_stages": saved["earlier_stages"], "total_steps": steps - card["steps"],
+                "total_examples": examples - card["examples"]}
     if init is None or isinstance(init, Model):
         return {}
-    card = read_metadata(resolve_model_path(init)).get("card") or {}
-    if not card:
+    try:
+        card = read_metadata(resolve_model_path(init)).get("card")
+    except (OSError, ValueError, KeyError):  # unreadable: the run starts as before, its card without a lineage
         return {}
-    stages = [*card.get("earlier_stages", []), {k: v for k, v in card.items() if k not in _LINEAGE_KEYS}]
-    return {"earlier_stages": stages,
-            "total_steps": card.get("total_steps", card.get("steps", 0)),
-            "total_examples": card.get("total_examples", card.get("examples", 0))}
+    return _lineage_after(card)
 
 
 RESUME_FILE = "resume.npz"  # the train state inside an epoch; last.npz keeps the last epoch's end
@@ -705,7 +733,8 @@ def _fit_in(folders: list, model_cfg, cfgs: list, *, by_seed: bool, make_batch, 
     if data_description is None:
         data_description = getattr(make_batch, "description", "user-supplied make_batch")
     seats, states, runs = [], [], []
-    lineage = _init_lineage(init)
+    # the training behind each run's weights, for its card (written by the lead process alone)
+    lineages = [_run_lineage(out, init, resume) if lead else {} for out in folders]
     start = _start_or_resume if processes == 1 else _start_across_processes
     for out, cfg in zip(folders, cfgs):
         k_init, k_data, k_val = run_keys(cfg.seed)
@@ -744,6 +773,7 @@ def _fit_in(folders: list, model_cfg, cfgs: list, *, by_seed: bool, make_batch, 
                               validation=seat.validation, bicubic_psnr=seat.val_bicubic, data=data_description)
         if pretrain_epochs:
             card["pretrain_epochs"] = pretrain_epochs
+        lineage = lineages[i]
         if lineage:  # a fine-tune: the training before it, and the sums with this run's
             card = {**card, "earlier_stages": lineage["earlier_stages"],
                     "total_steps": lineage["total_steps"] + run.step,

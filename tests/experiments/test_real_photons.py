@@ -81,9 +81,6 @@ def test_competing_return():
 DATA = real_photons.DEFAULT_DATA
 
 
-@pytest.mark.skipif(not all((DATA / s.file).is_file() for s in real_photons.SOURCES),
-                    reason=f"the real recordings (tower.mat, two_layer.mat) are not in {DATA}; they are not part of "
-                           "the project (docs/own-sensor.md, 'Real recordings', says where to get them)")
 def test_near_gaps_and_the_psnr_split():
     """near_gaps: the valid pixels whose LR block or one of its 8 neighbours holds a pixel without a reference;
     psnr_near and psnr_away split the valid pixels' squared error between them."""
@@ -104,6 +101,9 @@ def test_near_gaps_and_the_psnr_split():
     assert np.isnan(real_photons.masked_scores(sr, ref, valid)["psnr_near"]).all()
 
 
+@pytest.mark.skipif(not all((DATA / s.file).is_file() for s in real_photons.SOURCES),
+                    reason=f"the real recordings (tower.mat, two_layer.mat) are not in {DATA}; they are not part of "
+                           "the project (docs/own-sensor.md, 'Real recordings', says where to get them)")
 def test_core_on_crops_of_the_real_recordings(tmp_path):
     recordings = [real_photons.read_recording(DATA, real_photons.SOURCES[0], crop=(64, 64, 48)),
                   real_photons.read_recording(DATA, real_photons.SOURCES[1], crop=(24, 24, 48))]

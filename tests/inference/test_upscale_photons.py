@@ -338,7 +338,7 @@ def test_few_photons_get_a_hint_towards_the_photon_model(photon_model, half_sky)
     assert photon_levels(dim, 16).signal < FEW_PHOTONS < photon_levels(half_sky, 16).signal
     for model in ("tr0",):
         (hint,) = [w for w in prepare_upscale(dim, model=model).warnings if "signal photons per pixel" in w]
-        assert "--model tr4-ambient" in hint and f"below {FEW_PHOTONS:g}" in hint
+        assert "tr4-ambient" in hint and "--model default" in hint and f"below {FEW_PHOTONS:g}" in hint
         assert not [w for w in prepare_upscale(half_sky, model=model).warnings if "signal photons per pixel" in w]
     for model in (photon_model[1], "default"):
         assert not [w for w in prepare_upscale(dim, model=model).warnings if "signal photons per pixel" in w]
@@ -437,6 +437,8 @@ def test_keep_returns_keeps_the_surface_a_head_calls_sky(sky_everywhere, half_sk
     for model_name in ("tr0", "auto"):  # refused before the input is read (auto picks among TR0-TR4)
         with pytest.raises(ValueError, match="has no head"):
             prepare_upscale("/nonexistent/input.npy", model=model_name, keep_returns=1e-3)
+    job = prepare_upscale(half_sky, keep_returns=2e-3)  # a rate of one's own for the default photon model
+    assert job.keep_returns == 2e-3 and "alpha 0.002" in job.model_name
     with pytest.raises(ValueError, match="histograms or time tags"):
         prepare_upscale(np.full((2, 8, 12), 0.5, np.float32), model=path, keep_returns=1e-3)
     with pytest.raises(ValueError, match="give one"):

@@ -201,6 +201,23 @@ def _tiny_model(path):
     return save_model(path, Model(params, state, TINY), card=TINY_CARD)
 
 
+def test_a_lineage_never_stops_a_run(tmp_path):
+    """The lineage a fine-tune's card gets from its starting checkpoint: the card's stages, then the card; {} for
+    an odd card, a missing file or a Model, so that a run starts as it did without one."""
+    from jaxsr.training.loop import _lineage_after, _run_lineage
+
+    stage = {"steps": 2, "examples": 8}
+    card = {"earlier_stages": [stage], "steps": 5, "examples": 20, "total_steps": 7, "total_examples": 28, "x": 1}
+    assert _lineage_after(card) == {"earlier_stages": [stage, {"steps": 5, "examples": 20, "x": 1}],
+                                    "total_steps": 7, "total_examples": 28}
+    for odd in (None, [], "card", {"earlier_stages": None, "steps": 3}, {"earlier_stages": [1]},
+                {"steps": "many"}, {"steps": -1}, {"steps": True}):
+        assert _lineage_after(odd) == {}
+    assert _run_lineage(tmp_path / "run", tmp_path / "missing.npz", False) == {}
+    assert _run_lineage(tmp_path / "run", Model(*init_model(jax.random.key(0), TINY), TINY), False) == {}
+    assert _run_lineage(tmp_path / "run", _tiny_model(tmp_path / "tiny.npz"), False)["earlier_stages"] == [TINY_CARD]
+
+
 def test_finetune_builds_on_train_and_records_the_sensor(tmp_path, monkeypatch):
     """The options reach `fit` as a fine-tune of the sensor's data (fit and the validation stubbed: no compiling)."""
     import jaxsr.training.presets as presets
