@@ -303,6 +303,7 @@ def test_the_deprecated_baseline_names_warn_and_still_work(tmp_path):
         jaxsr.fit_baseline  # noqa: B018 (a former top-level name)
 
 
+@pytest.mark.slow  # 10-18 s: keeps the default suite under 8 minutes on 2 cores
 def test_one_fit_trains_a_baseline_checkpoints_every_epoch_resumes_and_refuses_other_settings(tmp_path):
     batch = fixed_histogram_batch()
     make_batch = lambda key: batch

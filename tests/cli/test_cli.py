@@ -17,6 +17,7 @@ from jaxsr import cli, io
 SUBCOMMANDS = {"simulate", "train", "finetune", "upscale", "info"}
 
 
+@pytest.mark.slow  # 10-18 s: keeps the default suite under 8 minutes on 2 cores
 def test_simulate_scene(tmp_path, capsys):
     out = tmp_path / "sim"
     rc = cli.main(["simulate", "--kind", "walkers", "--frames", "3", "--fps", "25", "--snr", "1.3", "--seed", "0",

@@ -47,6 +47,7 @@ def test_a_bundled_model_as_good_as_the_run_is_kept_untouched(workspace):
     assert not (tmp_path / "experiments" / "results" / "weights.md").exists()
 
 
+@pytest.mark.slow  # 10-18 s: keeps the default suite under 8 minutes on 2 cores
 def test_a_worse_bundled_model_is_replaced_by_the_run(workspace):
     tmp_path, _, card = workspace
     target = tmp_path / "weights" / "tr0.npz"

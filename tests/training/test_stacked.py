@@ -89,6 +89,7 @@ def test_each_seed_has_its_own_run_folder_and_card(stacked):
         fit(TINY, CFG, out=seed_folder(out, 0), seeds=[5], make_batch=MAKE_BATCH, progress=False)
 
 
+@pytest.mark.slow  # 10-18 s: keeps the default suite under 8 minutes on 2 cores
 def test_one_seed_trains_unstacked_in_its_folder(tmp_path, recwarn):
     told = []
     result = fit(TINY, dataclasses.replace(CFG, epochs=1), out=tmp_path, seeds=[5], make_batch=MAKE_BATCH,
