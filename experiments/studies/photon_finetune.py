@@ -125,7 +125,8 @@ def main(argv=None) -> None:
     validation = regime_validation(args.tr, train_cfg, PhotonRegime(thin_prob=args.thin_prob),
                                    batches=args.val_batches, sensor=sensor, inputs=model_cfg.inputs,
                                    snrs=args.val_snrs)
-    say(f"validation set drawn ({args.val_batches} batches); training{' (resuming)' if (out / 'last.npz').exists() else ''}")
+    resuming = any((out / f).exists() for f in ("last.npz", "resume.npz"))
+    say(f"validation set drawn ({args.val_batches} batches); training{' (resuming)' if resuming else ''}")
     jaxsr.fit(model_cfg, train_cfg, out=out, make_batch=regime_batches(
         args.tr, train_cfg, regime, sensor=sensor, inputs=model_cfg.inputs), validation=validation, sensor=sensor,
         resume=True, progress=not args.no_progress,

@@ -324,11 +324,11 @@ def masked_scores(sr, ref, valid, sky=None, edge=None, near=None) -> dict:
     gt = np.broadcast_to(ref[valid], pred.shape)
     psnr = np.asarray(jaxsr.psnr(pred[:, None, :], gt[:, None, :]))
     nan = np.full(len(out), np.nan)
-    split = {}
-    for key, part in (("psnr_near", near), ("psnr_away", None if near is None else ~near)):
-        where = None if part is None else part[valid]
-        split[key] = (np.asarray(jaxsr.psnr(pred[:, None, where], gt[:, None, where]))
-                      if where is not None and where.any() else nan)
+
+    def psnr_of(where):  # of the valid pixels `where` selects; NaN where it selects none
+        return np.asarray(jaxsr.psnr(pred[:, None, where], gt[:, None, where])) if where.any() else nan
+
+    near_v = np.zeros(pred.shape[1], bool) if near is None else near[valid]
     sky_as_depth = (out[:, sky] < NO_RETURN_AT).mean(-1) if sky is not None and sky.any() else nan
     dropped = pred >= NO_RETURN_AT
     at_edge = nan
@@ -336,7 +336,8 @@ def masked_scores(sr, ref, valid, sky=None, edge=None, near=None) -> dict:
         with np.errstate(invalid="ignore", divide="ignore"):
             at_edge = (dropped & edge[valid]).sum(-1) / dropped.sum(-1)
     return {"psnr": psnr, "mae": np.abs(pred - gt).mean(-1), "no_return": dropped.mean(-1),
-            "dropped_at_edge": at_edge, "sky_as_depth": sky_as_depth, **split}
+            "dropped_at_edge": at_edge, "sky_as_depth": sky_as_depth, "psnr_near": psnr_of(near_v),
+            "psnr_away": psnr_of(~near_v) if near is not None else nan}
 
 
 def near_gaps(valid) -> np.ndarray:
@@ -488,8 +489,8 @@ def tables(results, recordings) -> str:
         text.append("### PSNR (dB) against the reference, mean over frames" + (" (TV: on its frames only)" if tv_subset
                                                                                else "") + "\n\n"
                     + markdown_table(["photons", "frames", "photons / LR pixel on the reference", *methods], rows))
-        rows = [[f"{e['level']:g}"] + [f"{_mean_db(e['scores'][m]['psnr_near'])} / "
-                                       f"{_mean_db(e['scores'][m]['psnr_away'])}" for m in methods]
+        rows = [[f"{e['level']:g}"] + [f"{_finite_mean(e['scores'][m]['psnr_near'])} / "
+                                       f"{_finite_mean(e['scores'][m]['psnr_away'])}" for m in methods]
                 for e in r["levels"]]
         text.append("### PSNR (dB) next to the reference's gaps / away from them\n\n"
                     f"Next (`near_gaps`): valid pixels whose LR block or one of its 8 neighbours holds a pixel "
@@ -524,18 +525,16 @@ def tables(results, recordings) -> str:
     return "\n".join(text)
 
 
-def _mean_db(values) -> str:
-    """The mean of the finite values in dB, "-" where none is (no pixel of that kind)."""
+def _finite_mean(values, fmt: str = ".2f", scale: float = 1.0) -> str:
+    """The mean of the finite values (times `scale`), "-" where none is (no pixel of that kind)."""
     values = np.asarray(values, float)
     values = values[np.isfinite(values)]
-    return "-" if not values.size else f"{values.mean():.2f}"
+    return "-" if not values.size else f"{scale * values.mean():{fmt}}"
 
 
 def _percent(shares) -> str:
     """The mean of the finite shares in per cent, "-" where none is."""
-    shares = np.asarray(shares, float)
-    shares = shares[np.isfinite(shares)]
-    return "-" if not shares.size else f"{100 * shares.mean():.0f}"
+    return _finite_mean(shares, ".0f", 100.0)
 
 
 def goal_table(results) -> tuple[str, bool]:

@@ -418,10 +418,10 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
     _check_precision_form(fixed, precision, form)
     _check_no_return_logit(fixed, name, no_return_logit)
     _check_ambient_setting(ambient_alpha)  # before the input is read
-    if not _is_auto(keep_returns):  # a rate: "auto" must not pick a model without a head ("default" is checked
-        # once the input says which it picks), and an "auto" ambient rate gives way to it
+    if not _is_auto(keep_returns):  # a rate (photons only): "auto" and "default" must not pick a model without a
+        # head for histograms, and an "auto" ambient rate gives way to it
         check_keep_returns(keep_returns, None if _is_auto(ambient_alpha) else ambient_alpha,
-                           name == "default" or all(_heads(fixed, name)))
+                           all(_heads(fixed, name, "histograms")))
     span = _span(span)
     time_unit = _positive(time_unit, "time_unit", parse_time_unit, "seconds")
     rec, gate, source, tag_notes = _open(input, kind, bins=bins, bin_width=bin_width, gate_start=gate_start,
@@ -430,8 +430,6 @@ def prepare_upscale(input, *, model="default", kind: str | None = None, bins: in
     if name == "default":  # the bundled model that fits the input
         name = DEFAULT_MODELS[rec.kind]
         fixed = load_model(name)
-        if rec.kind == "histograms" and not _is_auto(keep_returns):  # depth refuses a rate below
-            check_keep_returns(keep_returns, None, bool(getattr(fixed.config, "no_return_head", False)))
     inputs = tuple(getattr(getattr(fixed, "config", None), "inputs", ("depth",)))
     if rec.kind != "histograms" and inputs != ("depth",):
         raise ValueError(f"model {name} reads {', '.join(inputs)} per pixel, which depth frames do not hold: give it "
@@ -660,17 +658,19 @@ def _check_no_return_logit(model, name: str, logit) -> None:
                          f"picks {' or '.join(_picks(name))}, which have none: name one that has, such as tr4-ambient")
 
 
-def _picks(name: str) -> list[str]:
-    """The bundled models that "auto" or "default" may pick."""
-    return [f"tr{k}" for k in range(5)] if name == "auto" else sorted(set(DEFAULT_MODELS.values()))
+def _picks(name: str, kind: str | None = None) -> list[str]:
+    """The bundled models that "auto" or "default" may pick (for input of `kind`, where given)."""
+    if name == "auto":
+        return [f"tr{k}" for k in range(5)]
+    return [DEFAULT_MODELS[kind]] if kind else sorted(set(DEFAULT_MODELS.values()))
 
 
-def _heads(model, name: str) -> list[bool]:
+def _heads(model, name: str, kind: str | None = None) -> list[bool]:
     """Whether the model has a no-return head: [that of `model`], or for "auto" and "default" (model None) one
-    per model they may pick, read from the bundled files' metadata."""
+    per model they may pick (for input of `kind`, where given), read from the bundled files' metadata."""
     if model is not None:
         return [bool(getattr(getattr(model, "config", None), "no_return_head", False))]
-    return [read_metadata(resolve_model_path(p))["config"].get("no_return_head", False) for p in _picks(name)]
+    return [read_metadata(resolve_model_path(p))["config"].get("no_return_head", False) for p in _picks(name, kind)]
 
 
 def _check_precision_form(model, precision, form) -> None:
