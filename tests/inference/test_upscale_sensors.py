@@ -39,6 +39,7 @@ def test_depth_of_another_size(tmp_path, model_path):
     np.testing.assert_allclose(out, np.clip(super_resolve(load_model(model_path), lr), 0, 1), atol=1e-6)
 
 
+@pytest.mark.slow  # about 10 s: keeps the default suite under 8 minutes on 2 cores
 def test_time_tags_over_a_gate_far_away(tmp_path, model_path, capsys):
     """A 12 x 20 table of time tags (ns) of a slanted wall 1.5 km away, gate given in time: the output in metres
     equals histogram -> gate_depth -> the network at offset = gate start, span 35 m -> metres."""

@@ -179,6 +179,7 @@ def test_sum_over_blocks_is_the_block_sum():
 # --- transformations -------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow  # about 10 s: keeps the default suite under 8 minutes on 2 cores
 def test_jit_equals_eager_and_vmap_equals_loop():
     rng = np.random.default_rng(7)
     depth, intensity = random_scene(rng, (3,) + SMALL.hr_shape)
