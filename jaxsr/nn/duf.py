@@ -39,6 +39,7 @@ __all__ = [
     "apply_model",
     "apply_model_raw",
     "apply_model_train",
+    "apply_model_features",
     "apply_model_sequence",
     "apply_model_sequence_train",
     "edge_pad_sequence",
@@ -51,6 +52,7 @@ __all__ = [
     "merge_no_return",
     "with_no_return_logit",
     "no_return_branch",
+    "no_return_logits",
 ]
 
 
@@ -404,15 +406,35 @@ def _forward_sequence(params, state, lr_seq, cfg: ModelConfig, *, padding: str, 
     return hr, new_state
 
 
+def _blocks(params, state, windows, cfg: ModelConfig, *, bn: dict, conv):
+    """Stem and blocks of the windowed network: (features (B, 1, H, W, F), their new BN states)."""
+    x = _stem(params, windows, conv=conv)
+    states = []
+    for i, (p, s) in enumerate(zip(params["blocks"], state["blocks"])):
+        x, s_i = _block(p, s, x, valid=i >= cfg.same_blocks, bn=bn, conv=conv)
+        states.append(s_i)
+    return x, states
+
+
+def apply_model_features(params, state, windows, cfg: ModelConfig, *, conv3d_impl: str = "auto",
+                         precision: str = "default"):
+    """The head's features of each window's centre frame, BN in inference mode: (B, H, W, cfg.head), what the
+    residual, filter and no-return branches read (`no_return_logits` of them, with a time axis, is the
+    no-return logit `apply_model_raw` gives). For refitting a branch on features computed once
+    (experiments/studies/no_return_head.py). windows, conv3d_impl, precision: as for `apply_model`."""
+    _check_inputs(windows, cfg, conv3d_impl, precision, "apply_model_features")
+    conv = convolution(conv3d_impl, precision)
+    bn = dict(train=False, momentum=cfg.bn_momentum, eps=cfg.bn_eps)
+    x, _ = _blocks(params, state, windows, cfg, bn=bn, conv=conv)
+    return _head_features(params, state, x, bn=bn, conv=conv)[0][:, 0]
+
+
 def _forward(params, state, windows, cfg: ModelConfig, *, train: bool, conv3d_impl: str, precision: str):
     """The windowed network for both BN modes: (hr (B, H*r, W*r), new_state)."""
     conv = convolution(conv3d_impl, precision)
     bn = dict(train=train, momentum=cfg.bn_momentum, eps=cfg.bn_eps)
-    x = _stem(params, windows, conv=conv)
-    new_state = {"blocks": []}
-    for i, (p, s) in enumerate(zip(params["blocks"], state["blocks"])):
-        x, s_i = _block(p, s, x, valid=i >= cfg.same_blocks, bn=bn, conv=conv)
-        new_state["blocks"].append(s_i)
+    x, block_states = _blocks(params, state, windows, cfg, bn=bn, conv=conv)
+    new_state = {"blocks": block_states}
     hr, new_state["head"] = _head(params, state, x, _depth(windows[:, cfg.tr : cfg.tr + 1], cfg), cfg, bn=bn,
                                   conv=conv, precision=precision)
     return hr[:, 0], new_state  # T = 1 after tr valid blocks
@@ -455,8 +477,7 @@ def _head(params, state, x, centre, cfg: ModelConfig, *, bn: dict, conv, precisi
     """Features (B, T, H, W, F) and the LR frames they belong to, centre (B, T, H, W) -> (hr (B, T, H*r, W*r),
     new head BN state): head conv, residual and filter branches, dynamic upsampling of `centre` (at `precision`,
     float32 for "bfloat16": the filters weigh depths)."""
-    h, sh = batch_norm(params["head"]["bn"], state["head"]["bn"], x, **bn)
-    h = jax.nn.relu(conv(jax.nn.relu(h), params["head"]["conv"]["w"], params["head"]["conv"]["b"]))
+    h, sh = _head_features(params, state, x, bn=bn, conv=conv)
 
     def dense(p, z):  # a 1x1x1 convolution: a matrix product
         return conv(z, p["w"], p["b"])
@@ -471,10 +492,22 @@ def _head(params, state, x, centre, cfg: ModelConfig, *, bn: dict, conv, precisi
     sub = sub.reshape(b, t, *sub.shape[1:]) + residual  # (B, T, H, W, r^2)
     hr = depth_to_space(sub, cfg.scale)[..., 0]
     if cfg.no_return_head:
-        p = params["no_return"]
-        logit = depth_to_space(dense(p["conv2"], jax.nn.relu(dense(p["conv1"], h))), cfg.scale)[..., 0]
-        hr = jnp.stack([hr, logit], axis=-1)
+        hr = jnp.stack([hr, no_return_logits(params["no_return"], h, cfg, conv=conv)], axis=-1)
     return hr, {"bn": sh}
+
+
+def _head_features(params, state, x, *, bn: dict, conv):
+    """The blocks' features (B, T, H, W, F) -> the head's (B, T, H, W, cfg.head), which the residual, filter and
+    no-return branches read, and the head's new BN state."""
+    h, sh = batch_norm(params["head"]["bn"], state["head"]["bn"], x, **bn)
+    return jax.nn.relu(conv(jax.nn.relu(h), params["head"]["conv"]["w"], params["head"]["conv"]["b"])), sh
+
+
+def no_return_logits(p, h, cfg: ModelConfig, *, conv=conv3d):
+    """The no-return branch `p` (params["no_return"]) on the head's features h (B, T, H, W, cfg.head): the logit
+    of "no return" for each HR pixel, (B, T, H*r, W*r); two 1x1x1 convolutions, r^2 logits per LR pixel."""
+    z = conv(jax.nn.relu(conv(h, p["conv1"]["w"], p["conv1"]["b"])), p["conv2"]["w"], p["conv2"]["b"])
+    return depth_to_space(z, cfg.scale)[..., 0]
 
 
 def merge_no_return(out, cfg: ModelConfig):

@@ -12,8 +12,9 @@ import pytest
 from jaxsr.config import ModelConfig, PhotonRegime, SensorConfig, TrainConfig
 from jaxsr.inference import Stream, super_resolve, super_resolve_histograms
 from jaxsr.io.checkpoint import load_model, save_model
-from jaxsr.nn import (Model, apply_model, apply_model_train, encode_photons, flops_per_frame, init_model,
-                      merge_no_return, network_inputs, with_photon_inputs)
+from jaxsr.nn import (Model, apply_model, apply_model_features, apply_model_raw, apply_model_train, encode_photons,
+                      flops_per_frame, init_model, merge_no_return, network_inputs, no_return_logits,
+                      with_photon_inputs)
 from jaxsr.sensor import ambient_photons, centre_of_mass, peak_evidence
 from jaxsr.temporal import windows as temporal_windows
 from jaxsr.training import regime_batches, regime_parameters
@@ -175,6 +176,24 @@ def test_no_return_head_marks_pixels_and_its_loss_learns_them():
     moved = out.at[:, :16, :, 0].add(0.3)
     assert float(model_loss(moved, gt, cfg, train_cfg)) == float(model_loss(out, gt, cfg, train_cfg))
     assert float(model_loss(out.at[:, 16:, :, 0].add(0.3), gt, cfg, train_cfg)) > float(loss(0.0))
+
+
+def test_the_head_features_and_the_no_return_branch_give_the_networks_logit():
+    """apply_model_features + no_return_logits: the logit apply_model_raw outputs, from features computed once."""
+    model = with_photon_inputs(jax.random.key(1), _tiny_depth_model(tr=1))
+    branch = model.params["no_return"]
+    branch["conv2"] = {"w": jax.random.normal(jax.random.key(4), branch["conv2"]["w"].shape),
+                       "b": branch["conv2"]["b"] + 4.0}
+    _, x = _photon_frames(t=3, h=6, w=9)
+    windows = temporal_windows(x, 1)
+    raw = apply_model_raw(model.params, model.state, windows, model.config)
+    features = apply_model_features(model.params, model.state, windows, model.config)
+    assert features.shape == (3, 6, 9, model.config.head)
+    logit = no_return_logits(branch, features[:, None], model.config)[:, 0]
+    assert float(jnp.std(logit)) > 0.1  # a branch that varies, not its constant start
+    np.testing.assert_allclose(logit, raw[..., 1], atol=1e-5)
+    with pytest.raises(ValueError, match="apply_model_features"):
+        apply_model_features(model.params, model.state, windows[..., 0], model.config)
 
 
 @pytest.mark.slow  # every inference path compiled (15 s)

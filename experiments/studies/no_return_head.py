@@ -1,0 +1,251 @@
+"""Refitting a photon model's no-return branch on its own features: how much of the no-return error at the
+regions' edges the branch can still remove while the trunk stays as trained.
+
+    python experiments/studies/no_return_head.py                       # tr4-ambient, about 20 min on 2 CPU cores
+    python experiments/studies/no_return_head.py --draws 256 --steps 200 --frames 2 --out /tmp/head.md  # a try
+
+The no-return goal (at most 5 % of the no-return pixels output as depth, at most 2 % of the true returns dropped,
+from 3 signal photons per LR pixel up, SNR 1.3) is met inside the regions and missed at their edges
+(experiments/results/photon_regimes_ambient_test.md, no_return_edges.md). The no-return branch is two 1x1x1
+convolutions on the head's features (`jaxsr.nn.no_return_logits`), 70 k of the network's parameters; if its
+error at the edges came from the branch (too little training at the edges, a loss that weighs the edges little),
+refitting the branch alone would remove it, at a cost a CPU affords: the features of a training set are computed
+once (`jaxsr.nn.apply_model_features`) and the branch trains on them by Adam on the head's cross-entropy. If it
+does not, the features are what limit the decision, and only training the whole network (a GPU) can move it.
+
+Steps:
+1. Training set: `--draws` windows of 16 x 16 LR pixels from the wide photon regime with no-return regions on
+   every clip (`jaxsr.training.no_return_set`, photons log-uniform 2-1000, every SNR of the regime), drawn from
+   `jax.random.key(REFIT_SEED)`: apart from the calibration's, the benchmark's and any training run's keys.
+2. The branch, started from the model's, trained `--steps` steps of 32 windows (Adam `--lr`, cut tenfold for the
+   last 30 %); the trunk, the depth branches and the batch norms are left alone, so the depth output is the same.
+3. Each branch's threshold chosen as `jaxsr.training.calibrate_no_return` chooses it, on the calibration set
+   (`no_return_set`'s defaults: whole frames, photons 3-1000, `CALIBRATION_SEED`).
+4. Both branches on the benchmark's scenes and regions (experiments/studies/photon_regimes.py's no-return test:
+   `--frames` frames per scene, SNR 1.3, its noise keys): over all pixels and inside the regions, at the chosen
+   threshold and at the threshold that is best on these very pixels (the smallest share "as depth" with at most
+   2 % dropped: in-sample, a bound on what any threshold on that branch gives, not a result to quote).
+
+Writes experiments/results/no_return_head.md (or --out) and a .json beside it; `--save PATH` also saves the
+refitted model (a .npz for `--model` of the benchmarks).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import functools
+import json
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import jaxsr
+from jaxsr.eval.reports import header, markdown_table, write_atomic
+from jaxsr.eval.scoring import frame_windows, scored_frames
+from jaxsr.io.checkpoint import save_model
+from jaxsr.nn import apply_model_features, apply_model_raw, no_return_logits
+from jaxsr.training import CALIBRATION_SEED, no_return_set
+from jaxsr.training.no_return import DEFAULT_THRESHOLDS, NO_RETURN_AT, choose_no_return_logit, no_return_table
+from jaxsr.training.optim import adam_init, adam_update
+
+from photon_regimes import (GOAL_AS_DEPTH, GOAL_DROPPED, NO_RETURN_SNR, SEQUENCE_FRAMES, TEST_SCENES, interior,
+                            regime_clips, with_no_return)
+
+SCRIPT = "experiments/studies/no_return_head.py"
+REFIT_SEED = 2**31 - 3  # the training set's root key: apart from CALIBRATION_SEED (2**31 - 2) and the validation's
+PATCH = (16, 16)  # LR rows, cols of a training window
+BATCH = 32  # windows per step
+CUT_AT = 0.7  # the learning rate drops tenfold after this share of the steps
+CALIBRATION_DRAWS = 192  # as experiments/studies/no_return_threshold.py
+
+
+@functools.partial(jax.jit, static_argnames="cfg")
+def _outputs(params, state, windows, cfg):
+    """(depth before the decision (B, H, W), head features (B, h, w, F)) of a batch of windows."""
+    return apply_model_raw(params, state, windows, cfg)[..., 0], apply_model_features(params, state, windows, cfg)
+
+
+def outputs(model, windows, batch: int = 8) -> tuple[np.ndarray, np.ndarray]:
+    """`_outputs` over (N, 2tr+1, h, w, C) windows, features kept as float16 (they feed a fit, not a score)."""
+    cfg = dataclasses.replace(model.config, temporal="window")
+    parts = [_outputs(model.params, model.state, jnp.asarray(windows[i:i + batch], jnp.float32), cfg)
+             for i in range(0, len(windows), batch)]
+    return (np.concatenate([np.asarray(d) for d, _ in parts]),
+            np.concatenate([np.asarray(f, np.float16) for _, f in parts]))
+
+
+def logits(branch, features, cfg, batch: int = 64) -> np.ndarray:
+    """The branch's no-return logits (N, H, W) from features (N, h, w, F)."""
+    run = jax.jit(lambda f: no_return_logits(branch, f[:, None].astype(jnp.float32), cfg)[:, 0])
+    return np.concatenate([np.asarray(run(jnp.asarray(features[i:i + batch]))) for i in range(0, len(features),
+                                                                                                  batch)])
+
+
+def refit_branch(branch, features, no_return, cfg, *, steps: int, lr: float, seed: int = 0, log=print) -> dict:
+    """The branch trained on fixed features (N, h, w, F) against the truth no_return (N, H, W) bool: Adam on the
+    mean cross-entropy of the logits (the training loss's no-return term), `BATCH` windows a step drawn with
+    NumPy's generator at `seed`, the rate cut tenfold after `CUT_AT` of the steps."""
+
+    def loss(p, f, y):
+        z = no_return_logits(p, f[:, None].astype(jnp.float32), cfg)[:, 0]
+        return jnp.mean(jax.nn.softplus(z) - y.astype(z.dtype) * z)
+
+    @jax.jit
+    def step(p, opt, f, y, rate):
+        value, grads = jax.value_and_grad(loss)(p, f, y)
+        p, opt = adam_update(grads, opt, p, lr=rate)
+        return p, opt, value
+
+    rng = np.random.default_rng(seed)
+    opt, started, seen = adam_init(branch), time.time(), []
+    for s in range(steps):
+        pick = rng.choice(len(features), BATCH, replace=False)
+        rate = lr * (0.1 if s >= CUT_AT * steps else 1.0)
+        branch, opt, value = step(branch, opt, jnp.asarray(features[pick]), jnp.asarray(no_return[pick]), rate)
+        seen.append(float(value))
+        if (s + 1) % max(steps // 10, 1) == 0:
+            log(f"step {s + 1}/{steps}: loss {np.mean(seen[-100:]):.4f} ({time.time() - started:.0f} s)")
+    return branch
+
+
+def shares(depth, logit, gt, threshold: float, keep=None) -> tuple[float, float]:
+    """(% no-return pixels output as depth, % true returns dropped) of the decision "no return where logit >
+    threshold or the depth reads as none" (`merge_no_return`, read as the benchmark reads it), over the pixels
+    where `keep` (all when None)."""
+    keep = np.ones(np.shape(gt), bool) if keep is None else keep
+    sky = gt >= 1.0
+    said_depth = (depth < NO_RETURN_AT) & ~(logit > threshold)  # NaN depth reads as no return
+    as_depth = 100.0 * np.mean(said_depth[keep & sky]) if (keep & sky).any() else float("nan")
+    dropped = 100.0 * np.mean(~said_depth[keep & ~sky]) if (keep & ~sky).any() else float("nan")
+    return float(as_depth), float(dropped)
+
+
+def best_threshold(depth, logit, gt, thresholds=DEFAULT_THRESHOLDS) -> float:
+    """The threshold with the smallest share "as depth" among those dropping at most `GOAL_DROPPED` % of the true
+    returns on these pixels (the largest threshold when none does): in-sample, a bound, not a choice."""
+    rows = [(t, *shares(depth, logit, gt, t)) for t in thresholds]
+    ok = [r for r in rows if r[2] <= GOAL_DROPPED]
+    return float(min(ok, key=lambda r: (r[1], r[2]))[0] if ok else rows[-1][0])
+
+
+def benchmark_windows(model, photons, *, frames: int, seed: int) -> list[dict]:
+    """photon_regimes.py's no-return test data at each photon level: {"photons", "windows" (N, 2tr+1, h, w, C),
+    "gt" (N, H, W), "interior" (N, H, W) bool}, the scenes' scored frames stacked."""
+    seqs = with_no_return(jaxsr.scenes.test_sequences(n_frames=SEQUENCE_FRAMES, names=TEST_SCENES), seed=seed)
+    scored, tr, scale = scored_frames(frames, SEQUENCE_FRAMES), model.config.tr, model.config.scale
+    levels = []
+    for k, p in enumerate(photons):  # photon_regimes.evaluate's no-return keys: level k of seed + 1
+        key = jax.random.fold_in(jax.random.key(seed + 1), k)
+        clips, _ = regime_clips(seqs, float(p), NO_RETURN_SNR, scored=scored, radius=tr, key=key)
+        windows = [frame_windows(c.network_input(model.config.inputs), c.scored, tr) for c in clips.values()]
+        gt = np.concatenate([c.gt[c.scored] for c in clips.values()])
+        levels.append({"photons": float(p), "windows": np.concatenate(windows), "gt": gt,
+                       "interior": np.stack([interior(g >= 1.0, scale) for g in gt])})
+    return levels
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--model", default="tr4-ambient", help="a model with a no-return head (default tr4-ambient)")
+    parser.add_argument("--draws", type=int, default=3072, help="training windows of 16 x 16 LR pixels (3072)")
+    parser.add_argument("--steps", type=int, default=3000, help="Adam steps of 32 windows (3000)")
+    parser.add_argument("--lr", type=float, default=1e-3, help="Adam's learning rate (1e-3)")
+    parser.add_argument("--calibration-draws", type=int, default=CALIBRATION_DRAWS,
+                        help=f"whole-frame windows the thresholds are chosen on ({CALIBRATION_DRAWS})")
+    parser.add_argument("--frames", type=int, default=8, help="benchmark frames per scene (8)")
+    parser.add_argument("--photons", type=float, nargs="+", default=[3.0, 14.0, 100.0],
+                        help="benchmark photon levels (3 14 100)")
+    parser.add_argument("--seed", type=int, default=0, help="the benchmark's noise seed (0)")
+    parser.add_argument("--save", default=None, help="also save the refitted model here (.npz; an existing file is refused)")
+    parser.add_argument("--out", default="experiments/results/no_return_head.md")
+    args = parser.parse_args(argv)
+    if args.save and Path(args.save).exists():
+        parser.error(f"--save {args.save} exists: choose another path (files are never overwritten)")
+    started = time.time()
+    model = jaxsr.load_model(args.model)
+    cfg = dataclasses.replace(model.config, temporal="window")
+    if not getattr(cfg, "no_return_head", False):
+        parser.error(f"--model {args.model} has no no-return head: there is no branch to refit")
+    log = lambda msg: print(f"[{time.time() - started:5.0f} s] {msg}", flush=True)
+
+    train = no_return_set(cfg.tr, draws=args.draws, photon_range=(2.0, 1000.0), key=jax.random.key(REFIT_SEED),
+                          patch=PATCH, inputs=cfg.inputs)
+    _, features = outputs(model, train["windows"])
+    log(f"training set: {args.draws} windows and their features")
+    branches = {"bundled": model.params["no_return"]}
+    branches["refitted"] = refit_branch(branches["bundled"], features, train["gt"] >= 1.0, cfg, steps=args.steps,
+                                        lr=args.lr, log=log)
+    del features, train
+
+    cal = no_return_set(cfg.tr, draws=args.calibration_draws, key=jax.random.key(CALIBRATION_SEED),
+                        inputs=cfg.inputs)
+    cal_depth, cal_features = outputs(model, cal["windows"])
+    chosen = {}
+    for name, branch in branches.items():
+        table = no_return_table(cal_depth, logits(branch, cal_features, cfg), cal["gt"], cal["photons"])
+        chosen[name] = choose_no_return_logit(table)
+    log("thresholds: " + ", ".join(f"{n} {c['no_return_logit']:+.2f}" for n, c in chosen.items()))
+
+    rows = []
+    for level in benchmark_windows(model, args.photons, frames=args.frames, seed=args.seed):
+        depth, features = outputs(model, level["windows"])
+        for name, branch in branches.items():
+            logit = logits(branch, features, cfg)
+            best = best_threshold(depth, logit, level["gt"])
+            row = {"photons": level["photons"], "branch": name, "chosen": chosen[name]["no_return_logit"],
+                   "best": best}
+            for where, keep in (("all", None), ("interior", level["interior"])):
+                row[where] = shares(depth, logit, level["gt"], row["chosen"], keep)
+                row[f"{where}_best"] = shares(depth, logit, level["gt"], best, keep)
+            rows.append(row)
+        log(f"{level['photons']:g} photons: " + "; ".join(
+            f"{r['branch']} {r['all'][0]:.2f} / {r['all'][1]:.2f} %" for r in rows[-len(branches):]))
+
+    if args.save:
+        refitted = dataclasses.replace(model, params={**model.params, "no_return": branches["refitted"]})
+        refitted = jaxsr.nn.with_no_return_logit(refitted, chosen["refitted"]["no_return_logit"])
+        card = {"base": args.model, "no_return_refit": {"script": SCRIPT, "draws": args.draws, "steps": args.steps,
+                                                        "lr": args.lr, "seed": REFIT_SEED}}
+        save_model(args.save, refitted, card=card, storage_dtype="float16")
+        log(f"saved {args.save}")
+    write_report(Path(args.out), rows, chosen, args, started)
+
+
+def _cell(pair) -> str:
+    a, d = pair
+    bold = a <= GOAL_AS_DEPTH and d <= GOAL_DROPPED
+    text = f"{a:.2f} / {d:.2f}"
+    return f"**{text}**" if bold else text
+
+
+def write_report(out: Path, rows: list, chosen: dict, args, started: float) -> None:
+    text = header("Refitting the no-return branch on fixed features", started)
+    text += (f"Model `{args.model}`; branch refitted on {args.draws} windows of {PATCH[0]} x {PATCH[1]} LR pixels "
+             f"(photons 2-1000, the wide regime's SNRs, no-return regions on every clip), {args.steps} Adam steps of "
+             f"{BATCH} at {args.lr:g} (tenfold lower for the last {100 * (1 - CUT_AT):.0f} %). Thresholds chosen on "
+             f"{args.calibration_draws} calibration frames (`calibrate_no_return`'s rule, at most "
+             f"{GOAL_DROPPED:g} % dropped over 3-1000 photons): "
+             + ", ".join(f"{n} {c['no_return_logit']:+.2f} (calibration: {c['as_depth']:.1f} % as depth, "
+                         f"{c['dropped']:.2f} % dropped, worst band)" for n, c in chosen.items())
+             + f". Benchmark: the scenes and no-return regions of experiments/studies/photon_regimes.py, "
+             f"{args.frames} frames per scene, SNR {NO_RETURN_SNR:g}, noise seed {args.seed}.\n\n"
+             "Each cell: % of no-return HR pixels output as depth / % of true returns dropped; bold where both "
+             f"goals hold (at most {GOAL_AS_DEPTH:g} / {GOAL_DROPPED:g} %). `best`: the threshold that is best on "
+             "these pixels themselves (in-sample: a bound on the branch, not a result).\n\n")
+    header_row = ["photons", "branch", "all pixels", "interior", "best threshold", "all pixels, best",
+                  "interior, best"]
+    body = [[f"{r['photons']:g}", r["branch"], _cell(r["all"]), _cell(r["interior"]), f"{r['best']:+.2f}",
+             _cell(r["all_best"]), _cell(r["interior_best"])] for r in rows]
+    text += markdown_table(header_row, body) + "\n"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_atomic(out, text)
+    write_atomic(out.with_suffix(".json"), json.dumps({"rows": rows, "chosen": chosen}, indent=1) + "\n")
+    print(f"wrote {out} and {out.with_suffix('.json')}")
+
+
+if __name__ == "__main__":
+    main()

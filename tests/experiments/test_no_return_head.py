@@ -1,0 +1,52 @@
+"""experiments/studies/no_return_head.py: the decision's shares, the in-sample threshold, and the branch refit
+learning from fixed features."""
+
+import jax
+import jax.numpy as jnp
+import no_return_head as study  # experiments/studies (pytest's pythonpath)
+import numpy as np
+import pytest
+
+from jaxsr.config import ModelConfig
+from jaxsr.nn import init_model, no_return_logits
+
+
+def test_shares_read_the_logit_and_the_depth_as_the_benchmark_does():
+    gt = np.array([[1.0, 1.0, 0.5, 0.5]])
+    depth = np.array([[0.3, 0.995, 0.4, np.nan]])  # sky as depth, sky read as none, a return, a NaN return
+    logit = np.array([[-1.0, -1.0, -1.0, -1.0]])
+    assert study.shares(depth, logit, gt, 0.0) == (50.0, 50.0)
+    assert study.shares(depth, logit, gt, -2.0) == (0.0, 100.0)  # every logit above: all no return
+    keep = np.array([[True, False, True, False]])
+    assert study.shares(depth, logit, gt, 0.0, keep) == (100.0, 0.0)
+
+
+def test_best_threshold_keeps_the_drops_within_the_goal():
+    gt = np.where(np.arange(200) < 100, 1.0, 0.2)[None]
+    logit = np.concatenate([np.linspace(0.0, 4.0, 100), np.linspace(-4.0, 1.0, 100)])[None]
+    t = study.best_threshold(np.full_like(gt, 0.2), logit, gt)
+    as_depth, dropped = study.shares(np.full_like(gt, 0.2), logit, gt, t)
+    assert dropped <= study.GOAL_DROPPED
+    # the next lower candidate threshold drops more than the goal allows
+    lower = max(c for c in study.DEFAULT_THRESHOLDS if c < t)
+    assert study.shares(np.full_like(gt, 0.2), logit, gt, lower)[1] > study.GOAL_DROPPED
+    assert as_depth == pytest.approx(100.0 * np.mean(logit[0, :100] <= t))
+
+
+def test_refit_learns_a_branch_from_fixed_features():
+    cfg = ModelConfig(tr=0, base=8, growth=4, head=16, filter_hidden=16, same_blocks=1, inputs=("depth", "signal"),
+                      no_return_head=True)
+    branch = init_model(jax.random.key(0), cfg)[0]["no_return"]
+    rng = np.random.default_rng(0)
+    features = rng.uniform(size=(64, 4, 5, cfg.head)).astype(np.float16)
+    # no return where feature 0 is high: one LR pixel's whole block
+    truth = np.kron(features[..., 0] > 0.5, np.ones((cfg.scale, cfg.scale), bool))
+
+    def error(b):
+        logit = no_return_logits(b, jnp.asarray(features, jnp.float32)[:, None], cfg)[:, 0]
+        return float(np.mean((np.asarray(logit) > 0) != truth))
+
+    assert error(branch) == pytest.approx(np.mean(truth))  # the new branch says "return" everywhere
+    refitted = study.refit_branch(branch, features, truth, cfg, steps=150, lr=1e-2, log=lambda _: None)
+    assert error(refitted) < 0.05
+    assert jax.tree_util.tree_structure(refitted) == jax.tree_util.tree_structure(branch)
