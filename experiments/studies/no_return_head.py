@@ -160,7 +160,8 @@ def main(argv=None) -> None:
     parser.add_argument("--photons", type=float, nargs="+", default=[3.0, 14.0, 100.0],
                         help="benchmark photon levels (3 14 100)")
     parser.add_argument("--seed", type=int, default=0, help="the benchmark's noise seed (0)")
-    parser.add_argument("--save", default=None, help="also save the refitted model here (.npz; an existing file is refused)")
+    parser.add_argument("--save", default=None,
+                        help="also save the refitted model here (.npz; an existing file is refused)")
     parser.add_argument("--out", default="experiments/results/no_return_head.md")
     args = parser.parse_args(argv)
     if args.save and Path(args.save).exists():
