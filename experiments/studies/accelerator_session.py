@@ -54,9 +54,11 @@ FINETUNES = {
                         "--snr-range", "0.05", "100", "--batch-size", "16", "--epochs", "30", "--steps-per-epoch",
                         "500", "--decay-epochs", "15", "--lr", "1e-5", "--val-batches", "64",
                         "--val-snrs", "0.1", "1.3", "5", "45"],
-    # the whole network at the regions' edges: refitting the no-return branch alone on fixed features moved the
-    # edges little (experiments/results/no_return_head.md), so the trunk trains too, with added no-return regions
-    # on 90 % of the clips (their default share is 50 %) and the same rates as tr4-ambient-more
+    # the whole network at the regions' edges: refitting the no-return branch alone on fixed features, with the
+    # same loss, moved the edges little (experiments/results/no_return_head.md), so the trunk trains too, with added
+    # no-return regions on 90 % of the clips (their default share is 50 %), at 1e-4 (tr4-ambient-more's rate) cut
+    # at epoch 15; the epoch kept is still chosen by validation loss on the default regime, so score the edges
+    # (no_return_head.py --model on it, photon_regimes.py) before replacing the bundled model
     "tr4-ambient-edges": ["--tr", "4", "--photons", "--ambient", "--init", "tr4-ambient", "--paper-share", "0.3",
                           "--snr-range", "0.05", "100", "--no-return-prob", "0.9", "--batch-size", "16", "--epochs",
                           "30", "--steps-per-epoch", "500", "--decay-epochs", "15", "--lr", "1e-4", "--val-batches",

@@ -1,7 +1,7 @@
 """Refitting a photon model's no-return branch on its own features: how much of the no-return error at the
 regions' edges the branch can still remove while the trunk stays as trained.
 
-    python experiments/studies/no_return_head.py                       # tr4-ambient, about 20 min on 2 CPU cores
+    python experiments/studies/no_return_head.py                       # tr4-ambient, about 12 min on 2 CPU cores
     python experiments/studies/no_return_head.py --draws 256 --steps 200 --frames 2 --out /tmp/head.md  # a try
 
 The no-return goal (at most 5 % of the no-return pixels output as depth, at most 2 % of the true returns dropped,
@@ -49,11 +49,11 @@ from jaxsr.eval.scoring import frame_windows, scored_frames
 from jaxsr.io.checkpoint import save_model
 from jaxsr.nn import apply_model_features, apply_model_raw, no_return_logits
 from jaxsr.training import CALIBRATION_SEED, no_return_set
-from jaxsr.training.no_return import DEFAULT_THRESHOLDS, NO_RETURN_AT, choose_no_return_logit, no_return_table
+from jaxsr.training.no_return import DEFAULT_THRESHOLDS, choose_no_return_logit, no_return_table
 from jaxsr.training.optim import adam_init, adam_update
 
-from photon_regimes import (GOAL_AS_DEPTH, GOAL_DROPPED, NO_RETURN_SNR, SEQUENCE_FRAMES, TEST_SCENES, interior,
-                            regime_clips, with_no_return)
+from photon_regimes import (AMBIENT_RADIUS, GOAL_AS_DEPTH, GOAL_DROPPED, NO_RETURN_MIN_PHOTONS, NO_RETURN_SNR,
+                            SEQUENCE_FRAMES, TEST_SCENES, interior, no_return_rates, regime_clips, with_no_return)
 
 SCRIPT = "experiments/studies/no_return_head.py"
 REFIT_SEED = 2**31 - 3  # the training set's root key: apart from CALIBRATION_SEED (2**31 - 2) and the validation's
@@ -64,25 +64,41 @@ CALIBRATION_DRAWS = 192  # as experiments/studies/no_return_threshold.py
 
 
 @functools.partial(jax.jit, static_argnames="cfg")
-def _outputs(params, state, windows, cfg):
-    """(depth before the decision (B, H, W), head features (B, h, w, F)) of a batch of windows."""
-    return apply_model_raw(params, state, windows, cfg)[..., 0], apply_model_features(params, state, windows, cfg)
+def _features(params, state, windows, cfg):
+    return apply_model_features(params, state, windows, cfg)
 
 
-def outputs(model, windows, batch: int = 8) -> tuple[np.ndarray, np.ndarray]:
-    """`_outputs` over (N, 2tr+1, h, w, C) windows, features kept as float16 (they feed a fit, not a score)."""
+@functools.partial(jax.jit, static_argnames="cfg")
+def _depth(params, state, windows, cfg):
+    return apply_model_raw(params, state, windows, cfg)[..., 0]
+
+
+@functools.partial(jax.jit, static_argnames="cfg")
+def _logits(branch, features, cfg):
+    return no_return_logits(branch, features[:, None].astype(jnp.float32), cfg)[:, 0]
+
+
+def _batched(fn, x, batch: int) -> np.ndarray:
+    return np.concatenate([np.asarray(fn(jnp.asarray(x[i:i + batch]))) for i in range(0, len(x), batch)])
+
+
+def features_of(model, windows, batch: int = 8) -> np.ndarray:
+    """The head's features (N, h, w, F) of (N, 2tr+1, h, w, C) windows, as float16 (they feed a fit and the
+    branches' logits, not a score)."""
     cfg = dataclasses.replace(model.config, temporal="window")
-    parts = [_outputs(model.params, model.state, jnp.asarray(windows[i:i + batch], jnp.float32), cfg)
-             for i in range(0, len(windows), batch)]
-    return (np.concatenate([np.asarray(d) for d, _ in parts]),
-            np.concatenate([np.asarray(f, np.float16) for _, f in parts]))
+    run = lambda w: _features(model.params, model.state, w.astype(jnp.float32), cfg).astype(jnp.float16)  # noqa: E731
+    return _batched(run, windows, batch)
+
+
+def depth_of(model, windows, batch: int = 8) -> np.ndarray:
+    """The network's depth before the no-return decision (N, H, W)."""
+    cfg = dataclasses.replace(model.config, temporal="window")
+    return _batched(lambda w: _depth(model.params, model.state, w.astype(jnp.float32), cfg), windows, batch)
 
 
 def logits(branch, features, cfg, batch: int = 64) -> np.ndarray:
     """The branch's no-return logits (N, H, W) from features (N, h, w, F)."""
-    run = jax.jit(lambda f: no_return_logits(branch, f[:, None].astype(jnp.float32), cfg)[:, 0])
-    return np.concatenate([np.asarray(run(jnp.asarray(features[i:i + batch]))) for i in range(0, len(features),
-                                                                                                  batch)])
+    return _batched(lambda f: _logits(branch, f, cfg), features, batch)
 
 
 def refit_branch(branch, features, no_return, cfg, *, steps: int, lr: float, seed: int = 0, log=print) -> dict:
@@ -113,34 +129,32 @@ def refit_branch(branch, features, no_return, cfg, *, steps: int, lr: float, see
 
 
 def shares(depth, logit, gt, threshold: float, keep=None) -> tuple[float, float]:
-    """(% no-return pixels output as depth, % true returns dropped) of the decision "no return where logit >
-    threshold or the depth reads as none" (`merge_no_return`, read as the benchmark reads it), over the pixels
-    where `keep` (all when None)."""
-    keep = np.ones(np.shape(gt), bool) if keep is None else keep
-    sky = gt >= 1.0
-    said_depth = (depth < NO_RETURN_AT) & ~(logit > threshold)  # NaN depth reads as no return
-    as_depth = 100.0 * np.mean(said_depth[keep & sky]) if (keep & sky).any() else float("nan")
-    dropped = 100.0 * np.mean(~said_depth[keep & ~sky]) if (keep & ~sky).any() else float("nan")
-    return float(as_depth), float(dropped)
+    """(% no-return pixels output as depth, % true returns dropped) of the branch's decision at `threshold`
+    (`merge_no_return`), read as the benchmark reads it (`no_return_rates`), over the pixels where `keep` (all
+    when None)."""
+    out = np.where(logit > threshold, 1.0, depth)
+    return no_return_rates(out, gt) if keep is None else no_return_rates(out[keep], gt[keep])
 
 
 def best_threshold(depth, logit, gt, thresholds=DEFAULT_THRESHOLDS) -> float:
-    """The threshold with the smallest share "as depth" among those dropping at most `GOAL_DROPPED` % of the true
-    returns on these pixels (the largest threshold when none does): in-sample, a bound, not a choice."""
-    rows = [(t, *shares(depth, logit, gt, t)) for t in thresholds]
-    ok = [r for r in rows if r[2] <= GOAL_DROPPED]
-    return float(min(ok, key=lambda r: (r[1], r[2]))[0] if ok else rows[-1][0])
+    """The threshold with the least sky as depth among those dropping at most `GOAL_DROPPED` % of the true returns
+    on these pixels (`choose_no_return_logit` over one band holding them all): in-sample, a bound, not a choice."""
+    one_band = no_return_table(depth, logit, gt, np.ones(len(gt)), thresholds, edges=(0.0, 2.0))
+    return choose_no_return_logit(one_band, target_dropped=GOAL_DROPPED, min_photons=0.0)["no_return_logit"]
 
 
 def benchmark_windows(model, photons, *, frames: int, seed: int) -> list[dict]:
-    """photon_regimes.py's no-return test data at each photon level: {"photons", "windows" (N, 2tr+1, h, w, C),
-    "gt" (N, H, W), "interior" (N, H, W) bool}, the scenes' scored frames stacked."""
+    """photon_regimes.py's no-return test data at each photon level (levels from 3 photons up, as there; the same
+    draws as its run with the same `--frames`, seed and levels): {"photons", "windows" (N, 2tr+1, h, w, C), "gt"
+    (N, H, W), "interior" (N, H, W) bool}, the scenes' scored frames stacked."""
     seqs = with_no_return(jaxsr.scenes.test_sequences(n_frames=SEQUENCE_FRAMES, names=TEST_SCENES), seed=seed)
     scored, tr, scale = scored_frames(frames, SEQUENCE_FRAMES), model.config.tr, model.config.scale
+    # photon_regimes draws the frames of TR4 (always scored there) and of the ambient test, +-4 around each
+    radius = max(tr, AMBIENT_RADIUS)
     levels = []
-    for k, p in enumerate(photons):  # photon_regimes.evaluate's no-return keys: level k of seed + 1
+    for k, p in enumerate(photons):  # photon_regimes.evaluate's no-return keys: level k (from 3 photons) of seed + 1
         key = jax.random.fold_in(jax.random.key(seed + 1), k)
-        clips, _ = regime_clips(seqs, float(p), NO_RETURN_SNR, scored=scored, radius=tr, key=key)
+        clips, _ = regime_clips(seqs, float(p), NO_RETURN_SNR, scored=scored, radius=radius, key=key)
         windows = [frame_windows(c.network_input(model.config.inputs), c.scored, tr) for c in clips.values()]
         gt = np.concatenate([c.gt[c.scored] for c in clips.values()])
         levels.append({"photons": float(p), "windows": np.concatenate(windows), "gt": gt,
@@ -167,15 +181,17 @@ def main(argv=None) -> None:
     if args.save and Path(args.save).exists():
         parser.error(f"--save {args.save} exists: choose another path (files are never overwritten)")
     started = time.time()
+    if min(args.photons) < NO_RETURN_MIN_PHOTONS:
+        parser.error(f"--photons: the no-return test starts at {NO_RETURN_MIN_PHOTONS:g} photons, got {args.photons}")
     model = jaxsr.load_model(args.model)
-    cfg = dataclasses.replace(model.config, temporal="window")
-    if not getattr(cfg, "no_return_head", False):
+    if not getattr(model.config, "no_return_head", False):
         parser.error(f"--model {args.model} has no no-return head: there is no branch to refit")
+    cfg = dataclasses.replace(model.config, temporal="window")
     log = lambda msg: print(f"[{time.time() - started:5.0f} s] {msg}", flush=True)
 
     train = no_return_set(cfg.tr, draws=args.draws, photon_range=(2.0, 1000.0), key=jax.random.key(REFIT_SEED),
                           patch=PATCH, inputs=cfg.inputs)
-    _, features = outputs(model, train["windows"])
+    features = features_of(model, train["windows"])
     log(f"training set: {args.draws} windows and their features")
     branches = {"bundled": model.params["no_return"]}
     branches["refitted"] = refit_branch(branches["bundled"], features, train["gt"] >= 1.0, cfg, steps=args.steps,
@@ -184,7 +200,7 @@ def main(argv=None) -> None:
 
     cal = no_return_set(cfg.tr, draws=args.calibration_draws, key=jax.random.key(CALIBRATION_SEED),
                         inputs=cfg.inputs)
-    cal_depth, cal_features = outputs(model, cal["windows"])
+    cal_depth, cal_features = depth_of(model, cal["windows"]), features_of(model, cal["windows"])
     chosen = {}
     for name, branch in branches.items():
         table = no_return_table(cal_depth, logits(branch, cal_features, cfg), cal["gt"], cal["photons"])
@@ -193,13 +209,13 @@ def main(argv=None) -> None:
 
     rows = []
     for level in benchmark_windows(model, args.photons, frames=args.frames, seed=args.seed):
-        depth, features = outputs(model, level["windows"])
+        depth, features = depth_of(model, level["windows"]), features_of(model, level["windows"])
         for name, branch in branches.items():
             logit = logits(branch, features, cfg)
             best = best_threshold(depth, logit, level["gt"])
             row = {"photons": level["photons"], "branch": name, "chosen": chosen[name]["no_return_logit"],
                    "best": best}
-            for where, keep in (("all", None), ("interior", level["interior"])):
+            for where, keep in (("all", None), ("interior", level["interior"]), ("edges", ~level["interior"])):
                 row[where] = shares(depth, logit, level["gt"], row["chosen"], keep)
                 row[f"{where}_best"] = shares(depth, logit, level["gt"], best, keep)
             rows.append(row)
@@ -235,12 +251,16 @@ def write_report(out: Path, rows: list, chosen: dict, args, started: float) -> N
              + f". Benchmark: the scenes and no-return regions of experiments/studies/photon_regimes.py, "
              f"{args.frames} frames per scene, SNR {NO_RETURN_SNR:g}, noise seed {args.seed}.\n\n"
              "Each cell: % of no-return HR pixels output as depth / % of true returns dropped; bold where both "
-             f"goals hold (at most {GOAL_AS_DEPTH:g} / {GOAL_DROPPED:g} %). `best`: the threshold that is best on "
-             "these pixels themselves (in-sample: a bound on the branch, not a result).\n\n")
-    header_row = ["photons", "branch", "all pixels", "interior", "best threshold", "all pixels, best",
-                  "interior, best"]
-    body = [[f"{r['photons']:g}", r["branch"], _cell(r["all"]), _cell(r["interior"]), f"{r['best']:+.2f}",
-             _cell(r["all_best"]), _cell(r["interior_best"])] for r in rows]
+             f"goals hold (at most {GOAL_AS_DEPTH:g} / {GOAL_DROPPED:g} %). Interior: HR pixels whose LR block and "
+             "its 8 neighbours are of one kind (photon_regimes.interior); edges: the others. `best`: the threshold "
+             "with the least sky as depth dropping at most 2 % over all the level's pixels, chosen on those very "
+             "pixels (in-sample: a bound on the branch, not a result); the interior and edge columns at that same "
+             "threshold.\n\n")
+    header_row = ["photons", "branch", "all pixels", "interior", "edges", "best threshold", "all pixels, best",
+                  "interior, best", "edges, best"]
+    body = [[f"{r['photons']:g}", r["branch"], _cell(r["all"]), _cell(r["interior"]), _cell(r["edges"]),
+             f"{r['best']:+.2f}", _cell(r["all_best"]), _cell(r["interior_best"]), _cell(r["edges_best"])]
+            for r in rows]
     text += markdown_table(header_row, body) + "\n"
     out.parent.mkdir(parents=True, exist_ok=True)
     write_atomic(out, text)

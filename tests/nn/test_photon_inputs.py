@@ -181,7 +181,7 @@ def test_no_return_head_marks_pixels_and_its_loss_learns_them():
 def test_the_head_features_and_the_no_return_branch_give_the_networks_logit():
     """apply_model_features + no_return_logits: the logit apply_model_raw outputs, from features computed once."""
     model = with_photon_inputs(jax.random.key(1), _tiny_depth_model(tr=1))
-    branch = model.params["no_return"]
+    branch = model.params["no_return"]  # changed in place: the network's own branch, which apply_model_raw runs
     branch["conv2"] = {"w": jax.random.normal(jax.random.key(4), branch["conv2"]["w"].shape),
                        "b": branch["conv2"]["b"] + 4.0}
     _, x = _photon_frames(t=3, h=6, w=9)
