@@ -396,22 +396,21 @@ def _forward_sequence(params, state, lr_seq, cfg: ModelConfig, *, padding: str, 
     r = sequence_radius(cfg)
     x_in = edge_pad_sequence(lr_seq, r) if padding == "edge" else lr_seq
     bn = {"train": train, "momentum": cfg.bn_momentum, "eps": cfg.bn_eps}
-    x = _stem(params, x_in, conv=conv)
-    new_state = {"blocks": []}
-    for p, s in zip(params["blocks"], state["blocks"]):
-        x, s_i = _block(p, s, x, valid=True, bn=bn, conv=conv)
-        new_state["blocks"].append(s_i)
+    x, block_states = _blocks(params, state, x_in, cfg, bn=bn, conv=conv, valid_from=0)
+    new_state = {"blocks": block_states}
     hr, new_state["head"] = _head(params, state, x, _depth(x_in[:, r : x_in.shape[1] - r], cfg), cfg, bn=bn,
                                   conv=conv, precision=precision)
     return hr, new_state
 
 
-def _blocks(params, state, windows, cfg: ModelConfig, *, bn: dict, conv):
-    """Stem and blocks of the windowed network: (features (B, 1, H, W, F), their new BN states)."""
-    x = _stem(params, windows, conv=conv)
+def _blocks(params, state, lr, cfg: ModelConfig, *, bn: dict, conv, valid_from: int | None = None):
+    """Stem and blocks: (features (B, T', H, W, F), their new BN states). Blocks from `valid_from` on (default
+    `cfg.same_blocks`: the window form, T' = 1) are temporally valid; the sequence form makes all of them so (0)."""
+    valid_from = cfg.same_blocks if valid_from is None else valid_from
+    x = _stem(params, lr, conv=conv)
     states = []
     for i, (p, s) in enumerate(zip(params["blocks"], state["blocks"])):
-        x, s_i = _block(p, s, x, valid=i >= cfg.same_blocks, bn=bn, conv=conv)
+        x, s_i = _block(p, s, x, valid=i >= valid_from, bn=bn, conv=conv)
         states.append(s_i)
     return x, states
 
