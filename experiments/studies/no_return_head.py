@@ -46,7 +46,7 @@ import numpy as np
 import jaxsr
 from jaxsr.eval.reports import header, markdown_table, write_atomic
 from jaxsr.eval.scoring import frame_windows, scored_frames
-from jaxsr.io.checkpoint import save_model
+from jaxsr.io.checkpoint import resolve_model_path, save_model
 from jaxsr.nn import apply_model_features, apply_model_raw, no_return_logits
 from jaxsr.training import CALIBRATION_SEED, no_return_set
 from jaxsr.training.no_return import DEFAULT_THRESHOLDS, choose_no_return_logit, no_return_table
@@ -187,7 +187,7 @@ def main(argv=None) -> None:
     if not getattr(model.config, "no_return_head", False):
         parser.error(f"--model {args.model} has no no-return head: there is no branch to refit")
     cfg = dataclasses.replace(model.config, temporal="window")
-    log = lambda msg: print(f"[{time.time() - started:5.0f} s] {msg}", flush=True)
+    log = lambda msg: print(f"[{time.time() - started:5.0f} s] {msg}", flush=True)  # noqa: E731
 
     train = no_return_set(cfg.tr, draws=args.draws, photon_range=(2.0, 1000.0), key=jax.random.key(REFIT_SEED),
                           patch=PATCH, inputs=cfg.inputs)
@@ -225,8 +225,9 @@ def main(argv=None) -> None:
     if args.save:
         refitted = dataclasses.replace(model, params={**model.params, "no_return": branches["refitted"]})
         refitted = jaxsr.nn.with_no_return_logit(refitted, chosen["refitted"]["no_return_logit"])
-        card = {"base": args.model, "no_return_refit": {"script": SCRIPT, "draws": args.draws, "steps": args.steps,
-                                                        "lr": args.lr, "seed": REFIT_SEED}}
+        base_card = jaxsr.read_metadata(resolve_model_path(args.model)).get("card") or {}
+        card = {**base_card, "no_return_refit": {"script": SCRIPT, "base": args.model, "draws": args.draws,
+                                                 "steps": args.steps, "lr": args.lr, "seed": REFIT_SEED}}
         save_model(args.save, refitted, card=card, storage_dtype="float16")
         log(f"saved {args.save}")
     write_report(Path(args.out), rows, chosen, args, started)
