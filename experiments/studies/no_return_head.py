@@ -47,8 +47,9 @@ import jaxsr
 from jaxsr.eval.reports import header, markdown_table, write_atomic
 from jaxsr.eval.scoring import frame_windows, scored_frames
 from jaxsr.io.checkpoint import resolve_model_path, save_model
-from jaxsr.nn import apply_model_features, apply_model_raw, no_return_logits
-from jaxsr.training import CALIBRATION_SEED, no_return_set
+from jaxsr.nn import apply_model_features, no_return_logits
+from jaxsr.training import CALIBRATION_SEED, no_return_outputs, no_return_set
+from jaxsr.training.duf import no_return_cross_entropy
 from jaxsr.training.no_return import DEFAULT_THRESHOLDS, choose_no_return_logit, no_return_table
 from jaxsr.training.optim import adam_init, adam_update
 
@@ -69,11 +70,6 @@ def _features(params, state, windows, cfg):
 
 
 @functools.partial(jax.jit, static_argnames="cfg")
-def _depth(params, state, windows, cfg):
-    return apply_model_raw(params, state, windows, cfg)[..., 0]
-
-
-@functools.partial(jax.jit, static_argnames="cfg")
 def _logits(branch, features, cfg):
     return no_return_logits(branch, features[:, None].astype(jnp.float32), cfg)[:, 0]
 
@@ -90,12 +86,6 @@ def features_of(model, windows, batch: int = 8) -> np.ndarray:
     return _batched(run, windows, batch)
 
 
-def depth_of(model, windows, batch: int = 8) -> np.ndarray:
-    """The network's depth before the no-return decision (N, H, W)."""
-    cfg = dataclasses.replace(model.config, temporal="window")
-    return _batched(lambda w: _depth(model.params, model.state, w.astype(jnp.float32), cfg), windows, batch)
-
-
 def logits(branch, features, cfg, batch: int = 64) -> np.ndarray:
     """The branch's no-return logits (N, H, W) from features (N, h, w, F)."""
     return _batched(lambda f: _logits(branch, f, cfg), features, batch)
@@ -103,12 +93,11 @@ def logits(branch, features, cfg, batch: int = 64) -> np.ndarray:
 
 def refit_branch(branch, features, no_return, cfg, *, steps: int, lr: float, seed: int = 0, log=print) -> dict:
     """The branch trained on fixed features (N, h, w, F) against the truth no_return (N, H, W) bool: Adam on the
-    mean cross-entropy of the logits (the training loss's no-return term), `BATCH` windows a step drawn with
-    NumPy's generator at `seed`, the rate cut tenfold after `CUT_AT` of the steps."""
+    mean cross-entropy of the logits (`no_return_cross_entropy`, the training loss's no-return term), `BATCH`
+    windows a step drawn with NumPy's generator at `seed`, the rate cut tenfold after `CUT_AT` of the steps."""
 
     def loss(p, f, y):
-        z = no_return_logits(p, f[:, None].astype(jnp.float32), cfg)[:, 0]
-        return jnp.mean(jax.nn.softplus(z) - y.astype(z.dtype) * z)
+        return no_return_cross_entropy(no_return_logits(p, f[:, None].astype(jnp.float32), cfg)[:, 0], y)
 
     @jax.jit
     def step(p, opt, f, y, rate):
@@ -200,7 +189,7 @@ def main(argv=None) -> None:
 
     cal = no_return_set(cfg.tr, draws=args.calibration_draws, key=jax.random.key(CALIBRATION_SEED),
                         inputs=cfg.inputs)
-    cal_depth, cal_features = depth_of(model, cal["windows"]), features_of(model, cal["windows"])
+    cal_depth, cal_features = no_return_outputs(model, cal["windows"])[0], features_of(model, cal["windows"])
     chosen = {}
     for name, branch in branches.items():
         table = no_return_table(cal_depth, logits(branch, cal_features, cfg), cal["gt"], cal["photons"])
@@ -209,7 +198,7 @@ def main(argv=None) -> None:
 
     rows = []
     for level in benchmark_windows(model, args.photons, frames=args.frames, seed=args.seed):
-        depth, features = depth_of(model, level["windows"]), features_of(model, level["windows"])
+        depth, features = no_return_outputs(model, level["windows"])[0], features_of(model, level["windows"])
         for name, branch in branches.items():
             logit = logits(branch, features, cfg)
             best = best_threshold(depth, logit, level["gt"])

@@ -35,6 +35,7 @@ __all__ = [
     "data_mesh",
     "make_train_step",
     "model_loss",
+    "no_return_cross_entropy",
     "sequence_loss",
     "evaluate",
     "evaluate_sequences",
@@ -117,10 +118,15 @@ def model_loss(out, gt, cfg: ModelConfig, train_cfg: TrainConfig = TrainConfig()
         return huber_loss(out, gt, delta=train_cfg.huber_delta)
     depth, logit = out[..., 0], out[..., 1]
     no_return = gt >= NO_RETURN
-    # log(1 + e^x) - y x, the cross-entropy of a logit, without overflow at large |x|
-    bce = jnp.mean(jax.nn.softplus(logit) - no_return.astype(logit.dtype) * logit)
     returns_only = jnp.where(no_return, gt, depth)  # no error, and no gradient, where there is no return
-    return huber_loss(returns_only, gt, delta=train_cfg.huber_delta) + train_cfg.no_return_weight * bce
+    return (huber_loss(returns_only, gt, delta=train_cfg.huber_delta)
+            + train_cfg.no_return_weight * no_return_cross_entropy(logit, no_return))
+
+
+def no_return_cross_entropy(logit, no_return):
+    """The mean binary cross-entropy of no-return logits against the truth `no_return` (bool, same shape): the
+    head's term of `model_loss`. log(1 + e^x) - y x, without overflow at large |x|."""
+    return jnp.mean(jax.nn.softplus(logit) - no_return.astype(logit.dtype) * logit)
 
 
 def sequence_loss(params, state, clips, gt, cfg: ModelConfig, *, delta: float = 0.01, conv3d_impl: str = "auto",
