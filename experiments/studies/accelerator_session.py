@@ -7,7 +7,12 @@ For a borrowed accelerator with a fixed budget. The sweep (`train_throughput.Ses
 (`photon_finetune.py`, resumable) train side by side until the budget's end, when they are interrupted and each
 run's `best.npz` (the weights it selected, with their card) and `metrics.jsonl` are copied to OUT, flat, with the
 sweep's results and the logs: what a budget-limited copy back can carry (no Adam state: a later session continues
-from the weights with `--init`). On 2026-11-26's H200 a first version that ran both at once, pausing the fine-tunes
+from the weights with `--init`). The copies are also refreshed every 30 s, so a call killed at its limit still
+brings back what it reached; keep `--minutes` inside the call's limit all the same.
+
+On 2026-11-27's H200 two tr4 fine-tunes side by side took 16.7 s an epoch each against 10.7 s for one alone (1.3x
+the epochs together), after 281 s of start-up and validation drawing (each SNR of `--val-snrs` then compiled a
+simulation of its own; now one compiles for all) and 130 s for their first epoch: 8 epochs each in 9 minutes. On 2026-11-26's H200 a first version that ran both at once, pausing the fine-tunes
 (SIGSTOP) while the sweep was timed, left them making no progress once continued (cause not found); and
 compilation takes a core per process for a minute or more, so the sweep's configurations are few by default.
 """
@@ -63,7 +68,29 @@ FINETUNES = {
                           "--snr-range", "0.05", "100", "--no-return-prob", "0.9", "--batch-size", "16", "--epochs",
                           "30", "--steps-per-epoch", "500", "--decay-epochs", "15", "--lr", "1e-4", "--val-batches",
                           "64", "--val-snrs", "0.1", "1.3", "5", "45"],
+    # the same with the head's cross-entropy weighed 5x (0.05): whether the trunk's features follow the loss (run
+    # beside tr4-ambient-edges on 2026-11-27: within 0.5 points of it everywhere, experiments/results/edges_lease.md)
+    "tr4-ambient-edges-ce": ["--tr", "4", "--photons", "--ambient", "--init", "tr4-ambient", "--paper-share", "0.3",
+                             "--snr-range", "0.05", "100", "--no-return-prob", "0.9", "--no-return-weight", "0.05",
+                             "--batch-size", "16", "--epochs", "30", "--steps-per-epoch", "500", "--decay-epochs",
+                             "15", "--lr", "1e-4", "--val-batches", "64", "--val-snrs", "0.1", "1.3", "5", "45"],
+    # tr4-ambient-edges continued from what its first lease kept (epoch 5 of 8, experiments/photon_weights), alone
+    # (two side by side train 1.3x the epochs of one, each at 0.65x), the rate cut at epoch 12
+    "tr4-ambient-edges-more": ["--tr", "4", "--photons", "--ambient", "--init",
+                               "experiments/photon_weights/tr4-ambient-edges.npz", "--paper-share", "0.3",
+                               "--snr-range", "0.05", "100", "--no-return-prob", "0.9", "--batch-size", "16",
+                               "--epochs", "30", "--steps-per-epoch", "500", "--decay-epochs", "12", "--lr", "1e-4",
+                               "--val-batches", "64", "--val-snrs", "0.1", "1.3", "5", "45"],
 }
+
+
+def collect(run: Path, out: Path, name: str) -> None:
+    """Copy a run's best.npz and metrics.jsonl to out as <name>-<file>, each whole or not at all."""
+    for f in ("best.npz", "metrics.jsonl"):
+        if (run / f).exists():
+            tmp = out / f"{name}-{f}.part"
+            shutil.copy2(run / f, tmp)
+            os.replace(tmp, out / f"{name}-{f}")
 
 
 def main(argv=None) -> None:
@@ -74,8 +101,8 @@ def main(argv=None) -> None:
     ap.add_argument("--sweep-tr", type=int, nargs="*", default=[0, 4])
     ap.add_argument("--sweep-batch", type=int, nargs="+", default=[16, 64])
     ap.add_argument("--sweep-precision", nargs="+", default=["default", "bfloat16"])
-    ap.add_argument("--finetunes", nargs="*", default=["tr4-ambient-edges"], choices=list(FINETUNES),
-                    help="which to train side by side (default: the next planned, tr4-ambient-edges)")
+    ap.add_argument("--finetunes", nargs="*", default=["tr4-ambient-edges-more"], choices=list(FINETUNES),
+                    help="which to train side by side (default: the next planned, tr4-ambient-edges-more)")
     ap.add_argument("--extra", nargs="*", default=[],
                     help="arguments added to every fine-tune, as one string (e.g. for a test)")
     args = ap.parse_args(argv)
@@ -100,8 +127,13 @@ def main(argv=None) -> None:
          "--no-progress", "--checkpoint-minutes", "2", *(a for e in args.extra for a in shlex.split(e))],
         env=env, stdout=log, stderr=subprocess.STDOUT) for name in args.finetunes}
     say(f"fine-tunes started: {', '.join(trainers)}")
+    copied = time.perf_counter()
     while time.perf_counter() < t_end - 20 and any(p.poll() is None for p in trainers.values()):
         time.sleep(2)
+        if time.perf_counter() - copied > 30:  # a call killed at its limit still brings back what was reached
+            for name in trainers:
+                collect(args.runs / name, args.out, name)
+            copied = time.perf_counter()
     for p in trainers.values():
         if p.poll() is None:
             p.send_signal(signal.SIGINT)
@@ -110,9 +142,7 @@ def main(argv=None) -> None:
             p.wait(timeout=15)
         except subprocess.TimeoutExpired:
             p.kill()
-        for f in ("best.npz", "metrics.jsonl"):
-            if (args.runs / name / f).exists():
-                shutil.copy2(args.runs / name / f, args.out / f"{name}-{f}")
+        collect(args.runs / name, args.out, name)
         epochs = [json.loads(s) for s in (args.runs / name / "metrics.jsonl").read_text().splitlines()
                   if s.strip()] if (args.runs / name / "metrics.jsonl").exists() else []
         say(f"{name}: exit {p.returncode}, {len(epochs)} epochs" +

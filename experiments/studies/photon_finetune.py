@@ -11,13 +11,14 @@ pixels, no-return regions with ground truth 1.0 (`jaxsr.training.regime_batches`
 first (`jaxsr.nn.with_photon_inputs`): it also reads the photons behind each depth (signal and background,
 `jaxsr.nn.network_inputs`) and marks no return with a head of its own, starting from the bundled function;
 `--ambient` widens a photon model once more, to read the ambient level from the mean of the bins outside the peak;
-`--paper-share` of the clips come from the paper's regime, so that it keeps its accuracy there. Validation draws from the
-same regime with fixed keys, or at the SNRs of `--val-snrs` (model selection on the regime the model is for; the paper's fixed sequences at 14
-photons measure the cost there separately). Every run resumes where it stopped (a session's end, a kill):
-`--checkpoint-minutes` of training are lost at most. `--keep` copies the run's best weights (float16, with the
-training card, which records the regime) to experiments/photon_weights/tr<N>[-photons|-ambient].npz; the bundled
-`tr0-photons` and `tr4-photons` (jaxsr/weights/) are such files, copied there (the `-ambient` ones were saved from
-the run's best.npz with the photon model's card appended to their stages: experiments/photon_weights/README.md).
+`--paper-share` of the clips come from the paper's regime, so that it keeps its accuracy there. Validation draws
+from the same regime with fixed keys, or at the SNRs of `--val-snrs` (model selection on the regime the model is
+for; the paper's fixed sequences at 14 photons measure the cost there separately). Every run resumes where it
+stopped (a session's end, a kill): `--checkpoint-minutes` of training are lost at most. `--keep` copies the run's
+best weights (float16, with the training card, which records the regime) to
+experiments/photon_weights/tr<N>[-photons|-ambient].npz; the bundled `tr0-photons` and `tr4-photons`
+(jaxsr/weights/) are such files, copied there (the `-ambient` ones were saved from the run's best.npz with the
+photon model's card appended to their stages: experiments/photon_weights/README.md).
 """
 
 from __future__ import annotations
@@ -38,14 +39,15 @@ KEPT = Path(__file__).resolve().parents[1] / "photon_weights"
 
 
 def train_config(epochs: int, steps_per_epoch: int, lr: float, seed: int, *, batch_size: int | None = None,
-                 decay_epochs: int | None = None, precision: str = "default"):
+                 decay_epochs: int | None = None, precision: str = "default", no_return_weight: float | None = None):
     """The bundle preset's crops (and batch, unless given), with this run's length and a fine-tuning rate (cut 10x
     after `decay_epochs`, default half way)."""
     base = PRESETS["bundle"]
     batch = batch_size or base.batch_size
     return dataclasses.replace(base, batch_size=batch, examples_per_epoch=steps_per_epoch * batch, epochs=epochs,
                                lr=lr, decay_epochs=decay_epochs or max(1, epochs // 2),
-                               patience=max(3, epochs // 4), seed=seed, precision=precision)
+                               patience=max(3, epochs // 4), seed=seed, precision=precision,
+                               no_return_weight=base.no_return_weight if no_return_weight is None else no_return_weight)
 
 
 def main(argv=None) -> None:
@@ -61,11 +63,14 @@ def main(argv=None) -> None:
                         "(default half the epochs)")
     parser.add_argument("--precision", default="default", choices=PRECISIONS,
                         help="how the convolutions multiply (TrainConfig.precision)")
+    parser.add_argument("--no-return-weight", type=float, default=None,
+                        help="weight of the no-return head's cross-entropy in the loss (default TrainConfig's)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar (logs to a file)")
     parser.add_argument("--val-batches", type=int, default=16, help="batches of 4 regime draws to validate on")
     parser.add_argument("--init", default=None,
                         help="weights to start from (default the bundled tr<N>; e.g. "
-                        "experiments/photon_weights/tr0-wide-depth.npz to continue this study's kept run in a new folder)")
+                        "experiments/photon_weights/tr0-wide-depth.npz to continue this study's kept run in a new "
+                        "folder)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--photons", action="store_true",
                         help="read signal and background photons too and mark no return (default: depth only)")
@@ -117,7 +122,8 @@ def main(argv=None) -> None:
     if args.ambient:
         model_cfg = dataclasses.replace(model_cfg, inputs=(*model_cfg.inputs, "ambient"))
     train_cfg = train_config(args.epochs, args.steps_per_epoch, args.lr, args.seed, batch_size=args.batch_size,
-                             decay_epochs=args.decay_epochs, precision=args.precision)
+                             decay_epochs=args.decay_epochs, precision=args.precision,
+                             no_return_weight=args.no_return_weight)
     # validation on the whole wide regime (PhotonRegime(), paper_prob 0) whatever the draws above, or at the SNRs
     # of --val-snrs: a run that trains on part of it (--signal-range, --snr-range) is still chosen for the regime
     # the photon models serve; thin returns, a kind of scene rather than a range, are validated on as often as

@@ -117,9 +117,10 @@ def _simulate_clip(key, depth, intensity, train_cfg: TrainConfig, sensor: Sensor
 
 
 def _centre_frames(make_clips, tr: int):
-    """A window source from a clip source of 2tr+1 frames: the GT of the centre frame only."""
-    def make_batch(key):
-        windows, gt = make_clips(key)
+    """A window source from a clip source of 2tr+1 frames: the GT of the centre frame only (keyword arguments
+    passed through to the clip source)."""
+    def make_batch(key, **kw):
+        windows, gt = make_clips(key, **kw)
         return windows, gt[:, tr]
 
     return make_batch
@@ -220,16 +221,20 @@ def regime_clips(frames: int, train_cfg: TrainConfig, regime: PhotonRegime = Pho
     `normalise_depth` of the depth with its no-return regions: 1.0 there. `train_cfg.snr_range` and
     `mean_signal_range` are not used. `inputs`: what the network reads (`jaxsr.nn.inputs.network_inputs`; more
     than depth adds a last axis of channels).
-    Returns make_batch: key -> (clips (B, frames, h, w) LR normalised depth, gt `(B, frames, h*r, w*r)`), with
-    `description` (the regime as JSON) and `regime` (`regime.to_dict()`).
+    Returns make_batch: (key, snr=None) -> (clips (B, frames, h, w) LR normalised depth, gt
+    `(B, frames, h*r, w*r)`), with `description` (the regime as JSON) and `regime` (`regime.to_dict()`). `snr`, a
+    scalar that may be traced, replaces every clip's drawn frame SNR (the other draws unchanged): one compiled
+    source serves a grid of SNRs (`regime_validation`).
     """
     r, bins = sensor.scale, sensor.bins
 
-    def example(key):
+    def example(key, snr):
         k_scene, k_par, k_sky, k_hot, k_dead, k_noise, k_crop = _regime_example_keys(key)
         depth, intensity = training_clip(k_scene, frames, sensor=sensor, shift_range=train_cfg.motion_range,
                                          motion=regime.motion)
         p = regime_parameters(k_par, regime)
+        if snr is not None:
+            p = dict(p, snr=jnp.asarray(snr, jnp.float32))
         depth = _regime_no_return(k_sky, depth, p, regime)
         gt = normalise_depth(depth, sensor)
         clip_sensor = with_irf_sigma(sensor, p["irf_sigma"])
@@ -247,8 +252,8 @@ def regime_clips(frames: int, train_cfg: TrainConfig, regime: PhotonRegime = Pho
         rates = dead_pixels(k_dead, rates, fraction=p["dead_fraction"])
         return network_inputs(sample_poisson(k_noise, rates), sensor, inputs), gt
 
-    def make_batch(key):
-        return jax.vmap(example)(jax.random.split(key, train_cfg.batch_size))
+    def make_batch(key, snr=None):
+        return jax.vmap(functools.partial(example, snr=snr))(jax.random.split(key, train_cfg.batch_size))
 
     make_batch.description = _regime_description(regime, inputs)
     make_batch.regime = regime.to_dict()

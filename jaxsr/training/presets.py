@@ -167,13 +167,22 @@ def regime_validation(tr: int, train_cfg, regime: PhotonRegime, *, batches: int,
     if not (isinstance(batches, int) and batches >= 1):
         raise ValueError(f"regime_validation: batches must be an integer >= 1, got {batches!r}")
     key = jax.random.key(2**31 - 1) if key is None else key
-    snrs = None if snrs is None else tuple(snrs)
-    grid = [regime] if snrs is None else [dataclasses.replace(regime, snr_range=(float(s), float(s)), paper_prob=0.0)
-                                          for s in snrs]
-    if not grid:
-        raise ValueError("regime_validation: snrs must name at least one SNR, or be None")
-    sources = [jax.jit(regime_batches(tr, train_cfg, r, sensor=sensor, inputs=inputs)) for r in grid]
-    drawn = [sources[i % len(grid)](jax.random.fold_in(key, i)) for i in range(max(batches, len(grid)))]
+    if snrs is None:
+        source = jax.jit(regime_batches(tr, train_cfg, regime, sensor=sensor, inputs=inputs))
+        drawn = [source(jax.random.fold_in(key, i)) for i in range(batches)]
+    else:
+        snrs = tuple(float(s) for s in snrs)
+        if not snrs:
+            raise ValueError("regime_validation: snrs must name at least one SNR, or be None")
+        for s in snrs:  # each checked as a regime's SNRs are (finite, > 0)
+            dataclasses.replace(regime, snr_range=(s, s))
+        # the SNR an argument of one compiled source, not a constant of one per SNR: the simulation compiles
+        # once (a minute or more on an accelerator's host) however many SNRs are named
+        source = regime_batches(tr, train_cfg, dataclasses.replace(regime, paper_prob=0.0), sensor=sensor,
+                                inputs=inputs)
+        at_snr = jax.jit(lambda k, snr: source(k, snr=snr))
+        drawn = [at_snr(jax.random.fold_in(key, i), jnp.float32(snrs[i % len(snrs)]))
+                 for i in range(max(batches, len(snrs)))]
     windows = jnp.concatenate([w for w, _ in drawn])
     gt = jnp.concatenate([g for _, g in drawn])
     names = [f"regime draws x{windows.shape[0]}" + ("" if snrs is None else
