@@ -10,11 +10,13 @@ sweep's results and the logs: what a budget-limited copy back can carry (no Adam
 from the weights with `--init`). The copies are also refreshed every 30 s, so a call killed at its limit still
 brings back what it reached; keep `--minutes` inside the call's limit all the same.
 
-On 2026-11-27's H200 two tr4 fine-tunes side by side took 16.7 s an epoch each against 10.7 s for one alone (1.3x
-the epochs together), after 281 s of start-up and validation drawing (each SNR of `--val-snrs` then compiled a
-simulation of its own; now one compiles for all) and 130 s for their first epoch: 8 epochs each in 9 minutes. On 2026-11-26's H200 a first version that ran both at once, pausing the fine-tunes
-(SIGSTOP) while the sweep was timed, left them making no progress once continued (cause not found); and
-compilation takes a core per process for a minute or more, so the sweep's configurations are few by default.
+On 2026-11-27's H200 two tr4 fine-tunes side by side took 16.7 s an epoch each against 10-11 s for one alone in the
+lease before (1.3x the epochs together), after 281 s of start-up and validation drawing (each SNR of `--val-snrs`
+then compiled a simulation of its own; now one compiles for all) and 130 s for their first epoch: 8 epochs each in
+9 minutes (experiments/results/edges_lease.md). On 2026-11-26's H200 a first version that ran both at once,
+pausing the fine-tunes (SIGSTOP) while the sweep was timed, left them making no progress once continued (cause not
+found); and compilation takes a core per process for a minute or more, so the sweep's configurations are few by
+default.
 """
 
 from __future__ import annotations
@@ -69,7 +71,7 @@ FINETUNES = {
                           "30", "--steps-per-epoch", "500", "--decay-epochs", "15", "--lr", "1e-4", "--val-batches",
                           "64", "--val-snrs", "0.1", "1.3", "5", "45"],
     # the same with the head's cross-entropy weighed 5x (0.05): whether the trunk's features follow the loss (run
-    # beside tr4-ambient-edges on 2026-11-27: within 0.5 points of it everywhere, experiments/results/edges_lease.md)
+    # beside tr4-ambient-edges on 2026-11-27, experiments/results/edges_lease.md; its weights were not kept)
     "tr4-ambient-edges-ce": ["--tr", "4", "--photons", "--ambient", "--init", "tr4-ambient", "--paper-share", "0.3",
                              "--snr-range", "0.05", "100", "--no-return-prob", "0.9", "--no-return-weight", "0.05",
                              "--batch-size", "16", "--epochs", "30", "--steps-per-epoch", "500", "--decay-epochs",
@@ -77,7 +79,7 @@ FINETUNES = {
     # tr4-ambient-edges continued from what its first lease kept (epoch 5 of 8, experiments/photon_weights), alone
     # (two side by side train 1.3x the epochs of one, each at 0.65x), the rate cut at epoch 12
     "tr4-ambient-edges-more": ["--tr", "4", "--photons", "--ambient", "--init",
-                               "experiments/photon_weights/tr4-ambient-edges.npz", "--paper-share", "0.3",
+                               str(HERE.parent / "photon_weights" / "tr4-ambient-edges.npz"), "--paper-share", "0.3",
                                "--snr-range", "0.05", "100", "--no-return-prob", "0.9", "--batch-size", "16",
                                "--epochs", "30", "--steps-per-epoch", "500", "--decay-epochs", "12", "--lr", "1e-4",
                                "--val-batches", "64", "--val-snrs", "0.1", "1.3", "5", "45"],
@@ -132,7 +134,10 @@ def main(argv=None) -> None:
         time.sleep(2)
         if time.perf_counter() - copied > 30:  # a call killed at its limit still brings back what was reached
             for name in trainers:
-                collect(args.runs / name, args.out, name)
+                try:
+                    collect(args.runs / name, args.out, name)
+                except OSError as e:  # a failed copy must not stop the budget's watch; the last copy retries
+                    say(f"{name}: copy failed ({e})")
             copied = time.perf_counter()
     for p in trainers.values():
         if p.poll() is None:

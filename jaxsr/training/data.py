@@ -233,8 +233,8 @@ def regime_clips(frames: int, train_cfg: TrainConfig, regime: PhotonRegime = Pho
         depth, intensity = training_clip(k_scene, frames, sensor=sensor, shift_range=train_cfg.motion_range,
                                          motion=regime.motion)
         p = regime_parameters(k_par, regime)
-        if snr is not None:
-            p = dict(p, snr=jnp.asarray(snr, jnp.float32))
+        if snr is not None:  # rounded as log_uniform rounds lo == hi: the draws of a regime held at that SNR
+            p = dict(p, snr=jnp.exp(jnp.log(jnp.asarray(snr, jnp.float32))))
         depth = _regime_no_return(k_sky, depth, p, regime)
         gt = normalise_depth(depth, sensor)
         clip_sensor = with_irf_sigma(sensor, p["irf_sigma"])
