@@ -37,62 +37,55 @@ from train_throughput import Session, report
 HERE = Path(__file__).resolve().parent
 
 # the fine-tunes (photon_finetune.py arguments): each continues a bundled photon model on the wide regime
+# the ambient models' common settings: SNR up to 100 (a real recording, tower, reads 45), 500 steps of 16 an epoch
+_AMBIENT = ["--photons", "--ambient", "--paper-share", "0.3", "--snr-range", "0.05", "100", "--batch-size", "16",
+            "--epochs", "30", "--val-batches", "64"]
+_TR4_AMBIENT = ["--tr", "4", *_AMBIENT, "--steps-per-epoch", "500"]
+_SNR_GRID = ["--val-snrs", "0.1", "1.3", "5", "45"]  # model selection at fixed SNRs, tower's 45 among them
+_EDGES = ["--no-return-prob", "0.9"]  # no-return regions on 90 % of the clips (their default share is 50 %)
 FINETUNES = {
     "tr4-photons": ["--tr", "4", "--photons", "--paper-share", "0.3", "--init", "tr4-photons", "--batch-size", "16",
                     "--epochs", "14", "--steps-per-epoch", "1000", "--decay-epochs", "6", "--lr", "1e-4"],
     "tr0-photons": ["--tr", "0", "--photons", "--paper-share", "0.3", "--init", "tr0-photons", "--batch-size", "16",
                     "--epochs", "14", "--steps-per-epoch", "2000", "--decay-epochs", "6", "--lr", "1e-4"],
-    # the photon models widened to the ambient channel, on SNR up to 100 (a real recording, tower, reads 45)
-    "tr4-ambient": ["--tr", "4", "--photons", "--ambient", "--paper-share", "0.3", "--snr-range", "0.05", "100",
-                    "--batch-size", "16", "--epochs", "30", "--steps-per-epoch", "500", "--decay-epochs", "8",
-                    "--lr", "1e-4", "--val-batches", "64"],
-    "tr0-ambient": ["--tr", "0", "--photons", "--ambient", "--paper-share", "0.3", "--snr-range", "0.05", "100",
-                    "--batch-size", "16", "--epochs", "30", "--steps-per-epoch", "1500", "--decay-epochs", "8",
-                    "--lr", "1e-4", "--val-batches", "64"],
+    # the photon models widened to the ambient channel
+    "tr4-ambient": [*_TR4_AMBIENT, "--decay-epochs", "8", "--lr", "1e-4"],
+    "tr0-ambient": ["--tr", "0", *_AMBIENT, "--steps-per-epoch", "1500", "--decay-epochs", "8", "--lr", "1e-4"],
     # the bundled tr4-ambient continued at 1e-4 for longer (its first run's validation still rose when the rate
-    # was cut at epoch 8), chosen on a fixed SNR grid that includes a recording as dark as tower (45); the cut at
-    # epoch 20 falls inside one 10-minute call on an H100/H200 (about 14 s an epoch after a 2-minute compile)
-    "tr4-ambient-more": ["--tr", "4", "--photons", "--ambient", "--init", "tr4-ambient", "--paper-share", "0.3",
-                         "--snr-range", "0.05", "100", "--batch-size", "16", "--epochs", "40", "--steps-per-epoch",
-                         "500", "--decay-epochs", "20", "--lr", "1e-4", "--val-batches", "64",
-                         "--val-snrs", "0.1", "1.3", "5", "45"],
+    # was cut at epoch 8); the cut at epoch 20 falls inside one 10-minute call on an H100/H200 (about 14 s an epoch
+    # after a 2-minute compile)
+    "tr4-ambient-more": [*_TR4_AMBIENT, *_SNR_GRID, "--init", "tr4-ambient", "--epochs", "40", "--decay-epochs", "20",
+                         "--lr", "1e-4"],
     # the bundled tr4-ambient (tr4-ambient-more's epoch 13) at the rates that run never reached: 1e-5, then 1e-6
-    "tr4-ambient-cut": ["--tr", "4", "--photons", "--ambient", "--init", "tr4-ambient", "--paper-share", "0.3",
-                        "--snr-range", "0.05", "100", "--batch-size", "16", "--epochs", "30", "--steps-per-epoch",
-                        "500", "--decay-epochs", "15", "--lr", "1e-5", "--val-batches", "64",
-                        "--val-snrs", "0.1", "1.3", "5", "45"],
+    "tr4-ambient-cut": [*_TR4_AMBIENT, *_SNR_GRID, "--init", "tr4-ambient", "--decay-epochs", "15", "--lr", "1e-5"],
     # the whole network at the regions' edges: refitting the no-return branch alone on fixed features, with the
-    # same loss, moved the edges little (experiments/results/no_return_head.md), so the trunk trains too, with added
-    # no-return regions on 90 % of the clips (their default share is 50 %), at 1e-4 (tr4-ambient-more's rate) cut
-    # at epoch 15; the epoch kept is still chosen by validation loss on the default regime, so score the edges
-    # (no_return_head.py --model on it, photon_regimes.py) before replacing the bundled model
-    "tr4-ambient-edges": ["--tr", "4", "--photons", "--ambient", "--init", "tr4-ambient", "--paper-share", "0.3",
-                          "--snr-range", "0.05", "100", "--no-return-prob", "0.9", "--batch-size", "16", "--epochs",
-                          "30", "--steps-per-epoch", "500", "--decay-epochs", "15", "--lr", "1e-4", "--val-batches",
-                          "64", "--val-snrs", "0.1", "1.3", "5", "45"],
+    # same loss, moved the edges little (experiments/results/no_return_head.md), so the trunk trains too, with
+    # more clips with regions, at 1e-4 (tr4-ambient-more's rate) cut at epoch 15; the epoch kept is still chosen
+    # by validation loss on the default regime, so score the edges (no_return_head.py --model on it,
+    # photon_regimes.py) before replacing the bundled model
+    "tr4-ambient-edges": [*_TR4_AMBIENT, *_SNR_GRID, *_EDGES, "--init", "tr4-ambient", "--decay-epochs", "15",
+                          "--lr", "1e-4"],
     # the same with the head's cross-entropy weighed 5x (0.05): whether the trunk's features follow the loss (run
     # beside tr4-ambient-edges on 2026-11-27, experiments/results/edges_lease.md; its weights were not kept)
-    "tr4-ambient-edges-ce": ["--tr", "4", "--photons", "--ambient", "--init", "tr4-ambient", "--paper-share", "0.3",
-                             "--snr-range", "0.05", "100", "--no-return-prob", "0.9", "--no-return-weight", "0.05",
-                             "--batch-size", "16", "--epochs", "30", "--steps-per-epoch", "500", "--decay-epochs",
-                             "15", "--lr", "1e-4", "--val-batches", "64", "--val-snrs", "0.1", "1.3", "5", "45"],
+    "tr4-ambient-edges-ce": [*_TR4_AMBIENT, *_SNR_GRID, *_EDGES, "--init", "tr4-ambient", "--decay-epochs", "15",
+                             "--lr", "1e-4", "--no-return-weight", "0.05"],
     # tr4-ambient-edges continued from what its first lease kept (epoch 5 of 8, experiments/photon_weights), alone
     # (two side by side train 1.3x the epochs of one, each at 0.65x), the rate cut at epoch 12
-    "tr4-ambient-edges-more": ["--tr", "4", "--photons", "--ambient", "--init",
-                               str(HERE.parent / "photon_weights" / "tr4-ambient-edges.npz"), "--paper-share", "0.3",
-                               "--snr-range", "0.05", "100", "--no-return-prob", "0.9", "--batch-size", "16",
-                               "--epochs", "30", "--steps-per-epoch", "500", "--decay-epochs", "12", "--lr", "1e-4",
-                               "--val-batches", "64", "--val-snrs", "0.1", "1.3", "5", "45"],
+    "tr4-ambient-edges-more": [*_TR4_AMBIENT, *_SNR_GRID, *_EDGES, "--init",
+                               str(HERE.parent / "photon_weights" / "tr4-ambient-edges.npz"), "--decay-epochs", "12",
+                               "--lr", "1e-4"],
 }
 
 
 def collect(run: Path, out: Path, name: str) -> None:
-    """Copy a run's best.npz and metrics.jsonl to out as <name>-<file>, each whole or not at all."""
+    """Copy a run's best.npz and metrics.jsonl to out as <name>-<file>, each whole or not at all, when changed."""
     for f in ("best.npz", "metrics.jsonl"):
-        if (run / f).exists():
+        src, dest = run / f, out / f"{name}-{f}"
+        # copy2 keeps the time stamp: a file the run has not rewritten since is not copied again
+        if src.exists() and not (dest.exists() and dest.stat().st_mtime_ns == src.stat().st_mtime_ns):
             tmp = out / f"{name}-{f}.part"
-            shutil.copy2(run / f, tmp)
-            os.replace(tmp, out / f"{name}-{f}")
+            shutil.copy2(src, tmp)
+            os.replace(tmp, dest)
 
 
 def main(argv=None) -> None:

@@ -186,7 +186,7 @@ def regime_validation(tr: int, train_cfg, regime: PhotonRegime, *, batches: int,
     windows = jnp.concatenate([w for w, _ in drawn])
     gt = jnp.concatenate([g for _, g in drawn])
     names = [f"regime draws x{windows.shape[0]}" + ("" if snrs is None else
-                                                      f" at SNR {', '.join(f'{float(s):g}' for s in snrs)}")]
+                                                      f" at SNR {', '.join(f'{s:g}' for s in snrs)}")]
     return {"windows": windows, "gt": gt, "lr": windows[:, tr], "names": names}
 
 
