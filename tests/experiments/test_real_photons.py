@@ -211,3 +211,21 @@ def test_returns_kept_overrules_the_head_only_where_the_block_shows_a_return():
         np.testing.assert_allclose(kept[:, :12], np.asarray(jaxsr.super_resolve(never, x, form="model"))[:, :12],
                                    atol=1e-6)
 
+
+
+def test_edge_sky_is_the_empty_sky_beside_the_surfaces():
+    """edge_sky: pixels outside the block-level sky whose 3 x 3 neighbourhood holds at most REF_EDGE_SKY_PHOTONS
+    photons; a surface's pixels, and the sky touching them, are not."""
+    photons = np.zeros((12, 12), np.int64)
+    photons[:, :5] = 4  # a surface on the left, sky (no photons) on the right
+    photons[2, 9] = 1  # one stray ambient photon: its neighbourhood still counts as sky
+    photons[8, 9] = 2  # two: not
+    sky = np.zeros((12, 12), bool)
+    sky[:, 10:] = True  # the block-level reference's sky
+    beside = real_photons.edge_sky(photons, sky)
+    assert not beside[:, :6].any()  # the surface and the column touching it
+    assert not beside[sky].any()  # left to the block-level reference
+    expected = np.zeros((12, 12), bool)
+    expected[:, 6:10] = True
+    expected[7:10, 8:10] = False  # within one pixel of the two photons at (8, 9)
+    np.testing.assert_array_equal(beside, expected)
