@@ -9,17 +9,19 @@ network runs once per level; each rule is applied to its output (depth and no-re
 
 - head: the head alone (logit above the model's threshold t);
 - keep: the library's rule (`overrule_no_return`): head, and the block's photons pass for ambient light alone;
-- whole blocks: keep, but the head's no return also stands where it marks only part of a block (an edge it
+- split blocks: keep, but the head's no return also stands where it marks only part of a block (an edge it
   placed inside the block, which the block's photons showing a return does not contradict);
 - signal >= S: keep, but the head also stands where the block's own signal (photons less the ambient estimate,
-  `jaxsr.sensor.ambient_photons`, of its histogram summed over the 9 frames, per frame) reaches S;
+  `jaxsr.sensor.ambient_photons`, of its histogram summed over the 9 frames, per frame) reaches S, where it saw
+  many photons (in simulation the head alone meets both no-return goals from 100 photons); S in photons, the
+  same at every level;
 - +d where a return: keep, but where the block's photons show a return the head stands above t + d.
 
 Scores, on the photon video of `real_photons.py` at each level (the same permutation of photons): PSNR on the
 valid pixels, % of them dropped, % of the reference's sky and of the sky beside the building (`edge_sky`) shown
 as depth; and where the head drops the building: the photons per frame of the LR blocks in which it drops a
 valid pixel against those of the blocks it keeps whole, the share of those blocks' pixels that are valid, and
-its logit there. Run `python experiments/studies/keep_rules.py` (about 1 min on 2 cores); tower.mat is read
+its logit there. Run `python experiments/studies/keep_rules.py` (under a minute on 2 cores); tower.mat is read
 from --data.
 """
 
@@ -29,7 +31,6 @@ import argparse
 import time
 from pathlib import Path
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -38,11 +39,11 @@ from jaxsr.eval.reports import header, markdown_table, write_atomic
 from jaxsr.eval.scoring import frame_windows
 from jaxsr.inference import lr_blocks
 from jaxsr.inference.video import overrule_no_return
+from jaxsr.sensor.peaks import window_sums
 from jaxsr.training.no_return import no_return_outputs
 from photon_regimes import no_return_decision  # experiments/studies
-from real_photons import (DEFAULT_DATA, FACTOR, LEVELS, MAX_FRAMES, RESULTS, SOURCES, bin_pixels, edge_sky,
-                          empty_edges, histogram_frames, lr_all_photons, masked_scores, model_input, photon_video,
-                          read_recording, reference_depth, reference_sky)
+from real_photons import (DEFAULT_DATA, FACTOR, LEVELS, MAX_FRAMES, RESULTS, SOURCES, bin_pixels, histogram_frames,
+                          masked_scores, model_input, photon_video, read_recording, references)
 
 KEEP_ALPHA = 1e-3  # the default's false-alarm rate (jaxsr.inference.AUTO_KEEP_RETURNS)
 SIGNALS = (10.0, 30.0)  # S of "signal >= S", photons per LR pixel and frame
@@ -52,14 +53,11 @@ WINDOW = 9  # frames the keep test sums (a TR4 window)
 
 def block_signal(counts, sensor, frames: int = WINDOW) -> np.ndarray:
     """(T, h, w) each LR pixel's signal photons per frame: its histograms summed over the `frames` frames centred
-    on it (cut at the sequence's ends), less their ambient estimate (`jaxsr.sensor.ambient_photons`), divided by
-    the frames summed."""
-    n = jnp.asarray(counts, jnp.float32)
-    r = frames // 2
-    summed = jax.lax.reduce_window(jnp.pad(n, ((r, r), (0, 0), (0, 0), (0, 0))), 0.0, jax.lax.add,
-                                   (frames, 1, 1, 1), (1, 1, 1, 1), "VALID")
-    t = np.arange(len(n))
-    present = np.minimum(t + r, len(n) - 1) - np.maximum(t - r, 0) + 1  # frames inside each window
+    on it (`window_sums`: cut at the sequence's ends), less their ambient estimate
+    (`jaxsr.sensor.ambient_photons`), divided by the frames summed."""
+    summed = window_sums(jnp.asarray(counts, jnp.float32), frames)
+    t, r = np.arange(len(summed)), frames // 2
+    present = np.minimum(t + r, len(t) - 1) - np.maximum(t - r, 0) + 1  # frames inside each window
     signal = summed.sum(-1) - jaxsr.sensor.ambient_photons(summed, sensor)
     return np.asarray(signal) / present[:, None, None]
 
@@ -74,20 +72,20 @@ def rules(depth, logit, quiet, signal, threshold: float) -> dict:
     """{rule: HR output (F, H, W)} of the head's depth and logit (F, H, W), the keep test's `quiet` (F, h, w) and
     the blocks' `signal` (F, h, w), for each rule of the module's docstring."""
     r = depth.shape[-1] // quiet.shape[-1]
+    raw = np.stack([depth, logit], axis=-1)
     head = logit > threshold
 
-    def out(drop):
-        return np.where(drop, np.float32(1.0), depth)
+    def trusted(where):  # the library's rule, the head also standing where `where` (F, h, w) says so
+        return overrule_no_return(raw, quiet | where, threshold)
 
-    def trusted(where):  # the head stands where the block is quiet or `where` (F, h, w) says so
-        return out(head & lr_blocks(quiet | where, r))
+    def above(d):  # the head at the threshold where the block is quiet, at the threshold + d elsewhere
+        return np.where((head & lr_blocks(quiet, r)) | (logit > threshold + d), np.float32(1.0), depth)
 
-    return {"head": out(head),
-            "keep": overrule_no_return(np.stack([depth, logit], axis=-1), quiet, threshold),
-            "whole blocks": trusted(~whole_blocks(head, r)),
+    return {"head": np.where(head, np.float32(1.0), depth),
+            "keep": trusted(np.zeros_like(quiet)),
+            "split blocks": trusted(~whole_blocks(head, r)),
             **{f"signal >= {s:g}": trusted(signal >= s) for s in SIGNALS},
-            **{f"+{d:g} where a return": out(head & lr_blocks(quiet, r) | (logit > threshold + d))
-               for d in MARGINS}}
+            **{f"+{d:g} where a return": above(d) for d in MARGINS}}
 
 
 def _percentiles(values) -> str:
@@ -97,16 +95,12 @@ def _percentiles(values) -> str:
 
 
 def evaluate(rec, model, *, levels=LEVELS, max_frames: int = MAX_FRAMES, seed: int = 0, log=print) -> list[dict]:
-    """Each level: {"level", "frames", "scores": {rule: masked_scores}, "drops": {...}} on `rec`'s photon video
-    (the permutation `real_photons.evaluate` draws for the first recording)."""
-    ref, valid = reference_depth(rec)
-    all_photons = lr_all_photons(rec)
-    sky, edge = reference_sky(all_photons) & ~valid, empty_edges(all_photons)
-    beside = edge_sky(np.bincount(rec.tags.pixel, minlength=valid.size).reshape(valid.shape), sky)
+    """Each level: {"level", "frames", "outputs": {rule: (F, H, W)}, "scores": {rule: masked_scores}, "drops":
+    {...}} on `rec`'s photon video (the permutation `real_photons.evaluate` draws for its first recording)."""
+    refs = references(rec)
     lr_tags = bin_pixels(rec.tags)
     h, w = lr_tags.shape
-    covered = valid.reshape(h, FACTOR, w, FACTOR).mean(axis=(1, 3))  # each block's share of valid pixels
-    full = covered == 1.0
+    valid_share = refs.valid.reshape(h, FACTOR, w, FACTOR).mean(axis=(1, 3))  # of each block's pixels
     out = []
     for k, level in enumerate(levels):
         t0 = time.time()
@@ -121,15 +115,16 @@ def evaluate(rec, model, *, levels=LEVELS, max_frames: int = MAX_FRAMES, seed: i
                         no_return_outputs(model, frame_windows(model_input(model, frames), t, model.config.tr)))
         quiet = np.asarray(no_return_decision(frames.counts, sensor, ("keep", KEEP_ALPHA)))
         outputs = rules(depth, logit, quiet, block_signal(frames.counts, sensor), model.config.no_return_logit)
-        scores = {name: masked_scores(sr, ref, valid, sky, edge, None, beside) for name, sr in outputs.items()}
-        dropped = (logit > model.config.no_return_logit) & valid
+        scores = {name: masked_scores(sr, refs.depth, refs.valid, refs.sky, refs.edge, None, refs.beside)
+                  for name, sr in outputs.items()}
+        dropped = (logit > model.config.no_return_logit) & refs.valid
         photons = frames.counts.sum(-1)
         in_drop = dropped.reshape(len(t), h, FACTOR, w, FACTOR).any(axis=(2, 4))
-        kept_whole = full & ~in_drop
-        share = np.broadcast_to(covered, in_drop.shape)[in_drop]  # of the blocks with a drop
-        out.append({"level": float(level), "frames": len(t), "scores": scores,
+        kept_whole = (valid_share == 1.0) & ~in_drop
+        share = np.broadcast_to(valid_share, in_drop.shape)[in_drop]  # of the blocks with a drop
+        out.append({"level": float(level), "frames": len(t), "outputs": outputs, "scores": scores,
                     "drops": {"blocks": _percentiles(photons[in_drop]), "whole": _percentiles(photons[kept_whole]),
-                              "covered": _percentiles(100 * share), "logit": _percentiles(logit[dropped])}})
+                              "valid": _percentiles(100 * share), "logit": _percentiles(logit[dropped])}})
         log(f"{level:g} photons, {len(t)} frames: " + ", ".join(f"{m} {s['psnr'].mean():.2f} dB"
                                                               for m, s in scores.items())
             + f" ({time.time() - t0:.0f} s)")
@@ -137,9 +132,12 @@ def evaluate(rec, model, *, levels=LEVELS, max_frames: int = MAX_FRAMES, seed: i
 
 
 def report(results, names) -> str:
-    rows = lambda key, fmt: [[f"{e['level']:g}"] + [fmt(e["scores"][m][key]) for m in names]  # noqa: E731
-                             for e in results]
-    pct = lambda v: "-" if np.isnan(np.nanmean(v)) else f"{100 * np.nanmean(v):.1f}"  # noqa: E731
+    def rows(key, fmt):
+        return [[f"{e['level']:g}"] + [fmt(e["scores"][m][key]) for m in names] for e in results]
+
+    def pct(values):
+        return "-" if np.all(np.isnan(values)) else f"{100 * np.nanmean(values):.1f}"
+
     text = ["### PSNR (dB) on the valid pixels\n\n"
             + markdown_table(["photons", *names], rows("psnr", lambda v: f"{v.mean():.2f}")),
             "### % of the valid pixels output as no return\n\n"
@@ -151,11 +149,11 @@ def report(results, names) -> str:
             "### Where the head drops the building\n\nPhotons per frame of the LR blocks in which the head alone "
             "drops a valid pixel, and of the blocks whose pixels are all valid and all kept; the % of a block's "
             "pixels that are valid, in the blocks with a drop (below 100: the building's outline or a gap crosses "
-            "the block); the head's logit on the dropped pixels (10th / 50th / 90th percentiles over the "
-            "frames).\n\n"
+            "the block); the head's logit on the dropped pixels (10th / 50th / 90th percentiles over the blocks, or "
+            "pixels, of all the frames).\n\n"
             + markdown_table(["photons", "blocks with a drop", "blocks kept whole", "% valid, blocks with a drop",
                               "logit at the drops"],
-                             [[f"{e['level']:g}", e["drops"]["blocks"], e["drops"]["whole"], e["drops"]["covered"],
+                             [[f"{e['level']:g}", e["drops"]["blocks"], e["drops"]["whole"], e["drops"]["valid"],
                                e["drops"]["logit"]] for e in results])]
     return "\n".join(text)
 

@@ -278,6 +278,41 @@ def edge_sky(photons, sky) -> np.ndarray:
     return (near <= REF_EDGE_SKY_PHOTONS) & ~np.asarray(sky, bool)
 
 
+@dataclasses.dataclass(frozen=True)
+class References:
+    """What a recording's methods are scored against: `depth` and `valid` (`reference_depth`), `sky`
+    (`reference_sky`, less the valid pixels), `edge` (`empty_edges`), `near` (`near_gaps`), `beside` (`edge_sky`),
+    `photons` (H, W) of all the recording's photons per pixel and `all_photons` (`lr_all_photons`)."""
+
+    depth: np.ndarray
+    valid: np.ndarray
+    sky: np.ndarray
+    edge: np.ndarray
+    near: np.ndarray
+    beside: np.ndarray
+    photons: np.ndarray
+    all_photons: tuple
+
+    def sky_beside_text(self) -> str:
+        """How `edge_sky` reads on this recording: photons per valid and per sky pixel, and the share of the
+        block-level sky that passes the same test (the sample it takes of the sky)."""
+        as_beside = edge_sky(self.photons, np.zeros_like(self.sky))
+        if not self.sky.any():
+            return f"{self.photons[self.valid].mean():.1f} photons per valid pixel, no block-level sky"
+        return (f"{self.photons[self.valid].mean():.1f} photons per valid pixel, {self.photons[self.sky].mean():.2f} "
+                f"per pixel of the block-level sky, of which {as_beside[self.sky].mean():.0%} passes the same test")
+
+
+def references(rec: Recording) -> References:
+    """The `References` of a recording (all its photons read once)."""
+    depth, valid = reference_depth(rec)
+    all_photons = lr_all_photons(rec)  # once: the sky, the edges and the SNR read it
+    sky = reference_sky(all_photons) & ~valid
+    photons = np.bincount(rec.tags.pixel, minlength=valid.size).reshape(valid.shape)
+    return References(depth, valid, sky, empty_edges(all_photons), near_gaps(valid), edge_sky(photons, sky), photons,
+                      all_photons)
+
+
 def recording_snr(all_photons) -> float:
     """The recording's frame SNR from all its photons in LR blocks (`lr_all_photons`; `jaxsr.sensor.frame_snr`:
     signal / ambient photons over the blocks with a return; a second surface in a block counts as ambient, so
@@ -393,19 +428,17 @@ def evaluate(recordings, models: dict, *, levels=LEVELS, max_frames: int = MAX_F
     results = {}
     for i, rec in enumerate(recordings):
         started = time.time()
-        ref, valid = reference_depth(rec)
-        all_photons = lr_all_photons(rec)  # once: the sky, the edges and the SNR read it
-        sky, edge, near = reference_sky(all_photons) & ~valid, empty_edges(all_photons), near_gaps(valid)
-        sky_beside = edge_sky(np.bincount(rec.tags.pixel, minlength=valid.size).reshape(valid.shape), sky)
+        refs = references(rec)
+        ref, valid, sky, edge, near, sky_beside = refs.depth, refs.valid, refs.sky, refs.edge, refs.near, refs.beside
         noise = reference_noise(rec, valid, seed=seed)
         lr_tags = bin_pixels(rec.tags)
         h, w = lr_tags.shape
         # LR pixels whose block holds a valid reference pixel: where the scores are taken
         covered = valid.reshape(h, FACTOR, w, FACTOR).any(axis=(1, 3))
         out = {"reference": ref, "valid": valid, "sky": sky, "sky_beside": sky_beside,
-               "edge_share": float(edge[valid].mean()),
+               "sky_beside_text": refs.sky_beside_text(), "edge_share": float(edge[valid].mean()),
                "near_share": float(near[valid].mean()),
-               "snr": recording_snr(all_photons), "noise": noise, "levels": [], "picture": None,
+               "snr": recording_snr(refs.all_photons), "noise": noise, "levels": [], "picture": None,
                "photons_per_lr_pixel": lr_tags.time.size / (h * w), "lr_shape": (h, w)}
         log(f"{rec.name}: {rec.tags.time.size} photons, {h} x {w} LR, {int(valid.sum())} valid reference pixels "
             f"({valid.mean():.1%}); reference noise: halves {noise['psnr_halves']:.2f} dB")
@@ -524,36 +557,35 @@ def tables(results, recordings) -> str:
                 for e in r["levels"]]
         text.append(f"### MAE ({unit}; a no-return output counts at its distance)\n\n"
                     + markdown_table(["photons", *methods], rows))
-        rows = [[f"{e['level']:g}"] + [f"{100 * e['scores'][m]['no_return'].mean():.1f}" for m in methods]
-                for e in r["levels"]]
+        rows = _level_rows(r, methods, lambda s: f"{100 * s['no_return'].mean():.1f}")
         text.append(f"### % of the reference's valid pixels output as no return (>= {NO_RETURN_AT:g})\n\n"
                     + markdown_table(["photons", *methods], rows))
-        rows = [[f"{e['level']:g}"] + [_percent(e["scores"][m]["dropped_at_edge"]) for m in methods]
-                for e in r["levels"]]
+        rows = _level_rows(r, methods, lambda s: _percent(s["dropped_at_edge"]))
         text.append("### Of those, % at an edge\n\n"
                     f"Edges (`empty_edges`): pixels next to an LR block without a significant return in all the "
                     f"photons, {100 * r['edge_share']:.1f} % of the valid pixels; \"-\" where none is dropped.\n\n"
                     + markdown_table(["photons", *methods], rows))
-        if r["sky"].any():
-            rows = [[f"{e['level']:g}"] + [f"{100 * e['scores'][m]['sky_as_depth'].mean():.1f}" for m in methods]
-                    for e in r["levels"]]
-            text.append(f"### % of the reference's no-return pixels output as depth (< {NO_RETURN_AT:g})\n\n"
-                        f"{int(r['sky'].sum())} pixels ({r['sky'].mean():.1%}) where all the photons show no return "
-                        f"(`reference_sky`: the LR block and its 8 neighbours hold no significant return at a "
-                        f"false-alarm rate of {REF_SKY_ALPHA:g} and at most {REF_SKY_SHARE:g} of a typical return's "
-                        "photons; a surface darker than that would count as sky too). The two tables above and this "
-                        "one are the two sides of a model's no-return decision.\n\n"
-                        + markdown_table(["photons", *methods], rows))
-        if r["sky_beside"].any():
-            rows = [[f"{e['level']:g}"] + [f"{100 * e['scores'][m]['edge_sky_as_depth'].mean():.1f}" for m in methods]
-                    for e in r["levels"]]
-            text.append(f"### % of the sky beside the surfaces output as depth\n\n"
-                        f"{int(r['sky_beside'].sum())} pixels ({r['sky_beside'].mean():.1%}) that the table above "
-                        f"leaves out (`edge_sky`: outside its sky, and their 3 x 3 full-resolution neighbourhood holds "
-                        f"at most {REF_EDGE_SKY_PHOTONS} of all the photons): the sky in and beside the LR blocks a "
-                        "surface's edge crosses, which PSNR on the valid pixels does not count.\n\n"
-                        + markdown_table(["photons", *methods], rows))
+        for mask, key, title, note in (
+                ("sky", "sky_as_depth", f"% of the reference's no-return pixels output as depth (< {NO_RETURN_AT:g})",
+                 "where all the photons show no return (`reference_sky`: the LR block and its 8 neighbours hold no "
+                 f"significant return at a false-alarm rate of {REF_SKY_ALPHA:g} and at most {REF_SKY_SHARE:g} of a "
+                 "typical return's photons; a surface darker than that would count as sky too). The two tables above "
+                 "and this one are the two sides of a model's no-return decision."),
+                ("sky_beside", "edge_sky_as_depth", "% of the sky beside the surfaces output as depth",
+                 "that the table above leaves out (`edge_sky`: outside its sky, and their 3 x 3 full-resolution "
+                 f"neighbourhood holds at most {REF_EDGE_SKY_PHOTONS} of all the photons): the sky in and beside the "
+                 "LR blocks a surface's edge crosses, which PSNR on the valid pixels does not count. Here "
+                 f"{r['sky_beside_text']}.")):
+            if r[mask].any():
+                rows = _level_rows(r, methods, lambda s, key=key: f"{100 * s[key].mean():.1f}")
+                text.append(f"### {title}\n\n{int(r[mask].sum())} pixels ({r[mask].mean():.1%}) {note}\n\n"
+                            + markdown_table(["photons", *methods], rows))
     return "\n".join(text)
+
+
+def _level_rows(r, methods, cell) -> list:
+    """A table's rows: each level of a recording's results `r`, then `cell(scores)` of each method."""
+    return [[f"{e['level']:g}"] + [cell(e["scores"][m]) for m in methods] for e in r["levels"]]
 
 
 def _finite_mean(values, fmt: str = ".2f", scale: float = 1.0) -> str:

@@ -45,6 +45,7 @@ from .peaks import (
     check_ambient_settings,
     default_window,
     return_significance,
+    window_sums,
 )
 
 __all__ = ["no_return_shares", "share_of_window"]
@@ -136,10 +137,7 @@ def share_of_window(summed, sensor: SensorConfig = SensorConfig(), *, alpha=1e-3
 
 @functools.partial(jax.jit, static_argnames=("sensor", "pixels", "frames"))
 def _shares(counts, alpha, sensor, pixels, frames):
-    r = frames // 2
-    n = capped_for_sum(counts, pixels * pixels * frames)
-    padded = jnp.pad(n, ((r, r), (0, 0), (0, 0), (0, 0)))  # cut at the ends, not replicated (as ambient_only)
-    summed = jax.lax.reduce_window(padded, 0.0, jax.lax.add, (frames, 1, 1, 1), (1, 1, 1, 1), "VALID")
+    summed = window_sums(capped_for_sum(counts, pixels * pixels * frames), frames)  # over frames only
     return jax.vmap(lambda s: share_of_window(s, sensor, alpha=alpha, pixels=pixels))(summed)
 
 

@@ -249,6 +249,16 @@ def capped_for_sum(counts, histograms: int):
     return counts * jnp.minimum(1.0, cap / jnp.maximum(jnp.max(counts, axis=-1, keepdims=True), 1.0))
 
 
+def window_sums(counts, frames: int, pixels: int = 1):
+    """(T, h, w, K) histograms, each summed with its neighbours over the `frames` frames and `pixels` x `pixels`
+    pixels centred on it (odd sides), cut at the edges of the frame and of the sequence, where fewer are summed:
+    not replicated, since a repeated histogram's photons are not independent and repeats of one fluctuation would
+    read as a return. Same shape; jit-able with `frames` and `pixels` static."""
+    r, q = frames // 2, pixels // 2
+    padded = jnp.pad(counts, ((r, r), (q, q), (q, q), (0, 0)))
+    return jax.lax.reduce_window(padded, 0.0, jax.lax.add, (frames, pixels, pixels, 1), (1, 1, 1, 1), "VALID")
+
+
 def ambient_only(counts, sensor: SensorConfig = SensorConfig(), *, alpha=1e-3, pixels: int = 3, frames: int = 9,
                  window=None):
     """Where the photons around each pixel are consistent with ambient light alone: the no-return test of a video.
@@ -284,12 +294,7 @@ def ambient_only(counts, sensor: SensorConfig = SensorConfig(), *, alpha=1e-3, p
     # each histogram capped so that sums of huge counts stay finite (pixel by pixel: one corrupt bin does not
     # rescale the others, and a stream of windows computes what the whole sequence does)
     n = capped_for_sum(n, pixels * pixels * frames)
-    r, q = frames // 2, pixels // 2
-    # cut at the edges, not replicated: a repeated histogram's photons are not independent, and repeats of one
-    # fluctuation would read as a return
-    padded = jnp.pad(n, ((r, r), (q, q), (q, q), (0, 0)))
-    summed = jax.lax.reduce_window(padded, 0.0, jax.lax.add, (frames, pixels, pixels, 1), (1, 1, 1, 1), "VALID")
-    return return_significance(summed, sensor, window=window) > jnp.log(alpha)
+    return return_significance(window_sums(n, frames, pixels), sensor, window=window) > jnp.log(alpha)
 
 
 def frame_snr(counts, sensor: SensorConfig = SensorConfig(), *, false_alarm=1e-3):

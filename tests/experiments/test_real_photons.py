@@ -212,7 +212,6 @@ def test_returns_kept_overrules_the_head_only_where_the_block_shows_a_return():
                                    atol=1e-6)
 
 
-
 def test_edge_sky_is_the_empty_sky_beside_the_surfaces():
     """edge_sky: pixels outside the block-level sky whose 3 x 3 neighbourhood holds at most REF_EDGE_SKY_PHOTONS
     photons; a surface's pixels, and the sky touching them, are not."""
