@@ -415,6 +415,9 @@ class PhotonRegime:
       depth (`jaxsr.sensor.thin_returns`: poles, cables, a lattice tower's beams against the sky; one mask for
       the clip's frames, as the regions');
     - `motion`: `jaxsr.scenes.training_clip`'s motion mode ("seen": every clip's motion shows in its depth);
+    - static scenes: with probability `static_prob`, every frame of the clip shows its centre frame, so that only
+      the photons differ from frame to frame (a static scene seen from a still sensor, as a photon video made of
+      one recording is: the network otherwise sees motion in every clip; never in clips of the paper's regime);
     - `paper_prob`: the share of clips drawn from the paper's regime instead (`PAPER_REGIME`'s signal and SNR
       ranges, the IRF `irf_paper`, no dark counts, hot or dead pixels and no added no-return regions),
       so that a model of the wide regime keeps the paper's accuracy there.
@@ -440,6 +443,7 @@ class PhotonRegime:
     thin_lines_max: int = 8
     thin_width_range: tuple[float, float] = (1.0, 8.0)
     motion: str = "seen"
+    static_prob: float = 0.0
     paper_prob: float = 0.0
 
     def __post_init__(self):
@@ -449,7 +453,7 @@ class PhotonRegime:
             _check_range(who, name, getattr(self, name))
         _check_range(who, "no_return_fraction", self.no_return_fraction, strict=False, hi=1.0)
         for name in ("irf_paper_prob", "dark_prob", "hot_prob", "hot_fraction_max", "dead_prob",
-                     "dead_fraction_max", "no_return_prob", "thin_prob", "paper_prob"):
+                     "dead_fraction_max", "no_return_prob", "thin_prob", "static_prob", "paper_prob"):
             v = float(getattr(self, name))
             if not 0.0 <= v <= 1.0:
                 raise ValueError(f"{who}: {name} must be in [0, 1], got {v}")

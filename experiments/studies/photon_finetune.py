@@ -90,6 +90,10 @@ def main(argv=None) -> None:
     parser.add_argument("--thin-prob", type=float, default=PhotonRegime().thin_prob,
                         help="share of the clips with no-return regions that thin returns cross (poles, cables, a "
                         "lattice tower's beams: PhotonRegime.thin_prob); validation draws them as often")
+    parser.add_argument("--static-prob", type=float, default=PhotonRegime().static_prob,
+                        help="share of static clips, every frame the centre frame (a still scene from a still "
+                        "sensor, as the real recordings' photon videos: PhotonRegime.static_prob); validation "
+                        "draws them as often")
     parser.add_argument("--val-snrs", type=float, nargs="+", default=None, metavar="SNR",
                         help="validate at these frame SNRs, in equal shares, instead of the regime's range (e.g. 0.1 "
                         "1.3 5 45: model selection that sees a recording as dark as tower as often as the rest)")
@@ -117,7 +121,8 @@ def main(argv=None) -> None:
     say = lambda msg: print(f"{name} [{time.perf_counter() - started:.0f} s] {msg}", flush=True)  # noqa: E731
     sensor = jaxsr.SensorConfig()
     regime = PhotonRegime(signal_range=tuple(args.signal_range), snr_range=tuple(args.snr_range),
-                          no_return_prob=args.no_return_prob, thin_prob=args.thin_prob, paper_prob=args.paper_share)
+                          no_return_prob=args.no_return_prob, thin_prob=args.thin_prob, static_prob=args.static_prob,
+                          paper_prob=args.paper_share)
     model_cfg = jaxsr.ModelConfig(tr=args.tr, **(PHOTON_INPUTS if args.photons else {}))
     if args.ambient:
         model_cfg = dataclasses.replace(model_cfg, inputs=(*model_cfg.inputs, "ambient"))
@@ -126,9 +131,10 @@ def main(argv=None) -> None:
                              no_return_weight=args.no_return_weight)
     # validation on the whole wide regime (PhotonRegime(), paper_prob 0) whatever the draws above, or at the SNRs
     # of --val-snrs: a run that trains on part of it (--signal-range, --snr-range) is still chosen for the regime
-    # the photon models serve; thin returns, a kind of scene rather than a range, are validated on as often as
-    # trained on
-    validation = regime_validation(args.tr, train_cfg, PhotonRegime(thin_prob=args.thin_prob),
+    # the photon models serve; thin returns and static scenes, kinds of scene rather than ranges, are validated on
+    # as often as trained on
+    validation = regime_validation(args.tr, train_cfg, PhotonRegime(thin_prob=args.thin_prob,
+                                                                    static_prob=args.static_prob),
                                    batches=args.val_batches, sensor=sensor, inputs=model_cfg.inputs,
                                    snrs=args.val_snrs)
     resuming = any((out / f).exists() for f in ("last.npz", "resume.npz"))

@@ -134,6 +134,21 @@ def with_no_return(seqs: dict, *, seed: int = 0, fraction=NO_RETURN_FRACTION, sk
     return out
 
 
+def frozen(seqs: dict, scored) -> dict:
+    """The sequences made static around their scored frames: every frame shows the scored frame nearest to it
+    (depth and intensity), so that each scored frame's window holds one scene under independent photon noise, as
+    a real recording of a static scene made into a photon video does (`real_photons.py`). The regions of no return
+    `evaluate` adds are one mask for all frames either way."""
+    scored = np.asarray(scored)
+    out = {}
+    for name, seq in seqs.items():
+        t = np.arange(len(seq.depth))
+        nearest = scored[np.abs(t[:, None] - scored[None]).argmin(1)]
+        out[name] = SimpleNamespace(**{**vars_of(seq), "depth": np.asarray(seq.depth)[nearest],
+                                       "intensity": np.asarray(seq.intensity)[nearest]})
+    return out
+
+
 def vars_of(seq) -> dict:
     """A sequence record's fields (a TestSequence or a SimpleNamespace)."""
     return seq._asdict() if hasattr(seq, "_asdict") else dict(vars(seq))
@@ -559,6 +574,8 @@ def main(argv=None) -> None:
                         help="run --model NAME (one with a no-return head) outputting depth wherever the LR pixel's "
                         "own photons over 9 frames show a return at this false-alarm rate, whatever the head says "
                         "(returns_kept); repeatable")
+    parser.add_argument("--static", action="store_true",
+                        help="score static scenes: each frame shows the scored frame nearest to it (`frozen`)")
     parser.add_argument("--seed", type=int, default=0, help="noise seed")
     parser.add_argument("--out", default="experiments/results/photon_regimes.md",
                         help="the results file (a .json beside it)")
@@ -567,6 +584,8 @@ def main(argv=None) -> None:
     models, info, ambient = load_models(args.model, args.no_return_logit, args.ambient_alpha, args.no_return_shares,
                                         args.keep_returns)
     seqs = jaxsr.scenes.test_sequences(n_frames=SEQUENCE_FRAMES, names=TEST_SCENES)
+    if args.static:
+        seqs = frozen(seqs, scored_frames(args.frames, SEQUENCE_FRAMES))
     results = evaluate(models, seqs, frames=args.frames, photons=args.photons, snrs=args.snr,
                        tv_frames=args.tv_frames if args.tv else 0, seed=args.seed, ambient=ambient)
     full = "python experiments/studies/photon_regimes.py --frames 32 --tv --tv-frames 4"
@@ -576,7 +595,10 @@ def main(argv=None) -> None:
             + (f"**A small run** ({args.frames} frames per scene{'' if args.tv else ', no TV'}): the differences "
                f"carry wide intervals. The full benchmark: `{full}`.\n\n" if small else "")
             + f"{scenes_text}: {args.frames} frames each, spread over the {SEQUENCE_FRAMES} "
-            f"(frames {', '.join(map(str, results['scored']))}); noise seed {args.seed}, the same noise for every "
+            f"(frames {', '.join(map(str, results['scored']))})"
+            + (", **static**: every frame shows the scored frame nearest to it (`--static`, `frozen`)"
+               if args.static else "")
+            + f"; noise seed {args.seed}, the same noise for every "
             f"method of a regime. Photons: mean signal photons per LR pixel with a return; SNR `{PAPER}`: the "
             "paper's regime, each scene at its own SNR (1.3, 1.3, 3). "
             + (f"TV (`tv_super_resolve`, tr {TV_TR}, its defaults) on {args.tv_frames} of them per scene (frames "

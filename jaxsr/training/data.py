@@ -162,7 +162,8 @@ def regime_parameters(key, regime: PhotonRegime = PhotonRegime()):
     """One clip's draw from `regime` (see `PhotonRegime`): a dict of scalars `mean_signal` (photons per LR pixel
     with a return), `snr`, `irf_sigma` (bins), `dark` (photons per bin), `hot_fraction`, `hot_level` (extra
     photons of a hot pixel over all bins, times `mean_signal`), `dead_fraction`, `no_return_fraction`, `sky`
-    (the weight of the sky band) and `thin_lines` (thin returns across the no-return regions). An effect not
+    (the weight of the sky band), `thin_lines` (thin returns across the no-return regions) and `static` (bool: a
+    static scene, every frame the centre frame). An effect not
     drawn for the clip has fraction, rate or count 0; a clip of the paper's regime (`regime.paper_prob`) has the
     paper's signal, SNR and IRF and no effects. jit/vmap-able."""
     k = iter(jax.random.split(key, 14))
@@ -192,11 +193,13 @@ def regime_parameters(key, regime: PhotonRegime = PhotonRegime()):
     lines = jax.random.randint(k_lines, (), 1, regime.thin_lines_max + 1)
     wide["thin_lines"] = jnp.where((jax.random.uniform(k_thin) < regime.thin_prob)
                                    & (wide["no_return_fraction"] > 0), lines, 0)
+    wide["static"] = jax.random.uniform(jax.random.fold_in(key, 16)) < regime.static_prob  # a key of its own too
     # the paper's regime, drawn from keys of its own so that paper_prob = 0 leaves every other draw as it was
     k_paper, k_sig, k_snr = jax.random.split(jax.random.fold_in(key, 14), 3)
     paper = dict(wide, mean_signal=log_uniform(k_sig, *PAPER_REGIME.signal_range),
                  snr=log_uniform(k_snr, *PAPER_REGIME.snr_range), irf_sigma=jnp.asarray(regime.irf_paper, jnp.float32),
-                 dark=0.0, hot_fraction=0.0, dead_fraction=0.0, no_return_fraction=0.0, thin_lines=0)
+                 dark=0.0, hot_fraction=0.0, dead_fraction=0.0, no_return_fraction=0.0, thin_lines=0,
+                 static=jnp.asarray(False))
     is_paper = jax.random.uniform(k_paper) < regime.paper_prob
     return {name: jnp.where(is_paper, paper[name], wide[name]) for name in wide}
 
@@ -213,14 +216,14 @@ def regime_clips(frames: int, train_cfg: TrainConfig, regime: PhotonRegime = Pho
     """Training clips spanning real sensors: `make_batch(key)` with `batch_size` random scenes of `frames` frames,
     every parameter of `regime` drawn per clip (`regime_parameters`).
 
-    Per clip: `jaxsr.scenes.training_clip` (motion log-uniform in `train_cfg.motion_range`, `regime.motion`) ->
-    `no_return_regions` on the HR depth, crossed by `thin_returns` -> calibration over the whole clip to the
-    drawn SNR and photon level with the drawn IRF width (`with_irf_sigma`) -> rates of the kept crop
-    (`train_cfg.patch`) -> `dark_counts`, `hot_pixels`, `dead_pixels` (one mask per clip) -> Poisson draw ->
-    `centre_of_mass` with `sensor` (the nominal IRF's window, as a recording is read at inference). GT =
-    `normalise_depth` of the depth with its no-return regions: 1.0 there. `train_cfg.snr_range` and
-    `mean_signal_range` are not used. `inputs`: what the network reads (`jaxsr.nn.inputs.network_inputs`; more
-    than depth adds a last axis of channels).
+    Per clip: `jaxsr.scenes.training_clip` (motion log-uniform in `train_cfg.motion_range`, `regime.motion`; its
+    centre frame in every frame for a static clip) -> `no_return_regions` on the HR depth, crossed by `thin_returns`
+    -> calibration over the whole clip to the drawn SNR and photon level with the drawn IRF width (`with_irf_sigma`)
+    -> rates of the kept crop (`train_cfg.patch`) -> `dark_counts`, `hot_pixels`, `dead_pixels` (one mask per clip) ->
+    Poisson draw -> `centre_of_mass` with `sensor` (the nominal IRF's window, as a recording is read at inference).
+    GT = `normalise_depth` of the depth with its no-return regions: 1.0 there. `train_cfg.snr_range` and
+    `mean_signal_range` are not used. `inputs`: what the network reads (`jaxsr.nn.inputs.network_inputs`; more than
+    depth adds a last axis of channels).
     Returns make_batch: (key, snr=None) -> (clips (B, frames, h, w) LR normalised depth, gt
     `(B, frames, h*r, w*r)`), with `description` (the regime as JSON) and `regime` (`regime.to_dict()`). `snr`, a
     scalar that may be traced, replaces every clip's drawn frame SNR (the other draws unchanged): one compiled
@@ -233,6 +236,9 @@ def regime_clips(frames: int, train_cfg: TrainConfig, regime: PhotonRegime = Pho
         depth, intensity = training_clip(k_scene, frames, sensor=sensor, shift_range=train_cfg.motion_range,
                                          motion=regime.motion)
         p = regime_parameters(k_par, regime)
+        if regime.static_prob > 0:  # a static scene: the centre frame in every frame, only the photons differ
+            depth, intensity = (jnp.where(p["static"], jnp.broadcast_to(x[frames // 2], x.shape), x)
+                                for x in (depth, intensity))
         if snr is not None:  # rounded as log_uniform rounds lo == hi: the draws of a regime held at that SNR
             p = dict(p, snr=jnp.exp(jnp.log(jnp.asarray(snr, jnp.float32))))
         depth = _regime_no_return(k_sky, depth, p, regime)

@@ -146,7 +146,7 @@ _PHOTON_KEYS = {
     "no_return_prob": _probability, "no_return_fraction": _pair(0.0, 1.0, strict=False),
     "blob_size": _integer(1, 4096),
     "thin_prob": _probability, "thin_lines_max": _integer(1, 64), "thin_width_range": _pair(),
-    "motion": _choice("seen", "drawn"),
+    "motion": _choice("seen", "drawn"), "static_prob": _probability,
     "paper_prob": _probability,
 }
 _TOP_KEYS = {"description": _string}

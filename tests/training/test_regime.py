@@ -171,3 +171,37 @@ def test_the_clips_sky_is_the_regions_crossed_by_the_drawn_lines():
     sky = np.isinf(plain[0])
     assert (sky & lines).any() and np.all(crossed[:, sky & lines] == 9.0)
     np.testing.assert_array_equal(crossed[:, ~lines], plain[:, ~lines])
+
+
+def test_static_clips_are_drawn_apart_and_never_from_the_paper_regime():
+    """static_prob draws from a key of its own: every other parameter is what static_prob = 0 draws, so older
+    regimes' clips stay as they were; about that share of the wide regime's clips are static, none of the
+    paper's."""
+    keys = jax.random.split(jax.random.key(2), 2000)
+
+    def draw(regime):
+        return {k: np.asarray(v) for k, v in jax.jit(jax.vmap(lambda k: regime_parameters(k, regime)))(keys).items()}
+
+    plain, still = draw(PhotonRegime(paper_prob=0.2)), draw(PhotonRegime(paper_prob=0.2, static_prob=0.3))
+    for name in plain:
+        if name != "static":
+            np.testing.assert_array_equal(plain[name], still[name], err_msg=name)
+    assert not plain["static"].any()
+    assert np.mean(draw(PhotonRegime(static_prob=0.3))["static"]) == pytest.approx(0.3, abs=0.04)
+    assert not draw(PhotonRegime(paper_prob=1.0, static_prob=1.0))["static"].any()  # the paper's clips move
+
+
+@pytest.mark.slow
+def test_static_clips_repeat_their_centre_frame_under_new_photons():
+    """With every clip static the ground truth is one frame repeated, while the photons (the LR inputs) differ
+    from frame to frame; without, the frames move. (Slow: two data sources compiled.)"""
+    base = dict(signal_range=(20.0, 20.0), snr_range=(5.0, 5.0), no_return_prob=0.0, paper_prob=0.0)
+    cfg = dataclasses.replace(TrainConfig(), batch_size=2, patch=None)
+    (lr_still, gt_still), (_, gt_moving) = ([np.asarray(a) for a in
+                                             jax.jit(regime_clips(3, cfg, PhotonRegime(**base, static_prob=p),
+                                                                  sensor=SENSOR))(jax.random.key(5))]
+                                            for p in (1.0, 0.0))
+    np.testing.assert_array_equal(gt_still, np.broadcast_to(gt_still[:, 1:2], gt_still.shape))
+    np.testing.assert_array_equal(gt_still[:, 1], gt_moving[:, 1])  # the centre frame is the moving clip's
+    assert not np.array_equal(lr_still[:, 0], lr_still[:, 2])
+    assert not np.array_equal(gt_moving[:, 0], gt_moving[:, 2])
