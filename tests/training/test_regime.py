@@ -80,20 +80,29 @@ def test_low_photons_and_no_return_regions():
     assert not np.array_equal(np.asarray(other), windows)
 
 
+def draws(regime, seed: int, n: int = 2000) -> dict:
+    """`regime_parameters` of n keys split from `seed`, as NumPy arrays."""
+    keys = jax.random.split(jax.random.key(seed), n)
+    return {k: np.asarray(v) for k, v in jax.jit(jax.vmap(lambda k: regime_parameters(k, regime)))(keys).items()}
+
+
+def assert_drawn_apart(seed: int, name: str, **setting) -> tuple[dict, dict]:
+    """The draws with `setting` (e.g. thin_prob=0.5) and without, on the same keys: every parameter but `name`
+    (the one `setting` draws) is the same, so older regimes' clips stay as they were; without, `name` is never
+    drawn. Returns (without, with)."""
+    plain, drawn = draws(PhotonRegime(paper_prob=0.2), seed), draws(PhotonRegime(paper_prob=0.2, **setting), seed)
+    for other in plain:
+        if other != name:
+            np.testing.assert_array_equal(plain[other], drawn[other], err_msg=other)
+    assert not plain[name].any()
+    return plain, drawn
+
+
 def test_thin_returns_are_drawn_apart_and_only_across_no_return_regions():
     """thin_prob draws line counts from keys of their own: every other parameter is what thin_prob = 0 draws, so
     older regimes' clips stay as they were; lines come only with drawn no-return regions, and never in clips of
     the paper's regime."""
-    keys = jax.random.split(jax.random.key(1), 2000)
-
-    def draw(regime):
-        return {k: np.asarray(v) for k, v in jax.jit(jax.vmap(lambda k: regime_parameters(k, regime)))(keys).items()}
-
-    plain, thin = draw(PhotonRegime(paper_prob=0.2)), draw(PhotonRegime(paper_prob=0.2, thin_prob=0.5))
-    for name in plain:
-        if name != "thin_lines":
-            np.testing.assert_array_equal(plain[name], thin[name], err_msg=name)
-    assert not plain["thin_lines"].any()
+    _, thin = assert_drawn_apart(1, "thin_lines", thin_prob=0.5)
     lines, holed = thin["thin_lines"], thin["no_return_fraction"] > 0
     assert not lines[~holed].any() and 1 <= lines[lines > 0].min() and lines.max() == PhotonRegime().thin_lines_max
     assert np.mean(lines[holed] > 0) == pytest.approx(0.5, abs=0.05)
@@ -177,18 +186,9 @@ def test_static_clips_are_drawn_apart_and_never_from_the_paper_regime():
     """static_prob draws from a key of its own: every other parameter is what static_prob = 0 draws, so older
     regimes' clips stay as they were; about that share of the wide regime's clips are static, none of the
     paper's."""
-    keys = jax.random.split(jax.random.key(2), 2000)
-
-    def draw(regime):
-        return {k: np.asarray(v) for k, v in jax.jit(jax.vmap(lambda k: regime_parameters(k, regime)))(keys).items()}
-
-    plain, still = draw(PhotonRegime(paper_prob=0.2)), draw(PhotonRegime(paper_prob=0.2, static_prob=0.3))
-    for name in plain:
-        if name != "static":
-            np.testing.assert_array_equal(plain[name], still[name], err_msg=name)
-    assert not plain["static"].any()
-    assert np.mean(draw(PhotonRegime(static_prob=0.3))["static"]) == pytest.approx(0.3, abs=0.04)
-    assert not draw(PhotonRegime(paper_prob=1.0, static_prob=1.0))["static"].any()  # the paper's clips move
+    assert_drawn_apart(2, "static", static_prob=0.3)
+    assert np.mean(draws(PhotonRegime(static_prob=0.3), 2)["static"]) == pytest.approx(0.3, abs=0.04)
+    assert not draws(PhotonRegime(paper_prob=1.0, static_prob=1.0), 2)["static"].any()  # the paper's clips move
 
 
 @pytest.mark.slow
