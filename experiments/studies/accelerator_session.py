@@ -75,7 +75,7 @@ FINETUNES = {
                                str(HERE.parent / "photon_weights" / "tr4-ambient-edges.npz"), "--decay-epochs", "12",
                                "--lr", "1e-4"],
     # the same with 30 % static clips: every training clip moved, and on static scenes (the real recordings'
-    # photon videos) tr4-ambient's head drops 2-3x the returns (experiments/results/photon_regimes_static.md);
+    # photon videos) tr4-ambient's head drops 2-3x the returns inside surfaces (results/photon_regimes_static.md);
     # its validation draws static clips as often, so its losses are not comparable with the runs above
     "tr4-ambient-edges-static": [*_TR4_AMBIENT, *_SNR_GRID, *_EDGES, "--static-prob", "0.3", "--init",
                                  str(HERE.parent / "photon_weights" / "tr4-ambient-edges.npz"), "--decay-epochs",

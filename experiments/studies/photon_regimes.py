@@ -100,12 +100,13 @@ def needed_frames(scored, total: int, radius: int) -> np.ndarray:
 
 
 def regime_clips(seqs: dict, photons: float, snr, *, scored, radius: int, key, sensor=SensorConfig(),
-                 tests=()) -> dict:
+                 tests=(), static: bool = False) -> dict:
     """The sequences at one regime: {name: Clip} of the frames the methods need (`needed_frames`), with `scored`
     as positions in them. snr None: each sequence's own. The laser and ambient are calibrated over the whole
-    sequence, as `simulate_histograms` would, and photons are drawn only for those frames. Returns (clips,
-    ambient): ambient {name: {(kind, alpha): (F, h, w)}}, the `no_return_decision` of the scored frames for each
-    test of `tests`."""
+    sequence, as `simulate_histograms` would, and photons are drawn only for those frames. static: each of those
+    frames shows the scored frame nearest to it (`nearest_scored`; the calibration still of the whole moving
+    sequence, so that a scored frame gets the same photons as without). Returns (clips, ambient): ambient {name:
+    {(kind, alpha): (F, h, w)}}, the `no_return_decision` of the scored frames for each test of `tests`."""
     clips, ambient = {}, {}
     for i, (name, seq) in enumerate(seqs.items()):
         s = float(seq.snr if snr is None else snr)
@@ -113,12 +114,13 @@ def regime_clips(seqs: dict, photons: float, snr, *, scored, radius: int, key, s
                                    jnp.float32(photons), sensor)
         # the ambient-only test sums 9 frames: each scored frame needs its +-4 (else windows far apart would meet)
         keep = needed_frames(scored, len(seq.depth), max(radius, AMBIENT_RADIUS) if tests else radius)
-        x, gt, flags = _draw(jax.random.fold_in(key, i), jnp.asarray(seq.depth[keep]),
-                             jnp.asarray(seq.intensity[keep]), alpha, beta, sensor, tuple(tests))
+        shown = nearest_scored(len(seq.depth), scored)[keep] if static else keep
+        x, gt, flags = _draw(jax.random.fold_in(key, i), jnp.asarray(seq.depth[shown]),
+                             jnp.asarray(seq.intensity[shown]), alpha, beta, sensor, tuple(tests))
         x = np.asarray(x)
         counts = np.zeros((len(keep), 0), np.float32)  # not kept: the methods read the centre of mass (+ photons)
         clips[name] = Clip(name, x[..., 0], counts, np.asarray(gt), float(seq.fps), s,
-                           np.asarray(seq.intensity[keep], np.float32), np.searchsorted(keep, scored), x[..., 1:],
+                           np.asarray(seq.intensity[shown], np.float32), np.searchsorted(keep, scored), x[..., 1:],
                            channels=MODEL_INPUTS[1:])
         ambient[name] = {a: np.asarray(f)[clips[name].scored] for a, f in zip(tests, flags)}
     return clips, ambient
@@ -134,19 +136,12 @@ def with_no_return(seqs: dict, *, seed: int = 0, fraction=NO_RETURN_FRACTION, sk
     return out
 
 
-def frozen(seqs: dict, scored) -> dict:
-    """The sequences made static around their scored frames: every frame shows the scored frame nearest to it
-    (depth and intensity), so that each scored frame's window holds one scene under independent photon noise, as
-    a real recording of a static scene made into a photon video does (`real_photons.py`). The regions of no return
-    `evaluate` adds are one mask for all frames either way."""
+def nearest_scored(total: int, scored) -> np.ndarray:
+    """(total,) for each frame of a sequence the scored frame nearest to it (a tie: the earlier): what a static
+    scene shows in each frame (`regime_clips(static=True)`), so that each scored frame's window holds one scene
+    under independent photon noise, as a photon video made of a real recording of a still scene does."""
     scored = np.asarray(scored)
-    out = {}
-    for name, seq in seqs.items():
-        t = np.arange(len(seq.depth))
-        nearest = scored[np.abs(t[:, None] - scored[None]).argmin(1)]
-        out[name] = SimpleNamespace(**{**vars_of(seq), "depth": np.asarray(seq.depth)[nearest],
-                                       "intensity": np.asarray(seq.intensity)[nearest]})
-    return out
+    return scored[np.abs(np.arange(total)[:, None] - scored[None]).argmin(1)]
 
 
 def vars_of(seq) -> dict:
@@ -234,13 +229,14 @@ def frame_interval(a, b, spacing: float, seed: int = 0):
 
 def evaluate(models: dict, seqs: dict, *, frames: int, photons=PHOTONS, snrs=SNRS, tv_frames: int = 0,
              seed: int = 0, sensor=SensorConfig(), paper: bool = True, no_return: bool = True, ambient=None,
-             log=print) -> dict:
+             static: bool = False, log=print) -> dict:
     """Score bicubic, TV (tv_frames > 0) and `models` ({label: Model}) on `seqs` ({name: sequence record with
     depth, intensity, fps, snr}) at every (photons, snr) regime, plus the paper's (14 photons, own SNR), and the
     no-return measure. ambient: {label: alpha} for models whose output is also no return where
     `jaxsr.sensor.ambient_only` flags a pixel at that false-alarm rate (as `ambient_alpha` of
     `super_resolve_histograms`), {label: ("shares", alpha)} where `jaxsr.sensor.no_return_shares` say so, or
-    {label: ("keep", alpha)} for `returns_kept`. Returns the raw results: {"regimes": [{"photons", "snr", "scores":
+    {label: ("keep", alpha)} for `returns_kept`. static: the scenes held still around each scored frame
+    (`regime_clips`). Returns the raw results: {"regimes": [{"photons", "snr", "scores":
     {method: {"psnr", "ssim"}: (scenes, T)}, "tv_frames": positions in the scored frames}], "no_return": [...]}
     (NumPy arrays)."""
     total = len(next(iter(seqs.values())).depth)
@@ -254,6 +250,11 @@ def evaluate(models: dict, seqs: dict, *, frames: int, photons=PHOTONS, snrs=SNR
         grid.append((DEFAULT_MEAN_SIGNAL, None))
     ambient = {label: decision_of(v) for label, v in (ambient or {}).items()}
     tests = tuple(sorted(set(ambient.values())))
+    window = max(radius, AMBIENT_RADIUS) if tests else radius
+    if static and (len(scored) >= total or (len(scored) > 1 and 2 * window >= np.diff(scored).min())):
+        raise ValueError(f"evaluate(static=True): each scored frame's window of +-{window} frames must hold it "
+                         f"alone; {len(scored)} scored frames of {total} are too close (fewer frames, or no "
+                         "sequence-form model)")
 
     def outputs_of(label, model, clips, flags):
         if ambient.get(label, ("",))[0] == "keep":
@@ -270,7 +271,8 @@ def evaluate(models: dict, seqs: dict, *, frames: int, photons=PHOTONS, snrs=SNR
     for k, (p, s) in enumerate(grid):
         started = time.time()
         key = jax.random.fold_in(jax.random.key(seed), k)
-        clips, flags = regime_clips(seqs, p, s, scored=scored, radius=radius, key=key, sensor=sensor, tests=tests)
+        clips, flags = regime_clips(seqs, p, s, scored=scored, radius=radius, key=key, sensor=sensor, tests=tests,
+                                    static=static)
         scores = {"bicubic": method_scores([bicubic_output(c, sensor.scale) for c in clips.values()])}
         if tv_frames:
             scores["TV"] = method_scores([tv_output(c, c.scored[tv_idx], sensor.scale) for c in clips.values()])
@@ -284,7 +286,7 @@ def evaluate(models: dict, seqs: dict, *, frames: int, photons=PHOTONS, snrs=SNR
         for k, p in enumerate(q for q in photons if q >= NO_RETURN_MIN_PHOTONS):
             key = jax.random.fold_in(jax.random.key(seed + 1), k)
             clips, flags = regime_clips(dark, float(p), NO_RETURN_SNR, scored=scored, radius=radius, key=key,
-                                        sensor=sensor, tests=tests)
+                                        sensor=sensor, tests=tests, static=static)
             outputs = {"bicubic": [bicubic_output(c, sensor.scale) for c in clips.values()]}
             for label, model in models.items():
                 outputs[label] = outputs_of(label, model, clips, flags)
@@ -575,7 +577,7 @@ def main(argv=None) -> None:
                         "own photons over 9 frames show a return at this false-alarm rate, whatever the head says "
                         "(returns_kept); repeatable")
     parser.add_argument("--static", action="store_true",
-                        help="score static scenes: each frame shows the scored frame nearest to it (`frozen`)")
+                        help="score static scenes: each frame shows the scored frame nearest to it (nearest_scored)")
     parser.add_argument("--seed", type=int, default=0, help="noise seed")
     parser.add_argument("--out", default="experiments/results/photon_regimes.md",
                         help="the results file (a .json beside it)")
@@ -584,10 +586,14 @@ def main(argv=None) -> None:
     models, info, ambient = load_models(args.model, args.no_return_logit, args.ambient_alpha, args.no_return_shares,
                                         args.keep_returns)
     seqs = jaxsr.scenes.test_sequences(n_frames=SEQUENCE_FRAMES, names=TEST_SCENES)
-    if args.static:
-        seqs = frozen(seqs, scored_frames(args.frames, SEQUENCE_FRAMES))
-    results = evaluate(models, seqs, frames=args.frames, photons=args.photons, snrs=args.snr,
-                       tv_frames=args.tv_frames if args.tv else 0, seed=args.seed, ambient=ambient)
+    try:
+        results = evaluate(models, seqs, frames=args.frames, photons=args.photons, snrs=args.snr,
+                           tv_frames=args.tv_frames if args.tv else 0, seed=args.seed, ambient=ambient,
+                           static=args.static)
+    except ValueError as e:
+        if not args.static:
+            raise
+        raise SystemExit(str(e)) from None  # scored frames too close for --static
     full = "python experiments/studies/photon_regimes.py --frames 32 --tv --tv-frames 4"
     small = args.frames < 32 or not args.tv or args.photons != list(PHOTONS) or args.snr != list(SNRS)
     scenes_text = ", ".join(SCENE_LABELS[n] for n in TEST_SCENES)
@@ -596,7 +602,8 @@ def main(argv=None) -> None:
                f"carry wide intervals. The full benchmark: `{full}`.\n\n" if small else "")
             + f"{scenes_text}: {args.frames} frames each, spread over the {SEQUENCE_FRAMES} "
             f"(frames {', '.join(map(str, results['scored']))})"
-            + (", **static**: every frame shows the scored frame nearest to it (`--static`, `frozen`)"
+            + (", **static**: every frame shows the scored frame nearest to it, the calibration that of the moving "
+               "sequence (`--static`, `nearest_scored`)"
                if args.static else "")
             + f"; noise seed {args.seed}, the same noise for every "
             f"method of a regime. Photons: mean signal photons per LR pixel with a return; SNR `{PAPER}`: the "

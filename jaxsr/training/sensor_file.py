@@ -465,7 +465,8 @@ def sensor_differences(card: dict, entry: dict, regime: PhotonRegime) -> list[st
     differ = [k for k in ("gate", "lr_shape", "render_lr_shape", "fov_deg") if _plain(saved.get(k)) != _plain(entry[k])]
     if _plain(saved.get("irf", {}).get("sigma_bins")) != _plain(entry["irf"]["sigma_bins"]):
         differ.append("pulse sigma")
-    if _plain(card.get("regime")) != _plain(regime.to_dict()):
+    # a field the card predates (added to PhotonRegime since) had its default then: a run begun before it resumes
+    if _plain({**PhotonRegime().to_dict(), **card.get("regime", {})}) != _plain(regime.to_dict()):
         differ.append("photon regime")
     return differ
 

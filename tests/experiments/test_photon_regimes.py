@@ -165,15 +165,11 @@ def test_keep_returns_gives_back_the_returns_a_head_drops():
     assert kept_dropped < dropped / 2 and kept_as_depth < 100.0
 
 
-def test_frozen_shows_the_nearest_scored_frame():
-    """--static: every frame of a sequence shows the scored frame nearest to it, depth and intensity alike; the
-    other fields are kept."""
-    t = np.arange(20, dtype=np.float32)
-    seq = SimpleNamespace(depth=np.broadcast_to(t[:, None, None], (20, 4, 4)).copy(),
-                          intensity=np.broadcast_to(-t[:, None, None], (20, 4, 4)).copy(), fps=30.0, snr=1.3)
-    (out,) = photon_regimes.frozen({"s": seq}, [5, 15]).values()
-    shown = np.where(np.arange(20) <= 10, 5.0, 15.0)  # a tie (frame 10) goes to the earlier
-    np.testing.assert_array_equal(out.depth[:, 0, 0], shown)
-    np.testing.assert_array_equal(out.intensity[:, 2, 3], -shown)
-    assert (out.fps, out.snr) == (30.0, 1.3)
-    np.testing.assert_array_equal(seq.depth[:, 0, 0], t)  # the input untouched
+def test_static_scenes_show_the_nearest_scored_frame():
+    """--static: every frame shows the scored frame nearest to it (a tie goes to the earlier); evaluate refuses
+    scored frames whose windows would hold two of them."""
+    shown = photon_regimes.nearest_scored(20, [5, 15])
+    np.testing.assert_array_equal(shown, np.where(np.arange(20) <= 10, 5, 15))
+    with pytest.raises(ValueError, match="too close"):
+        photon_regimes.evaluate({}, {"s": synthetic_sequence(frames=12)}, frames=4, photons=[14.0], snrs=[1.3],
+                                no_return=False, ambient={"x": 1e-3}, static=True, log=lambda _: None)

@@ -80,6 +80,13 @@ def test_a_good_file_gives_the_sensor_the_regime_and_the_gate():
     assert any("gate spans" in w for w in info["warnings"])
 
 
+def test_a_sensor_file_sets_static_clips():
+    _, regime, _ = parse_sensor_file(GOOD + "static_prob = 0.25\n", source="good.toml")
+    assert regime.static_prob == 0.25 and regime.thin_prob == 0.5
+    with pytest.raises(ValueError, match="static_prob"):
+        parse_sensor_file(GOOD + "static_prob = 2.0\n", source="good.toml")
+
+
 def test_defaults_and_a_large_sensor_rendered_as_a_window():
     text = GOOD.replace("fov_deg = 20.0\n", "").replace("lr_rows = 24", "lr_rows = 300").replace(
         "lr_cols = 40", "lr_cols = 512").replace("bin_width_ps = 250  ", "bin_width_m = 2.0").replace(
@@ -277,6 +284,12 @@ def test_resume_refuses_another_sensor_before_any_work(tmp_path, monkeypatch):
         "[sensor]\n", "[sensor]\nbins = 16   # K\n"))
     jaxsr.training.finetune(run, sensor_file=tmp_path / "same.toml", resume=True, progress=False)
     assert got["resume"] and got["card_extra"]["sensor_file"]["text"] != TINY_TOML
+    # a card written before a PhotonRegime field existed (static_prob) resumes: the field had its default then
+    old_card = dict(card, regime={k: v for k, v in regime.to_dict().items() if k != "static_prob"})
+    save_tree(run / "last.npz", {"x": np.zeros(1)}, {"kind": "train_state", "run": {"step": 2}, "card": old_card})
+    got.clear()
+    jaxsr.training.finetune(run, sensor_file=tmp_path / "s.toml", resume=True, progress=False)
+    assert got["resume"]
     save_tree(run / "last.npz", {"x": np.zeros(1)}, {"kind": "train_state", "run": {"step": 2}, "card": {}})
     with pytest.raises(ValueError, match="not a fine-tune to a sensor file"):
         jaxsr.training.finetune(run, sensor_file=tmp_path / "s.toml", resume=True, progress=False)

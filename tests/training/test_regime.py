@@ -22,7 +22,7 @@ def test_regime_is_json_ready_and_checked():
     assert PAPER_REGIME.signal_range == TrainConfig().mean_signal_range
     for change in (dict(signal_range=(0.0, 10.0)), dict(snr_range=(5.0, 1.0)), dict(dark_prob=1.5),
                    dict(no_return_fraction=(0.2, 1.5)), dict(blob_size=0), dict(motion="fast"),
-                   dict(irf_sigma_range=(0.3, float("inf"))), dict(thin_prob=1.5), dict(thin_lines_max=0),
+                   dict(irf_sigma_range=(0.3, float("inf"))), dict(thin_prob=1.5), dict(static_prob=1.5), dict(thin_lines_max=0),
                    dict(thin_width_range=(0.0, 2.0))):
         with pytest.raises(ValueError, match="PhotonRegime"):
             PhotonRegime(**change)
