@@ -43,6 +43,9 @@ _AMBIENT = ["--photons", "--ambient", "--paper-share", "0.3", "--snr-range", "0.
 _TR4_AMBIENT = ["--tr", "4", *_AMBIENT, "--steps-per-epoch", "500"]
 _SNR_GRID = ["--val-snrs", "0.1", "1.3", "5", "45"]  # model selection at fixed SNRs, tower's 45 among them
 _EDGES = ["--no-return-prob", "0.9"]  # no-return regions on 90 % of the clips (their default share is 50 %)
+# tr4-ambient-edges continued from what its first lease kept (experiments/photon_weights), the rate cut at epoch 12
+_EDGES_MORE = [*_TR4_AMBIENT, *_SNR_GRID, *_EDGES, "--init",
+               str(HERE.parent / "photon_weights" / "tr4-ambient-edges.npz"), "--decay-epochs", "12", "--lr", "1e-4"]
 FINETUNES = {
     "tr4-photons": ["--tr", "4", "--photons", "--paper-share", "0.3", "--init", "tr4-photons", "--batch-size", "16",
                     "--epochs", "14", "--steps-per-epoch", "1000", "--decay-epochs", "6", "--lr", "1e-4"],
@@ -71,15 +74,11 @@ FINETUNES = {
                              "--lr", "1e-4", "--no-return-weight", "0.05"],
     # tr4-ambient-edges continued from what its first lease kept (epoch 5 of 8, experiments/photon_weights), alone
     # (two side by side train 1.3x the epochs of one, each at 0.65x), the rate cut at epoch 12
-    "tr4-ambient-edges-more": [*_TR4_AMBIENT, *_SNR_GRID, *_EDGES, "--init",
-                               str(HERE.parent / "photon_weights" / "tr4-ambient-edges.npz"), "--decay-epochs", "12",
-                               "--lr", "1e-4"],
+    "tr4-ambient-edges-more": _EDGES_MORE,
     # the same with 30 % static clips: every training clip moved, and on static scenes (the real recordings'
     # photon videos) tr4-ambient's head drops 2-3x the returns inside surfaces (results/photon_regimes_static.md);
     # its validation draws static clips as often, so its losses are not comparable with the runs above
-    "tr4-ambient-edges-static": [*_TR4_AMBIENT, *_SNR_GRID, *_EDGES, "--static-prob", "0.3", "--init",
-                                 str(HERE.parent / "photon_weights" / "tr4-ambient-edges.npz"), "--decay-epochs",
-                                 "12", "--lr", "1e-4"],
+    "tr4-ambient-edges-static": [*_EDGES_MORE, "--static-prob", "0.3"],
 }
 
 

@@ -35,6 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxsr
+from jaxsr.baselines import block_mean
 from jaxsr.eval.reports import header, markdown_table, write_atomic
 from jaxsr.eval.scoring import frame_windows
 from jaxsr.inference import lr_blocks
@@ -56,16 +57,9 @@ def block_signal(counts, sensor, frames: int = WINDOW) -> np.ndarray:
     on it (`window_sums`: cut at the sequence's ends), less their ambient estimate
     (`jaxsr.sensor.ambient_photons`), divided by the frames summed."""
     summed = window_sums(jnp.asarray(counts, jnp.float32), frames)
-    t, r = np.arange(len(summed)), frames // 2
-    present = np.minimum(t + r, len(t) - 1) - np.maximum(t - r, 0) + 1  # frames inside each window
+    present = window_sums(jnp.ones((len(summed), 1, 1, 1)), frames)[..., 0]  # frames inside each window
     signal = summed.sum(-1) - jaxsr.sensor.ambient_photons(summed, sensor)
-    return np.asarray(signal) / present[:, None, None]
-
-
-def whole_blocks(drop, r: int) -> np.ndarray:
-    """(..., h, w) True where `drop` (..., H, W) marks every HR pixel of the r x r block."""
-    *lead, hh, ww = drop.shape
-    return drop.reshape(*lead, hh // r, r, ww // r, r).all(axis=(-3, -1))
+    return np.asarray(signal / present)
 
 
 def rules(depth, logit, quiet, signal, threshold: float) -> dict:
@@ -83,7 +77,7 @@ def rules(depth, logit, quiet, signal, threshold: float) -> dict:
 
     return {"head": np.where(head, np.float32(1.0), depth),
             "keep": trusted(np.zeros_like(quiet)),
-            "split blocks": trusted(~whole_blocks(head, r)),
+            "split blocks": trusted(block_mean(head, r) < 1.0),  # the head marks part of the block
             **{f"signal >= {s:g}": trusted(signal >= s) for s in SIGNALS},
             **{f"+{d:g} where a return": above(d) for d in MARGINS}}
 
@@ -99,8 +93,7 @@ def evaluate(rec, model, *, levels=LEVELS, max_frames: int = MAX_FRAMES, seed: i
     {...}} on `rec`'s photon video (the permutation `real_photons.evaluate` draws for its first recording)."""
     refs = references(rec)
     lr_tags = bin_pixels(rec.tags)
-    h, w = lr_tags.shape
-    valid_share = refs.valid.reshape(h, FACTOR, w, FACTOR).mean(axis=(1, 3))  # of each block's pixels
+    valid_share = block_mean(refs.valid, FACTOR)  # of each block's pixels
     out = []
     for k, level in enumerate(levels):
         t0 = time.time()
@@ -119,7 +112,7 @@ def evaluate(rec, model, *, levels=LEVELS, max_frames: int = MAX_FRAMES, seed: i
                   for name, sr in outputs.items()}
         dropped = (logit > model.config.no_return_logit) & refs.valid
         photons = frames.counts.sum(-1)
-        in_drop = dropped.reshape(len(t), h, FACTOR, w, FACTOR).any(axis=(2, 4))
+        in_drop = block_mean(dropped, FACTOR) > 0
         kept_whole = (valid_share == 1.0) & ~in_drop
         share = np.broadcast_to(valid_share, in_drop.shape)[in_drop]  # of the blocks with a drop
         out.append({"level": float(level), "frames": len(t), "outputs": outputs, "scores": scores,

@@ -49,7 +49,6 @@ from photon_regimes import (  # beside this script
     NO_RETURN_SNR,
     SEQUENCE_FRAMES,
     TEST_SCENES,
-    _block_share,
     _calibration,
     block_majority,
     interior,
@@ -60,6 +59,7 @@ from photon_regimes import (  # beside this script
 from scipy import ndimage
 
 import jaxsr
+from jaxsr.baselines import block_mean
 from jaxsr.config import SensorConfig
 from jaxsr.eval.reports import header, markdown_table, write_atomic
 from jaxsr.eval.scoring import scored_frames
@@ -136,7 +136,7 @@ def decisions(flags, summed, gt, sensor: SensorConfig) -> dict:
            GUARDED: marked(np.asarray(share_of_window(summed, sensor)), hr)}
     truth = gt >= 1.0
     out["block majority (truth)"] = block_majority(truth, s)
-    out["true shares, interpolated (truth)"] = marked(_block_share(truth, s), hr)
+    out["true shares, interpolated (truth)"] = marked(block_mean(truth.astype(float), s), hr)
     return out
 
 

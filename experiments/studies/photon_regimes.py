@@ -39,6 +39,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxsr
+from jaxsr.baselines import block_mean
 from jaxsr.config import DEFAULT_MEAN_SIGNAL, MODEL_INPUTS, SensorConfig
 from jaxsr.eval.scoring import (
     BLOCK,
@@ -166,7 +167,7 @@ def interior(no_return, scale: int) -> np.ndarray:
     networks read near it are pure; False near the edges that an LR block straddles."""
     from scipy import ndimage
 
-    blocks = _block_share(no_return, scale)
+    blocks = block_mean(np.asarray(no_return, float), scale)
     pure = ndimage.minimum_filter((blocks == 1.0).astype(np.uint8), size=3, mode="nearest") | ndimage.minimum_filter(
         (blocks == 0.0).astype(np.uint8), size=3, mode="nearest")
     return np.kron(pure, np.ones((scale, scale), np.uint8)).astype(bool)
@@ -177,14 +178,10 @@ def block_majority(no_return, scale: int) -> np.ndarray:
     HR pixels have none (a tie is no return). It minimises the two errors' total, not each of them: a measure of
     what the regions' ragged edges cost any decision made per LR pixel, which only placing an edge inside a block
     beats."""
-    blocks = _block_share(no_return, scale) >= 0.5
+    blocks = block_mean(np.asarray(no_return, float), scale) >= 0.5
     return np.kron(blocks, np.ones((scale, scale), np.uint8)).astype(bool)
 
 
-def _block_share(no_return, scale: int) -> np.ndarray:
-    """(H / scale, W / scale) share of each LR block's HR pixels without a return."""
-    h, w = np.shape(no_return)
-    return np.asarray(no_return, float).reshape(h // scale, scale, w // scale, scale).mean(axis=(1, 3))
 
 
 def _pooled(outputs, keep=None) -> tuple[np.ndarray, np.ndarray]:

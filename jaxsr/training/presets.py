@@ -167,21 +167,20 @@ def regime_validation(tr: int, train_cfg, regime: PhotonRegime, *, batches: int,
     if not (isinstance(batches, int) and batches >= 1):
         raise ValueError(f"regime_validation: batches must be an integer >= 1, got {batches!r}")
     key = jax.random.key(2**31 - 1) if key is None else key
-    if snrs is None:
-        source = jax.jit(regime_batches(tr, train_cfg, regime, sensor=sensor, inputs=inputs))
-        drawn = [source(jax.random.fold_in(key, i)) for i in range(batches)]
-    else:
+    if snrs is not None:
         snrs = tuple(float(s) for s in snrs)
         if not snrs:
             raise ValueError("regime_validation: snrs must name at least one SNR, or be None")
         for s in snrs:  # each checked as a regime's SNRs are (finite, > 0)
             dataclasses.replace(regime, snr_range=(s, s))
-        # the SNR an argument of one compiled source, not a constant of one per SNR: the simulation compiles
-        # once (a minute or more on an accelerator's host) however many SNRs are named
-        source = regime_batches(tr, train_cfg, dataclasses.replace(regime, paper_prob=0.0), sensor=sensor,
-                                inputs=inputs)
-        at_snr = jax.jit(lambda k, snr: source(k, snr=snr))
-        drawn = [at_snr(jax.random.fold_in(key, i), jnp.float32(snrs[i % len(snrs)]))
+        regime = dataclasses.replace(regime, paper_prob=0.0)
+    # at SNRs, the SNR is an argument of the one compiled source, not a constant of one per SNR: the simulation
+    # compiles once (a minute or more on an accelerator's host) however many SNRs are named
+    source = jax.jit(regime_batches(tr, train_cfg, regime, sensor=sensor, inputs=inputs))
+    if snrs is None:
+        drawn = [source(jax.random.fold_in(key, i)) for i in range(batches)]
+    else:
+        drawn = [source(jax.random.fold_in(key, i), snr=jnp.float32(snrs[i % len(snrs)]))
                  for i in range(max(batches, len(snrs)))]
     windows = jnp.concatenate([w for w, _ in drawn])
     gt = jnp.concatenate([g for _, g in drawn])
