@@ -1,7 +1,8 @@
 """Refitting a photon model's no-return branch on its own features: how much of the no-return error at the
-regions' edges the branch can still remove while the trunk stays as trained.
+regions' edges the branch can still remove while the trunk stays as trained, and how much HR convolutions after it
+can.
 
-    python experiments/studies/no_return_head.py                       # tr4-ambient, about 12 min on 2 CPU cores
+    python experiments/studies/no_return_head.py                       # tr4-ambient, about 30 min on 2 CPU cores
     python experiments/studies/no_return_head.py --draws 256 --steps 200 --frames 2 --out /tmp/head.md  # a try
 
 The no-return goal (at most 5 % of the no-return pixels output as depth, at most 2 % of the true returns dropped,
@@ -12,6 +13,11 @@ error at the edges came from the branch (too little training at the edges, a los
 refitting the branch alone would remove it, at a cost a CPU affords: the features of a training set are computed
 once (`jaxsr.nn.apply_model_features`) and the branch trains on them by Adam on the head's cross-entropy. If it
 does not, the features are what limit the decision, and only training the whole network (a GPU) can move it.
+The branch decides each HR pixel from its LR pixel's features alone; an edge inside an LR block might instead be
+placed from the decisions around it (as interpolating the blocks' true shares places it, no_return_edges.md), so a
+third fit keeps the bundled branch and adds three 3 x 3 convolutions at HR over its logit, the network's depth and
+the LR pixel's photon channels (`hr_inputs`; a field of 15 x 15 HR pixels, about four LR blocks across), trained
+on the same windows with the same loss and started at the bundled branch's decision.
 
 Steps:
 1. Training set: `--draws` windows of 16 x 16 LR pixels from the wide photon regime with no-return regions on
@@ -19,12 +25,13 @@ Steps:
    `jax.random.key(REFIT_SEED)`: apart from the calibration's, the benchmark's and any training run's keys.
 2. The branch, started from the model's, trained `--steps` steps of 32 windows (Adam `--lr`, cut tenfold for the
    last 30 %); the trunk, the depth branches and the batch norms are left alone, so the depth output is the same.
-3. Each branch's threshold chosen as `jaxsr.training.calibrate_no_return` chooses it, on the calibration set
+   The HR convolutions the same way, on the bundled branch's logits of the same windows.
+3. Each decision's threshold chosen as `jaxsr.training.calibrate_no_return` chooses it, on the calibration set
    (`no_return_set`'s defaults: whole frames, photons 3-1000, `CALIBRATION_SEED`).
-4. Both branches on the benchmark's scenes and regions (experiments/studies/photon_regimes.py's no-return test:
+4. All three on the benchmark's scenes and regions (experiments/studies/photon_regimes.py's no-return test:
    `--frames` frames per scene, SNR 1.3, its noise keys): over all pixels and inside the regions, at the chosen
    threshold and at the threshold that is best on these very pixels (the smallest share "as depth" with at most
-   2 % dropped: in-sample, a bound on what any threshold on that branch gives, not a result to quote).
+   2 % dropped: in-sample, a bound on what any threshold on that decision gives, not a result to quote).
 
 Writes experiments/results/no_return_head.md (or --out) and a .json beside it; `--save PATH` also saves the
 refitted model (a .npz for `--model` of the benchmarks).
@@ -62,6 +69,11 @@ PATCH = (16, 16)  # LR rows, cols of a training window
 BATCH = 32  # windows per step
 CUT_AT = 0.7  # the learning rate drops tenfold after this share of the steps
 CALIBRATION_DRAWS = 192  # as experiments/studies/no_return_threshold.py
+HR_WIDTH = 24  # channels of the HR convolutions
+HR_DILATIONS = (1, 2, 4)  # their 3 x 3 kernels' spacing: a field of 15 x 15 HR pixels
+LOGIT_CLIP = 20.0  # the branch's logit as the HR convolutions read it: clipped (a far logit decides alike) ...
+LOGIT_UNIT = 4.0  # ... and in units of 4, near the other inputs' range of [0, 1]
+HR = "HR convolutions"  # the third fit's name in the tables
 
 
 @functools.partial(jax.jit, static_argnames="cfg")
@@ -91,30 +103,88 @@ def logits(branch, features, cfg, batch: int = 64) -> np.ndarray:
     return _batched(lambda f: _logits(branch, f, cfg), features, batch)
 
 
-def refit_branch(branch, features, no_return, cfg, *, steps: int, lr: float, seed: int = 0, log=print) -> dict:
-    """The branch trained on fixed features (N, h, w, F) against the truth no_return (N, H, W) bool: Adam on the
-    mean cross-entropy of the logits (`no_return_cross_entropy`, the training loss's no-return term), `BATCH`
-    windows a step drawn with NumPy's generator at `seed`, the rate cut tenfold after `CUT_AT` of the steps."""
+def fit_on_fixed(params, predict, inputs, no_return, *, steps: int, lr: float, seed: int = 0, log=print):
+    """`params` trained on fixed `inputs` (N, ...) against the truth no_return (N, H, W) bool: Adam on the mean
+    cross-entropy of `predict(params, inputs[batch])`'s logits (`no_return_cross_entropy`, the training loss's
+    no-return term), `BATCH` windows a step drawn with NumPy's generator at `seed`, the rate cut tenfold after
+    `CUT_AT` of the steps."""
 
-    def loss(p, f, y):
-        return no_return_cross_entropy(no_return_logits(p, f[:, None].astype(jnp.float32), cfg)[:, 0], y)
+    def loss(p, x, y):
+        return no_return_cross_entropy(predict(p, x.astype(jnp.float32)), y)
 
     @jax.jit
-    def step(p, opt, f, y, rate):
-        value, grads = jax.value_and_grad(loss)(p, f, y)
+    def step(p, opt, x, y, rate):
+        value, grads = jax.value_and_grad(loss)(p, x, y)
         p, opt = adam_update(grads, opt, p, lr=rate)
         return p, opt, value
 
     rng = np.random.default_rng(seed)
-    opt, started, seen = adam_init(branch), time.time(), []
+    opt, started, seen = adam_init(params), time.time(), []
     for s in range(steps):
-        pick = rng.choice(len(features), BATCH, replace=False)
+        pick = rng.choice(len(inputs), BATCH, replace=False)
         rate = lr * (0.1 if s >= CUT_AT * steps else 1.0)
-        branch, opt, value = step(branch, opt, jnp.asarray(features[pick]), jnp.asarray(no_return[pick]), rate)
+        params, opt, value = step(params, opt, jnp.asarray(inputs[pick]), jnp.asarray(no_return[pick]), rate)
         seen.append(float(value))
         if (s + 1) % max(steps // 10, 1) == 0:
             log(f"step {s + 1}/{steps}: loss {np.mean(seen[-100:]):.4f} ({time.time() - started:.0f} s)")
-    return branch
+    return params
+
+
+def refit_branch(branch, features, no_return, cfg, *, steps: int, lr: float, seed: int = 0, log=print) -> dict:
+    """The branch trained on fixed features (N, h, w, F) (`fit_on_fixed`)."""
+    predict = lambda p, f: no_return_logits(p, f[:, None], cfg)[:, 0]  # noqa: E731
+    return fit_on_fixed(branch, predict, features, no_return, steps=steps, lr=lr, seed=seed, log=log)
+
+
+def hr_inputs(windows, depth, logit, scale: int) -> np.ndarray:
+    """What the HR convolutions read per HR pixel, (N, H, W, 2C + 1) float16 from windows (N, 2tr+1, h, w, C)
+    (depth, then photon channels), the network's depth (N, H, W) and the branch's logit (N, H, W): the logit
+    (clipped to +-`LOGIT_CLIP`, over `LOGIT_UNIT`), the depth, the LR pixel's C channels in the centre frame and its
+    C - 1 photon channels' means over the window, each LR value on its scale x scale block."""
+    windows = np.asarray(windows, np.float32)
+    lr = np.concatenate([windows[:, windows.shape[1] // 2], windows[..., 1:].mean(axis=1)], axis=-1)
+    lr = np.repeat(np.repeat(lr, scale, axis=1), scale, axis=2)
+    logit = np.clip(np.asarray(logit, np.float32), -LOGIT_CLIP, LOGIT_CLIP) / LOGIT_UNIT
+    return np.concatenate([logit[..., None], np.asarray(depth, np.float32)[..., None], lr], -1).astype(np.float16)
+
+
+def init_hr(key, channels: int) -> list:
+    """The HR convolutions' params: len(HR_DILATIONS) 3 x 3 convolutions of `HR_WIDTH` channels (Glorot-uniform,
+    zero bias) and a last 1 x 1 one with zero weights, so that they start at the branch's own logit."""
+    layers, cin = [], channels
+    for k in jax.random.split(key, len(HR_DILATIONS)):
+        limit = float(np.sqrt(6.0 / (9 * cin + 9 * HR_WIDTH)))
+        layers.append({"w": jax.random.uniform(k, (3, 3, cin, HR_WIDTH), minval=-limit, maxval=limit),
+                       "b": jnp.zeros(HR_WIDTH)})
+        cin = HR_WIDTH
+    return layers + [{"w": jnp.zeros((1, 1, HR_WIDTH, 1)), "b": jnp.zeros(1)}]
+
+
+def hr_logits(layers, x):
+    """The no-return logit (N, H, W) from `hr_inputs` x (N, H, W, C): the branch's logit (as clipped) plus what
+    the convolutions add (ReLU between them, zero padding at the frame's border)."""
+    def conv(h, layer, dilation):
+        return jax.lax.conv_general_dilated(h, layer["w"], (1, 1), "SAME", rhs_dilation=(dilation, dilation),
+                                            dimension_numbers=("NHWC", "HWIO", "NHWC")) + layer["b"]
+
+    h = x
+    for layer, dilation in zip(layers[:-1], HR_DILATIONS):
+        h = jax.nn.relu(conv(h, layer, dilation))
+    return LOGIT_UNIT * x[..., 0] + conv(h, layers[-1], 1)[..., 0]
+
+
+_hr_logits = jax.jit(hr_logits)
+
+
+def decisions(model, fits: dict, windows) -> tuple[np.ndarray, dict]:
+    """(the network's depth (N, H, W), {name: no-return logit (N, H, W)}) of each fit on `windows`: "bundled" and
+    "refitted" (branches on the head's features) and `HR` (convolutions on the bundled branch's logit)."""
+    cfg = dataclasses.replace(model.config, temporal="window")
+    depth, features = no_return_outputs(model, windows)[0], features_of(model, windows)
+    logit = {name: logits(fits[name], features, cfg) for name in ("bundled", "refitted")}
+    x = hr_inputs(windows, depth, logit["bundled"], cfg.scale)
+    logit[HR] = _batched(lambda b: _hr_logits(fits[HR], b.astype(jnp.float32)), x, 8)
+    return depth, logit
 
 
 def shares(depth, logit, gt, threshold: float, keep=None) -> tuple[float, float]:
@@ -180,27 +250,28 @@ def main(argv=None) -> None:
 
     train = no_return_set(cfg.tr, draws=args.draws, photon_range=(2.0, 1000.0), key=jax.random.key(REFIT_SEED),
                           patch=PATCH, inputs=cfg.inputs)
-    features = features_of(model, train["windows"])
+    features, no_return = features_of(model, train["windows"]), train["gt"] >= 1.0
     log(f"training set: {args.draws} windows and their features")
-    branches = {"bundled": model.params["no_return"]}
-    branches["refitted"] = refit_branch(branches["bundled"], features, train["gt"] >= 1.0, cfg, steps=args.steps,
-                                        lr=args.lr, log=log)
+    fits = {"bundled": model.params["no_return"]}
+    fits["refitted"] = refit_branch(fits["bundled"], features, no_return, cfg, steps=args.steps, lr=args.lr, log=log)
+    x = hr_inputs(train["windows"], no_return_outputs(model, train["windows"])[0],
+                  logits(fits["bundled"], features, cfg), cfg.scale)
     del features, train
+    fits[HR] = fit_on_fixed(init_hr(jax.random.key(REFIT_SEED), x.shape[-1]), hr_logits, x, no_return,
+                            steps=args.steps, lr=args.lr, log=log)
+    del x
 
     cal = no_return_set(cfg.tr, draws=args.calibration_draws, key=jax.random.key(CALIBRATION_SEED),
                         inputs=cfg.inputs)
-    cal_depth, cal_features = no_return_outputs(model, cal["windows"])[0], features_of(model, cal["windows"])
-    chosen = {}
-    for name, branch in branches.items():
-        table = no_return_table(cal_depth, logits(branch, cal_features, cfg), cal["gt"], cal["photons"])
-        chosen[name] = choose_no_return_logit(table)
+    cal_depth, cal_logits = decisions(model, fits, cal["windows"])
+    chosen = {name: choose_no_return_logit(no_return_table(cal_depth, logit, cal["gt"], cal["photons"]))
+              for name, logit in cal_logits.items()}
     log("thresholds: " + ", ".join(f"{n} {c['no_return_logit']:+.2f}" for n, c in chosen.items()))
 
     rows = []
     for level in benchmark_windows(model, args.photons, frames=args.frames, seed=args.seed):
-        depth, features = no_return_outputs(model, level["windows"])[0], features_of(model, level["windows"])
-        for name, branch in branches.items():
-            logit = logits(branch, features, cfg)
+        depth, level_logits = decisions(model, fits, level["windows"])
+        for name, logit in level_logits.items():
             best = best_threshold(depth, logit, level["gt"])
             row = {"photons": level["photons"], "branch": name, "chosen": chosen[name]["no_return_logit"],
                    "best": best}
@@ -209,10 +280,10 @@ def main(argv=None) -> None:
                 row[f"{where}_best"] = shares(depth, logit, level["gt"], best, keep)
             rows.append(row)
         log(f"{level['photons']:g} photons: " + "; ".join(
-            f"{r['branch']} {r['all'][0]:.2f} / {r['all'][1]:.2f} %" for r in rows[-len(branches):]))
+            f"{r['branch']} {r['all'][0]:.2f} / {r['all'][1]:.2f} %" for r in rows[-len(fits):]))
 
     if args.save:
-        refitted = dataclasses.replace(model, params={**model.params, "no_return": branches["refitted"]})
+        refitted = dataclasses.replace(model, params={**model.params, "no_return": fits["refitted"]})
         refitted = jaxsr.nn.with_no_return_logit(refitted, chosen["refitted"]["no_return_logit"])
         base_card = jaxsr.read_metadata(resolve_model_path(args.model)).get("card") or {}
         card = {**base_card, "no_return_refit": {"script": SCRIPT, "base": args.model, "draws": args.draws,
@@ -233,7 +304,10 @@ def write_report(out: Path, rows: list, chosen: dict, args, started: float) -> N
     text = header("Refitting the no-return branch on fixed features", started)
     text += (f"Model `{args.model}`; branch refitted on {args.draws} windows of {PATCH[0]} x {PATCH[1]} LR pixels "
              f"(photons 2-1000, the wide regime's SNRs, no-return regions on every clip), {args.steps} Adam steps of "
-             f"{BATCH} at {args.lr:g} (tenfold lower for the last {100 * (1 - CUT_AT):.0f} %). Thresholds chosen on "
+             f"{BATCH} at {args.lr:g} (tenfold lower for the last {100 * (1 - CUT_AT):.0f} %); {HR}: the bundled "
+             f"branch followed by {len(HR_DILATIONS)} 3 x 3 convolutions at HR ({HR_WIDTH} channels, dilations "
+             f"{', '.join(map(str, HR_DILATIONS))}) over its logit, the network's depth and the LR pixel's photon "
+             "channels (`hr_inputs`), trained the same way on the same windows. Thresholds chosen on "
              f"{args.calibration_draws} calibration frames (`calibrate_no_return`'s rule, at most "
              f"{GOAL_DROPPED:g} % dropped over 3-1000 photons): "
              + ", ".join(f"{n} {c['no_return_logit']:+.2f} (calibration: {c['as_depth']:.1f} % as depth, "
@@ -244,7 +318,7 @@ def write_report(out: Path, rows: list, chosen: dict, args, started: float) -> N
              f"goals hold (at most {GOAL_AS_DEPTH:g} / {GOAL_DROPPED:g} %). Interior: HR pixels whose LR block and "
              "its 8 neighbours are of one kind (photon_regimes.interior); edges: the others. `best`: the threshold "
              "with the least sky as depth dropping at most 2 % over all the level's pixels, chosen on those very "
-             "pixels (in-sample: a bound on the branch, not a result); the interior and edge columns at that same "
+             "pixels (in-sample: a bound on the decision, not a result); the interior and edge columns at that same "
              "threshold.\n\n")
     header_row = ["photons", "branch", "all pixels", "interior", "edges", "best threshold", "all pixels, best",
                   "interior, best", "edges, best"]

@@ -50,3 +50,28 @@ def test_refit_learns_a_branch_from_fixed_features():
     refitted = study.refit_branch(branch, features, truth, cfg, steps=150, lr=1e-2, log=lambda _: None)
     assert error(refitted) < 0.05
     assert jax.tree_util.tree_structure(refitted) == jax.tree_util.tree_structure(branch)
+
+
+def test_hr_inputs_put_each_lr_value_on_its_block():
+    rng = np.random.default_rng(1)
+    windows = rng.uniform(size=(2, 3, 2, 3, 4)).astype(np.float32)  # 3 frames of 2 x 3 LR pixels, 4 channels
+    depth, logit = rng.uniform(size=(2, 8, 12)), np.full((2, 8, 12), 100.0)
+    x = study.hr_inputs(windows, depth, logit, 4).astype(np.float32)
+    assert x.shape == (2, 8, 12, 2 * 4 + 1)
+    assert np.all(x[..., 0] == study.LOGIT_CLIP / study.LOGIT_UNIT)  # the logit clipped, in its unit
+    np.testing.assert_allclose(x[..., 1], depth, atol=1e-3)  # float16
+    np.testing.assert_allclose(x[:, 5, 9, 2:6], windows[:, 1, 1, 2], atol=1e-3)  # HR (5, 9) lies in LR (1, 2)
+    np.testing.assert_allclose(x[:, 5, 9, 6:], windows[:, :, 1, 2, 1:].mean(axis=1), atol=1e-3)
+
+
+def test_hr_convolutions_start_at_the_branch_and_learn_what_it_misses():
+    rng = np.random.default_rng(2)
+    x = rng.uniform(size=(64, 8, 8, 3)).astype(np.float16)
+    x[..., 0] = -1.0  # the branch says "return" everywhere (logit -4)
+    truth = x[..., 2] > 0.5  # what only another input shows
+    layers = study.init_hr(jax.random.key(0), 3)
+    start = np.asarray(study.hr_logits(layers, jnp.asarray(x, jnp.float32)))
+    np.testing.assert_array_equal(start, -study.LOGIT_UNIT)
+    fitted = study.fit_on_fixed(layers, study.hr_logits, x, truth, steps=300, lr=1e-2, log=lambda _: None)
+    error = np.mean((np.asarray(study.hr_logits(fitted, jnp.asarray(x, jnp.float32))) > 0) != truth)
+    assert error < 0.05 < np.mean(truth)
