@@ -33,6 +33,10 @@ Steps:
    threshold and at the threshold that is best on these very pixels (the smallest share "as depth" with at most
    2 % dropped: in-sample, a bound on what any threshold on that decision gives, not a result to quote).
 
+Static scenes (every training clip of the photon models moved; real recordings are static): `--static-prob P`
+draws that share of the training and calibration windows from static clips (`PhotonRegime.static_prob`), and
+`--static` benchmarks static scenes as photon_regimes.py --static does; `--hr-steps 0` leaves the HR convolutions out.
+
 Writes experiments/results/no_return_head.md (or --out) and a .json beside it; `--save PATH` also saves the
 refitted model (a .npz for `--model` of the benchmarks).
 """
@@ -51,6 +55,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxsr
+from jaxsr.config import PhotonRegime
 from jaxsr.eval.reports import header, markdown_table, write_atomic
 from jaxsr.eval.scoring import frame_windows, scored_frames
 from jaxsr.io.checkpoint import resolve_model_path, save_model
@@ -61,7 +66,8 @@ from jaxsr.training.no_return import DEFAULT_THRESHOLDS, choose_no_return_logit,
 from jaxsr.training.optim import adam_init, adam_update
 
 from photon_regimes import (AMBIENT_RADIUS, GOAL_AS_DEPTH, GOAL_DROPPED, NO_RETURN_MIN_PHOTONS, NO_RETURN_SNR,
-                            SEQUENCE_FRAMES, TEST_SCENES, interior, no_return_rates, regime_clips, with_no_return)
+                            SEQUENCE_FRAMES, TEST_SCENES, check_static, interior, no_return_rates, regime_clips,
+                            with_no_return)
 
 SCRIPT = "experiments/studies/no_return_head.py"
 REFIT_SEED = 2**31 - 3  # the training set's root key: apart from CALIBRATION_SEED (2**31 - 2) and the validation's
@@ -178,12 +184,14 @@ _hr_logits = jax.jit(hr_logits)
 
 def decisions(model, fits: dict, windows) -> tuple[np.ndarray, dict]:
     """(the network's depth (N, H, W), {name: no-return logit (N, H, W)}) of each fit on `windows`: "bundled" and
-    "refitted" (branches on the head's features) and `HR` (convolutions on the bundled branch's logit)."""
+    "refitted" (branches on the head's features) and, where fitted, `HR` (convolutions on the bundled branch's
+    logit)."""
     cfg = dataclasses.replace(model.config, temporal="window")
     depth, features = no_return_outputs(model, windows)[0], features_of(model, windows)
     logit = {name: logits(fits[name], features, cfg) for name in ("bundled", "refitted")}
-    x = hr_inputs(windows, depth, logit["bundled"], cfg.scale)
-    logit[HR] = _batched(lambda b: _hr_logits(fits[HR], b.astype(jnp.float32)), x, 8)
+    if HR in fits:
+        x = hr_inputs(windows, depth, logit["bundled"], cfg.scale)
+        logit[HR] = _batched(lambda b: _hr_logits(fits[HR], b.astype(jnp.float32)), x, 8)
     return depth, logit
 
 
@@ -202,18 +210,21 @@ def best_threshold(depth, logit, gt, thresholds=DEFAULT_THRESHOLDS) -> float:
     return choose_no_return_logit(one_band, target_dropped=GOAL_DROPPED, min_photons=0.0)["no_return_logit"]
 
 
-def benchmark_windows(model, photons, *, frames: int, seed: int) -> list[dict]:
+def benchmark_windows(model, photons, *, frames: int, seed: int, static: bool = False) -> list[dict]:
     """photon_regimes.py's no-return test data at each photon level (levels from 3 photons up, as there; the same
-    draws as its run with the same `--frames`, seed and levels): {"photons", "windows" (N, 2tr+1, h, w, C), "gt"
-    (N, H, W), "interior" (N, H, W) bool}, the scenes' scored frames stacked."""
-    seqs = with_no_return(jaxsr.scenes.test_sequences(n_frames=SEQUENCE_FRAMES, names=TEST_SCENES), seed=seed)
+    draws as its run with the same `--frames`, seed, levels and `--static`): {"photons", "windows" (N, 2tr+1, h,
+    w, C), "gt" (N, H, W), "interior" (N, H, W) bool}, the scenes' scored frames stacked."""
     scored, tr, scale = scored_frames(frames, SEQUENCE_FRAMES), model.config.tr, model.config.scale
     # photon_regimes draws the frames of TR4 (always scored there) and of the ambient test, +-4 around each
     radius = max(tr, AMBIENT_RADIUS)
+    if static:
+        check_static(scored, SEQUENCE_FRAMES, radius, "benchmark_windows")
+    seqs = with_no_return(jaxsr.scenes.test_sequences(n_frames=SEQUENCE_FRAMES, names=TEST_SCENES), seed=seed)
     levels = []
     for k, p in enumerate(photons):  # photon_regimes.evaluate's no-return keys: level k (from 3 photons) of seed + 1
         key = jax.random.fold_in(jax.random.key(seed + 1), k)
-        clips, _ = regime_clips(seqs, float(p), NO_RETURN_SNR, scored=scored, radius=radius, key=key)
+        clips, _ = regime_clips(seqs, float(p), NO_RETURN_SNR, scored=scored, radius=radius, key=key,
+                                static=static)
         windows = [frame_windows(c.network_input(model.config.inputs), c.scored, tr) for c in clips.values()]
         gt = np.concatenate([c.gt[c.scored] for c in clips.values()])
         levels.append({"photons": float(p), "windows": np.concatenate(windows), "gt": gt,
@@ -227,6 +238,13 @@ def main(argv=None) -> None:
     parser.add_argument("--draws", type=int, default=3072, help="training windows of 16 x 16 LR pixels (3072)")
     parser.add_argument("--steps", type=int, default=3000, help="Adam steps of 32 windows (3000)")
     parser.add_argument("--lr", type=float, default=1e-3, help="Adam's learning rate (1e-3)")
+    parser.add_argument("--hr-steps", type=int, default=None,
+                        help="Adam steps of the HR convolutions (default --steps; 0: not fitted)")
+    parser.add_argument("--static-prob", type=float, default=0.0,
+                        help="share of static clips in the training and calibration sets (PhotonRegime.static_prob, 0)")
+    parser.add_argument("--static", action="store_true",
+                        help="benchmark static scenes (photon_regimes.py --static: each frame shows the scored frame "
+                             "nearest to it)")
     parser.add_argument("--calibration-draws", type=int, default=CALIBRATION_DRAWS,
                         help=f"whole-frame windows the thresholds are chosen on ({CALIBRATION_DRAWS})")
     parser.add_argument("--frames", type=int, default=8, help="benchmark frames per scene (8)")
@@ -245,31 +263,39 @@ def main(argv=None) -> None:
     model = jaxsr.load_model(args.model)
     if not getattr(model.config, "no_return_head", False):
         parser.error(f"--model {args.model} has no no-return head: there is no branch to refit")
+    if args.hr_steps is not None and args.hr_steps < 0:
+        parser.error(f"--hr-steps: 0 or more steps, got {args.hr_steps}")
+    try:
+        regime = PhotonRegime(static_prob=args.static_prob)
+    except ValueError as e:
+        parser.error(f"--static-prob: {e}")
     cfg = dataclasses.replace(model.config, temporal="window")
     log = lambda msg: print(f"[{time.time() - started:5.0f} s] {msg}", flush=True)  # noqa: E731
 
     train = no_return_set(cfg.tr, draws=args.draws, photon_range=(2.0, 1000.0), key=jax.random.key(REFIT_SEED),
-                          patch=PATCH, inputs=cfg.inputs)
+                          patch=PATCH, inputs=cfg.inputs, regime=regime)
     features, no_return = features_of(model, train["windows"]), train["gt"] >= 1.0
     log(f"training set: {args.draws} windows and their features")
     fits = {"bundled": model.params["no_return"]}
     fits["refitted"] = refit_branch(fits["bundled"], features, no_return, cfg, steps=args.steps, lr=args.lr, log=log)
-    x = hr_inputs(train["windows"], no_return_outputs(model, train["windows"])[0],
-                  logits(fits["bundled"], features, cfg), cfg.scale)
+    hr_steps = args.steps if args.hr_steps is None else args.hr_steps
+    if hr_steps:
+        x = hr_inputs(train["windows"], no_return_outputs(model, train["windows"])[0],
+                      logits(fits["bundled"], features, cfg), cfg.scale)
+        fits[HR] = fit_on_fixed(init_hr(jax.random.key(REFIT_SEED), x.shape[-1]), hr_logits, x, no_return,
+                                steps=hr_steps, lr=args.lr, log=log)
+        del x
     del features, train
-    fits[HR] = fit_on_fixed(init_hr(jax.random.key(REFIT_SEED), x.shape[-1]), hr_logits, x, no_return,
-                            steps=args.steps, lr=args.lr, log=log)
-    del x
 
     cal = no_return_set(cfg.tr, draws=args.calibration_draws, key=jax.random.key(CALIBRATION_SEED),
-                        inputs=cfg.inputs)
+                        inputs=cfg.inputs, regime=regime)
     cal_depth, cal_logits = decisions(model, fits, cal["windows"])
     chosen = {name: choose_no_return_logit(no_return_table(cal_depth, logit, cal["gt"], cal["photons"]))
               for name, logit in cal_logits.items()}
     log("thresholds: " + ", ".join(f"{n} {c['no_return_logit']:+.2f}" for n, c in chosen.items()))
 
     rows = []
-    for level in benchmark_windows(model, args.photons, frames=args.frames, seed=args.seed):
+    for level in benchmark_windows(model, args.photons, frames=args.frames, seed=args.seed, static=args.static):
         depth, level_logits = decisions(model, fits, level["windows"])
         for name, logit in level_logits.items():
             best = best_threshold(depth, logit, level["gt"])
@@ -304,16 +330,22 @@ def write_report(out: Path, rows: list, chosen: dict, args, started: float) -> N
     text = header("Refitting the no-return branch on fixed features", started)
     text += (f"Model `{args.model}`; branch refitted on {args.draws} windows of {PATCH[0]} x {PATCH[1]} LR pixels "
              f"(photons 2-1000, the wide regime's SNRs, no-return regions on every clip), {args.steps} Adam steps of "
-             f"{BATCH} at {args.lr:g} (tenfold lower for the last {100 * (1 - CUT_AT):.0f} %); {HR}: the bundled "
-             f"branch followed by {len(HR_DILATIONS)} 3 x 3 convolutions at HR ({HR_WIDTH} channels, dilations "
-             f"{', '.join(map(str, HR_DILATIONS))}) over its logit, the network's depth and the LR pixel's photon "
-             "channels (`hr_inputs`), trained the same way on the same windows. Thresholds chosen on "
-             f"{args.calibration_draws} calibration frames (`calibrate_no_return`'s rule, at most "
+             f"{BATCH} at {args.lr:g} (tenfold lower for the last {100 * (1 - CUT_AT):.0f} %)"
+             + (f"; {HR}: the bundled branch followed by {len(HR_DILATIONS)} 3 x 3 convolutions at HR ({HR_WIDTH} "
+                f"channels, dilations {', '.join(map(str, HR_DILATIONS))}) over its logit, the network's depth and "
+                f"the LR pixel's photon channels (`hr_inputs`), trained the same way on the same windows "
+                f"({args.hr_steps if args.hr_steps is not None else args.steps} steps)" if HR in chosen else "")
+             + (f"; {100 * args.static_prob:g} % of the training and calibration clips static "
+                "(`PhotonRegime.static_prob`)" if args.static_prob else "")
+             + f". Thresholds chosen on {args.calibration_draws} calibration frames (`calibrate_no_return`'s rule, "
+             f"at most "
              f"{GOAL_DROPPED:g} % dropped over 3-1000 photons): "
              + ", ".join(f"{n} {c['no_return_logit']:+.2f} (calibration: {c['as_depth']:.1f} % as depth, "
                          f"{c['dropped']:.2f} % dropped, worst band)" for n, c in chosen.items())
              + f". Benchmark: the scenes and no-return regions of experiments/studies/photon_regimes.py, "
-             f"{args.frames} frames per scene, SNR {NO_RETURN_SNR:g}, noise seed {args.seed}.\n\n"
+             f"{args.frames} frames per scene, SNR {NO_RETURN_SNR:g}, noise seed {args.seed}"
+             + (", **static**: each frame shows the scored frame nearest to it (`--static`)" if args.static else "")
+             + ".\n\n"
              "Each cell: % of no-return HR pixels output as depth / % of true returns dropped; bold where both "
              f"goals hold (at most {GOAL_AS_DEPTH:g} / {GOAL_DROPPED:g} %). Interior: HR pixels whose LR block and "
              "its 8 neighbours are of one kind (photon_regimes.interior); edges: the others. `best`: the threshold "

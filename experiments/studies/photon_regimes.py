@@ -145,6 +145,15 @@ def nearest_scored(total: int, scored) -> np.ndarray:
     return scored[np.abs(np.arange(total)[:, None] - scored[None]).argmin(1)]
 
 
+def check_static(scored, total: int, window: int, name: str) -> None:
+    """Refuse static scenes (`regime_clips(static=True)`) whose scored frames' windows of +-`window` frames would
+    meet: each must hold its own scored frame alone, else a window would show two scenes."""
+    if len(scored) >= total or (len(scored) > 1 and 2 * window >= np.diff(scored).min()):
+        raise ValueError(f"{name}(static=True): each scored frame's window of +-{window} frames must hold it "
+                         f"alone; {len(scored)} scored frames of {total} are too close (fewer frames, or no "
+                         "sequence-form model)")
+
+
 def vars_of(seq) -> dict:
     """A sequence record's fields (a TestSequence or a SimpleNamespace)."""
     return seq._asdict() if hasattr(seq, "_asdict") else dict(vars(seq))
@@ -248,10 +257,8 @@ def evaluate(models: dict, seqs: dict, *, frames: int, photons=PHOTONS, snrs=SNR
     ambient = {label: decision_of(v) for label, v in (ambient or {}).items()}
     tests = tuple(sorted(set(ambient.values())))
     window = max(radius, AMBIENT_RADIUS) if tests else radius
-    if static and (len(scored) >= total or (len(scored) > 1 and 2 * window >= np.diff(scored).min())):
-        raise ValueError(f"evaluate(static=True): each scored frame's window of +-{window} frames must hold it "
-                         f"alone; {len(scored)} scored frames of {total} are too close (fewer frames, or no "
-                         "sequence-form model)")
+    if static:
+        check_static(scored, total, window, "evaluate")
 
     def outputs_of(label, model, clips, flags):
         if ambient.get(label, ("",))[0] == "keep":

@@ -1,5 +1,7 @@
 """experiments/studies/no_return_head.py: the decision's shares, the in-sample threshold, and the branch refit
-learning from fixed features."""
+learning from fixed features, the HR convolutions, the static benchmark's guard."""
+
+from types import SimpleNamespace
 
 import jax
 import jax.numpy as jnp
@@ -75,3 +77,9 @@ def test_hr_convolutions_start_at_the_branch_and_learn_what_it_misses():
     fitted = study.fit_on_fixed(layers, study.hr_logits, x, truth, steps=300, lr=1e-2, log=lambda _: None)
     error = np.mean((np.asarray(study.hr_logits(fitted, jnp.asarray(x, jnp.float32))) > 0) != truth)
     assert error < 0.05 < np.mean(truth)
+
+
+def test_static_benchmark_refuses_windows_that_would_hold_two_scenes():
+    model = SimpleNamespace(config=ModelConfig(tr=4))
+    with pytest.raises(ValueError, match="too close"):
+        study.benchmark_windows(model, [3.0], frames=study.SEQUENCE_FRAMES // 4, seed=0, static=True)
