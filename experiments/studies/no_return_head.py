@@ -16,8 +16,8 @@ does not, the features are what limit the decision, and only training the whole 
 The branch decides each HR pixel from its LR pixel's features alone; an edge inside an LR block might instead be
 placed from the decisions around it (as interpolating the blocks' true shares places it, no_return_edges.md), so a
 third fit keeps the bundled branch and adds three 3 x 3 convolutions at HR over its logit, the network's depth and
-the LR pixel's photon channels (`hr_inputs`; a field of 15 x 15 HR pixels, about four LR blocks across), trained
-on the same windows with the same loss and started at the bundled branch's decision.
+the LR pixel's inputs (`hr_inputs`; a field of 15 x 15 HR pixels, about four LR blocks across), trained on the
+same windows with the same loss and started at the bundled branch's decision (up to float16 rounding).
 
 Steps:
 1. Training set: `--draws` windows of 16 x 16 LR pixels from the wide photon regime with no-return regions on
@@ -156,7 +156,8 @@ def hr_inputs(windows, depth, logit, scale: int) -> np.ndarray:
 
 def init_hr(key, channels: int) -> list:
     """The HR convolutions' params: len(HR_DILATIONS) 3 x 3 convolutions of `HR_WIDTH` channels (Glorot-uniform,
-    zero bias) and a last 1 x 1 one with zero weights, so that they start at the branch's own logit."""
+    zero bias) and a last 1 x 1 one with zero weights, so that they start at the branch's own logit (as
+    `hr_inputs` carries it: clipped, in float16)."""
     layers, cin = [], channels
     for k in jax.random.split(key, len(HR_DILATIONS)):
         limit = float(np.sqrt(6.0 / (9 * cin + 9 * HR_WIDTH)))
@@ -265,6 +266,9 @@ def main(argv=None) -> None:
         parser.error(f"--model {args.model} has no no-return head: there is no branch to refit")
     if args.hr_steps is not None and args.hr_steps < 0:
         parser.error(f"--hr-steps: 0 or more steps, got {args.hr_steps}")
+    if args.hr_steps != 0 and len(model.config.inputs) < 2:
+        parser.error(f"--model {args.model} reads depth alone: the HR convolutions read its photon channels "
+                     "(--hr-steps 0 leaves them out)")
     try:
         regime = PhotonRegime(static_prob=args.static_prob)
     except ValueError as e:
@@ -313,7 +317,8 @@ def main(argv=None) -> None:
         refitted = jaxsr.nn.with_no_return_logit(refitted, chosen["refitted"]["no_return_logit"])
         base_card = jaxsr.read_metadata(resolve_model_path(args.model)).get("card") or {}
         card = {**base_card, "no_return_refit": {"script": SCRIPT, "base": args.model, "draws": args.draws,
-                                                 "steps": args.steps, "lr": args.lr, "seed": REFIT_SEED}}
+                                                 "steps": args.steps, "lr": args.lr, "seed": REFIT_SEED,
+                                                 "static_prob": args.static_prob}}
         save_model(args.save, refitted, card=card, storage_dtype="float16")
         log(f"saved {args.save}")
     write_report(Path(args.out), rows, chosen, args, started)
@@ -333,8 +338,9 @@ def write_report(out: Path, rows: list, chosen: dict, args, started: float) -> N
              f"{BATCH} at {args.lr:g} (tenfold lower for the last {100 * (1 - CUT_AT):.0f} %)"
              + (f"; {HR}: the bundled branch followed by {len(HR_DILATIONS)} 3 x 3 convolutions at HR ({HR_WIDTH} "
                 f"channels, dilations {', '.join(map(str, HR_DILATIONS))}) over its logit, the network's depth and "
-                f"the LR pixel's photon channels (`hr_inputs`), trained the same way on the same windows "
-                f"({args.hr_steps if args.hr_steps is not None else args.steps} steps)" if HR in chosen else "")
+                "the LR pixel's inputs (`hr_inputs`), trained the same way on the same windows"
+                + (f" ({args.hr_steps} steps)" if args.hr_steps not in (None, args.steps) else "")
+                if HR in chosen else "")
              + (f"; {100 * args.static_prob:g} % of the training and calibration clips static "
                 "(`PhotonRegime.static_prob`)" if args.static_prob else "")
              + f". Thresholds chosen on {args.calibration_draws} calibration frames (`calibrate_no_return`'s rule, "
@@ -360,7 +366,8 @@ def write_report(out: Path, rows: list, chosen: dict, args, started: float) -> N
     text += markdown_table(header_row, body) + "\n"
     out.parent.mkdir(parents=True, exist_ok=True)
     write_atomic(out, text)
-    write_atomic(out.with_suffix(".json"), json.dumps({"rows": rows, "chosen": chosen}, indent=1) + "\n")
+    write_atomic(out.with_suffix(".json"), json.dumps({"rows": rows, "chosen": chosen, "args": vars(args)}, indent=1)
+                 + "\n")
     print(f"wrote {out} and {out.with_suffix('.json')}")
 
 

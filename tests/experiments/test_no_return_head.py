@@ -69,11 +69,12 @@ def test_hr_inputs_put_each_lr_value_on_its_block():
 def test_hr_convolutions_start_at_the_branch_and_learn_what_it_misses():
     rng = np.random.default_rng(2)
     x = rng.uniform(size=(64, 8, 8, 3)).astype(np.float16)
-    x[..., 0] = -1.0  # the branch says "return" everywhere (logit -4)
+    branch = rng.uniform(-6.0, -2.0, size=(64, 8, 8))  # the branch says "return" everywhere, each pixel its own
+    x[..., 0] = study.hr_inputs(np.zeros((64, 1, 2, 2, 2)), np.zeros((64, 8, 8)), branch, 4)[..., 0]
     truth = x[..., 2] > 0.5  # what only another input shows
     layers = study.init_hr(jax.random.key(0), 3)
     start = np.asarray(study.hr_logits(layers, jnp.asarray(x, jnp.float32)))
-    np.testing.assert_array_equal(start, -study.LOGIT_UNIT)
+    np.testing.assert_allclose(start, branch, atol=5e-3)  # the branch's own logit, up to float16
     fitted = study.fit_on_fixed(layers, study.hr_logits, x, truth, steps=300, lr=1e-2, log=lambda _: None)
     error = np.mean((np.asarray(study.hr_logits(fitted, jnp.asarray(x, jnp.float32))) > 0) != truth)
     assert error < 0.05 < np.mean(truth)
@@ -83,3 +84,20 @@ def test_static_benchmark_refuses_windows_that_would_hold_two_scenes():
     model = SimpleNamespace(config=ModelConfig(tr=4))
     with pytest.raises(ValueError, match="too close"):
         study.benchmark_windows(model, [3.0], frames=study.SEQUENCE_FRAMES // 4, seed=0, static=True)
+
+
+def test_the_report_says_what_was_fitted_and_on_what(tmp_path):
+    args = study.argparse.Namespace(model="m", draws=8, steps=5, lr=1e-3, hr_steps=0, static_prob=0.3, static=True,
+                                    calibration_draws=4, frames=2, seed=0)
+    pick = {"no_return_logit": 1.0, "as_depth": 10.0, "dropped": 1.0}
+    row = {"photons": 3.0, "branch": "bundled", "chosen": 1.0, "best": 0.5,
+           **{k: (1.0, 1.0) for k in ("all", "interior", "edges", "all_best", "interior_best", "edges_best")}}
+    study.write_report(tmp_path / "r.md", [row], {"bundled": pick, "refitted": pick}, args, 0.0)
+    text = (tmp_path / "r.md").read_text()
+    assert study.HR not in text and "30 % of the training and calibration clips static" in text
+    assert "**static**" in text
+    study.write_report(tmp_path / "s.md", [row], {"bundled": pick, study.HR: pick},
+                       study.argparse.Namespace(**{**vars(args), "hr_steps": None, "static_prob": 0.0,
+                                                   "static": False}), 0.0)
+    text = (tmp_path / "s.md").read_text()
+    assert study.HR in text and "clips static" not in text and "**static**" not in text
