@@ -5,10 +5,12 @@ import dataclasses
 import json
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from jaxsr.config import PAPER_REGIME, PhotonRegime, SensorConfig, TrainConfig
+from jaxsr.nn.inputs import PHOTON_SCALE
 from jaxsr.training import regime_batches, regime_clips, regime_parameters
 
 SENSOR = SensorConfig()
@@ -205,3 +207,29 @@ def test_static_clips_repeat_their_centre_frame_under_new_photons():
     np.testing.assert_array_equal(gt_still[:, 1], gt_moving[:, 1])  # the centre frame is the moving clip's
     assert not np.array_equal(lr_still[:, 0], lr_still[:, 2])
     assert not np.array_equal(gt_moving[:, 0], gt_moving[:, 2])
+
+
+@pytest.mark.slow
+def test_static_clips_hold_the_centre_frames_intensity_too(monkeypatch):
+    """A static clip shows its centre frame's reflectivity in every frame, not only its depth: a flat wall that
+    brightens fivefold from the first frame to the last gives the first and last frames about the same signal
+    photons when static and a fivefold ratio when moving. (Slow: two data sources compiled.)"""
+    import jaxsr.training.data as data
+
+    def brightening(key, frames, *, sensor, shift_range, motion):
+        shape = (frames, *sensor.hr_shape)
+        return (jnp.full(shape, 10.0), jnp.linspace(0.2, 1.0, frames)[:, None, None] * jnp.ones(shape))
+
+    monkeypatch.setattr(data, "training_clip", brightening)
+    base = dict(signal_range=(200.0, 200.0), snr_range=(20.0, 20.0), no_return_prob=0.0, paper_prob=0.0,
+                dark_prob=0.0, hot_prob=0.0, dead_prob=0.0)
+    cfg = dataclasses.replace(TrainConfig(), batch_size=2, patch=None)
+
+    def last_over_first(static_prob):
+        make = regime_clips(3, cfg, PhotonRegime(**base, static_prob=static_prob), sensor=SENSOR,
+                            inputs=("depth", "signal"))
+        signal = np.expm1(np.asarray(jax.jit(make)(jax.random.key(3))[0])[..., 1] * np.log1p(PHOTON_SCALE))
+        return signal[:, 2].mean() / signal[:, 0].mean()
+
+    assert last_over_first(1.0) == pytest.approx(1.0, abs=0.05)
+    assert last_over_first(0.0) > 3.0
