@@ -60,6 +60,7 @@ from jaxsr.eval.reports import header, markdown_table, write_atomic
 from jaxsr.eval.scoring import frame_windows, scored_frames
 from jaxsr.io.checkpoint import resolve_model_path, save_model
 from jaxsr.nn import apply_model_features, no_return_logits
+from jaxsr.nn.layers import conv2d, glorot_limit
 from jaxsr.training import CALIBRATION_SEED, no_return_outputs, no_return_set
 from jaxsr.training.duf import no_return_cross_entropy
 from jaxsr.training.no_return import DEFAULT_THRESHOLDS, choose_no_return_logit, no_return_table
@@ -160,7 +161,7 @@ def init_hr(key, channels: int) -> list:
     `hr_inputs` carries it: clipped, in float16)."""
     layers, cin = [], channels
     for k in jax.random.split(key, len(HR_DILATIONS)):
-        limit = float(np.sqrt(6.0 / (9 * cin + 9 * HR_WIDTH)))
+        limit = glorot_limit((1, 3, 3), cin, HR_WIDTH)
         layers.append({"w": jax.random.uniform(k, (3, 3, cin, HR_WIDTH), minval=-limit, maxval=limit),
                        "b": jnp.zeros(HR_WIDTH)})
         cin = HR_WIDTH
@@ -170,14 +171,10 @@ def init_hr(key, channels: int) -> list:
 def hr_logits(layers, x):
     """The no-return logit (N, H, W) from `hr_inputs` x (N, H, W, C): the branch's logit (as clipped) plus what
     the convolutions add (ReLU between them, zero padding at the frame's border)."""
-    def conv(h, layer, dilation):
-        return jax.lax.conv_general_dilated(h, layer["w"], (1, 1), "SAME", rhs_dilation=(dilation, dilation),
-                                            dimension_numbers=("NHWC", "HWIO", "NHWC")) + layer["b"]
-
     h = x
     for layer, dilation in zip(layers[:-1], HR_DILATIONS):
-        h = jax.nn.relu(conv(h, layer, dilation))
-    return LOGIT_UNIT * x[..., 0] + conv(h, layers[-1], 1)[..., 0]
+        h = jax.nn.relu(conv2d(layer, h, dilation=dilation))
+    return LOGIT_UNIT * x[..., 0] + conv2d(layers[-1], h)[..., 0]
 
 
 _hr_logits = jax.jit(hr_logits)

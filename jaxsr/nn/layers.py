@@ -388,16 +388,17 @@ def init_conv2d(normal, kernel: int, cin: int, cout: int) -> dict:
     return {"w": std * normal((kernel, kernel, cin, cout)), "b": jnp.zeros((cout,), jnp.float32)}
 
 
-def conv2d(params, x, *, stride: int = 1, padding: int | None = None):
+def conv2d(params, x, *, stride: int = 1, padding: int | None = None, dilation: int = 1):
     """2D convolution (cross-correlation) of x (B, H, W, Cin) by params {"w": (k, k, Cin, Cout), "b": (Cout,)}.
 
-    Zero padding of `padding` pixels on every side (default (k - 1) // 2, "same" for odd k at stride 1).
-    Returns (B, (H + 2p - k) // stride + 1, (W + 2p - k) // stride + 1, Cout).
+    The kernel's taps `dilation` pixels apart (a field of d (k - 1) + 1 pixels); zero padding of `padding` pixels
+    on every side (default d (k - 1) // 2, "same" for odd k at stride 1).
+    Returns (B, (H + 2p - d (k - 1) - 1) // stride + 1, (W + 2p - d (k - 1) - 1) // stride + 1, Cout).
     """
     k = params["w"].shape[0]
-    p = (k - 1) // 2 if padding is None else padding
+    p = dilation * (k - 1) // 2 if padding is None else padding
     y = jax.lax.conv_general_dilated(x, params["w"], (stride, stride), ((p, p), (p, p)),
-                                     dimension_numbers=("NHWC", "HWIO", "NHWC"))
+                                     rhs_dilation=(dilation, dilation), dimension_numbers=("NHWC", "HWIO", "NHWC"))
     return y + params["b"]
 
 

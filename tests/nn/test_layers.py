@@ -8,6 +8,7 @@ import pytest
 
 from jaxsr.nn.layers import (
     batch_norm,
+    conv2d,
     conv3d,
     conv3d_native,
     conv3d_stacked,
@@ -228,3 +229,15 @@ def test_conv3d_precisions(impl):
     assert float(jnp.linalg.norm(g - g_ref) / jnp.linalg.norm(g_ref)) < 2e-2
     with pytest.raises(ValueError, match="precision"):
         conv3d(x, w, precision="tf16")
+
+
+def test_a_dilated_conv2d_is_the_kernel_spread_with_zeros():
+    rng = np.random.default_rng(0)
+    x = jnp.asarray(rng.normal(size=(2, 9, 11, 3)), jnp.float32)
+    w = rng.normal(size=(3, 3, 3, 4)).astype(np.float32)
+    spread = np.zeros((5, 5, 3, 4), np.float32)
+    spread[::2, ::2] = w  # taps two pixels apart
+    b = jnp.arange(4.0)
+    dilated = conv2d({"w": jnp.asarray(w), "b": b}, x, dilation=2)
+    assert dilated.shape == (2, 9, 11, 4)  # "same" by default
+    np.testing.assert_allclose(dilated, conv2d({"w": jnp.asarray(spread), "b": b}, x), rtol=1e-5, atol=1e-5)
