@@ -17,7 +17,7 @@ import math
 import jax
 import jax.numpy as jnp
 
-from ..config import ModelConfig
+from ..config import PRECISIONS, TEMPORAL_FORMS, ModelConfig
 from .layers import (
     CONV3D_IMPLS,
     PRECISIONS,
@@ -524,11 +524,10 @@ def with_no_return_logit(model, logit):
     returns and leaves more pixels without one as depth (0.0: p = 0.5; +2.0: p = 0.88); the trade is measured
     in experiments/results/photon_regimes.md and real_photons.md. Raises ValueError for a model without the
     head or a logit that is not a finite number."""
-    cfg = getattr(model, "config", None)
-    if not getattr(cfg, "no_return_head", False):
+    if not (isinstance(model, Model) and model.has_no_return_head):
         raise ValueError("no_return_logit applies to models with a no-return head (such as tr4-ambient and "
-                         f"tr4-photons); this one has none ({type(cfg).__name__})")
-    return dataclasses.replace(model, config=dataclasses.replace(cfg, no_return_logit=logit))
+                         f"tr4-photons); this one has none ({type(getattr(model, 'config', model)).__name__})")
+    return dataclasses.replace(model, config=dataclasses.replace(model.config, no_return_logit=logit))
 
 
 def _describe(cfg: ModelConfig, lr_shape) -> dict:
@@ -538,4 +537,7 @@ def _describe(cfg: ModelConfig, lr_shape) -> dict:
 
 DUF = register_architecture(Architecture(
     "duf", ModelConfig, init_model, apply_model, input_radius=lambda cfg: cfg.input_radius,
-    sequence_form=lambda cfg: cfg.temporal == "sequence", receptive_radius=spatial_radius, describe=_describe))
+    sequence_form=lambda cfg: cfg.temporal == "sequence", receptive_radius=spatial_radius, describe=_describe,
+    channels=lambda cfg: cfg.inputs, no_return_head=lambda cfg: cfg.no_return_head, forms=TEMPORAL_FORMS,
+    form=lambda cfg: cfg.temporal, with_form=lambda cfg, form: dataclasses.replace(cfg, temporal=form),
+    precisions=PRECISIONS))

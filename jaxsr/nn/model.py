@@ -6,6 +6,11 @@ centre-of-mass depth, or "histograms": LR photon histograms with the HR intensit
 registers itself as "duf" (`jaxsr.nn.duf`), the learned baselines as "histnet" and "iseebetter"
 (`jaxsr.baselines`). A `Model` finds its architecture from the type of its config, so saving, loading,
 super-resolving and training take any model the same way, and a new network joins by `register_architecture`.
+
+The architecture answers every question the rest of the library asks of a network: what it reads
+(`reads_histograms`, `channels`), whether it marks no return (`no_return_head`), which temporal forms it runs
+(`forms`, `form`, `with_form`) and how its arithmetic may run (`precisions`). Nothing outside `jaxsr.nn` compares
+an architecture's name or a config's fields.
 """
 
 from __future__ import annotations
@@ -36,6 +41,12 @@ class Architecture:
     pixels an output pixel reads around itself (None: unknown or the whole frame, so inference does not cut frames
     into tiles).
     describe(cfg, lr_shape) -> dict of extra facts for `jaxsr.io.model_info`.
+    channels(cfg): what the network reads per LR pixel, depth first (`jaxsr.config.MODEL_INPUTS`; ("depth",) for
+    a network of centre-of-mass depth alone). no_return_head(cfg): True when its output carries a per-pixel
+    no-return logit beside the depth. forms: the temporal forms it can run in (`jaxsr.config.TEMPORAL_FORMS`; ()
+    for a network with a single form of its own); form(cfg): the one `cfg` runs in (None without forms);
+    with_form(cfg, form): `cfg` in another of its forms (the same parameters). precisions: the
+    `jaxsr.config.PRECISIONS` its convolutions can take ("default" only for a network that takes none).
     """
 
     name: str
@@ -49,10 +60,27 @@ class Architecture:
     sequence_form: Callable = lambda cfg: False
     receptive_radius: Callable = lambda cfg: None
     describe: Callable = lambda cfg, lr_shape: {}
+    channels: Callable = lambda cfg: ("depth",)
+    no_return_head: Callable = lambda cfg: False
+    forms: tuple = ()
+    form: Callable = lambda cfg: None
+    with_form: Callable | None = None
+    precisions: tuple = ("default",)
 
     def __post_init__(self):
         if self.inputs not in INPUT_KINDS:
             raise ValueError(f"Architecture {self.name!r}: inputs must be one of {INPUT_KINDS}, got {self.inputs!r}")
+        if self.forms and self.with_form is None:
+            raise ValueError(f"Architecture {self.name!r}: forms {self.forms} need with_form(cfg, form)")
+
+    @property
+    def reads_histograms(self) -> bool:
+        """True when the network reads LR photon histograms with the HR intensity, not windows of LR frames."""
+        return self.inputs == "histograms"
+
+    def reads_photons(self, cfg) -> bool:
+        """True when the network needs more than centre-of-mass depth: histograms, or photon channels."""
+        return self.reads_histograms or tuple(self.channels(cfg)) != ("depth",)
 
     def template(self, cfg):
         """Shapes and dtypes of (params, state) for `cfg`, computing nothing."""
@@ -110,6 +138,51 @@ class Model:
     def kind(self) -> str:
         """The architecture's name: "duf", "histnet" or "iseebetter"."""
         return self.architecture.name
+
+    @property
+    def channels(self) -> tuple[str, ...]:
+        """What the network reads per LR pixel, depth first (`Architecture.channels`)."""
+        return tuple(self.architecture.channels(self.config))
+
+    @property
+    def reads_histograms(self) -> bool:
+        """True when the network reads photon histograms with the HR intensity (`Architecture.reads_histograms`)."""
+        return self.architecture.reads_histograms
+
+    @property
+    def reads_photons(self) -> bool:
+        """True when depth frames alone cannot feed it: it reads histograms or photon channels."""
+        return self.architecture.reads_photons(self.config)
+
+    @property
+    def has_no_return_head(self) -> bool:
+        """True when the network marks no return itself (`Architecture.no_return_head`)."""
+        return bool(self.architecture.no_return_head(self.config))
+
+    @property
+    def forms(self) -> tuple[str, ...]:
+        """The temporal forms the network can run in (() for a network with a single form of its own)."""
+        return tuple(self.architecture.forms)
+
+    @property
+    def form(self) -> str | None:
+        """The temporal form the model runs in now ("window", "sequence"; None without forms)."""
+        return self.architecture.form(self.config)
+
+    @property
+    def sequence_form(self) -> bool:
+        """True when it runs on whole sequences rather than one window per output frame."""
+        return bool(self.architecture.sequence_form(self.config))
+
+    def in_form(self, form: str) -> "Model":
+        """The same weights in temporal form `form` (one of `forms`); itself when it runs in it already. Raises
+        ValueError for a form the architecture does not run."""
+        if form not in self.forms:
+            raise ValueError(f"form {form!r} applies to networks with temporal forms; a {self.kind} model runs in "
+                             + (f"one of {self.forms}" if self.forms else "its own form only"))
+        if self.form == form:
+            return self
+        return Model(self.params, self.state, self.architecture.with_form(self.config, form))
 
     def __call__(self, inputs):
         """Inference on one batch: (B, frames, h, w) LR windows, or (counts, intensity) for a histogram
