@@ -2,7 +2,8 @@
 
 The pipeline's stages are subpackages: `jaxsr.sensor` (histograms from depth, depth from histograms),
 `jaxsr.scenes` (procedural depth video), `jaxsr.nn` (the network), `jaxsr.baselines`, `jaxsr.training`,
-`jaxsr.inference`, `jaxsr.io` and `jaxsr.eval`. The names a user's script needs are here at the top level
+`jaxsr.inference`, `jaxsr.io` and `jaxsr.eval`; `jaxsr.app` is the application of the command (`upscale`,
+`simulate_recording`). The names a user's script needs are here at the top level
 (`__all__`); everything else is imported from its subpackage.
 """
 
@@ -16,7 +17,8 @@ _guard_cpu_fusions()
 import importlib as _importlib
 import warnings as _warnings
 
-from . import baselines, eval, inference, io, nn, scenes, sensor, training
+from . import app, baselines, eval, inference, io, nn, scenes, sensor, training
+from .app import simulate_recording, upscale
 from .baselines import bicubic, lanczos, tv_super_resolve
 from .config import PRESETS, DepthScale, Gate, ModelConfig, SensorConfig, TrainConfig
 from .eval import paired_interval, psnr, ssim, ssim_global, temporal_coherence
@@ -27,7 +29,6 @@ from .inference import (
     pipeline_metric,
     super_resolve,
     super_resolve_histograms,
-    upscale,
 )
 from .io import (
     load_model,
@@ -41,7 +42,6 @@ from .io import (
     write_preview,
     write_sequence,
 )
-from .io import simulate_recording
 from .nn import Model, apply_model, apply_model_sequence, init_model
 from .sensor import (
     TimeTags,
@@ -60,7 +60,7 @@ from .training import evaluate, fit
 
 __all__ = [
     # the pipeline's stages
-    "sensor", "scenes", "nn", "baselines", "training", "inference", "io", "eval",
+    "sensor", "scenes", "nn", "baselines", "training", "inference", "io", "eval", "app",
     # configuration
     "SensorConfig", "ModelConfig", "TrainConfig", "Gate", "DepthScale", "PRESETS",
     # sensor: depth -> photons -> depth

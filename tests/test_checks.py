@@ -42,8 +42,8 @@ def test_anything_but_one_positive_number_is_refused_in_the_callers_words(value,
 
 
 def test_the_time_unit_and_the_upscale_options_share_the_check():
-    """`recording._positive` (time_unit, span of `upscale`) and `timetags._time_unit` each had their own copy."""
-    from jaxsr.inference.recording import _positive
+    """`jaxsr.app.specs._positive` (time_unit, span of `Reading`) and `timetags._time_unit` each had their own copy."""
+    from jaxsr.app.specs import _positive
     from jaxsr.sensor.quantities import parse_time_unit
     from jaxsr.sensor.timetags import _time_unit
 

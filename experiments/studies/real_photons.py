@@ -61,7 +61,7 @@ import jaxsr
 from jaxsr.eval.reports import hand_written_tail, header, markdown_table, save_figure, write_atomic
 from jaxsr.eval.scoring import format_interval
 from jaxsr.inference import iter_network_inputs, lr_blocks, no_return_where
-from jaxsr.io.recordings import gate_frames
+from jaxsr.app.recordings import gate_frames
 from jaxsr.sensor.timetags import TimeTags
 from photon_regimes import (NO_RETURN_AT, TV_TR, decision_of, load_models, no_return_decision,  # experiments/studies
                             returns_kept)

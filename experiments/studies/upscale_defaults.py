@@ -50,9 +50,8 @@ import jaxsr
 from jaxsr.config import SensorConfig
 from jaxsr.eval.reports import header, markdown_table, write_atomic
 from jaxsr.eval.scoring import SCENE_LABELS
-from jaxsr.inference import (AUTO_AMBIENT_ALPHA, AUTO_AMBIENT_MIN_SIGNAL_SNR, AUTO_AMBIENT_MIN_SNR, FEW_PHOTONS,
-                             auto_ambient_alpha, photon_levels)
-from jaxsr.inference.recording import HEAD_FRAMES
+from jaxsr.app import (AUTO_AMBIENT_ALPHA, AUTO_AMBIENT_MIN_SIGNAL_SNR, AUTO_AMBIENT_MIN_SNR, FEW_PHOTONS, HEAD_FRAMES,
+                       auto_ambient_alpha, photon_levels)
 from jaxsr.sensor import calibrated_rates, sample_poisson
 
 SNRS = (0.1, 0.2, 0.3, 0.5, 0.8, 1.3, 5.0)

@@ -3,7 +3,7 @@ and the centre-of-mass depth, and write DIR/histograms.npz (counts, ground-truth
 DIR/com_depth.npy ((T, h, w) normalised depth), DIR/gt_depth.npy ((T, H, W) radial metres) and PNG previews
 of the first frame. Prints a JSON summary with the bicubic baseline's PSNR and SSIM.
 
-Argument parsing and messages only: the work is `jaxsr.io.simulate.simulate_recording` (the same options as
+Argument parsing and messages only: the work is `jaxsr.app.simulate_recording` (the same options as
 keyword arguments), which writes into a hidden temporary folder beside DIR and moves the files into DIR when all
 are written, so a failed or stopped run leaves nothing behind.
 """
@@ -13,7 +13,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ..io.simulate import simulate_recording
+from ..app.simulate import simulate_recording
 from ..checks import MEMORY_SHARE
 from ._args import int_range, memory, positive_float, seed
 

@@ -1,7 +1,7 @@
 """`jaxsr upscale`: super-resolve a recording (depth, histograms or photon time tags) with a trained model.
 
-Argument parsing and messages only: the work is `jaxsr.inference.recording.upscale` (the same options as keyword
-arguments). Frames stream from the input through the model to the output, so a long recording needs memory for a
+Argument parsing and messages only: the flags become the application's four specifications (`jaxsr.app.Reading`,
+`ModelChoice`, `PhotonRules`, `Writing`) and the work is `jaxsr.app.upscale`. Frames stream from the input through the model to the output, so a long recording needs memory for a
 batch, not for the whole sequence. Everything is checked before the model runs: the options, the output and
 preview paths, the model, and every input frame. Histograms and photon time tags are read over a gate (--bins,
 --bin-width, --gate-start) and put on the network's scale with the gate's start as its 0 m and --span metres
@@ -18,12 +18,11 @@ from __future__ import annotations
 import json
 import sys
 
+from ..app import (AUTO_AMBIENT_ALPHA, AUTO_AMBIENT_MIN_FRAMES, AUTO_AMBIENT_MIN_SIGNAL_SNR, AUTO_AMBIENT_MIN_SNR,
+                   AUTO_KEEP_RETURNS, DEPTH_UNITS, FRAME_FORMATS, KINDS, ModelChoice, PhotonRules, Reading, Writing,
+                   upscale)
 from ..config import PRECISIONS, TRAINED_RANGE_M
-from ..inference.recording import (AUTO_AMBIENT_ALPHA, AUTO_AMBIENT_MIN_FRAMES, AUTO_AMBIENT_MIN_SIGNAL_SNR,
-                                   AUTO_AMBIENT_MIN_SNR, AUTO_KEEP_RETURNS, upscale)
-from ..inference.video import DEFAULT_FORM, DEFAULT_PRECISION, FORMS, SEQUENCE_FORM_MIN_FRAMES, SEQUENCE_FORM_TRS
-from ..io.pointcloud import DEFAULT_FOV_DEG
-from ..io.recordings import DEPTH_UNITS
+from ..inference import DEFAULT_FORM, DEFAULT_PRECISION, FORMS, SEQUENCE_FORM_MIN_FRAMES, SEQUENCE_FORM_TRS
 from ..checks import MEMORY_SHARE
 from ._args import ambient_alpha, finite_float, int_range, memory, positive_float, range_or_time, span, time_unit
 
@@ -42,7 +41,7 @@ def add_parser(subparsers):
     p.add_argument("--model", default="default", help="default (the bundled model that fits the input), tr0..tr4 "
                    "(bundled weights; paper-tr0..paper-tr4 always the paper's), auto (choose TR from the measured "
                    "motion), or a checkpoint path")
-    p.add_argument("--input", dest="input_kind", choices=["depth", "histograms", "timetags"], default=None,
+    p.add_argument("--input", dest="input_kind", choices=list(KINDS), default=None,
                    help="what INPUT holds (default: depth or histograms from the data; time tags must be named)")
     g = p.add_argument_group("histogram gate (histograms and time tags)")
     g.add_argument("--bins", type=int_range(2), default=None, help="histogram bins K (default 16)")
@@ -69,7 +68,7 @@ def add_parser(subparsers):
                    "return too in mm and cm, as in 16-bit depth images), or normalised [0, 1] (1 = no return); "
                    "default: normalised if the first frame lies in [0, 1], else metres, but never a guess for "
                    "integer arrays (mm? cm?) or values that could be km; histograms give metres")
-    p.add_argument("--frame-format", choices=["exr", "pfm", "tif", "png"], default=None,
+    p.add_argument("--frame-format", choices=list(FRAME_FORMATS), default=None,
                    help="frame files when OUTPUT is a folder (default exr; always metres; 16-bit png holds 1 mm to "
                    "65.535 m)")
     p.add_argument("--batch-size", type=int_range(1), default=None,
@@ -134,17 +133,17 @@ def add_parser(subparsers):
 
 
 def run(args) -> int:
-    result = upscale(args.input, args.output, model=args.model, kind=args.input_kind, bins=args.bins,
-                     bin_width=args.bin_width, gate_start=args.gate_start, span=args.span, time_unit=args.time_unit,
-                     variable=args.variable, drop_outside=args.drop_outside, units=args.units,
-                     frame_format=args.frame_format, batch_size=args.batch_size, min_fps=args.min_fps,
-                     preview=args.preview, video=args.video, fps=args.fps, reference=args.reference,
-                     points=args.points, fov_deg=DEFAULT_FOV_DEG if args.fov is None else args.fov,
-                     points_colour=None if args.points_colour == "none" else args.points_colour,
-                     overwrite=args.force, progress=not args.no_progress, clip_negative=args.clip_negative,
-                     max_memory=args.max_memory, precision=args.precision, form=args.form,
-                     no_return_logit=args.no_return_logit, ambient_alpha=args.ambient_alpha,
-                     keep_returns=args.keep_returns,
+    read = Reading(kind=args.input_kind, bins=args.bins, bin_width=args.bin_width, gate_start=args.gate_start,
+                   span=args.span, time_unit=args.time_unit, variable=args.variable, drop_outside=args.drop_outside,
+                   clip_negative=args.clip_negative, units=args.units)
+    model = ModelChoice(args.model, form=args.form, precision=args.precision, no_return_logit=args.no_return_logit,
+                        min_fps=args.min_fps)
+    photons = PhotonRules(ambient_alpha=args.ambient_alpha, keep_returns=args.keep_returns)
+    write = Writing(frame_format=args.frame_format, preview=args.preview, video=args.video, fps=args.fps,
+                    reference=args.reference, points=args.points, fov_deg=args.fov,
+                    points_colour=None if args.points_colour == "none" else args.points_colour, overwrite=args.force)
+    result = upscale(args.input, args.output, model=model, read=read, photons=photons, write=write,
+                     batch_size=args.batch_size, max_memory=args.max_memory, progress=not args.no_progress,
                      report=lambda line: print(f"jaxsr upscale: {line}", file=sys.stderr, flush=True))
     print(json.dumps(result.summary()))
     return 0

@@ -1,5 +1,6 @@
-"""Super-resolution of recordings (windows, sequences, streams), scene-adaptive TR and the whole pipeline as
-one differentiable metric.
+"""The engine: super-resolution of frame sequences (windows, sequences, streams, photon streams), scene-adaptive TR
+and the whole pipeline as one differentiable metric. Reading and writing recordings is the application's
+(`jaxsr.app`).
 """
 
 from .video import (
@@ -43,24 +44,6 @@ from .pipeline import (
     METRICS,
     pipeline_metric,
 )
-from .recording import (
-    AUTO_AMBIENT_ALPHA,
-    AUTO_KEEP_RETURNS,
-    AUTO_AMBIENT_MIN_FRAMES,
-    AUTO_AMBIENT_MIN_SNR,
-    AUTO_AMBIENT_MIN_SIGNAL_SNR,
-    DEFAULT_MODELS,
-    FEW_PHOTONS,
-    PhotonLevels,
-    auto_ambient_alpha,
-    photon_levels,
-    UpscaleJob,
-    UpscaleResult,
-    prepare_upscale,
-    write_upscaled,
-    upscale,
-    upscale_memory,
-)
 
 __all__ = [
     "DEFAULT_BATCH_SIZE",
@@ -83,15 +66,6 @@ __all__ = [
     "no_return_where",
     "overrule_no_return",
     "lr_blocks",
-    "AUTO_AMBIENT_ALPHA",
-    "AUTO_KEEP_RETURNS",
-    "AUTO_AMBIENT_MIN_SNR",
-    "AUTO_AMBIENT_MIN_SIGNAL_SNR",
-    "AUTO_AMBIENT_MIN_FRAMES",
-    "auto_ambient_alpha",
-    "FEW_PHOTONS",
-    "PhotonLevels",
-    "photon_levels",
     "super_resolve_histograms",
     "Stream",
     "STUDY_TABLE",
@@ -107,11 +81,4 @@ __all__ = [
     "resolve_model",
     "METRICS",
     "pipeline_metric",
-    "UpscaleJob",
-    "UpscaleResult",
-    "DEFAULT_MODELS",
-    "prepare_upscale",
-    "write_upscaled",
-    "upscale",
-    "upscale_memory",
 ]

@@ -1,4 +1,4 @@
-"""Files: depth and histogram formats, recordings, checkpoints and bundled weights, previews, depth videos
+"""Files: depth and histogram formats, checkpoints and bundled weights, previews, depth videos
 (`write_depth_video`), PLY point clouds (`write_point_clouds`), atomic writes.
 """
 
@@ -26,23 +26,6 @@ from .formats import (
     write_histograms,
     read_histograms,
     read_airsim,
-)
-from .recordings import (
-    FRAME_FORMATS,
-    ARRAY_FORMATS,
-    Recording,
-    open_recording,
-    check_frames,
-    gate_frames,
-    time_tag_recording,
-    normalised_frames,
-    guess_units,
-    check_output,
-    check_preview,
-    to_units,
-    to_metres,
-    DEPTH_UNITS,
-    METRES_PER_UNIT,
 )
 from .checkpoint import (
     FORMAT_VERSION,
@@ -81,11 +64,6 @@ from .pointcloud import (
     PointCloudWriter,
     check_points_folder,
 )
-from .simulate import (
-    SIMULATION_OUTPUTS,
-    Simulation,
-    simulate_recording,
-)
 
 __all__ = [
     "NotWritableError",
@@ -109,21 +87,6 @@ __all__ = [
     "write_histograms",
     "read_histograms",
     "read_airsim",
-    "FRAME_FORMATS",
-    "ARRAY_FORMATS",
-    "Recording",
-    "open_recording",
-    "check_frames",
-    "gate_frames",
-    "time_tag_recording",
-    "normalised_frames",
-    "guess_units",
-    "check_output",
-    "check_preview",
-    "to_units",
-    "to_metres",
-    "DEPTH_UNITS",
-    "METRES_PER_UNIT",
     "FORMAT_VERSION",
     "LEGACY_FIELDS",
     "flatten_tree",
@@ -153,7 +116,4 @@ __all__ = [
     "write_point_clouds",
     "PointCloudWriter",
     "check_points_folder",
-    "SIMULATION_OUTPUTS",
-    "Simulation",
-    "simulate_recording",
 ]

@@ -47,6 +47,8 @@ class Architecture:
     for a network with a single form of its own); form(cfg): the one `cfg` runs in (None without forms);
     with_form(cfg, form): `cfg` in another of its forms (the same parameters). precisions: the
     `jaxsr.config.PRECISIONS` its convolutions can take ("default" only for a network that takes none).
+    feature_bytes(cfg, batch_size): bytes the network holds per LR pixel of a tile and output frame while it runs
+    in inference, batch_size outputs at a time (None: unknown; memory estimates then count it as the DUF TR4).
     """
 
     name: str
@@ -66,6 +68,7 @@ class Architecture:
     form: Callable = lambda cfg: None
     with_form: Callable | None = None
     precisions: tuple = ("default",)
+    feature_bytes: Callable | None = None
 
     def __post_init__(self):
         if self.inputs not in INPUT_KINDS:

@@ -11,7 +11,7 @@ import jax
 import numpy as np
 import pytest
 
-import jaxsr.inference.recording as recording
+import jaxsr.app.writing as recording
 import jaxsr.training.presets as presets
 from jaxsr import cli
 from jaxsr.config import ModelConfig

@@ -19,3 +19,4 @@ def model_path(tmp_path_factory):
     path = tmp_path_factory.mktemp("model") / "tiny.npz"
     save_model(path, model, card={"data": "none: random weights for tests"})
     return path
+

@@ -13,7 +13,7 @@ import pytest
 import jaxsr
 from jaxsr import cli
 from jaxsr.config import ModelConfig, SensorConfig
-from jaxsr.inference import prepare_upscale, upscale, upscale_memory
+from jaxsr.app import ModelChoice, Reading, prepare_upscale, upscale, upscale_memory
 from jaxsr.inference.video import (DEFAULT_FORM, DEFAULT_PRECISION, SEQUENCE_FORM_MIN_FRAMES, SEQUENCE_FORM_TRS,
                                    Stream, in_form, iter_super_resolve, super_resolve, super_resolve_histograms)
 from jaxsr.nn import Model, apply_model_sequence, init_model
@@ -58,7 +58,7 @@ def test_an_unknown_precision_is_refused_naming_the_choices(bad):
     with pytest.raises(ValueError, match="Stream: " + choices):
         Stream(model, precision=bad)
     with pytest.raises(ValueError, match=r"precision \(--precision\) is one of 'default', 'float32', 'bfloat16'"):
-        upscale(seq, None, model=model, precision=bad)
+        upscale(seq, None, model=ModelChoice(model, precision=bad))
 
 
 def test_bfloat16_applies_to_the_duf_network_only():
@@ -181,14 +181,14 @@ def tr3_path(tmp_path_factory):
 def test_upscale_says_how_the_network_ran(tr3_path, tmp_path, capsys):
     model_path = tr3_path
     lr = _seq(SEQUENCE_FORM_MIN_FRAMES, seed=7, shape=(8, 8))
-    job = prepare_upscale(lr, model=model_path, units="normalised")
+    job = prepare_upscale(lr, model=model_path, read=Reading(units="normalised"))
     assert job.model.config.temporal == "sequence" and job.precision == "default"
     assert job.note.endswith("model " + str(model_path) + ", sequence form")
-    job = prepare_upscale(lr[:3], model=model_path, units="normalised", precision="bfloat16")
+    job = prepare_upscale(lr[:3], model=ModelChoice(model_path, precision="bfloat16"), read=Reading(units="normalised"))
     assert job.model.config.temporal == "window" and job.note.endswith(", precision bfloat16")
-    auto = upscale(lr, None, model=model_path, units="normalised").depth
+    auto = upscale(lr, None, model=model_path, read=Reading(units="normalised")).depth
     np.testing.assert_allclose(auto, super_resolve(jaxsr.load_model(model_path), lr, form="sequence"), atol=1e-6)
-    window = upscale(lr, None, model=model_path, units="normalised", form="window").depth
+    window = upscale(lr, None, model=ModelChoice(model_path, form="window"), read=Reading(units="normalised")).depth
     assert np.abs(window - auto).max() > 1e-3
     np.save(tmp_path / "in.npy", lr)
     status = cli.main(["upscale", str(tmp_path / "in.npy"), str(tmp_path / "out.npy"), "--model", str(model_path),
@@ -204,8 +204,8 @@ def test_the_memory_estimate_counts_the_sequence_forms_shared_frames(tr3_path):
     """A window-form output holds its window's 2 TR + 1 frames of features; a sequence-form chunk of B outputs
     holds B + 2R frames for all of them, fewer per output once B > 2R / (2 TR)."""
     lr = _seq(40, seed=8, shape=(8, 8))
-    seq = prepare_upscale(lr, model=tr3_path, units="normalised")
-    win = prepare_upscale(lr, model=tr3_path, units="normalised", form="window")
+    seq = prepare_upscale(lr, model=tr3_path, read=Reading(units="normalised"))
+    win = prepare_upscale(lr, model=ModelChoice(tr3_path, form="window"), read=Reading(units="normalised"))
     assert seq.model.config.temporal == "sequence" and win.model.config.temporal == "window"
     assert upscale_memory(seq, batch_size=32, in_memory=False) < upscale_memory(win, batch_size=32, in_memory=False)
 
@@ -223,7 +223,7 @@ def test_the_command_refuses_an_unknown_choice(option, bad, model_path, tmp_path
 
 def test_upscale_refuses_a_form_or_precision_the_model_cannot_take(tmp_path):
     with pytest.raises(ValueError, match=r"form \(--form\) is one of 'auto', 'model', 'window', 'sequence'"):
-        upscale(_seq(2, shape=(8, 8)), None, model=_model(1), form="both")
+        upscale(_seq(2, shape=(8, 8)), None, model=ModelChoice(_model(1), form="both"))
 
 
 # --- the bundled weights on a test scene ---------------------------------------------------------------------

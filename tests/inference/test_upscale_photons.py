@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from jaxsr.config import ModelConfig, SensorConfig
-from jaxsr.inference import (
+from jaxsr.app import (
     AUTO_AMBIENT_ALPHA,
     AUTO_AMBIENT_MIN_FRAMES,
     AUTO_AMBIENT_MIN_SIGNAL_SNR,
@@ -15,12 +15,15 @@ from jaxsr.inference import (
     AUTO_KEEP_RETURNS,
     DEFAULT_MODELS,
     FEW_PHOTONS,
+    ModelChoice,
+    PhotonRules,
+    Reading,
     auto_ambient_alpha,
     photon_levels,
     prepare_upscale,
-    super_resolve_histograms,
     upscale,
 )
+from jaxsr.inference import super_resolve_histograms
 from jaxsr.io.checkpoint import load_model, save_model
 from jaxsr.nn import Model, init_model, with_no_return_logit
 
@@ -58,7 +61,7 @@ def depth_model(tmp_path_factory):
 def test_histograms_through_a_photon_model_equal_the_library(photon_model, counts):
     """A model with a no-return head marks no return itself: "auto" leaves the ambient test off for it."""
     model, path = photon_model
-    result = upscale(counts, None, model=path, units="normalised")
+    result = upscale(counts, None, model=path, read=Reading(units="normalised"))
     np.testing.assert_allclose(result.depth, np.clip(super_resolve_histograms(model, counts), 0, 1), atol=1e-6)
     assert result.ambient_alpha is None and result.summary()["ambient_alpha"] is None
 
@@ -75,7 +78,7 @@ def test_default_fits_the_input(counts):
     job = prepare_upscale(counts)
     assert job.model_name.startswith(DEFAULT_MODELS["histograms"]) and "its no return kept only where" in job.model_name
     assert job.keep_returns == AUTO_KEEP_RETURNS and job.ambient_alpha is None  # auto: no ambient test for a head
-    assert "kept" not in prepare_upscale(counts, keep_returns=None).model_name
+    assert "kept" not in prepare_upscale(counts, photons=PhotonRules(keep_returns=None)).model_name
     assert prepare_upscale(np.full((2, 8, 12), 0.5, np.float32)).model_name == DEFAULT_MODELS["depth"]
     with pytest.raises(TypeError, match="default"):
         prepare_upscale(counts, model=3)
@@ -85,17 +88,17 @@ def test_no_return_logit_moves_the_decision_and_is_refused_without_a_head(photon
     """--no-return-logit: a threshold above every logit marks nothing, below every logit everything; the
     library's `with_no_return_logit` gives the same output; a depth-only model refuses it before reading."""
     model, path = photon_model
-    never = upscale(counts, None, model=path, units="normalised", no_return_logit=1e6).depth
-    always = upscale(counts, None, model=path, units="normalised", no_return_logit=-1e6, keep_returns=None).depth
+    never = upscale(counts, None, model=ModelChoice(path, no_return_logit=1e6), read=Reading(units="normalised")).depth
+    always = upscale(counts, None, model=ModelChoice(path, no_return_logit=-1e6), read=Reading(units="normalised"), photons=PhotonRules(keep_returns=None)).depth
     assert not (never >= 1.0).any() and (always >= 1.0).all()
     want = super_resolve_histograms(with_no_return_logit(model, 1e6), counts)
     np.testing.assert_allclose(never, np.clip(want, 0, 1), atol=1e-6)
     with pytest.raises(ValueError, match="no-return head"):
-        prepare_upscale(counts, model="tr0", no_return_logit=1.0)
+        prepare_upscale(counts, model=ModelChoice("tr0", no_return_logit=1.0))
     with pytest.raises(ValueError, match="no-return head"):  # auto picks depth-only models: refused before reading
-        prepare_upscale("/nonexistent/input.npy", model="auto", no_return_logit=1.0)
-    assert prepare_upscale(counts, no_return_logit=1.0).model.config.no_return_logit == 1.0  # the default's head
-    job = prepare_upscale(counts, model=path, no_return_logit=2.0, ambient_alpha=None, keep_returns=None)
+        prepare_upscale("/nonexistent/input.npy", model=ModelChoice("auto", no_return_logit=1.0))
+    assert prepare_upscale(counts, model=ModelChoice("default", no_return_logit=1.0)).model.config.no_return_logit == 1.0  # the default's head
+    job = prepare_upscale(counts, model=ModelChoice(path, no_return_logit=2.0), photons=PhotonRules(ambient_alpha=None, keep_returns=None))
     assert job.model.config.no_return_logit == 2.0 and job.model_name.endswith("at no-return logit 2")
     with pytest.raises(ValueError, match="finite number"):
         with_no_return_logit(model, float("nan"))
@@ -137,9 +140,9 @@ def test_a_recording_beyond_the_trained_snr_is_said(photon_model):
     assert "0.05-20" in warning and "--no-return-logit" in warning
     assert not [w for w in prepare_upscale(counts(2.0), model=path).warnings if "frame SNR" in w]
     assert not [w for w in prepare_upscale(counts(1e4), model="tr0").warnings if "frame SNR" in w]
-    set_logit = prepare_upscale(counts(1e4), model=path, no_return_logit=3.0).warnings
+    set_logit = prepare_upscale(counts(1e4), model=ModelChoice(path, no_return_logit=3.0)).warnings
     assert [w for w in set_logit if "frame SNR" in w and "set to 3" in w and "such as 2" not in w]
-    assert not [w for w in prepare_upscale(counts(1e4), model=path, clip_negative=True).warnings if "frame SNR" in w]
+    assert not [w for w in prepare_upscale(counts(1e4), model=path, read=Reading(clip_negative=True)).warnings if "frame SNR" in w]
     # a card whose regime is not what it should be: the bundled range, no failure
     for i, card in enumerate(({"regime": "wide"}, {"regime": {"snr_range": ["a", "b"]}},
                               {"regime": {"snr_range": [20.0, 0.05]}})):
@@ -215,11 +218,11 @@ def test_ambient_alpha_empties_the_sky_and_keeps_the_surface(photon_model, half_
     hr_flags = np.repeat(np.repeat(flags, 4, axis=1), 4, axis=2)
     assert (tested[hr_flags] == 1.0).all()
     np.testing.assert_array_equal(tested[~hr_flags], plain[~hr_flags])
-    job = prepare_upscale(half_sky, model=path, ambient_alpha=1e-3)
+    job = prepare_upscale(half_sky, model=path, photons=PhotonRules(ambient_alpha=1e-3))
     assert "alpha 0.001" in job.model_name
-    result = upscale(half_sky, None, model=path, units="normalised", ambient_alpha=1e-3)
+    result = upscale(half_sky, None, model=path, read=Reading(units="normalised"), photons=PhotonRules(ambient_alpha=1e-3))
     np.testing.assert_allclose(result.depth, np.clip(tested, 0, 1), atol=1e-6)
-    metres = upscale(half_sky, None, model="tr0", ambient_alpha=1e-3).depth
+    metres = upscale(half_sky, None, model="tr0", photons=PhotonRules(ambient_alpha=1e-3)).depth
     assert np.isinf(metres[hr_flags]).all()  # no return is inf in metres, with a depth-only model too
 
 
@@ -227,10 +230,10 @@ def test_ambient_alpha_is_refused_for_depth_and_out_of_range(photon_model, half_
     from jaxsr.cli import main
 
     with pytest.raises(ValueError, match="histograms or time tags"):
-        prepare_upscale(np.full((2, 8, 12), 0.5, np.float32), model="tr0", ambient_alpha=1e-3)
+        prepare_upscale(np.full((2, 8, 12), 0.5, np.float32), model="tr0", photons=PhotonRules(ambient_alpha=1e-3))
     for bad in (0.0, 1.0, -1e-3, 1e-35, True, [1e-3]):
         with pytest.raises(ValueError, match=r"false-alarm rate in \[1e-30, 1\)"):
-            prepare_upscale("/nonexistent/input.npy", ambient_alpha=bad)  # before the input is read
+            prepare_upscale("/nonexistent/input.npy", photons=PhotonRules(ambient_alpha=bad))  # before the input is read
     with pytest.raises(ValueError, match=r"false-alarm rate in \[1e-30, 1\)"):
         super_resolve_histograms(photon_model[0], half_sky, ambient_alpha=2.0)
     src = tmp_path / "counts.npy"
@@ -272,8 +275,8 @@ def test_ambient_alpha_auto_is_the_default_and_follows_the_recording(photon_mode
     job = prepare_upscale(half_sky, model=path)
     assert f"alpha {AUTO_AMBIENT_ALPHA:g}; auto: frame SNR about" in job.model_name
     assert job.ambient_alpha == AUTO_AMBIENT_ALPHA and job.label == str(path)  # pictures: the model alone
-    explicit = upscale(half_sky, None, model=path, units="normalised", ambient_alpha=AUTO_AMBIENT_ALPHA).depth
-    result = upscale(half_sky, None, model=path, units="normalised")
+    explicit = upscale(half_sky, None, model=path, read=Reading(units="normalised"), photons=PhotonRules(ambient_alpha=AUTO_AMBIENT_ALPHA)).depth
+    result = upscale(half_sky, None, model=path, read=Reading(units="normalised"))
     np.testing.assert_array_equal(result.depth, explicit)
     assert result.summary()["ambient_alpha"] == AUTO_AMBIENT_ALPHA
     composed = super_resolve_histograms(load_model(path), half_sky,
@@ -285,7 +288,7 @@ def test_ambient_alpha_auto_is_the_default_and_follows_the_recording(photon_mode
     assert "the model marks no return itself" in prepare_upscale(half_sky, model=photon_model[1]).model_name
     for bad in ("off", "Auto", "0.001"):
         with pytest.raises(ValueError, match="'auto', None"):
-            prepare_upscale(half_sky, model=path, ambient_alpha=bad)
+            prepare_upscale(half_sky, model=path, photons=PhotonRules(ambient_alpha=bad))
     rng = np.random.default_rng(3)
     bright = half_sky + rng.poisson(40.0 / 16, half_sky.shape).astype(np.float32)
     dim = prepare_upscale(bright, model=path)
@@ -298,9 +301,9 @@ def test_ambient_alpha_auto_is_the_default_and_follows_the_recording(photon_mode
     assert levels.snr < AUTO_AMBIENT_MIN_SNR and levels.snr * levels.signal >= AUTO_AMBIENT_MIN_SIGNAL_SNR
     bright_many = prepare_upscale(many, model=path)
     assert "; auto: frame SNR about" in bright_many.model_name and bright_many.ambient_alpha == AUTO_AMBIENT_ALPHA
-    assert "ambient" not in prepare_upscale(half_sky, model=path, ambient_alpha=None).model_name
+    assert "ambient" not in prepare_upscale(half_sky, model=path, photons=PhotonRules(ambient_alpha=None)).model_name
     assert "ambient" not in prepare_upscale(np.full((2, 8, 12), 0.5, np.float32), model="tr0").model_name
-    clipped = prepare_upscale(half_sky, model=path, clip_negative=True)
+    clipped = prepare_upscale(half_sky, model=path, read=Reading(clip_negative=True))
     assert "ambient test off: background-subtracted" in clipped.model_name
     src = tmp_path / "counts.npy"
     np.save(src, half_sky)
@@ -320,11 +323,11 @@ def test_the_test_is_named_where_memory_is_short_and_said_on_clipped_counts(dept
     with pytest.raises(ValueError, match=r"--ambient-alpha off \(its test sums 9 frames\)"):
         upscale(half_sky, None, model=depth_model, max_memory="100MB")
     with pytest.raises(ValueError) as refused:
-        upscale(half_sky, None, model=depth_model, max_memory="100MB", ambient_alpha=None)
+        upscale(half_sky, None, model=depth_model, photons=PhotonRules(ambient_alpha=None), max_memory="100MB")
     assert "--ambient-alpha" not in str(refused.value)
-    job = prepare_upscale(half_sky, model=depth_model, clip_negative=True, ambient_alpha=1e-3)
+    job = prepare_upscale(half_sky, model=depth_model, read=Reading(clip_negative=True), photons=PhotonRules(ambient_alpha=1e-3))
     assert job.ambient_alpha == 1e-3 and [w for w in job.warnings if "background-subtracted counts" in w]
-    assert not [w for w in prepare_upscale(half_sky, model=depth_model, clip_negative=True).warnings
+    assert not [w for w in prepare_upscale(half_sky, model=depth_model, read=Reading(clip_negative=True)).warnings
                 if "--ambient-alpha" in w]
 
 
@@ -342,7 +345,7 @@ def test_few_photons_get_a_hint_towards_the_photon_model(photon_model, half_sky)
         assert not [w for w in prepare_upscale(half_sky, model=model).warnings if "signal photons per pixel" in w]
     for model in (photon_model[1], "default"):
         assert not [w for w in prepare_upscale(dim, model=model).warnings if "signal photons per pixel" in w]
-    assert not [w for w in prepare_upscale(dim, model="tr0", clip_negative=True).warnings
+    assert not [w for w in prepare_upscale(dim, model="tr0", read=Reading(clip_negative=True)).warnings
                 if "signal photons per pixel" in w]
 
 
@@ -407,10 +410,10 @@ def test_keep_returns_keeps_the_surface_a_head_calls_sky(sky_everywhere, half_sk
     from jaxsr.sensor import ambient_only
 
     model, path = sky_everywhere
-    assert (upscale(half_sky, None, model=path, units="normalised", keep_returns=None).depth == 1.0).all()
-    result = upscale(half_sky, None, model=path, units="normalised", keep_returns=1e-3)
+    assert (upscale(half_sky, None, model=path, read=Reading(units="normalised"), photons=PhotonRules(keep_returns=None)).depth == 1.0).all()
+    result = upscale(half_sky, None, model=path, read=Reading(units="normalised"), photons=PhotonRules(keep_returns=1e-3))
     assert AUTO_KEEP_RETURNS == 1e-3
-    np.testing.assert_array_equal(upscale(half_sky, None, model=path, units="normalised").depth, result.depth)
+    np.testing.assert_array_equal(upscale(half_sky, None, model=path, read=Reading(units="normalised")).depth, result.depth)
     quiet = np.asarray(ambient_only(half_sky, alpha=1e-3, pixels=1))
     assert quiet[:, :, :6].mean() < 0.01 and quiet[:, :, 6:].all()  # one surface pixel of a first frame passes
     hr_quiet = np.repeat(np.repeat(quiet, 4, axis=1), 4, axis=2)
@@ -436,14 +439,14 @@ def test_keep_returns_keeps_the_surface_a_head_calls_sky(sky_everywhere, half_sk
     # refused: without a head, for depth, beside an ambient rate, out of range (each before any work)
     for model_name in ("tr0", "auto"):  # refused before the input is read (auto picks among TR0-TR4)
         with pytest.raises(ValueError, match="has no head"):
-            prepare_upscale("/nonexistent/input.npy", model=model_name, keep_returns=1e-3)
-    job = prepare_upscale(half_sky, keep_returns=2e-3)  # a rate of one's own for the default photon model
+            prepare_upscale("/nonexistent/input.npy", model=model_name, photons=PhotonRules(keep_returns=1e-3))
+    job = prepare_upscale(half_sky, photons=PhotonRules(keep_returns=2e-3))  # a rate of one's own for the default photon model
     assert job.keep_returns == 2e-3 and "alpha 0.002" in job.model_name
     with pytest.raises(ValueError, match="histograms or time tags"):
-        prepare_upscale(np.full((2, 8, 12), 0.5, np.float32), model=path, keep_returns=1e-3)
+        prepare_upscale(np.full((2, 8, 12), 0.5, np.float32), model=path, photons=PhotonRules(keep_returns=1e-3))
     with pytest.raises(ValueError, match="give one"):
-        prepare_upscale("/nonexistent/input.npy", keep_returns=1e-3, ambient_alpha=1e-3)
+        prepare_upscale("/nonexistent/input.npy", photons=PhotonRules(ambient_alpha=1e-3, keep_returns=1e-3))
     with pytest.raises(ValueError, match=r"false-alarm rate in \[1e-30, 1\)"):
-        prepare_upscale("/nonexistent/input.npy", keep_returns=2.0)
+        prepare_upscale("/nonexistent/input.npy", photons=PhotonRules(keep_returns=2.0))
     assert main(["upscale", str(src), str(tmp_path / "b.npy"), "--keep-returns", "0"]) == 2
     assert "false-alarm rate" in capsys.readouterr().err

@@ -11,10 +11,10 @@ import pytest
 
 from jaxsr import cli, io
 from jaxsr.config import ModelConfig
-from jaxsr.inference import prepare_upscale
+from jaxsr.app import DEPTH_UNITS, Reading, prepare_upscale, to_metres, to_units
 from jaxsr.io.checkpoint import model_template, save_model
-from jaxsr.io.recordings import DEPTH_UNITS, to_metres, to_units
 from jaxsr.nn import Model
+from upscale_specs import specs
 
 METRES = np.array([[0.0, 1.234, 5.0, 12.5], [20.0, 34.9, 40.0, np.inf]] * 4, np.float32)  # (8, 4): 0 and inf
 MM = np.where(np.isfinite(METRES), np.rint(METRES * 1000), 0).astype(np.uint16)  # 16-bit millimetres, 0 = none
@@ -30,7 +30,7 @@ def model_path(tmp_path_factory):
 
 def lr(array, model_path, **options):
     """The network's input `jaxsr upscale` makes of `array` (T, h, w): (T, h, w) normalised depth."""
-    job = prepare_upscale(array, model=model_path, **options)
+    job = prepare_upscale(array, **specs(model_path, **options))
     return job, np.stack(list(job.lr_frames()))
 
 
@@ -95,5 +95,5 @@ def test_float_metres_and_normalised_are_guessed_as_before(tmp_path, model_path)
     np.testing.assert_allclose(got, lr(np.stack([np.where(MM > 0, MM / 1000, np.inf)] * 2), model_path, units="m")[1],
                                atol=1e-6)
     with pytest.raises(ValueError, match="units is one of 'm', 'normalised', 'mm', 'cm', 'km'"):
-        prepare_upscale(np.full((2, 8, 4), 5.0, np.float32), model=model_path, units="inch")
+        prepare_upscale(np.full((2, 8, 4), 5.0, np.float32), model=model_path, read=Reading(units="inch"))
     assert DEPTH_UNITS == ("m", "normalised", "mm", "cm", "km")

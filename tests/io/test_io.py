@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from jaxsr import io
+from jaxsr.app.recordings import open_recording
 
 
 def depth_frame(h=16, w=24, seed=0):
@@ -344,11 +345,11 @@ def test_hostile_json_metadata_of_a_recording_is_refused_or_ignored_not_a_traceb
         np.savez(tmp_path / "h.npz", counts=np.ones((1, 4, 4, 16), np.uint16), config=np.array(nested))
         with pytest.raises(ValueError, match="h.npz: config: JSON metadata nested"):
             io.read_histograms(tmp_path / "h.npz")
-        rec = io.open_recording(tmp_path / "seq.npz")
+        rec = open_recording(tmp_path / "seq.npz")
         assert rec.fps is None and rec.frames == 2
     np.savez(tmp_path / "seq.npz", depth=depth, metadata=np.array('{"fps": 12.5, "snr": [1, [2]]}'))
     assert io.read_sequence(tmp_path / "seq.npz")["metadata"] == {"fps": 12.5, "snr": [1, [2]]}
-    assert io.open_recording(tmp_path / "seq.npz").fps == 12.5
+    assert open_recording(tmp_path / "seq.npz").fps == 12.5
 
 
 def _dead_pid() -> int:
@@ -492,8 +493,8 @@ def test_check_output_folder_checks_the_folder_above_and_an_existing_folder(tmp_
 
     from jaxsr.io.files import NotWritableError, check_output_folder
     from jaxsr.io.pointcloud import check_points_folder
-    from jaxsr.io.recordings import check_output
-    from jaxsr.io.simulate import _check_out
+    from jaxsr.app.outputs import check_output
+    from jaxsr.app.simulate import _check_out
 
     (tmp_path / "out").mkdir()
     (tmp_path / "out" / "old.txt").write_text("x")
@@ -526,7 +527,7 @@ def test_check_writable_refuses_a_folder_this_process_cannot_write_into(tmp_path
 def test_no_memory_for_an_npz_recording_is_not_called_a_damaged_file(tmp_path, monkeypatch):
     """A MemoryError while an .npz's array is read was "truncated or not an NPZ file" (exit 2, blaming the file):
     the machine's fault goes through as it is; a damaged array is still named so."""
-    from jaxsr.io.recordings import open_recording
+    from jaxsr.app.recordings import open_recording
 
     np.savez(tmp_path / "d.npz", depth=np.full((2, 8, 8), 0.5, np.float32))
 
@@ -550,7 +551,7 @@ def test_no_memory_for_an_npz_recording_is_not_called_a_damaged_file(tmp_path, m
 def test_frames_are_checked_in_blocks_of_bounded_memory(tmp_path):
     """`check_frames` read 256 frames at a time as float64, whatever their size (4 GB for frames of
     1024 x 1024 pixels); now blocks of at most `CHECK_BLOCK_BYTES`, and at least one frame."""
-    from jaxsr.io.recordings import CHECK_BLOCK_BYTES, _chunks, open_recording
+    from jaxsr.app.recordings import CHECK_BLOCK_BYTES, _chunks, open_recording
 
     np.save(tmp_path / "big.npy", np.zeros((40, 512, 512), np.float32))
     blocks = [block for _, block in _chunks(open_recording(tmp_path / "big.npy"))]

@@ -18,8 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import formats as io
-from .files import check_output_folder, check_writable, refuse_link
+from ..io import formats as io
 from ..checks import NORMALISED_SLACK, npz_array_bytes, require_memory, require_normalised_depth
 from ..config import MIN_LR_SIDE, TRAINED_RANGE_M, DepthScale, Gate, SensorConfig
 from ..sensor.effects import clip_negative_counts
@@ -29,8 +28,8 @@ from ..sensor.quantities import RANGE_UNITS
 from ..sensor.timetags import histogram_time_tags
 
 __all__ = ["ARRAY_FORMATS", "DEPTH_UNITS", "FRAME_FORMATS", "METRES_PER_UNIT", "Recording", "check_frames",
-           "check_output", "check_preview", "clipped_recording", "gate_frames", "guess_units", "normalised_frames",
-           "open_recording", "time_tag_recording", "to_metres", "to_units"]
+           "clipped_recording", "gate_frames", "guess_units", "normalised_frames", "open_recording",
+           "time_tag_recording", "to_metres", "to_units"]
 
 FRAME_FORMATS = (".exr", ".pfm", ".tif", ".tiff", ".png")
 ARRAY_FORMATS = (".npy", ".npz")
@@ -341,65 +340,6 @@ def guess_units(recording: Recording, *, ask: str = "pass --units (units=): m, m
                          f"{KM_OR_NORMALISED * 1000:g} m) or normalised depth (a scene within "
                          f"{KM_OR_NORMALISED * TRAINED_RANGE_M:g} m without one no-return pixel at 1.0); {ask}")
     return "normalised"
-
-
-# ---------------------------------------------------------------------------------------------------------
-# Output
-
-
-def check_output(spec, *, force: bool) -> Path:
-    """OUTPUT: .npy / .npz (one array, in an existing folder) or a folder (one frame file per frame; missing
-    parent folders are created when the frames are all written). Refuses to replace an existing file or write
-    into a non-empty folder unless `force`, and in any case a file where a folder is meant, a symbolic link
-    (the output is moved into place by a rename, which would replace the link, not write where it points) and a
-    folder this process cannot write into (`jaxsr.io.files.check_output_folder`). Writes nothing."""
-    out = Path(spec)
-    refuse_link(out, "OUTPUT")
-    if out.suffix.lower() in ARRAY_FORMATS:
-        _check_new_file(out, force=force, what=f"OUTPUT {out.suffix}")
-    elif out.suffix:
-        raise ValueError(f"{out}: OUTPUT is an .npy or .npz file, or a folder for frames (see --frame-format)")
-    elif out.exists() and not out.is_dir():
-        raise FileExistsError(f"{out} is a file; OUTPUT without a suffix is a folder for frames")
-    elif out.is_dir() and any(out.iterdir()) and not force:
-        raise FileExistsError(f"{out} exists and is not an empty folder; pass --force to write into it")
-    else:
-        _check_ancestors(out)
-        check_output_folder(out)
-    return out
-
-
-def _check_new_file(path: Path, *, force: bool, what: str) -> None:
-    """A file about to be written: not a folder, not an existing file unless `force`, in an existing folder that
-    this process can write into."""
-    if path.is_dir():
-        raise IsADirectoryError(f"{path} is a folder; {what} is a file")
-    if path.exists() and not force:
-        raise FileExistsError(f"{path} exists; pass --force to overwrite it")
-    if not path.parent.is_dir():
-        raise FileNotFoundError(f"no such folder for {what}: {path.parent}")
-    check_writable(path.parent, path)
-
-
-def _check_ancestors(path: Path) -> None:
-    """Refuse a folder path whose nearest existing ancestor is a file (it could never be created)."""
-    p = path.parent
-    while not p.exists():
-        p = p.parent
-    if not p.is_dir():
-        raise NotADirectoryError(f"cannot create the folder {path}: {p} is a file")
-
-
-def check_preview(spec, *, force: bool, output=None) -> Path:
-    """A preview path (.png): refuses an existing file unless `force`, a missing folder, and the OUTPUT path
-    itself. Writes nothing."""
-    path = Path(spec)
-    if path.suffix.lower() != ".png":
-        raise ValueError(f"{path}: the preview is a .png file")
-    if output is not None and path.resolve() == Path(output).resolve():
-        raise ValueError(f"{path}: the preview and OUTPUT are the same file")
-    _check_new_file(path, force=force, what="the preview")
-    return path
 
 
 def to_units(hr, units: str, scale: DepthScale = DepthScale()):

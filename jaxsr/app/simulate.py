@@ -20,9 +20,9 @@ from ..eval.metrics import psnr, ssim
 from ..scenes import KINDS, sequence
 from ..sensor.forward import normalise_depth, require_scalar_levels, simulate_histograms
 from ..sensor.peaks import centre_of_mass
-from .files import atomic_folder, check_output_folder, refuse_link
-from .formats import read_airsim, write_histograms, write_sequence
-from .previews import write_comparison, write_gray_preview, write_preview
+from ..io.files import atomic_folder, check_output_folder, refuse_link
+from ..io.formats import read_airsim, write_histograms, write_sequence
+from ..io.previews import write_comparison, write_gray_preview, write_preview
 
 __all__ = ["SIMULATION_OUTPUTS", "CAMERAS", "Simulation", "simulate_recording"]
 

@@ -1,0 +1,323 @@
+"""A recording opened, checked and matched with its model (`prepare_upscale`): the first half of `jaxsr upscale`,
+everything that can fail before the network runs. The result, `UpscaleJob`, streams the network's output frame
+by frame (`UpscaleJob.iter_frames`); `jaxsr.app.write_upscaled` writes it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+from typing import Callable, Iterator
+
+import numpy as np
+
+from ..config import DepthScale, Gate, SensorConfig
+from ..inference import DEFAULT_PRECISION, iter_ambient_only, iter_network_inputs, iter_super_resolve, no_return_where
+from ..inference.video import iter_returns_kept
+from ..nn.model import Model
+from ..runtime import enable_compilation_cache
+from ..sensor.gates import gate_warnings
+from ..sensor.timetags import TIME_TAG_FORMATS, TimeTags, gate_of_tags, read_time_tags, time_tag_warnings
+from .models import finish_model, has_head, plan_model, trained_snr_range
+from .photons import (AMBIENT_FRAMES, HEAD_FRAMES, PhotonDecision, decide_photon_rules, few_photons_warnings,
+                      photon_levels, rule_warnings, snr_warnings)
+from .recordings import (Recording, check_frames, clipped_recording, gate_frames, guess_units, normalised_frames,
+                         open_recording, time_tag_recording, to_units)
+from .specs import ModelChoice, PhotonRules, Reading, is_auto
+
+__all__ = ["UpscaleJob", "prepare_upscale", "HISTOGRAM_CHUNK"]
+
+HISTOGRAM_CHUNK = 16  # histogram frames turned into the network's input per compiled call (`iter_network_inputs`)
+
+
+@dataclasses.dataclass(frozen=True)
+class UpscaleJob:
+    """A recording checked and ready to super-resolve (`prepare_upscale`): every frame checked, the model chosen.
+
+    recording: the opened `jaxsr.app.recordings.Recording` (kind "depth" or "histograms", time tags already
+    histogrammed); model: the `Model`, in the temporal form it runs in; model_name: the model as people read it
+    (tr4, a path, "tr1 (auto: motion ...)", with the photon rules that apply); label: its name for pictures
+    (without the rules' words, which would not fit a panel); units: of the input depth and of array outputs
+    (`jaxsr.app.recordings.DEPTH_UNITS`); gate: the histogram gate (None for depth); scale: the `DepthScale`
+    between metres and the network's [0, 1]; warnings: sentences on what the bundled models never saw in this
+    gate and scale, and on negative counts clipped; source: the input as named in messages and metadata;
+    negative_counts: with `Reading.clip_negative`, (negative counts clipped at 0, pixels holding one), else None;
+    precision: how the network's convolutions multiply; photons: the `PhotonDecision` (ambient-only test and
+    keep rule) that applies."""
+
+    recording: Recording
+    model: Model
+    model_name: str
+    label: str
+    units: str
+    gate: Gate | None
+    scale: DepthScale
+    warnings: tuple[str, ...]
+    source: str
+    precision: str = DEFAULT_PRECISION
+    negative_counts: tuple[int, int] | None = None
+    photons: PhotonDecision = PhotonDecision(None, "", None)
+    # fresh streams of the network's input, and of the photon tests' (h, w) bool flags per frame (None: no test)
+    _lr_stream: Callable[[], Iterator[np.ndarray]] = dataclasses.field(default=None, repr=False, compare=False)
+    _ambient_stream: Callable[[], Iterator[np.ndarray]] | None = dataclasses.field(default=None, repr=False,
+                                                                                   compare=False)
+    _keep_stream: Callable[[], Iterator[np.ndarray]] | None = dataclasses.field(default=None, repr=False,
+                                                                                compare=False)
+
+    @property
+    def frames(self) -> int:
+        """Frames in the recording, T."""
+        return self.recording.frames
+
+    @property
+    def scale_factor(self) -> int:
+        """The model's upscaling factor r."""
+        return int(self.model.architecture.scale(self.model.config))
+
+    @property
+    def hr_shape(self) -> tuple[int, int]:
+        """(H, W) of an output frame: the LR frame times the model's scale."""
+        r = self.scale_factor
+        return (int(self.recording.shape[0]) * r, int(self.recording.shape[1]) * r)
+
+    @property
+    def ambient_alpha(self) -> float | None:
+        """The ambient-only test's false-alarm rate (None: no test)."""
+        return self.photons.ambient_alpha
+
+    @property
+    def keep_returns(self) -> float | None:
+        """The keep rule's false-alarm rate (None: the model's own decision)."""
+        return self.photons.keep_returns
+
+    @property
+    def note(self) -> str:
+        """One line for people: what is read and with which model (`jaxsr upscale` prints it before the work)."""
+        return (f"{self.frames} frames {self.recording.kind} {tuple(self.recording.shape)} from {self.source}, "
+                f"input units {self.units}, model {self.model_name}{self.how}")
+
+    @property
+    def how(self) -> str:
+        """How the network runs, as `note` ends: ", sequence form" where it runs in it, and ", precision bfloat16"
+        (or float32) where it is not the default; "" otherwise."""
+        return (", sequence form" if self.model.sequence_form else "") + (
+            "" if self.precision == "default" else f", precision {self.precision}")
+
+    @property
+    def fps(self) -> float | None:
+        """The recording's frames per second where its file says (an .npz from `jaxsr simulate`), else None."""
+        return self.recording.fps
+
+    @property
+    def d_range(self) -> tuple[float, float]:
+        """(first, last) metres of the sensor's true range that the network's [0, 1] covers: the depth scale's
+        offset (the gate's start) and offset + span. Every picture, video and point cloud is drawn over it."""
+        return float(self.scale.offset), float(self.scale.offset + self.scale.span)
+
+    def lr_frames(self) -> Iterator[np.ndarray]:
+        """A fresh stream of the network's input: (h, w) float32 LR normalised depth frames, one per frame
+        ((h, w, C) for a model reading photons too: depth in channel 0, `jaxsr.nn.network_inputs`)."""
+        return self._lr_stream()
+
+    def iter_normalised(self, *, batch_size: int | None = None, lr_frames=None) -> Iterator[np.ndarray]:
+        """The network's output, streamed: (H, W) float32 HR normalised depth (unclipped), one per frame, with the
+        photon rules applied. lr_frames: the LR stream to run (default `lr_frames()`)."""
+        lr = self.lr_frames() if lr_frames is None else lr_frames
+        if self._keep_stream is not None:
+            return iter_returns_kept(self.model, lr, self._keep_stream(), batch_size=batch_size,
+                                     precision=self.precision)
+        out = iter_super_resolve(self.model, lr, batch_size=batch_size, precision=self.precision)
+        if self._ambient_stream is None:
+            return out
+        return (no_return_where(hr, flags) for hr, flags in zip(out, self._ambient_stream(), strict=True))
+
+    def iter_frames(self, *, batch_size: int | None = None, units: str | None = None) -> Iterator[np.ndarray]:
+        """The super-resolved recording, streamed: (H, W) float32 frames in `units` (default the job's: "m",
+        radial metres with inf for no return, or "mm", "cm", "km" likewise, or "normalised", clipped to [0, 1])."""
+        units = self.units if units is None else units
+        for hr in self.iter_normalised(batch_size=batch_size):
+            yield to_units(hr, units, self.scale)
+
+
+def _as_choice(model) -> ModelChoice:
+    return model if isinstance(model, ModelChoice) else ModelChoice(model)
+
+
+def prepare_upscale(input, *, model="default", read: Reading = Reading(), photons: PhotonRules = PhotonRules(),
+                    max_memory=None) -> UpscaleJob:
+    """Open and check a recording and choose its model, as `jaxsr upscale` does before any output is written.
+
+    input: a path (.npy / .npz array of depth (T, h, w) or photon counts (T, h, w, bins); a folder or glob pattern
+    of EXR, PFM, TIFF or 16-bit PNG depth frames; with `Reading(kind="timetags")` a .mat cell array or .npz table
+    of photon time tags), or an opened `Recording`, a NumPy array (T, h, w) / (T, h, w, bins), or
+    `jaxsr.sensor.TimeTags`. model: a `ModelChoice`, or what its `model` takes (a name, path or `Model`). read,
+    photons: what is read and the photon rules (`Reading`, `PhotonRules`). max_memory: the budget an .npz's array
+    and time tags' histograms are checked against before they are read (bytes or a size such as "16GB").
+    Checks, in order: the model, then the input and every one of its frames (frames of any size h, w >= 4).
+
+    Returns an `UpscaleJob`. Raises ValueError, FileNotFoundError (a missing input or model) with the messages
+    `jaxsr upscale` prints, TypeError for an input or model of another type (None among them).
+    """
+    choice = _as_choice(model)
+    for spec, kind in ((read, Reading), (photons, PhotonRules)):
+        if not isinstance(spec, kind):
+            raise TypeError(f"expected a jaxsr.app.{kind.__name__}, got {type(spec).__name__}")
+    planned = plan_model(choice)
+    if photons.keep_returns is not None and not is_auto(photons.keep_returns) and not has_head(
+            choice, planned, "histograms"):  # before the input is read
+        raise ValueError("keep_returns (--keep-returns) overrules a no-return head's decision and this model has no "
+                         "head: give one that has (tr4-ambient, tr0-ambient, tr4-photons, tr0-photons)")
+    rec, gate, source, tag_notes = _open(input, read, max_memory)
+    if rec.kind == "histograms":
+        return _histogram_job(rec, gate, source, tag_notes, choice, planned, read, photons)
+    return _depth_job(rec, source, choice, planned, read, photons)
+
+
+def _depth_job(rec, source, choice, planned, read: Reading, photons: PhotonRules) -> UpscaleJob:
+    """The job of depth frames: no photons, so no photon model and no photon rule (a rate is refused)."""
+    _refuse_photon_model(planned)
+    for what, setting in (("ambient_alpha (--ambient-alpha)", photons.ambient_alpha),
+                          ("keep_returns (--keep-returns)", photons.keep_returns)):
+        if not is_auto(setting) and setting is not None:
+            raise ValueError(f"{what} tests the photons behind each pixel: give photon histograms or time tags, not "
+                             "depth frames")
+    units = guess_units(rec) if read.units is None else read.units
+    r = 4 if planned.model is None else int(planned.model.architecture.scale(planned.model.config))
+    sensor = SensorConfig() if r == 4 else SensorConfig(scale=r)
+    check_frames(rec, units)
+
+    def lr_stream():
+        return normalised_frames(rec, units, sensor)
+
+    enable_compilation_cache()
+    model, name = finish_model(choice, planned, "depth", lambda: _head(lr_stream(), HEAD_FRAMES))
+    return UpscaleJob(rec, model, name, name, units, None, DepthScale(0.0, float(sensor.d_max)), (), source,
+                      choice.precision, _lr_stream=lr_stream)
+
+
+def _histogram_job(rec, gate, source, tag_notes, choice, planned, read: Reading, photons: PhotonRules) -> UpscaleJob:
+    """The job of photon histograms (time tags already histogrammed): the gate's depth scale, the photon levels
+    and the rules they decide, and streams of the network's input and the rules' flags."""
+    scale = DepthScale.for_gate(gate, gate.length if read.span == "gate" else read.span)
+    warnings = tag_notes + tuple(gate_warnings(gate, scale))
+    units = "m" if read.units is None else read.units
+    found = check_frames(rec, units, gate, clip_negative=read.clip_negative)  # (0, 0) unless clip_negative
+    if found[0]:
+        warnings += (_clipped_note(*found),)
+    counts = clipped_recording(rec) if read.clip_negative else rec
+    sensor = SensorConfig(bins=gate.bins)
+    # what the photons say, read once (not after clipping: the clipped counts' ambient is no longer the sensor's)
+    levels = None if read.clip_negative else photon_levels(counts, gate.bins)
+
+    def lr_stream(channels):
+        return gate_frames(iter_network_inputs(counts, sensor, channels, chunk=HISTOGRAM_CHUNK), gate, scale)
+
+    enable_compilation_cache()
+    model, name = finish_model(choice, planned, "histograms", lambda: _head(lr_stream(("depth",)), HEAD_FRAMES))
+    head_frames = min(HEAD_FRAMES, rec.frames)
+    if levels is not None:
+        if model.has_no_return_head:
+            warnings += snr_warnings(trained_snr_range(choice, "histograms"), levels.snr, head_frames,
+                                     choice.no_return_logit)
+        elif not model.reads_photons:
+            warnings += few_photons_warnings(levels.signal, head_frames)
+    warnings += rule_warnings(photons, clip_negative=read.clip_negative)
+    decision = decide_photon_rules(photons, levels, marks_no_return=model.has_no_return_head, frames=rec.frames)
+    label = name
+    if decision.ambient_alpha is not None:
+        name = f"{name}, no return where ambient alone (alpha {float(decision.ambient_alpha):g}{decision.ambient_why})"
+    elif decision.ambient_why:
+        name = f"{name}{decision.ambient_why}"
+    if decision.keep_returns is not None:
+        name = (f"{name}, its no return kept only where the pixel's photons over {AMBIENT_FRAMES} frames pass for "
+                f"ambient alone (alpha {float(decision.keep_returns):g})")
+
+    def flags(alpha, pixels):
+        return lambda: iter_ambient_only(counts, sensor, alpha=alpha, pixels=pixels, frames=AMBIENT_FRAMES)
+
+    return UpscaleJob(
+        rec, model, name, label, units, gate, scale, warnings, source, choice.precision,
+        found if read.clip_negative else None, decision, _lr_stream=lambda: lr_stream(model.channels),
+        _ambient_stream=None if decision.ambient_alpha is None else flags(decision.ambient_alpha, 3),
+        # each pixel's own photons (pixels=1): a return in the block keeps the block's depth
+        _keep_stream=None if decision.keep_returns is None else flags(decision.keep_returns, 1))
+
+
+def _refuse_photon_model(planned) -> None:
+    """Depth frames cannot feed a model that reads the photons behind each depth."""
+    if planned.model is not None and planned.model.reads_photons:
+        raise ValueError(f"model {planned.name} reads {', '.join(planned.model.channels)} per pixel, which depth "
+                         "frames do not hold: give it photon histograms or time tags, or choose a depth model "
+                         "(tr0..tr4)")
+
+
+def _head(frames, n):
+    """The first n frames of an iterable, stacked."""
+    return np.stack(list(itertools.islice(frames, n)))
+
+
+def _plural(n: int, noun: str) -> str:
+    return f"{n} {noun}" + ("" if n == 1 else "s")
+
+
+def _clipped_note(counts: int, pixels: int) -> str:
+    """The warning on negative counts clipped (--clip-negative): how many, in how many pixels."""
+    return (f"{_plural(counts, 'negative count')} in {_plural(pixels, 'pixel')} clipped at 0 (--clip-negative: "
+            "background-subtracted histograms)")
+
+
+def array_recording(arr: np.ndarray, kind: str | None) -> Recording:
+    """A NumPy array as a recording: (T, h, w) depth or (T, h, w, bins) counts, one (h, w) frame allowed."""
+    if arr.dtype.kind not in "iuf":
+        raise ValueError(f"array input holds {arr.dtype} values; expected real numbers")
+    if arr.ndim == 2 and kind != "histograms":
+        arr = arr[None]
+    kind = kind or {3: "depth", 4: "histograms"}.get(arr.ndim)
+    if kind is None or arr.ndim != {"depth": 3, "histograms": 4}[kind]:
+        raise ValueError(f"array input: expected depth (T, h, w) or histograms (T, h, w, bins), got shape {arr.shape}")
+    if arr.shape[0] < 1:
+        raise ValueError("array input: the recording has no frames")
+    return Recording(kind, arr.shape[0], arr.shape[1:], lambda: iter(arr), "array", array=arr)
+
+
+def _open(input, read: Reading, max_memory):
+    """(recording, gate, source, warnings) for the input: time tags histogrammed over their gate (the warnings
+    on photons dropped or a likely wrong time unit), histograms with theirs, or depth (None for the gate; the
+    gate's options and clip_negative refused there)."""
+    if input is None:
+        raise TypeError("input: expected a path, a Recording, a NumPy array (T, h, w) or (T, h, w, bins) or "
+                        "TimeTags, got None")
+    width, start = read.bin_width, read.gate_start
+    if read.kind == "timetags" or isinstance(input, TimeTags):
+        if isinstance(input, TimeTags):
+            tags = input
+        else:
+            if not str(input).lower().endswith(TIME_TAG_FORMATS):
+                raise ValueError(f"{input}: time tags are read from a MATLAB .mat cell array (v4-v7) or an .npz "
+                                 "table ('pixel', 'time', 'shape')")
+            tags = read_time_tags(input, variable=read.variable, time_unit_s=read.time_unit, max_memory=max_memory)
+        if (width is None) != (start is None):
+            raise ValueError("give both --bin-width and --gate-start, or neither (the gate then spans the photons)")
+        if read.clip_negative:
+            raise ValueError("--clip-negative applies to histograms only (counts of time tags are never negative)")
+        gate = gate_of_tags(tags, bins=read.n_bins) if width is None else Gate(read.n_bins, width, start)
+        outside = "drop" if read.drop_outside else "error"
+        rec = time_tag_recording(tags, gate, outside=outside, max_memory=max_memory)
+        source = str(input) if not isinstance(input, TimeTags) else tags.source
+        return rec, gate, source, tuple(time_tag_warnings(tags, gate, outside=outside))
+    if read.tag_options:
+        raise ValueError(f"{', '.join(read.tag_options)} applies to --input timetags only")
+    if isinstance(input, Recording):
+        rec, source = input, str(input.source)
+        if read.kind is not None and read.kind != rec.kind:
+            raise ValueError(f"{source}: a {rec.kind} recording, not {read.kind}")
+    elif isinstance(input, np.ndarray):
+        rec, source = array_recording(input, read.kind), "array"
+    else:
+        rec, source = open_recording(input, kind=read.kind, max_memory=max_memory), str(input)
+    if rec.kind == "depth":
+        read.refuse_for_depth()
+        return rec, None, source, ()
+    default = Gate()
+    gate = Gate(read.n_bins, default.bin_width if width is None else width, 0.0 if start is None else start)
+    return rec, gate, source, ()

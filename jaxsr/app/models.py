@@ -1,0 +1,115 @@
+"""Which model `jaxsr upscale` runs (`ModelChoice`), resolved in two steps: `plan_model` before the recording is
+read (a named model loaded and checked, the bundled files of "default" and "auto" looked up, so a missing or bad
+model is said before a long pass over the input), and `finish_model` once the recording's kind and first frames are
+known (the default of that kind, or the TR "auto" picks from the motion; then the no-return threshold, the form
+and the precision). Nothing here asks a model's kind: the model answers (`jaxsr.nn.Model`).
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Callable, NamedTuple
+
+import numpy as np
+
+from ..config import PhotonRegime
+from ..inference import check_precision, in_form, resolve_model
+from ..io.checkpoint import load_model, read_metadata, resolve_model_path
+from ..nn.duf import with_no_return_logit
+from ..nn.model import Model
+from .specs import ModelChoice
+
+__all__ = ["DEFAULT_MODELS", "PlannedModel", "plan_model", "finish_model", "trained_snr_range", "heads"]
+
+# model="default": the bundled model that fits the input. Depth gives only the centre of mass, which the paper's
+# TR4 reads; histograms and time tags also give the photons behind it, which tr4-ambient reads: ahead of TR4 in
+# every simulated regime and by 2 dB on average on two real recordings (docs/results/photon-regimes.md, the default)
+DEFAULT_MODELS = {"depth": "tr4", "histograms": "tr4-ambient"}
+AUTO_TRS = tuple(f"tr{k}" for k in range(5))  # what model="auto" picks among
+
+
+class PlannedModel(NamedTuple):
+    """`plan_model`'s result: the model when it is named (loaded and checked), else None ("default", "auto"),
+    and its name as people read it."""
+
+    model: Model | None
+    name: str
+
+
+def plan_model(choice: ModelChoice) -> PlannedModel:
+    """The first step, before the recording is read: load a named model and check the choice's precision, form
+    and no-return threshold on it; for "default" and "auto", check that their bundled files are there and that
+    a threshold applies to at least one model they may pick."""
+    if choice.is_default or choice.is_auto:
+        name = "default" if choice.is_default else "auto"
+        for path in picks(name):
+            resolve_model_path(path)
+        if choice.no_return_logit is not None and not any(heads(name)):
+            raise ValueError(f"no_return_logit (--no-return-logit) applies to models with a no-return head; --model "
+                             f"{name} picks {' or '.join(picks(name))}, which have none: name one that has, such as "
+                             "tr4-ambient")
+        return PlannedModel(None, name)
+    model = choice.model if isinstance(choice.model, Model) else load_model(choice.model)
+    check_precision(model, choice.precision, "precision (--precision)")
+    in_form(model, choice.form, "form (--form)")
+    if choice.no_return_logit is not None:
+        with_no_return_logit(model, choice.no_return_logit)  # raises for a model without the head
+    return PlannedModel(model, "model" if isinstance(choice.model, Model) else str(choice.model))
+
+
+def finish_model(choice: ModelChoice, planned: PlannedModel, kind: str,
+                 lr_head: Callable[[], np.ndarray]) -> tuple[Model, str]:
+    """The second step, once the recording is open: the model for input of `kind` ("depth" or "histograms"), with
+    `lr_head()` the recording's first LR frames where "auto" measures the motion; at the choice's no-return
+    threshold, in its form, its precision checked. Returns (model, name as people read it)."""
+    model, name = planned
+    if choice.is_default:
+        name = DEFAULT_MODELS[kind]
+        model = load_model(name)
+    elif choice.is_auto:
+        model, name = resolve_model("auto", lr_head(), min_fps=choice.min_fps)
+    if choice.no_return_logit is not None:
+        model = with_no_return_logit(model, choice.no_return_logit)
+        name = f"{name} at no-return logit {float(choice.no_return_logit):g}"
+    model = in_form(model, choice.form, "form (--form)")
+    check_precision(model, choice.precision, "precision (--precision)")
+    return model, name
+
+
+def picks(name: str, kind: str | None = None) -> list[str]:
+    """The bundled models that "auto" or "default" may pick (for input of `kind`, where given)."""
+    if name == "auto":
+        return list(AUTO_TRS)
+    return [DEFAULT_MODELS[kind]] if kind else sorted(set(DEFAULT_MODELS.values()))
+
+
+def heads(name: str, kind: str | None = None) -> list[bool]:
+    """Whether each bundled model that "auto" or "default" may pick (for input of `kind`) has a no-return head,
+    read from the files' metadata (nothing is loaded)."""
+    return [read_metadata(resolve_model_path(p))["config"].get("no_return_head", False) for p in picks(name, kind)]
+
+
+def has_head(choice: ModelChoice, planned: PlannedModel, kind: str | None = None) -> bool:
+    """True when the model chosen (for input of `kind`) surely has a no-return head: a named model's own answer,
+    or every model "auto" or "default" may pick."""
+    if planned.model is not None:
+        return planned.model.has_no_return_head
+    return all(heads(planned.name, kind))
+
+
+def trained_snr_range(choice: ModelChoice, kind: str) -> tuple[float, float]:
+    """The frame SNRs the model chosen for input of `kind` was trained on: its card's regime where the model was
+    named by a file or a bundled name whose card has a valid one (a model given loaded has no card here), else the
+    wide photon regime's (`jaxsr.config.PhotonRegime`), the bundled models'."""
+    default = tuple(PhotonRegime().snr_range)
+    spec = DEFAULT_MODELS[kind] if choice.is_default else choice.model
+    if not isinstance(spec, (str, os.PathLike)):
+        return default
+    card = read_metadata(resolve_model_path(spec)).get("card")
+    regime = card.get("regime") if isinstance(card, dict) else None
+    found = regime.get("snr_range") if isinstance(regime, dict) else None
+    try:
+        lo, hi = (float(x) for x in found)
+    except (TypeError, ValueError):  # absent or malformed: a card is metadata, not a reason to fail
+        return default
+    return (lo, hi) if 0 < lo <= hi < float("inf") else default

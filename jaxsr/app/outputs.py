@@ -1,0 +1,119 @@
+"""Where `jaxsr upscale` writes, checked before any work: the OUTPUT (an array file or a folder of frames) and
+what `Writing` adds beside it (a preview, a video, point clouds), and the reference the video shows. Nothing is
+written here; `check_outputs` returns the checked paths as `Outputs`, which `jaxsr.app.write_upscaled` takes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+
+from ..io.files import check_output_folder, check_writable, refuse_link
+from ..io.pointcloud import check_points_folder
+from ..io.video import check_video
+from .recordings import ARRAY_FORMATS, Recording, open_recording
+from .specs import Writing
+
+__all__ = ["Outputs", "check_outputs", "check_output", "check_preview"]
+
+
+@dataclasses.dataclass(frozen=True)
+class Outputs:
+    """Checked destinations (`check_outputs`): output (None: the result is kept in memory), preview, video and
+    points (None where not asked for), and the `Writing` they came from."""
+
+    output: Path | None
+    preview: Path | None
+    video: Path | None
+    points: Path | None
+    writing: Writing
+
+    @property
+    def folder(self) -> bool:
+        """True when OUTPUT is a folder of frame files."""
+        return self.output is not None and self.output.suffix.lower() not in ARRAY_FORMATS
+
+    @property
+    def in_memory(self) -> bool:
+        """True when the whole result is held in memory: kept (no OUTPUT) or written as one .npz."""
+        return self.output is None or self.output.suffix.lower() == ".npz"
+
+
+def check_outputs(output, writing: Writing = Writing()) -> Outputs:
+    """Check OUTPUT and every path of `writing` once, before anything is read or run: each is refused where it
+    exists (unless `writing.overwrite`), cannot be written, is a symbolic link or is another of them; a reference
+    given as a path must exist and read as depth (its frames are checked against the output's once the model is
+    known). Writes nothing. Returns `Outputs`. Raises FileExistsError, IsADirectoryError, NotADirectoryError,
+    FileNotFoundError, `jaxsr.io.NotWritableError` or ValueError."""
+    if not isinstance(writing, Writing):
+        raise TypeError(f"writing: expected a jaxsr.app.Writing, got {type(writing).__name__}")
+    force = writing.overwrite
+    out = None if output is None else check_output(output, force=force)
+    preview = None if writing.preview is None else check_preview(writing.preview, force=force, output=out)
+    video = None if writing.video is None else check_video(writing.video, force=force, output=out)
+    points = None if writing.points is None else check_points_folder(writing.points, force=force, output=out)
+    if writing.reference is not None and not isinstance(writing.reference, (np.ndarray, Recording)):
+        open_recording(writing.reference, kind="depth")  # exists and reads
+    if writing.frame_format is not None and (out is None or out.suffix.lower() in ARRAY_FORMATS):
+        raise ValueError(f"frame_format (--frame-format) applies to a folder OUTPUT (one file per frame), not "
+                         f"{'an output kept in memory' if out is None else out}")
+    return Outputs(out, preview, video, points, writing)
+
+
+def check_output(spec, *, force: bool) -> Path:
+    """OUTPUT: .npy / .npz (one array, in an existing folder) or a folder (one frame file per frame; missing
+    parent folders are created when the frames are all written). Refuses to replace an existing file or write
+    into a non-empty folder unless `force`, and in any case a file where a folder is meant, a symbolic link
+    (the output is moved into place by a rename, which would replace the link, not write where it points) and a
+    folder this process cannot write into (`jaxsr.io.files.check_output_folder`). Writes nothing."""
+    out = Path(spec)
+    refuse_link(out, "OUTPUT")
+    if out.suffix.lower() in ARRAY_FORMATS:
+        _check_new_file(out, force=force, what=f"OUTPUT {out.suffix}")
+    elif out.suffix:
+        raise ValueError(f"{out}: OUTPUT is an .npy or .npz file, or a folder for frames (see --frame-format)")
+    elif out.exists() and not out.is_dir():
+        raise FileExistsError(f"{out} is a file; OUTPUT without a suffix is a folder for frames")
+    elif out.is_dir() and any(out.iterdir()) and not force:
+        raise FileExistsError(f"{out} exists and is not an empty folder; pass --force to write into it")
+    else:
+        _check_ancestors(out)
+        check_output_folder(out)
+    return out
+
+
+def _check_new_file(path: Path, *, force: bool, what: str) -> None:
+    """A file about to be written: not a folder, not an existing file unless `force`, in an existing folder that
+    this process can write into."""
+    if path.is_dir():
+        raise IsADirectoryError(f"{path} is a folder; {what} is a file")
+    if path.exists() and not force:
+        raise FileExistsError(f"{path} exists; pass --force to overwrite it")
+    if not path.parent.is_dir():
+        raise FileNotFoundError(f"no such folder for {what}: {path.parent}")
+    check_writable(path.parent, path)
+
+
+def _check_ancestors(path: Path) -> None:
+    """Refuse a folder path whose nearest existing ancestor is a file (it could never be created)."""
+    p = path.parent
+    while not p.exists():
+        p = p.parent
+    if not p.is_dir():
+        raise NotADirectoryError(f"cannot create the folder {path}: {p} is a file")
+
+
+def check_preview(spec, *, force: bool, output=None) -> Path:
+    """A preview path (.png): refuses an existing file unless `force`, a missing folder, and the OUTPUT path
+    itself. Writes nothing."""
+    path = Path(spec)
+    if path.suffix.lower() != ".png":
+        raise ValueError(f"{path}: the preview is a .png file")
+    if output is not None and path.resolve() == Path(output).resolve():
+        raise ValueError(f"{path}: the preview and OUTPUT are the same file")
+    _check_new_file(path, force=force, what="the preview")
+    return path
+
+
