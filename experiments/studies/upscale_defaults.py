@@ -4,7 +4,7 @@ ambient-only test empties what it outputs, both chosen from what the recording s
     python experiments/studies/upscale_defaults.py                 # 1-100 photons, SNR 0.1-5, 8 frames per scene
     python experiments/studies/upscale_defaults.py --snr 0.2 1.3 --photons 3 --frames 2   # a quick look
 
-What a recording says: `jaxsr.inference.photon_levels` of its first HEAD_FRAMES frames, its frame SNR
+What a recording says: `jaxsr.app.photon_levels` of its first HEAD_FRAMES frames, its frame SNR
 (`jaxsr.sensor.frame_snr`) and its signal photons per LR pixel with a return and frame
 (`jaxsr.sensor.signal_photons`), here drawn at each regime as `jaxsr upscale` would read them.
 
@@ -238,7 +238,7 @@ def report(rows, tests, models, *, started, frames: int, seed: int) -> str:
     return (header("The defaults of jaxsr upscale on photon input", started)
             + f"The test scenes of the photon benchmark, {frames} frames each spread over {SEQUENCE_FRAMES}, noise "
             f"seed {seed} (the same noise for every method); the test: `jaxsr.sensor.ambient_only` at alpha "
-            f"{AUTO_AMBIENT_ALPHA:g}; estimates: `jaxsr.inference.photon_levels` of each scene's first "
+            f"{AUTO_AMBIENT_ALPHA:g}; estimates: `jaxsr.app.photon_levels` of each scene's first "
             f"{HEAD_FRAMES} frames drawn at the regime. Changes are PSNR against the paper's TR4 alone (the old "
             f"default), over the {len(rows)} scene-regimes (mean of each scene's frames). How it is made: the "
             "docstring of the script.\n\n"

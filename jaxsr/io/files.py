@@ -388,7 +388,7 @@ def atomic_folder(path, *, overwrite: bool = True):
     into it, replacing files of the same name), creating missing parent folders only then. Any exception,
     KeyboardInterrupt included, removes the temporary folder, so a partial folder never looks complete.
 
-    The caller decides beforehand whether `path` may be written into (`jaxsr.io.recordings.check_output`);
+    The caller decides beforehand whether `path` may be written into (`jaxsr.app.outputs.check_output`);
     overwrite=False claims a new folder: FileExistsError at the end, writing nothing into it, if `path` holds
     files by then (another writer's, created while this one ran). Raises FileExistsError if `path` is a file,
     and a `WriteError` or `NotWritableError` naming `path` (or the file inside it) for an OSError of the disk
