@@ -10,7 +10,10 @@ from pathlib import Path
 import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "jaxsr"
-STAGES = {"sensor", "scenes", "nn", "baselines", "training", "inference", "io", "eval", "cli"}
+STAGES = {"sensor", "scenes", "nn", "baselines", "training", "inference", "io", "eval", "app", "cli"}
+# The stages from the bottom up: a stage imports only stages below it (the command on top, then the application,
+# training, the engine of inference, the metrics, the files, the networks and the physics)
+LAYERS = ("sensor", "scenes", "nn", "baselines", "io", "eval", "inference", "training", "app", "cli")
 FLAT = {"config", "runtime", "checks", "temporal"}  # besides __init__: at most 8 modules stay flat
 BOTTOM = FLAT | {"eval.metrics", "eval.stats", "nn.layers", "nn.model", "io.files", "sensor.poisson"}
 
@@ -82,6 +85,18 @@ def test_imports_point_one_way():
 def test_the_bottom_modules_import_no_stage(module):
     for dep in graph()[module]:
         assert dep in BOTTOM, f"jaxsr.{module} imports jaxsr.{dep}, above it"
+
+
+def test_no_import_runs_back_up_the_layers():
+    """`io` (files and checkpoints) and `eval` (metrics) import no stage above them; the engine does not import the
+    application, nor the application the command."""
+    rank = {stage: i for i, stage in enumerate(LAYERS)}
+    for module, deps in graph().items():
+        here = rank.get(module.split(".")[0])
+        for dep in deps:
+            there = rank.get(dep.split(".")[0])
+            if here is not None and there is not None and dep not in BOTTOM:
+                assert there <= here, f"jaxsr.{module} imports jaxsr.{dep}, a stage above it"
 
 
 def test_nothing_in_the_library_imports_the_cli():

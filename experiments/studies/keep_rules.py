@@ -46,7 +46,7 @@ from photon_regimes import no_return_decision  # experiments/studies
 from real_photons import (DEFAULT_DATA, FACTOR, LEVELS, MAX_FRAMES, RESULTS, SOURCES, bin_pixels, histogram_frames,
                           masked_scores, model_input, photon_video, read_recording, references)
 
-KEEP_ALPHA = 1e-3  # the default's false-alarm rate (jaxsr.inference.AUTO_KEEP_RETURNS)
+KEEP_ALPHA = 1e-3  # the default's false-alarm rate (jaxsr.app.AUTO_KEEP_RETURNS)
 SIGNALS = (10.0, 30.0)  # S of "signal >= S", photons per LR pixel and frame
 MARGINS = (2.0, 4.0)  # d of "+d where a return"
 WINDOW = 9  # frames the keep test sums (a TR4 window)

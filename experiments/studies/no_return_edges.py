@@ -77,7 +77,7 @@ from jaxsr.sensor import (
 SCRIPT = "experiments/studies/no_return_edges.py"
 PHOTONS = (3.0, 14.0, 100.0, 1000.0)
 R = 4  # frames on either side: the test sums a TR4 window's 2R + 1
-TEST_ALPHA = 1e-3  # the 3 x 3 x 9 test's false-alarm rate (`jaxsr.inference.AUTO_AMBIENT_ALPHA`)
+TEST_ALPHA = 1e-3  # the 3 x 3 x 9 test's false-alarm rate (`jaxsr.app.AUTO_AMBIENT_ALPHA`)
 # the library's rules (jaxsr.sensor.no_return), here without its guard
 GROW_ALPHA, RETURN_ALPHA = no_return.JOIN_ABOVE, no_return.RETURN_AT
 REFERENCE_PIXELS = no_return.REFERENCE_SIDE

@@ -27,7 +27,7 @@ def run(args) -> int:
         return 0
     cfg = info["config"]
     lines = [info["path"]]
-    if info["architecture"] == "duf":
+    if "temporal" in info:  # what the architecture describes of itself: a network with temporal forms
         r = info["input_radius"]
         form = (f"window of {info['frames_per_window']} frames" if info["temporal"] == "window" else
                 f"sequence form: frame t from frames t-{r} .. t+{r}, stream latency {r} frames")
