@@ -6,6 +6,8 @@ written here; `check_outputs` returns the checked paths as `Outputs`, which `jax
 from __future__ import annotations
 
 import dataclasses
+import glob
+import os
 from pathlib import Path
 
 import numpy as np
@@ -13,7 +15,7 @@ import numpy as np
 from ..io.files import check_output_folder, check_writable, refuse_link
 from ..io.pointcloud import check_points_folder
 from ..io.video import check_video
-from .recordings import ARRAY_FORMATS, Recording, open_recording
+from .recordings import ARRAY_FORMATS, FRAME_FORMATS, Recording, open_recording
 from .specs import Writing
 
 __all__ = ["Outputs", "check_outputs", "check_output", "check_preview"]
@@ -41,25 +43,58 @@ class Outputs:
         return self.output is None or self.output.suffix.lower() == ".npz"
 
 
-def check_outputs(output, writing: Writing = Writing()) -> Outputs:
+def check_outputs(output, writing: Writing = Writing(), *, input=None) -> Outputs:
     """Check OUTPUT and every path of `writing` once, before anything is read or run: each is refused where it
-    exists (unless `writing.overwrite`), cannot be written, is a symbolic link or is another of them; a reference
-    given as a path must exist and read as depth (its frames are checked against the output's once the model is
-    known). Writes nothing. Returns `Outputs`. Raises FileExistsError, IsADirectoryError, NotADirectoryError,
-    FileNotFoundError, `jaxsr.io.NotWritableError` or ValueError."""
+    exists (unless `writing.overwrite`), cannot be written, is a symbolic link or is another of them, and, even
+    with overwrite, where it is the input (`input`: a path, a folder or glob pattern of frames) or the reference,
+    or the folder of their frames; a reference given as a path must exist and read as depth (its frames are
+    checked against the output's once the model is known). Writes nothing. Returns `Outputs`. Raises
+    FileExistsError, IsADirectoryError, NotADirectoryError, FileNotFoundError, `jaxsr.io.NotWritableError` or
+    ValueError."""
     if not isinstance(writing, Writing):
         raise TypeError(f"writing: expected a jaxsr.app.Writing, got {type(writing).__name__}")
     force = writing.overwrite
+    reads = {"the input": input, "the reference": writing.reference}
     out = None if output is None else check_output(output, force=force)
     preview = None if writing.preview is None else check_preview(writing.preview, force=force, output=out)
     video = None if writing.video is None else check_video(writing.video, force=force, output=out)
     points = None if writing.points is None else check_points_folder(writing.points, force=force, output=out)
+    for what, path in (("OUTPUT", out), ("the preview", preview), ("the video", video),
+                       ("the point clouds' folder", points)):
+        for whose, source in reads.items():
+            _refuse_writing_over(path, what, source, whose)
     if writing.reference is not None and not isinstance(writing.reference, (np.ndarray, Recording)):
         open_recording(writing.reference, kind="depth")  # exists and reads
     if writing.frame_format is not None and (out is None or out.suffix.lower() in ARRAY_FORMATS):
         raise ValueError(f"frame_format (--frame-format) applies to a folder OUTPUT (one file per frame), not "
                          f"{'an output kept in memory' if out is None else out}")
     return Outputs(out, preview, video, points, writing)
+
+
+def _read_paths(source) -> tuple[set[Path], set[Path]]:
+    """(files, folders of frames) a recording given as `source` reads: a file, a folder's files and the folder,
+    a glob pattern's matches and their folders; nothing for arrays and other objects."""
+    if not isinstance(source, (str, os.PathLike)):
+        return set(), set()
+    spec = str(source)
+    files = {Path(f) for f in glob.glob(spec)} if any(c in spec for c in "*?[") else {Path(spec)}
+    folders = {f for f in files if f.is_dir()}
+    for folder in folders:
+        files |= set(folder.iterdir())
+    folders |= {f.parent for f in files if f.suffix.lower() in FRAME_FORMATS}
+    return {f.resolve() for f in files if f.exists()}, {f.resolve() for f in folders if f.exists()}
+
+
+def _refuse_writing_over(path: Path | None, what: str, source, whose: str) -> None:
+    """Refuse `path` (a file or folder about to be written) where it is a file that `source` reads, or a folder of
+    its frames: nothing a recording is read from is ever written over, --force or not."""
+    if path is None:
+        return
+    files, folders = _read_paths(source)
+    target = path.resolve()
+    if target in files or target in folders:
+        raise ValueError(f"{path}: {what} is {whose} itself{' (or its folder of frames)' if target in folders else ''}"
+                         f"; choose another path (nothing is written over what is read)")
 
 
 def check_output(spec, *, force: bool) -> Path:

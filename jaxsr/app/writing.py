@@ -24,7 +24,7 @@ from .job import UpscaleJob, array_recording
 from .memory import batch_size_of, check_memory
 from .outputs import Outputs, check_outputs
 from .recordings import Recording, guess_units, open_recording, to_units
-from .specs import Writing
+from .specs import FRAME_FORMATS, Writing
 
 __all__ = ["UpscaleResult", "write_upscaled"]
 
@@ -140,7 +140,7 @@ def write_upscaled(job: UpscaleJob, output, write: Writing = Writing(), *, batch
     `jaxsr.io.NotWritableError` or ValueError for an output, preview, video, reference or point clouds' folder
     that cannot be written or read, or a symbolic link among them (checked before any work).
     """
-    outputs = output if isinstance(output, Outputs) else check_outputs(output, write)
+    outputs = output if isinstance(output, Outputs) else check_outputs(output, write, input=job.source)
     write, out = outputs.writing, outputs.output
     batch_size = batch_size_of(job, batch_size)
     frame_format = _frame_format(write.frame_format, outputs, job)
@@ -247,7 +247,9 @@ def _write(job: UpscaleJob, outputs: Outputs, frame_format, ref, batch_size: int
                                scale=job.scale_factor)
                 finish()
         else:
-            with atomic_folder(out, overwrite=write.overwrite) as tmp:
+            # --force: the folder holds this run's frames only (an earlier run's, of any format, are removed)
+            with atomic_folder(out, overwrite=write.overwrite,
+                               replaces=tuple(f"frame_*.{f}" for f in FRAME_FORMATS)) as tmp:
                 for t, f in frames("m"):
                     write_depth(tmp / f"frame_{t:06d}.{frame_format}", f)
                     if frame_format == "png":

@@ -382,10 +382,12 @@ def _nearest_existing(path: Path) -> Path:
 
 
 @contextlib.contextmanager
-def atomic_folder(path, *, overwrite: bool = True):
+def atomic_folder(path, *, overwrite: bool = True, replaces: tuple[str, ...] = ()):
     """Yield a new hidden temporary folder (`.NAME.WRITER-PID.XXXXXXXX.partial`) for the files of the folder `path`;
     when the block succeeds, the folder becomes `path` (or, if `path` is an existing folder, its files are moved
-    into it, replacing files of the same name), creating missing parent folders only then. Any exception,
+    into it, replacing files of the same name, and the files there that match a glob pattern of `replaces` but
+    were not written now are removed: an earlier run's frames do not mix with this run's), creating missing parent
+    folders only then. Any exception,
     KeyboardInterrupt included, removes the temporary folder, so a partial folder never looks complete.
 
     The caller decides beforehand whether `path` may be written into (`jaxsr.app.outputs.check_output`);
@@ -420,9 +422,14 @@ def atomic_folder(path, *, overwrite: bool = True):
         if not path.exists() or not any(path.iterdir()):
             os.replace(tmp, path)  # an empty folder is replaced as a whole
             return
-        for f in sorted(tmp.iterdir()):
-            os.replace(f, path / f.name)
+        written = {f.name for f in tmp.iterdir()}
+        for name in sorted(written):
+            os.replace(tmp / name, path / name)
         tmp.rmdir()
+        for pattern in replaces:  # an earlier run's output of the same kind, left over
+            for stale in path.glob(pattern):
+                if stale.name not in written and stale.is_file() and not stale.is_symlink():
+                    stale.unlink()
     except BaseException as e:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)

@@ -156,7 +156,7 @@ class PointCloudWriter:
 
     def __enter__(self):
         self._stack = contextlib.ExitStack()
-        self._tmp = self._stack.enter_context(atomic_folder(self.folder))
+        self._tmp = self._stack.enter_context(atomic_folder(self.folder, replaces=("frame_*.ply",)))
         return self
 
     def __exit__(self, exc_type, exc, tb):

@@ -1,0 +1,77 @@
+"""`jaxsr upscale` never writes over what it reads, --force or not: the input (a file, a folder or pattern of
+frames) and the reference stay as they were; and a folder written with --force holds this run's frames only."""
+
+import numpy as np
+import pytest
+
+from jaxsr import cli, io
+
+
+def command(*args):
+    return cli.main(["upscale", *map(str, args), "--no-progress"])
+
+
+@pytest.fixture
+def depth(tmp_path):
+    """3 LR frames of metres in rec.npy."""
+    frames = np.full((3, 8, 8), 12.0, np.float32)
+    np.save(tmp_path / "rec.npy", frames)
+    return tmp_path / "rec.npy"
+
+
+@pytest.mark.parametrize("extra", [[], ["--force"]])
+def test_the_input_is_not_its_own_output(depth, model_path, capsys, extra):
+    before = depth.read_bytes()
+    assert command(depth, depth, "--model", model_path, *extra) == 2
+    assert depth.read_bytes() == before
+    if extra:  # without --force the file's existence is said first
+        assert "OUTPUT is the input itself" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("how", ["folder", "pattern"])
+def test_a_folder_of_frames_is_not_written_into(tmp_path, model_path, capsys, how):
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for t in range(3):
+        io.write_depth(frames / f"frame_{t:06d}.pfm", np.full((8, 8), 10.0 + t, np.float32))
+    before = {f.name: f.read_bytes() for f in frames.iterdir()}
+    source = frames if how == "folder" else f"{frames}/frame_*.pfm"
+    assert command(source, frames, "--model", model_path, "--force", "--frame-format", "pfm") == 2
+    assert "the input itself (or its folder of frames)" in capsys.readouterr().err
+    assert {f.name: f.read_bytes() for f in frames.iterdir()} == before
+
+
+def test_a_preview_is_not_written_over_an_input_frame(tmp_path, model_path, capsys):
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for t in range(2):
+        io.write_depth(frames / f"frame_{t:06d}.png", np.full((8, 8), 10.0, np.float32))
+    before = (frames / "frame_000000.png").read_bytes()
+    assert command(frames, tmp_path / "o.npy", "--model", model_path, "--preview", frames / "frame_000000.png",
+                   "--force") == 2
+    assert "the preview is the input itself" in capsys.readouterr().err
+    assert (frames / "frame_000000.png").read_bytes() == before and not (tmp_path / "o.npy").exists()
+
+
+def test_the_reference_is_not_overwritten_by_the_output(depth, tmp_path, model_path, capsys):
+    reference = tmp_path / "ref.npy"
+    np.save(reference, np.full((3, 32, 32), 12.0, np.float32))
+    before = reference.read_bytes()
+    assert command(depth, reference, "--model", model_path, "--video", tmp_path / "v.gif", "--reference", reference,
+                   "--force") == 2
+    assert "OUTPUT is the reference itself" in capsys.readouterr().err
+    assert reference.read_bytes() == before and not (tmp_path / "v.gif").exists()
+
+
+def test_a_folder_written_with_force_holds_this_runs_frames_only(tmp_path, model_path):
+    long = tmp_path / "long.npy"
+    np.save(long, np.full((5, 8, 8), 12.0, np.float32))
+    short = tmp_path / "short.npy"
+    np.save(short, np.full((2, 8, 8), 20.0, np.float32))
+    out, clouds = tmp_path / "out", tmp_path / "clouds"
+    assert command(long, out, "--model", model_path, "--points", clouds) == 0
+    (out / "notes.txt").write_text("mine")  # not a frame: kept
+    assert command(short, out, "--model", model_path, "--force", "--frame-format", "pfm", "--points", clouds) == 0
+    assert sorted(f.name for f in out.iterdir()) == ["frame_000000.pfm", "frame_000001.pfm", "notes.txt"]
+    assert sorted(f.name for f in clouds.iterdir()) == ["frame_000000.ply", "frame_000001.ply"]
+    np.testing.assert_allclose(io.read_depth(out / "frame_000001.pfm"), 20.0, atol=5.0)
