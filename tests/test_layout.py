@@ -12,7 +12,7 @@ import pytest
 PACKAGE = Path(__file__).resolve().parents[1] / "jaxsr"
 STAGES = {"sensor", "scenes", "nn", "baselines", "training", "inference", "io", "eval", "cli"}
 FLAT = {"config", "runtime", "checks", "temporal"}  # besides __init__: at most 8 modules stay flat
-BOTTOM = FLAT | {"eval.metrics", "eval.stats", "nn.layers", "nn.model", "io.files", "sensor.poisson"}
+BOTTOM = FLAT | {"eval", "eval.metrics", "eval.stats", "nn.layers", "nn.model", "io.files", "sensor.poisson"}
 
 
 def module_name(path: Path) -> str:

@@ -28,6 +28,7 @@ from --data.
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from pathlib import Path
 
@@ -36,8 +37,6 @@ import numpy as np
 
 import jaxsr
 from jaxsr.baselines import block_mean
-from jaxsr.eval.reports import header, markdown_table, write_atomic
-from jaxsr.eval.scoring import frame_windows
 from jaxsr.inference import lr_blocks
 from jaxsr.inference.video import overrule_no_return
 from jaxsr.sensor.peaks import window_sums
@@ -45,6 +44,10 @@ from jaxsr.training.no_return import no_return_outputs
 from photon_regimes import no_return_decision  # experiments/studies
 from real_photons import (DEFAULT_DATA, FACTOR, LEVELS, MAX_FRAMES, RESULTS, SOURCES, bin_pixels, histogram_frames,
                           masked_scores, model_input, photon_video, read_recording, references)
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
+from harness.reports import header, markdown_table, write_atomic  # noqa: E402
+from harness.scoring import frame_windows  # noqa: E402
 
 KEEP_ALPHA = 1e-3  # the default's false-alarm rate (jaxsr.inference.AUTO_KEEP_RETURNS)
 SIGNALS = (10.0, 30.0)  # S of "signal >= S", photons per LR pixel and frame

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -61,8 +62,6 @@ from scipy import ndimage
 import jaxsr
 from jaxsr.baselines import block_mean
 from jaxsr.config import SensorConfig
-from jaxsr.eval.reports import header, markdown_table, write_atomic
-from jaxsr.eval.scoring import scored_frames
 from jaxsr.inference import no_return_where
 from jaxsr.sensor import (
     ambient_only,
@@ -73,6 +72,10 @@ from jaxsr.sensor import (
     sample_poisson,
     share_of_window,
 )
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
+from harness.reports import header, markdown_table, write_atomic  # noqa: E402
+from harness.scoring import scored_frames  # noqa: E402
 
 SCRIPT = "experiments/studies/no_return_edges.py"
 PHOTONS = (3.0, 14.0, 100.0, 1000.0)

@@ -27,6 +27,7 @@ from __future__ import annotations
 import argparse
 import functools
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -47,11 +48,13 @@ from scipy import ndimage
 
 import jaxsr
 from jaxsr.config import SensorConfig
-from jaxsr.eval.reports import header, markdown_table, write_atomic
-from jaxsr.eval.scoring import scored_frames
 from jaxsr.nn import network_inputs
 from jaxsr.nn.duf import apply_model_raw
 from jaxsr.sensor import ambient_only, calibrated_rates, default_window, normalise_depth, peak_evidence, sample_poisson
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
+from harness.reports import header, markdown_table, write_atomic  # noqa: E402
+from harness.scoring import scored_frames  # noqa: E402
 
 SCRIPT = "experiments/studies/no_return_evidence.py"
 POOLS = (1, 3, 5, 7)  # LR pixels on a side of the square summed

@@ -47,6 +47,7 @@ import argparse
 import dataclasses
 import functools
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -56,8 +57,6 @@ import numpy as np
 
 import jaxsr
 from jaxsr.config import PhotonRegime
-from jaxsr.eval.reports import header, markdown_table, write_atomic
-from jaxsr.eval.scoring import frame_windows, scored_frames
 from jaxsr.io.checkpoint import resolve_model_path, save_model
 from jaxsr.nn import apply_model_features, no_return_logits
 from jaxsr.nn.layers import conv2d, glorot_limit
@@ -69,6 +68,10 @@ from jaxsr.training.optim import adam_init, adam_update
 from photon_regimes import (AMBIENT_RADIUS, GOAL_AS_DEPTH, GOAL_DROPPED, NO_RETURN_MIN_PHOTONS, NO_RETURN_SNR,
                             SEQUENCE_FRAMES, TEST_SCENES, check_static, interior, no_return_rates, regime_clips,
                             with_no_return)
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
+from harness.reports import header, markdown_table, write_atomic  # noqa: E402
+from harness.scoring import frame_windows, scored_frames  # noqa: E402
 
 SCRIPT = "experiments/studies/no_return_head.py"
 REFIT_SEED = 2**31 - 3  # the training set's root key: apart from CALIBRATION_SEED (2**31 - 2) and the validation's

@@ -6,14 +6,14 @@ reconstruction, TR0, TR4 and any extra models at 1, 3, 14, 100 and 1000 signal p
     python experiments/studies/photon_regimes.py --frames 32 --tv --tv-frames 4  # the full benchmark (~20 min)
     python experiments/studies/photon_regimes.py --model TR4-photons=tr4-photons
 
-Data: the test scenes (jaxsr.eval.scoring.TEST_SCENES), `--frames` frames per scene spread over each 500-frame
+Data: the test scenes (harness.scoring.TEST_SCENES), `--frames` frames per scene spread over each 500-frame
 sequence (`scored_frames`, as experiments/sweep_tr.py scores). Each regime calibrates the laser and ambient over the
 whole sequence (`jaxsr.sensor.calibrate`, as `simulate_histograms` does) and draws photons only for the frames the
 models read (the scored frames and their temporal windows), so a regime costs a fraction of a full simulation.
 Besides the grid, the paper's regime: 14 photons, each scene at its own SNR (1.3, 1.3, 3); a model's PSNR there is
 compared with the bundled TR4's ("today"). Every method of a regime sees the same noise, so differences are paired:
 intervals are 95 % block-bootstrap intervals over frames (`frame_interval`: `jaxsr.paired_interval` with blocks
-as long as `jaxsr.eval.scoring.interval`'s in sequence frames, so frames spread far apart are resampled one by one).
+as long as `harness.scoring.interval`'s in sequence frames, so frames spread far apart are resampled one by one).
 TV (`--tv`, slow: seconds per frame on a CPU) runs on `--tv-frames` of the scored frames per scene and is compared
 on those only.
 
@@ -30,6 +30,7 @@ from __future__ import annotations
 import argparse
 import functools
 import json
+import sys
 import time
 from pathlib import Path
 from types import SimpleNamespace
@@ -41,7 +42,15 @@ import numpy as np
 import jaxsr
 from jaxsr.baselines import block_mean
 from jaxsr.config import DEFAULT_MEAN_SIGNAL, MODEL_INPUTS, SensorConfig
-from jaxsr.eval.scoring import (
+from jaxsr.io.checkpoint import resolve_model_path
+from jaxsr.inference.video import no_return_where, overrule_no_return
+from jaxsr.nn import network_inputs
+from jaxsr.training.no_return import no_return_outputs
+from jaxsr.sensor import (ambient_only, calibrate, calibrated_rates, no_return_regions, no_return_shares,
+                          normalise_depth, sample_poisson)
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
+from harness.scoring import (  # noqa: E402
     BLOCK,
     SCENE_LABELS,
     SEQUENCE_FRAMES,
@@ -53,13 +62,7 @@ from jaxsr.eval.scoring import (
     scored_frames,
     scored_output,
 )
-from jaxsr.eval.reports import header, markdown_table, write_atomic
-from jaxsr.io.checkpoint import resolve_model_path
-from jaxsr.inference.video import no_return_where, overrule_no_return
-from jaxsr.nn import network_inputs
-from jaxsr.training.no_return import no_return_outputs
-from jaxsr.sensor import (ambient_only, calibrate, calibrated_rates, no_return_regions, no_return_shares,
-                          normalise_depth, sample_poisson)
+from harness.reports import header, markdown_table, write_atomic  # noqa: E402
 
 PHOTONS = (1.0, 3.0, 14.0, 100.0, 1000.0)
 SNRS = (0.1, 1.3, 5.0)
@@ -227,7 +230,7 @@ def regime_label(photons, snr) -> str:
 def frame_interval(a, b, spacing: float, seed: int = 0):
     """Mean difference a - b of per-frame scores ((T,) or (rows, T)) of frames `spacing` apart in their
     sequence, with its 95 % block-bootstrap interval (`jaxsr.paired_interval`): blocks span about
-    `jaxsr.eval.scoring.BLOCK` frames of the sequence, as `interval` resamples consecutive frames, so frames
+    `harness.scoring.BLOCK` frames of the sequence, as `interval` resamples consecutive frames, so frames
     spread far apart are resampled one by one."""
     block = int(np.clip(round(BLOCK / max(spacing, 1.0)), 1, np.shape(a)[-1]))
     return jaxsr.paired_interval(jax.random.key(seed), a, b, block=block)
@@ -616,7 +619,7 @@ def main(argv=None) -> None:
                f"{', '.join(map(str, np.asarray(results['scored'])[results['tv_idx']]))}). " if args.tv else
                "TV not run (`--tv`). ")
             + "Models: " + "; ".join(f"{k}: {v}" for k, v in info.items()) + ". Outputs clipped to [0, 1] for "
-            "PSNR and SSIM (`jaxsr.eval.scoring.frame_scores`).\n\n"
+            "PSNR and SSIM (`harness.scoring.frame_scores`).\n\n"
             + tables(results))
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)

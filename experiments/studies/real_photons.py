@@ -51,6 +51,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -58,13 +59,15 @@ import jax
 import numpy as np
 
 import jaxsr
-from jaxsr.eval.reports import hand_written_tail, header, markdown_table, save_figure, write_atomic
-from jaxsr.eval.scoring import format_interval
 from jaxsr.inference import iter_network_inputs, lr_blocks, no_return_where
 from jaxsr.io.recordings import gate_frames
 from jaxsr.sensor.timetags import TimeTags
 from photon_regimes import (NO_RETURN_AT, TV_TR, decision_of, load_models, no_return_decision,  # experiments/studies
                             returns_kept)
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
+from harness.reports import hand_written_tail, header, markdown_table, save_figure, write_atomic  # noqa: E402
+from harness.scoring import format_interval  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_DATA = ROOT.parent / "shared" / "realdata"

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 from types import SimpleNamespace
@@ -34,11 +35,13 @@ import jax
 import numpy as np
 
 import jaxsr
-from jaxsr.eval.reports import header, markdown_table, write_atomic
-from jaxsr.eval.scoring import SEQUENCE_FRAMES, TEST_SCENES, scored_frames, scored_output
 from jaxsr.sensor import thin_returns
 from photon_regimes import (MAJORITY, NO_RETURN_AT, block_majority, load_models, method_scores,  # studies/
                             regime_clips, vars_of, with_no_return)
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
+from harness.reports import header, markdown_table, write_atomic  # noqa: E402
+from harness.scoring import SEQUENCE_FRAMES, TEST_SCENES, scored_frames, scored_output  # noqa: E402
 
 LINES = 6
 WIDTHS = (1.0, 4.0)  # HR pixels: a quarter of an LR pixel to one, as thin as a lattice tower's beams

@@ -38,6 +38,7 @@ from __future__ import annotations
 import argparse
 import functools
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -48,12 +49,14 @@ from photon_regimes import SEQUENCE_FRAMES, TEST_SCENES, _calibration, evaluate 
 
 import jaxsr
 from jaxsr.config import SensorConfig
-from jaxsr.eval.reports import header, markdown_table, write_atomic
-from jaxsr.eval.scoring import SCENE_LABELS
 from jaxsr.inference import (AUTO_AMBIENT_ALPHA, AUTO_AMBIENT_MIN_SIGNAL_SNR, AUTO_AMBIENT_MIN_SNR, FEW_PHOTONS,
                              auto_ambient_alpha, photon_levels)
 from jaxsr.inference.recording import HEAD_FRAMES
 from jaxsr.sensor import calibrated_rates, sample_poisson
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
+from harness.reports import header, markdown_table, write_atomic  # noqa: E402
+from harness.scoring import SCENE_LABELS  # noqa: E402
 
 SNRS = (0.1, 0.2, 0.3, 0.5, 0.8, 1.3, 5.0)
 PHOTONS = (1.0, 3.0, 14.0, 100.0)
