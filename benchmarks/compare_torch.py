@@ -29,6 +29,7 @@ import argparse
 import os
 import sys
 import time
+from pathlib import Path
 
 # before torch is imported: sleeping rather than spinning OpenMP threads (see the docstring)
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
@@ -43,7 +44,8 @@ import jaxsr  # noqa: E402
 N_DEVICES = jaxsr.runtime.use_cpu_cores()
 CORES = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
 
-from jaxsr.eval.reports import header, markdown_table, write_atomic  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))  # experiments/: the shared harness
+from harness.reports import header, markdown_table, write_atomic  # noqa: E402
 
 TORCH_MISSING = ("The JAX vs PyTorch comparisons need PyTorch, which is not a jaxsr dependency; "
                  "install the CPU build with:\n"

@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from pathlib import Path
 
 # compare_torch sets the process up as that comparison does (OMP_WAIT_POLICY, the cores as JAX devices) and
 # holds the shared constants; import it before any JAX operation
@@ -29,8 +30,10 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxsr
-from jaxsr.eval.reports import header, markdown_table, write_atomic
 from jaxsr.nn.layers import batch_norm, conv3d
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))  # experiments/: the shared harness
+from harness.reports import header, markdown_table, write_atomic  # noqa: E402
 
 LR_SHAPE = ct.LR_SHAPE
 

@@ -33,7 +33,7 @@ from jaxsr.config import PRESETS, ModelConfig, SensorConfig
 from jaxsr.nn import Model, init_model
 from jaxsr.runtime import enable_compilation_cache
 
-from jaxsr.eval.scoring import (
+from harness.scoring import (
     BLOCK,
     FPS_NOTE,
     PAPER_BICUBIC,
@@ -51,7 +51,7 @@ from jaxsr.eval.scoring import (
     frame_scores,
     test_clips,
 )
-from jaxsr.eval.reports import header, markdown_table, save_figure, write_atomic
+from harness.reports import header, markdown_table, save_figure, write_atomic
 
 VIDEO_FRAMES = 32  # consecutive frames of the first test scene in the comparison video
 

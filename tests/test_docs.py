@@ -123,14 +123,22 @@ def test_dotted_names_in_the_docs_exist():
     assert not missing, missing
 
 
+def in_git_at(path: str, paragraph: str) -> bool:
+    """Whether the paragraph names a commit ("at commit <hash>") that holds `path`: a study removed from the tree."""
+    return any(subprocess.run(["git", "cat-file", "-e", f"{commit}:{path}"], cwd=ROOT, capture_output=True).returncode
+               == 0 for commit in re.findall(r"at commit ([0-9a-f]{7,40})\b", paragraph))
+
+
 def test_scripts_and_result_files_named_in_the_docs_exist():
-    """The experiment scripts, benchmarks and result files the README and the pages name are where they say."""
+    """The experiment scripts, benchmarks and result files the README and the pages name are where they say, or,
+    for a study no longer in the tree, in git at the commit its paragraph names."""
     missing = []
     for page in [README, *current_pages()]:
-        text = page.read_text(encoding="utf-8")
-        for path in sorted(set(re.findall(r"\b(?:experiments|benchmarks)/[\w/]+\.(?:py|md|csv|png|json)\b", text))):
-            if not (ROOT / path).is_file():
-                missing.append(f"{page.relative_to(ROOT)}: {path}")
+        for paragraph in page.read_text(encoding="utf-8").split("\n\n"):
+            for path in sorted(set(re.findall(r"\b(?:experiments|benchmarks)/[\w/]+\.(?:py|md|csv|png|json)\b",
+                                              paragraph))):
+                if not (ROOT / path).is_file() and not in_git_at(path, paragraph):
+                    missing.append(f"{page.relative_to(ROOT)}: {path}")
     assert not missing, missing
 
 

@@ -15,7 +15,7 @@ STAGES = {"sensor", "scenes", "nn", "baselines", "training", "inference", "io", 
 # training, the engine of inference, the metrics, the files, the networks and the physics)
 LAYERS = ("sensor", "scenes", "nn", "baselines", "io", "eval", "inference", "training", "app", "cli")
 FLAT = {"config", "runtime", "checks", "temporal"}  # besides __init__: at most 8 modules stay flat
-BOTTOM = FLAT | {"eval.metrics", "eval.stats", "nn.layers", "nn.model", "io.files", "sensor.poisson"}
+BOTTOM = FLAT | {"eval", "eval.metrics", "eval.stats", "nn.layers", "nn.model", "io.files", "sensor.poisson"}
 
 
 def module_name(path: Path) -> str:

@@ -5,12 +5,15 @@ sentences that say where each came from."""
 from __future__ import annotations
 
 import os
+import sys
 from pathlib import Path
 
 import numpy as np
 
 import jaxsr
-from jaxsr.eval.scoring import Clip
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
+from harness.scoring import Clip  # noqa: E402
 
 # The learned baselines of the paper's Table 3, retrained on our data (experiments/paper/train_baselines.py).
 BASELINE_LABELS = {"histnet": "HistNet (retrained here)", "iseebetter": "iSeeBetter (retrained here)"}

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import functools
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -40,8 +41,9 @@ from jaxsr import scenes
 from jaxsr.io.checkpoint import save_model
 from jaxsr.config import TrainConfig
 
-from jaxsr.eval.scoring import scene_scores, simulate_clip
-from jaxsr.eval.reports import header, markdown_table, write_atomic
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
+from harness.scoring import scene_scores, simulate_clip  # noqa: E402
+from harness.reports import header, markdown_table, write_atomic  # noqa: E402
 
 WEIGHTS = Path(jaxsr.__file__).parent / "weights"
 VALIDATION = TrainConfig().val_sequences

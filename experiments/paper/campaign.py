@@ -20,7 +20,7 @@ A run counts as converged when its validation PSNR gained under 0.2 dB over the 
 (at least 8 epochs in, so that the quarter is not a single noisy epoch); the report says which are. `--score`
 scores each run's selected weights (best.npz) on the test scenes (--frames spread over each, as sweep_tr.py) and
 writes experiments/results/campaign_scores.md (per-frame scores in campaign_scores.json, reused for runs whose
-weights did not change, `jaxsr.eval.score_cache`):
+weights did not change, `harness.score_cache`):
 every TR against TR0 with the spread over every pair of runs (seeds) and the frame interval, and whether the
 difference holds beyond both.
 """
@@ -31,13 +31,21 @@ import argparse
 import dataclasses
 import json
 import subprocess
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
-from jaxsr.eval.scoring import BLOCK, SCENE_LABELS, TEST_SCENES, format_interval, interval, scene_scores, test_clips
-from jaxsr.eval.reports import header, machine, markdown_table, save_figure, write_atomic
-from jaxsr.eval.score_cache import (
+
+import jaxsr
+from jaxsr.io.checkpoint import save_model
+from jaxsr.config import PRESETS
+from jaxsr.training import fit, resume_config
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
+from harness.scoring import BLOCK, SCENE_LABELS, TEST_SCENES, format_interval, interval, scene_scores, test_clips  # noqa: E402
+from harness.reports import header, machine, markdown_table, save_figure, write_atomic  # noqa: E402
+from harness.score_cache import (  # noqa: E402
     cached_frame_scores,
     code_digest,
     data_digest,
@@ -45,12 +53,7 @@ from jaxsr.eval.score_cache import (
     weights_digest,
     write_cache,
 )
-
-import jaxsr
-from jaxsr.io.checkpoint import save_model
-from jaxsr.config import PRESETS
-from jaxsr.eval.runs import CAMPAIGN_PRESET, history, run_dir
-from jaxsr.training import fit, resume_config
+from harness.runs import CAMPAIGN_PRESET, history, run_dir  # noqa: E402
 
 PRESET = CAMPAIGN_PRESET
 # The campaign's runs (seed, tr) in priority order: one seed of every TR, then the seed spread where the TR effects
@@ -153,7 +156,7 @@ def tr_differences(scores: dict, *, against_previous: bool = False) -> dict:
     step by step) from per-frame PSNR of the runs, scores[(seed, tr)]: (scenes, frames) on the same frames. Returns
     {tr: {"mean": difference of the seed means (dB), "runs": (lowest, highest) difference over every pair of a
     TR-k run and a run of the TR compared with, "frames": the paired block-bootstrap interval
-    (`jaxsr.eval.scoring.interval`) of the seed-averaged per-frame scores, "beyond": whether every pair and the frame
+    (`harness.scoring.interval`) of the seed-averaged per-frame scores, "beyond": whether every pair and the frame
     interval lie on the same side of 0, None when either side has a single run (its retraining spread is not
     measured, so no range of pairs can cover it)}} for each TR > 0 that has runs, when the TR it is compared with
     has."""
@@ -181,7 +184,7 @@ RESTORE_WEIGHTS = "git checkout 949ee82 -- experiments/paper_weights"
 def score(root: Path, frames: int, out: str, only=None, *, title: str = "Training campaign") -> None:
     """Score every run's best.npz (those in `only`; None: all) on the test scenes and write the TR differences
     (see `tr_differences`) under `title`. Per-frame scores are kept beside `out` (.json) and reused while a run's
-    weights, the test data and the scoring code are unchanged (`jaxsr.eval.score_cache`), so adding a run scores
+    weights, the test data and the scoring code are unchanged (`harness.score_cache`), so adding a run scores
     that run only."""
     started = time.time()
     clips = test_clips(frames, spread=True)

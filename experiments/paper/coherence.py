@@ -16,18 +16,22 @@ comes with a paired block-bootstrap interval over frame pairs (`jaxsr.eval.ratio
 from __future__ import annotations
 
 import argparse
+import sys
 import time
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxsr.eval.scoring import BLOCK, SEQUENCE_FRAMES, add_model_args, load_tr, score, walkers_at, weights_source
 from _baselines import add_baseline_args, baseline_source, load_baselines, run_baseline
-from jaxsr.eval.reports import header, markdown_table, save_figure, write_atomic
 from _seeds import add_seed_run_args, load_seed_runs, seed_summary
 
 import jaxsr
 from jaxsr.runtime import enable_compilation_cache
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
+from harness.scoring import BLOCK, SEQUENCE_FRAMES, add_model_args, load_tr, score, walkers_at, weights_source  # noqa: E402
+from harness.reports import header, markdown_table, save_figure, write_atomic  # noqa: E402
 
 EPS = (1 / 255, 0.01, 0.05)
 

@@ -20,12 +20,30 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import sys
 import time
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxsr.eval.scoring import (
+from _baselines import (
+    add_baseline_args,
+    BUDGET_WEIGHTS,
+    baseline_source,
+    budget_source,
+    load_baselines,
+    load_budget_models,
+    run_baseline,
+)
+
+import jaxsr
+from jaxsr.nn import count_params
+from jaxsr.baselines.tv import tv_super_resolve
+from jaxsr.runtime import enable_compilation_cache
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
+from harness.scoring import (  # noqa: E402
     FPS_NOTE,
     PAPER_BICUBIC,
     PAPER_TABLE1,
@@ -40,21 +58,7 @@ from jaxsr.eval.scoring import (
     test_clips,
     weights_source,
 )
-from _baselines import (
-    add_baseline_args,
-    BUDGET_WEIGHTS,
-    baseline_source,
-    budget_source,
-    load_baselines,
-    load_budget_models,
-    run_baseline,
-)
-from jaxsr.eval.reports import header, markdown_table, write_atomic
-
-import jaxsr
-from jaxsr.nn import count_params
-from jaxsr.baselines.tv import tv_super_resolve
-from jaxsr.runtime import enable_compilation_cache
+from harness.reports import header, markdown_table, write_atomic  # noqa: E402
 
 PAPER_OTHERS = {
     "iSeeBetter (paper)": ((20.47, 0.784), (21.96, 0.837), (28.74, 0.843), 33.0),
@@ -93,7 +97,7 @@ def over_windows(fn, radius: int):
 
 def methods(models, baselines=None, budget=None):
     """name -> function (clip) -> HR (S, H, W) normalised, the clip's S scored frames (`Clip.scored`; None: all
-    its frames); clip: a `jaxsr.eval.scoring.Clip` (counts (T, h, w, K), centre-of-mass depth lr (T, h, w), HR intensity
+    its frames); clip: a `harness.scoring.Clip` (counts (T, h, w, K), centre-of-mass depth lr (T, h, w), HR intensity
     (T, H, W)). models: {tr: Model}; baselines: {label: Model}; budget: {label: Model}, ours at the
     baselines' budgets."""
     up = jax.jit(lambda x: jaxsr.bicubic(x, scale=4))

@@ -25,13 +25,18 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
+from pathlib import Path
 
 import jaxsr
 from jaxsr.inference.adaptive import STUDY_TABLE, choose_tr, estimate_motion
 from jaxsr.runtime import enable_compilation_cache
 
-from jaxsr.eval.scoring import (
+from _seeds import add_seed_run_args, format_pairs, load_seed_runs, pairs_differences, seed_summary
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
+from harness.scoring import (  # noqa: E402
     BLOCK,
     FRAME_RATES as RATES,
     FPS_NOTE,
@@ -47,8 +52,7 @@ from jaxsr.eval.scoring import (
     scored_output,
     weights_source,
 )
-from jaxsr.eval.reports import header, markdown_table, write_atomic
-from _seeds import add_seed_run_args, format_pairs, load_seed_runs, pairs_differences, seed_summary
+from harness.reports import header, markdown_table, write_atomic  # noqa: E402
 
 PAPER_TABLE2 = {  # PSNR per TR at each frame rate (paper Table 2)
     1.0: (22.12, 21.52, 21.38, 21.30, 21.30), 2.5: (22.28, 21.80, 21.69, 21.66, 21.62),

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import sys
 import time
 from pathlib import Path
 
@@ -26,7 +27,9 @@ import numpy as np  # noqa: E402
 import scipy.io  # noqa: E402
 
 import jaxsr  # noqa: E402
-from jaxsr.eval.reports import hand_written_tail, header, markdown_table, write_atomic  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
+from harness.reports import hand_written_tail, header, markdown_table, write_atomic  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parents[1] / "results"
 MODELS = (("TR0", "tr0", "window"), ("TR4", "tr4", "window"), ("TR4 sequence", "tr4", "sequence"))

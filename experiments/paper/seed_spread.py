@@ -10,13 +10,15 @@ Each run folder contributes its last.npz (the final epoch, as bundled for TR1-TR
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from pathlib import Path
 
 import jaxsr
 
-from jaxsr.eval.scoring import SCENE_LABELS, TEST_SCENES, scene_scores, test_clips
-from jaxsr.eval.reports import header, markdown_table, write_atomic
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
+from harness.scoring import SCENE_LABELS, TEST_SCENES, scene_scores, test_clips  # noqa: E402
+from harness.reports import header, markdown_table, write_atomic  # noqa: E402
 
 
 def main():

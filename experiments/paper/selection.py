@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import itertools
+import sys
 import time
 from pathlib import Path
 
@@ -28,8 +29,9 @@ from jaxsr.config import PRESETS, TrainConfig
 from jaxsr.training.data import run_keys, validation_set
 from jaxsr.training import evaluate
 
-from jaxsr.eval.scoring import SCENE_LABELS, TEST_SCENES, format_interval, interval, scene_scores, test_clips
-from jaxsr.eval.reports import hand_written_tail, header, markdown_table, write_atomic
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
+from harness.scoring import SCENE_LABELS, TEST_SCENES, format_interval, interval, scene_scores, test_clips  # noqa: E402
+from harness.reports import hand_written_tail, header, markdown_table, write_atomic  # noqa: E402
 
 # A section written by hand at the end of the results file (e.g. the rows of runs whose checkpoints are gone): kept
 HAND_WRITTEN = "## Earlier runs"

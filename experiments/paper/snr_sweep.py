@@ -14,17 +14,21 @@ weights is skipped with a message.
 from __future__ import annotations
 
 import argparse
+import sys
 import time
+from pathlib import Path
 
 import jax
 import numpy as np
-from jaxsr.eval.scoring import TEST_SCENES, add_model_args, load_tr, score, simulate_clip, weights_source
 from _baselines import add_baseline_args, baseline_source, load_baselines, run_baseline
-from jaxsr.eval.reports import header, markdown_table, write_atomic
 
 import jaxsr
 from jaxsr import scenes
 from jaxsr.runtime import enable_compilation_cache
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
+from harness.scoring import TEST_SCENES, add_model_args, load_tr, score, simulate_clip, weights_source  # noqa: E402
+from harness.reports import header, markdown_table, write_atomic  # noqa: E402
 
 SNRS = (0.001, 0.25, 0.34, 0.5, 0.75, 1.0, 10.0, 10000.0)
 

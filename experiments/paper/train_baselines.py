@@ -40,12 +40,12 @@ import dataclasses
 import datetime
 import json
 import math
+import sys
 import time
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
-from jaxsr.eval.reports import machine, step_timer, write_atomic
 
 import jaxsr
 from jaxsr.training import baseline_validation_set, evaluate_baseline, recipe
@@ -55,6 +55,9 @@ from jaxsr.nn import count_params, init_model
 from jaxsr.training.optim import adam_init
 from jaxsr.training.data import validation_set
 from jaxsr.training import default_data, evaluate, make_train_step
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
+from harness.reports import machine, step_timer, write_atomic  # noqa: E402
 
 EPOCHS = 5
 TR_STEPS = 1280  # the bundled windowed models' steps (their cards)
@@ -183,7 +186,7 @@ def gflops_per_frame(name: str, lr_shape=(32, 64)) -> float:
 
 def report(runs: Path, out: str) -> None:
     """experiments/results/train_baselines.md: each run's plan, cost and validation PSNR per epoch."""
-    from jaxsr.eval.reports import header, markdown_table
+    from harness.reports import header, markdown_table
 
     started = time.time()
     rows, epochs, plans, from_card = [], [], {}, []

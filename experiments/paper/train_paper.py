@@ -36,7 +36,6 @@ import time
 from pathlib import Path
 
 import jax
-from jaxsr.eval.reports import step_timer
 from campaign import REPORTED_RUNS, keep, report, score
 
 import jaxsr
@@ -44,6 +43,9 @@ from jaxsr.config import PRESETS
 from jaxsr.nn import init_model
 from jaxsr.training.optim import adam_init
 from jaxsr.training import choose_mesh, default_data, fit, make_train_step, replicate, resume_config
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
+from harness.reports import step_timer  # noqa: E402
 
 PRESET = "paper"
 # The runs' selected weights and learning curves, committed (float16), which --score and --report read by default:

@@ -2,7 +2,7 @@
 
     python experiments/studies/accelerator_session.py --out OUT --minutes 8 [--runs /tmp/runs] [--sweep-tr]
 
-For a borrowed accelerator with a fixed budget. The sweep (`train_throughput.Session`; none with a bare
+For a borrowed accelerator with a fixed budget. The sweep (`train_throughput.py --sweep`, run as a command; none with a bare
 `--sweep-tr`) runs alone first, so that its times are the device's alone; then the fine-tunes
 (`photon_finetune.py`, resumable) train side by side until the budget's end, when they are interrupted and each
 run's `best.npz` (the weights it selected, with their card) and `metrics.jsonl` are copied to OUT, flat, with the
@@ -31,8 +31,6 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-
-from train_throughput import Session, report
 
 HERE = Path(__file__).resolve().parent
 
@@ -113,14 +111,17 @@ def main(argv=None) -> None:
     def say(msg: str) -> None:
         print(f"[{time.strftime('%H:%M:%S')}] {msg}", flush=True)
 
-    configs = [f"{t},{b},{p}" for t in args.sweep_tr for b in args.sweep_batch for p in args.sweep_precision]
-    if configs:
-        sweep = Session(args.out, configs, log=log)
-        say(f"sweep: {len(configs)} configurations compiling")
+    if args.sweep_tr:
+        n = len(args.sweep_tr) * len(args.sweep_batch) * len(args.sweep_precision)
+        say(f"sweep: {n} configurations compiling")
         # the sweep may take at most half the budget; what is not compiled by then is recorded as such
-        sweep.run(compile_timeout_s=max(10.0, (t_end - time.perf_counter()) / 2 - 60))
+        timeout = max(10.0, (t_end - time.perf_counter()) / 2 - 60)
+        throughput = [sys.executable, str(HERE / "train_throughput.py")]
+        subprocess.run([*throughput, "--sweep", str(args.out), "--tr", *map(str, args.sweep_tr),
+                        "--batch", *map(str, args.sweep_batch), "--precision", *args.sweep_precision,
+                        "--compile-timeout", str(timeout)], stdout=log, stderr=subprocess.STDOUT)
         say("sweep timed")
-        print(report(sweep.results), flush=True)
+        subprocess.run([*throughput, "--report", str(args.out / "throughput.jsonl")])
     env = dict(os.environ, XLA_PYTHON_CLIENT_PREALLOCATE="false", PYTHONUNBUFFERED="1")
     trainers = {name: subprocess.Popen(
         [sys.executable, str(HERE / "photon_finetune.py"), *FINETUNES[name], "--out", str(args.runs / name),

@@ -14,8 +14,10 @@ laser and exposure (14 x (pitch / 0.47 deg)^2).
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from typing import NamedTuple
+from pathlib import Path
 
 import jax
 import numpy as np
@@ -25,8 +27,9 @@ from jaxsr import scenes
 from jaxsr.config import DEFAULT_MEAN_SIGNAL, SensorConfig
 from jaxsr.runtime import enable_compilation_cache
 
-from jaxsr.eval.scoring import SCENE_LABELS, TEST_SCENES, add_model_args, load_tr, score, simulate_clip, weights_source
-from jaxsr.eval.reports import hand_written_tail, header, markdown_table, write_atomic
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
+from harness.scoring import SCENE_LABELS, TEST_SCENES, add_model_args, load_tr, score, simulate_clip, weights_source  # noqa: E402
+from harness.reports import hand_written_tail, header, markdown_table, write_atomic  # noqa: E402
 
 NATIVE = SensorConfig()
 

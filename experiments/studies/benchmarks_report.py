@@ -21,7 +21,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from jaxsr.eval.reports import header, markdown_table, write_atomic
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
+from harness.reports import header, markdown_table, write_atomic  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 SUITES = ["benchmarks/bench_sensor.py", "benchmarks/bench_scenes.py", "benchmarks/bench_train.py",

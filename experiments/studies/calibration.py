@@ -15,7 +15,9 @@ road's traffic passes through the view only now and then).
 from __future__ import annotations
 
 import argparse
+import sys
 import time
+from pathlib import Path
 
 import jax
 import numpy as np
@@ -23,7 +25,8 @@ import numpy as np
 import jaxsr
 from jaxsr import scenes
 
-from jaxsr.eval.reports import header, markdown_table, write_atomic
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
+from harness.reports import header, markdown_table, write_atomic  # noqa: E402
 
 PAPER_BICUBIC = {"scene1_street": (15.82, 0.538), "scene2_road": (17.60, 0.607), "scene3_courtyard": (26.80, 0.841)}
 CANDIDATES = [1.0, 2.0, 4.0, 6.0, 8.0, 10.0, 12.0, 14.0, 16.0, 20.0, 24.0, 32.0, 64.0]

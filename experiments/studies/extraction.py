@@ -9,7 +9,9 @@ section 2 for a single pixel), Poisson counts, both extractors. Writes experimen
 from __future__ import annotations
 
 import argparse
+import sys
 import time
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -18,7 +20,8 @@ import numpy as np
 import jaxsr
 from jaxsr.sensor.forward import irf_bin_weights
 
-from jaxsr.eval.reports import header, markdown_table, write_atomic
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
+from harness.reports import header, markdown_table, write_atomic  # noqa: E402
 
 SIGNALS = [1, 3, 10, 30, 100, 1000]
 SNRS = [0.25, 1.0, 4.0, 16.0]

@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -33,8 +34,9 @@ import jaxsr
 from jaxsr.config import PRESETS
 from jaxsr.training import fit
 
-from jaxsr.eval.scoring import SCENE_LABELS, TEST_SCENES, bundled, score, test_clips
-from jaxsr.eval.reports import hand_written_tail, header, markdown_table, write_atomic
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
+from harness.scoring import SCENE_LABELS, TEST_SCENES, bundled, score, test_clips  # noqa: E402
+from harness.reports import hand_written_tail, header, markdown_table, write_atomic  # noqa: E402
 
 HAND_WRITTEN = "## Reading"
 EPOCHS = 5

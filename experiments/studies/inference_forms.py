@@ -3,7 +3,7 @@ against float32 convolutions, scored on the test sequences and timed on this mac
 
     python experiments/studies/inference_forms.py [--trs 0 1 2 3 4] [--bf16-trs 0 4] [--rounds 3] [--note TEXT]
 
-Accuracy: each bundled depth model tr0..tr4 on the three test scenes (`jaxsr.eval.scoring.test_clips(100,
+Accuracy: each bundled depth model tr0..tr4 on the three test scenes (`harness.scoring.test_clips(100,
 spread=True)`: all 500 frames of each scene simulated at its SNR, noise seed 0, 100 frames spread over them
 scored, as experiments/sweep_tr.py scores), PSNR (dB) of the clipped output against the normalised ground truth.
 Window form: `super_resolve_frames` of the scored frames' edge-replicated windows. Sequence form: `super_resolve(
@@ -26,18 +26,22 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 import time
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 import jaxsr
-from jaxsr.eval.reports import header, markdown_table, write_atomic
-from jaxsr.eval.scoring import N_DEVICES, frame_scores, super_resolve_frames, test_clips, TEST_SCENES
 from jaxsr.inference.video import DEFAULT_SEQUENCE_CHUNK, super_resolve, super_resolve_histograms
 from jaxsr.nn import flops_per_frame, sequence_radius
 from jaxsr.runtime import compiler_options, cpu_bfloat16_features
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
+from harness.reports import header, markdown_table, write_atomic  # noqa: E402
+from harness.scoring import N_DEVICES, frame_scores, super_resolve_frames, test_clips, TEST_SCENES  # noqa: E402
 
 PRECISIONS = ("float32", "bfloat16")
 MATMUL = 2048

@@ -31,13 +31,11 @@ import subprocess
 import sys
 import tempfile
 import time
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxsr.eval.scoring import SEQUENCE_FRAMES
-from jaxsr.eval.reports import hand_written_tail, header, markdown_table, write_atomic
-from jaxsr.eval.scoring import FRAME_RATES as RATES
 
 from jaxsr.config import SensorConfig
 from jaxsr.scenes import (
@@ -49,6 +47,11 @@ from jaxsr.scenes import (
     test_scene,
     training_scene,
 )
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
+from harness.scoring import SEQUENCE_FRAMES  # noqa: E402
+from harness.reports import hand_written_tail, header, markdown_table, write_atomic  # noqa: E402
+from harness.scoring import FRAME_RATES as RATES  # noqa: E402
 
 # fps_study.py's frames per rate (its --span), from t0 = 0 s and (held out) 60 s
 STUDY_FRAMES, STUDY_T0 = SEQUENCE_FRAMES, (0.0, 60.0)

@@ -47,6 +47,7 @@ import argparse
 import dataclasses
 import functools
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -56,8 +57,6 @@ import numpy as np
 
 import jaxsr
 from jaxsr.config import PhotonRegime
-from jaxsr.eval.reports import header, markdown_table, write_atomic
-from jaxsr.eval.scoring import frame_windows, scored_frames
 from jaxsr.io.checkpoint import resolve_model_path, save_model
 from jaxsr.nn import apply_model_features, no_return_logits
 from jaxsr.nn.layers import conv2d, glorot_limit
@@ -66,9 +65,12 @@ from jaxsr.training.duf import no_return_cross_entropy
 from jaxsr.training.no_return import DEFAULT_THRESHOLDS, choose_no_return_logit, no_return_table
 from jaxsr.training.optim import adam_init, adam_update
 
-from photon_regimes import (AMBIENT_RADIUS, GOAL_AS_DEPTH, GOAL_DROPPED, NO_RETURN_MIN_PHOTONS, NO_RETURN_SNR,
-                            SEQUENCE_FRAMES, TEST_SCENES, check_static, interior, no_return_rates, regime_clips,
-                            with_no_return)
+from _photon_benchmark import (AMBIENT_RADIUS, GOAL_AS_DEPTH, GOAL_DROPPED, NO_RETURN_MIN_PHOTONS, NO_RETURN_SNR,
+                               benchmark_clips, check_static, interior, no_return_rates, with_no_return)
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
+from harness.reports import header, markdown_table, write_atomic  # noqa: E402
+from harness.scoring import SEQUENCE_FRAMES, TEST_SCENES, frame_windows, scored_frames  # noqa: E402
 
 SCRIPT = "experiments/studies/no_return_head.py"
 REFIT_SEED = 2**31 - 3  # the training set's root key: apart from CALIBRATION_SEED (2**31 - 2) and the validation's
@@ -221,8 +223,8 @@ def benchmark_windows(model, photons, *, frames: int, seed: int, static: bool = 
     levels = []
     for k, p in enumerate(photons):  # photon_regimes.evaluate's no-return keys: level k (from 3 photons) of seed + 1
         key = jax.random.fold_in(jax.random.key(seed + 1), k)
-        clips, _ = regime_clips(seqs, float(p), NO_RETURN_SNR, scored=scored, radius=radius, key=key,
-                                static=static)
+        clips, _ = benchmark_clips(seqs, float(p), NO_RETURN_SNR, scored=scored, radius=radius, key=key,
+                                   static=static)
         windows = [frame_windows(c.network_input(model.config.inputs), c.scored, tr) for c in clips.values()]
         gt = np.concatenate([c.gt[c.scored] for c in clips.values()])
         levels.append({"photons": float(p), "windows": np.concatenate(windows), "gt": gt,
@@ -351,7 +353,7 @@ def write_report(out: Path, rows: list, chosen: dict, args, started: float) -> N
              + ".\n\n"
              "Each cell: % of no-return HR pixels output as depth / % of true returns dropped; bold where both "
              f"goals hold (at most {GOAL_AS_DEPTH:g} / {GOAL_DROPPED:g} %). Interior: HR pixels whose LR block and "
-             "its 8 neighbours are of one kind (photon_regimes.interior); edges: the others. `best`: the threshold "
+             "its 8 neighbours are of one kind (_photon_benchmark.interior); edges: the others. `best`: the threshold "
              "with the least sky as depth dropping at most 2 % over all the level's pixels, chosen on those very "
              "pixels (in-sample: a bound on the decision, not a result); the interior and edge columns at that same "
              "threshold.\n\n")

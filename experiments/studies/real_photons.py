@@ -37,7 +37,7 @@ and comparing the two halves' depths (`reference_noise`).
 Scores per recording, level and method, on the reference's valid pixels and averaged over the frames: PSNR
 (normalised depth, output clipped to [0, 1], peak 1, `jaxsr.psnr` on the valid pixels), MAE (metres for tower,
 bins of the gate for both) with a no-return output counted at its distance, and the share of valid pixels the
-method outputs as no return (normalised >= photon_regimes.NO_RETURN_AT); and the other side of that decision,
+method outputs as no return (normalised >= _photon_benchmark.NO_RETURN_AT); and the other side of that decision,
 the share of the pixels where all the photons hold no return (`reference_sky`: tower's sky) that the method
 outputs as depth. The goal: TR4 >= bicubic + 3 dB at
 every level (paired over frames; frames are disjoint photon sets, so the interval resamples them one by one).
@@ -51,6 +51,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -58,13 +59,15 @@ import jax
 import numpy as np
 
 import jaxsr
-from jaxsr.eval.reports import hand_written_tail, header, markdown_table, save_figure, write_atomic
-from jaxsr.eval.scoring import format_interval
 from jaxsr.inference import iter_network_inputs, lr_blocks, no_return_where
 from jaxsr.app.recordings import gate_frames
 from jaxsr.sensor.timetags import TimeTags
-from photon_regimes import (NO_RETURN_AT, TV_TR, decision_of, load_models, no_return_decision,  # experiments/studies
-                            returns_kept)
+from _photon_benchmark import (NO_RETURN_AT, TV_TR, decision_of, load_models, no_return_decision,  # studies/
+                               returns_kept)
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
+from harness.reports import hand_written_tail, header, markdown_table, save_figure, write_atomic  # noqa: E402
+from harness.scoring import format_interval  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_DATA = ROOT.parent / "shared" / "realdata"
@@ -422,7 +425,7 @@ def evaluate(recordings, models: dict, *, levels=LEVELS, max_frames: int = MAX_F
     against its all-photon reference. tv_frames: frames per level TV runs on (None: all). ambient: {label:
     alpha} for models whose output is also no return where `jaxsr.sensor.ambient_only` flags a pixel of the
     photon video at that false-alarm rate (as `jaxsr upscale --ambient-alpha`), {label: ("shares", alpha)}
-    where `jaxsr.sensor.no_return_shares` say so, or {label: ("keep", alpha)} for `photon_regimes.returns_kept`. Returns
+    where `jaxsr.sensor.no_return_shares` say so, or {label: ("keep", alpha)} for `_photon_benchmark.returns_kept`. Returns
     {name: {"reference", "noise", "levels": [{"level", "frames", "photons_ref", "scores": {method: {psnr, mae,
     no_return: (T,)}}, "tv_frames"}], "picture": {panel: (H, W)}}}."""
     results = {}
@@ -695,7 +698,7 @@ def main(argv=None) -> None:
     parser.add_argument("--keep-returns", action="append", default=[], metavar="NAME=ALPHA",
                         help="run --model NAME (one with a no-return head) outputting depth wherever the LR block's "
                         "own photons over 9 frames show a return at this false-alarm rate, whatever the head says "
-                        "(photon_regimes.returns_kept); repeatable")
+                        "(_photon_benchmark.returns_kept); repeatable")
     parser.add_argument("--picture-level", type=float, default=PICTURE_LEVEL,
                         help="photons of the pictured frame (default 2)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the photon permutations")

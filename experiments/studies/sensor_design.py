@@ -14,7 +14,9 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import functools
+import sys
 import time
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -24,7 +26,8 @@ import optimistix as optx
 import jaxsr
 from jaxsr.runtime import enable_compilation_cache
 
-from jaxsr.eval.reports import header, markdown_table, write_atomic
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
+from harness.reports import header, markdown_table, write_atomic  # noqa: E402
 
 SIGMAS = (0.15, 0.2, 0.25, 0.3, 0.35, 0.4, 0.45, 0.5, 0.55, 0.6, 0.7, 0.85, 1.0, 1.2)
 SNRS = (0.5, 1.3, 3.0, 8.0)

@@ -16,13 +16,13 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import sys
 import time
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxsr.eval.scoring import score, test_clips
-from jaxsr.eval.reports import header, markdown_table, write_atomic
 
 import jaxsr
 from jaxsr.inference.video import DEFAULT_SEQUENCE_CHUNK, Stream, iter_centre_of_mass, super_resolve
@@ -30,6 +30,10 @@ from jaxsr.nn import apply_model, edge_pad_sequence, flops_per_frame, sequence_r
 from jaxsr.runtime import compiler_options
 from jaxsr.nn.streaming import stream_init, stream_step
 from jaxsr.temporal import windows as temporal_windows
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
+from harness.scoring import score, test_clips  # noqa: E402
+from harness.reports import header, markdown_table, write_atomic  # noqa: E402
 
 FORMS = ("window", "sequence", "stream (loop)", "stream (scan)")
 
@@ -165,7 +169,7 @@ def main():
         "the loop is the definition of the sequence form, run with XLA's 3D convolutions), "
         "and PSNR (dB) / SSIM of the same weights in the "
         f"window and the sequence form on the first {args.score_frames} frames of Scene 1 at its SNR "
-        "(`jaxsr/eval/scoring.py` `test_clips`, `score`: output clipped to [0, 1]).\n\n"
+        "(`experiments/harness/scoring.py` `test_clips`, `score`: output clipped to [0, 1]).\n\n"
     )
     text += markdown_table(["weights", "max abs vs window loop", "PSNR window", "PSNR sequence", "delta",
                             "SSIM window", "SSIM sequence"], accuracy)

@@ -26,8 +26,10 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import statistics
+import sys
 import tempfile
 import time
+from pathlib import Path
 
 import jax
 
@@ -38,9 +40,11 @@ DEVICES = use_cpu_cores()  # as `jaxsr train` runs: before any JAX operation
 import numpy as np  # noqa: E402
 
 from jaxsr.config import PRESETS, ModelConfig, SensorConfig  # noqa: E402
-from jaxsr.eval.reports import header, markdown_table, write_atomic  # noqa: E402
 from jaxsr.training import choose_mesh, fit, recipe, replicate, run_keys  # noqa: E402
 from jaxsr.training.loop import _advance, _stack  # noqa: E402 (the loop's own steps, timed alone)
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
+from harness.reports import header, markdown_table, write_atomic  # noqa: E402
 
 
 

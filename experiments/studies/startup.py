@@ -20,7 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxsr.eval.reports import header, markdown_table, write_atomic
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
+from harness.reports import header, markdown_table, write_atomic  # noqa: E402
 
 
 def run(args, cache, inp, out):

@@ -16,7 +16,9 @@ Writes experiments/results/stream.md and stream.png (PSNR against frames/s, with
 from __future__ import annotations
 
 import argparse
+import sys
 import time
+from pathlib import Path
 
 import jax.numpy as jnp
 import numpy as np
@@ -25,7 +27,8 @@ import jaxsr
 from jaxsr.nn import flops_per_frame
 from jaxsr.runtime import enable_compilation_cache
 
-from jaxsr.eval.scoring import (
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
+from harness.scoring import (  # noqa: E402
     FPS_NOTE,
     SCENE_LABELS,
     TEST_SCENES,
@@ -36,8 +39,8 @@ from jaxsr.eval.scoring import (
     walkers_at,
     walkers_clip,
 )
-from jaxsr.eval.scoring import FRAME_RATES as RATES
-from jaxsr.eval.reports import hand_written_tail, header, markdown_table, save_figure, write_atomic
+from harness.scoring import FRAME_RATES as RATES  # noqa: E402
+from harness.reports import hand_written_tail, header, markdown_table, save_figure, write_atomic  # noqa: E402
 
 KINDS = ("window", "window weights, sequence form", "sequence-trained")
 HAND_WRITTEN = "## Reading"  # the hand-written section at the end of the results file, kept on re-runs

@@ -13,7 +13,9 @@ ground truth changes by more than 0.01 between frames t - 1 and t + 1), where th
 from __future__ import annotations
 
 import argparse
+import sys
 import time
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -21,8 +23,9 @@ import numpy as np
 
 import jaxsr
 
-from jaxsr.eval.scoring import SCENE_LABELS, add_model_args, load_tr, test_clips, walkers_clip, weights_source
-from jaxsr.eval.reports import header, markdown_table, write_atomic
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
+from harness.scoring import SCENE_LABELS, add_model_args, load_tr, test_clips, walkers_clip, weights_source  # noqa: E402
+from harness.reports import header, markdown_table, write_atomic  # noqa: E402
 
 
 @jax.jit

@@ -19,6 +19,7 @@ import argparse
 import dataclasses
 import json
 import math
+import sys
 from pathlib import Path
 
 import jax
@@ -30,7 +31,8 @@ from jaxsr.nn import init_model
 from jaxsr.training.optim import adam_init
 from jaxsr.training import default_data, fit, make_train_step
 
-from jaxsr.eval.reports import machine, step_timer, write_atomic
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
+from harness.reports import machine, step_timer, write_atomic  # noqa: E402
 
 EPOCHS = 5
 

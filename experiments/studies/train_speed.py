@@ -18,7 +18,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from jaxsr.eval.reports import hand_written_tail, header, markdown_table, write_atomic
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
+from harness.reports import hand_written_tail, header, markdown_table, write_atomic  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 OUT = ROOT / "experiments" / "results" / "train_speed.md"

@@ -38,21 +38,24 @@ from __future__ import annotations
 import argparse
 import functools
 import json
+import sys
 import time
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from photon_regimes import SEQUENCE_FRAMES, TEST_SCENES, _calibration, evaluate  # beside this script
+from _photon_benchmark import calibration, evaluate  # beside this script
 
 import jaxsr
 from jaxsr.config import SensorConfig
-from jaxsr.eval.reports import header, markdown_table, write_atomic
-from jaxsr.eval.scoring import SCENE_LABELS
 from jaxsr.app import (AUTO_AMBIENT_ALPHA, AUTO_AMBIENT_MIN_SIGNAL_SNR, AUTO_AMBIENT_MIN_SNR, FEW_PHOTONS, HEAD_FRAMES,
                        auto_ambient_alpha, photon_levels)
 from jaxsr.sensor import calibrated_rates, sample_poisson
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
+from harness.reports import header, markdown_table, write_atomic  # noqa: E402
+from harness.scoring import SCENE_LABELS, SEQUENCE_FRAMES, TEST_SCENES  # noqa: E402
 
 SNRS = (0.1, 0.2, 0.3, 0.5, 0.8, 1.3, 5.0)
 PHOTONS = (1.0, 3.0, 14.0, 100.0)
@@ -74,7 +77,7 @@ def _head_counts(key, depth, intensity, alpha, beta, sensor):
 def estimated_levels(seq, photons: float, snr: float, *, key, sensor=SensorConfig()) -> tuple[float, float]:
     """`photon_levels` (SNR, signal photons) of a scene's first HEAD_FRAMES frames drawn at one regime (calibrated
     over the whole sequence, as the benchmark's regimes are): what `jaxsr upscale` would read from it."""
-    alpha, beta = _calibration(jnp.asarray(seq.depth), jnp.asarray(seq.intensity), jnp.float32(snr),
+    alpha, beta = calibration(jnp.asarray(seq.depth), jnp.asarray(seq.intensity), jnp.float32(snr),
                                jnp.float32(photons), sensor)
     counts = _head_counts(key, jnp.asarray(seq.depth[:HEAD_FRAMES]), jnp.asarray(seq.intensity[:HEAD_FRAMES]),
                           alpha, beta, sensor)

@@ -20,19 +20,21 @@ import argparse
 import dataclasses
 import functools
 import shutil
+import sys
 import time
 from pathlib import Path
-
-from jaxsr.eval.scoring import BLOCK, SCENE_LABELS, TEST_SCENES, format_interval, interval, scene_scores, test_clips
-from jaxsr.eval.reports import header, markdown_table, write_atomic
-from jaxsr.eval.runs import CAMPAIGN_PRESET as PRESET
-from jaxsr.eval.runs import history, run_dir
 
 import jaxsr
 from jaxsr.config import PRESETS
 from jaxsr.training.data import run_keys, validation_set
 from jaxsr.nn import init_model
 from jaxsr.training import evaluate, fit
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
+from harness.scoring import BLOCK, SCENE_LABELS, TEST_SCENES, format_interval, interval, scene_scores, test_clips  # noqa: E402
+from harness.reports import header, markdown_table, write_atomic  # noqa: E402
+from harness.runs import CAMPAIGN_PRESET as PRESET  # noqa: E402
+from harness.runs import history, run_dir  # noqa: E402
 
 
 @functools.cache

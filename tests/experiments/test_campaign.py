@@ -1,6 +1,6 @@
 """The training campaign (experiments/paper/campaign.py): which run goes next, when one is finished, and the
 convergence measure, on fabricated metrics files (no training); the TR differences' spread over runs and frame
-interval, on synthetic scores; the per-frame score cache (jaxsr/eval/score_cache.py) and scoring with it, on
+interval, on synthetic scores; the per-frame score cache (experiments/harness/score_cache.py) and scoring with it, on
 fake scores."""
 
 import json
@@ -13,8 +13,8 @@ import campaign  # experiments/paper (pytest's pythonpath)
 
 import jaxsr
 from jaxsr.config import PRESETS
-from jaxsr.eval import score_cache
-from jaxsr.eval.scoring import Clip
+from harness import score_cache
+from harness.scoring import Clip
 from jaxsr.io.checkpoint import save_model
 
 CFG = PRESETS[campaign.PRESET]

@@ -178,7 +178,7 @@ def test_returns_kept_overrules_the_head_only_where_the_block_shows_a_return():
     marks nothing is left as it is."""
     import jax
 
-    import photon_regimes
+    import _photon_benchmark as bench
     from jaxsr.config import ModelConfig
     from jaxsr.nn import Model, init_model
 
@@ -192,14 +192,14 @@ def test_returns_kept_overrules_the_head_only_where_the_block_shows_a_return():
                       inputs=("depth", "signal", "background"), no_return_head=True)
     params, state = init_model(jax.random.key(0), cfg)
     bias = params["no_return"]["conv2"]["b"]
-    quiet = photon_regimes.no_return_decision(counts, jaxsr.SensorConfig(), ("keep", 1e-3))
+    quiet = bench.no_return_decision(counts, jaxsr.SensorConfig(), ("keep", 1e-3))
     assert quiet.shape == (3, 6, 6) and not quiet[:, :3].any() and quiet[:, 3:].all()
     for shift, calls_sky in ((50.0, True), (-50.0, False)):  # a head that calls everything sky, then nothing
         params["no_return"]["conv2"]["b"] = bias + shift
         model = Model(params, state, cfg)
         x = real_photons.model_input(model, frames)
         decided = np.asarray(jaxsr.super_resolve(model, x, form="model"))
-        kept = photon_regimes.returns_kept(model, x, np.arange(3), quiet)
+        kept = bench.returns_kept(model, x, np.arange(3), quiet)
         assert kept.shape == decided.shape == (3, 24, 24)
         if not calls_sky:
             np.testing.assert_allclose(kept, decided, atol=1e-6)

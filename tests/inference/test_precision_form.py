@@ -231,7 +231,7 @@ def test_upscale_refuses_a_form_or_precision_the_model_cannot_take(tmp_path):
 
 @pytest.fixture(scope="module")
 def scene():
-    from jaxsr.eval.scoring import test_clips
+    from harness.scoring import test_clips
 
     return test_clips(SEQUENCE_FORM_MIN_FRAMES, names=("scene1_street",))["scene1_street"]
 

@@ -200,8 +200,8 @@ def test_simulate_recording_equals_the_command(tmp_path, capsys):
 
 
 def test_simulate_clip_refuses_an_array_snr():
-    """`jaxsr.eval.scoring.simulate_clip` takes one SNR for the clip (a TypeError before)."""
-    from jaxsr.eval.scoring import simulate_clip
+    """`harness.scoring.simulate_clip` takes one SNR for the clip (a TypeError before)."""
+    from harness.scoring import simulate_clip
 
     record = SimpleNamespace(name="x", depth=np.full((2, 128, 256), 8.0, np.float32),
                              intensity=np.full((2, 128, 256), 0.5, np.float32), fps=25.0, snr=1.3)

@@ -1,8 +1,8 @@
-"""The result-file header of the experiment scripts (jaxsr/eval/reports.py): CPU steal accounting."""
+"""The result-file header of the experiment scripts (experiments/harness/reports.py): CPU steal accounting."""
 
 import pytest
 
-from jaxsr.eval import reports
+from harness import reports
 
 
 def test_steal_share_is_stolen_over_total_ticks_between_readings():

@@ -1,4 +1,4 @@
-"""The experiments' frame selection (jaxsr/eval/scoring.py): scores spread over a whole test sequence, and the
+"""The experiments' frame selection (experiments/harness/scoring.py): scores spread over a whole test sequence, and the
 windowed models computed on those frames only, equal to the whole sequence's output there."""
 
 import dataclasses
@@ -10,7 +10,7 @@ import pytest
 import _baselines  # experiments/paper (pytest's pythonpath)
 
 import jaxsr
-from jaxsr.eval import scoring
+from harness import scoring
 from jaxsr.nn import Model, init_model
 
 SMALL = {"base": 8, "growth": 4, "head": 16, "filter_hidden": 16}

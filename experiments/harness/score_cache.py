@@ -14,14 +14,14 @@ import jax
 import numpy as np
 
 import jaxsr
-from jaxsr.eval.reports import machine, write_atomic
+from harness.reports import machine, write_atomic
 
 _PACKAGE = Path(jaxsr.__file__).parent
 # What a score depends on beyond the weights and the test data: the network (every module of jaxsr.nn), its loading
-# and compilation, inference (jaxsr.inference), the metrics and the scoring loop
+# and compilation, inference (jaxsr.inference), the metrics and the scoring loop (harness/scoring.py)
 SCORING_CODE = (*sorted((_PACKAGE / "nn").glob("*.py")), *sorted((_PACKAGE / "inference").glob("*.py")),
-                *(_PACKAGE / name for name in ("config.py", "runtime.py", "io/checkpoint.py", "eval/metrics.py",
-                                               "eval/scoring.py")))
+                *(_PACKAGE / name for name in ("config.py", "runtime.py", "io/checkpoint.py", "eval/metrics.py")),
+                Path(__file__).with_name("scoring.py"))
 KEY = ("weights", "data", "code")
 
 
@@ -37,7 +37,7 @@ def digest(*arrays) -> str:
 
 
 def data_digest(clips: dict) -> str:
-    """The fingerprint of scored test data (`jaxsr.eval.scoring.Clip`s): every frame's LR depth (the windows read
+    """The fingerprint of scored test data (`harness.scoring.Clip`s): every frame's LR depth (the windows read
     them), the scored frames and their truth, so that a change of the scenes or the simulation scores every run
     again."""
     parts = []
