@@ -7,6 +7,7 @@ metadata, the physical numbers are leaves, so a sweep can `jax.vmap` or `jax.gra
 from __future__ import annotations
 
 import dataclasses
+import math
 import numbers
 
 import jax
@@ -237,20 +238,24 @@ class ModelConfig:
     def __post_init__(self):
         # upper limits too: a config read from a file builds its templates block by block, and a tr of 10^5
         # (a damaged or hostile checkpoint) would take minutes and gigabytes before any shape is checked
-        if not 0 <= self.tr <= MODEL_LIMITS["tr"]:
-            raise ValueError(f"ModelConfig: tr must be 0..{MODEL_LIMITS['tr']}, got {self.tr}")
-        if not 1 <= self.scale <= MODEL_LIMITS["scale"]:
-            raise ValueError(f"ModelConfig: scale must be 1..{MODEL_LIMITS['scale']}, got {self.scale}")
-        if not (1 <= self.filter_size <= MODEL_LIMITS["filter_size"] and self.filter_size % 2 == 1):
+        check_int_field("ModelConfig", "tr", self.tr, 0, MODEL_LIMITS["tr"])
+        check_int_field("ModelConfig", "scale", self.scale, 1, MODEL_LIMITS["scale"])
+        check_int_field("ModelConfig", "filter_size", self.filter_size, 1, MODEL_LIMITS["filter_size"])
+        if self.filter_size % 2 == 0:
             raise ValueError(f"ModelConfig: filter_size must be odd and 1..{MODEL_LIMITS['filter_size']}, got "
                              f"{self.filter_size}")
-        if not 0 <= self.same_blocks <= MODEL_LIMITS["same_blocks"]:
-            raise ValueError(f"ModelConfig: same_blocks must be 0..{MODEL_LIMITS['same_blocks']}, got "
-                             f"{self.same_blocks}")
+        check_int_field("ModelConfig", "same_blocks", self.same_blocks, 0, MODEL_LIMITS["same_blocks"])
         for name in ("base", "growth", "head", "filter_hidden"):
-            if not 1 <= getattr(self, name) <= MODEL_LIMITS["width"]:
-                raise ValueError(f"ModelConfig: {name} must be 1..{MODEL_LIMITS['width']} channels, got "
-                                 f"{getattr(self, name)}")
+            check_int_field("ModelConfig", name, getattr(self, name), 1, MODEL_LIMITS["width"], " channels")
+        # batch norm divides by sqrt(var + eps) and blends its averages by the momentum: an eps <= 0 or a momentum
+        # outside [0, 1) makes a network that computes NaN or forgets nothing it saw
+        for name, lo, hi, closed in (("bn_eps", 0.0, 1.0, False), ("bn_momentum", 0.0, 1.0, True)):
+            value = getattr(self, name)
+            ok = (not isinstance(value, bool) and isinstance(value, numbers.Real) and math.isfinite(float(value))
+                  and (lo <= float(value) if closed else lo < float(value)) and float(value) < hi)
+            if not ok:
+                raise ValueError(f"ModelConfig: {name} must be a number in {'[' if closed else '('}{lo:g}, {hi:g}), "
+                                 f"got {value!r}")
         if self.filter_padding not in ("edge", "zero"):
             raise ValueError(f"ModelConfig: filter_padding must be 'edge' or 'zero', got {self.filter_padding!r}")
         if self.temporal not in TEMPORAL_FORMS:

@@ -202,6 +202,10 @@ def _write(job: UpscaleJob, outputs: Outputs, frame_format, ref, batch_size: int
 
         def frames(units):
             for t, hr in enumerate(stream):
+                if np.isnan(hr).any():  # never "no return": a model whose config or weights compute nothing
+                    raise ValueError(f"model {job.label or job.model_name}: its output holds NaN in frame {t} "
+                                     f"({np.isnan(hr).mean():.0%} of the pixels) from finite input: it computes "
+                                     "nothing usable (check its config and weights, jaxsr info); nothing written")
                 if t == preview_t:
                     preview_hr.append(hr)
                 if film is not None or clouds is not None:

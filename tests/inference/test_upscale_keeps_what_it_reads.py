@@ -75,3 +75,47 @@ def test_a_folder_written_with_force_holds_this_runs_frames_only(tmp_path, model
     assert sorted(f.name for f in out.iterdir()) == ["frame_000000.pfm", "frame_000001.pfm", "notes.txt"]
     assert sorted(f.name for f in clouds.iterdir()) == ["frame_000000.ply", "frame_000001.ply"]
     np.testing.assert_allclose(io.read_depth(out / "frame_000001.pfm"), 20.0, atol=5.0)
+
+
+@pytest.mark.parametrize("eps", [-1.0, float("nan"), 0.0, "x"])
+def test_a_config_that_computes_nothing_is_refused_when_loaded(tmp_path, eps, capsys):
+    """A checkpoint whose batch norm eps is <= 0, NaN or text is refused by `jaxsr info` and `upscale` in one
+    line, not loaded as a model that writes every pixel as no return."""
+    import json
+
+    from jaxsr.config import ModelConfig
+    from jaxsr.io.checkpoint import save_model
+    from jaxsr.nn import Model, init_model
+    import jax
+
+    cfg = ModelConfig(tr=0, base=4, growth=2, head=4, filter_hidden=4)
+    path = save_model(tmp_path / "m.npz", Model(*init_model(jax.random.key(0), cfg), cfg))
+    arrays = dict(np.load(path))  # the same file with its config's bn_eps replaced
+    meta = json.loads(str(arrays["__metadata__"]))
+    meta["config"]["bn_eps"] = eps
+    arrays["__metadata__"] = np.array(json.dumps(meta))
+    np.savez(path, **arrays)
+    assert cli.main(["info", str(path)]) == 2
+    assert "bn_eps must be a number in (0, 1)" in capsys.readouterr().err
+    np.save(tmp_path / "in.npy", np.full((2, 8, 8), 10.0, np.float32))
+    assert command(tmp_path / "in.npy", tmp_path / "out.npy", "--model", path) == 2
+    assert not (tmp_path / "out.npy").exists()
+
+
+def test_nan_output_is_refused_not_written_as_no_return(tmp_path, model_path):
+    """Weights that turn finite input into NaN (here the residual branch's bias): refused with nothing written."""
+    import dataclasses
+
+    import jax.numpy as jnp
+
+    from jaxsr.app import upscale
+    from jaxsr.io.checkpoint import load_model
+
+    model = load_model(model_path)
+    params = dict(model.params, residual=dict(model.params["residual"]))
+    conv2 = dict(params["residual"]["conv2"], b=jnp.full_like(params["residual"]["conv2"]["b"], jnp.nan))
+    params["residual"]["conv2"] = conv2
+    broken = dataclasses.replace(model, params=params)
+    with pytest.raises(ValueError, match="its output holds NaN in frame 0"):
+        upscale(np.full((2, 8, 8), 10.0, np.float32), tmp_path / "out.npy", model=broken)
+    assert not (tmp_path / "out.npy").exists()
