@@ -20,7 +20,8 @@ from ..io.formats import read_npz_arrays
 from ..nn.model import Model, architecture, architectures
 from .data import regime_batches, run_keys, sequence_batches, sequence_clips
 from .duf import initial_weights
-from .loop import RUN_FILES, _check_seeds, _check_stack_folder, _latest_state, fit, resume_config, seed_folder
+from .folders import RUN_FILES, _check_seeds, _check_stack_folder, _latest_state, resume_config, seed_folder
+from .loop import fit
 from .recipes import recipe
 from .sensor_file import card_entry, read_sensor_file, sensor_differences
 
