@@ -23,6 +23,7 @@ from .run_state import _Run
 
 
 def _hardware() -> dict:
+    """The machine a run trains on, for its card: backend, devices, processes, host, JAX version."""
     devs = jax.devices()
     return {
         "backend": jax.default_backend(),
