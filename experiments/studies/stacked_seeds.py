@@ -10,7 +10,7 @@ simulated inside the step, as `jaxsr train` trains), the devices and mesh `jaxsr
 
 - steps: interleaved rounds, each `--steps` steps of every seed's single run in turn (one after another), then
   `--steps` steps of the stacked run, each step waited for as `fit` waits for its metrics; the step functions
-  are the loop's own (`jaxsr.training.loop._advance`, stacked and not), compiled before the first round. The
+  are the loop's own (`jaxsr.training.epochs._advance`, stacked and not), compiled before the first round. The
   ratio is taken per round (both under the same load) and its median reported, with the fastest round's.
 - fit: `fit` itself, `--fit-epochs` epochs of `--fit-steps` steps, the stacked run against the seeds' runs one
   after another, each epoch's training frames/s as `metrics.jsonl` records it (`examples_per_s`: the time of
@@ -41,7 +41,7 @@ import numpy as np  # noqa: E402
 
 from jaxsr.config import PRESETS, ModelConfig, SensorConfig  # noqa: E402
 from jaxsr.training import choose_mesh, fit, recipe, replicate, run_keys  # noqa: E402
-from jaxsr.training.loop import _advance, _stack  # noqa: E402 (the loop's own steps, timed alone)
+from jaxsr.training.epochs import _advance, _stack  # noqa: E402 (the loop's own steps, timed alone)
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
 from harness.reports import header, markdown_table, write_atomic  # noqa: E402

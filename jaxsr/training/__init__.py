@@ -1,5 +1,6 @@
 """Training: the data sources, Adam and the step-decay schedule, each architecture's recipe, the one `fit`
-loop that trains them all, and the runs from a preset (`train`) or to a sensor described in a file (`finetune`,
+loop that trains them all (`loop`, with its run folders, saved state, epochs, records and processes in modules of
+their own), and the runs from a preset (`train`) or to a sensor described in a file (`finetune`,
 `read_sensor_file`).
 """
 
@@ -43,7 +44,9 @@ from .baselines import (
     save_baseline,
     super_resolve_baseline,
 )
-from .loop import RESUME_FILE, RUN_FILES, choose_mesh, fit, replicate, resume_config, seed_folder
+from .processes import choose_mesh, replicate
+from .folders import RESUME_FILE, RUN_FILES, resume_config, seed_folder
+from .loop import fit
 from .presets import FINETUNE_LR_FACTOR, MAX_TR, PHOTON_INPUTS, finetune, regime_validation, sequence_data, train
 from .sensor_file import fit_irf, parse_sensor_file, read_irf_file, read_sensor_file
 from .no_return import (CALIBRATION_SEED, calibrate_no_return, choose_no_return_logit, no_return_outputs,

@@ -42,7 +42,7 @@ from ..scenes import test_sequences, training_clip
 from ..sensor.forward import normalise_depth, simulate_histograms
 from .data import log_uniform, scene_batches, validation_set
 from .optim import AdamState, adam_init, adam_update, lr_schedule
-from .recipes import Recipe, register_recipe
+from .recipes import Recipe, recipe, register_recipe
 
 __all__ = [
     "BASELINES",
@@ -199,8 +199,7 @@ def make_rbpn_train_step(cfg: RBPNConfig, make_batch, *, schedule):
 
 # --- trained baselines: files, inference, validation, the resumable fit loop ------------------------------------
 
-BASELINES = ("histnet", "iseebetter")
-_CONFIGS = {"histnet": HistNetConfig, "iseebetter": RBPNConfig}
+BASELINES = ("histnet", "iseebetter")  # the names the deprecated functions of jaxsr 0.1 take
 
 
 def _check_kind(kind: str, who: str) -> None:
@@ -212,12 +211,20 @@ def baseline_validation_set(key, kind: str, cfg, train_cfg: TrainConfig, *, sens
     """The validation frames of `jaxsr.training.data.validation_set` (the first `val_frames` of each validation
     sequence at its own SNR, `val_mean_signal`, the same noise for the same key) with what each baseline reads:
     "counts" (N, h, w, K) and "intensity" (N, H, W) for HistNet, "windows" (N, frames, h, w) for iSeeBetter; plus
-    "gt" (N, H, W), "lr" (N, h, w), "names", "lengths"."""
+    "gt" (N, H, W), "lr" (N, h, w), "names", "lengths". ValueError for a `cfg` of another kind."""
     _check_kind(kind, "baseline_validation_set")
+    if architecture(cfg) is not architecture(kind):
+        raise ValueError(f"baseline_validation_set: a {type(cfg).__name__} is not a {kind} config")
+    return _validation(key, cfg, train_cfg, sensor)
+
+
+def _validation(key, cfg, train_cfg: TrainConfig, sensor: SensorConfig) -> dict:
+    """`baseline_validation_set` for the baseline of `cfg`, as its recipe's validation: what it reads, as its
+    architecture says (windows of its input radius, or histograms with the HR intensity)."""
+    arch = architecture(cfg)
     seqs = test_sequences(n_frames=train_cfg.val_frames, names=train_cfg.val_sequences or None, sensor=sensor)
-    tr = cfg.frames // 2 if kind == "iseebetter" else 0
-    out = validation_set(key, tr, train_cfg, sensor=sensor, sequences=seqs)
-    if kind == "histnet":  # the counts behind validation_set's centre of mass: the same keys, the same draws
+    out = validation_set(key, arch.input_radius(cfg), train_cfg, sensor=sensor, sequences=seqs)
+    if arch.reads_histograms:  # the counts behind validation_set's centre of mass: the same keys, the same draws
         counts, intensity = [], []
         for i, name in enumerate(out["names"]):
             depth = jnp.asarray(seqs[name].depth)[: train_cfg.val_frames]
@@ -239,7 +246,7 @@ def evaluate_baseline(model: Model, validation: dict, *, sensor: SensorConfig = 
     """Validation of a learned baseline: {"loss": its training content loss (HistNet mean |hr - gt|, iSeeBetter
     MSE), "psnr": mean per-frame PSNR (dB) of the clipped output}, Python floats. validation:
     `baseline_validation_set`."""
-    if model.architecture.inputs == "histograms":
+    if model.reads_histograms:
         hr = super_resolve_histograms(model, validation["counts"], sensor, intensity=validation["intensity"],
                                       batch_size=4)
         loss = np.mean(np.abs(hr - np.asarray(validation["gt"])))
@@ -301,9 +308,7 @@ def _histnet_run(cfg, train_cfg: TrainConfig, make_batch, sensor: SensorConfig):
 register_recipe("histnet", Recipe(
     init=_histnet_init, step=_histnet_step,
     data=lambda cfg, train_cfg, sensor: histogram_batches(train_cfg, sensor=sensor),
-    validation=lambda key, cfg, train_cfg, sensor: baseline_validation_set(key, "histnet", cfg, train_cfg,
-                                                                         sensor=sensor),
-    evaluate=_evaluate))
+    validation=_validation, evaluate=_evaluate, published=HistNetConfig()))
 
 
 # iSeeBetter: a generator and a discriminator, each with its own Adam, in one train state
@@ -345,9 +350,7 @@ def _iseebetter_run(cfg, train_cfg: TrainConfig, make_batch, pretrain_steps: int
 register_recipe("iseebetter", Recipe(
     init=_iseebetter_init, step=_iseebetter_step,
     data=lambda cfg, train_cfg, sensor: scene_batches(cfg.frames // 2, train_cfg, sensor=sensor),
-    validation=lambda key, cfg, train_cfg, sensor: baseline_validation_set(key, "iseebetter", cfg, train_cfg,
-                                                                         sensor=sensor),
-    evaluate=_evaluate))
+    validation=_validation, evaluate=_evaluate, published=RBPNConfig()))
 
 
 # --- deprecated: the names of jaxsr 0.1, each now a call of the one model interface or the one loop -------------
@@ -364,7 +367,7 @@ def BaselineModel(kind: str, params, config) -> Model:  # noqa: N802 (the class 
     unpacking or `_replace`); raises ValueError for an unknown kind or another kind's config."""
     _deprecated("BaselineModel(kind, params, config)", "jaxsr.nn.Model(params, {}, config)")
     _check_kind(kind, "BaselineModel")
-    if architecture(config).name != kind:
+    if architecture(config) is not architecture(kind):
         raise ValueError(f"BaselineModel: a {type(config).__name__} is not a {kind} config")
     return Model(params, {}, config)
 
@@ -389,10 +392,18 @@ def load_baseline(path) -> Model:
             f"jaxsr/weights/{Path(path).name}.npz); train one with `python experiments/paper/train_baselines.py "
             f"{Path(path).name if Path(path).name in BASELINES else 'histnet|iseebetter'} --bundle`") from None
     model = load_model(path)
-    if model.kind not in BASELINES:
+    if not _is_baseline(model):
         raise ValueError(f"{str(path)!r} does not hold a trained learned baseline ({model.kind}; a TR model loads "
                          "with jaxsr.load_model)")
     return model
+
+
+def _is_baseline(model: Model) -> bool:
+    """Whether `model` is a learned baseline: its recipe trains it at a published size (`Recipe.published`)."""
+    try:
+        return recipe(model).published is not None
+    except ValueError:  # an architecture without a recipe
+        return False
 
 
 def super_resolve_baseline(model: Model, *, counts=None, intensity=None, lr=None, batch_size: int = 4,
@@ -401,7 +412,7 @@ def super_resolve_baseline(model: Model, *, counts=None, intensity=None, lr=None
     intensity=intensity)` (HistNet). Returns (T, H, W) HR normalised depth for (T, ...) inputs (NumPy, not
     clipped)."""
     _deprecated("super_resolve_baseline", "jaxsr.super_resolve / jaxsr.super_resolve_histograms")
-    if model.architecture.inputs == "histograms":
+    if model.reads_histograms:
         if counts is None or intensity is None:
             raise ValueError("super_resolve_baseline: HistNet needs counts (T, h, w, K) and intensity (T, H, W)")
         return super_resolve_histograms(model, counts, sensor, intensity=intensity, batch_size=batch_size)
@@ -419,8 +430,9 @@ def fit_baseline(kind: str, cfg, train_cfg: TrainConfig, *, out, make_batch=None
     Returns (best `Model`, history)."""
     _deprecated("fit_baseline", "jaxsr.fit")
     _check_kind(kind, "fit_baseline")
-    if not isinstance(cfg, _CONFIGS[kind]):
-        raise TypeError(f"fit_baseline: {kind} needs a {_CONFIGS[kind].__name__}, got {type(cfg).__name__}")
+    config_type = architecture(kind).config_type
+    if not isinstance(cfg, config_type):
+        raise TypeError(f"fit_baseline: {kind} needs a {config_type.__name__}, got {type(cfg).__name__}")
     from .loop import fit  # the loop imports this package's recipes
 
     return fit(cfg, train_cfg, out=out, make_batch=make_batch, validation=validation, sensor=sensor, resume=resume,

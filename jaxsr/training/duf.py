@@ -215,9 +215,10 @@ def initial_weights(k_init, model_cfg: ModelConfig, init) -> tuple[dict, dict]:
     if init is None:
         return init_model(k_init, model_cfg)
     model = init if isinstance(init, Model) else load_model(init)
-    if set(model.config.inputs) <= set(model_cfg.inputs) and (
-            model.config.inputs != model_cfg.inputs
-            or model_cfg.no_return_head and not model.config.no_return_head):
+    if model.architecture is not DUF:
+        raise ValueError(f"fit: init holds a {model.kind} model; the DUF network starts from DUF weights")
+    if set(model.channels) <= set(model_cfg.inputs) and (
+            model.channels != model_cfg.inputs or model_cfg.no_return_head and not model.has_no_return_head):
         # the added inputs and the no-return head start from the trained model's function
         model = with_photon_inputs(k_init, model, model_cfg.inputs, no_return_head=model_cfg.no_return_head)
     if model.config.tr < model_cfg.tr:
@@ -265,7 +266,7 @@ def _validation(key, cfg: ModelConfig, train_cfg: TrainConfig, sensor: SensorCon
 def _evaluate(model: Model, validation: dict, train_cfg: TrainConfig, *, sensor=None, conv3d_impl="auto") -> dict:
     """`evaluate` (window form) or `evaluate_sequences` (sequence form) of the model."""
     cfg = model.config
-    if model.architecture.sequence_form(cfg):
+    if model.sequence_form:
         return evaluate_sequences(model.params, model.state, validation["lr"], validation["gt"], cfg,
                                   lengths=validation.get("lengths"), delta=train_cfg.huber_delta,
                                   conv3d_impl=conv3d_impl)

@@ -10,17 +10,17 @@ same result as an uninterrupted one. Data parallelism (the DUF network): a `jax.
 process runs the same steps on its share of the global batch, and process 0 alone reads and writes the run folder.
 Stacked runs (`fit(seeds=[...])`): several seeds of one network, each in its own run folder, their train states
 stacked along a leading axis and updated by one jitted step, the recipe's vmapped over the seeds.
+
+This module holds `fit` and the loop that ties the run's parts together; each part has its module: the run
+folders (`folders`), the saved train state and resume (`run_state`), the epochs and early stopping (`epochs`),
+the records and training card (`records`) and the mesh and processes (`processes`).
 """
 
 from __future__ import annotations
 
-import builtins
 import contextlib
 import dataclasses
 import json
-import math
-import numbers
-import platform
 import time
 import warnings
 from pathlib import Path
@@ -28,497 +28,21 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-import numpy as np
-from jax.sharding import Mesh, NamedSharding
-from jax.sharding import PartitionSpec as P
+from jax.sharding import Mesh
 
-from ..baselines.interpolation import bicubic
 from ..config import SensorConfig, TrainConfig
-from ..eval.metrics import psnr
-from ..io.checkpoint import (config_from_dict, config_to_dict, load_tree, read_metadata, resolve_model_path, save_model,
-                             save_tree)
-from ..io.files import folder_lock, write_text_atomic
+from ..io.files import folder_lock
 from ..nn.model import Model, architecture
 from .data import run_keys
-from .duf import data_mesh
+from .epochs import _advance, _early_stopping, _next_group, _run_epoch, _stack, _unstack
+from .folders import _check_seeds, _check_stack_folder, _held_run_files, seed_folder
+from .processes import _lead, _on_lead, _share, choose_mesh, replicate
 from .recipes import recipe
-
-__all__ = [
-    "choose_mesh",
-    "replicate",
-    "fit",
-    "resume_config",
-    "seed_folder",
-    "RUN_FILES",
-    "RESUME_FILE",
-]
-
-
-def _hardware() -> dict:
-    devs = jax.devices()
-    return {
-        "backend": jax.default_backend(),
-        "devices": len(devs),
-        "device_kind": devs[0].device_kind,
-        "processes": jax.process_count(),
-        "host": platform.platform(),
-        "jax": jax.__version__,
-    }
-
-
-class _TrainState(NamedTuple):
-    """The arrays of a run: `train`, what the recipe's step updates ({"params", "state", "opt"} and, for a GAN,
-    the discriminator's "disc", "disc_state", "disc_opt"), `best`, the best epoch's {"params", "state"} (on the
-    host), and the data `key` (step s draws its batch with fold_in(key, s)). `last.npz` holds them side by side
-    (the key as raw key data)."""
-
-    train: dict
-    best: dict
-    key: jax.Array
-
-
-@dataclasses.dataclass(frozen=True)
-class _Run:
-    """Where a run stands after `epoch` finished epochs and `step` steps; saved as the "run" metadata of `last.npz`
-    (at an epoch's end) and `resume.npz` (inside one).
-
-    best_loss / best_epoch (0-based, -1 before the first) / bad_epochs (epochs since the best) drive early
-    stopping; history holds the per-epoch records of `metrics.jsonl`. Inside epoch `epoch` (0-based: step >
-    epoch * steps_per_epoch), the sums of its train loss and PSNR so far and its training time are kept, so that
-    the resumed epoch logs what an uninterrupted one would; they are 0 at an epoch's end.
-    """
-
-    epoch: int = 0
-    step: int = 0
-    epoch_loss_sum: float = 0.0
-    epoch_psnr_sum: float = 0.0
-    epoch_train_s: float = 0.0
-    epoch_sums: dict = dataclasses.field(default_factory=dict)  # sums of the step's other metrics (a GAN's losses)
-    best_loss: float = math.inf
-    best_epoch: int = -1
-    bad_epochs: int = 0
-    wall_time_s: float = 0.0
-    finished: bool = False
-    history: tuple = ()
-
-
-def _train_state_template(model_cfg, k_init) -> dict:
-    """Shapes of everything `last.npz` holds for `model_cfg`, computing nothing."""
-    train = jax.eval_shape(lambda k: recipe(model_cfg).init(k, model_cfg, None), k_init)
-    best = {"params": train["params"], "state": train["state"]}
-    return {**train, "best": best, "key": jax.eval_shape(lambda: jax.random.key_data(jax.random.key(0)))}
-
-
-def choose_mesh(mesh, batch_size: int) -> Mesh | None:
-    """`fit`'s mesh argument resolved: "auto" shards over all devices when there are several that divide the
-    batch evenly.
-
-    Across processes (`jax.process_count()` > 1) the batch is the global one, and it must be split: the mesh
-    ("auto", or a `Mesh`) must hold every process's devices and `batch_size` must be a multiple of their number,
-    else ValueError (so must it be for mesh=None, which would have every process do the whole batch)."""
-    n, processes = jax.device_count(), jax.process_count()
-    if processes > 1:
-        if not (mesh == "auto" or (isinstance(mesh, Mesh) and mesh.devices.size == n)):
-            raise ValueError(f"fit: across {processes} processes the batch is split over a mesh of all {n} devices; "
-                             f"got mesh={mesh!r} (pass 'auto')")
-        if batch_size % n:
-            raise ValueError(f"fit: the global batch of {batch_size} (TrainConfig.batch_size) does not split evenly "
-                             f"over the {n} devices of {processes} processes; choose a multiple of {n}")
-        return data_mesh() if mesh == "auto" else mesh
-    if mesh != "auto":
-        return mesh
-    return data_mesh() if n > 1 and batch_size % n == 0 else None
-
-
-def replicate(tree, mesh: Mesh | None):
-    """`tree` with a copy on every device of `mesh`, as a sharded train step expects its carry (params, state,
-    Adam state: the step shards only the batch), so that its first calls do not compile again for another
-    placement; unchanged when `mesh` is None."""
-    return tree if mesh is None else jax.device_put(tree, NamedSharding(mesh, P()))
-
-
-def _lead() -> bool:
-    """Whether this process reads and writes the run folder: process 0 of a run across processes, or the only one."""
-    return jax.process_index() == 0
-
-
-def _share(value):
-    """Process 0's `value` (JSON-serialisable) on every process; `value` itself with one process. Sent as the bytes
-    of its JSON text (padded to a power of two, so that few lengths compile), so that floats arrive exactly."""
-    if jax.process_count() == 1:
-        return value
-    from jax.experimental import multihost_utils  # late: only runs across processes need it
-
-    text = json.dumps(value).encode() if _lead() else b""
-    size = int(multihost_utils.broadcast_one_to_all(np.int32(len(text))))
-    buffer = np.full(max(256, 1 << (size - 1).bit_length()), ord(" "), np.uint8)
-    buffer[: len(text)] = np.frombuffer(text, np.uint8)
-    return json.loads(np.asarray(multihost_utils.broadcast_one_to_all(buffer), np.uint8).tobytes().decode())
-
-
-def _on_lead(fn):
-    """fn() run by process 0 alone (it reads and writes the run folder), its JSON-serialisable result on every
-    process; an exception it raises is raised on every process, of the same built-in type with the same message
-    (RuntimeError naming it for others), so that no process waits for one that failed. fn() itself with one process."""
-    if jax.process_count() == 1:
-        return fn()
-    error = None
-    if _lead():
-        try:
-            outcome = {"value": fn()}
-        except Exception as e:  # noqa: BLE001 - every process must learn of it; re-raised below
-            error, outcome = e, {"error": type(e).__name__, "message": str(e)}
-    else:
-        outcome = None
-    outcome = _share(outcome)
-    if error is not None:
-        raise error
-    if "error" in outcome:
-        kind = getattr(builtins, outcome["error"], None)
-        if isinstance(kind, type) and issubclass(kind, Exception):
-            raise kind(outcome["message"])
-        raise RuntimeError(f"process 0: {outcome['error']}: {outcome['message']}")
-    return outcome["value"]
-
-
-def _bicubic_psnr(validation: dict, scale: int) -> float | None:
-    """Mean PSNR (dB) of bicubic upsampling of the validation set's centre frames (None without "lr"): the
-    baseline every epoch's validation PSNR is logged beside."""
-    if "lr" not in validation:
-        return None
-    lr = validation["lr"]
-    depth = lr[..., 0] if lr.ndim == validation["gt"].ndim + 1 else lr  # a photon model's channels: depth first
-    return float(jnp.mean(psnr(bicubic(depth, scale=scale), validation["gt"])))
-
-
-def _settings(model_cfg, train_cfg: TrainConfig, pretrain_epochs: int) -> dict:
-    """{"architecture", "config", "train_config"} (and "pretrain_epochs" when used) as a checkpoint's metadata
-    holds them."""
-    # JSON round trip: tuples become lists, as they are when read back from a checkpoint
-    settings = {"architecture": architecture(model_cfg).name, "config": config_to_dict(model_cfg),
-                "train_config": config_to_dict(train_cfg)}
-    if pretrain_epochs:
-        settings["pretrain_epochs"] = pretrain_epochs
-    return json.loads(json.dumps(settings))
-
-
-def _check_resumable(path: Path, meta: dict, settings: dict):
-    """Raise ValueError naming every setting in which the run saved at `path` differs from `settings`.
-
-    Everything must match except `epochs`: extending a finished run is a resume, not a new run (the schedule
-    depends on decay_epochs and patience, not on the epoch budget). Fields older versions kept in the model
-    config (`checkpoint.LEGACY_FIELDS`) are ignored, fields they lacked take their defaults.
-    """
-    def flat(arch, model, train, pretrain):
-        return dict(model, architecture=arch, pretrain_epochs=pretrain,
-                    **{f"train.{k}": v for k, v in train.items() if k != "epochs"})
-
-    if meta.get("kind") != "train_state":
-        raise ValueError(f"fit: cannot resume {str(path)!r}: it holds no training state of `fit` (kind "
-                         f"{meta.get('kind')!r}; a learned baseline's run of jaxsr 0.1 resumes with that version)")
-    arch = architecture(meta.get("architecture", "duf"))
-    # through JSON as `settings` went (tuples become lists), with the fields older files lack at their defaults
-    saved_cfg = json.loads(json.dumps(config_to_dict(config_from_dict(arch.config_type, meta["config"]))))
-    saved_train = json.loads(json.dumps(config_to_dict(config_from_dict(TrainConfig, meta["train_config"]))))
-    saved = flat(arch.name, saved_cfg, saved_train, meta.get("pretrain_epochs", 0))
-    wanted = flat(settings["architecture"], settings["config"], settings["train_config"],
-                  settings.get("pretrain_epochs", 0))
-    differ = sorted(k for k in saved.keys() | wanted.keys() if saved.get(k) != wanted.get(k))
-    if differ:
-        before, now = meta.get("processes", 1), jax.process_count()
-        across = (f"; a run begun on {before} process(es) continues on {now} only with the same global batch "
-                  "(TrainConfig.batch_size, split over all devices)" if "train.batch_size" in differ and before != now
-                  else "")
-        raise ValueError(
-            f"fit: cannot resume {str(path)!r}: it was trained with other settings: "
-            + ", ".join(f"{k} {saved.get(k)!r} (now {wanted.get(k)!r})" for k in differ) + across
-        )
-
-
-def resume_config(out, train_cfg: TrainConfig) -> TrainConfig:
-    """`train_cfg` with the validation sequences of the run saved in folder `out`, so that `fit(resume=True)`
-    continues it: runs begun before 2026-11-24 validate on val1_street and val3_courtyard, which the presets
-    dropped, and fit refuses to resume under other settings. Every other setting is left for fit to check. A
-    folder without a run (no last.npz or resume.npz) gives `train_cfg` unchanged."""
-    saved_run = _latest_state(Path(out))
-    if saved_run is None:
-        return train_cfg
-    saved = read_metadata(saved_run).get("train_config", {}).get("val_sequences")
-    return train_cfg if saved is None else dataclasses.replace(train_cfg, val_sequences=tuple(saved))
-
-
-def _latest_state(out: Path) -> Path | None:
-    """The train state to resume the run in folder `out` from: `resume.npz` (inside an epoch) when it is ahead of
-    `last.npz` (an epoch's end; ahead of it when a kill fell between writing it and removing resume.npz), None
-    when neither exists."""
-    saved = [p for p in (out / "last.npz", out / RESUME_FILE) if p.is_file()]
-    return max(saved, key=lambda p: read_metadata(p).get("run", {}).get("step", 0), default=None)
-
-
-def _start_or_resume(out: Path, model_cfg, train_cfg: TrainConfig, settings: dict, *, k_init, k_data,
-                     resume: bool, init=None) -> tuple[_TrainState, _Run]:
-    """The run saved in folder `out` (`_latest_state`) when resuming one, else a fresh one (weights from `init` or
-    drawn with `k_init`, data from `k_data`)."""
-    path = _latest_state(out) if resume else None
-    if path is None:
-        train = recipe(model_cfg).init(k_init, model_cfg, init)
-        best = jax.device_get({"params": train["params"], "state": train["state"]})
-        return _TrainState(train, best, k_data), _Run()
-    meta = read_metadata(path)
-    _check_resumable(path, meta, settings)
-    before, now = meta.get("processes", 1), jax.process_count()
-    if before != now:  # the global batch is the same (_check_resumable): so is each step's update, up to rounding
-        warnings.warn(f"resuming {str(path)!r}, begun on {before} process(es), on {now}: the global batch of "
-                      f"{train_cfg.batch_size} is unchanged, so each step computes the same update, split over "
-                      f"{jax.device_count()} devices; the run goes on as it would have, up to float rounding (not bit "
-                      "for bit)", stacklevel=4)
-    tree, meta = load_tree(path, _train_state_template(model_cfg, k_init))
-    tree = jax.tree_util.tree_map(jnp.asarray, tree)
-    best, key = tree.pop("best"), jax.random.wrap_key_data(tree.pop("key"))
-    saved = meta["run"]
-    # A run that used up its epoch budget continues when given more; an early-stopped run stays stopped.
-    run = _Run(**dict(saved, history=tuple(saved["history"]), finished=saved["bad_epochs"] >= train_cfg.patience))
-    return _TrainState(tree, best, key), run
-
-
-def _start_across_processes(out: Path, model_cfg, train_cfg: TrainConfig, settings: dict, *, k_init, k_data,
-                            resume: bool, init=None) -> tuple[_TrainState, _Run]:
-    """`_start_or_resume` run by process 0 (the only one that reads the run folder, or `init`'s checkpoint), its
-    train state and run sent to every process (`multihost_utils.broadcast_one_to_all`, exact)."""
-    from jax.experimental import multihost_utils  # late: only runs across processes need it
-
-    started = []
-
-    def start():
-        ts, run = _start_or_resume(out, model_cfg, train_cfg, settings, k_init=k_init, k_data=k_data, resume=resume,
-                                   init=init)
-        started.append(ts)
-        return dataclasses.asdict(run)
-
-    saved = _on_lead(start)
-    run = _Run(**dict(saved, history=tuple(saved["history"])))
-    if started:
-        ts = started[0]
-        tree = {**ts.train, "best": ts.best, "key": jax.random.key_data(ts.key)}
-    else:  # zeros of the same shapes: broadcast_one_to_all adds them to process 0's arrays
-        tree = jax.tree_util.tree_map(lambda a: np.zeros(a.shape, a.dtype), _train_state_template(model_cfg, k_init))
-    tree = jax.device_get(multihost_utils.broadcast_one_to_all(tree))
-    best, key = tree.pop("best"), jax.random.wrap_key_data(jnp.asarray(tree.pop("key")))
-    return _TrainState(jax.tree_util.tree_map(jnp.asarray, tree), best, key), run
-
-
-def _stack(trees: list):
-    """Pytrees of one structure stacked along a new leading axis, one entry per run."""
-    return jax.tree_util.tree_map(lambda *leaves: jnp.stack(leaves), *trees)
-
-
-def _unstack(tree, i: int):
-    """Entry `i` of a pytree stacked by `_stack`."""
-    return jax.tree_util.tree_map(lambda leaf: leaf[i], tree)
-
-
-def _advance(step_fn, keys: list, *, stacked: bool):
-    """advance(train, step, active) -> (train, metrics): train step `step` of every run, each drawing its data
-    with fold_in(its key, step), as one run alone does.
-
-    One run (`keys` of one, not `stacked`): the recipe's `step_fn` on its train state (`active` unused). Stacked:
-    one jitted step, `step_fn` vmapped over the runs' train states stacked along a leading axis (`_stack`),
-    each metric one value per run; a run whose entry of `active` (bools, one per run) is False keeps its state
-    (its update is computed and dropped: a run that stopped early, or waits for the others to catch up)."""
-    if not stacked:
-        (key,) = keys
-        return lambda train, step, active: step_fn(train, jax.random.fold_in(key, step), step)
-
-    def one_step(train, keys, step, active):
-        draws = jax.vmap(jax.random.fold_in, in_axes=(0, None))(keys, step)
-        new, metrics = jax.vmap(step_fn, in_axes=(0, 0, None))(train, draws, step)
-        keep = lambda n, o: jnp.where(active.reshape(active.shape + (1,) * (n.ndim - 1)), n, o)  # noqa: E731
-        return jax.tree_util.tree_map(keep, new, train), metrics
-
-    jitted = jax.jit(one_step, donate_argnums=(0,) if jax.default_backend() != "cpu" else ())
-    stacked_keys = jnp.stack(keys)
-    return lambda train, step, active: jitted(train, stacked_keys, step, jnp.asarray(active))
-
-
-def _next_group(runs: list, epochs: int) -> list:
-    """The runs that train next: the unfinished ones (neither stopped early nor at `epochs`) at the lowest epoch,
-    so that a run resumed behind the others trains alone until it has caught up; [] when every run is done."""
-    left = [i for i, run in enumerate(runs) if not run.finished and run.epoch < epochs]
-    first = min((runs[i].epoch for i in left), default=None)
-    return [i for i in left if runs[i].epoch == first]
-
-
-def _run_epoch(advance, train, runs: list, group: list, train_cfg: TrainConfig, *, progress: bool, save=None,
-               every_s: float | None = None):
-    """The remaining train steps of one epoch of the runs `group` (indices into `runs`, all in the same 0-based
-    epoch: all `steps_per_epoch` steps of it for a run not saved inside it) with a progress bar, one
-    advance(train, step, active) (`_advance`) per step: a run trains from its own step on (one resumed further
-    into the epoch waits for the others to reach it), the runs outside `group` not at all. save(i, train, run)
-    is called for each run `i` that has trained, with its run so far, whenever `every_s` seconds have passed
-    since the epoch began or since the last save (never when `every_s` is None, nor after the epoch's last step:
-    the epoch's end is saved by the caller).
-
-    Returns (the new train state, {i: {"loss", "psnr": means over the epoch's steps, "lr": the last step's rate,
-    "other": means of the step's other metrics, "train_s": the epoch's training time, from its start in an
-    earlier process if resumed inside it}} for each i of `group`). The loss is the step's "loss", or a GAN
-    generator's "g_loss".
-    """
-    from tqdm.auto import tqdm  # late: only training needs it
-
-    spe, epoch = train_cfg.steps_per_epoch, runs[group[0]].epoch
-    start = {i: runs[i].step - epoch * spe for i in group}
-    loss_sum = {i: runs[i].epoch_loss_sum for i in group}
-    psnr_sum = {i: runs[i].epoch_psnr_sum for i in group}
-    sums = {i: dict(runs[i].epoch_sums) for i in group}
-    lr, began, last_loss = {}, {}, {}
-    active = np.zeros(len(runs), bool)
-    first = min(start.values())
-    t_saved = time.perf_counter()
-    bar = tqdm(total=spe, initial=first, desc=f"epoch {epoch + 1}/{train_cfg.epochs}", disable=not progress,
-               leave=False)
-    for j in range(first, spe):
-        step = epoch * spe + j
-        t_step = time.perf_counter()
-        for i in group:
-            active[i] = start[i] <= j
-            if active[i]:
-                began.setdefault(i, t_step)
-        train, m = advance(train, step, active)
-        m = jax.device_get(m)
-        trained = [i for i in group if active[i]]
-        for i in trained:
-            values = {k: float(np.ravel(v)[i]) for k, v in m.items()}  # one value per run when stacked
-            last_loss[i] = values.pop("loss") if "loss" in values else values.pop("g_loss")  # a GAN: the generator's
-            loss_sum[i] += last_loss[i]
-            psnr_sum[i] += values.pop("psnr")
-            lr[i] = values.pop("lr")
-            for k, v in values.items():
-                sums[i][k] = sums[i].get(k, 0.0) + v
-        bar.set_postfix(loss=f"{np.mean([last_loss[i] for i in trained]):.2e}",
-                        psnr=f"{np.mean([psnr_sum[i] for i in trained]) / (j + 1):.2f}", lr=f"{lr[trained[0]]:.0e}",
-                        ex_s=f"{train_cfg.batch_size * len(trained) / (time.perf_counter() - t_step):.1f}")
-        bar.update()
-        now = time.perf_counter()
-        if save is not None and every_s is not None and j + 1 < spe and now - t_saved >= every_s:
-            for i in trained:
-                save(i, train, dataclasses.replace(runs[i], step=step + 1, epoch_loss_sum=loss_sum[i],
-                                                   epoch_psnr_sum=psnr_sum[i], epoch_sums=dict(sums[i]),
-                                                   epoch_train_s=runs[i].epoch_train_s + now - began[i]))
-            t_saved = time.perf_counter()
-    bar.close()
-    end = time.perf_counter()
-    means = {i: {"loss": loss_sum[i] / spe, "psnr": psnr_sum[i] / spe, "lr": lr[i],
-                 "other": {k: v / spe for k, v in sums[i].items()}, "train_s": runs[i].epoch_train_s + end - began[i]}
-             for i in group}
-    return train, means
-
-
-def _early_stopping(run: _Run, ts: _TrainState, val_loss: float, train_cfg: TrainConfig) -> tuple[_Run, _TrainState]:
-    """After epoch `run.epoch` (1-based, just finished): keep its weights if its validation loss is the lowest
-    so far, else count one more bad epoch; the run is finished after `patience` bad epochs in a row or when
-    the epoch budget is used up."""
-    if val_loss < run.best_loss:
-        run = dataclasses.replace(run, best_loss=val_loss, best_epoch=run.epoch - 1, bad_epochs=0)
-        ts = ts._replace(best=jax.device_get({"params": ts.train["params"], "state": ts.train["state"]}))
-    else:
-        run = dataclasses.replace(run, bad_epochs=run.bad_epochs + 1)
-    finished = run.bad_epochs >= train_cfg.patience or run.epoch >= train_cfg.epochs
-    return dataclasses.replace(run, finished=finished), ts
-
-
-def _training_card(run: _Run, *, train_cfg: TrainConfig, settings: dict, sensor: SensorConfig, validation: dict,
-                   bicubic_psnr: float | None, data: str) -> dict:
-    """The training card saved with the checkpoints: data, sensor, amount of training, hardware, validation."""
-    return {
-        "data": data,
-        "sensor": jax.tree_util.tree_map(lambda v: v.tolist() if hasattr(v, "tolist") else v, config_to_dict(sensor)),
-        "steps": run.step,
-        "epochs": run.epoch,
-        "examples": run.step * train_cfg.batch_size,
-        "best_epoch": run.best_epoch,
-        "wall_time_s": run.wall_time_s,
-        "hardware": _hardware(),
-        "validation": {
-            "sequences": list(validation.get("names", [])),
-            "frames": int(validation["gt"].shape[0]),
-            "loss": run.best_loss,
-            "psnr": run.history[run.best_epoch]["val_psnr"] if run.best_epoch >= 0 else None,
-            "bicubic_psnr": bicubic_psnr,
-        },
-        "train_config": settings["train_config"],
-        "init": settings.get("init"),
-        "seed": train_cfg.seed,
-        "date": time.strftime("%Y-%m-%d", time.gmtime()),
-    }
-
-
-_LINEAGE_KEYS = ("earlier_stages", "total_steps", "total_examples")
-
-
-def _count(x) -> bool:
-    return isinstance(x, numbers.Real) and not isinstance(x, bool) and math.isfinite(x) and x >= 0
-
-
-def _lineage_after(card) -> dict:
-    """The lineage of a run that starts from the weights `card` describes: the card's stages (oldest first) with the
-    card itself last, and the steps and examples of them all. {} where the card has no such shape (a card is
-    metadata: `save_model` takes any JSON), so that a lineage never stops a run."""
-    if not isinstance(card, dict) or not card:
-        return {}
-    earlier = card.get("earlier_stages", [])
-    steps, examples = (card.get(f"total_{k}", card.get(k, 0)) for k in ("steps", "examples"))
-    if not (isinstance(earlier, list) and all(isinstance(e, dict) for e in earlier) and _count(steps)
-            and _count(examples)):
-        return {}
-    return {"earlier_stages": [*earlier, {k: v for k, v in card.items() if k not in _LINEAGE_KEYS}],
-            "total_steps": steps, "total_examples": examples}
-
-
-def _run_lineage(out: Path, init, resume: bool) -> dict:
-    """The training behind a run's starting weights, for its card: when resuming, what its saved card recorded
-    (the starting checkpoint may have moved or been replaced since); else that of `init` (a checkpoint's name or
-    path; a Model carries none), {} where it has none or cannot be read."""
-    path = _latest_state(out) if resume else None
-    if path is not None:
-        card = read_metadata(path).get("card")
-        if not isinstance(card, dict) or "earlier_stages" not in card:
-            return {}  # a run begun without a lineage keeps none
-        saved = {k: card.get(k) for k in _LINEAGE_KEYS}
-        steps, examples = saved["total_steps"], saved["total_examples"]
-        if not (_count(steps) and _count(examples) and _count(card.get("steps")) and _count(card.get("examples"))):
-            return {}
-        return {"earlier_stages": saved["earlier_stages"], "total_steps": steps - card["steps"],
-                "total_examples": examples - card["examples"]}
-    if init is None or isinstance(init, Model):
-        return {}
-    try:
-        card = read_metadata(resolve_model_path(init)).get("card")
-    except (OSError, ValueError, KeyError):  # unreadable: the run starts as before, its card without a lineage
-        return {}
-    return _lineage_after(card)
-
-
-RESUME_FILE = "resume.npz"  # the train state inside an epoch; last.npz keeps the last epoch's end
-RUN_FILES = ("metrics.jsonl", "last.npz", "best.npz", RESUME_FILE)  # what `fit` writes into its folder
-
-
-def _save_state(path: Path, ts: _TrainState, run: _Run, settings: dict, card: dict):
-    """Everything a resume needs (the train state, best weights, RNG key, the run), written atomically."""
-    tree = {**ts.train, "best": ts.best, "key": jax.random.key_data(ts.key)}
-    save_tree(path, tree, dict(settings, kind="train_state", run=dataclasses.asdict(run), card=card,
-                               processes=jax.process_count()))
-
-
-def _write_checkpoints(out: Path, ts: _TrainState, run: _Run, model_cfg, settings: dict, card: dict):
-    """At an epoch's end: `best.npz` (when this epoch is the best), `last.npz` and `metrics.jsonl`, each written
-    atomically; then `resume.npz` (inside this epoch) is removed."""
-    # best first, then last: a kill between the two resumes from the latest state inside this epoch (or the
-    # previous epoch's end) and rewrites both; resume.npz, behind last.npz once it is written, goes last.
-    if run.best_epoch == run.epoch - 1:
-        save_model(out / "best.npz", Model(ts.best["params"], ts.best["state"], model_cfg), card=card)
-    _save_state(out / "last.npz", ts, run, settings, card)
-    write_text_atomic(out / "metrics.jsonl", "".join(json.dumps(r) + "\n" for r in run.history))
-    (out / RESUME_FILE).unlink(missing_ok=True)
+from .records import _bicubic_psnr, _epoch_record, _run_lineage, _training_card
+from .run_state import (_Run, _save_resume, _settings, _start_across_processes, _start_or_resume, _TrainState,
+                        _write_checkpoints)
+
+__all__ = ["fit"]
 
 
 def fit(
@@ -639,63 +163,6 @@ def fit(
     return fitted[0] if seeds is None else dict(zip(seeds, fitted))
 
 
-def _check_seeds(seeds) -> tuple | None:
-    """The seeds of a stacked run (`fit(seeds=...)`) checked: None stays None, else a tuple of at least one
-    distinct integer 0..2^32-1 (ValueError naming what is wrong)."""
-    if seeds is None:
-        return None
-    if isinstance(seeds, (str, bytes)) or not hasattr(seeds, "__iter__"):
-        raise ValueError(f"fit: seeds must be a list of integers, got {seeds!r}")
-    seeds = tuple(seeds)
-    bad = [s for s in seeds if isinstance(s, bool) or not isinstance(s, numbers.Integral) or not 0 <= s < 2**32]
-    if bad or not seeds:
-        raise ValueError(f"fit: seeds must be integers 0..2^32-1, at least one, got {list(seeds)!r}")
-    twice = sorted({int(s) for s in seeds if seeds.count(s) > 1})
-    if twice:
-        raise ValueError(f"fit: seeds must differ, got {', '.join(map(str, twice))} more than once")
-    return tuple(int(s) for s in seeds)
-
-
-def seed_folder(out, seed: int) -> Path:
-    """The run folder of seed `seed` of a stacked run in `out`: `out/seed<seed>`."""
-    return Path(out) / f"seed{seed}"
-
-
-def _check_stack_folder(out: Path):
-    """A stacked run's folder `out` (its seeds' run folders go inside) is not a file, nor a run folder itself."""
-    if out.exists() and not out.is_dir():
-        raise FileExistsError(f"{out} is a file; fit's out is a folder")
-    held = [name for name in RUN_FILES if (out / name).exists()]
-    if held:
-        raise FileExistsError(f"{out} holds a training run ({', '.join(held)}); a stacked run trains each seed in "
-                              "a folder inside out (seed<k>), not next to a run: choose another out")
-
-
-def _first_epoch_kill(out: Path, held: list) -> bool:
-    """Whether the run files `held` in `out`, with no train state, are what a kill inside the first epoch's save
-    leaves (best.npz of epoch 1 alone: last.npz and metrics.jsonl come after it): a resume starts that run afresh."""
-    if held != ["best.npz"]:
-        return False
-    try:
-        return read_metadata(out / "best.npz").get("card", {}).get("epochs") == 1
-    except ValueError:
-        return False
-
-
-def _held_run_files(out: Path, *, resume: bool, overwrite: bool) -> list:
-    """The run files (`RUN_FILES`) folder `out` holds, checked against what `fit` was asked to do with them:
-    FileExistsError for a run neither resumed nor overwritten, or one to resume without its train state."""
-    held = [name for name in RUN_FILES if (out / name).exists()]
-    if held and not (resume or overwrite):
-        raise FileExistsError(f"{out} holds a training run ({', '.join(held)}); pass resume=True (--resume) to "
-                              "continue it or overwrite=True (--force) to start a new one in its place")
-    if resume and held and _latest_state(out) is None and not _first_epoch_kill(out, held):
-        raise FileExistsError(f"{out} holds a run without its train state ({', '.join(held)}; no last.npz or "
-                              f"{RESUME_FILE}), so it cannot be resumed; overwrite=True (--force) starts over in "
-                              "its place")
-    return held
-
-
 class _Seat(NamedTuple):
     """What one run of a `fit` keeps from start to end: its folder, config (its seed), settings as its
     checkpoints record them, validation set with its bicubic PSNR, and data key."""
@@ -792,8 +259,8 @@ def _fit_in(folders: list, model_cfg, cfgs: list, *, by_seed: bool, make_batch, 
     def save_inside_epoch(i: int, train, run: _Run):
         forget_old_run(i)
         # the card counts the steps and time so far; the run keeps the epoch's time apart until the epoch ends
-        _save_state(seats[i].out / RESUME_FILE, view(i, train), run, seats[i].settings,
-                    card_of(i, dataclasses.replace(run, wall_time_s=run.wall_time_s + run.epoch_train_s)))
+        _save_resume(seats[i].out, view(i, train), run, seats[i].settings,
+                     card_of(i, dataclasses.replace(run, wall_time_s=run.wall_time_s + run.epoch_train_s)))
 
     while group := _next_group(runs, train_cfg.epochs):
         train, trained = _run_epoch(advance, train, runs, group, train_cfg, progress=progress and lead,
@@ -808,14 +275,8 @@ def _fit_in(folders: list, model_cfg, cfgs: list, *, by_seed: bool, make_batch, 
             epoch = trained[i]
             run = dataclasses.replace(runs[i], epoch=runs[i].epoch + 1, step=(runs[i].epoch + 1) * spe,
                                       epoch_loss_sum=0.0, epoch_psnr_sum=0.0, epoch_sums={}, epoch_train_s=0.0)
-            record = {
-                "epoch": run.epoch, "step": run.step, "lr": epoch["lr"],
-                "train_loss": epoch["loss"], "train_psnr": epoch["psnr"],
-                **{f"train_{k}": v for k, v in epoch["other"].items()},
-                "val_loss": val["loss"], "val_psnr": val["psnr"], "val_bicubic_psnr": seat.val_bicubic,
-                "examples_per_s": spe * train_cfg.batch_size / epoch["train_s"],
-                "epoch_time_s": epoch["train_s"] + time.perf_counter() - t_val,
-            }
+            record = _epoch_record(run, epoch, val, bicubic_psnr=seat.val_bicubic,
+                                   examples=spe * train_cfg.batch_size, validation_s=time.perf_counter() - t_val)
             record = _share(record)  # process 0's numbers: every process logs and stops on the same
             run, ts = _early_stopping(run, ts, record["val_loss"], seat.train_cfg)
             bests[i] = ts.best

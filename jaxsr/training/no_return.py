@@ -27,7 +27,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..config import ModelConfig, PhotonRegime, SensorConfig, TrainConfig
+from ..config import PhotonRegime, SensorConfig, TrainConfig
 from ..nn.duf import apply_model_raw
 from ..nn.model import Model
 from .data import regime_batches, regime_draws
@@ -108,13 +108,12 @@ def no_return_outputs(model: Model, windows, *, batch: int = 8, conv3d_impl: str
     """One forward pass of `model` (a DUF model with a no-return head, window form, BN in inference mode) over
     `windows` (N, 2tr+1, h, w, C), `batch` windows at a time. Returns (depth (N, H, W), logit (N, H, W)) as
     NumPy arrays: the upsampled depth and the no-return logit before any decision (`jaxsr.nn.apply_model_raw`)."""
-    cfg = model.config
-    if not isinstance(cfg, ModelConfig) or not cfg.no_return_head:
+    if not model.has_no_return_head:
         raise ValueError("no_return_outputs: the model has no no-return head (ModelConfig.no_return_head): there "
                          "is no decision to calibrate")
     if not (isinstance(batch, int) and not isinstance(batch, bool) and batch >= 1):
         raise ValueError(f"no_return_outputs: batch must be an integer >= 1, got {batch!r}")
-    cfg = dataclasses.replace(cfg, temporal="window")  # windows of 2tr+1 frames, whatever form the model records
+    cfg = model.in_form("window").config  # windows of 2tr+1 frames, whatever form the model records
     windows = np.asarray(windows, np.float32)
     n = windows.shape[0]
     depth, logit = [], []

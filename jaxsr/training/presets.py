@@ -11,8 +11,6 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 
-from ..baselines.histnet import HistNetConfig
-from ..baselines.rbpn import RBPNConfig
 from ..config import PRESETS, ModelConfig, PhotonRegime, SensorConfig
 from ..io.checkpoint import config_from_dict, read_metadata, resolve_model_path
 from ..io.files import removing_new_folder
@@ -20,7 +18,8 @@ from ..io.formats import read_npz_arrays
 from ..nn.model import Model, architecture, architectures
 from .data import regime_batches, run_keys, sequence_batches, sequence_clips
 from .duf import initial_weights
-from .loop import RUN_FILES, _check_seeds, _check_stack_folder, _latest_state, fit, resume_config, seed_folder
+from .folders import RUN_FILES, _check_seeds, _check_stack_folder, _latest_state, resume_config, seed_folder
+from .loop import fit
 from .recipes import recipe
 from .sensor_file import card_entry, read_sensor_file, sensor_differences
 
@@ -30,9 +29,6 @@ __all__ = ["MAX_TR", "train", "sequence_data", "finetune", "regime_validation", 
 # The network has 3 + TR blocks over windows of 2TR+1 frames, so memory and compute grow with TR; the paper
 # uses TR 0-4, and a TR beyond this does not fit a training batch in the memory of a usual machine.
 MAX_TR = 8
-
-# The learned baselines at their published sizes (jaxsr.baselines), by architecture name
-_BASELINE_CONFIGS = {"histnet": HistNetConfig(), "iseebetter": RBPNConfig()}
 
 
 def sequence_data(path, model_cfg: ModelConfig, train_cfg, sensor: SensorConfig):
@@ -85,7 +81,11 @@ def train(out, *, arch: str = "duf", tr: int = 4, scale: int = 4, temporal: str 
     seeds = _check_seeds(seeds)
     changes = {k: v for k, v in (("seed", seed), ("epochs", epochs), ("clip_frames", clip_frames)) if v is not None}
     train_cfg = dataclasses.replace(PRESETS[preset], **changes)
-    if arch == "duf":
+    published = recipe(arch).published  # a learned baseline's size; None: the options choose the paper's network's
+    if published is None:
+        if architecture(arch).config_type is not ModelConfig:
+            raise ValueError(f"train: {arch} has no published size and is not the paper's network; train it with "
+                             "jaxsr.fit")
         if not 0 <= tr <= MAX_TR:
             raise ValueError(f"train: tr must be 0..{MAX_TR} (memory and compute grow with the window of 2TR+1 "
                              f"frames), got {tr}")
@@ -98,7 +98,7 @@ def train(out, *, arch: str = "duf", tr: int = 4, scale: int = 4, temporal: str 
         if data is not None or init is not None or scale != 4:
             raise ValueError(f"train: {arch} trains at x4 on rendered scenes from random weights (no data, init or "
                              "scale)")
-        model_cfg = _BASELINE_CONFIGS[arch]
+        model_cfg = published
     sensor = SensorConfig() if scale == 4 else SensorConfig(scale=scale)
     _check_out(out, resume, seeds=seeds)
     if init is not None and not isinstance(init, Model):
@@ -195,8 +195,8 @@ def _init_config(init, photons: bool | None) -> ModelConfig:
     threshold (a calibration of `init`'s weights says nothing about the fine-tuned ones: calibrate those anew)."""
     path = resolve_model_path(init)  # FileNotFoundError naming the model
     meta = read_metadata(path)
-    name = meta.get("architecture", meta.get("baseline", "duf"))
-    if name != "duf" or "config" not in meta:
+    name = meta.get("architecture", meta.get("baseline", "duf"))  # files older than the name: the DUF network
+    if "config" not in meta or name not in architectures() or architecture(name).config_type is not ModelConfig:
         raise ValueError(f"--from {init}: expected a model of the paper's network (tr0..tr4 or a checkpoint of it), "
                          f"got {'a ' + str(name) + ' model' if 'config' in meta else 'a file that holds no model'}")
     cfg = dataclasses.replace(config_from_dict(ModelConfig, meta["config"]), temporal="window",

@@ -28,7 +28,9 @@ class Recipe(NamedTuple):
     and, for the bicubic reference, "lr" (N, h, w). evaluate(model, validation, train_cfg, *, sensor,
     conv3d_impl) -> {"loss", "psnr"}: the validation score early stopping reads (lower loss is better).
     data_parallel: whether `step` splits its batch over a mesh's "data" axis; `fit` gives a recipe without it no
-    mesh (one device), rather than the same work on every device.
+    mesh (one device), rather than the same work on every device. published: the config of a learned baseline at
+    its published size, which `jaxsr.training.train` (`jaxsr train --arch`) trains; None for the paper's network,
+    whose size train's options choose (tr, scale, temporal).
     """
 
     init: Callable
@@ -37,6 +39,7 @@ class Recipe(NamedTuple):
     validation: Callable
     evaluate: Callable
     data_parallel: bool = False
+    published: object = None
 
 
 _RECIPES: dict[str, Recipe] = {}

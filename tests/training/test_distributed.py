@@ -16,8 +16,9 @@ import pytest
 
 from jaxsr.cli import main
 from jaxsr.config import ModelConfig, TrainConfig
+from jaxsr.io.checkpoint import read_metadata
 from jaxsr.runtime import DISTRIBUTED_ENV, distributed_settings, init_distributed
-from jaxsr.training import choose_mesh, loop
+from jaxsr.training import choose_mesh, processes, run_state
 
 SLURM = {"SLURM_JOB_ID": "4242", "SLURM_STEP_NODELIST": "gpu[07-08]", "SLURM_NTASKS": "8", "SLURM_PROCID": "3",
          "SLURM_LOCALID": "3"}
@@ -101,21 +102,21 @@ def test_a_resume_on_another_process_count_must_keep_the_global_batch(tmp_path):
     """The saved run's process count is checked with its settings: the global batch must be the same (then the
     run continues, with a warning), else the refusal says why."""
     cfg = ModelConfig(tr=0, base=8, growth=4, head=16, filter_hidden=16)
-    saved = dict(loop._settings(cfg, TrainConfig(batch_size=8), 0), kind="train_state", processes=2)
-    loop._check_resumable(tmp_path / "last.npz", saved, loop._settings(cfg, TrainConfig(batch_size=8), 0))
+    saved = dict(run_state._settings(cfg, TrainConfig(batch_size=8), 0), kind="train_state", processes=2)
+    run_state._check_resumable(tmp_path / "last.npz", saved, run_state._settings(cfg, TrainConfig(batch_size=8), 0))
     with pytest.raises(ValueError, match=r"train.batch_size 8 \(now 4\); a run begun on 2 process\(es\) continues "
                                          "on 1 only with the same global batch"):
-        loop._check_resumable(tmp_path / "last.npz", saved, loop._settings(cfg, TrainConfig(batch_size=4), 0))
+        run_state._check_resumable(tmp_path / "last.npz", saved, run_state._settings(cfg, TrainConfig(batch_size=4), 0))
 
 
 def test_one_process_shares_with_itself():
     def refuse():
         raise FileExistsError("held")
 
-    assert loop._share({"a": [1.5, float("inf")]}) == {"a": [1.5, float("inf")]}
-    assert loop._on_lead(lambda: 3) == 3
+    assert processes._share({"a": [1.5, float("inf")]}) == {"a": [1.5, float("inf")]}
+    assert processes._on_lead(lambda: 3) == 3
     with pytest.raises(FileExistsError, match="held"):
-        loop._on_lead(refuse)
+        processes._on_lead(refuse)
 
 
 # A tiny DUF (TR0) on a toy source (a rectangle before a wall, jittable, the same on every process), one step per
@@ -208,7 +209,7 @@ def test_two_processes_train_as_one_with_the_same_global_batch(tmp_path):
     # process 0 alone wrote: its run folder holds the run (no lock left); process 1's folders hold nothing
     assert sorted(os.listdir(tmp_path / "two")) == ["best.npz", "last.npz", "metrics.jsonl"]
     assert not (tmp_path / "elsewhere").exists() and not os.listdir(tmp_path / "cwd1")
-    meta = loop.read_metadata(tmp_path / "two" / "last.npz")
+    meta = read_metadata(tmp_path / "two" / "last.npz")
     assert meta["processes"] == 2 and meta["card"]["hardware"]["processes"] == 2
     assert len((tmp_path / "two" / "metrics.jsonl").read_text().splitlines()) == epochs - 1
 
@@ -220,4 +221,4 @@ def test_two_processes_train_as_one_with_the_same_global_batch(tmp_path):
     assert "begun on 2 process(es), on 1: the global batch of 2 is unchanged" in resumed.stderr
     for key in ("train_loss", "val_loss"):
         assert continued[key] == pytest.approx(reference[key], rel=1e-5), key
-    assert loop.read_metadata(tmp_path / "two" / "last.npz")["processes"] == 1
+    assert read_metadata(tmp_path / "two" / "last.npz")["processes"] == 1

@@ -211,7 +211,7 @@ def _tiny_model(path):
 def test_a_lineage_never_stops_a_run(tmp_path):
     """The lineage a fine-tune's card gets from its starting checkpoint: the card's stages, then the card; {} for
     an odd card, a missing file or a Model, so that a run starts as it did without one."""
-    from jaxsr.training.loop import _lineage_after, _run_lineage
+    from jaxsr.training.records import _lineage_after, _run_lineage
 
     stage = {"steps": 2, "examples": 8}
     card = {"earlier_stages": [stage], "steps": 5, "examples": 20, "total_steps": 7, "total_examples": 28, "x": 1}

@@ -232,21 +232,21 @@ def test_a_stacked_run_killed_inside_an_epoch_between_its_seeds_saves_resumes_to
     """Saving after every step (checkpoint_every_s=0), killed inside epoch 2 after seed 0 saved step spe + 1 and
     before seed 1 did: the seeds resume in the same epoch at different steps (seed 1 trains its step alone, seed 0
     masked) and both end as the uninterrupted stacked run."""
-    import jaxsr.training.loop as loop
+    import jaxsr.training.run_state as run_state
 
     _, want, _ = stacked
     spe = CFG.steps_per_epoch
-    real_save = loop._save_state
+    real_save = run_state._save_state
 
     def save_then_kill(path, ts, run, *args, **kwargs):
         real_save(path, ts, run, *args, **kwargs)
         if path.parent.name == "seed0" and path.name == "resume.npz" and run.step == spe + 1:
             raise Killed
 
-    monkeypatch.setattr(loop, "_save_state", save_then_kill)
+    monkeypatch.setattr(run_state, "_save_state", save_then_kill)
     with pytest.raises(Killed):
         fit(TINY, CFG, out=tmp_path, seeds=SEEDS, make_batch=MAKE_BATCH, progress=False, checkpoint_every_s=0)
-    monkeypatch.setattr(loop, "_save_state", real_save)
+    monkeypatch.setattr(run_state, "_save_state", real_save)
     steps = {s: read_metadata(seed_folder(tmp_path, s) / name)["run"]["step"]
              for s, name in ((0, "resume.npz"), (1, "last.npz"))}
     assert steps == {0: spe + 1, 1: spe} and not (seed_folder(tmp_path, 1) / "resume.npz").exists()

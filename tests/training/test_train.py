@@ -314,12 +314,13 @@ def test_resuming_a_run_that_has_its_epochs_warns_that_there_is_nothing_to_train
     import jaxsr.cli.train as cli_train
     import jaxsr.training.loop as loop
     from jaxsr.cli import main
+    from jaxsr.training.run_state import _Run
 
-    real = loop._start_or_resume
+    real = loop._start_or_resume  # as the loop calls it
 
     def two_epochs_done(*args, **kw):  # the saved run of a 2-epoch fit, without training one
         ts, _ = real(*args, **dict(kw, resume=False))
-        return ts, loop._Run(epoch=2, step=2 * tiny_train_cfg().steps_per_epoch, finished=False)
+        return ts, _Run(epoch=2, step=2 * tiny_train_cfg().steps_per_epoch, finished=False)
 
     monkeypatch.setattr(loop, "_start_or_resume", two_epochs_done)
     with pytest.warns(UserWarning, match=r"already has 2 epochs \(epochs=1\); nothing to train: give more epochs"):
@@ -396,7 +397,7 @@ def test_a_run_killed_inside_an_epoch_resumes_from_its_last_checkpoint(tmp_path,
     """checkpoint_every_s=0 saves the state after every step (resume.npz inside an epoch, last.npz at its end); a
     run killed just after a save resumes there and ends bit-identical to the uninterrupted run, logging the same
     epochs. Also a run started over an old one (overwrite) and killed inside its first epoch."""
-    import jaxsr.training.loop as train_mod
+    import jaxsr.training.run_state as train_mod
 
     cfg = tiny_train_cfg(examples_per_epoch=12, epochs=3, decay_epochs=1, patience=3)
     spe = cfg.steps_per_epoch
@@ -623,7 +624,7 @@ def test_a_run_resumes_with_the_validation_it_started_with(tmp_path):
 def test_a_run_saved_before_a_train_setting_existed_resumes_with_its_default(tmp_path):
     """A train state written before `TrainConfig.precision` existed (its train_config lacks the field) matches a
     resume at the field's default; a real difference is still named."""
-    from jaxsr.training.loop import _check_resumable, _settings
+    from jaxsr.training.run_state import _check_resumable, _settings
 
     cfg, train_cfg = ModelConfig(tr=0), TrainConfig()
     settings = _settings(cfg, train_cfg, 0)
