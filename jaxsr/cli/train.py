@@ -15,7 +15,7 @@ from ..config import PRESETS, TEMPORAL_FORMS
 from ..runtime import init_distributed
 from ..nn.model import architectures
 from ..training.presets import MAX_TR, train
-from ..training.loop import seed_folder
+from ..training.folders import seed_folder
 from ._args import int_range, seed, seed_list
 
 

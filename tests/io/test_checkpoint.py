@@ -224,7 +224,7 @@ def test_a_config_beyond_the_limits_is_refused_before_building_anything(tmp_path
         with pytest.raises(ValueError, match=rf"ModelConfig: {field} must be .*got {value}"):
             load_model(tmp_path / "big.npz")
         assert time.perf_counter() - t0 < 1.0
-    with pytest.raises(ValueError, match=r"tr must be 0\.\.64"):
+    with pytest.raises(ValueError, match=r"tr must be an integer 0\.\.64"):
         ModelConfig(tr=65)
 
 
