@@ -5,6 +5,7 @@ train next (`_next_group`) and early stopping (`_early_stopping`).
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 
 import jax
@@ -13,6 +14,19 @@ import numpy as np
 
 from ..config import TrainConfig
 from .run_state import _Run, _TrainState
+
+
+class TrainingDiverged(ValueError):
+    """The loss or the weights went non-finite: the run stops before it saves them (`fit` then keeps what its
+    folder held before it, and the finite epochs it completed)."""
+
+
+def check_finite_loss(loss: float, *, step: int, where: str = "") -> None:
+    """Raise `TrainingDiverged` for a loss that is NaN or infinite, naming the step."""
+    if not math.isfinite(loss):
+        raise TrainingDiverged(f"training diverged{where}: the loss of step {step} is {loss}; the run stops here and "
+                               "nothing of it past its last finite epoch is saved (a learning rate too high for "
+                               "these data, or data the network cannot read: check the sensor and the data)")
 
 
 def _stack(trees: list):
@@ -97,6 +111,7 @@ def _run_epoch(advance, train, runs: list, group: list, train_cfg: TrainConfig, 
         for i in trained:
             values = {k: float(np.ravel(v)[i]) for k, v in m.items()}  # one value per run when stacked
             last_loss[i] = values.pop("loss") if "loss" in values else values.pop("g_loss")  # a GAN: the generator's
+            check_finite_loss(last_loss[i], step=step + 1, where=f" (run {i})" if len(runs) > 1 else "")
             loss_sum[i] += last_loss[i]
             psnr_sum[i] += values.pop("psnr")
             lr[i] = values.pop("lr")

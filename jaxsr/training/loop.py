@@ -21,6 +21,8 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import json
+import os
+import shutil
 import time
 import warnings
 from pathlib import Path
@@ -34,8 +36,9 @@ from ..config import SensorConfig, TrainConfig
 from ..io.files import folder_lock
 from ..nn.model import Model, architecture
 from .data import run_keys
-from .epochs import _advance, _early_stopping, _next_group, _run_epoch, _stack, _unstack
-from .folders import _check_seeds, _check_stack_folder, _held_run_files, seed_folder
+from .epochs import (TrainingDiverged, _advance, _early_stopping, _next_group, _run_epoch, _stack, _unstack,
+                     check_finite_loss)
+from .folders import RESUME_FILE, RUN_FILES, _check_seeds, _check_stack_folder, _held_run_files, seed_folder
 from .processes import _lead, _on_lead, _share, choose_mesh, replicate
 from .recipes import recipe
 from .records import _bicubic_psnr, _epoch_record, _run_lineage, _training_card
@@ -175,6 +178,28 @@ class _Seat(NamedTuple):
     key: jax.Array
 
 
+REPLACED_FOLDER = ".replaced"  # inside a run folder: the run a new one replaces, until the new one has an epoch
+
+
+def _keep_what_was_there(out: Path, *, epochs_done: int, replaced_in_place: bool) -> None:
+    """After a run in `out` diverged: with no epoch of its own done, its files go and the run it replaced (set
+    aside in REPLACED_FOLDER) comes back, or stays where it is when the run saved nothing yet
+    (`replaced_in_place`); with epochs done, its files (all saved from finite weights) stay, but not a train state
+    inside the epoch that diverged."""
+    if replaced_in_place:
+        return
+    if epochs_done:
+        (out / RESUME_FILE).unlink(missing_ok=True)
+        return
+    for name in RUN_FILES:
+        (out / name).unlink(missing_ok=True)
+    aside = out / REPLACED_FOLDER
+    if aside.is_dir():
+        for f in aside.iterdir():
+            os.replace(f, out / f.name)
+        aside.rmdir()
+
+
 def _fit_in(folders: list, model_cfg, cfgs: list, *, by_seed: bool, make_batch, validation, sensor, resume,
             overwrite, mesh, progress, callback, data_description, conv3d_impl, init, checkpoint_every_s,
             pretrain_epochs, card_extra) -> list:
@@ -249,22 +274,38 @@ def _fit_in(folders: list, model_cfg, cfgs: list, *, by_seed: bool, make_batch, 
             card["stacked_seeds"] = [s.train_cfg.seed for s in seats]
         return {**card, **(card_extra or {})}
 
-    old_runs = [list(h) if overwrite else [] for h in held]  # replaced runs' files, removed before the first save
+    # a replaced run's files: set aside (REPLACED_FOLDER) at this run's first save, removed once this run has an
+    # epoch of its own, put back if it diverges before
+    old_runs = [list(h) if overwrite else [] for h in held]
 
-    def forget_old_run(i: int):
+    def set_old_run_aside(i: int):
+        aside = seats[i].out / REPLACED_FOLDER
         for name in old_runs[i]:
-            (seats[i].out / name).unlink(missing_ok=True)
+            if (seats[i].out / name).exists():
+                aside.mkdir(exist_ok=True)
+                os.replace(seats[i].out / name, aside / name)
         old_runs[i].clear()
 
+    def forget_old_run(i: int):
+        set_old_run_aside(i)
+        shutil.rmtree(seats[i].out / REPLACED_FOLDER, ignore_errors=True)
+
     def save_inside_epoch(i: int, train, run: _Run):
-        forget_old_run(i)
+        set_old_run_aside(i)
         # the card counts the steps and time so far; the run keeps the epoch's time apart until the epoch ends
         _save_resume(seats[i].out, view(i, train), run, seats[i].settings,
                      card_of(i, dataclasses.replace(run, wall_time_s=run.wall_time_s + run.epoch_train_s)))
 
     while group := _next_group(runs, train_cfg.epochs):
-        train, trained = _run_epoch(advance, train, runs, group, train_cfg, progress=progress and lead,
-                                    save=save_inside_epoch if lead else None, every_s=checkpoint_every_s)
+        try:
+            train, trained = _run_epoch(advance, train, runs, group, train_cfg, progress=progress and lead,
+                                        save=save_inside_epoch if lead else None, every_s=checkpoint_every_s)
+        except TrainingDiverged:
+            if lead:
+                for i in group:
+                    _keep_what_was_there(seats[i].out, epochs_done=runs[i].epoch,
+                                         replaced_in_place=bool(old_runs[i]))
+            raise
         for i in group:
             t_val, ts, seat = time.perf_counter(), view(i, train), seats[i]
             weights = (ts.train["params"], ts.train["state"])
@@ -278,6 +319,12 @@ def _fit_in(folders: list, model_cfg, cfgs: list, *, by_seed: bool, make_batch, 
             record = _epoch_record(run, epoch, val, bicubic_psnr=seat.val_bicubic,
                                    examples=spe * train_cfg.batch_size, validation_s=time.perf_counter() - t_val)
             record = _share(record)  # process 0's numbers: every process logs and stops on the same
+            try:
+                check_finite_loss(record["val_loss"], step=run.step, where=" on the validation set")
+            except TrainingDiverged:
+                if lead:
+                    _keep_what_was_there(seat.out, epochs_done=runs[i].epoch, replaced_in_place=bool(old_runs[i]))
+                raise
             run, ts = _early_stopping(run, ts, record["val_loss"], seat.train_cfg)
             bests[i] = ts.best
             record["wall_time_s"] = run.wall_time_s + record["epoch_time_s"]

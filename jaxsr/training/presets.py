@@ -4,6 +4,7 @@ fine-tuning a trained model to a sensor described in a file, as `jaxsr finetune`
 from __future__ import annotations
 
 import contextlib
+import os
 import dataclasses
 import warnings
 from pathlib import Path
@@ -221,6 +222,18 @@ def _start_score(model_cfg: ModelConfig, train_cfg, init, validation: dict, sens
     return {"val_loss": float(val["loss"]), "val_psnr": float(val["psnr"])}
 
 
+def _check_init_outside(init, out, resume: bool) -> None:
+    """Refuse starting weights that lie inside the run folder a new run writes over (--force deletes them at the
+    first save, and the closing advice would name a file that is gone); resuming reads the run's own state."""
+    if resume or not isinstance(init, (str, os.PathLike)):
+        return
+    start = Path(resolve_model_path(init)).resolve()
+    folder = Path(out).resolve()
+    if folder == start or folder in start.parents:
+        raise ValueError(f"--from {init} lies inside --out {out}, which this run writes over: copy the starting "
+                         "model elsewhere first, or choose another --out")
+
+
 def finetune(out, *, sensor_file, init="tr4", epochs: int = 10, steps_per_epoch: int = 256, val_batches: int = 16,
              preset: str = "bundle", photons: bool | None = None, seed: int | None = None, resume: bool = False,
              overwrite: bool = False, checkpoint_minutes: float = 10.0, progress: bool = True) -> tuple[Model, list]:
@@ -249,6 +262,7 @@ def finetune(out, *, sensor_file, init="tr4", epochs: int = 10, steps_per_epoch:
         raise ValueError(f"finetune: preset must be one of {', '.join(sorted(PRESETS))}, got {preset!r}")
     _check_minutes(checkpoint_minutes)
     _check_out(out, resume)
+    _check_init_outside(init, out, resume)
     sensor, regime, info = read_sensor_file(sensor_file)
     model_cfg = _init_config(init, photons)
     entry = card_entry(info)

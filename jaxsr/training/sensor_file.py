@@ -59,6 +59,9 @@ IRF_RESIDUAL_WARN = 0.05
 # it), or squeezes them into its first bins: said in a warning.
 SCENE_DEPTH_M = (3.6, 46.0)
 GATE_WARN_M = (10.0, 200.0)
+# a bin's range, metres: beyond it the gate is not a SPAD's (0.67 ps to 6.7 us a bin), and float32 training on such
+# a gate computes NaN or nothing
+BIN_WIDTH_RANGE_M = (1e-4, 1e3)
 
 _LENGTH = {"m": 1.0, **{unit: TIME_UNITS[unit] * METRES_PER_SECOND for unit in ("ns", "ps")}}  # r = c t / 2
 
@@ -347,6 +350,11 @@ def parse_sensor_file(text: str, *, source: str = "sensor file", base_dir=".") -
     bin_width, bin_width_key = _metres(s, "bin_width", where, required=True)
     gate_start, gate_start_key = _metres(s, "gate_start", where, required=False)
     gate_start = 0.0 if gate_start is None else gate_start
+    if not BIN_WIDTH_RANGE_M[0] <= bin_width <= BIN_WIDTH_RANGE_M[1]:  # float32 training turns such gates into NaN
+        lo, hi = BIN_WIDTH_RANGE_M
+        raise ValueError(f"{where} {bin_width_key}: a bin of {bin_width:.3g} m; expected {lo * 1e3:g} mm to "
+                         f"{hi / 1e3:g} km of range per bin ({lo / METRES_PER_SECOND * 1e12:.2g} ps to "
+                         f"{hi / METRES_PER_SECOND * 1e6:.2g} us)")
     span = bins * bin_width
     warnings = []
 

@@ -135,6 +135,8 @@ def test_defaults_and_a_large_sensor_rendered_as_a_window():
     (('description = "a test sensor"', "name = 3"), "unknown key 'name'"),
     (('description = "a test sensor"', "description = 3"), "description: expected a non-empty string, got 3"),
     (("[photons]\n", "[photons]\n[photons]\n"), "not valid TOML"),
+    (("bin_width_ps = 250", "bin_width_m = 1e300"), "bin_width_m: a bin of 1e+300 m; expected 0.1 mm to 1 km"),
+    (("bin_width_ps = 250", "bin_width_ps = 1e-300"), "bin_width_ps: a bin of 1.5e-304 m; expected 0.1 mm"),
 ])
 def test_bad_keys_and_values_are_refused_by_name(change, message):
     old, new = change
@@ -308,6 +310,23 @@ def test_finetune_user_errors_are_one_line(tmp_path, capsys):
         err = capsys.readouterr().err
         assert err.startswith("jaxsr finetune: error: ") and message in err and err.count("\n") == 1, err
     assert not (tmp_path / "run").exists()
+
+
+def test_the_starting_model_inside_out_is_refused_and_kept(tmp_path, capsys):
+    """--from inside --out with --force would delete the starting weights at the first save."""
+    import shutil
+
+    from jaxsr.io.checkpoint import resolve_model_path
+
+    (tmp_path / "s.toml").write_text(TINY_TOML)
+    (tmp_path / "run").mkdir()
+    shutil.copy(resolve_model_path("tr1"), tmp_path / "run" / "best.npz")
+    before = (tmp_path / "run" / "best.npz").read_bytes()
+    for start in (tmp_path / "run", tmp_path / "run" / "best.npz"):
+        assert cli.main(["finetune", "--out", str(tmp_path / "run"), "--no-progress", "--sensor",
+                         str(tmp_path / "s.toml"), "--from", str(start), "--force"]) == 2
+        assert "lies inside --out" in capsys.readouterr().err
+    assert (tmp_path / "run" / "best.npz").read_bytes() == before
 
 
 def test_a_run_folder_is_a_model(tmp_path):

@@ -289,6 +289,37 @@ def test_a_folder_holding_a_run_is_refused_without_resume_or_overwrite(tmp_path)
     assert (tmp_path / "best.npz").read_bytes() != files["best.npz"]
 
 
+def test_a_run_that_diverges_keeps_the_run_it_was_to_replace(tmp_path):
+    """A non-finite loss stops the run at once with a clear error; with --force over a good run, the good run's
+    files stay as they were (they are set aside at the new run's first save, and put back)."""
+    from jaxsr.training.epochs import TrainingDiverged
+
+    cfg = tiny_train_cfg(examples_per_epoch=12, epochs=1, decay_epochs=1)
+    val = toy_validation(TINY.tr, n=4)
+    fit(TINY, cfg, out=tmp_path, make_batch=toy_batches(TINY.tr, 4), validation=val, progress=False)
+    files = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    nan_batches = toy_batches(TINY.tr, 4, noise=float("nan"))
+    with pytest.raises(TrainingDiverged, match="the loss of step 1 is nan"):
+        fit(TINY, cfg, out=tmp_path, make_batch=nan_batches, validation=val, progress=False, overwrite=True,
+            checkpoint_every_s=0.0)  # a save after every step: the good run is set aside first
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == files
+
+
+def test_a_diverged_run_puts_back_the_run_it_set_aside(tmp_path):
+    """What a run that diverged leaves: the replaced run back in place of its own files when it had no epoch; its
+    finite epochs' files, without the train state inside the epoch that diverged, when it had."""
+    from jaxsr.training.loop import REPLACED_FOLDER, _keep_what_was_there
+
+    (tmp_path / REPLACED_FOLDER).mkdir()
+    (tmp_path / REPLACED_FOLDER / "best.npz").write_bytes(b"good")
+    (tmp_path / "resume.npz").write_bytes(b"new")
+    _keep_what_was_there(tmp_path, epochs_done=0, replaced_in_place=False)
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == {"best.npz": b"good"}
+    (tmp_path / "resume.npz").write_bytes(b"new")
+    _keep_what_was_there(tmp_path, epochs_done=2, replaced_in_place=False)
+    assert {p.name for p in tmp_path.iterdir()} == {"best.npz"}
+
+
 def test_resume_refuses_a_run_without_its_train_state_and_a_folder_without_a_run(tmp_path):
     """best.npz and metrics.jsonl without last.npz / resume.npz: resuming would start over and replace them. The
     CLI path (`train`) also refuses --resume where there is nothing to resume; fit itself (scripts that always
