@@ -284,9 +284,13 @@ def _open(input, read: Reading, max_memory):
     """(recording, gate, source, warnings) for the input: time tags histogrammed over their gate (the warnings
     on photons dropped or a likely wrong time unit), histograms with theirs, or depth (None for the gate; the
     gate's options and clip_negative refused there)."""
-    if input is None:
+    if input is None or isinstance(input, (list, tuple, bytes)):
         raise TypeError("input: expected a path, a Recording, a NumPy array (T, h, w) or (T, h, w, bins) or "
-                        "TimeTags, got None")
+                        f"TimeTags, got {type(input).__name__}" + (" (np.asarray makes an array of a list)"
+                                                                    if isinstance(input, (list, tuple)) else ""))
+    if isinstance(input, np.ndarray) and input.dtype.kind not in "iuf":
+        raise ValueError(f"array input holds {input.dtype} values; expected real numbers (complex values are not "
+                         "depth nor counts)")
     width, start = read.bin_width, read.gate_start
     if read.kind == "timetags" or isinstance(input, TimeTags):
         if isinstance(input, TimeTags):

@@ -43,6 +43,9 @@ _ZERO_IS_NO_RETURN = ("mm", "cm")
 # scene within 100 m, normalised a scene within 3.5 m without one no-return pixel (1.0), which the bundled models
 # (trained on streets up to 35 m) never saw.
 KM_OR_NORMALISED = 0.1
+# `guess_units` does not guess metres for a first frame whose median positive depth is beyond this: millimetres or
+# centimetres stored as floats (9000.0 for 9 m), not a scene kilometres away from a sensor trained on 35 m.
+MM_OR_METRES = 1000.0
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -319,8 +322,9 @@ def guess_units(recording: Recording, *, ask: str = "pass --units (units=): m, m
     in either unit) are finite and within [0, 1] up to float rounding (no lidar scene lies within a metre), else
     "m". Refuses to guess (ValueError: what is ambiguous, then `ask`) where that would silently read other units:
     integer frames (millimetres, as 16-bit depth images store them, or centimetres; image frames are read as
-    metres already), and values within [0, 1] that could be kilometres (with inf for no return, which normalised
-    depth never holds; or all below `KM_OR_NORMALISED`)."""
+    metres already), floats of a median beyond `MM_OR_METRES` (millimetres or centimetres), and values within
+    [0, 1] that could be kilometres (with inf for no return, which normalised depth never holds; or all below
+    `KM_OR_NORMALISED`)."""
     head = np.asarray(recording.head(1)[0])
     src = recording.source
     if head.dtype.kind in "iu":
@@ -334,6 +338,11 @@ def guess_units(recording: Recording, *, ask: str = "pass --units (units=): m, m
         if finite.size and np.all(np.isposinf(f) | ((f >= -NORMALISED_SLACK) & (f <= 1 + NORMALISED_SLACK))):
             raise ValueError(f"{src}: depth within [0, 1] with inf for no return could be kilometres (or metres of "
                              f"a scene within 1 m); {ask}")
+        positive = finite[finite > 0]
+        if positive.size and np.median(positive) > MM_OR_METRES:
+            raise ValueError(f"{src}: depth of a median {np.median(positive):.4g} could be millimetres or "
+                             f"centimetres stored as floats (in metres, a scene {np.median(positive) / 1000:.3g} km "
+                             f"away); {ask}")
         return "m"
     if finite.size and finite.max() < KM_OR_NORMALISED:
         raise ValueError(f"{src}: depth all below {KM_OR_NORMALISED:g} could be kilometres (a scene within "

@@ -35,6 +35,11 @@ AUTO = "auto"
 KINDS = ("depth", "histograms", "timetags")  # what an input holds (--input)
 FRAME_FORMATS = ("exr", "pfm", "tif", "png")  # frame files of a folder OUTPUT
 DEFAULT_BINS = 16
+# the ranges a gate's bin and the network's [0, 1] may span, metres: a SPAD's bins are picoseconds to microseconds
+# (0.1 mm to 1 km), and float32 depth on spans beyond these holds nothing the models can mean
+BIN_WIDTH_RANGE_M = (1e-4, 1e3)
+SPAN_RANGE_M = (1e-3, 1e6)
+MAX_FPS = 1000.0  # frames per second of a video: beyond it, players show nothing of it
 
 
 def is_auto(setting) -> bool:
@@ -58,6 +63,14 @@ def _flag(value) -> bool:
     if not isinstance(value, (bool, np.bool_)):
         raise TypeError(f"expected True or False, got {value!r}")
     return bool(value)
+
+
+def check_fps(fps, what: str) -> float:
+    """A video's frames per second: a number > 0 and at most `MAX_FPS`."""
+    fps = one_positive_number(fps, what, f"frames per second > 0 and <= {MAX_FPS:g}")
+    if fps > MAX_FPS:
+        raise ValueError(f"{what}: expected frames per second > 0 and <= {MAX_FPS:g}, got {fps:g}")
+    return fps
 
 
 @dataclasses.dataclass(frozen=True)
@@ -102,6 +115,10 @@ class Reading:
                              f"{self.gate_start:g} m")
         if self.span != "gate":
             set_("span", _positive(self.span, "span", parse_span, "metres or 'gate'"))
+        for name, value, (lo, hi) in (("bin_width", self.bin_width, BIN_WIDTH_RANGE_M),
+                                      ("span", None if self.span == "gate" else self.span, SPAN_RANGE_M)):
+            if value is not None and not lo <= value <= hi:  # beyond what float32 depth and the models can mean
+                raise ValueError(f"{name} (--{name.replace('_', '-')}): expected {lo:g} to {hi:g} m, got {value:g} m")
         set_("time_unit", _positive(self.time_unit, "time_unit", parse_time_unit, "seconds"))
         if self.variable is not None and not isinstance(self.variable, str):
             raise TypeError(f"variable (--variable): expected the name of a .mat cell array, got {self.variable!r}")
@@ -255,7 +272,7 @@ class Writing:
                 if value is not None:
                     raise ValueError(f"{name} applies to --video only")
         if self.fps is not None:
-            object.__setattr__(self, "fps", one_positive_number(self.fps, "fps (--fps)", "frames per second > 0"))
+            object.__setattr__(self, "fps", check_fps(self.fps, "fps (--fps)"))
         if self.points is None and self.fov_deg is not None:
             raise ValueError("--fov applies to --points only")
         if self.fov_deg is not None and not (isinstance(self.fov_deg, numbers.Real) and 0 < self.fov_deg < 180):

@@ -24,7 +24,7 @@ from .job import UpscaleJob, array_recording
 from .memory import batch_size_of, check_memory
 from .outputs import Outputs, check_outputs
 from .recordings import Recording, guess_units, open_recording, to_units
-from .specs import FRAME_FORMATS, Writing
+from .specs import FRAME_FORMATS, Writing, check_fps
 
 __all__ = ["UpscaleResult", "write_upscaled"]
 
@@ -145,6 +145,8 @@ def write_upscaled(job: UpscaleJob, output, write: Writing = Writing(), *, batch
     batch_size = batch_size_of(job, batch_size)
     frame_format = _frame_format(write.frame_format, outputs, job)
     ref = None if write.reference is None else _reference(write.reference, job)
+    if outputs.video is not None and write.fps is None and job.fps is not None:  # the file's own rate, before work
+        check_fps(job.fps, f"{job.source}: its frame rate (give --fps)")
     check_memory(job, batch_size=batch_size, in_memory=outputs.in_memory, looks=write.looks, max_memory=max_memory)
     early = tuple(f"warning: {w}" for w in job.warnings) + (job.note,)
     for line in early if report is not None else ():

@@ -6,6 +6,8 @@ gate flags."""
 
 from __future__ import annotations
 
+import shlex
+
 from pathlib import Path
 
 from ..config import PRESETS
@@ -77,6 +79,6 @@ def run(args) -> int:
         against += [f"the starting model {start['val_psnr']:.2f} dB"] if start else []
         print(f"best epoch {best['epoch']}: val loss {best['val_loss']:.3e}, val PSNR {best['val_psnr']:.2f} dB"
               + (f" ({', '.join(against)})" if against else "") + f" -> {Path(args.out) / 'best.npz'}")
-    print(f"run it: jaxsr upscale RECORDING OUTPUT --model {args.out} {info['upscale_options']}  "
+    print(f"run it: jaxsr upscale RECORDING OUTPUT --model {shlex.quote(str(args.out))} {info['upscale_options']}  "
           "(RECORDING: the sensor's histograms, or time tags with --input timetags --time-unit ...)")
     return 0

@@ -203,6 +203,9 @@ def read_irf_file(path) -> np.ndarray:
     numbers separated by commas, semicolons, tabs or spaces; lines that are not numbers (a header, # comments) are
     skipped. Returns a float64 1-D array; ValueError for another shape, non-finite values or fewer than 4 samples."""
     path = Path(path)
+    if path.is_dir():
+        raise IsADirectoryError(f"irf_file: {path} is a folder; expected a file of the IRF (one column of counts, "
+                                "or an .npy array)")
     if not path.is_file():
         raise FileNotFoundError(f"irf_file: no such file: {path}")
     if path.suffix.lower() == ".npy":
@@ -326,6 +329,8 @@ def parse_sensor_file(text: str, *, source: str = "sensor file", base_dir=".") -
     `base_dir`). Returns (SensorConfig, PhotonRegime, info); ValueError for an unknown key or a bad value."""
     try:
         doc = tomllib.loads(text)
+    except RecursionError:  # tables or arrays nested thousands deep
+        raise ValueError(f"{source}: not valid TOML for a sensor file (nested too deeply to read)") from None
     except tomllib.TOMLDecodeError as e:
         raise ValueError(f"{source}: not valid TOML: {e}") from None
     for key in doc:

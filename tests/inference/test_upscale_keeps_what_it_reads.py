@@ -119,3 +119,28 @@ def test_nan_output_is_refused_not_written_as_no_return(tmp_path, model_path):
     with pytest.raises(ValueError, match="its output holds NaN in frame 0"):
         upscale(np.full((2, 8, 8), 10.0, np.float32), tmp_path / "out.npy", model=broken)
     assert not (tmp_path / "out.npy").exists()
+
+
+@pytest.mark.parametrize("make, options, message", [
+    (lambda: np.full((2, 8, 8), 9000.0, np.float32), {}, "could be millimetres or centimetres stored as floats"),
+    (lambda: [[0.5]], {}, "got list (np.asarray makes an array of a list)"),
+    (lambda: np.full((2, 8, 8), 0.5 + 0j), {}, "complex values are not depth nor counts"),
+    (lambda: np.ones((2, 8, 8, 16)), {"span": 1e300}, "span (--span): expected 0.001 to 1e+06 m"),
+    (lambda: np.ones((2, 8, 8, 16)), {"span": 1e-300}, "span (--span): expected 0.001 to 1e+06 m"),
+    (lambda: np.ones((2, 8, 8, 16)), {"bins": 16.5}, "bins (--bins): expected an integer >= 2"),
+    (lambda: np.ones((2, 8, 8)), {"fps": 1e9, "video": "v.gif"}, "fps (--fps): expected frames per second > 0"),
+    (lambda: np.ones((2, 8, 8)), {"fov_deg": 40.0}, "--fov applies to --points only"),
+])
+def test_bad_input_ends_in_one_clear_error(tmp_path, model_path, make, options, message):
+    from jaxsr.app import upscale
+    from upscale_specs import specs
+
+    with pytest.raises((ValueError, TypeError)) as e:
+        upscale(make(), None, **specs(model_path, **options))
+    assert message in str(e.value)
+
+
+def test_a_recording_whose_frame_rate_no_video_can_show_is_refused_before_the_work(tmp_path, model_path):
+    io.write_sequence(tmp_path / "rec.npz", np.full((2, 8, 8), 12.0, np.float32), fps=1e-9)
+    assert command(tmp_path / "rec.npz", tmp_path / "o.npy", "--model", model_path, "--video", tmp_path / "v.gif") == 2
+    assert not (tmp_path / "o.npy").exists() and not (tmp_path / "v.gif").exists()

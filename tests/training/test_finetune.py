@@ -385,3 +385,12 @@ def test_finetune_end_to_end_resume_and_upscale(tmp_path, capsys):
     assert cli.main(["upscale", str(tmp_path / "counts.npy"), str(tmp_path / "hr.npz"), "--model", str(out),
                      "--bins", "16", "--bin-width", "2m", "--gate-start", "0m", "--span", "gate", "--no-progress"]) == 0
     assert np.load(tmp_path / "hr.npz")["depth"].shape == (2, 32, 32)
+
+
+def test_a_sensor_file_nested_too_deeply_or_an_irf_folder_is_one_line(tmp_path):
+    deep = GOOD.replace('description = "a test sensor"', "description = " + "[" * 5000 + "]" * 5000)
+    with pytest.raises(ValueError, match="my.toml: not valid TOML for a sensor file"):
+        parse_sensor_file(deep, source="my.toml")
+    (tmp_path / "irf.csv").mkdir()
+    with pytest.raises(IsADirectoryError, match="irf.csv is a folder"):
+        read_irf_file(tmp_path / "irf.csv")
