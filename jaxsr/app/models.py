@@ -14,18 +14,33 @@ import numpy as np
 
 from ..config import PhotonRegime
 from ..inference import check_precision, in_form, resolve_model
-from ..io.checkpoint import load_model, read_metadata, resolve_model_path
+from ..io.checkpoint import load_model, read_metadata, resolve_model_path, stored_architecture
 from ..nn.duf import with_no_return_logit
 from ..nn.model import Model
 from .specs import ModelChoice
 
-__all__ = ["DEFAULT_MODELS", "PlannedModel", "plan_model", "finish_model", "trained_snr_range", "heads"]
+__all__ = ["DEFAULT_MODELS", "BUNDLED_USES", "PlannedModel", "plan_model", "finish_model", "trained_snr_range", "heads",
+           "bundled_models"]
 
 # model="default": the bundled model that fits the input. Depth gives only the centre of mass, which the paper's
 # TR4 reads; histograms and time tags also give the photons behind it, which tr4-ambient reads: ahead of TR4 in
 # every simulated regime and by 2 dB on average on two real recordings (docs/results/photon-regimes.md, the default)
 DEFAULT_MODELS = {"depth": "tr4", "histograms": "tr4-ambient"}
 AUTO_TRS = tuple(f"tr{k}" for k in range(5))  # what model="auto" picks among
+# The bundled models and when to use each (`jaxsr models`); the weights are in jaxsr/weights
+BUNDLED_USES = {
+    "tr0": "the paper's network from one frame: the fastest",
+    "tr1": "the paper's network from 3 frames (--model auto picks TR0-TR4 by the measured motion)",
+    "tr2": "the paper's network from 5 frames",
+    "tr3": "the paper's network from 7 frames",
+    "tr4": "the paper's network from 9 frames",
+    "tr4-ambient": "photon histograms and time tags, at a few photons and in ambient light too",
+    "tr0-ambient": "as tr4-ambient from one frame: faster, for fast motion",
+    "tr4-photons": "as tr4-ambient without the ambient channel (tr4-ambient serves better at a few photons)",
+    "tr0-photons": "as tr4-photons from one frame",
+    "histnet": "the HistNet baseline of the paper's comparison (with the HR intensity)",
+    "iseebetter": "the iSeeBetter baseline of the paper's comparison",
+}
 
 
 class PlannedModel(NamedTuple):
@@ -113,3 +128,21 @@ def trained_snr_range(choice: ModelChoice, kind: str) -> tuple[float, float]:
     except (TypeError, ValueError):  # absent or malformed: a card is metadata, not a reason to fail
         return default
     return (lo, hi) if 0 < lo <= hi < float("inf") else default
+
+
+def bundled_models() -> list[dict]:
+    """The bundled models, one dict each: name, architecture, reads ("depth", or the photon channels, or
+    "histograms"), tr (None for a baseline), marks_no_return, default_for (the input kinds it is the default of),
+    use (`BUNDLED_USES`). Read from the files' metadata: nothing is loaded."""
+    rows = []
+    for name, use in BUNDLED_USES.items():
+        path = resolve_model_path(name)
+        meta = read_metadata(path)
+        cfg, arch = meta.get("config", {}), stored_architecture(meta, path)
+        reads = "histograms" if arch.reads_histograms else "+".join(cfg.get("inputs", ["depth"]))
+        rows.append({"name": name, "architecture": arch.name, "reads": reads,
+                     "tr": cfg.get("tr") if arch.forms else None,
+                     "marks_no_return": bool(cfg.get("no_return_head", False)),
+                     "default_for": [kind for kind, default in DEFAULT_MODELS.items() if default == name],
+                     "use": use})
+    return rows

@@ -6,6 +6,8 @@ library modules they call).
     jaxsr train --tr 4 --preset cpu --out runs/tr4 [--resume | --force]
     jaxsr upscale INPUT OUTPUT [--model tr4|auto|CHECKPOINT] [--preview strip.png]
     jaxsr info tr4 [--json]
+    jaxsr models [--json]
+    jaxsr --version
 
 Each subcommand is a module here with `add_parser(subparsers)`, which registers its arguments and sets
 `func=run`, and `run(args) -> exit status` (and may set `before_jax(args)`, run before JAX's backend starts). To
@@ -37,12 +39,12 @@ import sys
 import threading
 import warnings
 
-from . import finetune, info, simulate, train, upscale
+from . import finetune, info, models, simulate, train, upscale
 from ._text import printable, shortened
 
 __all__ = ["COMMANDS", "USER_ERRORS", "Terminated", "build_parser", "main"]
 
-COMMANDS = (simulate, train, finetune, upscale, info)
+COMMANDS = (simulate, train, finetune, upscale, info, models)
 # Exceptions that mean the user asked for something impossible (the library raises these with a message).
 USER_ERRORS = (FileNotFoundError, FileExistsError, IsADirectoryError, NotADirectoryError, PermissionError, ValueError)
 
@@ -69,7 +71,10 @@ class _Parser(argparse.ArgumentParser):
 
 def build_parser() -> argparse.ArgumentParser:
     """The `jaxsr` parser with every subcommand of `COMMANDS`; a subcommand is required."""
+    from .. import __version__
+
     parser = _Parser(prog="jaxsr", description="Video super-resolution for single-photon lidar.")
+    parser.add_argument("--version", action="version", version=f"jaxsr {__version__}")
     subparsers = parser.add_subparsers(dest="command", required=True)
     for command in COMMANDS:
         command.add_parser(subparsers)
@@ -153,9 +158,20 @@ def main(argv=None) -> int:
             for s, handler in previous.items():
                 signal.signal(s, handler)
             sys.unraisablehook = unraisable_hook
+    if argv is None:
+        try:  # what is still buffered for a pipe: a reader that stopped reading ends the command quietly too
+            sys.stdout.flush()
+        except BrokenPipeError:
+            _silence_stdout()
     if argv is None and status > 128:  # a program interrupted: its outputs are cleaned up by now
         _exit_now(status)
     return status
+
+
+def _silence_stdout() -> None:
+    """Point stdout at /dev/null: after a closed pipe, the interpreter's last flush would fail again."""
+    with contextlib.suppress(OSError, ValueError, AttributeError):
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
 
 
 def _exit_now(status: int) -> None:
@@ -178,6 +194,9 @@ def _run(args, argv) -> int:
 
             use_cpu_cores()
         return args.func(args)
+    except BrokenPipeError:  # the reader closed the pipe (jaxsr info tr4 | head -3): nothing more to say
+        _silence_stdout()
+        return 0
     except USER_ERRORS as e:
         print(f"jaxsr {args.command}: error: {_one_line(e)}", file=sys.stderr)
         return 2

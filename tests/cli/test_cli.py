@@ -188,3 +188,26 @@ def test_a_warning_of_train_or_finetune_is_one_line(tmp_path, monkeypatch, capsy
     argv = (["train", "--tr", "0"] if command == "train" else ["finetune", "--sensor", str(tmp_path / "s.toml")])
     assert cli.main([*argv, "--out", str(tmp_path / "run"), "--no-progress"]) == 0
     assert capsys.readouterr().err.splitlines() == [f"jaxsr {command}: warning: a resumed run has nothing to train"]
+
+
+def test_version_models_and_a_closed_pipe(capsys):
+    """`jaxsr --version` names the version; `jaxsr models` lists every bundled model a line each; a reader that
+    closes the pipe early ends the command quietly, exit 0."""
+    import subprocess
+    import sys
+
+    import jaxsr
+
+    with pytest.raises(SystemExit) as stop:
+        cli.main(["--version"])
+    assert stop.value.code == 0 and capsys.readouterr().out.strip() == f"jaxsr {jaxsr.__version__}"
+    assert cli.main(["models"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert any(line.startswith("tr4-ambient ") and "[default for histograms]" in line for line in lines)
+    assert any(line.startswith("tr4 ") and "[default for depth]" in line for line in lines)
+    assert cli.main(["models", "--json"]) == 0
+    assert {r["name"] for r in json.loads(capsys.readouterr().out)} >= {f"tr{k}" for k in range(5)} | {"tr4-ambient"}
+    # `true` exits without reading: every write of the command meets a closed pipe
+    run = subprocess.run(f"{sys.executable} -m jaxsr.cli info tr4 | true; echo ${{PIPESTATUS[0]}}", shell=True,
+                         capture_output=True, text=True, check=False, executable="/bin/bash")
+    assert run.stderr == "" and run.stdout.strip() == "0"
