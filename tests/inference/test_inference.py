@@ -165,11 +165,11 @@ def test_batches_split_over_devices_equal_the_window_loop():
 
 
 def test_the_default_batch_fills_an_accelerator_and_keeps_one_frame_per_cpu_device(monkeypatch):
-    from jaxsr.inference import video as inference
+    from jaxsr.inference import frames as inference
 
     frames = np.zeros((40, 32, 64), np.float32)
-    on_cpu = inference._default_batch_size(frames, sequence_form=False)
+    on_cpu = inference.default_batch_size(frames, sequence_form=False)
     assert on_cpu == inference.DEFAULT_BATCH_SIZE * jax.local_device_count()
     monkeypatch.setattr(inference.jax, "default_backend", lambda: "gpu")
-    assert inference._default_batch_size(frames, sequence_form=False) == 8 * jax.local_device_count()
-    assert inference._default_batch_size(frames, sequence_form=True) == inference.DEFAULT_SEQUENCE_CHUNK
+    assert inference.default_batch_size(frames, sequence_form=False) == 8 * jax.local_device_count()
+    assert inference.default_batch_size(frames, sequence_form=True) == inference.DEFAULT_SEQUENCE_CHUNK
