@@ -157,11 +157,11 @@ def iter_super_resolve(model: Model, frames: Iterable, *, batch_size: int | None
 
     frames: an iterable of (h, w) LR normalised depth frames (0..1, 1 or NaN = no return), e.g. a generator reading
     files one by one; for a model reading photons too (`ModelConfig.inputs`), (h, w, C) frames of
-    `jaxsr.nn.network_inputs` (`super_resolve_histograms` builds them). In the model's form (`model.config.temporal`): frame t is computed from frames t - R ..
-    t + R, R = `model.config.input_radius` (tr for the window form, 3 + tr for the sequence form),
-    edge-replicated at both ends of the stream (as `jaxsr.temporal.windows`), so frame t is yielded once frame
-    t + R has arrived (or the stream has ended), `batch_size` at a time. batch_size: frames per compiled call
-    (None: `DEFAULT_BATCH_SIZE` per local device, `DEFAULT_ACCELERATOR_BATCH_SIZE` on an accelerator, split
+    `jaxsr.nn.network_inputs` (`super_resolve_histograms` builds them). In the model's form (`model.form`, or
+    `form`'s): frame t is computed from frames t - R .. t + R, R = the model's input radius (tr for the window
+    form, 3 + tr for the sequence form), edge-replicated at both ends of the stream (as `jaxsr.temporal.windows`),
+    so frame t is yielded once frame t + R has arrived (or the stream has ended), `batch_size` at a time.
+    batch_size: frames per compiled call (None: `DEFAULT_BATCH_SIZE` per local device, `DEFAULT_ACCELERATOR_BATCH_SIZE` on an accelerator, split
     over the local devices when they divide it; sequence form: `DEFAULT_SEQUENCE_CHUNK`, or the length of a
     shorter list or array). conv3d_impl: how the convolutions run (see `apply_model`). tile: the largest side,
     in LR pixels, of the spatial tiles a larger frame is cut into (`tile_spans`: margins of the network's
@@ -285,7 +285,8 @@ def super_resolve(model: Model, lr_seq, *, batch_size: int | None = None, conv3d
     sequence (`conv3d_impl` and `precision` are passed on). Memory on the device is
     bounded by the batch (see `iter_super_resolve`); the HR result is assembled on the host. `lr_seq` is
     normalised depth in [0, 1] (1 or NaN = no return; checked as in `iter_super_resolve`), or (T, h, w, C) for a
-    model reading photons too (`jaxsr.nn.network_inputs`). For a differentiable, traceable version, call `apply_model(params, state, jaxsr.windows(lr_seq, tr), cfg)`.
+    model reading photons too (`jaxsr.nn.network_inputs`). For a differentiable, traceable version, call
+    `apply_model(params, state, jaxsr.windows(lr_seq, tr), cfg)`.
     precision: as in `iter_super_resolve`. form: the temporal form (`FORMS`, `in_form`), default `DEFAULT_FORM`.
     """
     _require_model(model, "super_resolve")

@@ -187,8 +187,8 @@ def super_resolve_histograms(model: Model, counts, sensor: SensorConfig = Sensor
 def no_return_where(hr, flags):
     """HR frames (T, H, W) or one (H, W), normalised, with 1.0 (no return) where LR `flags` ((T, h, w) or (h, w),
     H = r h) say so. Booleans (`jaxsr.sensor.ambient_only`; integers too) paint each LR pixel's r x r HR pixels;
-    floating shares of no return in [0, 1] (`jaxsr.sensor.no_return_shares`) are interpolated bilinearly between the LR pixels'
-    centres and mark the HR pixels where they reach one half, so that an edge falls inside its block."""
+    floating shares of no return in [0, 1] (`jaxsr.sensor.no_return_shares`) are interpolated bilinearly between the
+    LR pixels' centres and mark the HR pixels where they reach one half, so that an edge falls inside its block."""
     r = np.shape(hr)[-1] // np.shape(flags)[-1]
     if not np.issubdtype(np.asarray(flags).dtype, np.floating):  # bool (or 0/1 integer) flags: blocks
         marked = lr_blocks(flags, r)
