@@ -163,8 +163,8 @@ def iter_super_resolve(model: Model, frames: Iterable, *, batch_size: int | None
     so frame t is yielded once frame t + R has arrived (or the stream has ended), `batch_size` at a time.
     batch_size: frames per compiled call (None: `DEFAULT_BATCH_SIZE` per local device,
     `DEFAULT_ACCELERATOR_BATCH_SIZE` on an accelerator, split over the local devices when they divide it; sequence
-    form: `DEFAULT_SEQUENCE_CHUNK`, or the length of a shorter list or array). conv3d_impl: how the convolutions run (see `apply_model`). tile: the largest side,
-    in LR pixels, of the spatial tiles a larger frame is cut into (`tile_spans`: margins of the network's
+    form: `DEFAULT_SEQUENCE_CHUNK`, or the length of a shorter list or array). conv3d_impl: how the convolutions
+    run (see `apply_model`). tile: the largest side, in LR pixels, of the spatial tiles a larger frame is cut into (`tile_spans`: margins of the network's
     receptive radius, `jaxsr.nn.duf.spatial_radius`, so the output equals the whole frame's to float rounding),
     bounding device memory whatever the frame size; None runs whole frames. Any frame size h, w >= `MIN_LR_SIDE`
     runs, compiled once per size; the bundled models were trained on 32 x 64 frames of a 30 deg field of view
