@@ -157,19 +157,19 @@ def iter_super_resolve(model: Model, frames: Iterable, *, batch_size: int | None
 
     frames: an iterable of (h, w) LR normalised depth frames (0..1, 1 or NaN = no return), e.g. a generator reading
     files one by one; for a model reading photons too (`ModelConfig.inputs`), (h, w, C) frames of
-    `jaxsr.nn.network_inputs` (`super_resolve_histograms` builds them). In the model's form (`model.form`, or
-    `form`'s): frame t is computed from frames t - R .. t + R, R = the model's input radius (tr for the window
-    form, 3 + tr for the sequence form), edge-replicated at both ends of the stream (as `jaxsr.temporal.windows`),
-    so frame t is yielded once frame t + R has arrived (or the stream has ended), `batch_size` at a time.
-    batch_size: frames per compiled call (None: `DEFAULT_BATCH_SIZE` per local device,
-    `DEFAULT_ACCELERATOR_BATCH_SIZE` on an accelerator, split over the local devices when they divide it; sequence
-    form: `DEFAULT_SEQUENCE_CHUNK`, or the length of a shorter list or array). conv3d_impl: how the convolutions
-    run (see `apply_model`). tile: the largest side, in LR pixels, of the spatial tiles a larger frame is cut into (`tile_spans`: margins of the network's
-    receptive radius, `jaxsr.nn.duf.spatial_radius`, so the output equals the whole frame's to float rounding),
-    bounding device memory whatever the frame size; None runs whole frames. Any frame size h, w >= `MIN_LR_SIDE`
-    runs, compiled once per size; the bundled models were trained on 32 x 64 frames of a 30 deg field of view
-    (README "Frame size"). precision: how the network's convolutions multiply (`jaxsr.config.PRECISIONS`,
-    default `DEFAULT_PRECISION`; "bfloat16": bfloat16 operands, float32 sums; only "default" for the baselines).
+    `jaxsr.nn.network_inputs` (`super_resolve_histograms` builds them). In the model's form (`model.form`, or `form`'s):
+    frame t is computed from frames t - R .. t + R, R = the model's input radius (tr for the window form, 3 + tr for the
+    sequence form), edge-replicated at both ends of the stream (as `jaxsr.temporal.windows`), so frame t is yielded once
+    frame t + R has arrived (or the stream has ended), `batch_size` at a time. batch_size: frames per compiled call
+    (None: `DEFAULT_BATCH_SIZE` per local device, `DEFAULT_ACCELERATOR_BATCH_SIZE` on an accelerator, split over the
+    local devices when they divide it; sequence form: `DEFAULT_SEQUENCE_CHUNK`, or the length of a shorter list or
+    array). conv3d_impl: how the convolutions run (see `apply_model`). tile: the largest side, in LR pixels, of the
+    spatial tiles a larger frame is cut into (`tile_spans`: margins of the network's receptive radius,
+    `jaxsr.nn.duf.spatial_radius`, so the output equals the whole frame's to float rounding), bounding device memory
+    whatever the frame size; None runs whole frames. Any frame size h, w >= `MIN_LR_SIDE` runs, compiled once per size;
+    the bundled models were trained on 32 x 64 frames of a 30 deg field of view (README "Frame size"). precision: how
+    the network's convolutions multiply (`jaxsr.config.PRECISIONS`, default `DEFAULT_PRECISION`; "bfloat16": bfloat16
+    operands, float32 sums; only "default" for the baselines).
     form: the temporal form the model runs in (`FORMS`, `in_form`; default "model": as its config says).
     raw: for a model with a no-return head, yield (h r, w r, 2) [depth, no-return logit] before the decision
     (`jaxsr.nn.apply_model_raw`), for a decision of one's own (`overrule_no_return`).
