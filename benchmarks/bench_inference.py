@@ -28,7 +28,7 @@ import numpy as np
 import pytest
 
 from jaxsr.config import ModelConfig, SensorConfig
-from jaxsr.inference.video import (
+from jaxsr.inference import (
     DEFAULT_BATCH_SIZE,
     Stream,
     iter_centre_of_mass,

@@ -24,7 +24,7 @@ from jax.sharding import PartitionSpec as P
 import jaxsr
 from jaxsr import scenes
 from jaxsr.config import DEFAULT_MEAN_SIGNAL, MODEL_INPUTS, PRESETS, ModelConfig, SensorConfig, TrainConfig
-from jaxsr.inference.video import in_form, super_resolve, super_resolve_histograms
+from jaxsr.inference import in_form, super_resolve, super_resolve_histograms
 from jaxsr.io.checkpoint import resolve_model_path
 from jaxsr.runtime import compiler_options
 from jaxsr.sensor.forward import require_scalar_levels

@@ -5,6 +5,7 @@ under 0.05 dB, each with its training card; writes experiments/results/weights.m
     python experiments/paper/bundle_weights.py --form sequence --runs runs/bundle-seq --trs 1 2 3 4 [--force]
     python experiments/paper/bundle_weights.py --runs runs/campaign/s0 \
         --trained-with "python experiments/paper/campaign.py"
+    python experiments/paper/bundle_weights.py --measure-forms [--trs 0 1 2 3 4] [--form-frames 48]
 
 The window-form models come from `jaxsr train --tr N --preset bundle --out runs/bundle/trN` and are bundled as
 tr<N>.npz (results/weights.md); the sequence-form models from `experiments/studies/train_sequence_bundle.py` and are
@@ -22,6 +23,13 @@ float16 cost is measured on the same frames: the mean PSNR of the float32 model 
 `--keep-better` (for runs that continue across sessions, such as the campaign's) lets the bundled model of each TR
 compete on the same frames: a run's model replaces it only when, as stored, it scores higher; otherwise the
 bundled file is left untouched and its row says so.
+
+Each windowed model reading depth alone is also run in the sequence form on the first --form-frames frames of the
+three test scenes (`jaxsr.inference.measure_form_equivalence`), and the record goes into its card under "forms"
+(`jaxsr.io.checkpoint.FORMS_CARD_KEY`): where both forms' PSNR agree within `FORM_TOLERANCE_DB`, over all those
+frames and over the first and last R frames alone, `form="auto"` runs the weights in the sequence form
+(`Model.equivalent_forms`). Bundling measures it whenever it writes weights; `--measure-forms` measures the bundled
+files of --trs again and rewrites only their cards (the arrays stay bit-identical).
 """
 
 from __future__ import annotations
@@ -41,13 +49,17 @@ from jaxsr import scenes
 from jaxsr.io.checkpoint import save_model
 from jaxsr.config import TrainConfig
 
+from jaxsr.inference import measure_form_equivalence
+from jaxsr.io.checkpoint import FORMS_CARD_KEY
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
-from harness.scoring import scene_scores, simulate_clip  # noqa: E402
+from harness.scoring import scene_scores, simulate_clip, test_clips  # noqa: E402
 from harness.reports import header, markdown_table, write_atomic  # noqa: E402
 
 WEIGHTS = Path(jaxsr.__file__).parent / "weights"
 VALIDATION = TrainConfig().val_sequences
 MAX_COST_DB = 0.05
+FORM_FRAMES = 48  # test-scene frames per scene for the form measurement: about a minute per model on 2 cores
 SUFFIX = {"window": "", "sequence": "-seq"}  # bundled file names: tr4.npz, tr4-seq.npz
 
 
@@ -57,6 +69,45 @@ def validation_clips(frames: int) -> dict:
     their own (not training's)."""
     seqs = scenes.test_sequences(n_frames=frames, names=VALIDATION)
     return {n: simulate_clip(jax.random.key(7000 + i), seqs[n]) for i, n in enumerate(VALIDATION)}
+
+
+@functools.cache
+def form_clips(frames: int) -> dict:
+    """The first `frames` frames of the three test scenes, simulated at their SNR (noise seed 0)."""
+    return test_clips(frames)
+
+
+def form_record(model, frames: int) -> dict:
+    """The card's record of `model` in the sequence form against its window form, on the first `frames` frames of
+    the test scenes (noise seed 0), as stored (float16 weights where they are stored so)."""
+    clips = form_clips(frames)
+    record = measure_form_equivalence(model, [(c.lr, c.gt) for c in clips.values()])
+    return dict(record, measured=(f"jaxsr.inference.measure_form_equivalence: {', '.join(clips)}, first {frames} "
+                                  f"frames each (jaxsr.eval.scoring.test_clips, noise seed 0), precision default on "
+                                  f"{jax.default_backend()}, jaxsr {jaxsr.__version__}, {time.strftime('%Y-%m-%d')}"))
+
+
+def measure_forms(trs, frames: int) -> None:
+    """Measure the bundled windowed depth models of `trs` in the sequence form again and rewrite their cards'
+    "forms" record, the arrays (and their storage dtype) unchanged: checked bit for bit after writing."""
+    for tr in trs:
+        target = WEIGHTS / f"tr{tr}.npz"
+        meta = jaxsr.read_metadata(target)
+        model = jaxsr.load_model(target)
+        if model.reads_photons or model.form != "window":
+            print(f"tr{tr}: not a windowed model reading depth alone; skipped", flush=True)
+            continue
+        record = form_record(model, frames)
+        before = np.load(target)
+        arrays = {k: before[k] for k in before.files if k != "__metadata__"}
+        card = dict(meta["card"], **{FORMS_CARD_KEY: {"sequence": record}})
+        save_model(target, model, card=card, storage_dtype=meta["storage_dtype"])
+        after = np.load(target)
+        same = set(after.files) - {"__metadata__"} == set(arrays) and all(
+            after[k].dtype == v.dtype and np.array_equal(after[k], v) for k, v in arrays.items())
+        if not same:
+            raise SystemExit(f"{target}: the arrays changed on rewriting the card; restore it from git")
+        print(f"tr{tr}: {record}", flush=True)
 
 
 def mean_psnr(model, clips) -> float:
@@ -109,7 +160,15 @@ def main(argv=None):
     parser.add_argument("--force", action="store_true", help="replace existing bundled weights")
     parser.add_argument("--keep-better", action="store_true",
                         help="replace a bundled model only by one that scores higher on the validation frames")
+    parser.add_argument("--form-frames", type=int, default=FORM_FRAMES,
+                        help=f"test-scene frames per scene for the sequence-form measurement (default {FORM_FRAMES})")
+    parser.add_argument("--measure-forms", action="store_true",
+                        help="only measure the bundled windowed depth models of --trs in the sequence form again and "
+                        "rewrite their cards (weights unchanged)")
     args = parser.parse_args(argv)
+    if args.measure_forms:
+        measure_forms(args.trs, args.form_frames)
+        return
     started = time.time()
     targets = {tr: WEIGHTS / f"tr{tr}{SUFFIX[args.form]}.npz" for tr in args.trs}
     for target in targets.values():  # refuse before the validation frames are rendered
@@ -151,6 +210,10 @@ def main(argv=None):
                                 "validation_psnr_db": {k: round(v, 3) for k, v in val_psnr.items()}},
                     storage={"dtype": dtype, "psnr_cost_db": round(cost, 4),
                              "measured_on": f"{', '.join(VALIDATION)}, first {args.frames} frames"})
+        card.pop(FORMS_CARD_KEY, None)  # a record of other weights
+        stored_model = half if dtype == "float16" else model
+        if stored_model.form == "window" and not stored_model.reads_photons:
+            card[FORMS_CARD_KEY] = {"sequence": form_record(stored_model, args.form_frames)}
         save_model(target, model, card=card, storage_dtype=dtype)
         epochs.append(card["train_config"]["epochs"])
         rows.append(card_row(

@@ -23,7 +23,7 @@ import jaxsr
 from jaxsr.baselines import block_mean
 from jaxsr.config import DEFAULT_MEAN_SIGNAL, MODEL_INPUTS, SensorConfig
 from jaxsr.io.checkpoint import resolve_model_path
-from jaxsr.inference.video import no_return_where, overrule_no_return
+from jaxsr.inference import no_return_where, overrule_no_return
 from jaxsr.nn import network_inputs
 from jaxsr.training.no_return import no_return_outputs
 from jaxsr.sensor import (ambient_only, calibrate, calibrated_rates, no_return_regions, no_return_shares,

@@ -35,7 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxsr
-from jaxsr.inference.video import DEFAULT_SEQUENCE_CHUNK, super_resolve, super_resolve_histograms
+from jaxsr.inference import DEFAULT_SEQUENCE_CHUNK, super_resolve, super_resolve_histograms
 from jaxsr.nn import flops_per_frame, sequence_radius
 from jaxsr.runtime import compiler_options, cpu_bfloat16_features
 

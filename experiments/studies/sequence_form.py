@@ -25,7 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxsr
-from jaxsr.inference.video import DEFAULT_SEQUENCE_CHUNK, Stream, iter_centre_of_mass, super_resolve
+from jaxsr.inference import DEFAULT_SEQUENCE_CHUNK, Stream, iter_centre_of_mass, super_resolve
 from jaxsr.nn import apply_model, edge_pad_sequence, flops_per_frame, sequence_radius
 from jaxsr.runtime import compiler_options
 from jaxsr.nn.streaming import stream_init, stream_step

@@ -12,8 +12,8 @@ from typing import Callable, Iterator
 import numpy as np
 
 from ..config import DepthScale, Gate, SensorConfig
-from ..inference import DEFAULT_PRECISION, iter_ambient_only, iter_network_inputs, iter_super_resolve, no_return_where
-from ..inference.video import iter_returns_kept
+from ..inference import (DEFAULT_PRECISION, iter_ambient_only, iter_network_inputs, iter_returns_kept,
+                         iter_super_resolve, no_return_where)
 from ..nn.model import Model
 from ..runtime import enable_compilation_cache
 from ..sensor.gates import gate_warnings

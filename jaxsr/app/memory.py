@@ -10,8 +10,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..checks import require_memory
-from ..inference import DEFAULT_TILE
-from ..inference.video import _default_batch_size as default_batch_size  # noqa: PLC2701
+from ..inference import DEFAULT_TILE, default_batch_size
+
 from .job import HISTOGRAM_CHUNK, UpscaleJob
 from .photons import AMBIENT_FRAMES
 

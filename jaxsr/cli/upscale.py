@@ -22,7 +22,7 @@ from ..app import (AUTO_AMBIENT_ALPHA, AUTO_AMBIENT_MIN_FRAMES, AUTO_AMBIENT_MIN
                    AUTO_KEEP_RETURNS, DEPTH_UNITS, FRAME_FORMATS, KINDS, ModelChoice, PhotonRules, Reading, Writing,
                    upscale)
 from ..config import PRECISIONS, TRAINED_RANGE_M
-from ..inference import DEFAULT_FORM, DEFAULT_PRECISION, FORMS, SEQUENCE_FORM_MIN_FRAMES, SEQUENCE_FORM_TRS
+from ..inference import DEFAULT_FORM, DEFAULT_PRECISION, FORMS
 from ..checks import MEMORY_SHARE
 from ._args import ambient_alpha, finite_float, int_range, memory, positive_float, range_or_time, span, time_unit
 
@@ -79,10 +79,9 @@ def add_parser(subparsers):
                    "or bfloat16 (bfloat16 operands, float32 sums: within 0.05 dB on the test sequences; faster only "
                    "where the hardware and XLA multiply bfloat16, see docs/cli.md)")
     p.add_argument("--form", choices=list(FORMS), default=DEFAULT_FORM,
-                   help="the network's temporal form: auto (default: windowed depth models of TR "
-                   f"{' and '.join(map(str, SEQUENCE_FORM_TRS))} run in the sequence form, measured as accurate and "
-                   f"faster, on {SEQUENCE_FORM_MIN_FRAMES} frames or more; other models in their own form), model (as "
-                   "the checkpoint says), window, or sequence")
+                   help="the network's temporal form: auto (default: the model's own form, or the sequence form where "
+                   "its card records the two forms measured equivalent, as the bundled tr3 and tr4 do; never the "
+                   "recording's length), model (as the checkpoint says), window, or sequence")
     p.add_argument("--no-return-logit", type=finite_float, default=None, metavar="LOGIT",
                    help="models with a no-return head (tr0-photons, tr4-photons, tr0-ambient, tr4-ambient): output "
                    "no return where the head's "

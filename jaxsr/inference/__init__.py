@@ -3,21 +3,28 @@ and the whole pipeline as one differentiable metric. Reading and writing recordi
 (`jaxsr.app`).
 """
 
-from .video import (
+from .forms import (
+    DEFAULT_PRECISION,
+    DEFAULT_FORM,
+    FORMS,
+    FORM_TOLERANCE_DB,
+    check_precision,
+    in_form,
+)
+from .frames import (
     DEFAULT_BATCH_SIZE,
     DEFAULT_ACCELERATOR_BATCH_SIZE,
     DEFAULT_SEQUENCE_CHUNK,
     DEFAULT_TILE,
-    DEFAULT_PRECISION,
-    DEFAULT_FORM,
-    FORMS,
-    SEQUENCE_FORM_TRS,
-    SEQUENCE_FORM_MIN_FRAMES,
-    check_precision,
-    in_form,
+    default_batch_size,
     tile_spans,
     iter_super_resolve,
     super_resolve,
+    measure_form_equivalence,
+)
+from .photons import (
+    check_keep_returns,
+    iter_returns_kept,
     iter_centre_of_mass,
     iter_network_inputs,
     iter_ambient_only,
@@ -25,8 +32,8 @@ from .video import (
     overrule_no_return,
     lr_blocks,
     super_resolve_histograms,
-    Stream,
 )
+from .stream import Stream
 from .adaptive import (
     STUDY_TABLE,
     SEARCH_RADIUS,
@@ -53,10 +60,13 @@ __all__ = [
     "DEFAULT_PRECISION",
     "DEFAULT_FORM",
     "FORMS",
-    "SEQUENCE_FORM_TRS",
-    "SEQUENCE_FORM_MIN_FRAMES",
+    "FORM_TOLERANCE_DB",
     "check_precision",
     "in_form",
+    "measure_form_equivalence",
+    "default_batch_size",
+    "check_keep_returns",
+    "iter_returns_kept",
     "tile_spans",
     "iter_super_resolve",
     "super_resolve",

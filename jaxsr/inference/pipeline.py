@@ -18,7 +18,7 @@ import jax.numpy as jnp
 
 from ..config import DEFAULT_MEAN_SIGNAL, SensorConfig
 from ..eval.metrics import huber_loss, psnr
-from ..nn.duf import DUF, apply_model, apply_model_sequence, check_conv
+from ..nn.duf import apply_model_sequence, check_conv
 from ..nn.model import Model
 from ..sensor.peaks import centre_of_mass
 from ..sensor.poisson import PATHWISE_ESTIMATORS
@@ -42,11 +42,11 @@ def _lr_depth(key, depth, intensity, sensor, snr, mean_signal, *, gradient, samp
 def _network(model: Model, lr, conv3d_impl, precision="default"):
     """(T, h, w) LR sequence -> (T, h r, w r), in the model's temporal form, ends edge-replicated, BN in
     inference mode."""
-    cfg = model.config
+    cfg, arch = model.config, model.architecture
     conv = {"conv3d_impl": conv3d_impl, "precision": precision}
-    if DUF.sequence_form(cfg):
+    if model.sequence_form:
         return apply_model_sequence(model.params, model.state, lr[None], cfg, **conv)[0]
-    return apply_model(model.params, model.state, windows(lr, cfg.tr), cfg, **conv)
+    return arch.apply(model.params, model.state, windows(lr, arch.input_radius(cfg)), cfg, **conv)
 
 
 @functools.partial(jax.jit, static_argnames=("metric", "gradient", "sampler", "conv3d_impl", "precision"))
@@ -116,12 +116,14 @@ def pipeline_metric(
     depth, intensity = check_photon_args("pipeline_metric", depth, intensity, sensor, snr, mean_signal)
     if depth.ndim != 3:
         raise ValueError(f"pipeline_metric: depth and intensity must be sequences (T, H, W), got shape {depth.shape}")
-    if not isinstance(model, Model) or model.kind != "duf":
-        raise ValueError(f"pipeline_metric: model must be a jaxsr.Model of the DUF network (e.g. "
-                         f"jaxsr.load_model('tr0')), got {getattr(model, 'kind', type(model).__name__)}")
-    if model.config.scale != sensor.scale:
-        raise ValueError(f"pipeline_metric: the model upsamples x{model.config.scale} but the sensor's scale is "
-                         f"{sensor.scale}")
+    # the pipeline feeds the network centre-of-mass depth alone, and runs it in the forms the DUF network has
+    if not isinstance(model, Model) or model.reads_photons or "window" not in model.forms:
+        raise ValueError(f"pipeline_metric: model must be a jaxsr.Model of the DUF network reading depth alone (e.g. "
+                         f"jaxsr.load_model('tr0')), got {getattr(model, 'kind', type(model).__name__)}"
+                         + (f" reading {model.channels}" if isinstance(model, Model) and model.forms else ""))
+    scale = model.architecture.scale(model.config)
+    if scale != sensor.scale:
+        raise ValueError(f"pipeline_metric: the model upsamples x{scale} but the sensor's scale is {sensor.scale}")
     if metric not in METRICS:
         raise ValueError(f"pipeline_metric: metric must be one of {METRICS}, got {metric!r}")
     if gradient not in PATHWISE_ESTIMATORS:

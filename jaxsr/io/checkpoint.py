@@ -39,6 +39,8 @@ __all__ = [
     "config_to_dict",
     "config_from_dict",
     "drop_legacy_fields",
+    "FORMS_CARD_KEY",
+    "equivalent_forms",
 ]
 
 FORMAT_VERSION = 1
@@ -49,6 +51,9 @@ _META = "__metadata__"
 LEGACY_FIELDS = {ModelConfig: frozenset({"conv3d_impl"})}
 # Fields added since take their defaults when a file lacks them (`config_from_dict`): `ModelConfig.temporal`
 # is "window", the only form older versions trained.
+# The card entry that records how the weights run in the temporal forms other than their own, measured:
+# {form: {"equivalent": true or false, ...}} (`jaxsr.inference.measure_form_equivalence` writes one record).
+FORMS_CARD_KEY = "forms"
 
 
 def _version() -> str:
@@ -279,6 +284,16 @@ def stored_architecture(meta: dict, path) -> Architecture:
         raise ValueError(f"checkpoint {str(path)!r}: {e}") from None
 
 
+def equivalent_forms(card, arch: Architecture) -> tuple[str, ...]:
+    """The temporal forms a card records as measured equivalent to the weights' own ({"forms": {form:
+    {"equivalent": true, ...}}}, `FORMS_CARD_KEY`), among those `arch` runs in; () for a card without the record.
+    A record that is not an object, or not `true`, counts as not measured."""
+    records = card.get(FORMS_CARD_KEY) if isinstance(card, dict) else None
+    if not isinstance(records, dict):
+        return ()
+    return tuple(f for f in arch.forms if isinstance(records.get(f), dict) and records[f].get("equivalent") is True)
+
+
 def load_model(path, *, temporal: str | None = None) -> Model:
     """Load a `Model` of any registered architecture saved by `save_model` (or the model inside a training
     checkpoint of `jaxsr.training.fit`; or a learned baseline saved by jaxsr 0.1).
@@ -287,9 +302,10 @@ def load_model(path, *, temporal: str | None = None) -> Model:
     array is checked against the shapes the architecture's init gives for the stored config; raises `ValueError`
     for a truncated file, a missing or unexpected key, a wrong shape or dtype, a non-finite value (NaN weights
     give NaN outputs), a config beyond `jaxsr.config`'s limits, or an unsupported format version.
-    Returns the `Model` (params and state float32 in memory, config from the file). temporal (DUF models): None
-    (the form the file records; "window" for files older than the field), or "window" / "sequence" to run the
-    same weights in that form (both forms have the same parameters; e.g. `load_model("tr4", temporal="sequence")`).
+    Returns the `Model` (params and state float32 in memory, config from the file, `Model.equivalent_forms` the
+    forms its card records as measured equivalent, `equivalent_forms`). temporal (DUF models): None (the form the
+    file records; "window" for files older than the field), or "window" / "sequence" to run the same weights in
+    that form (both forms have the same parameters; e.g. `load_model("tr4", temporal="sequence")`).
     """
     path = resolve_model_path(path)
     meta = read_metadata(path)
@@ -301,9 +317,11 @@ def load_model(path, *, temporal: str | None = None) -> Model:
         shown = shown if len(shown) <= 500 else f"{shown[:500]} ... ({len(shown) - 500:,} more characters)"
         raise ValueError(f"checkpoint {str(path)!r}: unreadable {arch.name} config {shown}: {e}") from e
     if temporal is not None:
-        if not hasattr(cfg, "temporal"):
+        if not arch.forms:
             raise ValueError(f"load_model: temporal applies to DUF models; {str(path)!r} holds {arch.name}")
-        cfg = dataclasses.replace(cfg, temporal=temporal)
+        if temporal not in arch.forms:
+            raise ValueError(f"load_model: temporal must be one of {arch.forms}, got {temporal!r}")
+        cfg = arch.with_form(cfg, temporal)
     params_t, state_t = model_template(cfg)
     template = {"params": params_t} if meta["kind"] == "baseline" else {"params": params_t, "state": state_t}
     tree, _ = load_tree(path, template, strict=meta["kind"] in ("model", "baseline"))
@@ -313,7 +331,7 @@ def load_model(path, *, temporal: str | None = None) -> Model:
                          + (f", and {len(bad) - 1} more array(s)" if len(bad) > 1 else "")
                          + ": weights of a run that diverged, or a damaged file")
     tree = jax.tree_util.tree_map(jax.numpy.asarray, tree)
-    return Model(tree["params"], tree.get("state", {}), cfg)
+    return Model(tree["params"], tree.get("state", {}), cfg, equivalent_forms(meta.get("card"), arch))
 
 
 def model_info(path, *, lr_shape=(32, 64)) -> dict:

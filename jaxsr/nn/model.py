@@ -126,11 +126,20 @@ def architecture(which) -> Architecture:
 @dataclasses.dataclass(frozen=True)
 class Model:
     """A network with its weights: `params` and `state` (pytrees of arrays, the leaves) and its `config` (static,
-    hashable). Any registered architecture: the config's type says which (`model.architecture`)."""
+    hashable). Any registered architecture: the config's type says which (`model.architecture`).
+
+    equivalent_forms (static): the temporal forms these weights were measured to run in as accurately as in the
+    form they were trained in (`jaxsr.inference.measure_form_equivalence`; `jaxsr.io.load_model` reads them from
+    the card's "forms"); () when none was measured. `jaxsr.inference.in_form(model, "auto")` runs a windowed
+    model in the sequence form only when "sequence" is among them."""
 
     params: dict
     state: dict
     config: object
+    equivalent_forms: tuple = ()
+
+    def __post_init__(self):  # a static field: hashable, whatever sequence it was given as
+        object.__setattr__(self, "equivalent_forms", tuple(self.equivalent_forms))
 
     @property
     def architecture(self) -> Architecture:
@@ -185,7 +194,7 @@ class Model:
                              + (f"one of {self.forms}" if self.forms else "its own form only"))
         if self.form == form:
             return self
-        return Model(self.params, self.state, self.architecture.with_form(self.config, form))
+        return dataclasses.replace(self, config=self.architecture.with_form(self.config, form))
 
     def __call__(self, inputs):
         """Inference on one batch: (B, frames, h, w) LR windows, or (counts, intensity) for a histogram
@@ -193,4 +202,4 @@ class Model:
         return self.architecture.apply(self.params, self.state, inputs, self.config)
 
 
-jax.tree_util.register_dataclass(Model, data_fields=["params", "state"], meta_fields=["config"])
+jax.tree_util.register_dataclass(Model, data_fields=["params", "state"], meta_fields=["config", "equivalent_forms"])

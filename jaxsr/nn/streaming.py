@@ -9,7 +9,7 @@ pytree of fixed shape: memory does not grow with the length of the stream.
 
 Step n takes padded input frame n and returns the output whose centre is padded frame n - R, i.e. output
 n - 2R of the sequence; it is valid once n >= 2R (the first R + 1 steps feed the first frame, the edge
-padding). `jaxsr.inference.video.Stream` wraps this for live input. A `lax.scan` of the step over a whole sequence
+padding). `jaxsr.inference.Stream` wraps this for live input. A `lax.scan` of the step over a whole sequence
 ran no faster than a Python loop over the jitted step, and both slower than the sequence form in chunks
 (experiments/results/sequence_form.md), so whole sequences go through `apply_model_sequence` instead.
 """

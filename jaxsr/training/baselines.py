@@ -35,7 +35,8 @@ from ..baselines.rbpn import (
 )
 from ..config import SensorConfig, TrainConfig
 from ..eval.metrics import psnr
-from ..inference.video import super_resolve, super_resolve_histograms
+from ..inference.frames import super_resolve
+from ..inference.photons import super_resolve_histograms
 from ..io.checkpoint import load_model, resolve_model_path, save_model
 from ..nn.model import Model, architecture
 from ..scenes import test_sequences, training_clip

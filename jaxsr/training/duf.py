@@ -21,7 +21,7 @@ from jax.sharding import PartitionSpec as P
 
 from ..config import ModelConfig, SensorConfig, TrainConfig
 from ..eval.metrics import huber_loss, psnr
-from ..inference.video import super_resolve
+from ..inference.frames import super_resolve
 from ..io.checkpoint import config_to_dict, load_model
 from ..nn.duf import (DUF, apply_model, apply_model_sequence_train, apply_model_train, grow_tr, init_model,
                       merge_no_return, sequence_radius, with_photon_inputs)

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from jaxsr.config import ModelConfig, SensorConfig
-from jaxsr.inference.video import iter_centre_of_mass, iter_super_resolve, super_resolve, super_resolve_histograms
+from jaxsr.inference import iter_centre_of_mass, iter_super_resolve, super_resolve, super_resolve_histograms
 from jaxsr.nn import Model, apply_model, init_model
 from jaxsr.sensor.peaks import centre_of_mass
 
@@ -132,7 +132,7 @@ _SHARDED_SCRIPT = textwrap.dedent(
     """
     import json
     import jax, numpy as np
-    from jaxsr.inference.video import _batch_sharding, _infer_chunk, super_resolve
+    from jaxsr.inference.frames import _batch_sharding, _infer_chunk, super_resolve
     from jaxsr.runtime import use_cpu_cores
     assert use_cpu_cores(n=2) == 2
     assert _batch_sharding(4) is not None and _batch_sharding(3) is None and _batch_sharding(1) is None
@@ -165,11 +165,11 @@ def test_batches_split_over_devices_equal_the_window_loop():
 
 
 def test_the_default_batch_fills_an_accelerator_and_keeps_one_frame_per_cpu_device(monkeypatch):
-    from jaxsr.inference import video as inference
+    from jaxsr.inference import frames as inference
 
     frames = np.zeros((40, 32, 64), np.float32)
-    on_cpu = inference._default_batch_size(frames, sequence_form=False)
+    on_cpu = inference.default_batch_size(frames, sequence_form=False)
     assert on_cpu == inference.DEFAULT_BATCH_SIZE * jax.local_device_count()
     monkeypatch.setattr(inference.jax, "default_backend", lambda: "gpu")
-    assert inference._default_batch_size(frames, sequence_form=False) == 8 * jax.local_device_count()
-    assert inference._default_batch_size(frames, sequence_form=True) == inference.DEFAULT_SEQUENCE_CHUNK
+    assert inference.default_batch_size(frames, sequence_form=False) == 8 * jax.local_device_count()
+    assert inference.default_batch_size(frames, sequence_form=True) == inference.DEFAULT_SEQUENCE_CHUNK

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from jaxsr.config import ModelConfig
-from jaxsr.inference.video import iter_super_resolve, super_resolve, super_resolve_histograms, tile_spans
+from jaxsr.inference import iter_super_resolve, super_resolve, super_resolve_histograms, tile_spans
 from jaxsr.nn import Model, init_model, spatial_radius
 
 TINY = {"base": 8, "growth": 4, "head": 16, "filter_hidden": 16}

@@ -1,7 +1,8 @@
 """Inference's `precision` (the convolutions' products: default, float32, bfloat16) and `form` (the temporal form the
 network runs in: auto, model, window, sequence): bad values refused with the choices, bfloat16 finite and within its
-tolerance of float32, the forms what they say, and the bundled weights within the measured tolerances on a test
-scene (experiments/results/inference_forms.md)."""
+tolerance of float32, the forms what they say ("auto" the model's choice, from its card, never the recording's
+length), and the bundled weights within the measured tolerances on a test scene
+(experiments/results/inference_forms.md)."""
 
 import dataclasses
 import json
@@ -14,8 +15,8 @@ import jaxsr
 from jaxsr import cli
 from jaxsr.config import ModelConfig, SensorConfig
 from jaxsr.app import ModelChoice, Reading, prepare_upscale, upscale, upscale_memory
-from jaxsr.inference.video import (DEFAULT_FORM, DEFAULT_PRECISION, SEQUENCE_FORM_MIN_FRAMES, SEQUENCE_FORM_TRS,
-                                   Stream, in_form, iter_super_resolve, super_resolve, super_resolve_histograms)
+from jaxsr.inference import (DEFAULT_FORM, DEFAULT_PRECISION, FORM_TOLERANCE_DB, Stream, in_form, iter_super_resolve,
+                             measure_form_equivalence, super_resolve, super_resolve_histograms)
 from jaxsr.nn import Model, apply_model_sequence, init_model
 from jaxsr.runtime import cpu_bfloat16_features
 
@@ -25,6 +26,10 @@ SENSOR = SensorConfig()
 BF16_ATOL = 3e-2
 # measured on the test sequences (experiments/results/inference_forms.md): bfloat16 within 0.05 dB of float32
 BF16_DB = 0.05
+# a recording's length, and one frame more: the form "auto" picks depends on neither
+FRAMES = 32
+# a card's record of the two forms measured equivalent (what `measure_form_equivalence` writes, in short)
+MEASURED = {"forms": {"sequence": {"equivalent": True, "psnr_difference_db": 0.0, "measured": "a test's say-so"}}}
 
 
 def _model(tr, seed=0, **kw):
@@ -41,7 +46,7 @@ def _seq(frames, seed=1, shape=(6, 8)):
 
 def test_the_defaults_are_the_measured_choices():
     assert DEFAULT_PRECISION == "default" and DEFAULT_FORM == "auto"
-    assert SEQUENCE_FORM_TRS == (3, 4)  # the TRs within 0.1 dB in the sequence form, edges included
+    assert FORM_TOLERANCE_DB == 0.1  # TR3 and TR4 within it in the sequence form, edges included; TR0-TR2 not
 
 
 @pytest.mark.parametrize("bad", ["fp16", "bf16", "", None, 16])
@@ -120,21 +125,24 @@ def test_cpu_bfloat16_features_reads_the_flags():
 # --- form ------------------------------------------------------------------------------------------------------
 
 
-def test_in_form_follows_the_measured_rule():
+def _measured(model):
+    """`model` as `load_model` gives it from a card that records its two forms measured equivalent."""
+    return dataclasses.replace(model, equivalent_forms=("sequence",))
+
+
+def test_in_form_auto_moves_only_measured_weights():
     tr3, tr4, tr1 = _model(3), _model(4), _model(1)
-    long, short = SEQUENCE_FORM_MIN_FRAMES, SEQUENCE_FORM_MIN_FRAMES - 1
-    assert in_form(tr3, "auto", frames=long).config.temporal == "sequence"
-    assert in_form(tr4, "auto", frames=long).config.temporal == "sequence"
-    assert in_form(tr3, "auto", frames=None).config.temporal == "sequence"  # a stream: long
-    assert in_form(tr3, "auto", frames=short) is tr3
-    for tr in (0, 1, 2):  # they lose 0.1-0.6 dB in the sequence form
-        model = _model(tr)
-        assert in_form(model, "auto", frames=long) is model
-    photons = _model(3, inputs=("depth", "signal", "background"))
-    assert in_form(photons, "auto", frames=long) is photons  # measured on the depth models only
+    for model in (tr3, tr4, tr1, _model(3, inputs=("depth", "signal", "background"))):
+        assert in_form(model, "auto") is model  # a user's own weights: the form they were trained in
+        assert in_form(model, "auto", frames=FRAMES) is model  # whatever the recording's length
+    measured = _measured(tr3)
+    for frames in (None, 1, FRAMES - 1, FRAMES):  # the length, where a caller still gives it, changes nothing
+        seq = in_form(measured, "auto", frames=frames)
+        assert seq.config.temporal == "sequence" and seq.params is tr3.params and seq.equivalent_forms == ("sequence",)
+    assert in_form(seq, "auto") is seq  # a sequence-form model stays in it
     assert in_form(tr1, "model") is tr1 and in_form(tr1, "sequence").config.temporal == "sequence"
     seq = in_form(tr3, "sequence")
-    assert in_form(seq, "auto", frames=1) is seq and in_form(seq, "window").config == tr3.config
+    assert in_form(seq, "auto") is seq and in_form(seq, "window").config == tr3.config
     assert in_form(tr3, "window") is tr3 and in_form(seq, "window").params is tr3.params
     with pytest.raises(ValueError, match=r"form must be one of 'auto', 'model', 'window', 'sequence', got 'seq'"):
         in_form(tr1, "seq")
@@ -144,27 +152,76 @@ def test_in_form_follows_the_measured_rule():
         in_form(histnet, "sequence")
 
 
-@pytest.mark.slow  # 22 s of TR3/TR4 compiles in both forms
-def test_whole_arrays_run_in_the_form_auto_picks():
+@pytest.mark.slow  # 10 s of TR3 compiles
+def test_a_users_own_network_gives_the_same_frames_whatever_the_recordings_length():
+    """An untrained TR3 through `jaxsr.super_resolve` (form "auto"): a recording of 31 frames and the same one with
+    its last frame held one frame longer give the same 31 frames (the window form's edge replication), not the
+    sequence form's on the longer one."""
     model = _model(3)
-    long = _seq(SEQUENCE_FORM_MIN_FRAMES, seed=5)
+    short = _seq(FRAMES - 1, seed=5)
+    longer = np.concatenate([short, short[-1:]])
+    np.testing.assert_array_equal(jaxsr.super_resolve(model, longer)[: FRAMES - 1], jaxsr.super_resolve(model, short))
+    np.testing.assert_array_equal(jaxsr.super_resolve(model, short), super_resolve(model, short, form="window"))
+
+
+@pytest.mark.slow  # 22 s of TR3/TR4 compiles in both forms
+def test_whole_arrays_and_streams_run_in_the_form_auto_picks():
+    model = _model(3)
+    frames = _seq(FRAMES, seed=5)
     seq_form = dataclasses.replace(model.config, temporal="sequence")
-    want = np.asarray(apply_model_sequence(model.params, model.state, long[None], seq_form))[0]
-    np.testing.assert_allclose(super_resolve(model, long), want, rtol=1e-5, atol=1e-5)
-    np.testing.assert_allclose(super_resolve(model, long, form="sequence"), want, rtol=1e-5, atol=1e-5)
-    window = super_resolve(model, long, form="window")
+    want = np.asarray(apply_model_sequence(model.params, model.state, frames[None], seq_form))[0]
+    measured = _measured(model)
+    np.testing.assert_allclose(super_resolve(measured, frames), want, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(super_resolve(model, frames, form="sequence"), want, rtol=1e-5, atol=1e-5)
+    window = super_resolve(model, frames, form="window")
     assert np.abs(window - want).max() > 1e-3  # random weights: the forms differ
-    np.testing.assert_array_equal(super_resolve(model, long, form="model"), window)
-    short = long[: SEQUENCE_FORM_MIN_FRAMES - 1]
-    np.testing.assert_array_equal(super_resolve(model, short), super_resolve(model, short, form="window"))
-    # a stream of frames of unknown length keeps the model's form unless asked
-    np.testing.assert_array_equal(np.stack(list(iter_super_resolve(model, iter(long)))), window)
-    counts = np.asarray(jax.random.poisson(jax.random.key(6), 2.0, (SEQUENCE_FORM_MIN_FRAMES, 6, 8, SENSOR.bins)))
+    np.testing.assert_array_equal(super_resolve(model, frames), window)
+    np.testing.assert_array_equal(super_resolve(measured, frames, form="model"), window)
+    # a stream of frames of unknown length runs in the form the whole recording does
+    np.testing.assert_array_equal(np.stack(list(iter_super_resolve(measured, iter(frames), form="auto"))),
+                                  super_resolve(measured, frames))
+    short = frames[:3]  # as short as a recording gets, in the same form
+    np.testing.assert_array_equal(super_resolve(measured, short), super_resolve(model, short, form="sequence"))
+    counts = np.asarray(jax.random.poisson(jax.random.key(6), 2.0, (FRAMES, 6, 8, SENSOR.bins)))
     lr = np.asarray(jaxsr.centre_of_mass(counts.astype(np.float32), SENSOR))
-    np.testing.assert_allclose(super_resolve_histograms(model, counts), super_resolve(model, lr, form="sequence"),
+    np.testing.assert_allclose(super_resolve_histograms(measured, counts), super_resolve(model, lr, form="sequence"),
                                atol=1e-6)
     with pytest.raises(ValueError, match="super_resolve: form must be one of"):
-        super_resolve(model, long, form="windowed")
+        super_resolve(model, frames, form="windowed")
+
+
+def test_the_card_says_whether_auto_may_move_the_weights(tmp_path):
+    """Weights whose card records the two forms measured equivalent run in the sequence form under "auto"; the same
+    weights saved without the record, or with it saying they are not, in the window form."""
+    model = _model(3)
+    not_equivalent = {"forms": {"sequence": {"equivalent": False, "psnr_difference_db": -0.4}}}
+    for card, forms in ((MEASURED, ("sequence",)), (None, ()), (not_equivalent, ()), ({"forms": "yes"}, ())):
+        loaded = jaxsr.load_model(jaxsr.save_model(tmp_path / "tr3.npz", model, card=card))
+        assert loaded.equivalent_forms == forms, card
+        assert in_form(loaded, "auto").config.temporal == ("sequence" if forms else "window"), card
+    seq = jaxsr.load_model(jaxsr.save_model(tmp_path / "tr3.npz", model, card=MEASURED), temporal="sequence")
+    assert seq.config.temporal == "sequence" and seq.equivalent_forms == ("sequence",)
+
+
+def test_measure_form_equivalence_compares_the_forms_on_the_frames_given():
+    model = _model(1)
+    lr, gt = _seq(9, seed=11), _seq(9, seed=12, shape=(24, 32))
+    record = measure_form_equivalence(model, [(lr, gt), (lr[:4], gt[:4])])
+    window = super_resolve(model, lr, form="window")
+    assert record["psnr_window_db"] == pytest.approx(
+        np.mean([np.mean(jaxsr.psnr(np.clip(window, 0, 1), gt)),
+                 np.mean(jaxsr.psnr(np.clip(super_resolve(model, lr[:4], form="window"), 0, 1), gt[:4]))]), abs=1e-4)
+    assert record["frames"] == [9, 4] and record["scenes"] == 2 and record["tolerance_db"] == FORM_TOLERANCE_DB
+    assert record["psnr_difference_db"] == pytest.approx(record["psnr_db"] - record["psnr_window_db"], abs=2e-4)
+    assert record["equivalent"] == (abs(record["psnr_difference_db"]) <= FORM_TOLERANCE_DB
+                                    and abs(record["edges_difference_db"]) <= FORM_TOLERANCE_DB)
+    json.dumps(record)  # a card's entry
+    strict = measure_form_equivalence(model, [(lr, gt)], tolerance_db=0.0)
+    assert strict["equivalent"] is (strict["psnr_difference_db"] == 0 == strict["edges_difference_db"])
+    with pytest.raises(ValueError, match="no scenes given"):
+        measure_form_equivalence(model, [])
+    with pytest.raises(ValueError, match="compares a network's window form with another of its forms"):
+        measure_form_equivalence(model, [(lr, gt)], form="window")
 
 
 # --- upscale and the command -----------------------------------------------------------------------------------
@@ -172,20 +229,24 @@ def test_whole_arrays_run_in_the_form_auto_picks():
 
 @pytest.fixture(scope="module")
 def tr3_path(tmp_path_factory):
-    """A TR3 checkpoint of tiny widths with random weights: a TR that `form="auto"` runs in the sequence form."""
+    """A TR3 checkpoint of tiny widths with random weights whose card records the two forms measured equivalent:
+    `form="auto"` runs it in the sequence form."""
     path = tmp_path_factory.mktemp("tr3") / "tiny_tr3.npz"
-    jaxsr.save_model(path, _model(3))
+    jaxsr.save_model(path, _model(3), card=MEASURED)
     return path
 
 
 def test_upscale_says_how_the_network_ran(tr3_path, tmp_path, capsys):
     model_path = tr3_path
-    lr = _seq(SEQUENCE_FORM_MIN_FRAMES, seed=7, shape=(8, 8))
+    lr = _seq(FRAMES, seed=7, shape=(8, 8))
     job = prepare_upscale(lr, model=model_path, read=Reading(units="normalised"))
     assert job.model.config.temporal == "sequence" and job.precision == "default"
     assert job.note.endswith("model " + str(model_path) + ", sequence form")
     job = prepare_upscale(lr[:3], model=ModelChoice(model_path, precision="bfloat16"), read=Reading(units="normalised"))
-    assert job.model.config.temporal == "window" and job.note.endswith(", precision bfloat16")
+    assert job.model.config.temporal == "sequence" and job.note.endswith(", sequence form, precision bfloat16")
+    unmeasured = jaxsr.save_model(tmp_path / "unmeasured.npz", jaxsr.load_model(model_path))
+    job = prepare_upscale(lr, model=unmeasured, read=Reading(units="normalised"))
+    assert job.model.config.temporal == "window" and "sequence form" not in job.note
     auto = upscale(lr, None, model=model_path, read=Reading(units="normalised")).depth
     np.testing.assert_allclose(auto, super_resolve(jaxsr.load_model(model_path), lr, form="sequence"), atol=1e-6)
     window = upscale(lr, None, model=ModelChoice(model_path, form="window"), read=Reading(units="normalised")).depth
@@ -194,7 +255,7 @@ def test_upscale_says_how_the_network_ran(tr3_path, tmp_path, capsys):
     status = cli.main(["upscale", str(tmp_path / "in.npy"), str(tmp_path / "out.npy"), "--model", str(model_path),
                        "--units", "normalised", "--precision", "bfloat16", "--form", "window", "--no-progress"])
     captured = capsys.readouterr()
-    assert status == 0 and json.loads(captured.out)["frames"] == SEQUENCE_FORM_MIN_FRAMES
+    assert status == 0 and json.loads(captured.out)["frames"] == FRAMES
     assert "precision bfloat16" in captured.err and "sequence form" not in captured.err
     out = np.load(tmp_path / "out.npy")
     assert np.all(np.isfinite(out)) and np.abs(out - np.clip(window, 0, 1)).max() < BF16_ATOL
@@ -233,7 +294,7 @@ def test_upscale_refuses_a_form_or_precision_the_model_cannot_take(tmp_path):
 def scene():
     from harness.scoring import test_clips
 
-    return test_clips(SEQUENCE_FORM_MIN_FRAMES, names=("scene1_street",))["scene1_street"]
+    return test_clips(FRAMES, names=("scene1_street",))["scene1_street"]
 
 
 def _psnr(sr, gt):
@@ -251,17 +312,22 @@ def test_bundled_models_in_bfloat16_stay_within_their_tolerance(name, scene):
         assert abs(_psnr(bf16, scene.gt) - _psnr(f32, scene.gt)) < BF16_DB, (name, form)
 
 
-# measured on the test sequences (experiments/results/inference_forms.md): TR3 and TR4 within 0.1 dB of their
-# windowed PSNR in the sequence form, the first and last R frames included
-FORM_DB = 0.1
+@pytest.mark.parametrize("name", ["tr3", "tr4"])
+def test_the_bundled_tr3_and_tr4_carry_the_measured_equivalence(name):
+    record = jaxsr.read_metadata(jaxsr.io.resolve_model_path(name))["card"]["forms"]["sequence"]
+    assert record["equivalent"] is True and abs(record["psnr_difference_db"]) <= record["tolerance_db"]
+    assert abs(record["edges_difference_db"]) <= record["tolerance_db"] and "test_clips" in record["measured"]
+    model = jaxsr.load_model(name)
+    assert model.equivalent_forms == ("sequence",) and in_form(model, "auto").config.temporal == "sequence"
 
 
 @pytest.mark.slow  # 15 s per bundled model
 @pytest.mark.parametrize("name", ["tr3", "tr4"])
 def test_bundled_models_auto_picks_keep_their_windowed_psnr(name, scene):
     """`form="auto"` runs them in the sequence form on this 32-frame clip (14 of whose frames are within R of an
-    end for TR4), within the measured tolerance of the window form."""
+    end for TR4), within the measured tolerance of the window form (experiments/results/inference_forms.md on 100
+    frames spread over each test scene; their cards' record on the first frames)."""
     model = jaxsr.load_model(name)
     auto, window = super_resolve(model, scene.lr), super_resolve(model, scene.lr, form="window")
     np.testing.assert_array_equal(auto, super_resolve(model, scene.lr, form="sequence"))
-    assert abs(_psnr(auto, scene.gt) - _psnr(window, scene.gt)) < FORM_DB, name
+    assert abs(_psnr(auto, scene.gt) - _psnr(window, scene.gt)) < FORM_TOLERANCE_DB, name

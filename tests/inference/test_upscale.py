@@ -8,7 +8,7 @@ import pytest
 
 from jaxsr import cli, io
 from jaxsr.config import SensorConfig
-from jaxsr.inference.video import super_resolve
+from jaxsr.inference import super_resolve
 from jaxsr.sensor.peaks import centre_of_mass
 from jaxsr.sensor.forward import normalise_depth
 

@@ -11,7 +11,7 @@ from jaxsr import cli
 from jaxsr.io.checkpoint import load_model, save_model
 from jaxsr.config import DepthScale, Gate, ModelConfig
 from jaxsr.sensor.gates import from_network_depth, gate_depth, to_network_depth
-from jaxsr.inference.video import super_resolve
+from jaxsr.inference import super_resolve
 from jaxsr.nn import Model, init_model
 from jaxsr.sensor.timetags import histogram_time_tags, read_time_tags
 

@@ -175,6 +175,25 @@ def test_model_is_a_pytree():
     assert jax.tree_util.tree_unflatten(treedef, leaves).config == cfg
 
 
+def test_the_measured_forms_are_static_and_travel_with_the_weights():
+    """`Model.equivalent_forms` (the forms measured to keep the weights' accuracy): () by default, a static field
+    (in the tree's structure, not its leaves), kept by `in_form`, `dataclasses.replace` and tree maps."""
+    import dataclasses
+
+    cfg = ModelConfig(tr=1, **TINY)
+    model = Model(*init_model(jax.random.key(0), cfg), cfg)
+    assert model.equivalent_forms == ()
+    measured = Model(model.params, model.state, cfg, ["sequence"])
+    assert measured.equivalent_forms == ("sequence",) and hash(measured.equivalent_forms)
+    leaves, treedef = jax.tree_util.tree_flatten(measured)
+    assert len(leaves) == len(jax.tree_util.tree_leaves(model)) and treedef != jax.tree_util.tree_structure(model)
+    assert jax.tree_util.tree_unflatten(treedef, leaves).equivalent_forms == ("sequence",)
+    assert jax.tree_util.tree_map(lambda x: x, measured).equivalent_forms == ("sequence",)
+    seq = measured.in_form("sequence")
+    assert seq.form == "sequence" and seq.equivalent_forms == ("sequence",) and seq.in_form("window").config == cfg
+    assert dataclasses.replace(measured, params={}).equivalent_forms == ("sequence",)
+
+
 @pytest.mark.parametrize("tr", [0, 1])
 def test_flops_per_frame_matches_xla(tr):
     """The analytic count agrees with XLA's own cost analysis of the compiled network at the paper's widths

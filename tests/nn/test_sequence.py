@@ -14,7 +14,7 @@ from jaxsr import cli
 from jaxsr.io.checkpoint import load_model, model_info, read_metadata, save_model
 from jaxsr.config import ModelConfig, TrainConfig
 from jaxsr.training.data import run_keys
-from jaxsr.inference.video import Stream, iter_super_resolve, super_resolve
+from jaxsr.inference import Stream, iter_super_resolve, super_resolve
 from jaxsr.nn import (
     Model,
     apply_model,
