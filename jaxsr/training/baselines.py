@@ -42,7 +42,7 @@ from ..nn.model import Model, architecture
 from ..scenes import test_sequences, training_clip
 from ..sensor.forward import normalise_depth, simulate_histograms
 from .data import log_uniform, scene_batches, validation_set
-from .optim import AdamState, adam_init, adam_update, lr_schedule
+from .optim import adam_init, adam_update, lr_schedule
 from .recipes import Recipe, recipe, register_recipe
 
 __all__ = [
