@@ -24,6 +24,8 @@ from .config import PRESETS, DepthScale, Gate, ModelConfig, SensorConfig, TrainC
 from .eval import paired_interval, psnr, ssim, ssim_global, temporal_coherence
 from .inference import (
     Stream,
+    apply_histograms,
+    apply_sequence,
     choose_tr,
     iter_super_resolve,
     pipeline_metric,
@@ -70,7 +72,7 @@ __all__ = [
     "Model", "init_model", "apply_model", "apply_model_sequence", "load_model", "save_model", "read_metadata",
     # super-resolution of recordings
     "super_resolve", "super_resolve_histograms", "iter_super_resolve", "Stream", "choose_tr", "windows",
-    "pipeline_metric", "upscale",
+    "pipeline_metric", "upscale", "apply_sequence", "apply_histograms",
     # training
     "fit", "evaluate",
     # baselines

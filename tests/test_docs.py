@@ -8,6 +8,7 @@ import subprocess
 import types
 from pathlib import Path
 
+import jax
 import numpy as np
 import pytest
 
@@ -45,6 +46,23 @@ def test_readme_example_runs(capsys):
     # Table 1 of the results: the bundled networks score 25-39 dB, 7-12 dB above bicubic, on the test scenes
     assert 20.0 < net < 60.0 and net > bicubic + 3.0, (net, bicubic)
     assert "dB" in capsys.readouterr().out
+
+
+@pytest.mark.slow  # a TR4 gradient through 8 frames: minutes on 2 busy cores (the same route, fast: test_traced.py)
+def test_readme_jax_example_jits_and_differentiates():
+    """The README's "From your own JAX code": `apply_sequence` inside jax.jit gives what `super_resolve` gives, and
+    jax.grad through it is finite; `super_resolve` itself, traced, says which function to use."""
+    blocks = readme_python_blocks()
+    assert len(blocks) >= 2, "README.md's second ```python block (From your own JAX code) is missing"
+    namespace = {"__name__": "readme_example"}
+    exec(compile(blocks[0], "README.md (first python block)", "exec"), namespace)
+    exec(compile(blocks[1], "README.md (second python block)", "exec"), namespace)
+    lr, hr, grad = (np.asarray(namespace[name]) for name in ("lr", "hr", "grad"))
+    traced = np.asarray(namespace["sharpened"](namespace["model"], namespace["lr"]))
+    np.testing.assert_allclose(traced, hr, atol=1e-4)
+    assert grad.shape == lr.shape and np.all(np.isfinite(grad)) and np.abs(grad).max() > 0
+    with pytest.raises(TypeError, match=r"super_resolve runs on the host .* use jaxsr.apply_sequence"):
+        jax.jit(lambda x: jaxsr.super_resolve(namespace["model"], x))(namespace["lr"])
 
 
 def test_all_names_are_documented():

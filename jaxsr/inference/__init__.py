@@ -34,6 +34,7 @@ from .photons import (
     super_resolve_histograms,
 )
 from .stream import Stream
+from .traced import apply_sequence, apply_histograms
 from .adaptive import (
     STUDY_TABLE,
     SEARCH_RADIUS,
@@ -53,6 +54,8 @@ from .pipeline import (
 )
 
 __all__ = [
+    "apply_sequence",
+    "apply_histograms",
     "DEFAULT_BATCH_SIZE",
     "DEFAULT_ACCELERATOR_BATCH_SIZE",
     "DEFAULT_SEQUENCE_CHUNK",

@@ -35,6 +35,7 @@ from ..nn.duf import apply_model_raw, apply_model_sequence
 from ..nn.model import Model
 from ..runtime import compiler_options
 from .forms import DEFAULT_FORM, DEFAULT_PRECISION, FORM_TOLERANCE_DB, check_precision, in_form
+from .traced import refuse_tracing
 
 # Frames per device and batch when `batch_size=None`: on XLA:CPU larger batches are no faster per frame
 # (benchmarks/bench_inference.py), and one frame per device keeps the latency of a stream low.
@@ -111,6 +112,7 @@ def _require_model(model, who: str) -> Model:
 def _check_frame(frame, shape, index, inputs=("depth",)):
     """One LR frame checked for a network reading `inputs`: (h, w) normalised depth, or (h, w, C) channels, depth
     first and photon channels finite and >= 0 (`jaxsr.nn.network_inputs`)."""
+    refuse_tracing(frame, "super_resolve", "jaxsr.apply_sequence(model, lr_seq)")
     frame = np.asarray(frame, np.float32)
     ndim = 2 if len(inputs) == 1 else 3
     if (frame.ndim != ndim or (ndim == 3 and frame.shape[-1] != len(inputs))
@@ -290,6 +292,7 @@ def super_resolve(model: Model, lr_seq, *, batch_size: int | None = None, conv3d
     precision: as in `iter_super_resolve`. form: the temporal form (`FORMS`, `in_form`), default `DEFAULT_FORM`.
     """
     _require_model(model, "super_resolve")
+    refuse_tracing(lr_seq, "super_resolve", "jaxsr.apply_sequence(model, lr_seq)")
     if lr_seq is None or isinstance(lr_seq, (str, bytes)):
         raise TypeError(f"super_resolve: expected an LR sequence array (T, h, w), got {type(lr_seq).__name__}")
     lr_seq = np.asarray(lr_seq, np.float32)

@@ -17,6 +17,7 @@ from ..nn.inputs import network_inputs
 from ..nn.model import Model
 from ..sensor.peaks import ambient_only, capped_for_sum, check_ambient_settings, check_false_alarm_rate
 from .forms import DEFAULT_FORM, DEFAULT_PRECISION, check_precision, in_form
+from .traced import refuse_tracing
 from .frames import DEFAULT_BATCH_SIZE, DEFAULT_TILE, _require_model, default_batch_size, iter_super_resolve
 
 
@@ -149,6 +150,8 @@ def super_resolve_histograms(model: Model, counts, sensor: SensorConfig = Sensor
     pixel's own photons over 9 frames pass for ambient light alone at it, elsewhere the network's depth
     (`overrule_no_return`; `jaxsr upscale --keep-returns`); default None: the head decides. Not with
     ambient_alpha."""
+    refuse_tracing((counts, intensity), "super_resolve_histograms",
+                   "jaxsr.apply_histograms(model, counts, sensor)")
     _require_model(model, "super_resolve_histograms")
     precision = check_precision(model, precision, "super_resolve_histograms")
     if counts is None or isinstance(counts, (str, bytes)):

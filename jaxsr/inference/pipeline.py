@@ -18,13 +18,13 @@ import jax.numpy as jnp
 
 from ..config import DEFAULT_MEAN_SIGNAL, SensorConfig
 from ..eval.metrics import huber_loss, psnr
-from ..nn.duf import apply_model_sequence, check_conv
+from ..nn.duf import check_conv
 from ..nn.model import Model
 from ..sensor.peaks import centre_of_mass
 from ..sensor.poisson import PATHWISE_ESTIMATORS
+from .traced import network_over_sequence
 from ..sensor.forward import (levels_valid, check_photon_args, expected_histograms, normalise_depth,
                               simulate_histograms)
-from ..temporal import windows
 
 METRICS = ("psnr", "huber")
 
@@ -39,22 +39,12 @@ def _lr_depth(key, depth, intensity, sensor, snr, mean_signal, *, gradient, samp
     return centre_of_mass(hist, sensor, window=window)
 
 
-def _network(model: Model, lr, conv3d_impl, precision="default"):
-    """(T, h, w) LR sequence -> (T, h r, w r), in the model's temporal form, ends edge-replicated, BN in
-    inference mode."""
-    cfg, arch = model.config, model.architecture
-    conv = {"conv3d_impl": conv3d_impl, "precision": precision}
-    if model.sequence_form:
-        return apply_model_sequence(model.params, model.state, lr[None], cfg, **conv)[0]
-    return arch.apply(model.params, model.state, windows(lr, arch.input_radius(cfg)), cfg, **conv)
-
-
 @functools.partial(jax.jit, static_argnames=("metric", "gradient", "sampler", "conv3d_impl", "precision"))
 def _pipeline(key, depth, intensity, sensor, model, snr, mean_signal, window, huber_delta, *, metric, gradient,
               sampler, conv3d_impl, precision="default"):
     lr = _lr_depth(key, depth, intensity, sensor, snr, mean_signal, gradient=gradient, sampler=sampler,
                    window=window)
-    hr = _network(model, lr, conv3d_impl, precision)
+    hr = network_over_sequence(model, lr, conv3d_impl=conv3d_impl, precision=precision)
     gt = normalise_depth(depth, sensor)
     score = jnp.mean(psnr(hr, gt)) if metric == "psnr" else huber_loss(hr, gt, delta=huber_delta)
     # Out-of-domain levels or sensor leaves (reachable only traced: under jit, or per element under vmap) give
