@@ -474,8 +474,9 @@ def test_a_run_killed_inside_an_epoch_resumes_from_its_last_checkpoint(tmp_path,
     last = read_metadata(tmp_path / "b" / "last.npz")["run"]
     assert last["step"] == 3 * spe and last["epoch_loss_sum"] == last["epoch_train_s"] == 0.0
 
-    # a new run in place of an old one: the old run's files go at its first save, so a kill inside its first
-    # epoch leaves the new run's state only, and resuming continues the new run
+    # a new run in place of an old one: the old run's files are set aside (.replaced) at its first save, so a kill
+    # inside its first epoch leaves the new run's state beside them, resuming continues the new run, and its first
+    # epoch's end removes them
     saved = []
     fit(TINY, dataclasses.replace(cfg, seed=1, epochs=1), out=tmp_path / "c", make_batch=make_batch, validation=val,
         progress=False)
@@ -483,9 +484,10 @@ def test_a_run_killed_inside_an_epoch_resumes_from_its_last_checkpoint(tmp_path,
     with pytest.raises(Killed):
         fit(TINY, cfg, out=tmp_path / "c", make_batch=make_batch, validation=val, progress=False, overwrite=True,
             checkpoint_every_s=0)
-    assert sorted(p.name for p in (tmp_path / "c").iterdir()) == ["resume.npz"]
+    assert sorted(p.name for p in (tmp_path / "c").iterdir()) == [".replaced", "resume.npz"]
     monkeypatch.setattr(train_mod, "_save_state", real_save)
     resume_and_compare(tmp_path / "c")
+    assert not (tmp_path / "c" / ".replaced").exists()
 
 
 def _with_tests_folder(pythonpath):
