@@ -35,7 +35,8 @@ class UpscaleJob:
     """A recording checked and ready to super-resolve (`prepare_upscale`): every frame checked, the model chosen.
 
     recording: the opened `jaxsr.app.recordings.Recording` (kind "depth" or "histograms", time tags already
-    histogrammed); model: the `Model`, in the temporal form it runs in; model_name: the model as people read it
+    histogrammed); model: the `Model`, in the temporal form it runs in; model_id: its name, which --model takes
+    back (tr4, the path given; "model" for a `Model` given loaded); model_name: the model as people read it
     (tr4, a path, "tr1 (auto: motion ...)", with the photon rules that apply); label: its name for pictures
     (without the rules' words, which would not fit a panel); units: of the input depth and of array outputs
     (`jaxsr.app.recordings.DEPTH_UNITS`); gate: the histogram gate (None for depth); scale: the `DepthScale`
@@ -57,6 +58,7 @@ class UpscaleJob:
     precision: str = DEFAULT_PRECISION
     negative_counts: tuple[int, int] | None = None
     photons: PhotonDecision = PhotonDecision(None, "", None)
+    model_id: str = ""
     # fresh streams of the network's input, and of the photon tests' (h, w) bool flags per frame (None: no test)
     _lr_stream: Callable[[], Iterator[np.ndarray]] = dataclasses.field(default=None, repr=False, compare=False)
     _ambient_stream: Callable[[], Iterator[np.ndarray]] | None = dataclasses.field(default=None, repr=False,
@@ -190,9 +192,9 @@ def _depth_job(rec, source, choice, planned, read: Reading, photons: PhotonRules
         return normalised_frames(rec, units, sensor)
 
     enable_compilation_cache()
-    model, name = finish_model(choice, planned, "depth", lambda: _head(lr_stream(), HEAD_FRAMES))
-    return UpscaleJob(rec, model, name, name, units, None, DepthScale(0.0, float(sensor.d_max)), (), source,
-                      choice.precision, _lr_stream=lr_stream)
+    model, name, description = finish_model(choice, planned, "depth", lambda: _head(lr_stream(), HEAD_FRAMES))
+    return UpscaleJob(rec, model, description, description, units, None, DepthScale(0.0, float(sensor.d_max)), (),
+                      source, choice.precision, model_id=name, _lr_stream=lr_stream)
 
 
 def _histogram_job(rec, gate, source, tag_notes, choice, planned, read: Reading, photons: PhotonRules) -> UpscaleJob:
@@ -213,7 +215,8 @@ def _histogram_job(rec, gate, source, tag_notes, choice, planned, read: Reading,
         return gate_frames(iter_network_inputs(counts, sensor, channels, chunk=HISTOGRAM_CHUNK), gate, scale)
 
     enable_compilation_cache()
-    model, name = finish_model(choice, planned, "histograms", lambda: _head(lr_stream(("depth",)), HEAD_FRAMES))
+    model, model_id, name = finish_model(choice, planned, "histograms",
+                                         lambda: _head(lr_stream(("depth",)), HEAD_FRAMES))
     head_frames = min(HEAD_FRAMES, rec.frames)
     if levels is not None:
         if model.has_no_return_head:
@@ -237,7 +240,7 @@ def _histogram_job(rec, gate, source, tag_notes, choice, planned, read: Reading,
 
     return UpscaleJob(
         rec, model, name, label, units, gate, scale, warnings, source, choice.precision,
-        found if read.clip_negative else None, decision, _lr_stream=lambda: lr_stream(model.channels),
+        found if read.clip_negative else None, decision, model_id, _lr_stream=lambda: lr_stream(model.channels),
         _ambient_stream=None if decision.ambient_alpha is None else flags(decision.ambient_alpha, 3),
         # each pixel's own photons (pixels=1): a return in the block keeps the block's depth
         _keep_stream=None if decision.keep_returns is None else flags(decision.keep_returns, 1))
@@ -323,5 +326,6 @@ def _open(input, read: Reading, max_memory):
         read.refuse_for_depth()
         return rec, None, source, ()
     default = Gate()
-    gate = Gate(read.n_bins, default.bin_width if width is None else width, 0.0 if start is None else start)
+    bins = int(rec.shape[-1]) if read.bins is None else read.bins  # the array says how many; --bins checks it
+    gate = Gate(bins, default.bin_width if width is None else width, 0.0 if start is None else start)
     return rec, gate, source, ()

@@ -13,13 +13,13 @@ from typing import Callable, NamedTuple
 import numpy as np
 
 from ..config import PhotonRegime
-from ..inference import check_precision, in_form, resolve_model
+from ..inference import check_precision, choose_tr, in_form
 from ..io.checkpoint import load_model, read_metadata, resolve_model_path, stored_architecture
 from ..nn.duf import with_no_return_logit
 from ..nn.model import Model
 from .specs import ModelChoice
 
-__all__ = ["DEFAULT_MODELS", "BUNDLED_USES", "PlannedModel", "plan_model", "finish_model", "trained_snr_range", "heads",
+__all__ = ["DEFAULT_MODELS", "BUNDLED_USES", "PlannedModel", "ChosenModel", "plan_model", "finish_model", "trained_snr_range", "heads",
            "bundled_models"]
 
 # model="default": the bundled model that fits the input. Depth gives only the centre of mass, which the paper's
@@ -72,23 +72,34 @@ def plan_model(choice: ModelChoice) -> PlannedModel:
     return PlannedModel(model, "model" if isinstance(choice.model, Model) else str(choice.model))
 
 
+class ChosenModel(NamedTuple):
+    """`finish_model`'s result: the model; its name, which `--model` takes back (a bundled name or the path given;
+    "model" for a `Model` given loaded); and a sentence on how it was chosen and set."""
+
+    model: Model
+    name: str
+    description: str
+
+
 def finish_model(choice: ModelChoice, planned: PlannedModel, kind: str,
-                 lr_head: Callable[[], np.ndarray]) -> tuple[Model, str]:
+                 lr_head: Callable[[], np.ndarray]) -> ChosenModel:
     """The second step, once the recording is open: the model for input of `kind` ("depth" or "histograms"), with
     `lr_head()` the recording's first LR frames where "auto" measures the motion; at the choice's no-return
-    threshold, in its form, its precision checked. Returns (model, name as people read it)."""
+    threshold, in its form, its precision checked."""
     model, name = planned
     if choice.is_default:
         name = DEFAULT_MODELS[kind]
         model = load_model(name)
     elif choice.is_auto:
-        model, name = resolve_model("auto", lr_head(), min_fps=choice.min_fps)
+        picked = choose_tr(lr_head(), min_fps=choice.min_fps)
+        model, name = load_model(f"tr{picked.tr}"), f"tr{picked.tr}"
+    description = f"{name} (auto: {picked.reason})" if choice.is_auto else name
     if choice.no_return_logit is not None:
         model = with_no_return_logit(model, choice.no_return_logit)
-        name = f"{name} at no-return logit {float(choice.no_return_logit):g}"
+        description = f"{description} at no-return logit {float(choice.no_return_logit):g}"
     model = in_form(model, choice.form, "form (--form)")
     check_precision(model, choice.precision, "precision (--precision)")
-    return model, name
+    return ChosenModel(model, name, description)
 
 
 def picks(name: str, kind: str | None = None) -> list[str]:

@@ -34,7 +34,8 @@ class UpscaleResult:
     """What `upscale` / `write_upscaled` did. output: the file or folder written (None when kept in memory);
     depth: the (T, H, W) float32 result in `units` when no output was written, else None; frames: T; shape:
     (T, H, W); kind: "depth" or "histograms"; units: of the output's values (an array's: the input's units; a
-    folder of frames: always "m"); model: the model as people read it; gate, scale: the histogram gate and depth
+    folder of frames: always "m"); model: the model's name (a bundled name or the path given, which --model takes
+    back); model_description: how it was chosen and set, as people read it; gate, scale: the histogram gate and depth
     scale (gate None for depth); preview: the PNG written, or None; warnings: sentences on what the models never
     saw and on what the writing found; notes: every line `jaxsr upscale` prints to stderr (warnings as "warning:
     ...", then what was read with which model, then warnings on what the writing found); video: the side-by-side
@@ -51,6 +52,7 @@ class UpscaleResult:
     kind: str
     units: str
     model: str
+    model_description: str
     gate: Gate | None
     scale: DepthScale
     preview: Path | None
@@ -65,11 +67,12 @@ class UpscaleResult:
 
     def summary(self) -> dict:
         """The JSON summary `jaxsr upscale` prints: frames, output, shape, units (of the output; input_units too
-        where the input's differ), model, for histograms the gate, the depth scale (metres) and the ambient-only
+        where the input's differ), model and model_description, for histograms the gate, the depth scale (metres) and the ambient-only
         test's rate (null: none) and `keep_returns`' where set, the video and point clouds' folder where written,
         and with --clip-negative the negative counts clipped and the pixels holding them."""
         out = {"frames": self.frames, "output": None if self.output is None else str(self.output),
-               "shape": list(self.shape), "units": self.units, "model": self.model}
+               "shape": list(self.shape), "units": self.units, "model": self.model,
+               "model_description": self.model_description}
         if self.input_units is not None:
             out["input_units"] = self.input_units
         if self.video is not None:
@@ -157,7 +160,7 @@ def write_upscaled(job: UpscaleJob, output, write: Writing = Writing(), *, batch
         report(f"warning: {line}")
     units = "m" if outputs.folder else job.units
     return UpscaleResult(out, depth, job.frames, (job.frames, *job.hr_shape), job.recording.kind, units,
-                         job.model_name, job.gate, job.scale, outputs.preview, job.warnings + late,
+                         job.model_id, job.model_name, job.gate, job.scale, outputs.preview, job.warnings + late,
                          early + tuple(f"warning: {w}" for w in late), outputs.video, outputs.points,
                          job.negative_counts, None if units == job.units else job.units, job.ambient_alpha,
                          job.keep_returns)

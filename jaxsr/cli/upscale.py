@@ -44,7 +44,7 @@ def add_parser(subparsers):
     p.add_argument("--input", dest="input_kind", choices=list(KINDS), default=None,
                    help="what INPUT holds (default: depth or histograms from the data; time tags must be named)")
     g = p.add_argument_group("histogram gate (histograms and time tags)")
-    g.add_argument("--bins", type=int_range(2), default=None, help="histogram bins K (default 16)")
+    g.add_argument("--bins", type=int_range(2), default=None, help="histogram bins K (default: the histograms' own; 16 for time tags)")
     g.add_argument("--bin-width", type=range_or_time, default=None,
                    help="width of a bin as a time (12.5ns, 250ps) or a range (2.19m); default 35 m / 16, or for time "
                    "tags the photons' span / bins")

@@ -100,7 +100,7 @@ def test_no_overwrite_without_force(tmp_path, model_path, metres, capsys):
     (lambda p: np.save(p / "in.npy", np.zeros(5)), [], "expected depth"),
     (lambda p: np.save(p / "in.npy", np.full((2, 32, 64), -0.5)), ["--units", "normalised"], "--units m"),
     (lambda p: np.save(p / "in.npy", np.full((2, 32, 64), 5.0)), ["--units", "normalised"], "outside \\[0, 1\\]"),
-    (lambda p: np.save(p / "in.npy", np.zeros((2, 32, 64, 8))), [], "8 bins"),
+    (lambda p: np.save(p / "in.npy", np.zeros((2, 32, 64, 8))), ["--bins", "16"], "8 bins"),
     (lambda p: (p / "in.npy").write_bytes(b"\x93NUMPY garbage"), [], "cannot read"),
 ])
 def test_bad_input_is_a_clear_error(tmp_path, model_path, capsys, make, args, message):

@@ -144,3 +144,12 @@ def test_a_recording_whose_frame_rate_no_video_can_show_is_refused_before_the_wo
     io.write_sequence(tmp_path / "rec.npz", np.full((2, 8, 8), 12.0, np.float32), fps=1e-9)
     assert command(tmp_path / "rec.npz", tmp_path / "o.npy", "--model", model_path, "--video", tmp_path / "v.gif") == 2
     assert not (tmp_path / "o.npy").exists() and not (tmp_path / "v.gif").exists()
+
+
+def test_bins_are_read_from_the_histograms(model_path):
+    """32 bins without --bins: the gate has 32 bins (of the default width), not a refusal asking for --bins."""
+    from jaxsr.app import prepare_upscale
+
+    counts = np.asarray(np.random.default_rng(0).poisson(1.0, (2, 8, 8, 32)), np.float32)
+    job = prepare_upscale(counts, model=model_path)
+    assert job.gate.bins == 32

@@ -419,7 +419,7 @@ def test_keep_returns_keeps_the_surface_a_head_calls_sky(sky_everywhere, half_sk
     hr_quiet = np.repeat(np.repeat(quiet, 4, axis=1), 4, axis=2)
     depth = super_resolve_histograms(with_no_return_logit(model, 1e6), half_sky)  # the depth under the head
     np.testing.assert_allclose(result.depth, np.clip(np.where(hr_quiet, 1.0, depth), 0, 1), atol=1e-6)
-    assert result.summary()["keep_returns"] == 1e-3 and "alpha 0.001" in result.model
+    assert result.summary()["keep_returns"] == 1e-3 and "alpha 0.001" in result.model_description
     np.testing.assert_allclose(np.clip(super_resolve_histograms(model, half_sky, keep_returns=1e-3), 0, 1),
                                result.depth, atol=1e-6)  # the library's form
     for bad, match in (({"keep_returns": 1e-3, "ambient_alpha": 1e-3}, "give one"), ({"keep_returns": 0.0}, "rate")):
