@@ -173,7 +173,9 @@ def choose_tr(lr_seq, *, min_fps: float | None = None, table: dict | None = None
         return TRChoice(tr, est, f"no TR reaches {min_fps:g} frames/s; TR{tr} is the fastest ({fps[tr]:.1f})")
     tr = max(allowed, key=predicted.get)
     budget = "" if min_fps is None else f", {len(allowed)} TRs reach {min_fps:g} frames/s"
-    return TRChoice(tr, est, f"motion {est.motion:.2f} LR px/frame{budget}; predicted {predicted[tr]:.2f} dB")
+    # no predicted PSNR in the reason: the study's scores are its test scenes', and their error on a recording of
+    # another scene and sensor is not measured
+    return TRChoice(tr, est, f"motion {est.motion:.2f} LR px/frame{budget}; the best TR of the frame-rate study at it")
 
 
 def resolve_model(spec, lr_head, *, min_fps: float | None = None):
