@@ -28,8 +28,8 @@ def readme_python_blocks():
 
 
 def docs_pages():
-    """Every Markdown page of the site written for it (not the experiment outputs linked under results/files)."""
-    return [p for p in sorted(DOCS.rglob("*.md")) if "files" not in p.relative_to(DOCS).parts]
+    """Every Markdown page of the site (the experiments' result files stay in experiments/results/, linked)."""
+    return sorted(DOCS.rglob("*.md"))
 
 
 def test_readme_example_runs(capsys):
@@ -122,15 +122,10 @@ def test_api_pages_refer_to_importable_objects():
             assert hasattr(obj, member), f"docs/api/{page}: {ident} has no member {member!r}"
 
 
-def current_pages():
-    """The pages that speak of the current version: all but the one that names 0.1's modules and files."""
-    return [p for p in docs_pages() if p.name != "migration.md"]
-
-
 def test_dotted_names_in_the_docs_exist():
     """Every `jaxsr.a.b` the README and the pages name is importable, so that a move or rename updates them too."""
     missing = []
-    for page in [README, *current_pages()]:
+    for page in [README, *docs_pages()]:
         for name in sorted(set(re.findall(r"\bjaxsr(?:\.[A-Za-z_]\w*)+", page.read_text(encoding="utf-8")))):
             if name.endswith(".__all__"):
                 name = name.removesuffix(".__all__")
@@ -147,17 +142,54 @@ def in_git_at(path: str, paragraph: str) -> bool:
                == 0 for commit in re.findall(r"at commit ([0-9a-f]{7,40})\b", paragraph))
 
 
+# A link to a file of the repository, as the site makes them (mkdocs.yml's repo_url: the raw result files are
+# linked there, not copied into the site), and the short form a results page may use for experiments/results/NAME
+# (mkdocs_hooks.py turns it into the first).
+REPO_LINK = re.compile(r"https://github\.com/jaxsr/jaxsr/(blob|raw|tree)/main/([^)\s#?]+)")
+SHORT_LINK = re.compile(r"\]\((?:results/)?files/([^)\s#]+)")
+
+
+def named_paths(text: str) -> set[str]:
+    """The repository paths a text names: experiment scripts, benchmarks and result files written out, and the
+    targets of its links to the repository (a folder for a `tree/` link, written with a trailing slash)."""
+    paths = set(re.findall(r"\b(?:experiments|benchmarks)/[\w/.-]*\w\.(?:py|md|csv|png|json|jsonl|gif|mp4)\b", text))
+    paths |= {path + "/" if kind == "tree" else path for kind, path in REPO_LINK.findall(text)}
+    return paths | {f"experiments/results/{name}" for name in SHORT_LINK.findall(text)}
+
+
+def test_repository_links_are_recognised():
+    text = ("[a](https://github.com/jaxsr/jaxsr/blob/main/experiments/results/real_photons_ambient.md#the-table), "
+            "![b](https://github.com/jaxsr/jaxsr/raw/main/experiments/results/readme.gif) "
+            "[c](https://github.com/jaxsr/jaxsr/tree/main/experiments/results) [d](files/speed.jsonl)")
+    assert named_paths(text) == {"experiments/results/real_photons_ambient.md", "experiments/results/readme.gif",
+                                 "experiments/results/", "experiments/results/speed.jsonl"}
+
+
 def test_scripts_and_result_files_named_in_the_docs_exist():
-    """The experiment scripts, benchmarks and result files the README and the pages name are where they say, or,
-    for a study no longer in the tree, in git at the commit its paragraph names."""
+    """The experiment scripts, benchmarks and result files the README and the pages name or link (in the
+    repository: `repo_url` links) are where they say, or, for a study no longer in the tree, in git at the commit
+    its paragraph names."""
     missing = []
-    for page in [README, *current_pages()]:
+    for page in [README, *docs_pages()]:
         for paragraph in page.read_text(encoding="utf-8").split("\n\n"):
-            for path in sorted(set(re.findall(r"\b(?:experiments|benchmarks)/[\w/]+\.(?:py|md|csv|png|json)\b",
-                                              paragraph))):
-                if not (ROOT / path).is_file() and not in_git_at(path, paragraph):
+            for path in sorted(named_paths(paragraph)):
+                found = (ROOT / path).is_dir() if path.endswith("/") else (ROOT / path).is_file()
+                if not found and not in_git_at(path, paragraph):
                     missing.append(f"{page.relative_to(ROOT)}: {path}")
     assert not missing, missing
+
+
+# History (dates, what changed when, leases) belongs in CHANGELOG.md and the results' own dates, not in the README
+# or the guide: they say what a user can do now.
+HISTORY = re.compile(r"\b20\d\d-\d\d-\d\d\b|\b(?:since|before|until) 20\d\d\b|\bleases?\b|\bno longer\b|"
+                     r"\bat commit\b|\bgit checkout\b")
+
+
+def test_the_readme_and_the_guide_hold_no_history():
+    pages = [README, *(p for p in docs_pages() if "results" not in p.relative_to(DOCS).parts)]
+    found = [f"{page.relative_to(ROOT)}:{i}: {m.group(0)!r}" for page in pages
+             for i, line in enumerate(page.read_text(encoding="utf-8").splitlines(), 1) if (m := HISTORY.search(line))]
+    assert not found, found
 
 
 def test_top_level_api_page_lists_exactly_all():

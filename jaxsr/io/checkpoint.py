@@ -335,7 +335,8 @@ def load_model(path, *, temporal: str | None = None) -> Model:
 
 
 def model_info(path, *, lr_shape=(32, 64)) -> dict:
-    """Describe a model (see `resolve_model_path` for `path`): its file, architecture, config, parameter count and
+    """Describe a model (see `resolve_model_path` for `path`): its file, architecture, config, what it reads
+    ("histograms", or its channels per LR pixel such as ["depth"]), whether it marks no return, parameter count and
     training card, as a JSON-ready dict; for the DUF network also its temporal form, frames per window, input
     radius R (output t from frames t-R .. t+R) and GFLOP per frame at `lr_shape` (rows, cols) in its form."""
     path = resolve_model_path(path)
@@ -347,6 +348,8 @@ def model_info(path, *, lr_shape=(32, 64)) -> dict:
         "architecture": model.kind,
         "config": config_to_dict(cfg),  # with the fields older files lack at their defaults
         **model.architecture.describe(cfg, lr_shape),
+        "reads": "histograms" if model.reads_histograms else list(model.channels),
+        "marks_no_return": model.has_no_return_head,
         "parameters": count_params(model.params),
         "lr_shape": list(lr_shape),
         "card": meta.get("card", {}),

@@ -211,3 +211,23 @@ def test_version_models_and_a_closed_pipe(capsys):
     run = subprocess.run(f"{sys.executable} -m jaxsr.cli info tr4 | true; echo ${{PIPESTATUS[0]}}", shell=True,
                          capture_output=True, text=True, check=False, executable="/bin/bash")
     assert run.stderr == "" and run.stdout.strip() == "0"
+
+
+def test_info_of_a_bundled_model_is_a_short_summary_and_json_the_whole_card(capsys):
+    """`jaxsr info tr4-ambient`: a few lines (what it is for, what it reads, its size and its validation score);
+    the training card, lineage included, only in --json."""
+    from jaxsr.app.models import BUNDLED_USES
+
+    assert cli.main(["info", "tr4-ambient"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert 5 <= len(lines) <= 7 and all(len(line) < 200 for line in lines), lines
+    assert lines[0].startswith("tr4-ambient: bundled weights, ") and lines[0].endswith("tr4-ambient.npz")
+    assert lines[1] == f"  use: {BUNDLED_USES['tr4-ambient']}; jaxsr upscale's default for histograms input"
+    text = "\n".join(lines)
+    assert "TR 4 (window of 9 frames)" in text and "depth, signal, background and ambient" in text
+    assert "marks no return" in text and "GFLOP per 32x64 frame" in text and "validation: 24.96 dB PSNR" in text
+    assert "earlier_stages" not in text and "lease" not in text
+    assert cli.main(["info", "tr4-ambient", "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["card"]["earlier_stages"] and info["reads"] == ["depth", "signal", "background", "ambient"]
+    assert info["marks_no_return"] is True

@@ -38,12 +38,15 @@ def info(path, capsys, *flags):
 
 
 def test_control_characters_in_the_card_and_the_path_are_escaped(tmp_path, capsys):
-    path = tiny_model(tmp_path / f"m{ESC}.npz", {f"note{ESC}": f"trained{ESC}", "nested": {ESC: [ESC]}})
+    card = {f"note{ESC}": f"trained{ESC}", "nested": {ESC: [ESC]}, "purpose": f"a test{ESC}",
+            "validation": {"psnr": 30.0, "frames": 4, "sequences": [ESC]}}
+    path = tiny_model(tmp_path / f"m{ESC}.npz", card)
     status, out, err = info(path, capsys)
     assert status == 0 and err == ""
     assert "\x1b" not in out and "\x07" not in out and "\u202e" not in out
-    assert "\\x1b[2J\\x1b]0;owned\\x07\\u202e" in out  # the key and the path, as a Python literal writes them
-    assert len(out.splitlines()) == 6  # path, summary, config, "training card:" and its two entries: no line broken
+    # the path, the card's purpose and its validation sequences, as a Python literal writes them
+    assert out.count("\\x1b[2J\\x1b]0;owned\\x07\\u202e") == 4  # the path twice: first line and "more: ... --json"
+    assert len(out.splitlines()) == 6  # path, use, network, parameters, validation, more: no line broken
     status, out, err = info(path, capsys, "--json")
     assert status == 0 and out.isascii() and "\x1b" not in out
     assert json.loads(out)["card"][f"note{ESC}"] == f"trained{ESC}"  # escaped on screen, intact as data
@@ -62,10 +65,11 @@ def test_an_error_quoting_the_file_is_escaped_too(tmp_path, capsys):
 
 
 def test_a_long_card_entry_is_cut_in_text_and_whole_in_json(tmp_path, capsys):
-    path = tiny_model(tmp_path / "m.npz", {"history": list(range(20_000))})
+    path = tiny_model(tmp_path / "m.npz", {"history": list(range(20_000)), "purpose": "x" * 20_000})
     status, out, _ = info(path, capsys)
-    line = next(l for l in out.splitlines() if l.startswith("    history: "))
+    line = next(l for l in out.splitlines() if l.startswith("  use: "))
     assert status == 0 and len(line) < 1100 and line.endswith("more characters)")
+    assert "history" not in out and len(out.splitlines()) == 5  # the card's entries are in --json only
     status, out, _ = info(path, capsys, "--json")
     assert status == 0 and json.loads(out)["card"]["history"] == list(range(20_000))
 

@@ -141,10 +141,11 @@ def test_empty_folder_and_bad_output(tmp_path, model_path, capsys):
 def test_info(model_path, capsys):
     assert cli.main(["info", str(model_path)]) == 0
     text = capsys.readouterr().out
-    assert "TR 1" in text and "parameters" in text and "random weights for tests" in text
+    assert "TR 1" in text and "parameters" in text and f"jaxsr info {model_path} --json" in text
     assert cli.main(["info", str(model_path), "--json"]) == 0
     info = json.loads(capsys.readouterr().out)
     assert info["config"]["tr"] == 1 and info["frames_per_window"] == 3 and info["gflops_per_frame"] > 0
+    assert info["card"]["data"] == "none: random weights for tests" and info["reads"] == ["depth"]
 
 
 def test_auto_model_uses_choose_tr_and_the_bundled_weights(tmp_path, capsys):
