@@ -40,6 +40,7 @@ from harness.scoring import (
     PAPER_TABLE1,
     SCENE_LABELS,
     TEST_SCENES,
+    Scores,
     bicubic_fps,
     bundled,
     SEQUENCE_FRAMES,
@@ -47,23 +48,27 @@ from harness.scoring import (
     get_model,
     interval,
     model_fps,
-    scene_scores,
-    frame_scores,
+    scene_metrics,
+    frame_metrics,
     test_clips,
 )
 from harness.reports import header, markdown_table, save_figure, write_atomic
+
+# Table 1's columns per scene: the paper's Eq. 2 SSIM heads, the windowed one beside it
+METRIC_LABELS = ("PSNR", "SSIM Eq. 2", "SSIM 11x11")
 
 VIDEO_FRAMES = 32  # consecutive frames of the first test scene in the comparison video
 
 
 def bicubic_row(clips, scale) -> tuple[dict, np.ndarray]:
-    """Bicubic's mean PSNR and SSIM per scene, and its per-frame PSNR (scenes, frames)."""
+    """Bicubic's mean `Scores` (PSNR, SSIM Eq. 2, windowed SSIM) per scene, and its per-frame PSNR (scenes,
+    frames)."""
     scored = {name: c.at(c.scored) for name, c in clips.items()}
     means, frames = {}, []
     for name, c in scored.items():
-        p, s = frame_scores(np.asarray(jaxsr.bicubic(c.lr, scale=scale)), c.gt)
-        means[name] = (float(p.mean()), float(s.mean()))
-        frames.append(p)
+        scores = frame_metrics(np.asarray(jaxsr.bicubic(c.lr, scale=scale)), c.gt)
+        means[name] = scores.mean()
+        frames.append(scores.psnr)
     return means, np.stack(frames)
 
 
@@ -128,10 +133,13 @@ def plot(path, rows, bicubic, fps_bicubic, seq_rows=None, bicubic_frames=None):
                             fmt="o-", capsize=3, label=SCENE_LABELS[name])
             else:
                 ax.plot(trs, ys, "o-", label=SCENE_LABELS[name])
-            ax.axhline(bicubic[name][i], ls=":", lw=0.8, color=ax.lines[-1].get_color())
-    for ax, label in zip(axes, ("PSNR (dB)", "SSIM")):
+            colour = ax.lines[-1].get_color()
+            ax.axhline(bicubic[name][i], ls=":", lw=0.8, color=colour)
+            if i == 1:  # the windowed SSIM beside the paper's Eq. 2
+                ax.plot(trs, [rows[tr]["scores"][name].ssim_window for tr in trs], "s--", ms=3, lw=0.8, color=colour)
+    for ax, label in zip(axes, ("PSNR (dB)", "SSIM (solid: Eq. 2, whole frame; dashed: 11 x 11 window)")):
         ax.set_xlabel("temporal radius TR")
-        ax.set_ylabel(label)
+        ax.set_ylabel(label, fontsize=8 if ax is axes[1] else None)
         ax.set_xticks(trs)
     axes[0].legend(fontsize=8, title="dotted: bicubic; bars: 95 % intervals", title_fontsize=7)
     save_figure(fig, path)
@@ -195,18 +203,19 @@ def main():
     clip0 = clips[TEST_SCENES[0]]
     min_time = 1.0 if args.quick else 3.0
     fps_bicubic = bicubic_fps(clip0, sensor=sensor, min_time=min_time)
-    floor, floor_frames = scene_scores(untrained(args.scale), clips)
+    floor, floor_frames = scene_metrics(untrained(args.scale), clips)
     rows, models = {}, {}
     for tr in trs:
         t0 = time.time()
         model, card = get_model(tr, pretrained=pretrained, preset=preset, runs=Path(args.runs),
                                 scale=args.scale, quick=args.quick, progress=not args.no_progress)
-        scores, frames_psnr = scene_scores(model, clips)
+        scores, frames_psnr = scene_metrics(model, clips)
         fps = model_fps(model, clip0, min_time=min_time)
         rows[tr] = {"scores": scores, "frames": frames_psnr, "fps": fps, "card": card}
         if tr in (min(trs), max(trs)):
             models[f"TR{tr}"] = model
-        print(f"TR{tr}: " + ", ".join(f"{SCENE_LABELS[n]} {p:.2f} dB / {s:.3f}" for n, (p, s) in scores.items())
+        print(f"TR{tr}: " + ", ".join(f"{SCENE_LABELS[n]} {p:.2f} dB / SSIM Eq. 2 {s:.3f} / windowed {w:.3f}"
+                                      for n, (p, s, w) in scores.items())
               + f", {fps:.1f} frames/s ({time.time() - t0:.0f} s)", flush=True)
     seq_rows = {}  # the bundled sequence-form models (tr<N>-seq), scored the same way
     for tr in trs if pretrained and args.sequence_form else ():
@@ -215,22 +224,19 @@ def main():
             print(f"TR{tr}-seq: not bundled since 0.2; `git checkout 949ee82 -- jaxsr/weights` restores it")
         else:
             model = jaxsr.load_model(path)
-            scores, frames_psnr = scene_scores(model, clips)
+            scores, frames_psnr = scene_metrics(model, clips)
             seq_rows[tr] = {"scores": scores, "frames": frames_psnr, "fps": model_fps(model, clip0, min_time=min_time),
                             "card": jaxsr.read_metadata(path).get("card", {})}
-            print(f"TR{tr}-seq: {np.mean([p for p, _ in seq_rows[tr]['scores'].values()]):.2f} dB mean, "
+            print(f"TR{tr}-seq: {np.mean([s.psnr for s in seq_rows[tr]['scores'].values()]):.2f} dB mean, "
                   f"{seq_rows[tr]['fps']:.1f} frames/s", flush=True)
 
-    cells = lambda sc: [f"{sc[n][i]:.{2 if i == 0 else 3}f}" for n in TEST_SCENES for i in (0, 1)]  # noqa: E731
-    columns = ["method"] + [f"{SCENE_LABELS[n]} {m}" for n in TEST_SCENES for m in ("PSNR", "SSIM")] + ["frames/s"]
+    columns = ["method"] + [f"{SCENE_LABELS[n]} {m}" for n in TEST_SCENES for m in METRIC_LABELS] + ["frames/s"]
     table = [["bicubic"] + cells(bicubic) + [f"{fps_bicubic:.0f}"], ["TR0 untrained"] + cells(floor) + ["as TR0"]]
     table += [[f"TR{tr}"] + cells(r["scores"]) + [f"{r['fps']:.1f}"] for tr, r in rows.items()]
     table += [[f"TR{tr}-seq"] + cells(r["scores"]) + [f"{r['fps']:.1f}"] for tr, r in seq_rows.items()]
-    paper = [["bicubic (paper)"] + [f"{v:.{2 if i == 0 else 3}f}" for sc in PAPER_BICUBIC[:3] for i, v in
-                                    enumerate(sc)] + [f"{PAPER_BICUBIC[3]:.0f}"]]
-    paper += [[f"TR{tr} (paper)"] + [f"{v:.{2 if i == 0 else 3}f}" for sc in PAPER_TABLE1[tr][:3] for i, v in
-                                     enumerate(sc)] + [f"{PAPER_TABLE1[tr][3]}"] for tr in trs]
-    csv = ",".join(["method", *[f"{n}_{m}" for n in TEST_SCENES for m in ("psnr", "ssim")], "fps"]) + "\n"
+    paper = [["bicubic (paper)"] + paper_cells(PAPER_BICUBIC) + [f"{PAPER_BICUBIC[3]:.0f}"]]
+    paper += [[f"TR{tr} (paper)"] + paper_cells(PAPER_TABLE1[tr]) + [f"{PAPER_TABLE1[tr][3]}"] for tr in trs]
+    csv = ",".join(["method", *[f"{n}_{m}" for n in TEST_SCENES for m in Scores._fields], "fps"]) + "\n"
     csv += csv_row("bicubic", bicubic, fps_bicubic)
     csv += csv_row("TR0_untrained", floor, rows[0]["fps"] if 0 in rows else float("nan"))
     csv += "".join(csv_row(f"TR{tr}", r["scores"], r["fps"]) for tr, r in rows.items())
@@ -245,7 +251,10 @@ def main():
     text += (f"Models: {source}. Test data: {scored} of each test scene (scenes 1-2 at SNR 1.3, "
              f"scene 3 at SNR 3, {jaxsr.config.DEFAULT_MEAN_SIGNAL:g} signal photons per LR pixel), "
              f"noise seed {args.seed}; "
-             "PSNR (dB) and SSIM of the clipped output against the normalised HR ground truth, averaged over frames. "
+             "PSNR (dB) and SSIM of the clipped output against the normalised HR ground truth, averaged over frames: "
+             "SSIM Eq. 2 is the paper's (its Eq. 2: whole-frame means, variances and covariance, c1 = 1e-4, "
+             "c2 = 9e-4, `jaxsr.ssim_global`), the one its SSIM columns are set beside; SSIM 11x11 is the windowed "
+             "form (11 x 11 Gaussian window, sigma 1.5, `jaxsr.ssim`), which the paper does not report. "
              f"frames/s: end to end (histograms -> centre of mass -> network), {FPS_NOTE}, on this machine; "
              "the paper's "
              "are on an RTX 2070. TR0 untrained: the network with its initial weights (every dynamic filter a "
@@ -278,8 +287,18 @@ def main():
           f"intervals), {base}.mp4 ({video_label}, {n_video} frames) ({time.time() - started:.0f} s)")
 
 
+def cells(scores) -> list[str]:
+    """A table row's cells: PSNR, SSIM Eq. 2 and windowed SSIM of each test scene ({scene: `Scores`})."""
+    return [f"{v:.{2 if i == 0 else 3}f}" for n in TEST_SCENES for i, v in enumerate(scores[n])]
+
+
+def paper_cells(quoted) -> list[str]:
+    """The paper's (PSNR, SSIM) per scene under PSNR and SSIM Eq. 2; it reports no windowed SSIM."""
+    return [cell for psnr, ssim in quoted[:3] for cell in (f"{psnr:.2f}", f"{ssim:.3f}", "")]
+
+
 def csv_row(label, scores, fps):
-    return ",".join([label, *(f"{scores[n][i]:.4f}" for n in TEST_SCENES for i in (0, 1)), f"{fps:.2f}"]) + "\n"
+    return ",".join([label, *(f"{v:.4f}" for n in TEST_SCENES for v in scores[n]), f"{fps:.2f}"]) + "\n"
 
 
 def differences(rows, seq_rows, vs_tr0, bought=None) -> str:

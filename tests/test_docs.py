@@ -143,26 +143,23 @@ def in_git_at(path: str, paragraph: str) -> bool:
 
 
 # A link to a file of the repository, as the site makes them (mkdocs.yml's repo_url: the raw result files are
-# linked there, not copied into the site), and the short form a results page may use for experiments/results/NAME
-# (mkdocs_hooks.py turns it into the first).
+# linked there, not copied into the site).
 REPO_LINK = re.compile(r"https://github\.com/jaxsr/jaxsr/(blob|raw|tree)/main/([^)\s#?]+)")
-SHORT_LINK = re.compile(r"\]\((?:results/)?files/([^)\s#]+)")
 
 
 def named_paths(text: str) -> set[str]:
     """The repository paths a text names: experiment scripts, benchmarks and result files written out, and the
     targets of its links to the repository (a folder for a `tree/` link, written with a trailing slash)."""
     paths = set(re.findall(r"\b(?:experiments|benchmarks)/[\w/.-]*\w\.(?:py|md|csv|png|json|jsonl|gif|mp4)\b", text))
-    paths |= {path + "/" if kind == "tree" else path for kind, path in REPO_LINK.findall(text)}
-    return paths | {f"experiments/results/{name}" for name in SHORT_LINK.findall(text)}
+    return paths | {path + "/" if kind == "tree" else path for kind, path in REPO_LINK.findall(text)}
 
 
 def test_repository_links_are_recognised():
     text = ("[a](https://github.com/jaxsr/jaxsr/blob/main/experiments/results/real_photons_ambient.md#the-table), "
             "![b](https://github.com/jaxsr/jaxsr/raw/main/experiments/results/readme.gif) "
-            "[c](https://github.com/jaxsr/jaxsr/tree/main/experiments/results) [d](files/speed.jsonl)")
+            "[c](https://github.com/jaxsr/jaxsr/tree/main/experiments/results)")
     assert named_paths(text) == {"experiments/results/real_photons_ambient.md", "experiments/results/readme.gif",
-                                 "experiments/results/", "experiments/results/speed.jsonl"}
+                                 "experiments/results/"}
 
 
 def test_scripts_and_result_files_named_in_the_docs_exist():

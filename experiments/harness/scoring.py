@@ -1,6 +1,7 @@
 """Scoring models on the fixed test clips, as the experiments (experiments/) do: the test scenes simulated at their
 SNR (`test_clips`), the frame-rate study's walkers scene (`walkers_clip`, `walkers_at`), per-frame PSNR and SSIM
-(`frame_scores`, `scene_scores`), paired intervals of score differences (`interval`), frames/s (`model_fps`), and
+(`frame_metrics`, `scene_metrics`: PSNR, the paper's Eq. 2 SSIM and the windowed SSIM; `frame_scores`, `scene_scores`:
+PSNR and the windowed SSIM), paired intervals of score differences (`interval`), frames/s (`model_fps`), and
 the models scored (bundled, trained, or from a folder: `load_tr`, `get_model`).
 
 Importing this module exposes the host's CPU cores as JAX devices (`jaxsr.runtime.use_cpu_cores`), as `jaxsr
@@ -14,6 +15,7 @@ import functools
 import time
 from pathlib import Path
 from types import SimpleNamespace
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -207,31 +209,54 @@ def scored_output(model, clip: Clip) -> tuple[np.ndarray, np.ndarray]:
     return super_resolve_frames(model, lr, clip.scored), clip.gt if clip.scored is None else clip.gt[clip.scored]
 
 
-def scene_scores(model, clips: dict) -> tuple[dict, np.ndarray]:
-    """Mean PSNR and SSIM per scene of one model on the clips' scored frames, and its per-frame PSNR
-    (scenes, frames), scenes in the clips' order."""
+class Scores(NamedTuple):
+    """A frame's scores (each (T,) per frame, or a float mean): PSNR (dB), SSIM as the paper's Eq. 2 (whole-frame
+    means, variances and covariance, `jaxsr.ssim_global`) and the 11 x 11 Gaussian-window SSIM (`jaxsr.ssim`)."""
+
+    psnr: np.ndarray | float
+    ssim_eq2: np.ndarray | float
+    ssim_window: np.ndarray | float
+
+    def mean(self) -> Scores:
+        """The means over frames, as floats."""
+        return Scores(*(float(np.mean(v)) for v in self))
+
+
+def scene_metrics(model, clips: dict) -> tuple[dict, np.ndarray]:
+    """Mean `Scores` per scene of one model on the clips' scored frames, and its per-frame PSNR (scenes, frames),
+    scenes in the clips' order."""
     means, frames = {}, []
     for name, clip in clips.items():
-        p, s = frame_scores(*scored_output(model, clip))
-        means[name] = (float(p.mean()), float(s.mean()))
-        frames.append(p)
+        scores = frame_metrics(*scored_output(model, clip))
+        means[name] = scores.mean()
+        frames.append(scores.psnr)
     return means, np.stack(frames)
 
 
+def scene_scores(model, clips: dict) -> tuple[dict, np.ndarray]:
+    """Mean PSNR and windowed SSIM per scene of one model on the clips' scored frames, and its per-frame PSNR
+    (scenes, frames), scenes in the clips' order (`scene_metrics` also gives the paper's Eq. 2 SSIM)."""
+    means, frames = scene_metrics(model, clips)
+    return {name: (m.psnr, m.ssim_window) for name, m in means.items()}, frames
+
+
 @jax.jit
-def _frame_scores(sr, gt):
-    return jaxsr.psnr(sr, gt), jaxsr.ssim(sr, gt)
+def _frame_metrics(sr, gt):
+    return jaxsr.psnr(sr, gt), jaxsr.ssim_global(sr, gt), jaxsr.ssim(sr, gt)
+
+
+def frame_metrics(sr, gt, *, chunk: int = 50) -> Scores:
+    """Per-frame `Scores`, each (T,), of sr against gt (T, H, W), both normalised; sr is clipped to [0, 1] as a
+    user would display it."""
+    parts = [_frame_metrics(jnp.clip(jnp.asarray(sr[i:i + chunk]), 0, 1), jnp.asarray(gt[i:i + chunk]))
+             for i in range(0, len(gt), chunk)]
+    return Scores(*(np.concatenate([np.asarray(part[k]) for part in parts]) for k in range(3)))
 
 
 def frame_scores(sr, gt, *, chunk: int = 50) -> tuple[np.ndarray, np.ndarray]:
-    """Per-frame PSNR (dB) and SSIM, each (T,), of sr against gt (T, H, W), both normalised; sr is clipped to
-    [0, 1] as a user would display it."""
-    p, s = [], []
-    for i in range(0, len(gt), chunk):
-        a, b = _frame_scores(jnp.clip(jnp.asarray(sr[i:i + chunk]), 0, 1), jnp.asarray(gt[i:i + chunk]))
-        p.append(np.asarray(a))
-        s.append(np.asarray(b))
-    return np.concatenate(p), np.concatenate(s)
+    """Per-frame PSNR (dB) and windowed SSIM, each (T,), of sr against gt (T, H, W), as `frame_metrics`."""
+    scores = frame_metrics(sr, gt, chunk=chunk)
+    return scores.psnr, scores.ssim_window
 
 
 # Frames per bootstrap block: consecutive frames of a video score alike (the scene changes slowly, the noise does
@@ -251,7 +276,7 @@ def format_interval(iv) -> str:
 
 
 def score(sr, gt, *, chunk: int = 50) -> tuple[float, float]:
-    """Mean PSNR (dB) and SSIM over frames (see `frame_scores`)."""
+    """Mean PSNR (dB) and windowed SSIM over frames (see `frame_scores`)."""
     p, s = frame_scores(sr, gt, chunk=chunk)
     return float(np.mean(p)), float(np.mean(s))
 

@@ -133,7 +133,8 @@ class TemporalCoherence(NamedTuple):
 def temporal_coherence(pred_seq, gt_seq, *, eps: float = 0.01, eps_gt: float = 1e-6) -> TemporalCoherence:
     """Temporal coherence Tc: count of static ground-truth pixels whose prediction changes by more than eps.
 
-    Meaningful on static-camera sequences. Report eps = 0.01 (default), 1/255 and 0.05 for a fuller picture.
+    Meaningful on static-camera sequences. The paper's Eq. 4 counts any change (eps = 0); real-valued outputs
+    change a little almost everywhere, so report eps = 0.01 (default), 1/255 and 0.05 beside it.
 
     Args:
       pred_seq: (..., T, H, W) normalised depth sequence, T >= 2; clipped to [0, 1].

@@ -125,6 +125,19 @@ def irf_bin_weights(tau, sensor: SensorConfig = SensorConfig()):
     return cdf[..., 1:] - cdf[..., :-1]
 
 
+def gate_fraction(tau, sensor: SensorConfig = SensorConfig()):
+    """Fraction of a return at `tau` (bins) that falls inside the gate [0, K): the sum over k of
+    `irf_bin_weights`, Phi((K - tau)/sigma) - Phi(-tau/sigma). About 1/2 for a return at 0 m or at d_max.
+
+    Args:
+      tau: (...) return time in bin units.
+    Returns:
+      (...) fraction in [0, 1].
+    """
+    scale = sensor.irf_sigma * jnp.sqrt(2.0)
+    return 0.5 * (jax.lax.erf((sensor.bins - tau) / scale) - jax.lax.erf(-tau / scale))
+
+
 def _sum_over_blocks(f, scale: int, *hr_arrays):
     """sum_{i in block} f(arrays at sub-pixel i): LR-pixel sums of a per-HR-pixel quantity.
 
@@ -149,10 +162,12 @@ def _reflectivity(intensity):
 
 
 def _photon_terms(depth, intensity, sensor: SensorConfig):
-    """Per-LR-pixel un-calibrated sums: (signal histogram shape, sum s_i, sum a_i).
+    """Per-LR-pixel un-calibrated sums: (signal histogram shape, sum s_i inside the gate, sum a_i).
 
     s_i = rho_i / max(r_i, r_min)^2 for pixels with a return (else 0); a_i = rho_i + a0, with rho_i the
-    intensity clipped to [0, 1] and 0 where it is not finite (a no-op on checked input).
+    intensity clipped to [0, 1] and 0 where it is not finite (a no-op on checked input). The gated sum,
+    sum s_i * `gate_fraction`(tau_i), is the histogram's signal summed over its bins, in closed form: the signal
+    the paper's SNR counts (the IRF's tails beyond 0 m and d_max never reach the bins).
     Returns shapes (..., h, w, K), (..., h, w), (..., h, w).
     """
     depth = jnp.asarray(depth, dtype=jnp.result_type(float))
@@ -167,12 +182,15 @@ def _photon_terms(depth, intensity, sensor: SensorConfig):
     def signal(s_i, tau_i):
         return s_i[..., None] * irf_bin_weights(tau_i, sensor)
 
+    def gated(s_i, tau_i):
+        return s_i * gate_fraction(tau_i, sensor)
+
     def identity(x):
         return x
 
     return (
         _sum_over_blocks(signal, sensor.scale, s, tau),
-        _sum_over_blocks(identity, sensor.scale, s),
+        _sum_over_blocks(gated, sensor.scale, s, tau),
         _sum_over_blocks(identity, sensor.scale, a),
     )
 
@@ -205,8 +223,9 @@ def levels_valid(sensor: SensorConfig, snr, mean_signal):
 
 
 def _calibrate_from_sums(s_sum, a_sum, sensor: SensorConfig, *, snr, mean_signal):
-    """alpha, beta from per-LR-pixel sums over everything passed (docs/sensor-model.md, "Calibration"); both NaN when a
-    physical scalar is out of its domain (which only a traced call can reach)."""
+    """alpha, beta from per-LR-pixel sums over everything passed (docs/sensor-model.md, "Calibration"): s_sum the
+    signal inside the gate (`_photon_terms`), a_sum the ambient. Both NaN when a physical scalar is out of its
+    domain (which only a traced call can reach)."""
     has_signal = s_sum > 0
     n_valid = jnp.sum(has_signal)
     denom = jnp.maximum(n_valid, 1)
@@ -259,7 +278,8 @@ def calibrate(depth, intensity, sensor: SensorConfig = SensorConfig(), *, snr, m
 
     Computed once over everything passed (a whole sequence: laser and sun do not change frame to frame).
     Over the LR pixels V with a return: mean signal photons = `mean_signal` and mean per-pixel
-    signal / background photons = `snr`. All sky: alpha = 0 and the background matches `mean_signal / snr`.
+    signal / background photons = `snr`, both counting the photons inside the gate's K bins (a return near 0 m or
+    d_max loses part of its IRF outside them). All sky: alpha = 0 and the background matches `mean_signal / snr`.
 
     Args:
       depth: (..., H, W) radial metres; (H, W) = `sensor.hr_shape`.

@@ -75,6 +75,10 @@ def test_temporal_coherence_hand_built():
     assert float(tc.flicker_fraction) == pytest.approx(2 / (9 * 3 - 1))
     tight = jaxsr.temporal_coherence(sr, gt, eps=1 / 255)
     np.testing.assert_array_equal(tight.counts, [1, 1, 1])
+    # the paper's Eq. 4: any change of a static pixel counts, however small
+    sr[3, 2, 1] = 1e-6
+    paper = jaxsr.temporal_coherence(sr, gt, eps=0.0)
+    np.testing.assert_array_equal(paper.counts, [1, 1, 2])
 
 
 def test_leading_axes_and_vmap():

@@ -41,9 +41,10 @@ def reference_rates(depth, intensity, cfg, snr, mean_signal):
                 for k in range(K):
                     sig[p + (k,)] += si * (phi((k + 1 - tau) / cfg.irf_sigma) - phi((k - tau) / cfg.irf_sigma))
     valid = s_sum > 0
+    gated = sig.sum(-1)  # the signal inside the gate: what the 16 bins hold
     if valid.any():
-        alpha = mean_signal / s_sum[valid].mean()
-        beta = alpha * (s_sum[valid] / a_sum[valid]).mean() / snr
+        alpha = mean_signal / gated[valid].mean()
+        beta = alpha * (gated[valid] / a_sum[valid]).mean() / snr
     else:
         alpha, beta = 0.0, mean_signal / (snr * a_sum.mean())
     rates = alpha * sig + beta / K * a_sum[..., None]
@@ -81,16 +82,18 @@ def test_rates_float32_close_to_reference():
 
 
 @pytest.mark.parametrize("snr,mean_signal", [(1.3, 4.0), (0.5, 2.0), (8.0, 100.0)])
-def test_calibration_hits_frame_snr_and_signal(snr, mean_signal):
+@pytest.mark.parametrize("near,far", [(3.0, 30.0), (0.0, 1.0), (34.0, 35.0)])
+def test_calibration_hits_frame_snr_and_signal(snr, mean_signal, near, far):
+    """The paper's SNR counts the photons in the histogram: returns near the gate's ends (0 and d_max) lose up to
+    half their IRF outside its 16 bins, and the calibration still hits the target with what is left."""
     rng = np.random.default_rng(4)
-    # Returns well inside the gate so IRF truncation is negligible; a sky band tests the valid-pixel set V.
-    depth = rng.uniform(3.0, 30.0, (3,) + SMALL.hr_shape)
-    depth[:, :4] = np.inf
+    depth = rng.uniform(near, far, (3,) + SMALL.hr_shape)
+    depth[:, :4] = np.inf  # a sky band tests the valid-pixel set V
     intensity = rng.uniform(0.05, 1.0, depth.shape)
     alpha, beta = jaxsr.calibrate(depth, intensity, SMALL, snr=snr, mean_signal=mean_signal)
     rates = np.asarray(jaxsr.expected_histograms(depth, intensity, SMALL, snr=snr, mean_signal=mean_signal))
-    _, s_sum, a_sum = sensor_mod._photon_terms(jnp.asarray(depth), jnp.asarray(intensity), SMALL)
-    signal = float(alpha) * np.asarray(s_sum)
+    signal_hist, _, a_sum = sensor_mod._photon_terms(jnp.asarray(depth), jnp.asarray(intensity), SMALL)
+    signal = float(alpha) * np.asarray(signal_hist).sum(-1)
     background = float(beta) * np.asarray(a_sum)
     valid = signal > 0
     assert abs(signal[valid].mean() / mean_signal - 1) < 5e-3
