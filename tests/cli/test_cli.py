@@ -14,7 +14,7 @@ import jaxsr
 from jaxsr import cli, io
 
 # The subcommands the README documents.
-SUBCOMMANDS = {"simulate", "train", "finetune", "upscale", "info"}
+SUBCOMMANDS = {"simulate", "train", "finetune", "upscale", "info", "models"}
 
 
 @pytest.mark.slow  # 10-18 s: keeps the default suite under 8 minutes on 2 cores

@@ -87,7 +87,7 @@ CASES = {
     "upscale folder of 64x3 frames": (lambda p: _frames(p, (64, 3)),
                                       ["upscale", "frames", "out", "--model", "MODEL"], ["64 x 3", "at least 4 x 4"]),
     "upscale histograms of 8 bins": (lambda p: np.save(p / "in.npy", np.ones((2, 32, 64, 8), np.uint16)),
-                                     ["upscale", "in.npy", "out.npy", "--model", "MODEL"],
+                                     ["upscale", "in.npy", "out.npy", "--model", "MODEL", "--bins", "16"],
                                      ["8 bins", "16 bins", "--bins"]),
     "upscale --bin-width without a unit": (lambda p: np.save(p / "in.npy", np.ones((2, 32, 64, 16), np.uint16)),
                                            ["upscale", "in.npy", "out.npy", "--model", "MODEL", "--bin-width", "3"],
