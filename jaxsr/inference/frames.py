@@ -113,6 +113,8 @@ def _check_frame(frame, shape, index, inputs=("depth",)):
     """One LR frame checked for a network reading `inputs`: (h, w) normalised depth, or (h, w, C) channels, depth
     first and photon channels finite and >= 0 (`jaxsr.nn.network_inputs`)."""
     refuse_tracing(frame, "super_resolve", "jaxsr.apply_sequence(model, lr_seq)")
+    if np.iscomplexobj(frame):
+        raise ValueError(f"super_resolve: frame {index} holds complex values; expected real LR normalised depth")
     frame = np.asarray(frame, np.float32)
     ndim = 2 if len(inputs) == 1 else 3
     if (frame.ndim != ndim or (ndim == 3 and frame.shape[-1] != len(inputs))
@@ -194,9 +196,12 @@ def iter_super_resolve(model: Model, frames: Iterable, *, batch_size: int | None
                          "super_resolve_histograms(model, counts, intensity=...)")
     inputs = model.channels
     sequence_form = model.sequence_form
+    if batch_size is not None and (isinstance(batch_size, bool) or not isinstance(batch_size, (int, np.integer))
+                                   or batch_size < 1):
+        raise ValueError(f"super_resolve: batch_size must be an integer >= 1, got {batch_size!r}")
     batch_size = default_batch_size(frames, sequence_form) if batch_size is None else int(batch_size)
-    if batch_size < 1:
-        raise ValueError(f"super_resolve: batch_size must be >= 1, got {batch_size}")
+    if hasattr(frames, "__len__") and len(frames):  # a batch beyond the frames would be padded copies of the last
+        batch_size = min(batch_size, len(frames))
     sharding = None if sequence_form else _batch_sharding(batch_size)
     if sharding is not None:  # replicate the weights once, not on every call
         replicated = NamedSharding(sharding.mesh, P())
@@ -295,6 +300,8 @@ def super_resolve(model: Model, lr_seq, *, batch_size: int | None = None, conv3d
     refuse_tracing(lr_seq, "super_resolve", "jaxsr.apply_sequence(model, lr_seq)")
     if lr_seq is None or isinstance(lr_seq, (str, bytes)):
         raise TypeError(f"super_resolve: expected an LR sequence array (T, h, w), got {type(lr_seq).__name__}")
+    if np.iscomplexobj(lr_seq):
+        raise ValueError("super_resolve: the LR sequence holds complex values; expected real normalised depth")
     lr_seq = np.asarray(lr_seq, np.float32)
     inputs = model.channels
     want = 3 if len(inputs) == 1 else 4

@@ -154,9 +154,14 @@ def super_resolve_histograms(model: Model, counts, sensor: SensorConfig = Sensor
                    "jaxsr.apply_histograms(model, counts, sensor)")
     _require_model(model, "super_resolve_histograms")
     precision = check_precision(model, precision, "super_resolve_histograms")
+    if not isinstance(sensor, SensorConfig):
+        raise TypeError(f"super_resolve_histograms: sensor is a jaxsr.SensorConfig (e.g. SensorConfig(bins=32)), got "
+                        f"{type(sensor).__name__}")
     if counts is None or isinstance(counts, (str, bytes)):
         raise TypeError(f"super_resolve_histograms: expected photon counts (T, h, w, {sensor.bins}), got "
                         f"{type(counts).__name__}")
+    if np.iscomplexobj(counts):
+        raise ValueError("super_resolve_histograms: the counts hold complex values; expected real photon counts")
     counts = np.asarray(counts)
     if counts.ndim != 4 or counts.shape[0] < 1 or min(counts.shape[1:3]) < MIN_LR_SIDE:
         raise ValueError(f"super_resolve_histograms: expected counts (T, h, w, {sensor.bins}) with T >= 1 and h, w >= "

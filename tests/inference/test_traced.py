@@ -66,3 +66,20 @@ def test_host_side_functions_refuse_tracing_naming_the_traced_route():
         jax.jit(lambda x: jaxsr.inference.Stream(m).push(x))(lr[0])
     with pytest.raises(ValueError, match=r"expected an LR sequence \(T, h, w\)"):
         jaxsr.apply_sequence(m, lr[0])
+
+
+def test_the_host_side_functions_refuse_what_they_cannot_mean():
+    """Complex input is refused (the imaginary part was dropped); a batch larger than the frames is cut to them (3
+    frames padded to a batch of 10^9 allocated 238 GiB); a dict as the sensor is a TypeError naming SensorConfig."""
+    m, lr = model(), lr_seq(3)
+    with pytest.raises(ValueError, match="complex values"):
+        jaxsr.super_resolve(m, lr + 0j)
+    with pytest.raises(ValueError, match="complex values"):
+        jaxsr.super_resolve_histograms(m, np.ones((2, 8, 12, 16), np.complex64))
+    with pytest.raises(ValueError, match="complex values"):
+        jaxsr.inference.Stream(m).push(lr[0] + 0j)
+    np.testing.assert_allclose(jaxsr.super_resolve(m, lr, batch_size=10**9), jaxsr.super_resolve(m, lr), atol=1e-5)
+    with pytest.raises(ValueError, match="batch_size must be an integer >= 1"):
+        jaxsr.super_resolve(m, lr, batch_size=2.5)
+    with pytest.raises(TypeError, match="sensor is a jaxsr.SensorConfig"):
+        jaxsr.super_resolve_histograms(m, np.ones((2, 8, 12, 16)), {"bins": 16})
