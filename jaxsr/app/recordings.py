@@ -181,8 +181,8 @@ def _stored_fps(arrays) -> float | None:
     """The frame rate an .npz's JSON metadata gives (`fps`), or None when it gives none (or no usable one: metadata
     that is no JSON object, or too large or deeply nested to read)."""
     try:
-        fps = float(io._json_metadata(arrays["metadata"], "metadata").get("fps"))
-    except (KeyError, TypeError, ValueError, AttributeError):
+        fps = float(io._json_metadata(io.read_entry(arrays, "metadata", "metadata"), "metadata").get("fps"))
+    except (KeyError, TypeError, ValueError, AttributeError):  # a header that lies too (`read_entry`)
         return None
     return fps if np.isfinite(fps) and fps > 0 else None
 

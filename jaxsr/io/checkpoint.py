@@ -19,7 +19,7 @@ import jax
 import numpy as np
 
 from .files import atomic_path
-from .formats import JSON_METADATA_MAX_BYTES, _json_metadata
+from .formats import JSON_METADATA_MAX_BYTES, DamagedFile, _json_metadata, read_entry
 from ..config import ModelConfig
 from ..nn.duf import count_params
 from ..nn.model import Architecture, Model, architecture
@@ -115,7 +115,9 @@ def _read_meta(data, path) -> dict:
                          f"{JSON_METADATA_MAX_BYTES // 2**20} MiB a jaxsr checkpoint's may hold: a damaged or "
                          "foreign file")
     try:
-        entry = data[_META]
+        entry = read_entry(data, _META, f"checkpoint {str(path)!r}")
+    except DamagedFile:
+        raise
     except (zipfile.BadZipFile, EOFError, OSError, ValueError) as e:
         raise ValueError(f"checkpoint {str(path)!r}: unreadable metadata (truncated or corrupt?): {e}") from e
     meta = _json_metadata(entry, f"checkpoint {str(path)!r}")
@@ -161,7 +163,9 @@ def load_tree(path, template, *, prefix: str = "", strict: bool = True):
         leaves = []
         for key, tmpl in expected.items():
             try:
-                arr = data[key]
+                arr = read_entry(data, key, f"checkpoint {str(path)!r}")
+            except DamagedFile:
+                raise
             except (zipfile.BadZipFile, EOFError, OSError, ValueError) as e:
                 raise ValueError(
                     f"checkpoint {str(path)!r}: array {key!r} is unreadable (truncated or corrupt?): {e}"

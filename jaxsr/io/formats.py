@@ -293,6 +293,29 @@ def write_sequence(path, depth, *, intensity=None, overwrite=False, **metadata):
             raise ValueError(f"{path}: sequences are .npy or .npz, got {suffix!r}")
 
 
+class DamagedFile(ValueError):
+    """A file whose own description of its contents is false (a header that lies): refused before it is read."""
+
+
+def read_entry(npz, name: str, where: str):
+    """The array `name` of an opened .npz (`np.load`'s NpzFile), after its .npy header is checked against the
+    entry's size in the archive: a header that claims more bytes than the entry holds (10^12 elements in a few
+    bytes) is a ValueError naming `where`, not an allocation of terabytes. Compressed entries count their
+    uncompressed size, which the archive records."""
+    entry = f"{name}.npy" if f"{name}.npy" in npz.zip.namelist() else name
+    stored = npz.zip.getinfo(entry).file_size
+    with npz.zip.open(entry) as f:
+        version = np.lib.format.read_magic(f)
+        read = {(1, 0): np.lib.format.read_array_header_1_0, (2, 0): np.lib.format.read_array_header_2_0}.get(version)
+        if read is not None:
+            shape, _, dtype = read(f)
+            claimed = float(np.prod(shape, dtype=np.float64)) * dtype.itemsize
+            if claimed > stored:
+                raise DamagedFile(f"{where}: its array {name!r} claims {claimed:.3g} bytes ({shape} of {dtype}) in an "
+                                 f"entry of {stored} bytes: a damaged or hostile file")
+    return npz[name]
+
+
 def _json_metadata(entry, where: str):
     """Parse JSON metadata stored in a file: `entry` is the stored value (a 0-d NumPy string, or str). Refuses
     (ValueError naming `where`) more than `JSON_METADATA_MAX_BYTES`, invalid JSON, and nesting deeper than

@@ -114,3 +114,28 @@ def test_an_error_quoting_a_huge_config_is_cut(tmp_path, capsys):
     status, out, err = info(path, capsys)
     assert status == 2 and out == "" and len(err.splitlines()) == 1
     assert "unknown field(s) ['junk']" in err and len(err) < 2100 and "\x1b" not in err
+
+
+@pytest.mark.parametrize("entry", ["__metadata__", "weights"])
+def test_a_header_that_claims_terabytes_is_refused_in_one_line(tmp_path, capsys, entry):
+    """An .npy header claiming 10^12 elements in an entry of a few bytes: one line naming the file, not NumPy's
+    "Unable to allocate 3.64 TiB" traceback."""
+    import io as bytes_io
+    import zipfile
+
+    path = tiny_model(tmp_path / "m.npz", {})
+    with zipfile.ZipFile(path) as z:
+        entries = {n: z.read(n) for n in z.namelist()}
+    name = next(n for n in entries if n.startswith("params/")) if entry == "weights" else "__metadata__.npy"
+    lie = bytes_io.BytesIO()
+    np.lib.format.write_array_header_1_0(lie, {"descr": "<f4", "fortran_order": False, "shape": (10**12,)})
+    entries[name] = lie.getvalue() + b"\0" * 16
+    with zipfile.ZipFile(path, "w") as z:
+        for n, data in entries.items():
+            z.writestr(n, data)
+    # the metadata is read by jaxsr info, the weights when the model loads
+    command = ["info", str(path)] if entry == "__metadata__" else ["upscale", str(path), str(tmp_path / "o.npy"),
+                                                                    "--model", str(path)]
+    assert cli.main(command) == 2
+    err = capsys.readouterr().err
+    assert "claims 4e+12 bytes" in err and "a damaged or hostile file" in err and err.count("\n") == 1, err
