@@ -101,7 +101,7 @@ def train(out, *, arch: str = "duf", tr: int = 4, scale: int = 4, temporal: str 
                              "scale)")
         model_cfg = published
     sensor = SensorConfig() if scale == 4 else SensorConfig(scale=scale)
-    _check_out(out, resume, seeds=seeds)
+    _check_out(out, resume, seeds=seeds, overwrite=overwrite)
     if init is not None and not isinstance(init, Model):
         read_metadata(resolve_model_path(init))  # a file that holds no model fails now, not after the set-up
     make_batch = sequence_data(data, model_cfg, train_cfg, sensor) if data is not None else None
@@ -115,10 +115,11 @@ def _check_minutes(checkpoint_minutes):
         raise ValueError(f"--checkpoint-minutes {checkpoint_minutes}: expected a number of minutes >= 0")
 
 
-def _check_out(out, resume: bool, *, seeds=None):
-    """The checks of folder `out` that `train` and `finetune` make before any work: not a file, and holding a run
-    to resume when `resume`; with `seeds` (a stacked run), of each seed's folder in it (one holding a run is
-    enough to resume), and `out` itself holding none."""
+def _check_out(out, resume: bool, *, seeds=None, overwrite: bool = False):
+    """The checks of folder `out` that `train` and `finetune` make before any work: not a file, holding a run
+    to resume when `resume`, and holding none unless `resume` or `overwrite` (said now, not after the minutes the
+    validation set and the first compilation take); with `seeds` (a stacked run), of each seed's folder in it (one
+    holding a run is enough to resume), and `out` itself holding none."""
     folders = [Path(out)] if seeds is None else [seed_folder(out, s) for s in seeds]
     for folder in {Path(out), *folders}:
         if folder.exists() and not folder.is_dir():
@@ -129,6 +130,12 @@ def _check_out(out, resume: bool, *, seeds=None):
         what = out if seeds is None else f"no seed folder of {out} ({', '.join(f.name for f in folders)})"
         raise FileNotFoundError(f"--resume: nothing to resume: {what} holds no training run (none of "
                                 f"{', '.join(RUN_FILES)}); leave out --resume to start one")
+    if not (resume or overwrite):
+        for folder in folders:
+            held = [name for name in RUN_FILES if (folder / name).exists()]
+            if held:
+                raise FileExistsError(f"{folder} holds a training run ({', '.join(held)}); pass --resume to continue "
+                                      "it or --force to start a new one in its place")
 
 
 def _fit_in_new_folder(out, model_cfg, train_cfg, *, resume: bool, seeds=None, **fit_args):
@@ -261,7 +268,7 @@ def finetune(out, *, sensor_file, init="tr4", epochs: int = 10, steps_per_epoch:
     if preset not in PRESETS:
         raise ValueError(f"finetune: preset must be one of {', '.join(sorted(PRESETS))}, got {preset!r}")
     _check_minutes(checkpoint_minutes)
-    _check_out(out, resume)
+    _check_out(out, resume, overwrite=overwrite)
     _check_init_outside(init, out, resume)
     sensor, regime, info = read_sensor_file(sensor_file)
     model_cfg = _init_config(init, photons)

@@ -394,3 +394,14 @@ def test_a_sensor_file_nested_too_deeply_or_an_irf_folder_is_one_line(tmp_path):
     (tmp_path / "irf.csv").mkdir()
     with pytest.raises(IsADirectoryError, match="irf.csv is a folder"):
         read_irf_file(tmp_path / "irf.csv")
+
+
+def test_an_out_holding_a_run_is_refused_before_any_work(tmp_path):
+    """Without --resume or --force, a folder holding a run is refused first: before the sensor file is read and
+    the validation set drawn (the half minute that took before the refusal came)."""
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "best.npz").write_bytes(b"a run")
+    with pytest.raises(FileExistsError, match="holds a training run .*--resume .*--force"):
+        jaxsr.training.finetune(tmp_path / "run", sensor_file=tmp_path / "missing.toml", progress=False)
+    with pytest.raises(FileExistsError, match="holds a training run"):
+        jaxsr.training.train(tmp_path / "run", tr=0, preset="cpu", progress=False)
