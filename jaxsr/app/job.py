@@ -25,7 +25,7 @@ from .recordings import (Recording, check_frames, clipped_recording, gate_frames
                          open_recording, time_tag_recording, to_units)
 from .specs import ModelChoice, PhotonRules, Reading, is_auto
 
-__all__ = ["UpscaleJob", "prepare_upscale", "HISTOGRAM_CHUNK"]
+__all__ = ["UpscaleJob", "prepare_upscale", "no_return_interior", "HISTOGRAM_CHUNK"]
 
 HISTOGRAM_CHUNK = 16  # histogram frames turned into the network's input per compiled call (`iter_network_inputs`)
 
@@ -193,8 +193,19 @@ def _depth_job(rec, source, choice, planned, read: Reading, photons: PhotonRules
 
     enable_compilation_cache()
     model, name, description = finish_model(choice, planned, "depth", lambda: _head(lr_stream(), HEAD_FRAMES))
+    # inside a region of no return (a pixel and its 8 neighbours), the output is no return too: a network reading
+    # depth alone shows some of a sky band as depth, and nothing there says a surface is
+    interior = None if model.has_no_return_head else (lambda: (no_return_interior(f) for f in lr_stream()))
     return UpscaleJob(rec, model, description, description, units, None, DepthScale(0.0, float(sensor.d_max)), (),
-                      source, choice.precision, model_id=name, _lr_stream=lr_stream)
+                      source, choice.precision, model_id=name, _lr_stream=lr_stream, _ambient_stream=interior)
+
+
+def no_return_interior(lr) -> np.ndarray:
+    """(h, w) LR normalised depth -> (h, w) bool: no return (1.0) at the pixel and at each of its 8 neighbours
+    (edge-replicated at the frame's border)."""
+    padded = np.pad(np.asarray(lr) >= 1.0, 1, mode="edge")
+    h, w = np.shape(lr)
+    return np.logical_and.reduce([padded[i:i + h, j:j + w] for i in range(3) for j in range(3)])
 
 
 def _histogram_job(rec, gate, source, tag_notes, choice, planned, read: Reading, photons: PhotonRules) -> UpscaleJob:

@@ -153,3 +153,18 @@ def test_bins_are_read_from_the_histograms(model_path):
     counts = np.asarray(np.random.default_rng(0).poisson(1.0, (2, 8, 8, 32)), np.float32)
     job = prepare_upscale(counts, model=model_path)
     assert job.gate.bins == 32
+
+
+def test_a_sky_band_of_depth_input_stays_no_return_inside(model_path):
+    """Depth input with a band of inf (no return) 3 LR rows high: the band's inner row comes out as no return
+    whatever the network reads there (a pixel whose 8 neighbours hold no return too); rows with returns are the
+    network's own."""
+    from jaxsr.app import Reading, upscale
+    from jaxsr.app.job import no_return_interior
+
+    frames = np.full((3, 8, 12), 12.0, np.float32)
+    frames[:, :3] = np.inf
+    out = upscale(frames, None, model=model_path, read=Reading(units="m")).depth
+    assert np.all(np.isinf(out[:, :8]))  # LR rows 0-1: their HR rows (the border row is edge-replicated)
+    flags = no_return_interior(np.where(np.isinf(frames[0]), 1.0, 0.3))
+    assert flags[:2].all() and not flags[2:].any()
