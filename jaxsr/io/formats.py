@@ -15,8 +15,10 @@ Conventions:
 from __future__ import annotations
 
 import csv
+import errno
 import json
 import re
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -121,7 +123,14 @@ def _write_oiio(tmp, pixels, pixel_type, attributes=()):
         if not out.write_image(np.ascontiguousarray(pixels)):
             raise ValueError(f"cannot write {tmp}: {out.geterror()}")
     finally:
-        out.close()
+        closed = out.close()
+    # some writers (PNG among them) report a failed write only in their error text, returning True: a full disk
+    # left empty files behind an exit status of 0
+    error = out.geterror()
+    if error or not closed:
+        full = shutil.disk_usage(Path(tmp).parent).free < pixels.nbytes
+        raise OSError(errno.ENOSPC if full else errno.EIO, f"{error.splitlines()[0] if error else 'close failed'}",
+                      str(tmp))
 
 
 def write_image(path, pixels, *, overwrite=False):
