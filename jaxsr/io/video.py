@@ -13,13 +13,16 @@ interrupted or failed video leaves nothing, and an existing file is replaced onl
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import math
+import shutil
 import warnings
 from pathlib import Path
 
 import numpy as np
 
-from .files import atomic_path, check_writable, refuse_link
+from .files import WriteError, atomic_path, check_writable, refuse_link
 from .previews import NO_RETURN_RGB, _colourise, _to_png
 
 __all__ = ["VIDEO_FORMATS", "DepthVideoWriter", "write_depth_video", "check_video"]
@@ -28,6 +31,7 @@ VIDEO_FORMATS = (".mp4", ".gif")
 DEFAULT_FPS = 25.0
 
 _BACKGROUND = (1.0, 1.0, 1.0)
+_FULL_BYTES = 2**20  # free space below which a failed write is the disk's being full
 _MARGIN, _GAP, _TITLE, _BAR, _BAR_BAND = 8, 4, 20, 10, 34  # pixels
 _FONT = 8  # points at 100 dpi
 _DIGIT_W = 7  # pixels per character of the frame number (monospace)
@@ -183,7 +187,7 @@ class DepthVideoWriter:
             else:
                 params = dict(codec="libx264", pix_fmt_out="yuv420p", quality=6, macro_block_size=16,
                               output_params=["-movflags", "+faststart", "-f", "mp4"])
-            self._writer = imageio_ffmpeg.write_frames(str(tmp), self.size, fps=self.fps, ffmpeg_log_level="error",
+            self._writer = imageio_ffmpeg.write_frames(str(tmp), self.size, fps=self.fps, ffmpeg_log_level="quiet",
                                                        **params)
             with warnings.catch_warnings():  # fork + exec of ffmpeg at once: JAX's threads are never touched
                 warnings.filterwarnings("ignore", message=r"os\.fork\(\) was called", category=RuntimeWarning)
@@ -199,9 +203,20 @@ class DepthVideoWriter:
         if ffmpeg failed."""
         writer, self._writer = self._writer, None
         if writer is not None:
-            writer.close()  # ffmpeg finishes the file (and ends, on an error too)
+            try:
+                writer.close()  # ffmpeg finishes the file (and ends, on an error too)
+            except (OSError, RuntimeError) as e:
+                raise self._ffmpeg_failed(e) from None
             if self.frames_written == 0:
                 raise ValueError(f"{self.path}: no frames to write")
+
+    def _ffmpeg_failed(self, error) -> WriteError:
+        """ffmpeg's failure (a closed pipe, its multi-line stderr naming the hidden temporary) as one `WriteError`
+        naming the video: "no space left on device while writing v.gif" where the disk is full."""
+        if shutil.disk_usage(self.path.parent).free < _FULL_BYTES:
+            return WriteError(errno.ENOSPC, self.path, "no space left on device")
+        first = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+        return WriteError(errno.EIO, self.path, f"ffmpeg failed ({first[:200]})")
 
     def __exit__(self, exc_type, exc, tb):
         try:
@@ -240,7 +255,13 @@ class DepthVideoWriter:
         """Append one video frame: one depth frame per panel, in metres (see `frame`)."""
         if self._writer is None:
             raise RuntimeError("DepthVideoWriter.write outside its `with` block")
-        self._writer.send(np.ascontiguousarray(self.frame(*panels)))
+        try:
+            self._writer.send(np.ascontiguousarray(self.frame(*panels)))
+        except (OSError, RuntimeError) as e:  # ffmpeg ended: a full disk, most often
+            writer, self._writer = self._writer, None
+            with contextlib.suppress(OSError, RuntimeError):
+                writer.close()
+            raise self._ffmpeg_failed(e) from None
         self.frames_written += 1
 
 

@@ -207,3 +207,13 @@ def test_png_frames_on_a_really_full_disk_exit_1_and_leave_nothing(small_tmpfs, 
     err = capsys.readouterr().err
     assert status == 1 and FULL in err and err.count("\n") == 2, err  # the note on the work, then the error
     assert not any(small_tmpfs.iterdir())
+
+
+def test_a_video_on_a_really_full_disk_is_one_line_naming_it(small_tmpfs, model_path, tmp_path, capsys):
+    """ffmpeg's failure on a full disk: one line naming the video, not ffmpeg's lines and a hidden temporary's."""
+    np.save(tmp_path / "in.npy", np.random.default_rng(0).uniform(2, 30, (20, 32, 64)).astype(np.float32))
+    status = cli.main(["upscale", str(tmp_path / "in.npy"), str(tmp_path / "out.npy"), "--model", str(model_path),
+                       "--units", "m", "--video", str(small_tmpfs / "v.gif"), "--no-progress"])
+    err = capsys.readouterr().err
+    assert status == 1 and f"{FULL} {small_tmpfs / 'v.gif'}" in err and "partial" in err.splitlines()[-1], err
+    assert "ffmpeg" not in err.lower() and not any(small_tmpfs.iterdir()) and not (tmp_path / "out.npy").exists()
