@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..checks import npz_array_bytes, require_memory
 from .files import atomic_path
 
 __all__ = [
@@ -358,18 +359,29 @@ def _nested_deeper(value, limit: int) -> bool:
     return False
 
 
-def read_npz_arrays(path, required=(), *, names=None):
+def read_npz_arrays(path, required=(), *, names=None, max_memory=None):
     """The arrays of an .npz file, read eagerly (no pickles): every one, or only those in `names` (the others are
-    never decompressed); the arrays named in `required` must be there.
+    never decompressed); the arrays named in `required` must be there. Their size is read from their headers first
+    and refused beyond `max_memory` (bytes or a size such as "16GB"; default `jaxsr.checks.memory_budget`, a share
+    of this machine's RAM): a small file that inflates to gigabytes is refused before it is read.
 
-    Args: path (.npz), required (names), names (names, or None for all). Returns a dict {name: array}; raises
-    FileNotFoundError, or ValueError for a truncated or foreign file or a missing array.
+    Args: path (.npz), required (names), names (names, or None for all), max_memory. Returns a dict {name: array};
+    raises FileNotFoundError, or ValueError for a truncated or foreign file, a missing array, a header that lies
+    or arrays beyond the memory budget.
     """
     path = _require_file(path)
     try:
         with np.load(path, allow_pickle=False) as z:
             found = list(z.files)
-            out = {k: z[k] for k in found if names is None or k in names}
+    except Exception as e:  # zipfile.BadZipFile, EOFError, ValueError on truncated files
+        raise ValueError(f"cannot read {path}: truncated or not an NPZ file ({e})") from e
+    wanted = [k for k in found if names is None or k in names]
+    require_memory(npz_array_bytes(path, wanted), f"{path}: its arrays {', '.join(wanted)}", max_memory)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            out = {k: read_entry(z, k, str(path)) for k in wanted}
+    except (DamagedFile, MemoryError):
+        raise
     except Exception as e:  # zipfile.BadZipFile, EOFError, ValueError on truncated files
         raise ValueError(f"cannot read {path}: truncated or not an NPZ file ({e})") from e
     missing = [k for k in required if k not in found]
@@ -378,11 +390,12 @@ def read_npz_arrays(path, required=(), *, names=None):
     return out
 
 
-def read_sequence(path):
+def read_sequence(path, *, max_memory=None):
     """Read a sequence written by `write_sequence`: a dict with 'depth' (T, H, W), 'intensity' if stored, and
     'metadata' (a dict).
 
-    Args: path (.npy or .npz). Returns a dict of arrays, depth of shape (T, H, W).
+    Args: path (.npy or .npz), max_memory (as `read_npz_arrays`). Returns a dict of arrays, depth of shape
+    (T, H, W).
     """
     if Path(path).suffix.lower() == ".npy":
         path = _require_file(path)
@@ -390,7 +403,7 @@ def read_sequence(path):
         if depth.ndim != 3:
             raise ValueError(f"{path}: expected a (T, H, W) sequence, got {depth.shape}")
         return dict(depth=depth, metadata={})
-    z = read_npz_arrays(path, ["depth"])
+    z = read_npz_arrays(path, ["depth"], max_memory=max_memory)
     z["metadata"] = _json_metadata(z["metadata"], f"{path}: metadata") if "metadata" in z else {}
     return z
 
@@ -424,12 +437,13 @@ def write_histograms(path, counts, *, depth=None, sensor=None, overwrite=False, 
             np.savez_compressed(f, **arrays)
 
 
-def read_histograms(path):
+def read_histograms(path, *, max_memory=None):
     """Read `write_histograms` output: dict(counts=, depth= (if stored), config= dict, metadata= dict).
 
-    Args: path (.npz). Returns a dict; counts of shape (T, h, w, K).
+    Args: path (.npz), max_memory (as `read_npz_arrays`: a file inflating beyond it is refused before it is
+    read). Returns a dict; counts of shape (T, h, w, K).
     """
-    z = read_npz_arrays(path, ["counts"])
+    z = read_npz_arrays(path, ["counts"], max_memory=max_memory)
     z["config"] = _json_metadata(z["config"], f"{path}: config") if "config" in z else {}
     z["metadata"] = _json_metadata(z["metadata"], f"{path}: metadata") if "metadata" in z else {}
     return z

@@ -580,3 +580,15 @@ def test_files_that_are_not_npy_or_npz_are_named_so_without_numpys_pickle_advice
     with pytest.raises(ValueError, match="not an .npz file") as e:
         load_model(tmp_path / "m.npz")
     assert "allow_pickle" not in str(e.value)
+
+
+def test_reading_an_npz_that_inflates_beyond_the_budget_is_refused_before_it_is_read(tmp_path):
+    """A few kB of zeros that inflate to 400 MB: refused from the headers under a 100 MB budget, read under the
+    default."""
+    np.savez_compressed(tmp_path / "h.npz", counts=np.zeros((100, 256, 256, 16), np.uint8))
+    assert (tmp_path / "h.npz").stat().st_size < 2e6
+    with pytest.raises(ValueError, match=r"h.npz: its arrays counts needs about 105 MB of memory, more than the"):
+        io.read_histograms(tmp_path / "h.npz", max_memory="100MB")
+    np.savez_compressed(tmp_path / "s.npz", depth=np.zeros((100, 512, 512), np.float32))
+    with pytest.raises(ValueError, match="needs about 105 MB of memory"):
+        io.read_sequence(tmp_path / "s.npz", max_memory="50MB")
