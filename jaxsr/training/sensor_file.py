@@ -274,6 +274,11 @@ def fit_irf(values, *, sample_width_bins: float = 1.0) -> dict:
     if not (math.isfinite(sample_width_bins) and sample_width_bins > 0):
         raise ValueError(f"fit_irf: sample_width_bins must be a finite number > 0, got {sample_width_bins}")
     x = np.arange(n, dtype=np.float64)
+    median = float(np.median(y))
+    if median - y.min() > y.max() - median:  # a dip below the background, not a pulse above it
+        raise ValueError(f"fit_irf: the IRF dips {median - y.min():.4g} below its median {median:.4g} and rises only "
+                         f"{y.max() - median:.4g} above it: expected a pulse of counts above a background (inverted "
+                         "or background-subtracted with the wrong sign?)")
     b0 = float(np.percentile(y, 10))
     excess = np.clip(y - b0, 0.0, None)
     if not excess.max() > 0:

@@ -405,3 +405,13 @@ def test_an_out_holding_a_run_is_refused_before_any_work(tmp_path):
         jaxsr.training.finetune(tmp_path / "run", sensor_file=tmp_path / "missing.toml", progress=False)
     with pytest.raises(FileExistsError, match="holds a training run"):
         jaxsr.training.train(tmp_path / "run", tr=0, preset="cpu", progress=False)
+
+
+def test_an_inverted_irf_is_refused_not_fitted_wide():
+    """An IRF that dips below its background (a pulse with the wrong sign) was fitted to a sigma of 11.6 bins
+    (true 1.5) and trained on with warnings only."""
+    x = np.arange(64.0)
+    pulse = 500.0 * np.exp(-0.5 * ((x - 20.0) / 1.5) ** 2)
+    assert fit_irf(100.0 + pulse)["sigma_bins"] == pytest.approx(1.5, rel=0.05)
+    with pytest.raises(ValueError, match="dips .* below its median"):
+        fit_irf(1000.0 - pulse)
