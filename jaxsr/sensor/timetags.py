@@ -253,6 +253,11 @@ def _unit_s(tags: TimeTags) -> float:
     return _time_unit(tags.time_unit_s, f"{tags.source}: time_unit_s")
 
 
+# The widest gate `gate_of_tags` makes, metres of range (6.7 ms): photons spread further are stray tags or a wrong
+# time unit, and a gate over them holds nothing float32 depth can mean
+MAX_AUTO_GATE_M = 1e6
+
+
 def gate_of_tags(tags: TimeTags, *, bins: int = 16) -> Gate:
     """The gate that just covers the photons seen: `bins` bins from the first to the last arrival time, widened
     by a millionth of that span (half before the first photon, but never before time 0, the laser pulse; half
@@ -271,6 +276,12 @@ def gate_of_tags(tags: TimeTags, *, bins: int = 16) -> Gate:
                          "photons outside it (--drop-outside)")
     metres = METRES_PER_SECOND * _unit_s(tags)
     t0, t1 = float(tags.time.min()), float(tags.time.max())
+    if not (t1 - t0) * metres <= MAX_AUTO_GATE_M:  # a stray time tag, or the wrong unit: no lidar's gate
+        late = int(np.count_nonzero(tags.time > t0 + MAX_AUTO_GATE_M / metres))
+        raise ValueError(f"{tags.source}: the photons span {(t1 - t0) * metres:.3g} m of range (times {t0:.6g} to "
+                         f"{t1:.6g} in the tags' unit), beyond the {MAX_AUTO_GATE_M:g} m a gate may cover; {late} of "
+                         f"{tags.time.size} photons lie beyond that after the first: give the gate (--gate-start, "
+                         "--bin-width) and drop the photons outside it (--drop-outside), or check --time-unit")
     pad = 0.5e-6 * (t1 - t0)
     start = max(t0 - pad, 0.0)  # a photon at time 0 starts the gate at 0 m, not a hair before
     return Gate(bins, (t1 + pad - start) / bins * metres, start * metres)

@@ -8,8 +8,8 @@ import pytest
 import scipy.io
 
 from jaxsr.config import METRES_PER_SECOND, Gate
-from jaxsr.sensor.timetags import (TimeTags, gate_of_tags, histogram_time_tags, read_time_tags, time_tag_warnings,
-                                    time_tags_from_cells)
+from jaxsr.sensor.timetags import (MAX_AUTO_GATE_M, TimeTags, gate_of_tags, histogram_time_tags, read_time_tags,
+                                    time_tag_warnings, time_tags_from_cells)
 
 PS = 1e-12
 GATE = Gate.from_time(12, 100 * PS, 5000 * PS)  # 12 bins of 100 ps from 5000 ps
@@ -95,7 +95,7 @@ def test_the_default_gate_holds_the_first_and_last_photon(unit):
     rng = np.random.default_rng(1)
     for bins in (16, 7, 100_000):
         for _ in range(40):
-            times = rng.uniform(0, 1e7, 5)
+            times = rng.uniform(0, min(1e7, 0.99 * MAX_AUTO_GATE_M / (METRES_PER_SECOND * unit)), 5)  # a gate
             tags = time_tags_from_cells([[times, np.round(times)]], time_unit_s=unit)
             counts = histogram_time_tags(tags, gate_of_tags(tags, bins=bins))
             assert counts.sum() == 10
@@ -181,3 +181,11 @@ def test_a_time_unit_1000x_off_names_the_likely_one():
     assert re.fullmatch(r"cells: the photons fall inside 0.0\d% of the gate; is the time unit right\? with "
                         r"--time-unit 1ps \(not 1fs\) 100% of them would fall inside, over 7% of the gate", note), note
     assert time_tag_warnings(time_tags_from_cells([[times]], time_unit_s=PS), GATE) == []
+
+
+def test_one_stray_photon_does_not_stretch_the_gate_to_light_years():
+    """One photon at 1e300 ps among photons at 10-30 ns: the automatic gate was 1e296 m wide (warned, exit 0);
+    now refused with a count and what to give."""
+    tags = time_tags_from_cells([[[10.0, 20.0], [1e300]], [[15.0], [30.0, 11.0]]], time_unit_s=1e-12)
+    with pytest.raises(ValueError, match=r"the photons span 1.5e\+296 m of range .* 1 of 6 photons lie beyond"):
+        gate_of_tags(tags)
