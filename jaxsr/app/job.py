@@ -116,6 +116,20 @@ class UpscaleJob:
         offset (the gate's start) and offset + span. Every picture, video and point cloud is drawn over it."""
         return float(self.scale.offset), float(self.scale.offset + self.scale.span)
 
+    def depth_range(self, frames: int = HEAD_FRAMES) -> tuple[float, float]:
+        """(first, last) metres of the depth the recording's first `frames` frames show (their returns' 1st and
+        99th percentiles of the LR input, widened to whole metres and kept inside `d_range`): the colour scale of
+        pictures where none is given. `d_range` where no return is seen."""
+        head = [f[..., 0] if f.ndim == 3 else f for f in itertools.islice(self.lr_frames(), frames)]
+        normalised = np.stack(head)
+        returns = normalised[normalised < 1.0]
+        if returns.size == 0:
+            return self.d_range
+        lo, hi = (float(v) for v in to_units(np.percentile(returns, [1, 99]).astype(np.float32), "m", self.scale))
+        first, last = self.d_range
+        lo, hi = max(first, np.floor(lo)), min(last, np.ceil(hi))
+        return (lo, hi) if hi > lo else self.d_range
+
     def lr_frames(self) -> Iterator[np.ndarray]:
         """A fresh stream of the network's input: (h, w) float32 LR normalised depth frames, one per frame
         ((h, w, C) for a model reading photons too: depth in channel 0, `jaxsr.nn.network_inputs`)."""

@@ -250,8 +250,9 @@ class Writing:
     depth (T, H, W) to show beside them, a path in INPUT's depth formats, a NumPy array or a
     `jaxsr.app.recordings.Recording`, in metres or normalised. points (--points): a folder of PLY point clouds, one
     per frame, over a horizontal field of view of fov_deg degrees (--fov; None: the sensor model's 30), coloured by
-    depth (points_colour "depth") or not (None). overwrite (--force): replace an existing output, preview, video
-    or point clouds."""
+    depth (points_colour "depth") or not (None). vmin, vmax (--vmin, --vmax): the colour scale of previews, videos
+    and point clouds in metres (None: the recording's depth range, read from its first frames); cmap (--cmap): a
+    matplotlib colour map. overwrite (--force): replace an existing output, preview, video or point clouds."""
 
     frame_format: str | None = None
     preview: str | os.PathLike | None = None
@@ -262,6 +263,9 @@ class Writing:
     fov_deg: float | None = None
     points_colour: str | None = "depth"
     overwrite: bool = False
+    vmin: float | None = None
+    vmax: float | None = None
+    cmap: str = "turbo"
 
     def __post_init__(self):
         if self.frame_format is not None and self.frame_format not in FRAME_FORMATS:
@@ -280,6 +284,18 @@ class Writing:
                              f"{self.fov_deg!r}")
         if self.points_colour not in ("depth", None):
             raise ValueError(f"points_colour: 'depth' or None, got {self.points_colour!r}")
+        for name in ("vmin", "vmax"):
+            value = getattr(self, name)
+            if value is not None and (isinstance(value, bool) or not isinstance(value, numbers.Real)
+                                      or not math.isfinite(float(value))):
+                raise ValueError(f"{name} (--{name}): expected finite metres, got {value!r}")
+        if self.vmin is not None and self.vmax is not None and not self.vmin < self.vmax:
+            raise ValueError(f"vmin (--vmin) must be below vmax (--vmax), got {self.vmin:g} and {self.vmax:g}")
+        import matplotlib  # late: the colour maps are only needed where pictures are drawn
+
+        if self.cmap not in matplotlib.colormaps:
+            raise ValueError(f"cmap (--cmap): expected a matplotlib colour map such as 'turbo' or 'viridis', got "
+                             f"{self.cmap!r}")
         try:
             object.__setattr__(self, "overwrite", _flag(self.overwrite))
         except TypeError as e:

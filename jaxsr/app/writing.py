@@ -170,7 +170,8 @@ def _write(job: UpscaleJob, outputs: Outputs, frame_format, ref, batch_size: int
     """Stream the job through the network into the output and the pictures: (PNG pixels saturated, the result
     (T, H, W) when kept in memory, else None)."""
     write, out, scale = outputs.writing, outputs.output, job.scale
-    d_min, d_max = job.d_range
+    d_min, d_max = _colour_range(job, write) if write.preview or write.video else job.d_range
+    cmap = write.cmap
     shape = (job.frames, *job.hr_shape)
     preview_t = job.frames // 2
     preview_lr, preview_hr = [], []  # the preview's frames, kept as they stream past (no second pass)
@@ -197,12 +198,16 @@ def _write(job: UpscaleJob, outputs: Outputs, frame_format, ref, batch_size: int
             labels = (input_label, label) + (() if ref is None else ("reference",))
             rate = write.fps if write.fps is not None else job.fps if job.fps is not None else DEFAULT_FPS
             film = looks.enter_context(DepthVideoWriter(outputs.video, job.hr_shape, labels=labels, fps=rate,
-                                                        d_min=d_min, d_max=d_max, frames=job.frames,
+                                                        d_min=d_min, d_max=d_max, frames=job.frames, cmap=cmap,
                                                         overwrite=write.overwrite))
         if outputs.points is not None:
             fov = DEFAULT_FOV_DEG if write.fov_deg is None else write.fov_deg
+            # a cloud's geometry keeps every return: its colours span the given scale or the sensor's whole range
+            c_min = job.d_range[0] if write.vmin is None else write.vmin
+            c_max = job.d_range[1] if write.vmax is None else write.vmax
             clouds = looks.enter_context(PointCloudWriter(outputs.points, fov_deg=fov, colour=write.points_colour,
-                                                          d_min=d_min, d_max=d_max, overwrite=write.overwrite))
+                                                          d_min=c_min, d_max=c_max, cmap=cmap,
+                                                          overwrite=write.overwrite))
         ref_frames = None if ref is None else iter(ref[0])
 
         def frames(units):
@@ -219,16 +224,16 @@ def _write(job: UpscaleJob, outputs: Outputs, frame_format, ref, batch_size: int
                         panels = [to_units(lr_ahead.popleft(), "m", scale), metres]
                         if ref_frames is not None:
                             panels.append(_metres(next(ref_frames), ref[1], scale))
-                        film.write(*panels)
+                        film.write(*(_on_scale(p, d_min, d_max) for p in panels))
                     if clouds is not None:
                         clouds.write(metres)
                 yield t, to_units(hr, units, scale)
 
         def finish():  # inside the output's atomic block: a failed preview or video leaves no output either
             if outputs.preview is not None:
-                write_comparison(outputs.preview, to_units(preview_lr[0], "m", scale),
-                                 to_units(preview_hr[0], "m", scale), d_min=d_min, d_max=d_max,
-                                 labels=(input_label, label), overwrite=write.overwrite)
+                write_comparison(outputs.preview, _on_scale(to_units(preview_lr[0], "m", scale), d_min, d_max),
+                                 _on_scale(to_units(preview_hr[0], "m", scale), d_min, d_max), d_min=d_min,
+                                 d_max=d_max, cmap=cmap, labels=(input_label, label), overwrite=write.overwrite)
             if film is not None:
                 film.finish()
 
@@ -265,6 +270,23 @@ def _write(job: UpscaleJob, outputs: Outputs, frame_format, ref, batch_size: int
                         saturated += np.count_nonzero(np.isfinite(f) & (f > PNG_MAX_M))
                 finish()
     return saturated, depth
+
+
+def _colour_range(job: UpscaleJob, write: Writing) -> tuple[float, float]:
+    """The pictures' colour scale in metres: --vmin / --vmax where given, the recording's depth range elsewhere."""
+    lo, hi = job.depth_range() if write.vmin is None or write.vmax is None else (write.vmin, write.vmax)
+    lo = lo if write.vmin is None else write.vmin
+    hi = hi if write.vmax is None else write.vmax
+    if not lo < hi:
+        raise ValueError(f"the colour scale from {lo:g} to {hi:g} m is empty: give --vmin below --vmax")
+    return float(lo), float(hi)
+
+
+def _on_scale(metres, d_min: float, d_max: float) -> np.ndarray:
+    """Depth in metres with its returns clipped to the colour scale (a return beyond d_max is drawn at its end, not
+    as no return); no return (inf, NaN) stays."""
+    metres = np.asarray(metres, np.float32)
+    return np.where(np.isfinite(metres), np.clip(metres, d_min, d_max), metres)
 
 
 def _frame_format(frame_format: str | None, outputs: Outputs, job: UpscaleJob) -> str | None:

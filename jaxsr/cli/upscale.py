@@ -110,7 +110,8 @@ def add_parser(subparsers):
     p.add_argument("--min-fps", type=positive_float, default=None,
                    help="with --model auto: the slowest acceptable frames/s")
     p.add_argument("--preview", default=None, help="write an input | output PNG strip of the middle frame")
-    g = p.add_argument_group("pictures to look at (one colour scale in metres: the true range, gate start included)")
+    g = p.add_argument_group("pictures to look at (one colour scale in metres: the recording's depth range, or "
+                             "--vmin, --vmax)")
     g.add_argument("--video", default=None, metavar="PATH",
                    help="write an .mp4 or .gif of every frame: input (nearest-neighbour upscaled) | output (| "
                    "reference), one colour scale with a colour bar in metres, no return black, the frame number")
@@ -124,6 +125,12 @@ def add_parser(subparsers):
                    "pixels left out; coloured by depth)")
     g.add_argument("--fov", type=positive_float, default=None, metavar="DEG",
                    help="--points: horizontal field of view in degrees (default 30, the sensor model's)")
+    g.add_argument("--vmin", type=finite_float, default=None, metavar="M",
+                   help="the colour scale's first depth in metres (default: the recording's nearest returns)")
+    g.add_argument("--vmax", type=finite_float, default=None, metavar="M",
+                   help="the colour scale's last depth in metres (default: the recording's farthest returns)")
+    g.add_argument("--cmap", default="turbo", metavar="NAME",
+                   help="the colour map of previews, videos and point clouds (a matplotlib name; default turbo)")
     g.add_argument("--points-colour", choices=["depth", "none"], default="depth",
                    help="--points: colour the points by depth (default) or write x, y, z only")
     p.add_argument("--force", action="store_true", help="overwrite OUTPUT (and the preview, video and point clouds)")
@@ -140,7 +147,8 @@ def run(args) -> int:
     photons = PhotonRules(ambient_alpha=args.ambient_alpha, keep_returns=args.keep_returns)
     write = Writing(frame_format=args.frame_format, preview=args.preview, video=args.video, fps=args.fps,
                     reference=args.reference, points=args.points, fov_deg=args.fov,
-                    points_colour=None if args.points_colour == "none" else args.points_colour, overwrite=args.force)
+                    points_colour=None if args.points_colour == "none" else args.points_colour, overwrite=args.force,
+                    vmin=args.vmin, vmax=args.vmax, cmap=args.cmap)
     result = upscale(args.input, args.output, model=model, read=read, photons=photons, write=write,
                      batch_size=args.batch_size, max_memory=args.max_memory, progress=not args.no_progress,
                      report=lambda line: print(f"jaxsr upscale: {line}", file=sys.stderr, flush=True))

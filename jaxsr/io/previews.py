@@ -75,6 +75,45 @@ def write_preview(path, depth, *, d_max=35.0, d_min=0.0, cmap="turbo", normalise
     write_image(path, _to_png(_colourise(depth, d_min, d_max, cmap)), overwrite=overwrite)
 
 
+def render(width: int, height: int, draw, facecolor=(1.0, 1.0, 1.0)):
+    """An RGB float image (height, width, 3) drawn by `draw(fig)` with matplotlib's Agg renderer."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(width / 100, height / 100), dpi=100, facecolor=facecolor)
+    canvas = FigureCanvasAgg(fig)
+    draw(fig)
+    canvas.draw()
+    return np.asarray(canvas.buffer_rgba())[..., :3].astype(np.float32) / 255.0
+
+
+COLOUR_BAR_HEIGHT = 34  # pixels of a preview's colour bar, its tick labels included
+
+
+def colour_bar(width: int, d_min: float, d_max: float, cmap: str = "turbo") -> np.ndarray:
+    """(COLOUR_BAR_HEIGHT, width, 3) float RGB: the colour scale from d_min to d_max metres with ticks in metres,
+    and a black swatch for no return, on white."""
+    import matplotlib
+    from matplotlib.ticker import FuncFormatter, MaxNLocator
+
+    def draw(fig):
+        legend = 70
+        ax = fig.add_axes((16 / width, 0.55, max(0.1, (width - legend - 26) / width), 0.4))  # room for "0 m"
+        ax.imshow(np.linspace(0, 1, 256)[None], aspect="auto", cmap=matplotlib.colormaps[cmap],
+                  extent=(d_min, d_max, 0, 1))
+        ax.set_yticks([])
+        ax.xaxis.set_major_locator(MaxNLocator(nbins=max(3, width // 90)))
+        ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g} m"))
+        ax.tick_params(axis="x", labelsize=7, length=2, pad=1)
+        swatch = fig.add_axes(((width - legend + 2) / width, 0.55, 10 / width, 0.4))
+        swatch.set_facecolor((0.0, 0.0, 0.0))
+        swatch.set_xticks([])
+        swatch.set_yticks([])
+        fig.text((width - legend + 15) / width, 0.75, "no return", fontsize=7, va="center")
+
+    return render(width, COLOUR_BAR_HEIGHT, draw)
+
+
 def _label(rgb, text):
     """Draw `text` in the top-left corner with matplotlib's Agg renderer (white on a dark box)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -99,7 +138,7 @@ def write_comparison(path, lr, sr, *, gt=None, d_max=35.0, d_min=0.0, cmap="turb
     d_min to d_max metres (the sensor's true range, the gate's start included) for every panel; no return is black.
 
     Args: path (.png), lr (h, w), sr (H, W), gt (H, W) or None. Returns None (a PNG of shape
-    (H, n W + 2 (n - 1), 3) for n panels).
+    (H + COLOUR_BAR_HEIGHT, n W + 2 (n - 1), 3) for n panels: the colour scale in metres under them).
     """
     _check_range(d_min, d_max)
     frames = [_metres_or_normalised(a, d_min, d_max) for a in ((lr, sr) if gt is None else (lr, sr, gt))]
@@ -116,6 +155,7 @@ def write_comparison(path, lr, sr, *, gt=None, d_max=35.0, d_min=0.0, cmap="turb
         panels = [_label(p, t) for p, t in zip(panels, labels)]
     gap = np.ones((shape[0], 2, 3), np.float32)
     strip = np.concatenate([x for p in panels for x in (gap, p)][1:], axis=1)
+    strip = np.concatenate([strip, colour_bar(strip.shape[1], d_min, d_max, cmap)], axis=0)
     write_image(path, _to_png(strip), overwrite=overwrite)
 
 

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from .files import WriteError, atomic_path, check_writable, refuse_link
-from .previews import NO_RETURN_RGB, _colourise, _to_png
+from .previews import NO_RETURN_RGB, _colourise, _to_png, render
 
 __all__ = ["VIDEO_FORMATS", "DepthVideoWriter", "write_depth_video", "check_video"]
 
@@ -58,15 +58,8 @@ def check_video(spec, *, force: bool, output=None) -> Path:
 
 
 def _render(width, height, draw):
-    """An RGB float image (height, width, 3) drawn by `draw(fig)` with matplotlib's Agg renderer."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(width / 100, height / 100), dpi=100, facecolor=_BACKGROUND)
-    canvas = FigureCanvasAgg(fig)
-    draw(fig)
-    canvas.draw()
-    return np.asarray(canvas.buffer_rgba())[..., :3].astype(np.float32) / 255.0
+    """An RGB float image (height, width, 3) drawn by `draw(fig)` on the video's background."""
+    return render(width, height, draw, facecolor=_BACKGROUND)
 
 
 class DepthVideoWriter:

@@ -118,3 +118,23 @@ def test_bad_look_options_are_clear_errors(tmp_path, model_path, gated, capsys, 
     err = capsys.readouterr().err
     assert __import__("re").search(message, err), err
     assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+def test_the_colour_scale_is_the_recordings_depth_range_or_the_one_given(tmp_path, model_path):
+    """A scene at 2-5 m: the pictures' scale spans its returns (whole metres), not the 0-35 m gate, unless --vmin /
+    --vmax say; a bad colour map or an empty scale is refused before the work."""
+    from jaxsr.app import Reading, Writing, prepare_upscale, upscale
+    from jaxsr.app.writing import _colour_range
+
+    near = np.random.default_rng(0).uniform(2.2, 4.8, (3, 32, 64)).astype(np.float32)
+    job = prepare_upscale(near, model=model_path, read=Reading(units="m"))
+    assert job.depth_range() == (2.0, 5.0) and job.d_range == (0.0, 35.0)
+    assert _colour_range(job, Writing(preview="p.png")) == (2.0, 5.0)
+    assert _colour_range(job, Writing(preview="p.png", vmax=10.0)) == (2.0, 10.0)
+    upscale(near, tmp_path / "o.npy", model=model_path, read=Reading(units="m"),
+            write=Writing(preview=tmp_path / "p.png", cmap="viridis"))
+    assert io.read_image(tmp_path / "p.png").shape[0] > 128  # the panels and the colour bar
+    with pytest.raises(ValueError, match="a matplotlib colour map"):
+        Writing(cmap="nope")
+    with pytest.raises(ValueError, match="vmin .* must be below vmax"):
+        Writing(vmin=5.0, vmax=2.0)

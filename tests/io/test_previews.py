@@ -24,7 +24,7 @@ def test_previews(tmp_path):
     lr = np.clip(d[::4, ::4] / 35, 0, 1)
     previews.write_comparison(tmp_path / "c.png", lr, d / 35, gt=d / 35)
     strip = io.read_image(tmp_path / "c.png")
-    assert strip.shape == (32, 3 * 64 + 4, 3)
+    assert strip.shape == (32 + previews.COLOUR_BAR_HEIGHT, 3 * 64 + 4, 3)  # the colour scale under the panels
     with pytest.raises(ValueError, match="downscale"):
         previews.write_comparison(tmp_path / "c2.png", d[:5, :7], d, gt=d)
 
