@@ -120,7 +120,7 @@ def _scene(input, kind, frames, fps, camera, seed, sensor):
 
 def simulate_recording(out, *, kind: str = "street", input=None, frames: int = 20, fps: float = 25.0,
                        snr: float = 1.3, mean_signal: float | None = None, camera: str = "static", seed: int = 0,
-                       overwrite: bool = False, max_memory=None) -> Simulation:
+                       overwrite: bool = False, max_memory=None, report=None) -> Simulation:
     """Simulate a SPAD recording and write it: `jaxsr simulate --out OUT` in one call.
 
     Renders `frames` frames of a procedural scene of `kind` ("street", "road", "courtyard" or "walkers", --kind)
@@ -136,8 +136,9 @@ def simulate_recording(out, *, kind: str = "street", input=None, frames: int = 2
     truth strip), written into a hidden temporary folder and moved in when all are written; None writes nothing.
     overwrite (--force): replace those files in `out`. max_memory (--max-memory): the memory the command may take,
     bytes or a size such as "16GB" (default a share of this machine's RAM, `jaxsr.checks.memory_budget`), checked
-    against an estimate from the frames (rendered or listed by the AirSim recording) before any work. Options are
-    keyword-only.
+    against an estimate from the frames (rendered or listed by the AirSim recording) before any work. report:
+    called with a line for people at each long step (rendering, photons, writing; `jaxsr simulate` prints them).
+    Options are keyword-only.
 
     Returns a `Simulation` (the arrays, the metadata and the bicubic baseline's PSNR / SSIM; `summary()` is the
     command's JSON). Raises FileExistsError (out is a file, or holds the outputs without overwrite), ValueError
@@ -147,8 +148,12 @@ def simulate_recording(out, *, kind: str = "street", input=None, frames: int = 2
     sensor = SensorConfig()
     _check_options(kind, frames, fps, snr, mean_signal, camera, seed)
     out = None if out is None else _check_out(out, overwrite)
-    _check_memory(int(frames) if input is None else _airsim_frames(input), max_memory)
+    n = int(frames) if input is None else _airsim_frames(input)
+    _check_memory(n, max_memory)
+    say = report or (lambda line: None)
+    say(f"rendering {n} frames of {'the AirSim recording' if input is not None else f'a {kind} scene'}")
     depth, intensity, fps, source = _scene(input, kind, int(frames), fps, camera, int(seed), sensor)
+    say(f"simulating photons at SNR {snr:g} and the centre of mass")
     mean_signal = DEFAULT_MEAN_SIGNAL if mean_signal is None else mean_signal
     counts = simulate_histograms(jax.random.key(int(seed) + 1), jnp.asarray(depth), jnp.asarray(intensity), sensor,
                                  snr=snr, mean_signal=mean_signal)
@@ -159,6 +164,7 @@ def simulate_recording(out, *, kind: str = "street", input=None, frames: int = 2
     gt = np.asarray(normalise_depth(jnp.asarray(depth), sensor))
     up = np.asarray(bicubic(com, scale=sensor.scale))
     if out is not None:
+        say(f"writing {out}")
         with atomic_folder(out) as tmp:
             write_histograms(tmp / "histograms.npz", counts, depth=depth, sensor=sensor, **meta)
             write_sequence(tmp / "com_depth.npy", com)

@@ -11,6 +11,7 @@ are written, so a failed or stopped run leaves nothing behind.
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 from ..app.simulate import simulate_recording
@@ -42,6 +43,7 @@ def add_parser(subparsers):
 def run(args) -> int:
     result = simulate_recording(args.out, kind=args.kind, input=args.input, frames=args.frames, fps=args.fps,
                                 snr=args.snr, mean_signal=args.mean_signal, camera=args.camera, seed=args.seed,
-                                overwrite=args.force, max_memory=args.max_memory)
+                                overwrite=args.force, max_memory=args.max_memory,
+                                report=lambda line: print(f"jaxsr simulate: {line}", file=sys.stderr, flush=True))
     print(json.dumps(result.summary()))
     return 0
