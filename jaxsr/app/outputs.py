@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io.files import check_output_folder, check_writable, refuse_link
+from ..io.files import check_new_file, check_output_folder, refuse_link
 from ..io.pointcloud import check_points_folder
 from ..io.video import check_video
 from .recordings import ARRAY_FORMATS, FRAME_FORMATS, Recording, open_recording
@@ -106,7 +106,7 @@ def check_output(spec, *, force: bool) -> Path:
     out = Path(spec)
     refuse_link(out, "OUTPUT")
     if out.suffix.lower() in ARRAY_FORMATS:
-        _check_new_file(out, force=force, what=f"OUTPUT {out.suffix}")
+        check_new_file(out, force=force, what=f"OUTPUT {out.suffix}")
     elif out.suffix:
         raise ValueError(f"{out}: OUTPUT is an .npy or .npz file, or a folder for frames (see --frame-format)")
     elif out.exists() and not out.is_dir():
@@ -117,18 +117,6 @@ def check_output(spec, *, force: bool) -> Path:
         _check_ancestors(out)
         check_output_folder(out)
     return out
-
-
-def _check_new_file(path: Path, *, force: bool, what: str) -> None:
-    """A file about to be written: not a folder, not an existing file unless `force`, in an existing folder that
-    this process can write into."""
-    if path.is_dir():
-        raise IsADirectoryError(f"{path} is a folder; {what} is a file")
-    if path.exists() and not force:
-        raise FileExistsError(f"{path} exists; pass --force to overwrite it")
-    if not path.parent.is_dir():
-        raise FileNotFoundError(f"no such folder for {what}: {path.parent}")
-    check_writable(path.parent, path)
 
 
 def _check_ancestors(path: Path) -> None:
@@ -148,7 +136,7 @@ def check_preview(spec, *, force: bool, output=None) -> Path:
         raise ValueError(f"{path}: the preview is a .png file")
     if output is not None and path.resolve() == Path(output).resolve():
         raise ValueError(f"{path}: the preview and OUTPUT are the same file")
-    _check_new_file(path, force=force, what="the preview")
+    check_new_file(path, force=force, what="the preview")
     return path
 
 

@@ -262,6 +262,18 @@ def _umask() -> int:
     return mask
 
 
+def check_new_file(path: Path, *, force: bool, what: str) -> None:
+    """A file about to be written (`what` names it for people): not a folder, not an existing file unless `force`,
+    in an existing folder that this process can write into. Writes nothing."""
+    if path.is_dir():
+        raise IsADirectoryError(f"{path} is a folder; {what} is a file")
+    if path.exists() and not force:
+        raise FileExistsError(f"{path} exists; pass --force (overwrite=True) to overwrite it")
+    if not path.parent.is_dir():
+        raise FileNotFoundError(f"no such folder for {what}: {path.parent}")
+    check_writable(path.parent, path)
+
+
 @contextlib.contextmanager
 def atomic_path(path, *, overwrite: bool = False, make_parents: bool = False):
     """Yield a temporary path beside `path`; when the block succeeds, move it onto `path`.

@@ -109,6 +109,9 @@ def _read_raw(path):
     return _read_oiio(path)
 
 
+_WRITE_FAILED = re.compile(r"write error|could only write|no space|cannot write|failed to write", re.IGNORECASE)
+
+
 def _write_oiio(tmp, pixels, pixel_type, attributes=()):
     oiio = _oiio()
     h, w, c = pixels.shape
@@ -128,7 +131,7 @@ def _write_oiio(tmp, pixels, pixel_type, attributes=()):
     # some writers (PNG among them) report a failed write only in their error text, returning True: a full disk
     # left empty files behind an exit status of 0
     error = out.geterror()
-    if error or not closed:
+    if not closed or _WRITE_FAILED.search(error):  # its other messages are warnings (TIFF's Exif directory)
         full = shutil.disk_usage(Path(tmp).parent).free < pixels.nbytes
         raise OSError(errno.ENOSPC if full else errno.EIO, f"{error.splitlines()[0] if error else 'close failed'}",
                       str(tmp))

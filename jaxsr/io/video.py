@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .files import WriteError, atomic_path, check_writable, refuse_link
+from .files import WriteError, atomic_path, check_new_file, refuse_link
 from .previews import NO_RETURN_RGB, _colourise, _to_png, render
 
 __all__ = ["VIDEO_FORMATS", "DepthVideoWriter", "write_depth_video", "check_video"]
@@ -47,13 +47,7 @@ def check_video(spec, *, force: bool, output=None) -> Path:
     if output is not None and path.resolve() == Path(output).resolve():
         raise ValueError(f"{path}: the video and OUTPUT are the same file")
     refuse_link(path, "the video")
-    if path.is_dir():
-        raise IsADirectoryError(f"{path} is a folder; the video is a file")
-    if path.exists() and not force:
-        raise FileExistsError(f"{path} exists; pass --force (overwrite=True) to overwrite it")
-    if not path.parent.is_dir():
-        raise FileNotFoundError(f"no such folder for the video: {path.parent}")
-    check_writable(path.parent, path)
+    check_new_file(path, force=force, what="the video")
     return path
 
 

@@ -12,6 +12,7 @@ import pytest
 
 import jaxsr
 from jaxsr import cli, io
+from jaxsr.io.previews import COLOUR_BAR_HEIGHT
 
 # The subcommands the README documents.
 SUBCOMMANDS = {"simulate", "train", "finetune", "upscale", "info", "models"}
@@ -36,7 +37,7 @@ def test_simulate_scene(tmp_path, capsys):
     assert np.median(np.abs(com - gt_lr)[gt_lr < 0.9]) < 0.1
     for name in ("preview_gt.png", "preview_com.png", "preview_intensity.png"):
         assert io.read_image(out / name).shape[:2] in {(128, 256), (32, 64)}
-    assert io.read_image(out / "preview_strip.png").shape[:2] == (128, 3 * 256 + 4)
+    assert io.read_image(out / "preview_strip.png").shape[:2] == (128 + COLOUR_BAR_HEIGHT, 3 * 256 + 4)
     # The reported baseline score is the PSNR of bicubic(centre of mass) against the normalised ground truth.
     from jaxsr import bicubic, normalise_depth, psnr
 

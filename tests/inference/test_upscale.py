@@ -11,6 +11,7 @@ from jaxsr.config import SensorConfig
 from jaxsr.inference import super_resolve
 from jaxsr.sensor.peaks import centre_of_mass
 from jaxsr.sensor.forward import normalise_depth
+from jaxsr.io.previews import COLOUR_BAR_HEIGHT
 
 SENSOR = SensorConfig()
 
@@ -29,9 +30,13 @@ def upscale(*args):
 
 
 def expected(model_path, lr):
+    """The network's output, and no return inside regions of no return, as `jaxsr upscale` gives depth frames."""
+    from jaxsr.app.job import no_return_interior
+    from jaxsr.inference import no_return_where
     from jaxsr.io.checkpoint import load_model
 
-    return np.clip(super_resolve(load_model(model_path), lr), 0, 1)
+    hr = np.clip(super_resolve(load_model(model_path), lr), 0, 1)
+    return np.stack([no_return_where(f, no_return_interior(lo)) for f, lo in zip(hr, np.asarray(lr))])
 
 
 def to_metres(n):
@@ -57,7 +62,7 @@ def test_histograms_npz_to_metres_npz_with_preview(tmp_path, model_path):
     assert seq["metadata"]["units"] == "m" and seq["depth"].shape == (3, 128, 256)
     want = to_metres(expected(model_path, np.asarray(centre_of_mass(counts.astype(np.float32), SENSOR))))
     np.testing.assert_allclose(seq["depth"], want, rtol=1e-5)
-    assert io.read_image(tmp_path / "strip.png").shape == (128, 2 * 256 + 2, 3)
+    assert io.read_image(tmp_path / "strip.png").shape == (128 + COLOUR_BAR_HEIGHT, 2 * 256 + 2, 3)
 
 
 @pytest.mark.parametrize("fmt", ["exr", "pfm", "tif", "png"])
