@@ -43,6 +43,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT))  # jaxsr from this checkout, installed or not (a lent machine's bare image)
 PART_BYTES = 16 * 2**20 - 2**16  # each file that comes back: under 16 MiB
 MAX_PARTS = 6  # 8 files may come back: the parts, session.log and one spare
 MAX_BYTES = 60 * 2**20  # all parts together, under the 64 MiB that may come back
