@@ -7,6 +7,7 @@ then `use_cpu_cores` and `enable_compilation_cache` once, right after `import ja
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import importlib.metadata
 import os
@@ -149,8 +150,9 @@ def enable_compilation_cache(*, path=None) -> Path | None:
     """Turn on JAX's persistent compilation cache, so that a second run skips XLA compilation.
 
     path: the cache folder (default: $JAXSR_CACHE_DIR, else $XDG_CACHE_HOME/jaxsr/xla, else ~/.cache/jaxsr/xla).
-    JAXSR_CACHE_DIR=off disables it. Takes no arrays (path is a scalar option); returns the folder used, or None
-    when disabled."""
+    JAXSR_CACHE_DIR=off disables it. The folder may be copied or moved, also to another machine of the same kind
+    (device, jaxlib, XLA flags): its entries' keys do not hold its path. Takes no arrays (path is a scalar
+    option); returns the folder used, or None when disabled."""
     if path is None:
         path = os.environ.get("JAXSR_CACHE_DIR")
         if path is None:
@@ -163,6 +165,10 @@ def enable_compilation_cache(*, path=None) -> Path | None:
     jax.config.update("jax_compilation_cache_dir", str(path))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+    with contextlib.suppress(AttributeError):  # a JAX without XLA's own caches
+        # XLA's GPU autotuning cache would live inside the folder, and its path would enter every entry's key: a
+        # copy elsewhere (the next slot's machine) would then miss on every entry
+        jax.config.update("jax_persistent_cache_enable_xla_caches", "none")
     return path
 
 

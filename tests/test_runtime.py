@@ -21,8 +21,32 @@ def test_compilation_cache_folder(tmp_path, monkeypatch):
         monkeypatch.setenv("JAXSR_CACHE_DIR", str(tmp_path / "xla"))
         assert enable_compilation_cache() == tmp_path / "xla"
         assert jax.config.jax_compilation_cache_dir == str(tmp_path / "xla")
+        assert jax.config.jax_persistent_cache_enable_xla_caches == "none"  # no path in the entries' keys
     finally:
         jax.config.update("jax_compilation_cache_dir", before)
+        jax.config.update("jax_persistent_cache_enable_xla_caches", "xla_gpu_per_fusion_autotune_cache_dir")
+
+
+_MOVED_CACHE_SCRIPT = """
+import sys, jax, jax.numpy as jnp
+from jaxsr.runtime import enable_compilation_cache
+enable_compilation_cache(path=sys.argv[1])
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)  # this small program is kept too
+jax.jit(lambda x: jnp.sin(x) @ x).lower(jnp.ones((64, 64))).compile()
+"""
+
+
+def test_compilation_cache_hits_from_a_copied_folder(tmp_path):
+    """A cache folder copied elsewhere (the next slot's machine) serves the same programs: nothing new compiled."""
+    import shutil
+
+    env = dict(os.environ, JAX_PLATFORMS="cpu")
+    run = [sys.executable, "-c", _MOVED_CACHE_SCRIPT]
+    subprocess.run([*run, str(tmp_path / "a")], check=True, env=env, timeout=120)
+    shutil.copytree(tmp_path / "a", tmp_path / "b")
+    subprocess.run([*run, str(tmp_path / "b")], check=True, env=env, timeout=120)
+    kept = sorted(p.name for p in (tmp_path / "a").iterdir())
+    assert kept and sorted(p.name for p in (tmp_path / "b").iterdir()) == kept
 
 
 _CORES_SCRIPT = """

@@ -6,6 +6,7 @@ their own), and the runs from a preset (`train`) or to a sensor described in a f
 
 from .optim import AdamState, adam_init, adam_update, lr_schedule, step_decay
 from .data import (
+    draw_batches,
     log_uniform,
     random_crop,
     regime_batches,
@@ -54,7 +55,8 @@ from .no_return import (CALIBRATION_SEED, calibrate_no_return, choose_no_return_
 
 __all__ = [
     "AdamState", "adam_init", "adam_update", "lr_schedule", "step_decay",
-    "log_uniform", "random_crop", "regime_batches", "regime_clips", "regime_draws", "regime_parameters", "run_keys",
+    "draw_batches", "log_uniform", "random_crop", "regime_batches", "regime_clips", "regime_draws", "regime_parameters",
+    "run_keys",
     "scene_batches", "scene_clips", "sequence_batches", "sequence_clips",
     "validation_set",
     "Recipe", "recipe", "register_recipe",

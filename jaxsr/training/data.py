@@ -37,6 +37,7 @@ from ..sensor.forward import calibrate, calibrated_rates, normalise_depth, simul
 from ..temporal import windows as temporal_windows
 
 __all__ = [
+    "draw_batches",
     "log_uniform",
     "run_keys",
     "random_crop",
@@ -60,6 +61,20 @@ def run_keys(seed: int):
     that reproduce a run's start (e.g. its validation frames or a grown network's added blocks) use these."""
     root = jax.random.key(seed)
     return tuple(jax.random.fold_in(root, i) for i in range(3))
+
+
+def draw_batches(make_batch, key, steps):
+    """The batches of train steps `steps` (int array (n,)) of a run drawing its data with `key`, in one jitted,
+    vmapped call: what `make_batch(fold_in(key, s))` gives inside the train step of step s (as `fit` draws them),
+    stacked: (inputs (n, B, ...), gt (n, B, ...)). For a train step fed batches drawn ahead of it
+    (`make_train_step` with make_batch None): the data path then runs as one call per n steps, apart from the
+    network's."""
+    return _draw_batches(make_batch, key, jnp.asarray(steps, jnp.int32))
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _draw_batches(make_batch, key, steps):
+    return jax.vmap(lambda s: make_batch(jax.random.fold_in(key, s)))(steps)
 
 
 def log_uniform(key, lo: float, hi: float, shape=()):

@@ -61,6 +61,9 @@ def make_train_step(model_cfg: ModelConfig, train_cfg: TrainConfig, make_batch, 
     state are replicated (batch statistics and gradients are reduced over the mesh).
     conv3d_impl: how the network's convolutions run (see `apply_model`). `step.jitted(params, state, opt_state,
     key, lr)` is the jitted function underneath (for `.lower`), which takes the learning rate itself.
+    make_batch None: the step is fed batches drawn ahead of it (`jaxsr.training.data.draw_batches`), its 4th
+    argument the batch (inputs, gt) in place of the key; given the same batches, it computes what the step
+    drawing them inside does.
     """
     # the compiled step does not read the seed, the length of the run, the stopping rule or the learning rate
     # (an argument, from the schedule): runs that differ only in those (other seeds, more epochs on resume,
@@ -87,7 +90,8 @@ def _train_step(model_cfg, train_cfg, make_batch, mesh, conv3d_impl):
         return jax.lax.with_sharding_constraint(tree, NamedSharding(mesh, spec))
 
     def step_fn(params, state, opt_state, key, lr):
-        windows, gt = constrain(make_batch(key), P("data"))
+        # make_batch None: `key` is the batch itself, drawn ahead of the step
+        windows, gt = constrain(key if make_batch is None else make_batch(key), P("data"))
 
         def loss_fn(p):
             if DUF.sequence_form(model_cfg):
