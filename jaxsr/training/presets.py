@@ -16,6 +16,7 @@ from ..config import PRESETS, ModelConfig, PhotonRegime, SensorConfig
 from ..io.checkpoint import config_from_dict, read_metadata, resolve_model_path
 from ..io.files import removing_new_folder
 from ..io.formats import read_npz_arrays
+from ..nn.duf import DUF
 from ..nn.model import Model, architecture, architectures
 from .data import regime_batches, run_keys, sequence_batches, sequence_clips
 from .duf import initial_weights
@@ -211,7 +212,7 @@ def _init_config(init, photons: bool | None) -> ModelConfig:
                               no_return_logit=ModelConfig().no_return_logit)
     if cfg.scale != 4:
         raise ValueError(f"--from {init}: a x{cfg.scale} model; fine-tuning trains x4 models")
-    reads_photons = cfg.inputs != ("depth",) or cfg.no_return_head
+    reads_photons = DUF.reads_photons(cfg) or DUF.no_return_head(cfg)
     if photons:  # the photon inputs added to what the model reads (tr4-ambient keeps its ambient channel)
         inputs = cfg.inputs + tuple(n for n in PHOTON_INPUTS["inputs"] if n not in cfg.inputs)
         return dataclasses.replace(cfg, inputs=inputs, no_return_head=True)
@@ -308,7 +309,7 @@ def finetune(out, *, sensor_file, init="tr4", epochs: int = 10, steps_per_epoch:
         start = _start_score(model_cfg, train_cfg, init_path, validation, sensor)
     extra = {"sensor_file": entry, "regime": regime.to_dict(),
              "finetune": {"from": str(init), "lr_factor": FINETUNE_LR_FACTOR, "val_batches": val_batches,
-                          "preset": preset, "photons": model_cfg.inputs != ("depth",), "start": start}}
+                          "preset": preset, "photons": DUF.reads_photons(model_cfg), "start": start}}
     if progress:
         print(f"starting from {init}: val loss {start['val_loss']:.3e}, val PSNR {start['val_psnr']:.2f} dB")
     model, history = _fit_in_new_folder(out, model_cfg, train_cfg, make_batch=make_batch, validation=validation,
