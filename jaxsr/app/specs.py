@@ -39,7 +39,8 @@ DEFAULT_BINS = 16
 # (0.1 mm to 1 km), and float32 depth on spans beyond these holds nothing the models can mean
 BIN_WIDTH_RANGE_M = (1e-4, 1e3)
 SPAN_RANGE_M = (1e-3, 1e6)
-MAX_FPS = 1000.0  # frames per second of a video: beyond it, players show nothing of it
+# frames per second of a video: beyond these, players show nothing of it (ffmpeg refuses far below)
+MIN_FPS, MAX_FPS = 0.1, 1000.0
 
 
 def is_auto(setting) -> bool:
@@ -66,10 +67,11 @@ def _flag(value) -> bool:
 
 
 def check_fps(fps, what: str) -> float:
-    """A video's frames per second: a number > 0 and at most `MAX_FPS`."""
-    fps = one_positive_number(fps, what, f"frames per second > 0 and <= {MAX_FPS:g}")
-    if fps > MAX_FPS:
-        raise ValueError(f"{what}: expected frames per second > 0 and <= {MAX_FPS:g}, got {fps:g}")
+    """A video's frames per second: a number from `MIN_FPS` to `MAX_FPS`."""
+    expected = f"frames per second from {MIN_FPS:g} to {MAX_FPS:g}"
+    fps = one_positive_number(fps, what, expected)
+    if not MIN_FPS <= fps <= MAX_FPS:
+        raise ValueError(f"{what}: expected {expected}, got {fps:g}")
     return fps
 
 

@@ -128,7 +128,7 @@ def test_nan_output_is_refused_not_written_as_no_return(tmp_path, model_path):
     (lambda: np.ones((2, 8, 8, 16)), {"span": 1e300}, "span (--span): expected 0.001 to 1e+06 m"),
     (lambda: np.ones((2, 8, 8, 16)), {"span": 1e-300}, "span (--span): expected 0.001 to 1e+06 m"),
     (lambda: np.ones((2, 8, 8, 16)), {"bins": 16.5}, "bins (--bins): expected an integer >= 2"),
-    (lambda: np.ones((2, 8, 8)), {"fps": 1e9, "video": "v.gif"}, "fps (--fps): expected frames per second > 0"),
+    (lambda: np.ones((2, 8, 8)), {"fps": 1e9, "video": "v.gif"}, "fps (--fps): expected frames per second from 0.1 to 1000"),
     (lambda: np.ones((2, 8, 8)), {"fov_deg": 40.0}, "--fov applies to --points only"),
 ])
 def test_bad_input_ends_in_one_clear_error(tmp_path, model_path, make, options, message):
