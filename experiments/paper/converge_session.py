@@ -33,7 +33,6 @@ import json
 import math
 import os
 import shutil
-import signal
 import subprocess
 import sys
 import tarfile
@@ -44,6 +43,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))  # jaxsr from this checkout, installed or not (a lent machine's bare image)
+sys.path.insert(0, str(ROOT / "experiments"))  # the shared harness
+from harness.workers import epochs_of, stop, watch  # noqa: E402
 PART_BYTES = 16 * 2**20 - 2**16  # each file that comes back: under 16 MiB
 MAX_PARTS = 6  # 8 files may come back: the parts, session.log and one spare
 MAX_BYTES = 60 * 2**20  # all parts together, under the 64 MiB that may come back
@@ -317,23 +318,10 @@ def main(argv=None) -> None:
          "--checkpoint-s", str(args.checkpoint_s), *(["--quick"] if args.quick else [])],
         env=env, stdout=log, stderr=subprocess.STDOUT) for tr in args.tr}
     say(f"training TR {args.tr} at batch {args.batch}, {args.minutes} minutes")
-    packed = time.perf_counter()
-    while time.perf_counter() < t_end - 30 and any(p.poll() is None for p in workers.values()):
-        time.sleep(1)
-        if time.perf_counter() - packed > 30:  # a call killed at its limit still brings back what was reached
-            say(f"packed {pack(args.runs, args.tr, args.out)}")
-            packed = time.perf_counter()
-    for p in workers.values():
-        if p.poll() is None:
-            p.send_signal(signal.SIGINT)
+    watch(workers, until=t_end - 30, refresh=lambda: say(f"packed {pack(args.runs, args.tr, args.out)}"))
+    stop(workers)
     for tr, p in workers.items():
-        try:
-            p.wait(timeout=15)
-        except subprocess.TimeoutExpired:
-            p.kill()
-            p.wait()
-        epochs = (args.runs / f"tr{tr}" / "metrics.jsonl")
-        epochs = [json.loads(s) for s in epochs.read_text().splitlines() if s.strip()] if epochs.exists() else []
+        epochs = epochs_of(args.runs / f"tr{tr}")
         best = min(epochs, key=lambda e: e["val_loss"]) if epochs else None
         say(f"TR{tr}: exit {p.returncode}, {len(epochs)} epochs"
             + (f", best val PSNR {best['val_psnr']:.2f} dB (epoch {best['epoch']})" if best else ""))

@@ -22,17 +22,17 @@ default.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import shlex
 import shutil
-import signal
 import subprocess
 import sys
 import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parent))  # experiments/: the shared harness
+from harness.workers import epochs_of, stop, watch  # noqa: E402
 
 # the fine-tunes (photon_finetune.py arguments): each continues a bundled photon model on the wide regime
 # the ambient models' common settings: SNR up to 100 (a real recording, tower, reads 45), 500 steps of 16 an epoch
@@ -128,27 +128,18 @@ def main(argv=None) -> None:
          "--no-progress", "--checkpoint-minutes", "2", *(a for e in args.extra for a in shlex.split(e))],
         env=env, stdout=log, stderr=subprocess.STDOUT) for name in args.finetunes}
     say(f"fine-tunes started: {', '.join(trainers)}")
-    copied = time.perf_counter()
-    while time.perf_counter() < t_end - 20 and any(p.poll() is None for p in trainers.values()):
-        time.sleep(2)
-        if time.perf_counter() - copied > 30:  # a call killed at its limit still brings back what was reached
-            for name in trainers:
-                try:
-                    collect(args.runs / name, args.out, name)
-                except OSError as e:  # a failed copy must not stop the budget's watch; the last copy retries
-                    say(f"{name}: copy failed ({e})")
-            copied = time.perf_counter()
-    for p in trainers.values():
-        if p.poll() is None:
-            p.send_signal(signal.SIGINT)
+    def refresh():
+        for name in trainers:
+            try:
+                collect(args.runs / name, args.out, name)
+            except OSError as e:  # a failed copy must not stop the budget's watch; the last copy retries
+                say(f"{name}: copy failed ({e})")
+
+    watch(trainers, until=t_end - 20, refresh=refresh, poll_s=2.0)
+    stop(trainers)
     for name, p in trainers.items():
-        try:
-            p.wait(timeout=15)
-        except subprocess.TimeoutExpired:
-            p.kill()
         collect(args.runs / name, args.out, name)
-        epochs = [json.loads(s) for s in (args.runs / name / "metrics.jsonl").read_text().splitlines()
-                  if s.strip()] if (args.runs / name / "metrics.jsonl").exists() else []
+        epochs = epochs_of(args.runs / name)
         say(f"{name}: exit {p.returncode}, {len(epochs)} epochs" +
             (f", last val PSNR {epochs[-1]['val_psnr']:.2f} dB" if epochs else ""))
     shutil.rmtree(args.out / "sync", ignore_errors=True)
