@@ -7,11 +7,12 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import os
 from typing import Callable, Iterator
 
 import numpy as np
 
-from ..config import DepthScale, Gate, SensorConfig
+from ..config import TRAINED_RANGE_M, DepthScale, Gate, SensorConfig
 from ..inference import (DEFAULT_PRECISION, iter_ambient_only, iter_network_inputs, iter_returns_kept,
                          iter_super_resolve, no_return_where)
 from ..nn.model import Model
@@ -59,6 +60,7 @@ class UpscaleJob:
     negative_counts: tuple[int, int] | None = None
     photons: PhotonDecision = PhotonDecision(None, "", None)
     model_id: str = ""
+    input_path: str | None = None  # the input where it was given as a path (never written over)
     # fresh streams of the network's input, and of the photon tests' (h, w) bool flags per frame (None: no test)
     _lr_stream: Callable[[], Iterator[np.ndarray]] = dataclasses.field(default=None, repr=False, compare=False)
     _ambient_stream: Callable[[], Iterator[np.ndarray]] | None = dataclasses.field(default=None, repr=False,
@@ -185,8 +187,10 @@ def prepare_upscale(input, *, model="default", read: Reading = Reading(), photon
                          "head: give one that has (tr4-ambient, tr0-ambient, tr4-photons, tr0-photons)")
     rec, gate, source, tag_notes = _open(input, read, max_memory)
     if rec.kind == "histograms":
-        return _histogram_job(rec, gate, source, tag_notes, choice, planned, read, photons)
-    return _depth_job(rec, source, choice, planned, read, photons)
+        job = _histogram_job(rec, gate, source, tag_notes, choice, planned, read, photons)
+    else:
+        job = _depth_job(rec, source, choice, planned, read, photons)
+    return dataclasses.replace(job, input_path=str(input) if isinstance(input, (str, os.PathLike)) else None)
 
 
 def _depth_job(rec, source, choice, planned, read: Reading, photons: PhotonRules) -> UpscaleJob:
@@ -352,5 +356,7 @@ def _open(input, read: Reading, max_memory):
         return rec, None, source, ()
     default = Gate()
     bins = int(rec.shape[-1]) if read.bins is None else read.bins  # the array says how many; --bins checks it
-    gate = Gate(bins, default.bin_width if width is None else width, 0.0 if start is None else start)
+    if width is None:  # bins read from the data span the trained range, as the bundled sensor's 16 do
+        width = default.bin_width if read.bins is not None else TRAINED_RANGE_M / bins
+    gate = Gate(bins, width, 0.0 if start is None else start)
     return rec, gate, source, ()

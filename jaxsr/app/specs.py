@@ -79,7 +79,8 @@ def check_fps(fps, what: str) -> float:
 class Reading:
     """What is read. kind (--input): "depth", "histograms" or "timetags" (None: depth or histograms from the
     data; time tags must be named). bins, bin_width, gate_start (histograms and time tags): the gate, `bins`
-    (default: the histograms' own, 16 for time tags) bins of bin_width from gate_start, metres or strings with a unit ("12.5ns", "2.19m"; a time
+    (default: the histograms' own, then spanning 35 m unless bin_width says; 16 for time tags) bins of bin_width
+    from gate_start, metres or strings with a unit ("12.5ns", "2.19m"; a time
     converts as r = c t / 2); default 35 m / 16 from 0 (time tags: the photons' span). span: metres of range from
     the gate's start mapped onto the network's [0, 1] (default the trained 35 m), or "gate" (the gate's length).
     time_unit (--time-unit, time tags): seconds per time unit or a string such as "1ps"; variable: the .mat cell

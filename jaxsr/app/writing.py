@@ -143,7 +143,10 @@ def write_upscaled(job: UpscaleJob, output, write: Writing = Writing(), *, batch
     `jaxsr.io.NotWritableError` or ValueError for an output, preview, video, reference or point clouds' folder
     that cannot be written or read, or a symbolic link among them (checked before any work).
     """
-    outputs = output if isinstance(output, Outputs) else check_outputs(output, write, input=job.source)
+    if isinstance(output, Outputs) and write != Writing() and write != output.writing:
+        raise ValueError("write_upscaled: give what is written either in the checked Outputs or as write, not both "
+                         "(Outputs already holds its Writing)")
+    outputs = output if isinstance(output, Outputs) else check_outputs(output, write, input=job.input_path)
     write, out = outputs.writing, outputs.output
     batch_size = batch_size_of(job, batch_size)
     frame_format = _frame_format(write.frame_format, outputs, job)

@@ -38,7 +38,7 @@ from ..nn.model import Model, architecture
 from .data import run_keys
 from .epochs import (TrainingDiverged, _advance, _early_stopping, _next_group, _run_epoch, _stack, _unstack,
                      check_finite_loss)
-from .folders import RESUME_FILE, RUN_FILES, _check_seeds, _check_stack_folder, _held_run_files, seed_folder
+from .folders import RUN_FILES, _check_seeds, _check_stack_folder, _held_run_files, seed_folder
 from .processes import _lead, _on_lead, _share, choose_mesh, replicate
 from .recipes import recipe
 from .records import _bicubic_psnr, _epoch_record, _run_lineage, _training_card
@@ -181,23 +181,18 @@ class _Seat(NamedTuple):
 REPLACED_FOLDER = ".replaced"  # inside a run folder: the run a new one replaces, until the new one has an epoch
 
 
-def _keep_what_was_there(out: Path, *, epochs_done: int, replaced_in_place: bool) -> None:
-    """After a run in `out` diverged: with no epoch of its own done, its files go and the run it replaced (set
-    aside in REPLACED_FOLDER) comes back, or stays where it is when the run saved nothing yet
-    (`replaced_in_place`); with epochs done, its files (all saved from finite weights) stay, but not a train state
-    inside the epoch that diverged."""
-    if replaced_in_place:
-        return
-    if epochs_done:
-        (out / RESUME_FILE).unlink(missing_ok=True)
+def _keep_what_was_there(out: Path) -> None:
+    """After a run in `out` diverged: where it replaced a run and has no epoch of its own yet, its files go and
+    the run it set aside (REPLACED_FOLDER) comes back. Anything else stays: a fresh or resumed run's saves are of
+    finite weights, and a resumed run's earlier files were never this session's to remove."""
+    aside = out / REPLACED_FOLDER
+    if not aside.is_dir():
         return
     for name in RUN_FILES:
         (out / name).unlink(missing_ok=True)
-    aside = out / REPLACED_FOLDER
-    if aside.is_dir():
-        for f in aside.iterdir():
-            os.replace(f, out / f.name)
-        aside.rmdir()
+    for f in aside.iterdir():
+        os.replace(f, out / f.name)
+    aside.rmdir()
 
 
 def _fit_in(folders: list, model_cfg, cfgs: list, *, by_seed: bool, make_batch, validation, sensor, resume,
@@ -303,8 +298,7 @@ def _fit_in(folders: list, model_cfg, cfgs: list, *, by_seed: bool, make_batch, 
         except TrainingDiverged:
             if lead:
                 for i in group:
-                    _keep_what_was_there(seats[i].out, epochs_done=runs[i].epoch,
-                                         replaced_in_place=bool(old_runs[i]))
+                    _keep_what_was_there(seats[i].out)
             raise
         for i in group:
             t_val, ts, seat = time.perf_counter(), view(i, train), seats[i]
@@ -323,7 +317,7 @@ def _fit_in(folders: list, model_cfg, cfgs: list, *, by_seed: bool, make_batch, 
                 check_finite_loss(record["val_loss"], step=run.step, where=" on the validation set")
             except TrainingDiverged:
                 if lead:
-                    _keep_what_was_there(seat.out, epochs_done=runs[i].epoch, replaced_in_place=bool(old_runs[i]))
+                    _keep_what_was_there(seat.out)
                 raise
             run, ts = _early_stopping(run, ts, record["val_loss"], seat.train_cfg)
             bests[i] = ts.best

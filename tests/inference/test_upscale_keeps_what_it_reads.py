@@ -147,12 +147,14 @@ def test_a_recording_whose_frame_rate_no_video_can_show_is_refused_before_the_wo
 
 
 def test_bins_are_read_from_the_histograms(model_path):
-    """32 bins without --bins: the gate has 32 bins (of the default width), not a refusal asking for --bins."""
-    from jaxsr.app import prepare_upscale
+    """32 bins without --bins: the gate has 32 bins over the trained 35 m (not 70 m of 16-bin widths), not a
+    refusal asking for --bins; an array given as input never makes an output named "array" its own input."""
+    from jaxsr.app import Writing, prepare_upscale, write_upscaled
 
     counts = np.asarray(np.random.default_rng(0).poisson(1.0, (2, 8, 8, 32)), np.float32)
     job = prepare_upscale(counts, model=model_path)
-    assert job.gate.bins == 32
+    assert job.gate.bins == 32 and float(job.gate.bins * job.gate.bin_width) == pytest.approx(35.0)
+    assert job.input_path is None
 
 
 def test_a_sky_band_of_depth_input_stays_no_return_inside(model_path):
@@ -168,3 +170,13 @@ def test_a_sky_band_of_depth_input_stays_no_return_inside(model_path):
     assert np.all(np.isinf(out[:, :8]))  # LR rows 0-1: their HR rows (the border row is edge-replicated)
     flags = no_return_interior(np.where(np.isinf(frames[0]), 1.0, 0.3))
     assert flags[:2].all() and not flags[2:].any()
+
+
+def test_write_upscaled_takes_what_is_written_once(tmp_path, model_path):
+    """Checked Outputs hold their Writing: a second one beside them is refused, not silently dropped."""
+    from jaxsr.app import Writing, check_outputs, prepare_upscale, write_upscaled
+
+    job = prepare_upscale(np.full((2, 8, 8), 12.0, np.float32), model=model_path)
+    with pytest.raises(ValueError, match="not both"):
+        write_upscaled(job, check_outputs(tmp_path / "o.npy"), Writing(video=tmp_path / "v.gif"))
+    assert not (tmp_path / "o.npy").exists()

@@ -306,18 +306,18 @@ def test_a_run_that_diverges_keeps_the_run_it_was_to_replace(tmp_path):
 
 
 def test_a_diverged_run_puts_back_the_run_it_set_aside(tmp_path):
-    """What a run that diverged leaves: the replaced run back in place of its own files when it had no epoch; its
-    finite epochs' files, without the train state inside the epoch that diverged, when it had."""
+    """What a run that diverged leaves: the replaced run back in place of its own files where it set one aside;
+    everything as it is otherwise (a resumed run's earlier files, a fresh run's finite saves)."""
     from jaxsr.training.loop import REPLACED_FOLDER, _keep_what_was_there
 
     (tmp_path / REPLACED_FOLDER).mkdir()
     (tmp_path / REPLACED_FOLDER / "best.npz").write_bytes(b"good")
     (tmp_path / "resume.npz").write_bytes(b"new")
-    _keep_what_was_there(tmp_path, epochs_done=0, replaced_in_place=False)
+    _keep_what_was_there(tmp_path)
     assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == {"best.npz": b"good"}
-    (tmp_path / "resume.npz").write_bytes(b"new")
-    _keep_what_was_there(tmp_path, epochs_done=2, replaced_in_place=False)
-    assert {p.name for p in tmp_path.iterdir()} == {"best.npz"}
+    (tmp_path / "resume.npz").write_bytes(b"a resumed run's")
+    _keep_what_was_there(tmp_path)
+    assert {p.name for p in tmp_path.iterdir()} == {"best.npz", "resume.npz"}
 
 
 def test_resume_refuses_a_run_without_its_train_state_and_a_folder_without_a_run(tmp_path):
