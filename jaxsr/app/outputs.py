@@ -54,15 +54,15 @@ def check_outputs(output, writing: Writing = Writing(), *, input=None) -> Output
     if not isinstance(writing, Writing):
         raise TypeError(f"writing: expected a jaxsr.app.Writing, got {type(writing).__name__}")
     force = writing.overwrite
-    reads = {"the input": input, "the reference": writing.reference}
+    reads = {"the input": _read_paths(input), "the reference": _read_paths(writing.reference)}  # listed once
     out = None if output is None else check_output(output, force=force)
     preview = None if writing.preview is None else check_preview(writing.preview, force=force, output=out)
     video = None if writing.video is None else check_video(writing.video, force=force, output=out)
     points = None if writing.points is None else check_points_folder(writing.points, force=force, output=out)
     for what, path in (("OUTPUT", out), ("the preview", preview), ("the video", video),
                        ("the point clouds' folder", points)):
-        for whose, source in reads.items():
-            _refuse_writing_over(path, what, source, whose)
+        for whose, (files, folders) in reads.items():
+            _refuse_writing_over(path, what, files, folders, whose)
     if writing.reference is not None and not isinstance(writing.reference, (np.ndarray, Recording)):
         open_recording(writing.reference, kind="depth")  # exists and reads
     if writing.frame_format is not None and (out is None or out.suffix.lower() in ARRAY_FORMATS):
@@ -85,12 +85,11 @@ def _read_paths(source) -> tuple[set[Path], set[Path]]:
     return {f.resolve() for f in files if f.exists()}, {f.resolve() for f in folders if f.exists()}
 
 
-def _refuse_writing_over(path: Path | None, what: str, source, whose: str) -> None:
-    """Refuse `path` (a file or folder about to be written) where it is a file that `source` reads, or a folder of
-    its frames: nothing a recording is read from is ever written over, --force or not."""
+def _refuse_writing_over(path: Path | None, what: str, files: set, folders: set, whose: str) -> None:
+    """Refuse `path` (a file or folder about to be written) where it is one of the `files` a recording reads, or one
+    of its `folders` of frames (`_read_paths`): nothing read is ever written over, --force or not."""
     if path is None:
         return
-    files, folders = _read_paths(source)
     target = path.resolve()
     if target in files or target in folders:
         raise ValueError(f"{path}: {what} is {whose} itself{' (or its folder of frames)' if target in folders else ''}"

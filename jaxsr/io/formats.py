@@ -374,19 +374,21 @@ def read_npz_arrays(path, required=(), *, names=None, max_memory=None):
     """
     path = _require_file(path)
     try:
-        with np.load(path, allow_pickle=False) as z:
-            found = list(z.files)
+        z = np.load(path, allow_pickle=False)
     except Exception as e:  # zipfile.BadZipFile, EOFError, ValueError on truncated files
         raise ValueError(f"cannot read {path}: truncated or not an NPZ file ({e})") from e
-    wanted = [k for k in found if names is None or k in names]
-    require_memory(npz_array_bytes(path, wanted), f"{path}: its arrays {', '.join(wanted)}", max_memory)
-    try:
-        with np.load(path, allow_pickle=False) as z:
+    if not isinstance(z, np.lib.npyio.NpzFile):  # an .npy array
+        raise ValueError(f"cannot read {path}: not an NPZ file (it holds one .npy array)")
+    with z:
+        found = list(z.files)
+        wanted = [k for k in found if names is None or k in names]
+        require_memory(npz_array_bytes(path, wanted), f"{path}: its arrays {', '.join(wanted)}", max_memory)
+        try:
             out = {k: read_entry(z, k, str(path)) for k in wanted}
-    except (DamagedFile, MemoryError):
-        raise
-    except Exception as e:  # zipfile.BadZipFile, EOFError, ValueError on truncated files
-        raise ValueError(f"cannot read {path}: truncated or not an NPZ file ({e})") from e
+        except (DamagedFile, MemoryError):
+            raise
+        except Exception as e:  # zipfile.BadZipFile, EOFError, ValueError on truncated files
+            raise ValueError(f"cannot read {path}: truncated or not an NPZ file ({e})") from e
     missing = [k for k in required if k not in found]
     if missing:
         raise ValueError(f"{path}: missing arrays {missing}; found {sorted(found)}")
