@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from ..io.files import check_new_file, check_output_folder, refuse_link
-from ..io.pointcloud import check_points_folder
+from ..io.pointcloud import check_points
 from ..io.video import check_video
 from .recordings import ARRAY_FORMATS, FRAME_FORMATS, Recording, open_recording
 from .specs import Writing
@@ -58,9 +58,9 @@ def check_outputs(output, writing: Writing = Writing(), *, input=None) -> Output
     out = None if output is None else check_output(output, force=force)
     preview = None if writing.preview is None else check_preview(writing.preview, force=force, output=out)
     video = None if writing.video is None else check_video(writing.video, force=force, output=out)
-    points = None if writing.points is None else check_points_folder(writing.points, force=force, output=out)
+    points = None if writing.points is None else check_points(writing.points, force=force, output=out)
     for what, path in (("OUTPUT", out), ("the preview", preview), ("the video", video),
-                       ("the point clouds' folder", points)):
+                       ("the point clouds", points)):
         for whose, (files, folders) in reads.items():
             _refuse_writing_over(path, what, files, folders, whose)
     if writing.reference is not None and not isinstance(writing.reference, (np.ndarray, Recording)):

@@ -25,6 +25,8 @@ from ..checks import one_positive_number
 from ..config import PRECISIONS
 from ..inference import DEFAULT_FORM, DEFAULT_PRECISION, FORMS
 from ..nn.model import Model
+from ..io.pointcloud import points_camera
+from ..sensor.camera import AXES, DEPTH_KINDS, Intrinsics, as_intrinsics
 from ..sensor.peaks import check_false_alarm_rate
 from ..sensor.quantities import parse_span, parse_time_unit, range_metres
 from .recordings import DEPTH_UNITS
@@ -251,9 +253,14 @@ class Writing:
     output .png strip of the middle frame. video (--video): an .mp4 or .gif of every frame, input | output |
     reference, at fps (--fps; default the recording's where its file says, else 25); reference (--reference): HR
     depth (T, H, W) to show beside them, a path in INPUT's depth formats, a NumPy array or a
-    `jaxsr.app.recordings.Recording`, in metres or normalised. points (--points): a folder of PLY point clouds, one
-    per frame, over a horizontal field of view of fov_deg degrees (--fov; None: the sensor model's 30), coloured by
-    depth (points_colour "depth") or not (None). vmin, vmax (--vmin, --vmax): the colour scale of previews, videos
+    `jaxsr.app.recordings.Recording`, in metres or normalised. points (--points): PLY point clouds, a folder of one
+    per frame or one .ply file for the whole sequence (each point with its frame index), coloured by depth
+    (points_colour "depth") or not (None). Their camera (`jaxsr.io.pointcloud`), one of: fov_deg (--fov), a
+    horizontal field of view in degrees or (horizontal, vertical) (None: the sensor model's 30, square pixels);
+    intrinsics (--intrinsics), fx, fy, cx, cy in HR pixels; lr_intrinsics (--lr-intrinsics), the same for the LR
+    sensor, scaled to HR by the recording's scale (`Intrinsics.scaled`). points_depth (--points-depth): the depth
+    is "radial" range (None: the sensor's) or "planar" z; points_axes (--points-axes): "opencv" (None: x right, y
+    down, z forward) or "opengl" (x right, y up, z backward). vmin, vmax (--vmin, --vmax): the colour scale of previews, videos
     and point clouds in metres (None: the recording's depth range, read from its first frames); cmap (--cmap): a
     matplotlib colour map. overwrite (--force): replace an existing output, preview, video or point clouds."""
 
@@ -269,6 +276,10 @@ class Writing:
     vmin: float | None = None
     vmax: float | None = None
     cmap: str = "turbo"
+    intrinsics: object = None
+    lr_intrinsics: object = None
+    points_depth: str | None = None
+    points_axes: str | None = None
 
     def __post_init__(self):
         if self.frame_format is not None and self.frame_format not in FRAME_FORMATS:
@@ -280,11 +291,7 @@ class Writing:
                     raise ValueError(f"{name} applies to --video only")
         if self.fps is not None:
             object.__setattr__(self, "fps", check_fps(self.fps, "fps (--fps)"))
-        if self.points is None and self.fov_deg is not None:
-            raise ValueError("--fov applies to --points only")
-        if self.fov_deg is not None and not (isinstance(self.fov_deg, numbers.Real) and 0 < self.fov_deg < 180):
-            raise ValueError(f"fov_deg (--fov): expected a horizontal field of view in (0, 180) degrees, got "
-                             f"{self.fov_deg!r}")
+        self._check_points()
         if self.points_colour not in ("depth", None):
             raise ValueError(f"points_colour: 'depth' or None, got {self.points_colour!r}")
         for name in ("vmin", "vmax"):
@@ -303,6 +310,40 @@ class Writing:
             object.__setattr__(self, "overwrite", _flag(self.overwrite))
         except TypeError as e:
             raise TypeError(f"overwrite: {e}") from None
+
+    def _check_points(self):
+        camera = (("--fov", self.fov_deg), ("--intrinsics", self.intrinsics), ("--lr-intrinsics", self.lr_intrinsics))
+        given = [flag for flag, value in (*camera, ("--points-depth", self.points_depth),
+                                          ("--points-axes", self.points_axes)) if value is not None]
+        if self.points is None and given:
+            raise ValueError(f"{given[0]} applies to --points only")
+        ways = [flag for flag, value in camera if value is not None]
+        if len(ways) > 1:
+            raise ValueError(f"the point clouds' camera is given one way, by --fov, --intrinsics or --lr-intrinsics: "
+                             f"got {' and '.join(ways)}")
+        if self.fov_deg is not None:
+            pair = self.fov_deg if isinstance(self.fov_deg, (tuple, list)) else (self.fov_deg,)
+            if len(pair) not in (1, 2) or not all(isinstance(a, numbers.Real) and not isinstance(a, bool)
+                                                  and 0 < a < 180 for a in pair):
+                raise ValueError(f"fov_deg (--fov): expected a horizontal field of view in (0, 180) degrees, or "
+                                 f"(horizontal, vertical), got {self.fov_deg!r}")
+            object.__setattr__(self, "fov_deg", float(pair[0]) if len(pair) == 1 else tuple(map(float, pair)))
+        for name in ("intrinsics", "lr_intrinsics"):
+            if getattr(self, name) is not None:
+                flag = "--" + name.replace("_", "-")
+                object.__setattr__(self, name, as_intrinsics(getattr(self, name), f"{name} ({flag})"))
+        for name, allowed in (("points_depth", DEPTH_KINDS), ("points_axes", AXES)):
+            value = getattr(self, name)
+            if value is not None and value not in allowed:
+                raise ValueError(f"{name} (--{name.replace('_', '-')}): expected one of {', '.join(allowed)}, got "
+                                 f"{value!r}")
+
+    def points_camera(self, hr_shape, scale) -> Intrinsics:
+        """The point clouds' camera on (H, W) HR frames of a recording upscaled `scale` times: the intrinsics given
+        (lr_intrinsics scaled to HR) or those of the fields of view. Returns `jaxsr.sensor.Intrinsics`."""
+        if self.lr_intrinsics is not None:
+            return self.lr_intrinsics.scaled(scale)
+        return points_camera(hr_shape, fov_deg=self.fov_deg, intrinsics=self.intrinsics)
 
     @property
     def looks(self) -> bool:

@@ -17,7 +17,7 @@ from tqdm.auto import tqdm
 from ..config import DepthScale, Gate
 from ..io.files import atomic_folder, atomic_path, reserve_space
 from ..io.formats import PNG_MAX_M, write_depth, write_sequence
-from ..io.pointcloud import DEFAULT_FOV_DEG, PointCloudWriter
+from ..io.pointcloud import PointCloudWriter
 from ..io.previews import write_comparison
 from ..io.video import DEFAULT_FPS, DepthVideoWriter
 from .job import UpscaleJob, array_recording
@@ -204,13 +204,13 @@ def _write(job: UpscaleJob, outputs: Outputs, frame_format, ref, batch_size: int
                                                         d_min=d_min, d_max=d_max, frames=job.frames, cmap=cmap,
                                                         overwrite=write.overwrite))
         if outputs.points is not None:
-            fov = DEFAULT_FOV_DEG if write.fov_deg is None else write.fov_deg
             # a cloud's geometry keeps every return: its colours span the given scale or the sensor's whole range
             c_min = job.d_range[0] if write.vmin is None else write.vmin
             c_max = job.d_range[1] if write.vmax is None else write.vmax
-            clouds = looks.enter_context(PointCloudWriter(outputs.points, fov_deg=fov, colour=write.points_colour,
-                                                          d_min=c_min, d_max=c_max, cmap=cmap,
-                                                          overwrite=write.overwrite))
+            clouds = looks.enter_context(PointCloudWriter(
+                outputs.points, intrinsics=write.points_camera(job.hr_shape, job.scale_factor),
+                depth_kind=write.points_depth or "radial", axes=write.points_axes or "opencv",
+                colour=write.points_colour, d_min=c_min, d_max=c_max, cmap=cmap, overwrite=write.overwrite))
         ref_frames = None if ref is None else iter(ref[0])
 
         def frames(units):

@@ -49,6 +49,28 @@ def finite_float(text: str) -> float:
     return value
 
 
+def _numbers(text: str, count: tuple[int, ...], what: str) -> tuple[float, ...]:
+    try:
+        values = tuple(float(part) for part in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) not in count or not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}")
+    return values
+
+
+def fields_of_view(text: str):
+    """An argparse type for --fov: degrees, horizontal (a number) or horizontal,vertical (a pair); each in (0, 180)
+    is checked later, with the camera."""
+    values = _numbers(text, (1, 2), "degrees, horizontal or horizontal,vertical, such as 30 or 30,15")
+    return values[0] if len(values) == 1 else values
+
+
+def four_numbers(text: str) -> tuple[float, ...]:
+    """An argparse type for intrinsics: four finite numbers separated by commas, fx,fy,cx,cy (checked later)."""
+    return _numbers(text, (4,), "four numbers fx,fy,cx,cy in pixels, such as 478,478,127.5,63.5")
+
+
 def ambient_alpha(text: str):
     """An argparse type for --ambient-alpha: "auto", "off" (None) or a finite number (checked as a rate later)."""
     if text in ("auto", "off"):

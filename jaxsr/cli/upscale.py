@@ -9,7 +9,7 @@ preview paths, the model, and every input frame. Histograms and photon time tags
 line says so. Negative counts (background-subtracted histograms) are refused unless --clip-negative, which clips
 them at 0 and says how many, in how many pixels. Outputs are written atomically and never replace an existing
 file or write into a non-empty folder without --force. --video writes an .mp4 / .gif to watch (input | output |
---reference) and --points a folder of PLY point clouds, both streamed frame by frame over the sensor's true range
+--reference) and --points PLY point clouds (a folder of one per frame, or one file), both streamed frame by frame over the sensor's true range
 in metres. Prints a JSON summary on stdout (`UpscaleResult.summary()`).
 """
 
@@ -24,7 +24,8 @@ from ..app import (AUTO_AMBIENT_ALPHA, AUTO_AMBIENT_MIN_FRAMES, AUTO_AMBIENT_MIN
 from ..config import PRECISIONS, TRAINED_RANGE_M
 from ..inference import DEFAULT_FORM, DEFAULT_PRECISION, FORMS
 from ..checks import MEMORY_SHARE
-from ._args import ambient_alpha, finite_float, int_range, memory, positive_float, range_or_time, span, time_unit
+from ._args import (ambient_alpha, fields_of_view, finite_float, four_numbers, int_range, memory, positive_float,
+                    range_or_time, span, time_unit)
 
 
 def add_parser(subparsers):
@@ -120,11 +121,22 @@ def add_parser(subparsers):
     g.add_argument("--reference", default=None, metavar="PATH",
                    help="--video: HR depth (T, H, W) to show beside the output, e.g. the ground truth (the "
                    "formats of INPUT's depth; metres or normalised)")
-    g.add_argument("--points", default=None, metavar="DIR",
-                   help="write one PLY point cloud per frame into DIR (x right, y up, z forward, metres; no-return "
-                   "pixels left out; coloured by depth)")
-    g.add_argument("--fov", type=positive_float, default=None, metavar="DEG",
-                   help="--points: horizontal field of view in degrees (default 30, the sensor model's)")
+    g.add_argument("--points", default=None, metavar="DIR|FILE.ply",
+                   help="write PLY point clouds in metres: one a frame into DIR, or the whole sequence into FILE.ply "
+                   "(a frame index per point); no-return pixels left out; coloured by depth")
+    g.add_argument("--fov", type=fields_of_view, default=None, metavar="DEG[,DEG]",
+                   help="--points: the fields of view in degrees, horizontal or horizontal,vertical (default 30, "
+                   "the sensor model's, square pixels)")
+    g.add_argument("--intrinsics", type=four_numbers, default=None, metavar="FX,FY,CX,CY",
+                   help="--points: the camera's focal lengths and principal point in HR pixels (OpenCV's: pixel "
+                   "centres at integers)")
+    g.add_argument("--lr-intrinsics", type=four_numbers, default=None, metavar="FX,FY,CX,CY",
+                   help="--points: the same for the LR sensor, scaled to HR by the model's scale")
+    g.add_argument("--points-depth", choices=["radial", "planar"], default=None,
+                   help="--points: the depth is radial range (default, the sensor's) or planar z")
+    g.add_argument("--points-axes", choices=["opencv", "opengl"], default=None,
+                   help="--points: opencv (default: x right, y down, z forward) or opengl (x right, y up, z "
+                   "backward)")
     g.add_argument("--vmin", type=finite_float, default=None, metavar="M",
                    help="the colour scale's first depth in metres (default: the recording's nearest returns)")
     g.add_argument("--vmax", type=finite_float, default=None, metavar="M",
@@ -147,6 +159,8 @@ def run(args) -> int:
     photons = PhotonRules(ambient_alpha=args.ambient_alpha, keep_returns=args.keep_returns)
     write = Writing(frame_format=args.frame_format, preview=args.preview, video=args.video, fps=args.fps,
                     reference=args.reference, points=args.points, fov_deg=args.fov,
+                    intrinsics=args.intrinsics, lr_intrinsics=args.lr_intrinsics, points_depth=args.points_depth,
+                    points_axes=args.points_axes,
                     points_colour=None if args.points_colour == "none" else args.points_colour, overwrite=args.force,
                     vmin=args.vmin, vmax=args.vmax, cmap=args.cmap)
     result = upscale(args.input, args.output, model=model, read=read, photons=photons, write=write,

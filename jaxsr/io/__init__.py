@@ -58,11 +58,13 @@ from .video import (
 )
 from .pointcloud import (
     DEFAULT_FOV_DEG,
+    points_camera,
     depth_points,
     write_ply,
     write_point_cloud,
     write_point_clouds,
     PointCloudWriter,
+    check_points,
     check_points_folder,
 )
 
@@ -112,10 +114,12 @@ __all__ = [
     "write_depth_video",
     "check_video",
     "DEFAULT_FOV_DEG",
+    "points_camera",
     "depth_points",
     "write_ply",
     "write_point_cloud",
     "write_point_clouds",
     "PointCloudWriter",
+    "check_points",
     "check_points_folder",
 ]

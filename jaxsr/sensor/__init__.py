@@ -1,6 +1,7 @@
-"""The SPAD sensor: the forward model from depth and intensity to photon histograms, Poisson sampling,
-calibration to a frame SNR, sensor effects (dark counts, hot and dead pixels, no-return regions), time gates,
-photon time tags, and depth extraction (centre of mass, maximum likelihood).
+"""The SPAD sensor: the forward model from depth and intensity to photon histograms, the pinhole camera
+(intrinsics, back-projection to points), Poisson sampling, calibration to a frame SNR, sensor effects (dark
+counts, hot and dead pixels, no-return regions), time gates, photon time tags, and depth extraction (centre of
+mass, maximum likelihood).
 """
 
 from .forward import (
@@ -17,6 +18,13 @@ from .forward import (
     calibrated_rates,
     levels_valid,
     simulate_histograms,
+)
+from .camera import (
+    AXES,
+    DEPTH_KINDS,
+    Intrinsics,
+    as_intrinsics,
+    back_project,
 )
 from .poisson import (
     EXACT_BELOW,
@@ -83,6 +91,11 @@ __all__ = [
     "calibrated_rates",
     "levels_valid",
     "simulate_histograms",
+    "AXES",
+    "DEPTH_KINDS",
+    "Intrinsics",
+    "as_intrinsics",
+    "back_project",
     "EXACT_BELOW",
     "NORMAL_ABOVE",
     "PATHWISE_ESTIMATORS",
