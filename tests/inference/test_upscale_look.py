@@ -1,5 +1,5 @@
-"""`jaxsr upscale --video / --fps / --reference / --points / --fov`: a video with one frame per depth frame, one
-PLY per frame with one vertex per valid output pixel, all over the sensor's true range (the gate's start
+"""`jaxsr upscale --video / --fps / --reference / --points / --fov / --intrinsics`: a video with one frame per depth
+frame, one PLY per frame (or one for the sequence) with one vertex per valid output pixel, all over the sensor's true range (the gate's start
 included); nothing is overwritten without --force, and options that need --video say so."""
 
 import json
@@ -29,7 +29,7 @@ def read_ply(path):
     end = data.index(b"end_header\n") + len(b"end_header\n")
     header = data[:end].decode("ascii").splitlines()
     assert header[1] == "format binary_little_endian 1.0"
-    types = {"float": "<f4", "uchar": "u1"}
+    types = {"float": "<f4", "uchar": "u1", "uint": "<u4"}
     fields = [(line.split()[2], types[line.split()[1]]) for line in header if line.startswith("property")]
     n = int(next(line.split()[2] for line in header if line.startswith("element vertex")))
     vertices = np.frombuffer(data[end:], dtype=fields)
@@ -98,6 +98,23 @@ def test_gif_fps_fov_and_no_overwrite(tmp_path, model_path, gated, capsys):
     assert upscale(*args, "--force") == 0
 
 
+def test_one_point_cloud_file_from_lr_intrinsics_planar_depth_and_opengl_axes(tmp_path, model_path, gated, capsys):
+    """--lr-intrinsics of the 32 x 64 sensor, on the 128 x 256 output (x4): fx 4 * 70, fy 4 * 60, cx 4 * (30.5 +
+    0.5) - 0.5, cy 4 * (15.5 + 0.5) - 0.5, by the pinhole's X = (u - cx) z / fx, Y = (v - cy) z / fy by hand."""
+    assert upscale(gated, tmp_path / "out.npy", "--model", model_path, "--points", tmp_path / "seq.ply",
+                   "--lr-intrinsics", "70,60,30.5,15.5", "--points-depth", "planar", "--points-axes", "opengl",
+                   "--points-colour", "none") == 0
+    assert json.loads(capsys.readouterr().out)["points"] == str(tmp_path / "seq.ply")
+    out = np.load(tmp_path / "out.npy")
+    v = read_ply(tmp_path / "seq.ply")
+    assert v.dtype.names == ("x", "y", "z", "frame")
+    np.testing.assert_array_equal(np.bincount(v["frame"], minlength=T), np.isfinite(out).sum(axis=(1, 2)))
+    t, rows, cols = np.nonzero(np.isfinite(out))  # the file's order: frame by frame, row-major pixels
+    z = out[t, rows, cols].astype(np.float64)
+    want = np.stack([(cols - 123.5) * z / 280.0, -(rows - 63.5) * z / 240.0, -z], -1)
+    np.testing.assert_allclose(np.stack([v["x"], v["y"], v["z"]], -1), want, rtol=1e-5, atol=1e-5)
+
+
 def test_default_fps_is_the_recordings(tmp_path, model_path, gated, capsys):
     assert upscale(gated, tmp_path / "o.npy", "--model", model_path, "--video", tmp_path / "v.mp4") == 0
     meta = next(imageio_ffmpeg.read_frames(str(tmp_path / "v.mp4")))
@@ -108,8 +125,17 @@ def test_default_fps_is_the_recordings(tmp_path, model_path, gated, capsys):
     (["--fps", "5"], "--fps applies to --video"),
     (["--reference", "gt.npy"], "--reference applies to --video"),
     (["--video", "v.avi"], r"\.mp4 or \.gif"),
-    (["--points", "p.ply"], "folder"),
     (["--points", "pts", "--fov", "200"], "field of view"),
+    (["--points", "pts", "--fov", "30,180"], "field of view"),
+    (["--points", "pts", "--fov", "30", "--intrinsics", "400,400,127.5,63.5"],
+     "camera is given one way, by --fov, --intrinsics or --lr-intrinsics: got --fov and --intrinsics"),
+    (["--points", "p.ply", "--intrinsics", "400,400,1,1", "--lr-intrinsics", "100,100,1,1"], "got --intrinsics and"),
+    (["--points", "pts", "--intrinsics=-400,400,127.5,63.5"], r"focal lengths fx, fy must be > 0 pixels, got fx=-400"),
+    (["--points", "pts", "--lr-intrinsics", "100,0,31.5,15.5"], r"lr_intrinsics \(--lr-intrinsics\): the focal"),
+    (["--fov", "40"], "--fov applies to --points only"),
+    (["--intrinsics", "400,400,127.5,63.5"], "--intrinsics applies to --points only"),
+    (["--points-axes", "opengl"], "--points-axes applies to --points only"),
+    (["--points-depth", "planar"], "--points-depth applies to --points only"),
     (["--video", "v.mp4", "--reference", "missing.npy"], "no such file"),
 ])
 def test_bad_look_options_are_clear_errors(tmp_path, model_path, gated, capsys, args, message):
@@ -118,6 +144,19 @@ def test_bad_look_options_are_clear_errors(tmp_path, model_path, gated, capsys, 
     err = capsys.readouterr().err
     assert __import__("re").search(message, err), err
     assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("flag,value,message", [
+    ("--intrinsics", "400,400,127.5", "four numbers fx,fy,cx,cy"),
+    ("--lr-intrinsics", "100,100,a,1", "four numbers fx,fy,cx,cy"),
+    ("--fov", "30,20,10", "horizontal or horizontal,vertical"),
+])
+def test_camera_flags_that_do_not_parse_are_one_line(tmp_path, capsys, flag, value, message):
+    with pytest.raises(SystemExit) as e:
+        upscale(tmp_path / "in.npy", tmp_path / "o.npy", "--points", tmp_path / "pts", flag, value)
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert message in err and len(err.strip().splitlines()) == 1, err
 
 
 def test_the_colour_scale_is_the_recordings_depth_range_or_the_one_given(tmp_path, model_path):
