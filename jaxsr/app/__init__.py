@@ -65,8 +65,8 @@ def upscale(input, output, *, model="default", read: Reading = Reading(), photon
     Everything is checked before the model runs, in order: the specifications, the output, preview, video and
     point clouds' paths (and that the reference reads), the model, the input and every frame, the memory. Returns
     an `UpscaleResult` (`summary()` is the command's JSON). Raises FileNotFoundError (missing input, model,
-    reference or output folder), FileExistsError (an output, preview or video exists, or the point clouds' folder
-    holds files, without overwrite), IsADirectoryError, NotADirectoryError or ValueError (bad options or input),
+    reference or output folder), FileExistsError (an output, preview, video or point clouds' file exists, or their
+    folder holds files, without overwrite), IsADirectoryError, NotADirectoryError or ValueError (bad options or input),
     with the messages `jaxsr upscale` prints, TypeError (an input or model of another type, None among them), or
     `jaxsr.io.WriteError` (the disk refused a write: full, over quota, ...); nothing is left written then.
     """

@@ -260,9 +260,10 @@ class Writing:
     intrinsics (--intrinsics), fx, fy, cx, cy in HR pixels; lr_intrinsics (--lr-intrinsics), the same for the LR
     sensor, scaled to HR by the recording's scale (`Intrinsics.scaled`). points_depth (--points-depth): the depth
     is "radial" range (None: the sensor's) or "planar" z; points_axes (--points-axes): "opencv" (None: x right, y
-    down, z forward) or "opengl" (x right, y up, z backward). vmin, vmax (--vmin, --vmax): the colour scale of previews, videos
-    and point clouds in metres (None: the recording's depth range, read from its first frames); cmap (--cmap): a
-    matplotlib colour map. overwrite (--force): replace an existing output, preview, video or point clouds."""
+    down, z forward) or "opengl" (x right, y up, z backward). vmin, vmax (--vmin, --vmax): the colour scale of
+    previews, videos and point clouds in metres (None: the recording's depth range, read from its first frames);
+    cmap (--cmap): a matplotlib colour map. overwrite (--force): replace an existing output, preview, video or
+    point clouds."""
 
     frame_format: str | None = None
     preview: str | os.PathLike | None = None

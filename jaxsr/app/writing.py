@@ -68,8 +68,8 @@ class UpscaleResult:
     def summary(self) -> dict:
         """The JSON summary `jaxsr upscale` prints: frames, output, shape, units (of the output; input_units too
         where the input's differ), model and model_description, for histograms the gate, the depth scale (metres) and the ambient-only
-        test's rate (null: none) and `keep_returns`' where set, the video and point clouds' folder where written,
-        and with --clip-negative the negative counts clipped and the pixels holding them."""
+        test's rate (null: none) and `keep_returns`' where set, the video and point clouds' file or folder where
+        written, and with --clip-negative the negative counts clipped and the pixels holding them."""
         out = {"frames": self.frames, "output": None if self.output is None else str(self.output),
                "shape": list(self.shape), "units": self.units, "model": self.model,
                "model_description": self.model_description}
@@ -140,8 +140,8 @@ def write_upscaled(job: UpscaleJob, output, write: Writing = Writing(), *, batch
     network runs; what the writing found after).
 
     Returns an `UpscaleResult`. Raises FileExistsError, IsADirectoryError, NotADirectoryError, FileNotFoundError,
-    `jaxsr.io.NotWritableError` or ValueError for an output, preview, video, reference or point clouds' folder
-    that cannot be written or read, or a symbolic link among them (checked before any work).
+    `jaxsr.io.NotWritableError` or ValueError for an output, preview, video, reference or point clouds' file or
+    folder that cannot be written or read, or a symbolic link among them (checked before any work).
     """
     if isinstance(output, Outputs) and write != Writing() and write != output.writing:
         raise ValueError("write_upscaled: give what is written either in the checked Outputs or as write, not both "

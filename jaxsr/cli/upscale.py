@@ -9,8 +9,8 @@ preview paths, the model, and every input frame. Histograms and photon time tags
 line says so. Negative counts (background-subtracted histograms) are refused unless --clip-negative, which clips
 them at 0 and says how many, in how many pixels. Outputs are written atomically and never replace an existing
 file or write into a non-empty folder without --force. --video writes an .mp4 / .gif to watch (input | output |
---reference) and --points PLY point clouds (a folder of one per frame, or one file), both streamed frame by frame over the sensor's true range
-in metres. Prints a JSON summary on stdout (`UpscaleResult.summary()`).
+--reference) and --points PLY point clouds (a folder of one per frame, or one file), both streamed frame by frame
+over the sensor's true range in metres. Prints a JSON summary on stdout (`UpscaleResult.summary()`).
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """`jaxsr upscale --video / --fps / --reference / --points / --fov / --intrinsics`: a video with one frame per depth
-frame, one PLY per frame (or one for the sequence) with one vertex per valid output pixel, all over the sensor's true range (the gate's start
-included); nothing is overwritten without --force, and options that need --video say so."""
+frame, one PLY per frame (or one for the sequence) with one vertex per valid output pixel, all over the sensor's
+true range (the gate's start included); nothing is overwritten without --force, and options that need --video say so."""
 
 import json
 
