@@ -12,6 +12,8 @@ import pytest
 from jaxsr.config import SensorConfig
 from jaxsr.sensor import Intrinsics, as_intrinsics, back_project, pixel_rays
 
+project = jax.jit(back_project, static_argnames=("depth_kind", "axes"))  # one compile a call's shapes, not an op's
+
 # a 4 x 6 frame whose pixel (row 0, col 3) looks along D = ((3 - 1) / 2, (0 - 2) / 4, 1) = (1, -0.5, 1), |D| = 1.5
 CAMERA = Intrinsics(fx=2.0, fy=4.0, cx=1.0, cy=2.0)
 
@@ -25,7 +27,7 @@ CAMERA = Intrinsics(fx=2.0, fy=4.0, cx=1.0, cy=2.0)
 def test_a_hand_computed_point(depth_kind, axes, value, point):
     depth = np.full((4, 6), 5.0, np.float32)
     depth[0, 3] = value
-    p = np.asarray(back_project(depth, CAMERA, depth_kind=depth_kind, axes=axes))
+    p = np.asarray(project(depth, CAMERA, depth_kind=depth_kind, axes=axes))
     assert p.shape == (4, 6, 3)
     np.testing.assert_allclose(p[0, 3], point, rtol=1e-6)
     # the principal point's pixel (row 2, col 1) looks straight ahead
@@ -35,7 +37,7 @@ def test_a_hand_computed_point(depth_kind, axes, value, point):
 def test_no_return_gives_nan_points_and_zero_gradients():
     depth = np.full((4, 6), 2.0, np.float32)
     depth[0, 0], depth[1, 1], depth[2, 2] = np.inf, np.nan, -1.0
-    p = np.asarray(back_project(depth, CAMERA))
+    p = np.asarray(project(depth, CAMERA))
     bad = np.zeros((4, 6), bool)
     bad[0, 0] = bad[1, 1] = bad[2, 2] = True
     assert np.isnan(p[bad]).all() and np.isfinite(p[~bad]).all()
@@ -44,7 +46,7 @@ def test_no_return_gives_nan_points_and_zero_gradients():
         pts = back_project(d, CAMERA._replace(fx=fx))
         return jnp.nansum(pts)
 
-    g_depth, g_fx = jax.grad(total, argnums=(0, 1))(jnp.asarray(depth), 2.0)
+    g_depth, g_fx = jax.jit(jax.grad(total, argnums=(0, 1)))(jnp.asarray(depth), 2.0)
     assert np.all(np.asarray(g_depth)[bad] == 0) and np.isfinite(np.asarray(g_depth)).all()
     assert np.isfinite(float(g_fx))
 
@@ -57,8 +59,8 @@ def test_the_sensor_models_camera_is_its_field_of_view():
     h, w = sensor.hr_shape
     assert (cam.cx, cam.cy) == ((w - 1) / 2, (h - 1) / 2) and cam.fx == cam.fy
     assert cam.fx == pytest.approx(float(sensor.focal_px), rel=1e-6)
-    dx, dy, norm = (np.asarray(a, np.float64) for a in pixel_rays(sensor))
-    p = np.asarray(back_project(np.ones(sensor.hr_shape, np.float32), cam), np.float64)
+    dx, dy, norm = (np.asarray(a, np.float64) for a in jax.jit(pixel_rays)(sensor))
+    p = np.asarray(project(np.ones(sensor.hr_shape, np.float32), cam), np.float64)
     # the same rays: x / z = dx, y / z = -dy (pixel_rays' y points up, OpenCV's down), unit range
     np.testing.assert_allclose(p[..., 0] / p[..., 2], np.broadcast_to(dx, (h, w)), rtol=1e-5, atol=1e-7)
     np.testing.assert_allclose(p[..., 1] / p[..., 2], -np.broadcast_to(dy[:, None], (h, w)), rtol=1e-5, atol=1e-7)
@@ -97,14 +99,13 @@ def test_lr_intrinsics_scale_onto_the_same_rays(scale):
 def test_jit_and_vmap_give_the_same_points():
     depth = np.random.default_rng(0).uniform(1, 9, (3, 4, 6)).astype(np.float32)
     eager = np.asarray(back_project(depth, CAMERA, axes="opengl"))
-    jitted = jax.jit(back_project, static_argnames=("depth_kind", "axes"))(depth, CAMERA, axes="opengl")
-    np.testing.assert_allclose(np.asarray(jitted), eager, rtol=1e-6)
+    np.testing.assert_allclose(np.asarray(project(depth, CAMERA, axes="opengl")), eager, rtol=1e-6)
     focal = jnp.asarray([1.0, 2.0, 3.0])
-    mapped = jax.vmap(lambda f: back_project(depth[0], CAMERA._replace(fx=f, fy=f)))(focal)
+    mapped = jax.jit(jax.vmap(lambda f: back_project(depth[0], CAMERA._replace(fx=f, fy=f))))(focal)
     for i, f in enumerate([1.0, 2.0, 3.0]):
-        np.testing.assert_allclose(mapped[i], back_project(depth[0], CAMERA._replace(fx=f, fy=f)), rtol=1e-6)
+        np.testing.assert_allclose(mapped[i], project(depth[0], CAMERA._replace(fx=f, fy=f)), rtol=1e-6)
     # radial depth: z = r / |D|, so dz/dr = 1 / |D| (|D| = 1.5 at row 0, col 3)
-    dz = jax.grad(lambda d: back_project(d, CAMERA)[0, 3, 2])(jnp.asarray(depth[0]))
+    dz = jax.jit(jax.grad(lambda d: back_project(d, CAMERA)[0, 3, 2]))(jnp.asarray(depth[0]))
     assert float(dz[0, 3]) == pytest.approx(1 / 1.5, rel=1e-6) and float(jnp.abs(dz).sum()) == pytest.approx(1 / 1.5)
 
 
