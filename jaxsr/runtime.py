@@ -11,15 +11,18 @@ import contextlib
 import functools
 import importlib.metadata
 import os
+import math
 import re
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 
+from .joining import gather, meet
+
 __all__ = ["MAX_CPU_DEVICES", "use_cpu_cores", "compiler_options", "enable_compilation_cache", "limit_cpu_fusions",
            "BFLOAT16_CPU_FLAGS", "cpu_bfloat16_features",
-           "init_distributed", "distributed_settings", "DISTRIBUTED_ENV"]
+           "init_distributed", "distributed_settings", "DISTRIBUTED_ENV", "JOIN_TIMEOUT_S"]
 
 # `use_cpu_cores` exposes at most this many: the speed-up was measured on 2 cores only.
 MAX_CPU_DEVICES = 8
@@ -175,6 +178,9 @@ def enable_compilation_cache(*, path=None) -> Path | None:
 # Training across processes (JAX's multi-controller runtime): the environment variables `init_distributed` reads when
 # its arguments are not given, as (coordinator "HOST:PORT", number of processes, this process's id).
 DISTRIBUTED_ENV = ("JAXSR_COORDINATOR", "JAXSR_NUM_PROCESSES", "JAXSR_PROCESS_ID")
+# How long a process waits for the others to join by default (seconds): JAX's own default; processes a scheduler
+# starts minutes apart need more (`init_distributed(timeout=...)`, `jaxsr train --join-timeout`).
+JOIN_TIMEOUT_S = 300.0
 # The variables of a Slurm job step that JAX's own detection (`jax.distributed.initialize()` with no arguments) reads.
 _SLURM_ENV = ("SLURM_JOB_ID", "SLURM_STEP_NODELIST", "SLURM_NTASKS", "SLURM_PROCID", "SLURM_LOCALID")
 
@@ -232,33 +238,69 @@ def distributed_settings(coordinator=None, num_processes=None, process_id=None, 
 
 
 def init_distributed(coordinator: str | None = None, num_processes: int | None = None,
-                     process_id: int | None = None) -> tuple[int, int]:
+                     process_id: int | None = None, *, timeout: float = JOIN_TIMEOUT_S, say=None) -> tuple[int, int]:
     """Join a training run across processes (and hosts): start JAX's multi-controller runtime
     (`jax.distributed.initialize`), after which `jax.devices()` lists every process's devices and `jaxsr.fit`
     splits each global batch over them all. Returns (this process's index, the number of processes).
 
     Call it first, before any other JAX use (an array, `jax.devices()`, `use_cpu_cores`...): the runtime can only
     start before JAX's backend does; afterwards this raises RuntimeError saying so. Every process calls it with
-    the same coordinator and count and its own id; process 0 hosts the coordinator. The arguments, or the
-    environment variables JAXSR_COORDINATOR / JAXSR_NUM_PROCESSES / JAXSR_PROCESS_ID, or under `srun` Slurm's own
-    variables decide (`distributed_settings`). With one process it does nothing and returns (0, 1); called again
-    in a process that joined, it returns the same pair. On CPU the processes exchange data with gloo (JAX's
-    default CPU collectives); on GPUs JAX gives each process under Slurm the GPU of its local task id."""
+    the same coordinator and count and its own id; process 0 hosts the coordinator, bound to the address given
+    (HOST must be one of process 0's own addresses). The arguments, or the environment variables
+    JAXSR_COORDINATOR / JAXSR_NUM_PROCESSES / JAXSR_PROCESS_ID, or under `srun` Slurm's own variables decide
+    (`distributed_settings`). With one process it does nothing and returns (0, 1); called again in a process that
+    joined, it returns the same pair. On CPU the processes exchange data with gloo (JAX's default CPU collectives);
+    on GPUs JAX gives each process under Slurm the GPU of its local task id.
+
+    Before JAX's runtime starts, the processes meet at the coordinator's address (`jaxsr.joining`): each waits at
+    most `timeout` seconds (default `JOIN_TIMEOUT_S`) for the others, and Ctrl-C ends the wait. say(line), when
+    given, is told what is waited for (the address, the process ids). Raises `jaxsr.joining.JoinError` (one line)
+    for a process missing at the timeout, the coordinator's port in use or its host not process 0's, or processes
+    told different counts or the same id; ValueError for a timeout that is not a positive number of seconds.
+    Under Slurm with no coordinator given, JAX's own detection and wait run (bounded by `timeout` too)."""
     settings = distributed_settings(coordinator, num_processes, process_id)
+    if isinstance(timeout, bool) or not isinstance(timeout, (int, float)) or not 0 < timeout < math.inf:
+        raise ValueError(f"init_distributed: the timeout must be a positive number of seconds, got {timeout!r}")
     if jax.distributed.is_initialized():
         return jax.process_index(), jax.process_count()
     if settings is None:
         return 0, 1
+    extra = {"initialization_timeout": min(max(1, math.ceil(timeout)), 2**31 - 1)}  # a C int
+    address, n, i = settings["coordinator_address"], settings["num_processes"], settings["process_id"]
+    if address is not None and n is not None and i is not None:
+        if _backend_started():  # before the wait: JAX would refuse only after it, leaving the others waiting
+            raise _started_error(None)
+        if i == 0:
+            gather(address, n, timeout, say)
+            extra["coordinator_bind_address"] = address  # JAX's default listens on every interface ([::])
+        else:
+            meet(address, i, n, timeout, say)
+    elif say is not None:
+        say(f"joining the Slurm job's run as JAX detects it (up to {timeout:g} s)")
     try:
-        jax.distributed.initialize(**settings)
+        jax.distributed.initialize(**settings, **extra)
     except RuntimeError as e:
         if "before" not in str(e):
             raise
-        raise RuntimeError("init_distributed must be called before any other JAX use (arrays, jax.devices(), "
-                           "use_cpu_cores ...): JAX's backend is already running in this process, so it can no longer "
-                           f"join a run across processes ({e})") from None
+        raise _started_error(e) from None
     # the pair without asking JAX (which would start the backend: use_cpu_cores may still set the devices); under
     # Slurm, the task variables JAX read
     index = settings["process_id"] if settings["process_id"] is not None else int(os.environ["SLURM_PROCID"])
     count = settings["num_processes"] if settings["num_processes"] is not None else int(os.environ["SLURM_NTASKS"])
     return index, count
+
+
+def _backend_started() -> bool:
+    """Whether JAX's backend already runs in this process (then it can no longer join a run across processes);
+    False where this JAX does not tell (`jax.distributed.initialize` then refuses)."""
+    try:
+        from jax._src import xla_bridge  # JAX's own test, the one jax.distributed.initialize makes
+        return bool(xla_bridge.backends_are_initialized())
+    except (ImportError, AttributeError):
+        return False
+
+
+def _started_error(cause) -> RuntimeError:
+    return RuntimeError("init_distributed must be called before any other JAX use (arrays, jax.devices(), "
+                        "use_cpu_cores ...): JAX's backend is already running in this process, so it can no longer "
+                        "join a run across processes" + (f" ({cause})" if cause is not None else ""))

@@ -39,6 +39,7 @@ import sys
 import threading
 import warnings
 
+from ..joining import JoinError
 from . import finetune, info, models, simulate, train, upscale
 from ._text import printable, shortened
 
@@ -46,7 +47,8 @@ __all__ = ["COMMANDS", "USER_ERRORS", "Terminated", "build_parser", "main"]
 
 COMMANDS = (simulate, train, finetune, upscale, info, models)
 # Exceptions that mean the user asked for something impossible (the library raises these with a message).
-USER_ERRORS = (FileNotFoundError, FileExistsError, IsADirectoryError, NotADirectoryError, PermissionError, ValueError)
+USER_ERRORS = (FileNotFoundError, FileExistsError, IsADirectoryError, NotADirectoryError, PermissionError, ValueError,
+               JoinError)
 
 
 class Terminated(KeyboardInterrupt):

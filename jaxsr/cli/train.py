@@ -7,16 +7,17 @@ $JAXSR_PROCESS_ID, or `srun`'s Slurm variables) every process runs this command 
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import jax
 
 from ..config import PRESETS, TEMPORAL_FORMS
-from ..runtime import init_distributed
+from ..runtime import JOIN_TIMEOUT_S, init_distributed
 from ..nn.model import architectures
 from ..training.presets import MAX_TR, train
 from ..training.folders import seed_folder
-from ._args import int_range, seed, seed_list
+from ._args import int_range, positive_float, seed, seed_list
 
 
 def add_parser(subparsers):
@@ -68,13 +69,18 @@ def add_parser(subparsers):
                         help="how many processes take part (default $JAXSR_NUM_PROCESSES, else 1 or Slurm's tasks)")
     across.add_argument("--process-id", metavar="I", type=int_range(0), default=None,
                         help="this process's id, 0..N-1; 0 writes OUT (default $JAXSR_PROCESS_ID)")
+    across.add_argument("--join-timeout", metavar="SECONDS", type=positive_float, default=JOIN_TIMEOUT_S,
+                        help=f"how long each process waits for the others to join before it gives up with an error "
+                        f"(default {JOIN_TIMEOUT_S:g}; Ctrl-C ends the wait)")
     p.set_defaults(func=run, before_jax=join_processes)
 
 
 def join_processes(args) -> None:
     """Before any JAX work: join the run across processes the options or the environment describe (nothing for one
-    process); ValueError for a malformed or partial description."""
-    init_distributed(args.coordinator, args.num_processes, args.process_id)
+    process), saying on stderr what it waits for; ValueError for a malformed or partial description, JoinError for
+    processes that did not meet (a missing one at --join-timeout, the port in use)."""
+    init_distributed(args.coordinator, args.num_processes, args.process_id, timeout=args.join_timeout,
+                     say=lambda line: print(f"jaxsr train: {line}", file=sys.stderr, flush=True))
 
 
 def run(args) -> int:

@@ -5,15 +5,19 @@ the run, which one process then resumes."""
 
 import json
 import os
+import signal
 import socket
 import subprocess
 import sys
 import textwrap
+import threading
+import time
 from pathlib import Path
 
 import jax
 import pytest
 
+from jaxsr import joining, runtime
 from jaxsr.cli import main
 from jaxsr.config import ModelConfig, TrainConfig
 from jaxsr.io.checkpoint import read_metadata
@@ -222,3 +226,199 @@ def test_two_processes_train_as_one_with_the_same_global_batch(tmp_path):
     for key in ("train_loss", "val_loss"):
         assert continued[key] == pytest.approx(reference[key], rel=1e-5), key
     assert read_metadata(tmp_path / "two" / "last.npz")["processes"] == 1
+
+
+# Meeting before JAX's runtime starts (`jaxsr.joining`): in threads of this process, without JAX, each in a second.
+def _in_thread(fn, *args):
+    """Run fn(*args) in a thread; a function that returns what it returned or raise what it raised."""
+    box = {}
+
+    def work():
+        try:
+            box["value"] = fn(*args)
+        except Exception as e:  # noqa: BLE001 - handed to the test
+            box["error"] = e
+
+    thread = threading.Thread(target=work, daemon=True)
+    thread.start()
+
+    def result(timeout=30):
+        thread.join(timeout)
+        assert not thread.is_alive(), "still waiting"
+        if "error" in box:
+            raise box["error"]
+        return box.get("value")
+
+    return result
+
+
+def test_processes_meet_and_process_0_lets_the_port_go():
+    address = f"127.0.0.1:{_free_port()}"
+    lines = []
+    others = [_in_thread(joining.meet, address, i, 3, 20.0, lines.append) for i in (2, 1)]
+    joining.gather(address, 3, 20.0, lines.append)
+    for other in others:
+        other()
+    assert f"process 0 of 3: waiting at {address} for process(es) 1, 2 to join (up to 20 s)" in lines
+    assert f"process 1 of 3: waiting for process 0 at {address} (up to 20 s)" in lines
+    with socket.socket() as s:  # free again, for JAX's coordinator
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        s.bind(joining.split_address(address))
+
+
+def test_a_stray_connection_does_not_count_as_a_process():
+    address = f"127.0.0.1:{_free_port()}"
+    waiting = _in_thread(joining.gather, address, 2, 20.0)
+    host, port = joining.split_address(address)
+    deadline = time.monotonic() + 10
+    while True:  # once process 0 listens: a client that is not a process of the run, then process 1
+        try:
+            stray = socket.create_connection((host, port), timeout=1)
+            break
+        except ConnectionRefusedError:
+            assert time.monotonic() < deadline
+            time.sleep(0.05)
+    with stray:
+        stray.sendall(b"GET / HTTP/1.0\r\n\r\n")
+        joining.meet(address, 1, 2, 20.0)
+    waiting()
+
+
+@pytest.mark.parametrize("role", ["process 0", "process 1"])
+def test_a_process_alone_gives_up_at_its_timeout_with_what_it_waited_for(role):
+    address = f"127.0.0.1:{_free_port()}"
+    start = time.monotonic()
+    if role == "process 0":
+        with pytest.raises(joining.JoinError, match=rf"process 0: process\(es\) 1, 2 of 3 did not join at "
+                                                    rf"{address} within 0\.5 s"):
+            joining.gather(address, 3, 0.5)
+    else:
+        with pytest.raises(joining.JoinError, match=rf"process 1: process 0 did not let this process join at "
+                                                    rf"{address} within 0\.5 s"):
+            joining.meet(address, 1, 3, 0.5)
+    assert time.monotonic() - start < 5
+
+
+def test_process_0_refuses_a_port_in_use_and_an_address_not_its_own():
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        with pytest.raises(joining.JoinError, match=f"the coordinator's port {port} is in use on 127.0.0.1"):
+            joining.gather(f"127.0.0.1:{port}", 2, 5.0)
+    with pytest.raises(joining.JoinError, match="192.0.2.1 is not an address of this machine"):  # TEST-NET-1
+        joining.gather(f"192.0.2.1:{port}", 2, 5.0)
+
+
+@pytest.mark.parametrize("theirs,match", [
+    ((1, 3), "process 1 was told 3 processes, process 0 2: give every process the same number"),
+    ((2, 2), r"a process joined as process 2, outside 1\.\.1"),
+])
+def test_processes_told_different_things_are_refused_on_both_sides(theirs, match):
+    address = f"127.0.0.1:{_free_port()}"
+    other = _in_thread(joining.meet, address, *theirs, 20.0)
+    with pytest.raises(joining.JoinError, match="process 0: " + match):
+        joining.gather(address, 2, 20.0)
+    with pytest.raises(joining.JoinError, match=rf"process {theirs[0]}: process 0 at {address} refused it: {match}"):
+        other()
+
+
+def test_two_processes_with_one_id_are_refused():
+    address = f"127.0.0.1:{_free_port()}"
+    others = [_in_thread(joining.meet, address, 1, 3, 20.0) for _ in range(2)]
+    with pytest.raises(joining.JoinError, match="two processes joined as process 1: give each its own process id"):
+        joining.gather(address, 3, 20.0)
+    for other in others:
+        with pytest.raises(joining.JoinError, match="refused it: two processes joined as process 1"):
+            other()
+
+
+def test_the_command_says_what_it_waits_for_and_gives_up_in_one_line(monkeypatch, tmp_path, capsys):
+    """--join-timeout bounds the wait; the JAX backend this test process already runs is set aside (a real
+    process joins first: the slow test below)."""
+    for name in (*DISTRIBUTED_ENV, *SLURM):
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setattr(runtime, "_backend_started", lambda: False)
+    address = f"127.0.0.1:{_free_port()}"
+    args = ["train", "--out", str(tmp_path / "run"), "--coordinator", address, "--num-processes", "2"]
+    assert main([*args, "--process-id", "1", "--join-timeout", "0.5"]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert err == [f"jaxsr train: process 1 of 2: waiting for process 0 at {address} (up to 0.5 s)",
+                   f"jaxsr train: error: process 1: process 0 did not let this process join at {address} within "
+                   "0.5 s: start process 0 with the same coordinator, on the host whose address that is (a name that "
+                   "resolves there to a loopback address listens only there), or allow a longer timeout "
+                   "(--join-timeout)"]
+    with socket.socket() as taken:
+        taken.bind(joining.split_address(address))
+        taken.listen()
+        assert main([*args, "--process-id", "0"]) == 2
+    assert "is in use on 127.0.0.1 (another run, or another program)" in capsys.readouterr().err
+    for bad in ("0", "-1", "nan", "inf"):
+        with pytest.raises(SystemExit) as e:
+            main([*args, "--process-id", "0", "--join-timeout", bad])
+        assert e.value.code == 2 and "--join-timeout" in capsys.readouterr().err
+    assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize("timeout", [0, -1.0, float("nan"), float("inf"), "60", True])
+def test_init_distributed_refuses_a_timeout_that_is_not_seconds(timeout):
+    with pytest.raises(ValueError, match="the timeout must be a positive number of seconds"):
+        init_distributed("127.0.0.1:8476", 2, 1, timeout=timeout)
+
+
+# A process that joins (JAX's runtime too) and holds on until its stdin closes: `python -c JOINER ID N TIMEOUT`.
+JOINER = textwrap.dedent(
+    """
+    import sys
+    from jaxsr.runtime import init_distributed
+    print(init_distributed(None, int(sys.argv[2]), int(sys.argv[1]), timeout=float(sys.argv[3])), flush=True)
+    sys.stdin.read()
+    """
+)
+
+
+@pytest.mark.slow  # Python processes importing jaxsr and JAX on 2 shared cores: 10-30 s
+def test_the_coordinator_listens_at_the_address_given_only(tmp_path):
+    """JAX's default binds every interface ([::]); given 127.0.0.1, another loopback address (127.0.0.2) finds
+    nothing."""
+    port = _free_port()
+    env = _env(XLA_FLAGS="--xla_force_host_platform_device_count=1", JAXSR_COORDINATOR=f"127.0.0.1:{port}")
+    procs = [subprocess.Popen([sys.executable, "-c", JOINER, str(i), "2", "120"], stdin=subprocess.PIPE,
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path, env=env)
+             for i in (1, 0)]
+    try:
+        assert [p.stdout.readline().strip() for p in procs] == ["(1, 2)", "(0, 2)"]
+        with socket.create_connection(("127.0.0.1", port), timeout=5):
+            pass  # JAX's coordinator listens there
+        with pytest.raises(ConnectionRefusedError):
+            socket.create_connection(("127.0.0.2", port), timeout=5).close()
+    finally:
+        for p in procs:
+            p.stdin.close()
+        for p in procs:
+            try:
+                p.wait(timeout=60)
+            except subprocess.TimeoutExpired:
+                p.kill()
+
+
+@pytest.mark.slow  # a Python process importing jaxsr on 2 shared cores: 5-15 s each
+@pytest.mark.parametrize("process_id", [0, 1])
+def test_a_process_alone_ends_in_one_line_or_at_ctrl_c(tmp_path, process_id):
+    """No JAX abort ("Check failure", exit 134) at the timeout and no wait Ctrl-C cannot end: exit 2 after one
+    line, and 130 at Ctrl-C, with nothing written."""
+    command = [sys.executable, "-m", "jaxsr.cli", "train", "--out", str(tmp_path / "run"), "--coordinator",
+               f"127.0.0.1:{_free_port()}", "--num-processes", "2", "--process-id", str(process_id)]
+    alone = subprocess.run([*command, "--join-timeout", "1"], capture_output=True, text=True, timeout=120,
+                           cwd=tmp_path, env=_env())
+    assert alone.returncode == 2, alone.stderr[-3000:]
+    assert alone.stderr.count("\n") == 2 and "jaxsr train: error: process" in alone.stderr
+    waiting = subprocess.Popen(command, stderr=subprocess.PIPE, text=True, cwd=tmp_path, env=_env())
+    try:
+        assert "waiting" in waiting.stderr.readline()
+        waiting.send_signal(signal.SIGINT)
+        assert waiting.wait(timeout=30) == 130
+    finally:
+        if waiting.poll() is None:
+            waiting.kill()
+    assert not (tmp_path / "run").exists()
