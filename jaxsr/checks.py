@@ -165,19 +165,19 @@ def _two_sizes(need: float, budget: float) -> tuple[str, str]:
     return texts
 
 
-def require_memory(need: float, what: str, max_memory=None, *, remedy: str = "") -> None:
+def require_memory(need: float, what: str, max_memory=None, *, remedy: str = "", at_least: bool = False) -> None:
     """Refuse (ValueError) work estimated to need `need` bytes beyond `memory_budget(max_memory)`: one line with
-    what `what` needs, the budget, how to override it (--max-memory, max_memory=) and `remedy` (e.g. "give fewer
-    --bins")."""
+    what `what` needs ("at least" that, when `need` is a lower bound), the budget, how to override it
+    (--max-memory, max_memory=) and `remedy` (e.g. "give fewer --bins")."""
     budget = memory_budget(max_memory)
     if budget is None or need <= budget:
         return
     allowed = ("by --max-memory (max_memory)" if max_memory is not None
                else f"({MEMORY_SHARE:.0%} of this machine's {format_bytes(machine_memory())})")
     need_text, budget_text = _two_sizes(need, budget)
-    raise ValueError(f"{what} needs about {need_text} of memory, more than the {budget_text} "
-                     f"allowed {allowed}; {remedy + ', or ' if remedy else ''}give --max-memory "
-                     f"{int(np.ceil(need / 1e9))}GB (max_memory=) to try anyway")
+    raise ValueError(f"{what} needs {'at least ' if at_least else ''}about {need_text} of memory, more than the "
+                     f"{budget_text} allowed {allowed}; {remedy + ', or ' if remedy else ''}give --max-memory "
+                     f"{int(np.ceil(need / 1e9))}GB{' or more' if at_least else ''} (max_memory=) to try anyway")
 
 
 def npz_array_bytes(path, names) -> int:

@@ -72,6 +72,6 @@ def upscale(input, output, *, model="default", read: Reading = Reading(), photon
     """
     memory_budget(max_memory)  # a bad size is refused before anything is read
     outputs = check_outputs(output, write, input=input)
-    job = prepare_upscale(input, model=model, read=read, photons=photons, max_memory=max_memory)
+    job = prepare_upscale(input, model=model, read=read, photons=photons, max_memory=max_memory, outputs=outputs)
     return write_upscaled(job, outputs, batch_size=batch_size, progress=progress, max_memory=max_memory,
                           report=report)

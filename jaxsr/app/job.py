@@ -19,6 +19,7 @@ from ..nn.model import Model
 from ..runtime import enable_compilation_cache
 from ..sensor.gates import gate_warnings
 from ..sensor.timetags import TIME_TAG_FORMATS, TimeTags, gate_of_tags, read_time_tags, time_tag_warnings
+from .memory import HISTOGRAM_CHUNK, check_result_memory
 from .models import finish_model, has_head, plan_model, trained_snr_range
 from .photons import (AMBIENT_FRAMES, HEAD_FRAMES, PhotonDecision, decide_photon_rules, few_photons_warnings,
                       photon_levels, rule_warnings, snr_warnings)
@@ -28,7 +29,6 @@ from .specs import ModelChoice, PhotonRules, Reading, is_auto
 
 __all__ = ["UpscaleJob", "prepare_upscale", "no_return_interior", "HISTOGRAM_CHUNK"]
 
-HISTOGRAM_CHUNK = 16  # histogram frames turned into the network's input per compiled call (`iter_network_inputs`)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -162,7 +162,7 @@ def _as_choice(model) -> ModelChoice:
 
 
 def prepare_upscale(input, *, model="default", read: Reading = Reading(), photons: PhotonRules = PhotonRules(),
-                    max_memory=None) -> UpscaleJob:
+                    max_memory=None, outputs=None) -> UpscaleJob:
     """Open and check a recording and choose its model, as `jaxsr upscale` does before any output is written.
 
     input: a path (.npy / .npz array of depth (T, h, w) or photon counts (T, h, w, bins); a folder or glob pattern
@@ -170,8 +170,11 @@ def prepare_upscale(input, *, model="default", read: Reading = Reading(), photon
     of photon time tags), or an opened `Recording`, a NumPy array (T, h, w) / (T, h, w, bins), or
     `jaxsr.sensor.TimeTags`. model: a `ModelChoice`, or what its `model` takes (a name, path or `Model`). read,
     photons: what is read and the photon rules (`Reading`, `PhotonRules`). max_memory: the budget an .npz's array
-    and time tags' histograms are checked against before they are read (bytes or a size such as "16GB").
-    Checks, in order: the model, then the input and every one of its frames (frames of any size h, w >= 4).
+    and time tags' histograms are checked against before they are read (bytes or a size such as "16GB"); with
+    `outputs` (the checked `Outputs` the job will write, `check_outputs`), so is the least memory their result
+    needs (`jaxsr.app.memory.result_memory`: a result held whole, or drawn), from the recording's sizes before any
+    of its frames is read. Checks, in order: the model, then the input, its memory and every one of its frames
+    (frames of any size h, w >= 4).
 
     Returns an `UpscaleJob`. Raises ValueError, FileNotFoundError (a missing input or model) with the messages
     `jaxsr upscale` prints, TypeError for an input or model of another type (None among them).
@@ -186,6 +189,10 @@ def prepare_upscale(input, *, model="default", read: Reading = Reading(), photon
         raise ValueError("keep_returns (--keep-returns) overrules a no-return head's decision and this model has no "
                          "head: give one that has (tr4-ambient, tr0-ambient, tr4-photons, tr0-photons)")
     rec, gate, source, tag_notes = _open(input, read, max_memory)
+    if outputs is not None:  # from the sizes alone, before a pass over the frames
+        scale = 4 if planned.model is None else int(planned.model.architecture.scale(planned.model.config))
+        check_result_memory(rec, scale, in_memory=outputs.in_memory, looks=outputs.writing.looks,
+                            max_memory=max_memory)
     if rec.kind == "histograms":
         job = _histogram_job(rec, gate, source, tag_notes, choice, planned, read, photons)
     else:

@@ -12,12 +12,12 @@ import numpy as np
 from ..checks import require_memory
 from ..inference import DEFAULT_TILE, default_batch_size
 
-from .job import HISTOGRAM_CHUNK, UpscaleJob
 from .photons import AMBIENT_FRAMES
 
-__all__ = ["BASE_BYTES", "HISTOGRAM_COPIES", "NETWORK_BYTES_TR4", "upscale_memory", "batch_size_of",
-           "check_memory"]
+__all__ = ["BASE_BYTES", "HISTOGRAM_CHUNK", "HISTOGRAM_COPIES", "NETWORK_BYTES_TR4", "upscale_memory",
+           "result_memory", "batch_size_of", "check_memory", "check_result_memory"]
 
+HISTOGRAM_CHUNK = 16  # histogram frames turned into the network's input per compiled call (`iter_network_inputs`)
 BASE_BYTES = 0.5e9  # JAX, a model and the interpreter before any frame (0.36-0.49 GB)
 HISTOGRAM_COPIES = 6  # copies each float32 frame of counts makes on its way to the network (16 of 2000 bins: 1.6 GB)
 NETWORK_BYTES_TR4 = 25e3  # a network's features per LR pixel where its architecture does not say (the DUF TR4's)
@@ -28,8 +28,9 @@ def _feature_bytes(model, batch_size: int) -> float:
     return NETWORK_BYTES_TR4 if count is None else count(model.config, batch_size)
 
 
-def upscale_memory(job: UpscaleJob, *, batch_size: int, in_memory: bool, looks: bool = False) -> float:
-    """Bytes `write_upscaled` is estimated to need at its peak, from the job's sizes alone (nothing is run):
+def upscale_memory(job, *, batch_size: int, in_memory: bool, looks: bool = False) -> float:
+    """Bytes `write_upscaled` is estimated to need at its peak, from the sizes of `job` (an `UpscaleJob`, from
+    `prepare_upscale`, which imports this module) alone (nothing is run):
     `BASE_BYTES`; the input where it is held whole (an .npz's array, time tags' histograms; an .npy is
     memory-mapped); histogram frames on their way to the network (`HISTOGRAM_CHUNK` x `HISTOGRAM_COPIES`); the
     network on one tile (at most `DEFAULT_TILE` LR pixels a side) per frame of the batch; with a photon rule,
@@ -40,9 +41,7 @@ def upscale_memory(job: UpscaleJob, *, batch_size: int, in_memory: bool, looks: 
     rec, model = job.recording, job.model
     h, w = (int(v) for v in rec.shape[:2])
     hr = 4.0 * job.hr_shape[0] * job.hr_shape[1]
-    need = BASE_BYTES
-    if rec.array is not None and not isinstance(rec.array, np.memmap):
-        need += rec.array.nbytes
+    need = BASE_BYTES + _held_input_bytes(rec)
     if rec.kind == "histograms":
         need += HISTOGRAM_COPIES * HISTOGRAM_CHUNK * 4.0 * h * w * int(rec.shape[-1])
     keep = job.keep_returns is not None
@@ -57,7 +56,7 @@ def upscale_memory(job: UpscaleJob, *, batch_size: int, in_memory: bool, looks: 
     return need
 
 
-def batch_size_of(job: UpscaleJob, batch_size: int | None) -> int:
+def batch_size_of(job, batch_size: int | None) -> int:
     """Frames per compiled call: `batch_size` (default as `jaxsr.inference.iter_super_resolve`'s) but no more
     than the recording's frames (a larger batch would be padded with copies of the last frame)."""
     if batch_size is not None and (isinstance(batch_size, bool) or int(batch_size) != batch_size
@@ -68,7 +67,7 @@ def batch_size_of(job: UpscaleJob, batch_size: int | None) -> int:
     return min(size, job.frames)
 
 
-def check_memory(job: UpscaleJob, *, batch_size: int, in_memory: bool, looks: bool, max_memory) -> None:
+def check_memory(job, *, batch_size: int, in_memory: bool, looks: bool, max_memory) -> None:
     """Refuse a job whose `upscale_memory` exceeds the budget (`jaxsr.checks.require_memory`), naming its sizes and
     what would need less."""
     need = upscale_memory(job, batch_size=batch_size, in_memory=in_memory, looks=looks)
@@ -79,3 +78,30 @@ def check_memory(job: UpscaleJob, *, batch_size: int, in_memory: bool, looks: bo
     what = (f"upscaling {job.frames} frame{'s' if job.frames > 1 else ''} of {frame} to {job.hr_shape[0]} x "
             f"{job.hr_shape[1]}")
     require_memory(need, what, max_memory, remedy="give " + " or ".join(ways) if ways else "")
+
+
+def _held_input_bytes(rec) -> int:
+    """The input's bytes where it is held whole (an .npz's array, time tags' histograms; not a memory-mapped .npy
+    or image frames)."""
+    return 0 if rec.array is None or isinstance(rec.array, np.memmap) else int(rec.array.nbytes)
+
+
+def result_memory(recording, scale: int, *, in_memory: bool, looks: bool) -> float:
+    """The least `upscale_memory` can be for `recording` upscaled `scale` times, from its sizes alone (no frame read,
+    no model built): `BASE_BYTES`, the input where held whole, the HR frames of a batch of one (computed, drained
+    and converted), and the whole result where it is held (`in_memory`) or the pictures' frames (`looks`)."""
+    h, w = (int(v) for v in recording.shape[:2])
+    hr = 4.0 * h * w * scale * scale
+    return BASE_BYTES + _held_input_bytes(recording) + 3 * hr + (
+        recording.frames * hr if in_memory else 0) + (6 * hr if looks else 0)
+
+
+def check_result_memory(recording, scale: int, *, in_memory: bool, looks: bool, max_memory) -> None:
+    """Refuse a recording whose `result_memory` exceeds the budget (`jaxsr.checks.require_memory`) before any of its
+    frames is read: a recording too long to hold its result is refused from its sizes, not after a pass over it."""
+    need = result_memory(recording, scale, in_memory=in_memory, looks=looks)
+    frame = " x ".join(map(str, recording.shape))
+    what = (f"upscaling {recording.frames} frame{'s' if recording.frames > 1 else ''} of {frame} to "
+            f"{recording.shape[0] * scale} x {recording.shape[1] * scale}")
+    require_memory(need, what, max_memory, remedy="give an .npy or folder OUTPUT (written frame by frame, not held)"
+                   if in_memory and recording.frames > 1 else "", at_least=True)

@@ -399,15 +399,16 @@ def read_sequence(path, *, max_memory=None):
     """Read a sequence written by `write_sequence`: a dict with 'depth' (T, H, W), 'intensity' if stored, and
     'metadata' (a dict).
 
-    Args: path (.npy or .npz), max_memory (as `read_npz_arrays`). Returns a dict of arrays, depth of shape
-    (T, H, W).
+    Args: path (.npy or .npz), max_memory (as `read_npz_arrays`: an array beyond it, by its header, is refused
+    before it is read). Returns a dict of arrays, depth of shape (T, H, W).
     """
     if Path(path).suffix.lower() == ".npy":
         path = _require_file(path)
-        depth = load_npy(path)
+        depth = load_npy(path, mmap_mode="r")  # its header's shape, nothing read yet
         if depth.ndim != 3:
             raise ValueError(f"{path}: expected a (T, H, W) sequence, got {depth.shape}")
-        return dict(depth=depth, metadata={})
+        require_memory(depth.nbytes, f"{path}: its array", max_memory)
+        return dict(depth=np.array(depth), metadata={})
     z = read_npz_arrays(path, ["depth"], max_memory=max_memory)
     z["metadata"] = _json_metadata(z["metadata"], f"{path}: metadata") if "metadata" in z else {}
     return z

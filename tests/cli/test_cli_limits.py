@@ -66,14 +66,20 @@ def depth(tmp_path, monkeypatch):
 
 def test_a_huge_frame_is_refused_with_its_memory_estimate_before_the_work(tmp_path, model_path, capsys,
                                                                          monkeypatch):
-    """One 4097 x 4097 frame took 7 GB and more with no word up front; now the estimate, and --max-memory."""
+    """One 4097 x 4097 frame took 7 GB and more with no word up front; now the estimate, and --max-memory: from
+    the frame's size alone (its result held, at least), or, with a budget that holds that, of the whole work."""
     np.save(tmp_path / "big.npy", np.full((1, 4097, 4097), 0.5, np.float32))
     monkeypatch.chdir(tmp_path)
     line = refused(["upscale", "big.npy", "out.npz", "--model", model_path, "--max-memory", "3GB"], capsys, tmp_path,
-                   "upscaling 1 frame of 4097 x 4097 to 16388 x 16388 needs about ",
-                   "more than the 3.0 GB allowed by --max-memory", "to try anyway")
+                   "upscaling 1 frame of 4097 x 4097 to 16388 x 16388 needs at least about ",
+                   "more than the 3.0 GB allowed by --max-memory", "or more (max_memory=) to try anyway")
+    least = float(line.split("needs at least about ")[1].split(" GB")[0])
+    assert 4 < least < 8  # the input frame, the result and the HR frames of a batch of one: 4.8 GB
+    line = refused(["upscale", "big.npy", "out.npz", "--model", model_path, "--max-memory", f"{least + 0.1}GB"],
+                   capsys, tmp_path, "upscaling 1 frame of 4097 x 4097 to 16388 x 16388 needs about ",
+                   "allowed by --max-memory", "to try anyway")
     need = float(line.split("needs about ")[1].split(" GB")[0])
-    assert 4 < need < 8  # measured: 7 GB with the bundled TR4, whose features take more than the tiny model's
+    assert least < need < 8  # measured: 7 GB with the bundled TR4, whose features take more than the tiny model's
 
 
 def test_a_huge_batch_runs_as_the_recording_and_is_refused_beyond_the_budget(depth, model_path, capsys):
@@ -231,3 +237,46 @@ def test_png_frames_beyond_65_m_are_refused_or_counted(tmp_path, model_path, cap
     assert 0 < pixels <= 2 * 128 * 256
     assert lines[-1] == (f"jaxsr upscale: warning: {pixels} pixels beyond 65.535 m written as 65.535 m (16-bit PNG's "
                          "largest depth); --frame-format exr, pfm or tif store them")
+
+
+def test_a_result_too_large_to_hold_is_refused_before_any_frame_is_read(tmp_path, model_path, capsys, monkeypatch):
+    """A 13 GB recording into an .npz was refused for memory only after a 53 s pass over its frames: its result
+    held whole is sized from the recording's shape, and refused before one frame is read (`upscale`, and the
+    command on a memory-mapped .npy). The same frames into an .npy (written frame by frame) still run."""
+    from jaxsr.app import Recording, upscale
+    from jaxsr.app.memory import result_memory
+
+    def unread():
+        raise AssertionError("a frame was read")
+
+    frames, shape = 2000, (64, 64)
+    long = Recording("depth", frames, shape, unread, "long")
+    need = result_memory(long, 4, in_memory=True, looks=False)
+    assert need > frames * 4 * 256 * 256  # the result, at least
+    with pytest.raises(ValueError, match=r"upscaling 2000 frames of 64 x 64 to 256 x 256 needs at least about "
+                                         r"1\.0 GB of memory, more than the 900 MB allowed by --max-memory .*an \.npy "
+                                         r"or folder OUTPUT"):
+        upscale(long, tmp_path / "out.npz", model=str(model_path), max_memory="900MB")
+    with pytest.raises(ValueError, match="needs at least about"):
+        upscale(long, None, model=str(model_path), max_memory="900MB")
+    with pytest.raises(AssertionError, match="a frame was read"):  # written frame by frame: within the budget
+        upscale(long, tmp_path / "out.npy", model=str(model_path), max_memory="900MB")
+
+    np.lib.format.open_memmap(tmp_path / "long.npy", "w+", np.float32, (frames, *shape))[:] = 0.5
+    monkeypatch.setattr(Recording, "__iter__", lambda self: unread())
+    monkeypatch.chdir(tmp_path)
+    refused(["upscale", "long.npy", "out.npz", "--model", model_path, "--max-memory", "900MB"], capsys, tmp_path,
+            "upscaling 2000 frames of 64 x 64 to 256 x 256 needs at least about")
+
+
+def test_the_least_memory_of_a_result_is_below_the_estimate_of_its_work(depth, model_path):
+    """`result_memory` (from the sizes, before anything is read) never exceeds `upscale_memory` (of the whole job,
+    once the model is chosen), whatever is held: a recording it refuses would be refused later anyway."""
+    from jaxsr.app import prepare_upscale, upscale_memory
+    from jaxsr.app.memory import result_memory
+
+    job = prepare_upscale(depth / "in.npy", model=str(model_path))
+    for in_memory in (False, True):
+        for looks in (False, True):
+            least = result_memory(job.recording, 4, in_memory=in_memory, looks=looks)
+            assert least <= upscale_memory(job, batch_size=1, in_memory=in_memory, looks=looks)

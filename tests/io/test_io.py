@@ -592,3 +592,18 @@ def test_reading_an_npz_that_inflates_beyond_the_budget_is_refused_before_it_is_
     np.savez_compressed(tmp_path / "s.npz", depth=np.zeros((100, 512, 512), np.float32))
     with pytest.raises(ValueError, match="needs about 105 MB of memory"):
         io.read_sequence(tmp_path / "s.npz", max_memory="50MB")
+
+
+def test_reading_an_npy_sequence_beyond_the_budget_is_refused_from_its_header(tmp_path):
+    """read_sequence read an .npy whole whatever its size: now sized from its header first, as an .npz is; a
+    header claiming more than the file holds is a damaged file, not an allocation."""
+    np.save(tmp_path / "s.npy", np.zeros((100, 512, 512), np.float32))
+    with pytest.raises(ValueError, match=r"s.npy: its array needs about 105 MB of memory, more than the 50 MB"):
+        io.read_sequence(tmp_path / "s.npy", max_memory="50MB")
+    assert io.read_sequence(tmp_path / "s.npy", max_memory="200MB")["depth"].shape == (100, 512, 512)
+    with open(tmp_path / "lies.npy", "wb") as f:  # a header for 10^12 floats, then 16 bytes
+        np.lib.format.write_array_header_1_0(f, {"descr": "<f4", "fortran_order": False,
+                                                 "shape": (10**4, 10**4, 10**4)})
+        f.write(bytes(16))
+    with pytest.raises(ValueError, match="lies.npy: a truncated or damaged NPY file"):
+        io.read_sequence(tmp_path / "lies.npy")
