@@ -13,7 +13,7 @@ import jax
 import jax.numpy as jnp
 
 from ..config import PRESETS, ModelConfig, PhotonRegime, SensorConfig
-from ..io.checkpoint import config_from_dict, read_metadata, resolve_model_path
+from ..io.checkpoint import config_from_dict, load_model, read_metadata, resolve_model_path
 from ..io.files import removing_new_folder
 from ..io.formats import read_npz_arrays
 from ..nn.duf import DUF
@@ -104,11 +104,18 @@ def train(out, *, arch: str = "duf", tr: int = 4, scale: int = 4, temporal: str 
     sensor = SensorConfig() if scale == 4 else SensorConfig(scale=scale)
     _check_out(out, resume, seeds=seeds, overwrite=overwrite)
     if init is not None and not isinstance(init, Model):
-        read_metadata(resolve_model_path(init))  # a file that holds no model fails now, not after the set-up
+        _check_weights(init)
     make_batch = sequence_data(data, model_cfg, train_cfg, sensor) if data is not None else None
     return _fit_in_new_folder(out, model_cfg, train_cfg, make_batch=make_batch, sensor=sensor, resume=resume,
                               overwrite=overwrite, progress=progress, init=init,
                               checkpoint_every_s=60 * checkpoint_minutes, seeds=seeds)
+
+
+def _check_weights(init) -> None:
+    """Load the starting weights `init` (a name or path) once, so that a file that holds no model, or a damaged
+    or hostile one (a header claiming terabytes, non-finite weights), fails now, not after the set-up (drawing
+    the validation set took minutes)."""
+    load_model(resolve_model_path(init))
 
 
 def _check_minutes(checkpoint_minutes):
@@ -273,6 +280,7 @@ def finetune(out, *, sensor_file, init="tr4", epochs: int = 10, steps_per_epoch:
     _check_init_outside(init, out, resume)
     sensor, regime, info = read_sensor_file(sensor_file)
     model_cfg = _init_config(init, photons)
+    _check_weights(init)
     entry = card_entry(info)
     base = PRESETS[preset]
     rows, cols = sensor.lr_shape

@@ -415,3 +415,45 @@ def test_an_inverted_irf_is_refused_not_fitted_wide():
     assert fit_irf(100.0 + pulse)["sigma_bins"] == pytest.approx(1.5, rel=0.05)
     with pytest.raises(ValueError, match="dips .* below its median"):
         fit_irf(1000.0 - pulse)
+
+
+@pytest.mark.parametrize("damage", ["a header claiming terabytes", "non-finite weights"])
+def test_damaged_starting_weights_are_refused_before_the_set_up(tmp_path, monkeypatch, capsys, damage):
+    """`finetune --from` and `train --init` read only the starting model's metadata up front: its weights, a
+    header claiming 10^12 floats or NaN, were refused in one line only after the validation set was drawn
+    (minutes). Now before any data is made, and nothing is written."""
+    import io as bytes_io
+    import zipfile
+
+    from jaxsr.training import presets
+
+    cfg = jaxsr.ModelConfig(tr=0, base=4, growth=2, head=4, filter_hidden=4)
+    params, state = init_model(jax.random.key(0), cfg)
+    if damage == "non-finite weights":
+        params = jax.tree_util.tree_map(np.asarray, params)
+        params["stem"]["b"] = np.full_like(params["stem"]["b"], np.nan)
+    path = save_model(tmp_path / "start.npz", Model(params, state, cfg))
+    if damage == "a header claiming terabytes":
+        with zipfile.ZipFile(path) as z:
+            entries = {n: z.read(n) for n in z.namelist()}
+        name = next(n for n in entries if n.startswith("params/"))
+        lie = bytes_io.BytesIO()
+        np.lib.format.write_array_header_1_0(lie, {"descr": "<f4", "fortran_order": False, "shape": (10**12,)})
+        entries[name] = lie.getvalue() + b"\0" * 16
+        with zipfile.ZipFile(path, "w") as z:
+            for n, data in entries.items():
+                z.writestr(n, data)
+
+    def set_up(*args, **kwargs):
+        raise AssertionError("the set-up began")
+
+    for name in ("regime_batches", "regime_validation", "sequence_data", "_fit_in_new_folder"):
+        monkeypatch.setattr(presets, name, set_up)
+    (tmp_path / "s.toml").write_text(TINY_TOML)
+    for command in (["finetune", "--sensor", str(tmp_path / "s.toml"), "--from", str(path)],
+                    ["train", "--tr", "0", "--init", str(path)]):
+        assert cli.main([*command, "--out", str(tmp_path / "run"), "--no-progress"]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "start.npz" in err, err
+        assert ("claims 4e+12 bytes" if damage == "a header claiming terabytes" else "non-finite") in err, err
+    assert not (tmp_path / "run").exists()
