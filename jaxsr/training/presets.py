@@ -14,7 +14,7 @@ import jax.numpy as jnp
 
 from ..config import PRESETS, ModelConfig, PhotonRegime, SensorConfig
 from ..io.checkpoint import config_from_dict, load_model, read_metadata, resolve_model_path
-from ..io.files import removing_new_folder
+from ..io.files import check_output_folder, removing_new_folder
 from ..io.formats import read_npz_arrays
 from ..nn.duf import DUF
 from ..nn.model import Model, architecture, architectures
@@ -124,7 +124,8 @@ def _check_minutes(checkpoint_minutes):
 
 
 def _check_out(out, resume: bool, *, seeds=None, overwrite: bool = False):
-    """The checks of folder `out` that `train` and `finetune` make before any work: not a file, holding a run
+    """The checks of folder `out` that `train` and `finetune` make before any work: not a file, a place this
+    process can write (`jaxsr.io.NotWritableError`: no permission, a read-only file system), holding a run
     to resume when `resume`, and holding none unless `resume` or `overwrite` (said now, not after the minutes the
     validation set and the first compilation take); with `seeds` (a stacked run), of each seed's folder in it (one
     holding a run is enough to resume), and `out` itself holding none."""
@@ -132,6 +133,8 @@ def _check_out(out, resume: bool, *, seeds=None, overwrite: bool = False):
     for folder in {Path(out), *folders}:
         if folder.exists() and not folder.is_dir():
             raise FileExistsError(f"{folder} is a file; --out is a folder")
+    for folder in {Path(out), *folders}:  # a read-only place was refused only at the first write, minutes on
+        check_output_folder(folder)
     if seeds is not None:
         _check_stack_folder(Path(out))
     if resume and not any((folder / name).exists() for folder in folders for name in RUN_FILES):

@@ -457,3 +457,36 @@ def test_damaged_starting_weights_are_refused_before_the_set_up(tmp_path, monkey
         assert err.count("\n") == 1 and "start.npz" in err, err
         assert ("claims 4e+12 bytes" if damage == "a header claiming terabytes" else "non-finite") in err, err
     assert not (tmp_path / "run").exists()
+
+
+@pytest.fixture
+def read_only_tmpfs(tmp_path):
+    """A read-only tmpfs, where this process may mount one (root); the test is skipped elsewhere."""
+    import subprocess
+
+    mount = tmp_path / "read-only"
+    mount.mkdir()
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k,ro", "tmpfs", str(mount)], capture_output=True,
+                      check=False).returncode:
+        pytest.skip("cannot mount a tmpfs here")
+    yield mount
+    subprocess.run(["umount", str(mount)], check=False)
+
+
+def test_an_out_on_a_read_only_file_system_is_refused_before_the_set_up(read_only_tmpfs, tmp_path, monkeypatch,
+                                                                        capsys):
+    """--out on a read-only file system was refused only at the first write, after 26-33 s of set-up: now first,
+    in one line, exit 2, for `finetune` and `train`, a new folder or the mount itself."""
+    from jaxsr.training import presets
+
+    def set_up(*args, **kwargs):
+        raise AssertionError("the set-up began")
+
+    for name in ("regime_batches", "regime_validation", "read_sensor_file", "_fit_in_new_folder"):
+        monkeypatch.setattr(presets, name, set_up)
+    (tmp_path / "s.toml").write_text(TINY_TOML)
+    for out in (read_only_tmpfs / "run", read_only_tmpfs):
+        for command in (["finetune", "--sensor", str(tmp_path / "s.toml")], ["train", "--tr", "0"]):
+            assert cli.main([*command, "--out", str(out), "--no-progress"]) == 2
+            err = capsys.readouterr().err
+            assert err.count("\n") == 1 and f"{read_only_tmpfs} is on a read-only file system" in err, err
