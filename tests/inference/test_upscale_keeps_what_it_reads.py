@@ -149,7 +149,7 @@ def test_a_recording_whose_frame_rate_no_video_can_show_is_refused_before_the_wo
 def test_bins_are_read_from_the_histograms(model_path):
     """32 bins without --bins: the gate has 32 bins over the trained 35 m (not 70 m of 16-bin widths), not a
     refusal asking for --bins; an array given as input never makes an output named "array" its own input."""
-    from jaxsr.app import Writing, prepare_upscale, write_upscaled
+    from jaxsr.app import prepare_upscale
 
     counts = np.asarray(np.random.default_rng(0).poisson(1.0, (2, 8, 8, 32)), np.float32)
     job = prepare_upscale(counts, model=model_path)
@@ -180,3 +180,27 @@ def test_write_upscaled_takes_what_is_written_once(tmp_path, model_path):
     with pytest.raises(ValueError, match="not both"):
         write_upscaled(job, check_outputs(tmp_path / "o.npy"), Writing(video=tmp_path / "v.gif"))
     assert not (tmp_path / "o.npy").exists()
+
+
+def test_a_recording_whose_metadata_header_lies_plays_at_the_default_rate(tmp_path, model_path, capsys):
+    """An .npz recording whose metadata entry claims 10^12 characters: its frame rate for --video was NumPy's
+    "Unable to allocate" traceback; the metadata is passed over as unusable (no frame rate from the file), and the
+    video plays at the default rate."""
+    import io as bytes_io
+    import zipfile
+
+    io.write_sequence(tmp_path / "rec.npz", np.full((2, 8, 8), 12.0, np.float32), fps=10)
+    with zipfile.ZipFile(tmp_path / "rec.npz") as z:
+        entries = {n: z.read(n) for n in z.namelist()}
+    lie = bytes_io.BytesIO()
+    np.lib.format.write_array_header_1_0(lie, {"descr": "<U1", "fortran_order": False, "shape": (10**12,)})
+    entries["metadata.npy"] = lie.getvalue() + b"\0" * 16
+    with zipfile.ZipFile(tmp_path / "rec.npz", "w") as z:
+        for n, data in entries.items():
+            z.writestr(n, data)
+    assert command(tmp_path / "rec.npz", tmp_path / "o.npy", "--model", model_path, "--video", tmp_path / "v.gif") == 0
+    assert "Traceback" not in capsys.readouterr().err
+    from PIL import Image
+
+    with Image.open(tmp_path / "v.gif") as gif:
+        assert gif.info["duration"] == 40  # ms: 25 frames/s, not the 10 the unreadable metadata held

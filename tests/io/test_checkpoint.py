@@ -2,7 +2,6 @@
 
 import json
 import os
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -259,3 +258,17 @@ def test_a_baseline_config_beyond_the_limits_is_refused_before_building_anything
     with pytest.raises(ValueError, match=rf"{type(config).__name__}: {field} must be .*got"):
         load_model(tmp_path / "big.npz")
     assert time.perf_counter() - t0 < 1.0
+
+
+@pytest.mark.parametrize("field, value", [("tr", 0.0), ("tr", "0"), ("tr", None), ("scale", 4.0), ("bn_eps", "x")])
+def test_a_config_field_of_the_wrong_type_is_refused_in_one_line(tmp_path, model, field, value):
+    """`tr = 0.0` or `bn_eps = "x"` in a checkpoint's config ended in a TypeError traceback (issue 59): a
+    ValueError naming the field."""
+    path = save_model(tmp_path / "m.npz", model)
+    with np.load(path) as data:
+        arrays = {k: data[k] for k in data.files}
+    meta = json.loads(str(arrays["__metadata__"]))
+    arrays["__metadata__"] = np.array(json.dumps(dict(meta, config=dict(meta["config"], **{field: value}))))
+    np.savez(tmp_path / "bad.npz", **arrays)
+    with pytest.raises(ValueError, match=rf"ModelConfig: {field} must be .*got {value!r}"):
+        load_model(tmp_path / "bad.npz")
