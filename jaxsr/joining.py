@@ -13,8 +13,9 @@ every process is present, and binds the port once process 0 has let it go.
 
 from __future__ import annotations
 
+import contextlib
 import errno
-import select
+import selectors
 import socket
 import time
 
@@ -89,8 +90,16 @@ def gather(address: str, num_processes: int, timeout: float, say=None) -> None:
     told why too)."""
     deadline = time.monotonic() + timeout
     listener = _listen(address)
-    pending: dict[socket.socket, bytes] = {}  # connected, greeting not read yet
+    waiting = selectors.DefaultSelector()  # not select.select: it takes no more than 1024 connections
+    waiting.register(listener, selectors.EVENT_READ)
+    received: dict[socket.socket, bytes] = {}  # connected, greeting not read whole yet
     joined: dict[int, socket.socket] = {}
+
+    def drop(conn):
+        waiting.unregister(conn)
+        received.pop(conn, None)
+        conn.close()
+
     try:
         if say is not None:
             say(f"process 0 of {num_processes}: waiting at {address} for process(es) "
@@ -102,33 +111,31 @@ def gather(address: str, num_processes: int, timeout: float, say=None) -> None:
                 raise JoinError(f"process 0: process(es) {_ids(missing)} of {num_processes} did not join at {address} "
                                 f"within {timeout:g} s: start each with the same coordinator and number of processes "
                                 "and its own process id, or allow a longer timeout (--join-timeout)")
-            readable, _, _ = select.select([listener, *pending, *joined.values()], [], [], min(left, _POLL_S))
-            for conn in readable:
+            for key, _ in waiting.select(min(left, _POLL_S)):
+                conn = key.fileobj
                 if conn is listener:
                     peer, _ = listener.accept()
                     peer.setblocking(False)
-                    pending[peer] = b""
+                    received[peer] = b""
+                    waiting.register(peer, selectors.EVENT_READ)
                     continue
                 try:
                     data = conn.recv(256)
                 except OSError:
                     data = b""
-                gone = [i for i, c in joined.items() if c is conn]
-                if gone or not data:  # a process that joined and left, or a connection closed before its greeting
-                    for i in gone:
+                if conn not in received or not data:  # a process that joined and left, or a stray that closed
+                    for i in [i for i, c in joined.items() if c is conn]:
                         del joined[i]
-                    pending.pop(conn, None)
-                    conn.close()
+                    drop(conn)
                     continue
-                pending[conn] += data
-                if b"\n" not in pending[conn]:
-                    if len(pending[conn]) > 256:  # not one of ours
-                        del pending[conn]
-                        conn.close()
+                received[conn] += data
+                if b"\n" not in received[conn]:
+                    if len(received[conn]) > 256:  # not one of ours
+                        drop(conn)
                     continue
-                hello = _hello(pending.pop(conn).split(b"\n", 1)[0])
+                hello = _hello(received.pop(conn).split(b"\n", 1)[0])
                 if hello is None:
-                    conn.close()
+                    drop(conn)
                     continue
                 i, n = hello
                 problem = None
@@ -147,9 +154,22 @@ def gather(address: str, num_processes: int, timeout: float, say=None) -> None:
                 joined[i] = conn
         for conn in joined.values():
             _send(conn, "go")
+        _until_closed(list(joined.values()))
     finally:
-        for conn in (*pending, *joined.values(), listener):
+        waiting.close()
+        for conn in (*received, *joined.values(), listener):
             conn.close()
+
+
+def _until_closed(conns, seconds: float = 2.0) -> None:
+    """Wait (at most `seconds`) for the processes told to go to close their side first: the side that closes
+    first holds the port in TIME_WAIT, and JAX's coordinator binds it next."""
+    deadline = time.monotonic() + seconds
+    for conn in conns:
+        with contextlib.suppress(OSError):
+            conn.settimeout(max(deadline - time.monotonic(), 0.0) or 1e-3)
+            while conn.recv(256):
+                pass
 
 
 def meet(address: str, process_id: int, num_processes: int, timeout: float, say=None) -> None:

@@ -284,6 +284,24 @@ def test_a_stray_connection_does_not_count_as_a_process():
     waiting()
 
 
+def test_a_process_that_joined_and_left_is_waited_for_again():
+    """Process 1 greets process 0 and is stopped (Ctrl-C) before the others came: it is missing again."""
+    address = f"127.0.0.1:{_free_port()}"
+    waiting = _in_thread(joining.gather, address, 3, 1.5)
+    deadline = time.monotonic() + 10
+    while True:
+        try:
+            left = socket.create_connection(joining.split_address(address), timeout=1)
+            break
+        except ConnectionRefusedError:
+            assert time.monotonic() < deadline
+            time.sleep(0.05)
+    with left:
+        left.sendall(b"jaxsr-join/1 1 3\n")
+    with pytest.raises(joining.JoinError, match=r"process\(es\) 1, 2 of 3 did not join"):
+        waiting()
+
+
 @pytest.mark.parametrize("role", ["process 0", "process 1"])
 def test_a_process_alone_gives_up_at_its_timeout_with_what_it_waited_for(role):
     address = f"127.0.0.1:{_free_port()}"
