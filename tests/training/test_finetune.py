@@ -490,3 +490,20 @@ def test_an_out_on_a_read_only_file_system_is_refused_before_the_set_up(read_onl
             assert cli.main([*command, "--out", str(out), "--no-progress"]) == 2
             err = capsys.readouterr().err
             assert err.count("\n") == 1 and f"{read_only_tmpfs} is on a read-only file system" in err, err
+
+
+def test_the_printed_upscale_command_survives_a_shell(tmp_path, monkeypatch, capsys):
+    """The "run it" line names --out as a shell reads it back: a path with a space, a tab or a quote pasted
+    whole (the fine-tune itself stubbed: only the printing is under test)."""
+    import shlex
+
+    import jaxsr.cli.finetune as command
+
+    monkeypatch.setattr(command, "finetune", lambda *args, **kwargs: (None, []))
+    (tmp_path / "s.toml").write_text(TINY_TOML)
+    out = str(tmp_path / "my runs\tv1" / "it's here")
+    assert cli.main(["finetune", "--sensor", str(tmp_path / "s.toml"), "--out", out, "--no-progress"]) == 0
+    line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("run it: "))
+    words = shlex.split(line.removeprefix("run it: ").split("  (RECORDING")[0])
+    assert words[:5] == ["jaxsr", "upscale", "RECORDING", "OUTPUT", "--model"] and words[5] == out
+    assert words[6:] == read_sensor_file(tmp_path / "s.toml")[2]["upscale_options"].split()
