@@ -180,16 +180,18 @@ def meet(address: str, process_id: int, num_processes: int, timeout: float, say=
     host, port = split_address(address)
     if say is not None:
         say(f"process {process_id} of {num_processes}: waiting for process 0 at {address} (up to {timeout:g} s)")
+    last = "nothing answered"  # what the last attempt met, for the message at the timeout
     while True:
         left = deadline - time.monotonic()
         if left <= 0:
             raise JoinError(f"process {process_id}: process 0 did not let this process join at {address} within "
-                            f"{timeout:g} s: start process 0 with the same coordinator, on the host whose address "
-                            "that is (a name that resolves there to a loopback address listens only there), or allow "
-                            "a longer timeout (--join-timeout)")
+                            f"{timeout:g} s ({last}): start process 0 with the same coordinator, on the host whose "
+                            "address that is (a name that resolves there to a loopback address listens only there), "
+                            "or allow a longer timeout (--join-timeout)")
         try:
             conn = socket.create_connection((host, port), timeout=min(left, 2.0))
-        except OSError:  # nobody listens yet (refused), or no route yet
+        except OSError as e:  # nobody listens yet (refused), no route yet, a name not known (yet)
+            last = f"the last attempt: {e.strerror or type(e).__name__}"
             time.sleep(min(_POLL_S, max(left, 0.0)))
             continue
         with conn:
@@ -198,6 +200,7 @@ def meet(address: str, process_id: int, num_processes: int, timeout: float, say=
             return
         if reply is not None and reply.startswith("refused "):
             raise JoinError(f"process {process_id}: process 0 at {address} refused it: {reply.removeprefix('refused ')}")
+        last = "something answered there, not process 0 of a jaxsr run"
         time.sleep(min(_POLL_S, max(deadline - time.monotonic(), 0.0)))  # closed without an answer: try again
 
 

@@ -3,6 +3,7 @@ environment that start it and their refusals, fast; and, slow, two CPU processes
 DUF with the same loss curve as one process with two devices and the same global batch, process 0 alone writing
 the run, which one process then resumes."""
 
+import errno
 import json
 import os
 import signal
@@ -363,9 +364,9 @@ def test_the_command_says_what_it_waits_for_and_gives_up_in_one_line(monkeypatch
     err = capsys.readouterr().err.splitlines()
     assert err == [f"jaxsr train: process 1 of 2: waiting for process 0 at {address} (up to 0.5 s)",
                    f"jaxsr train: error: process 1: process 0 did not let this process join at {address} within "
-                   "0.5 s: start process 0 with the same coordinator, on the host whose address that is (a name that "
-                   "resolves there to a loopback address listens only there), or allow a longer timeout "
-                   "(--join-timeout)"]
+                   f"0.5 s (the last attempt: {os.strerror(errno.ECONNREFUSED)}): start process 0 with the same "
+                   "coordinator, on the host whose address that is (a name that resolves there to a loopback address "
+                   "listens only there), or allow a longer timeout (--join-timeout)"]
     with socket.socket() as taken:
         taken.bind(joining.split_address(address))
         taken.listen()
