@@ -59,7 +59,9 @@ import jax
 import numpy as np
 
 import jaxsr
-from jaxsr.inference import iter_network_inputs, lr_blocks, no_return_where
+from jaxsr.inference import iter_network_inputs, iter_super_resolve, lr_blocks, no_return_where
+from jaxsr.inference.confidence import (EVIDENCE_FRAMES, coefficients_for, confidence_frame, iter_count_windows,
+                                        no_return_by_probability)
 from jaxsr.app.recordings import gate_frames
 from jaxsr.sensor.timetags import TimeTags
 from _photon_benchmark import (NO_RETURN_AT, TV_TR, decision_of, load_models, no_return_decision,  # studies/
@@ -207,6 +209,20 @@ def _network_depth(counts, gate, scale, z):
     """Centre-of-mass network depth of histograms over `gate` and its validity (compiled once per shape)."""
     metres, valid = jaxsr.sensor.gate_depth(counts, gate, z=z, return_mask=True)
     return jaxsr.sensor.to_network_depth(metres, scale), valid
+
+
+def confidence_decided(model, frames: PhotonFrames) -> np.ndarray:
+    """A model with a no-return head on the frames, no return where the confidence's P(return) (its logit and each
+    pixel's photons over 9 frames, `jaxsr.inference.confidence`) is below one half: `jaxsr upscale`'s default."""
+    raw = np.stack(list(iter_super_resolve(model, iter(model_input(model, frames)), raw=True)))
+    coeffs = coefficients_for(None, True)
+    sensor = jaxsr.SensorConfig(bins=frames.gate.bins)
+    per_unit = float(frames.scale.span) / float(frames.gate.bin_width)
+    out = []
+    for r, window in zip(raw, iter_count_windows(iter(np.asarray(frames.counts)), EVIDENCE_FRAMES)):
+        p, _ = confidence_frame(window, r[..., 0], coeffs, sensor, head_logit=r[..., 1], bins_per_unit=per_unit)
+        out.append(no_return_by_probability(r[..., 0], p, model.config.no_return_logit))
+    return np.stack(out)
 
 
 def model_input(model, frames: PhotonFrames) -> np.ndarray:
@@ -420,12 +436,15 @@ def empty_edges(all_photons) -> np.ndarray:
 
 
 def evaluate(recordings, models: dict, *, levels=LEVELS, max_frames: int = MAX_FRAMES, tv_frames: int | None = None,
-             tv: bool = True, seed: int = 0, picture_level: float = PICTURE_LEVEL, ambient=None, log=print) -> dict:
+             tv: bool = True, seed: int = 0, picture_level: float = PICTURE_LEVEL, ambient=None, confidence=(),
+             log=print) -> dict:
     """Score nearest, bicubic, TV and `models` ({label: Model}) on each recording's photon video at every level
     against its all-photon reference. tv_frames: frames per level TV runs on (None: all). ambient: {label:
     alpha} for models whose output is also no return where `jaxsr.sensor.ambient_only` flags a pixel of the
     photon video at that false-alarm rate (as `jaxsr upscale --ambient-alpha`), {label: ("shares", alpha)}
-    where `jaxsr.sensor.no_return_shares` say so, or {label: ("keep", alpha)} for `_photon_benchmark.returns_kept`. Returns
+    where `jaxsr.sensor.no_return_shares` say so, or {label: ("keep", alpha)} for `_photon_benchmark.returns_kept`;
+    confidence: labels of models with a no-return head whose no return is where the confidence's P(return) is
+    below one half (`confidence_decided`, as `jaxsr upscale` decides by default). Returns
     {name: {"reference", "noise", "levels": [{"level", "frames", "photons_ref", "scores": {method: {psnr, mae,
     no_return: (T,)}}, "tv_frames"}], "picture": {panel: (H, W)}}}."""
     results = {}
@@ -459,6 +478,9 @@ def evaluate(recordings, models: dict, *, levels=LEVELS, max_frames: int = MAX_F
             if tv:
                 outputs["TV"] = tv_output(lr, tv_idx)
             for label, model in models.items():
+                if label in confidence:
+                    outputs[label] = confidence_decided(model, frames)
+                    continue
                 if decision_of((ambient or {}).get(label, ("", 0.0)))[0] == "keep":
                     quiet = no_return_decision(frames.counts, jaxsr.SensorConfig(bins=frames.gate.bins),
                                                ambient[label])
@@ -699,6 +721,9 @@ def main(argv=None) -> None:
                         help="run --model NAME (one with a no-return head) outputting depth wherever the LR block's "
                         "own photons over 9 frames show a return at this false-alarm rate, whatever the head says "
                         "(_photon_benchmark.returns_kept); repeatable")
+    parser.add_argument("--confidence", action="append", default=[], metavar="NAME",
+                        help="run --model NAME (one with a no-return head) with no return where the confidence's "
+                        "P(return) is below one half (jaxsr upscale's default); repeatable")
     parser.add_argument("--picture-level", type=float, default=PICTURE_LEVEL,
                         help="photons of the pictured frame (default 2)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the photon permutations")
@@ -712,7 +737,8 @@ def main(argv=None) -> None:
                                        args.no_return_shares, args.keep_returns)
     recordings = [read_recording(args.data, s) for s in SOURCES]
     results = evaluate(recordings, models, levels=args.levels, max_frames=args.frames, tv_frames=args.tv_frames,
-                       tv=not args.no_tv, seed=args.seed, picture_level=args.picture_level, ambient=ambient)
+                       tv=not args.no_tv, seed=args.seed, picture_level=args.picture_level, ambient=ambient,
+                       confidence=tuple(args.confidence))
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     goals, all_met = goal_table(results)

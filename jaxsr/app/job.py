@@ -14,7 +14,9 @@ import numpy as np
 
 from ..config import TRAINED_RANGE_M, DepthScale, Gate, SensorConfig
 from ..inference import (DEFAULT_PRECISION, iter_ambient_only, iter_network_inputs, iter_returns_kept,
-                         iter_super_resolve, no_return_where)
+                         iter_super_resolve, no_return_where, overrule_no_return)
+from ..inference.confidence import (EVIDENCE_FRAMES, NO_RETURN_AT, ConfidenceCoefficients, coefficients_for,
+                                    confidence_frame, iter_count_windows, no_return_by_probability)
 from ..nn.model import Model
 from ..runtime import enable_compilation_cache
 from ..sensor.gates import gate_warnings
@@ -67,6 +69,10 @@ class UpscaleJob:
                                                                                    compare=False)
     _keep_stream: Callable[[], Iterator[np.ndarray]] | None = dataclasses.field(default=None, repr=False,
                                                                                 compare=False)
+    # a fresh stream of the recording's (h, w, K) histogram frames (None: depth frames, no confidence)
+    _count_stream: Callable[[], Iterator[np.ndarray]] | None = dataclasses.field(default=None, repr=False,
+                                                                                 compare=False)
+    confidence_coefficients: ConfidenceCoefficients | None = dataclasses.field(default=None, repr=False)
 
     @property
     def frames(self) -> int:
@@ -137,9 +143,50 @@ class UpscaleJob:
         ((h, w, C) for a model reading photons too: depth in channel 0, `jaxsr.nn.network_inputs`)."""
         return self._lr_stream()
 
+    @property
+    def has_confidence(self) -> bool:
+        """True where the output comes with a confidence and a depth std (photon histograms and time tags)."""
+        return self._count_stream is not None and self.confidence_coefficients is not None
+
+    def iter_outputs(self, *, batch_size: int | None = None, lr_frames=None):
+        """The network's output with its confidence, streamed: (depth, confidence, depth_std) per frame, each (H,
+        W) float32: the HR normalised depth (unclipped) with the photon rules applied, P(return) in [0, 1] and the
+        depth's standard deviation in metres (NaN where no return is output); confidence and depth_std None for
+        depth frames (`has_confidence`). lr_frames: the LR stream to run (default `lr_frames()`)."""
+        if not self.has_confidence:
+            yield from ((hr, None, None) for hr in self.iter_normalised(batch_size=batch_size, lr_frames=lr_frames))
+            return
+        lr = self.lr_frames() if lr_frames is None else lr_frames
+        head = self.model.has_no_return_head
+        raw = iter_super_resolve(self.model, lr, batch_size=batch_size, precision=self.precision, raw=head)
+        quiet = self._keep_stream() if self._keep_stream is not None else None
+        ambient = self._ambient_stream() if self._ambient_stream is not None else None
+        sensor = SensorConfig(bins=self.gate.bins)
+        bins_per_unit = float(self.scale.span) / float(self.gate.bin_width)
+        threshold = float(self.model.config.no_return_logit) if head else 0.0
+        windows = iter_count_windows(self._count_stream(), EVIDENCE_FRAMES)
+        for out, window in zip(raw, windows, strict=True):
+            depth, logit = (out[..., 0], out[..., 1]) if head else (out, None)
+            p, sigma = confidence_frame(window, depth, self.confidence_coefficients, sensor, head_logit=logit,
+                                        bins_per_unit=bins_per_unit)
+            if self.photons.by_probability:
+                hr = no_return_by_probability(depth, p, threshold)
+            elif quiet is not None:
+                hr = overrule_no_return(out, next(quiet), threshold)
+            elif head:
+                hr = np.where(logit > np.float32(threshold), np.float32(1.0), depth)
+            else:
+                hr = depth
+            if ambient is not None:
+                hr = no_return_where(hr, next(ambient))
+            std = np.where(hr < NO_RETURN_AT, sigma * np.float32(self.gate.bin_width), np.float32(np.nan))
+            yield hr, p, std.astype(np.float32)
+
     def iter_normalised(self, *, batch_size: int | None = None, lr_frames=None) -> Iterator[np.ndarray]:
         """The network's output, streamed: (H, W) float32 HR normalised depth (unclipped), one per frame, with the
         photon rules applied. lr_frames: the LR stream to run (default `lr_frames()`)."""
+        if self.has_confidence and self.photons.by_probability:  # the decision needs the confidence
+            return (hr for hr, _, _ in self.iter_outputs(batch_size=batch_size, lr_frames=lr_frames))
         lr = self.lr_frames() if lr_frames is None else lr_frames
         if self._keep_stream is not None:
             return iter_returns_kept(self.model, lr, self._keep_stream(), batch_size=batch_size,
@@ -270,6 +317,9 @@ def _histogram_job(rec, gate, source, tag_notes, choice, planned, read: Reading,
     if decision.keep_returns is not None:
         name = (f"{name}, its no return kept only where the pixel's photons over {AMBIENT_FRAMES} frames pass for "
                 f"ambient alone (alpha {float(decision.keep_returns):g})")
+    if decision.by_probability:
+        name = (f"{name}, no return where P(return) < {_probability_at(model.config.no_return_logit):.3g} (the head's "
+                f"logit and the pixel's photons over {EVIDENCE_FRAMES} frames)")
 
     def flags(alpha, pixels):
         return lambda: iter_ambient_only(counts, sensor, alpha=alpha, pixels=pixels, frames=AMBIENT_FRAMES)
@@ -279,7 +329,14 @@ def _histogram_job(rec, gate, source, tag_notes, choice, planned, read: Reading,
         found if read.clip_negative else None, decision, model_id, _lr_stream=lambda: lr_stream(model.channels),
         _ambient_stream=None if decision.ambient_alpha is None else flags(decision.ambient_alpha, 3),
         # each pixel's own photons (pixels=1): a return in the block keeps the block's depth
-        _keep_stream=None if decision.keep_returns is None else flags(decision.keep_returns, 1))
+        _keep_stream=None if decision.keep_returns is None else flags(decision.keep_returns, 1),
+        _count_stream=lambda: iter(counts),
+        confidence_coefficients=coefficients_for(model_id, model.has_no_return_head))
+
+
+def _probability_at(no_return_logit: float) -> float:
+    """The P(return) below which a pixel is no return at a no-return threshold (a logit of P(no return))."""
+    return float(1.0 / (1.0 + np.exp(float(no_return_logit))))
 
 
 def _refuse_photon_model(planned) -> None:

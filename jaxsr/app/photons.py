@@ -145,24 +145,29 @@ def snr_warnings(trained: tuple[float, float], snr: float, frames: int, no_retur
 
 class PhotonDecision(NamedTuple):
     """The photon rules as they apply to one recording and model (`decide_photon_rules`): the ambient-only test's
-    false-alarm rate (None: off) and the words that say why (for the model's name; "" where set), and the keep
-    rule's rate (None: the model's head decides alone, or there is no head)."""
+    false-alarm rate (None: off) and the words that say why (for the model's name; "" where set), the keep
+    rule's rate (None: off) and whether the confidence's probability decides no return (`by_probability`; with
+    neither, the model's head decides alone, or there is no head)."""
 
     ambient_alpha: float | None
     ambient_why: str
     keep_returns: float | None
+    by_probability: bool = False
 
 
 def decide_photon_rules(rules: PhotonRules, levels: PhotonLevels | None, *, marks_no_return: bool,
                         frames: int) -> PhotonDecision:
     """`rules` for a recording of `frames` frames whose photons say `levels` (None: background-subtracted counts,
     whose ambient light is gone) and a model that marks no return itself or not: "auto" ambient as
-    `_ambient_choice`; "auto" keep on for a head, unless the counts are background-subtracted or an ambient rate
-    decides no return instead."""
+    `_ambient_choice`; "auto" keep: for a head, no return where the confidence's P(return) is below the threshold
+    (`by_probability`: `jaxsr.inference.confidence`, the head's logit and each pixel's photons over 9 frames),
+    unless the counts are background-subtracted (the head alone) or an ambient rate decides no return instead; a
+    keep rate: the earlier rule (the head's no return kept only where the pixel's photons pass for ambient light
+    alone at it)."""
     alpha, why = _ambient_choice(rules.ambient_alpha, levels, marks_no_return, frames)
     keep = rules.keep_returns
-    if is_auto(keep):
-        keep = AUTO_KEEP_RETURNS if marks_no_return and levels is not None and alpha is None else None
+    if is_auto(keep):  # the confidence decides: its probability holds the head's logit and the photons' evidence
+        return PhotonDecision(alpha, why, None, marks_no_return and levels is not None and alpha is None)
     return PhotonDecision(alpha, why, keep)
 
 

@@ -43,7 +43,11 @@ class UpscaleResult:
     `clip_negative`, (negative counts clipped at 0, pixels holding one), else None; input_units: the input's
     units (`UpscaleJob.units`), where they differ from `units`; ambient_alpha: the ambient-only test's
     false-alarm rate (`UpscaleJob.ambient_alpha`, None: no test); keep_returns: `upscale`'s keep_returns rate
-    (`UpscaleJob.keep_returns`; in the summary only when set)."""
+    (`UpscaleJob.keep_returns`; in the summary only when set); confidence, depth_std: for photon histograms and
+    time tags kept in memory (output None), the (T, H, W) float32 probability that each pixel holds a return, in
+    [0, 1], and its depth's standard deviation in metres (NaN where no return is output), else None
+    (`jaxsr.inference.confidence`; an .npz output holds them as arrays "confidence" and "depth_std", an .npy
+    output has them beside it as OUT.confidence.npy and OUT.depth_std.npy); confidence_files: those side files."""
 
     output: Path | None
     depth: np.ndarray | None
@@ -64,6 +68,9 @@ class UpscaleResult:
     input_units: str | None = None
     ambient_alpha: float | None = None
     keep_returns: float | None = None
+    confidence: np.ndarray | None = None
+    depth_std: np.ndarray | None = None
+    confidence_files: tuple[Path, ...] = ()
 
     def summary(self) -> dict:
         """The JSON summary `jaxsr upscale` prints: frames, output, shape, units (of the output; input_units too
@@ -89,6 +96,8 @@ class UpscaleResult:
             out["ambient_alpha"] = self.ambient_alpha
         if self.keep_returns is not None:
             out["keep_returns"] = self.keep_returns
+        if self.confidence_files:
+            out["confidence_files"] = [str(p) for p in self.confidence_files]
         return out
 
 
@@ -157,7 +166,8 @@ def write_upscaled(job: UpscaleJob, output, write: Writing = Writing(), *, batch
     early = tuple(f"warning: {w}" for w in job.warnings) + (job.note,)
     for line in early if report is not None else ():
         report(line)
-    saturated, depth = _write(job, outputs, frame_format, ref, batch_size, progress)
+    sides = _side_files(outputs, job)
+    saturated, depth, extra = _write(job, outputs, frame_format, ref, batch_size, progress, sides)
     late = (_saturated_note(saturated),) if saturated else ()
     for line in late if report is not None else ():
         report(f"warning: {line}")
@@ -166,12 +176,35 @@ def write_upscaled(job: UpscaleJob, output, write: Writing = Writing(), *, batch
                          job.model_id, job.model_name, job.gate, job.scale, outputs.preview, job.warnings + late,
                          early + tuple(f"warning: {w}" for w in late), outputs.video, outputs.points,
                          job.negative_counts, None if units == job.units else job.units, job.ambient_alpha,
-                         job.keep_returns)
+                         job.keep_returns, *(extra if out is None else (None, None)), tuple(sides.values()))
 
 
-def _write(job: UpscaleJob, outputs: Outputs, frame_format, ref, batch_size: int, progress: bool):
+def side_file(output: Path, name: str) -> Path:
+    """The file beside an .npy OUTPUT that holds its `name` array ("confidence", "depth_std"): OUT.name.npy."""
+    return output.with_name(f"{output.stem}.{name}.npy")
+
+
+def _side_files(outputs: Outputs, job: UpscaleJob) -> dict:
+    """{name: path} of the confidence's side files of an .npy output of photons (none for other outputs), each
+    refused before any work where it exists and --force is not given, or is a link."""
+    out = outputs.output
+    if out is None or outputs.folder or out.suffix.lower() != ".npy" or not job.has_confidence:
+        return {}
+    sides = {name: side_file(out, name) for name in ("confidence", "depth_std")}
+    for path in sides.values():
+        if path.is_symlink():
+            raise ValueError(f"{path}: a symbolic link; the confidence is written beside {out.name} as a file of "
+                             "its own (remove the link)")
+        if path.exists() and not outputs.writing.overwrite:
+            raise FileExistsError(f"{path} exists (the confidence of {out.name} is written there); --force "
+                                  "replaces it")
+    return sides
+
+
+def _write(job: UpscaleJob, outputs: Outputs, frame_format, ref, batch_size: int, progress: bool, sides: dict):
     """Stream the job through the network into the output and the pictures: (PNG pixels saturated, the result
-    (T, H, W) when kept in memory, else None)."""
+    (T, H, W) when kept in memory, else None, (confidence, depth_std) (T, H, W) where the job has them and they
+    are kept in memory or in an .npz, else (None, None)). `sides`: the .npy output's side files (`_side_files`)."""
     write, out, scale = outputs.writing, outputs.output, job.scale
     d_min, d_max = _colour_range(job, write) if write.preview or write.video else job.d_range
     cmap = write.cmap
@@ -191,7 +224,10 @@ def _write(job: UpscaleJob, outputs: Outputs, frame_format, ref, batch_size: int
                 lr_ahead.append(depth)
             yield f
 
-    stream = job.iter_normalised(batch_size=batch_size, lr_frames=keep_preview(job.lr_frames()))
+    stream = job.iter_outputs(batch_size=batch_size, lr_frames=keep_preview(job.lr_frames()))
+    folder = outputs.folder
+    extra = (np.empty(shape, np.float32), np.empty(shape, np.float32)) if job.has_confidence and not folder and (
+        out is None or out.suffix.lower() == ".npz") else None
     if progress:
         stream = tqdm(stream, total=job.frames, unit="frame", desc="upscale")
 
@@ -213,8 +249,12 @@ def _write(job: UpscaleJob, outputs: Outputs, frame_format, ref, batch_size: int
                 colour=write.points_colour, d_min=c_min, d_max=c_max, cmap=cmap, overwrite=write.overwrite))
         ref_frames = None if ref is None else iter(ref[0])
 
-        def frames(units):
-            for t, hr in enumerate(stream):
+        def frames(units, side_maps=None):
+            for t, (hr, conf, std) in enumerate(stream):
+                if extra is not None:
+                    extra[0][t], extra[1][t] = conf, std
+                if side_maps is not None:
+                    side_maps[0][t], side_maps[1][t] = conf, std
                 if np.isnan(hr).any():  # never "no return": a model whose config or weights compute nothing
                     raise ValueError(f"model {job.label or job.model_name}: its output holds NaN in frame {t} "
                                      f"({np.isnan(hr).mean():.0%} of the pixels) from finite input: it computes "
@@ -247,21 +287,27 @@ def _write(job: UpscaleJob, outputs: Outputs, frame_format, ref, batch_size: int
                 depth[t] = f
             finish()
         elif out.suffix.lower() == ".npy":  # streamed to disk: memory for a batch, not for the whole result
-            with atomic_path(out, overwrite=write.overwrite) as tmp:
+            with contextlib.ExitStack() as files:
+                tmp = files.enter_context(atomic_path(out, overwrite=write.overwrite))
+                side_tmps = [files.enter_context(atomic_path(p, overwrite=write.overwrite)) for p in sides.values()]
                 result = np.lib.format.open_memmap(tmp, mode="w+", dtype=np.float32, shape=shape)
-                reserve_space(tmp)  # a full disk: ENOSPC now, not SIGBUS when a page of the map is written
-                for t, f in frames(job.units):
+                maps = [np.lib.format.open_memmap(p, mode="w+", dtype=np.float32, shape=shape) for p in side_tmps]
+                for path in (tmp, *side_tmps):
+                    reserve_space(path)  # a full disk: ENOSPC now, not SIGBUS when a page of the map is written
+                for t, f in frames(job.units, maps or None):
                     result[t] = f
-                result.flush()
-                del result
+                for m in (result, *maps):
+                    m.flush()
+                del result, maps
                 finish()
         elif not outputs.folder:  # .npz
             result = np.empty(shape, np.float32)
             for t, f in frames(job.units):
                 result[t] = f
+            arrays = {} if extra is None else {"confidence": extra[0], "depth_std": extra[1]}
             with atomic_path(out, overwrite=write.overwrite) as tmp:
-                write_sequence(tmp, result, overwrite=True, units=job.units, model=job.model_name, input=job.source,
-                               scale=job.scale_factor)
+                write_sequence(tmp, result, overwrite=True, arrays=arrays, units=job.units, model=job.model_name,
+                               input=job.source, scale=job.scale_factor)
                 finish()
         else:
             # --force: the folder holds this run's frames only (an earlier run's, of any format, are removed)
@@ -272,7 +318,7 @@ def _write(job: UpscaleJob, outputs: Outputs, frame_format, ref, batch_size: int
                     if frame_format == "png":
                         saturated += np.count_nonzero(np.isfinite(f) & (f > PNG_MAX_M))
                 finish()
-    return saturated, depth
+    return saturated, depth, (None, None) if extra is None else extra
 
 
 def _colour_range(job: UpscaleJob, write: Writing) -> tuple[float, float]:

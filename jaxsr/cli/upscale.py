@@ -19,7 +19,7 @@ import json
 import sys
 
 from ..app import (AUTO_AMBIENT_ALPHA, AUTO_AMBIENT_MIN_FRAMES, AUTO_AMBIENT_MIN_SIGNAL_SNR, AUTO_AMBIENT_MIN_SNR,
-                   AUTO_KEEP_RETURNS, DEPTH_UNITS, FRAME_FORMATS, KINDS, ModelChoice, PhotonRules, Reading, Writing,
+                   DEPTH_UNITS, FRAME_FORMATS, KINDS, ModelChoice, PhotonRules, Reading, Writing,
                    upscale)
 from ..config import PRECISIONS, TRAINED_RANGE_M
 from ..inference import DEFAULT_FORM, DEFAULT_PRECISION, FORMS
@@ -85,9 +85,11 @@ def add_parser(subparsers):
                    "recording's length), model (as the checkpoint says), window, or sequence")
     p.add_argument("--no-return-logit", type=finite_float, default=None, metavar="LOGIT",
                    help="models with a no-return head (tr0-photons, tr4-photons, tr0-ambient, tr4-ambient): output "
-                   "no return where the head's "
-                   "logit is above LOGIT (default the model's, 0 = probability 0.5); higher drops fewer true returns "
-                   "and leaves more sky as depth (docs/network.md, photon inputs and no return)")
+                   "no return where the logit of the probability of no return is above LOGIT (default the model's, "
+                   "0 = P(return) below 0.5). On histograms and time tags (--keep-returns auto) that probability is "
+                   "the confidence, which weighs the head's logit with each pixel's photons; with --keep-returns "
+                   "off or a rate, the head's own. Higher drops fewer true returns and leaves more sky as depth "
+                   "(docs/network.md, photon inputs and no return; the confidence)")
     p.add_argument("--ambient-alpha", type=ambient_alpha, default="auto", metavar="{auto,off,ALPHA}",
                    help="histograms and time tags: also output no return where the photons of 3 x 3 pixels and 9 "
                    "frames around a pixel pass for ambient light alone at false-alarm rate ALPHA, such as 0.001: "
@@ -98,13 +100,12 @@ def add_parser(subparsers):
                    f"else off, and off for --clip-negative counts, models with a no-return head and recordings of "
                    f"fewer than {AUTO_AMBIENT_MIN_FRAMES} frames (docs/network.md); off: never")
     p.add_argument("--keep-returns", type=ambient_alpha, default="auto", metavar="{auto,off,ALPHA}",
-                   help="histograms and time tags, models with a no-return head: output no return only where the "
-                   "head says so and the pixel's own photons over 9 frames pass for ambient light alone at "
-                   "false-alarm rate ALPHA, such as 0.001; elsewhere the network's depth. It keeps dim surfaces a "
-                   "head calls sky and shows some sky as depth at the regions' edges. auto (default): "
-                   f"{AUTO_KEEP_RETURNS:g} for a model with a no-return head (the default model of histograms and "
-                   "time tags has one), off without one, beside an --ambient-alpha rate and for --clip-negative "
-                   "counts; off: the head decides alone (docs/network.md)")
+                   help="histograms and time tags, models with a no-return head: how no return is decided. auto "
+                   "(default): where the confidence's P(return) (the head's logit and each pixel's photons over 9 "
+                   "frames) is below --no-return-logit's threshold (0.5 by default); off beside an --ambient-alpha "
+                   "rate and for --clip-negative counts. ALPHA, such as 0.001: the earlier rule, no return only "
+                   "where the head says so and the pixel's own photons over 9 frames pass for ambient light alone "
+                   "at that false-alarm rate. off: the head decides alone (docs/network.md)")
     p.add_argument("--max-memory", type=memory, default=None, metavar="SIZE",
                    help=f"the memory the command may take, such as 16GB (default {MEMORY_SHARE * 100:.0f}%% of this "
                    "machine's RAM): the input's arrays and the work are estimated before they allocate, and refused beyond it")

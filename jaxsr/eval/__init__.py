@@ -12,6 +12,13 @@ from .metrics import (
     TemporalCoherence,
     temporal_coherence,
 )
+from .calibration import (
+    ECE_BINS,
+    reliability,
+    expected_calibration_error,
+    auroc,
+    interval_coverage,
+)
 from .stats import (
     Interval,
     paired_interval,
@@ -28,4 +35,9 @@ __all__ = [
     "Interval",
     "paired_interval",
     "ratio_interval",
+    "ECE_BINS",
+    "reliability",
+    "expected_calibration_error",
+    "auroc",
+    "interval_coverage",
 ]

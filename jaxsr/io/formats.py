@@ -277,24 +277,32 @@ def read_depth(path):
 # Sequences (NPY: one array; NPZ: named arrays plus JSON metadata)
 
 
-def write_sequence(path, depth, *, intensity=None, overwrite=False, **metadata):
-    """Write a depth sequence (T, H, W) as .npy, or depth (+ intensity) and JSON-able metadata (fps, snr, ...)
-    as .npz.
+def write_sequence(path, depth, *, intensity=None, overwrite=False, arrays=None, **metadata):
+    """Write a depth sequence (T, H, W) as .npy, or depth (+ intensity, + `arrays`) and JSON-able metadata (fps,
+    snr, ...) as .npz.
 
-    Args: path, depth (T, H, W), intensity (T, H, W) or None. Returns None.
+    Args: path, depth (T, H, W), intensity (T, H, W) or None, arrays: {name: (T, H, W)} more arrays of the .npz
+    (such as "confidence"), stored as float32. Returns None.
     """
+    arrays = dict(arrays or {})
     depth = np.asarray(depth, np.float32)
     if depth.ndim != 3:
         raise ValueError(f"writing {path}: expected a sequence of shape (T, H, W), got {depth.shape}")
     suffix = Path(path).suffix.lower()
     with _atomic(path, overwrite) as tmp:
         if suffix == ".npy":
-            if intensity is not None or metadata:
-                raise ValueError(f"{path}: .npy holds the depth only; use .npz for intensity and metadata")
+            if intensity is not None or metadata or arrays:
+                raise ValueError(f"{path}: .npy holds the depth only; use .npz for intensity, arrays and metadata")
             with open(tmp, "wb") as f:
                 np.save(f, depth)
         elif suffix == ".npz":
+            extra = arrays
+            for name, value in extra.items():
+                if name in ("depth", "metadata", "intensity") or np.shape(value) != depth.shape:
+                    raise ValueError(f"writing {path}: array {name!r} {np.shape(value)} beside depth {depth.shape}: "
+                                     "expected another name and the depth's shape")
             arrays = dict(depth=depth, metadata=np.array(json.dumps(metadata)))
+            arrays.update({name: np.asarray(v, np.float32) for name, v in extra.items()})
             if intensity is not None:
                 intensity = np.asarray(intensity, np.float32)
                 if intensity.shape != depth.shape:
