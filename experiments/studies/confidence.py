@@ -16,8 +16,9 @@ clips, experiments/studies/confidence_fit.py).
 Scores, per regime and data set: the expected calibration error (15 equal bins) of P(return) against the truth
 (ground truth below 1.0), AUROC of P(return) for returns against no return, the share of true depths within the
 90 % interval (+- 1.645 sigma) where a return is output and the truth holds one; then the no-return decisions:
-today's default (the head's, kept only where the pixel's own photons over 9 frames pass for ambient light alone,
-`--keep-returns auto`) and P(return) < 0.5: PSNR (all pixels, normalised, no return 1.0), % of no-return pixels
+the earlier default (the head's, kept only where the pixel's own photons over 9 frames pass for ambient light alone,
+the earlier `--keep-returns auto`), P(return) < 0.5 alone, and the default now (P(return) < 0.5 where the pixel's
+own photons pass for ambient light alone): PSNR (all pixels, normalised, no return 1.0), % of no-return pixels
 output as depth, % of true returns dropped (of all, and of those whose 8 HR neighbours all hold a return: "away
 from edges"). Writes experiments/results/confidence.md, .json and .png (the reliability plot at 3 and 14 photons).
 """
@@ -37,7 +38,7 @@ import numpy as np
 
 import jaxsr
 from jaxsr.eval import auroc, expected_calibration_error, interval_coverage, reliability
-from jaxsr.inference import overrule_no_return
+from jaxsr.inference import lr_blocks, overrule_no_return
 from jaxsr.inference.confidence import (EVIDENCE_FRAMES, INTERVAL_Z, NO_RETURN_AT, coefficients_for,
                                         confidence_frame, no_return_by_probability)
 from jaxsr.nn import network_inputs
@@ -116,7 +117,7 @@ def frames_of(seq, photons: float, snr: float, frames: int, key, ambient_model, 
         lr = network_inputs(counts, SENSOR)[R - paper_model.config.tr:R + paper_model.config.tr + 1]
         tr4 = np.asarray(jaxsr.super_resolve(paper_model, np.asarray(lr)))[paper_model.config.tr]
         gt = np.asarray(normalise_depth(jnp.asarray(seq.depth[s]), SENSOR))
-        out.append((gt, depth, today, p, sigma * SENSOR.d_max / SENSOR.bins, tr4))
+        out.append((gt, depth, today, p, sigma * SENSOR.d_max / SENSOR.bins, tr4, np.asarray(quiet)))
     return out
 
 
@@ -155,6 +156,8 @@ def score(frames) -> dict:
             "reliability": {k: np.asarray(v).tolist() for k, v in reliability(p, y).items()},
             "today": decision_scores([f[2] for f in frames], list(gt)),
             "probability": decision_scores(chosen, list(gt)),
+            "default": decision_scores([np.where(lr_blocks(f[6], SENSOR.scale), c, f[1]) for f, c in zip(frames, chosen)],
+                                       list(gt)),
             "paper_tr4": decision_scores([f[5] for f in frames], list(gt))}
 
 
@@ -174,7 +177,8 @@ def run(sets: dict, regimes, frames: int, seed: int, log) -> list:
                 rows.append(row)
                 log(f"{photons:g} photons, SNR {snr:g}, {name}, {variant}: ECE {row['ece']:.3f}, AUROC "
                     f"{row['auroc']:.3f}, coverage {row['coverage']:.3f}; PSNR today {row['today']['psnr']:.2f}, "
-                    f"p<0.5 {row['probability']['psnr']:.2f}, TR4 {row['paper_tr4']['psnr']:.2f} dB "
+                    f"p<0.5 {row['probability']['psnr']:.2f}, new default {row['default']['psnr']:.2f}, "
+                    f"TR4 {row['paper_tr4']['psnr']:.2f} dB "
                     f"({time.time() - started:.0f} s)")
     return rows
 
@@ -215,19 +219,22 @@ def report(rows, started: float) -> str:
         [[f"{r['photons']:g}", f"{r['snr']:g}", r["data"], f"{r['ece']:.3f}", f"{r['auroc']:.3f}",
           f"{r['coverage']:.3f}", f"{r['median_std_m']:.3f}", f"{r['median_error_m']:.3f}",
           f"{r['return_share']:.0%}"] for r in cal]))
-    lines.append("\n## The no-return decision: today's default against P(return) < 0.5\n")
-    lines.append("PSNR in dB (normalised depth, every pixel); as depth: % of no-return pixels output as depth; "
-                 "dropped: % of true returns output as no return (inner: of those whose 8 neighbours hold a "
-                 "return). The paper's TR4 (paper-tr4) on the same photons for reference.\n")
+    lines.append("\n## The no-return decision: the earlier default, P(return) < 0.5, and the default now\n")
+    lines.append("earlier: the head's no return kept where the pixel's own photons over 9 frames pass for ambient "
+                 "light alone (alpha 0.001); p<0.5: no return where P(return) < 0.5; now (`jaxsr upscale`'s "
+                 "default): p<0.5 where the pixel's own photons pass for ambient light alone. PSNR in dB (normalised "
+                 "depth, every pixel); as depth: % of no-return pixels output as depth; dropped: % of true returns "
+                 "output as no return (inner: of those whose 8 neighbours hold a return). The paper's TR4 (paper-tr4) "
+                 "on the same photons for reference.\n")
     table = []
     for r in rows:
-        t, q, p4 = r["today"], r["probability"], r["paper_tr4"]
-        table.append([f"{r['photons']:g}", f"{r['snr']:g}", r["data"], r["variant"], f"{t['psnr']:.2f}",
-                      f"{q['psnr']:.2f}", f"{p4['psnr']:.2f}", f"{t['as_depth']:.1f} / {q['as_depth']:.1f}",
-                      f"{t['dropped']:.2f} / {q['dropped']:.2f}", f"{t['dropped_inner']:.2f} / "
-                      f"{q['dropped_inner']:.2f}"])
-    lines.append(markdown_table(["photons", "SNR", "data", "scenes", "PSNR today", "PSNR p<0.5", "PSNR TR4",
-                                 "as depth % (today / p<0.5)", "dropped %", "dropped inner %"], table))
+        d = [r[k] for k in ("today", "probability", "default")]
+        table.append([f"{r['photons']:g}", f"{r['snr']:g}", r["data"], r["variant"],
+                      " / ".join(f"{x['psnr']:.2f}" for x in d), f"{r['paper_tr4']['psnr']:.2f}",
+                      " / ".join(f"{x['as_depth']:.1f}" for x in d), " / ".join(f"{x['dropped']:.2f}" for x in d),
+                      " / ".join(f"{x['dropped_inner']:.2f}" for x in d)])
+    lines.append(markdown_table(["photons", "SNR", "data", "scenes", "PSNR (earlier / p<0.5 / now)", "PSNR TR4",
+                                 "as depth %", "dropped %", "dropped inner %"], table))
     lines.append("\n![reliability](confidence.png)\n")
     return "\n".join(lines)
 

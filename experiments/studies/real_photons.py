@@ -211,9 +211,10 @@ def _network_depth(counts, gate, scale, z):
     return jaxsr.sensor.to_network_depth(metres, scale), valid
 
 
-def confidence_decided(model, frames: PhotonFrames) -> np.ndarray:
+def confidence_decided(model, frames: PhotonFrames, guard: float | None = None) -> np.ndarray:
     """A model with a no-return head on the frames, no return where the confidence's P(return) (its logit and each
-    pixel's photons over 9 frames, `jaxsr.inference.confidence`) is below one half: `jaxsr upscale`'s default."""
+    pixel's photons over 9 frames, `jaxsr.inference.confidence`) is below one half and, with a `guard` rate, the
+    LR pixel's own photons over 9 frames pass for ambient light alone at it (`jaxsr upscale`'s default: 0.001)."""
     raw = np.stack(list(iter_super_resolve(model, iter(model_input(model, frames)), raw=True)))
     coeffs = coefficients_for(None, True)
     sensor = jaxsr.SensorConfig(bins=frames.gate.bins)
@@ -222,7 +223,11 @@ def confidence_decided(model, frames: PhotonFrames) -> np.ndarray:
     for r, window in zip(raw, iter_count_windows(iter(np.asarray(frames.counts)), EVIDENCE_FRAMES)):
         p, _ = confidence_frame(window, r[..., 0], coeffs, sensor, head_logit=r[..., 1], bins_per_unit=per_unit)
         out.append(no_return_by_probability(r[..., 0], p, model.config.no_return_logit))
-    return np.stack(out)
+    out = np.stack(out)
+    if guard is not None:
+        quiet = no_return_decision(frames.counts, sensor, ("keep", guard))
+        out = np.where(lr_blocks(np.asarray(quiet), FACTOR), out, raw[..., 0])
+    return out
 
 
 def model_input(model, frames: PhotonFrames) -> np.ndarray:
@@ -436,15 +441,16 @@ def empty_edges(all_photons) -> np.ndarray:
 
 
 def evaluate(recordings, models: dict, *, levels=LEVELS, max_frames: int = MAX_FRAMES, tv_frames: int | None = None,
-             tv: bool = True, seed: int = 0, picture_level: float = PICTURE_LEVEL, ambient=None, confidence=(),
+             tv: bool = True, seed: int = 0, picture_level: float = PICTURE_LEVEL, ambient=None, confidence=None,
              log=print) -> dict:
     """Score nearest, bicubic, TV and `models` ({label: Model}) on each recording's photon video at every level
     against its all-photon reference. tv_frames: frames per level TV runs on (None: all). ambient: {label:
     alpha} for models whose output is also no return where `jaxsr.sensor.ambient_only` flags a pixel of the
     photon video at that false-alarm rate (as `jaxsr upscale --ambient-alpha`), {label: ("shares", alpha)}
     where `jaxsr.sensor.no_return_shares` say so, or {label: ("keep", alpha)} for `_photon_benchmark.returns_kept`;
-    confidence: labels of models with a no-return head whose no return is where the confidence's P(return) is
-    below one half (`confidence_decided`, as `jaxsr upscale` decides by default). Returns
+    confidence: {label: guard} for models with a no-return head whose no return is where the confidence's P(return)
+    is below one half (`confidence_decided`; guard: None, or the photons' test's rate, as `jaxsr upscale` decides by
+    default at 0.001). Returns
     {name: {"reference", "noise", "levels": [{"level", "frames", "photons_ref", "scores": {method: {psnr, mae,
     no_return: (T,)}}, "tv_frames"}], "picture": {panel: (H, W)}}}."""
     results = {}
@@ -478,8 +484,8 @@ def evaluate(recordings, models: dict, *, levels=LEVELS, max_frames: int = MAX_F
             if tv:
                 outputs["TV"] = tv_output(lr, tv_idx)
             for label, model in models.items():
-                if label in confidence:
-                    outputs[label] = confidence_decided(model, frames)
+                if label in (confidence or {}):
+                    outputs[label] = confidence_decided(model, frames, confidence[label])
                     continue
                 if decision_of((ambient or {}).get(label, ("", 0.0)))[0] == "keep":
                     quiet = no_return_decision(frames.counts, jaxsr.SensorConfig(bins=frames.gate.bins),
@@ -721,9 +727,10 @@ def main(argv=None) -> None:
                         help="run --model NAME (one with a no-return head) outputting depth wherever the LR block's "
                         "own photons over 9 frames show a return at this false-alarm rate, whatever the head says "
                         "(_photon_benchmark.returns_kept); repeatable")
-    parser.add_argument("--confidence", action="append", default=[], metavar="NAME",
+    parser.add_argument("--confidence", action="append", default=[], metavar="NAME[=ALPHA]",
                         help="run --model NAME (one with a no-return head) with no return where the confidence's "
-                        "P(return) is below one half (jaxsr upscale's default); repeatable")
+                        "P(return) is below one half and, with ALPHA, the pixel's own photons over 9 frames pass for "
+                        "ambient light alone at that rate (jaxsr upscale's default: 0.001); repeatable")
     parser.add_argument("--picture-level", type=float, default=PICTURE_LEVEL,
                         help="photons of the pictured frame (default 2)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the photon permutations")
@@ -738,7 +745,8 @@ def main(argv=None) -> None:
     recordings = [read_recording(args.data, s) for s in SOURCES]
     results = evaluate(recordings, models, levels=args.levels, max_frames=args.frames, tv_frames=args.tv_frames,
                        tv=not args.no_tv, seed=args.seed, picture_level=args.picture_level, ambient=ambient,
-                       confidence=tuple(args.confidence))
+                       confidence={n: (float(a) if a else None) for n, _, a in
+                                   (c.partition("=") for c in args.confidence)})
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     goals, all_met = goal_table(results)

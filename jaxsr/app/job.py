@@ -14,7 +14,7 @@ import numpy as np
 
 from ..config import TRAINED_RANGE_M, DepthScale, Gate, SensorConfig
 from ..inference import (DEFAULT_PRECISION, iter_ambient_only, iter_network_inputs, iter_returns_kept,
-                         iter_super_resolve, no_return_where, overrule_no_return)
+                         iter_super_resolve, lr_blocks, no_return_where, overrule_no_return)
 from ..inference.confidence import (EVIDENCE_FRAMES, NO_RETURN_AT, ConfidenceCoefficients, coefficients_for,
                                     confidence_frame, iter_count_windows, no_return_by_probability)
 from ..nn.model import Model
@@ -169,8 +169,10 @@ class UpscaleJob:
             depth, logit = (out[..., 0], out[..., 1]) if head else (out, None)
             p, sigma = confidence_frame(window, depth, self.confidence_coefficients, sensor, head_logit=logit,
                                         bins_per_unit=bins_per_unit)
-            if self.photons.by_probability:
+            if self.photons.by_probability:  # where the pixel's own photons show a return, its depth stays
                 hr = no_return_by_probability(depth, p, threshold)
+                if quiet is not None:
+                    hr = np.where(lr_blocks(next(quiet), self.scale_factor), hr, depth)
             elif quiet is not None:
                 hr = overrule_no_return(out, next(quiet), threshold)
             elif head:
@@ -314,12 +316,12 @@ def _histogram_job(rec, gate, source, tag_notes, choice, planned, read: Reading,
         name = f"{name}, no return where ambient alone (alpha {float(decision.ambient_alpha):g}{decision.ambient_why})"
     elif decision.ambient_why:
         name = f"{name}{decision.ambient_why}"
-    if decision.keep_returns is not None:
-        name = (f"{name}, its no return kept only where the pixel's photons over {AMBIENT_FRAMES} frames pass for "
-                f"ambient alone (alpha {float(decision.keep_returns):g})")
     if decision.by_probability:
         name = (f"{name}, no return where P(return) < {_probability_at(model.config.no_return_logit):.3g} (the head's "
                 f"logit and the pixel's photons over {EVIDENCE_FRAMES} frames)")
+    if decision.keep_returns is not None:
+        name = (f"{name}, {'that' if decision.by_probability else 'its'} no return kept only where the pixel's photons "
+                f"over {AMBIENT_FRAMES} frames pass for ambient alone (alpha {float(decision.keep_returns):g})")
 
     def flags(alpha, pixels):
         return lambda: iter_ambient_only(counts, sensor, alpha=alpha, pixels=pixels, frames=AMBIENT_FRAMES)

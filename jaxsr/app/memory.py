@@ -35,9 +35,10 @@ def upscale_memory(job, *, batch_size: int, in_memory: bool, looks: bool = False
     memory-mapped); histogram frames on their way to the network (`HISTOGRAM_CHUNK` x `HISTOGRAM_COPIES`); the
     network on one tile (at most `DEFAULT_TILE` LR pixels a side) per frame of the batch; with a photon rule,
     three copies of the `AMBIENT_FRAMES` histogram frames its test holds; the HR frames of two batches (the one
-    computed and the one drained; twice over with the keep rule: depth and logit) and of a frame converted; and
-    the whole result when it is held (`in_memory`: an .npz output or none) or drawn (`looks`: the video's panels
-    or a point cloud per frame)."""
+    computed and the one drained; twice over with the keep rule or the confidence: depth and logit) and of a frame
+    converted; with the confidence, its window of `AMBIENT_FRAMES` histogram frames and a frame's features; and
+    the whole result when it is held (`in_memory`: an .npz output or none; with the confidence three times: depth,
+    confidence and depth_std) or drawn (`looks`: the video's panels or a point cloud per frame)."""
     rec, model = job.recording, job.model
     h, w = (int(v) for v in rec.shape[:2])
     hr = 4.0 * job.hr_shape[0] * job.hr_shape[1]
@@ -51,8 +52,12 @@ def upscale_memory(job, *, batch_size: int, in_memory: bool, looks: bool = False
     tile = min(h, DEFAULT_TILE) * min(w, DEFAULT_TILE)
     need += (batch_size * tile * _feature_bytes(model, batch_size)
              + 3 * (batch_size + 2 * radius) * 4.0 * h * w * len(model.channels))
-    need += (2 * batch_size + 1) * hr * (2 if keep else 1)  # raw: depth and logit
-    need += (job.frames * hr if in_memory else 0) + (6 * hr if looks else 0)
+    raw = keep or job.has_confidence
+    need += (2 * batch_size + 1) * hr * (2 if raw else 1)  # raw: depth and logit
+    if job.has_confidence:  # the confidence's window of histograms and its frame's features
+        need += 2 * AMBIENT_FRAMES * 4.0 * h * w * int(rec.shape[-1]) + 16 * hr
+    results = 3 if job.has_confidence else 1  # depth, confidence and depth_std held
+    need += (results * job.frames * hr if in_memory else 0) + (6 * hr if looks else 0)
     return need
 
 

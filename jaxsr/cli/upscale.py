@@ -19,7 +19,7 @@ import json
 import sys
 
 from ..app import (AUTO_AMBIENT_ALPHA, AUTO_AMBIENT_MIN_FRAMES, AUTO_AMBIENT_MIN_SIGNAL_SNR, AUTO_AMBIENT_MIN_SNR,
-                   DEPTH_UNITS, FRAME_FORMATS, KINDS, ModelChoice, PhotonRules, Reading, Writing,
+                   AUTO_KEEP_RETURNS, DEPTH_UNITS, FRAME_FORMATS, KINDS, ModelChoice, PhotonRules, Reading, Writing,
                    upscale)
 from ..config import PRECISIONS, TRAINED_RANGE_M
 from ..inference import DEFAULT_FORM, DEFAULT_PRECISION, FORMS
@@ -102,10 +102,11 @@ def add_parser(subparsers):
     p.add_argument("--keep-returns", type=ambient_alpha, default="auto", metavar="{auto,off,ALPHA}",
                    help="histograms and time tags, models with a no-return head: how no return is decided. auto "
                    "(default): where the confidence's P(return) (the head's logit and each pixel's photons over 9 "
-                   "frames) is below --no-return-logit's threshold (0.5 by default); off beside an --ambient-alpha "
-                   "rate and for --clip-negative counts. ALPHA, such as 0.001: the earlier rule, no return only "
-                   "where the head says so and the pixel's own photons over 9 frames pass for ambient light alone "
-                   "at that false-alarm rate. off: the head decides alone (docs/network.md)")
+                   "frames) is below --no-return-logit's threshold (0.5 by default) and the pixel's own photons over "
+                   f"9 frames pass for ambient light alone at {AUTO_KEEP_RETURNS:g}; the head alone beside an "
+                   "--ambient-alpha rate and for --clip-negative counts. ALPHA, such as 0.001: the rule before the "
+                   "confidence, the head's own logit in place of P(return) and the photons' test at that "
+                   "false-alarm rate. off: the head decides alone (docs/network.md)")
     p.add_argument("--max-memory", type=memory, default=None, metavar="SIZE",
                    help=f"the memory the command may take, such as 16GB (default {MEMORY_SHARE * 100:.0f}%% of this "
                    "machine's RAM): the input's arrays and the work are estimated before they allocate, and refused beyond it")

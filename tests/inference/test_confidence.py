@@ -5,7 +5,7 @@ import jax
 import numpy as np
 import pytest
 
-from jaxsr.app import ModelChoice, upscale
+from jaxsr.app import AUTO_KEEP_RETURNS, ModelChoice, upscale
 from jaxsr.config import ModelConfig, SensorConfig
 from jaxsr.eval import auroc, expected_calibration_error, interval_coverage
 from jaxsr.inference.confidence import (EVIDENCE_FRAMES, HEAD_FEATURES, PHOTON_FEATURES, STD_FEATURES,
@@ -13,6 +13,7 @@ from jaxsr.inference.confidence import (EVIDENCE_FRAMES, HEAD_FEATURES, PHOTON_F
                                         load_confidence, no_return_by_probability, no_return_logit_of)
 from jaxsr.io.checkpoint import save_model
 from jaxsr.nn import Model, init_model
+from jaxsr.sensor import ambient_only
 from jaxsr.training.confidence import fit_depth_std, fit_logistic
 
 SENSOR = SensorConfig()
@@ -70,14 +71,15 @@ def test_confidence_frame_refuses_nan_negative_counts_and_mismatched_inputs():
 
 
 def test_photons_of_a_return_raise_the_probability_where_the_head_says_no_return():
-    """A dim, static return (2 photons a frame in one bin, little ambient light) that the head calls no return:
-    summed over the frames its photons stand out, and P(return) rises above an ambient-only pixel's."""
+    """A dim, static return (2 photons a frame in one bin, little ambient light) that an unsure head calls no return:
+    summed over the frames its photons stand out, and P(return) rises above one half, an ambient-only pixel's
+    stays below."""
     coeffs = coefficients_for("tr4-ambient", True)
     ambient = _window(0.05, seed=3)
     dim = ambient.copy()
     dim[..., 7] += np.asarray(jax.random.poisson(jax.random.key(4), 2.0, dim.shape[:-1]), np.float32)
     depth = np.full((24, 32), 0.45, np.float32)
-    logit = np.full((24, 32), 3.0, np.float32)  # the head: no return
+    logit = np.full((24, 32), 0.5, np.float32)  # the head, unsure: no return (P 0.62)
     p_sky, _ = confidence_frame(ambient, depth, coeffs, SENSOR, head_logit=logit)
     p_dim, _ = confidence_frame(dim, depth, coeffs, SENSOR, head_logit=logit)
     assert np.median(p_dim) > 0.5 > np.median(p_sky)
@@ -173,6 +175,24 @@ def test_upscale_returns_and_writes_the_confidence(tmp_path, counts, head_model_
         (tmp_path / "p.confidence.npy").write_bytes(b"")
         upscale(counts, tmp_path / "p.npy", model=ModelChoice(head_model_file))
     assert not (tmp_path / "p.npy").exists()  # refused before any work
+
+
+def test_the_default_decides_no_return_on_the_confidence_at_the_threshold_given(counts, head_model_file):
+    """By default (keep_returns "auto") a pixel is no return exactly where the logit of 1 - P(return) is above the
+    no-return threshold (0: P(return) < 0.5, unless --no-return-logit moves it) and its LR pixel's own photons over
+    9 frames pass for ambient light alone (at AUTO_KEEP_RETURNS); the confidence itself does not depend on the
+    threshold."""
+    quiet = np.asarray(ambient_only(counts, SENSOR, alpha=AUTO_KEEP_RETURNS, pixels=1))
+    hr_quiet = np.repeat(np.repeat(quiet, 4, axis=1), 4, axis=2)
+    assert 0.2 < hr_quiet.mean() < 0.8
+    res = upscale(counts, None, model=ModelChoice(head_model_file))
+    np.testing.assert_array_equal(np.isinf(res.depth), (no_return_logit_of(res.confidence) > 0.0) & hr_quiet)
+    threshold = float(np.median(no_return_logit_of(res.confidence)[hr_quiet]))
+    moved = upscale(counts, None, model=ModelChoice(head_model_file, no_return_logit=threshold))
+    np.testing.assert_allclose(moved.confidence, res.confidence, atol=1e-6)
+    no_return = (no_return_logit_of(moved.confidence) > threshold) & hr_quiet
+    assert 0.2 < no_return[hr_quiet].mean() < 0.8  # both decisions met where the photons leave it to the confidence
+    np.testing.assert_array_equal(np.isinf(moved.depth), no_return)
 
 
 def test_upscale_of_depth_frames_has_no_confidence():

@@ -73,12 +73,14 @@ def test_depth_to_a_photon_model_is_refused(photon_model):
 
 
 def test_default_fits_the_input(counts):
-    """Histograms get the default photon model, its no return checked by each pixel's photons (keep_returns
-    "auto"; off: the head alone); depth the depth model."""
+    """Histograms get the default photon model, its no return decided by the confidence (keep_returns "auto": the
+    head's logit and each pixel's photons; off: the head alone); depth the depth model."""
     job = prepare_upscale(counts)
-    assert job.model_name.startswith(DEFAULT_MODELS["histograms"]) and "its no return kept only where" in job.model_name
+    assert job.model_name.startswith(DEFAULT_MODELS["histograms"]) and "P(return) < 0.5" in job.model_name
+    assert "kept only where" in job.model_name and job.photons.by_probability
     assert job.keep_returns == AUTO_KEEP_RETURNS and job.ambient_alpha is None  # auto: no ambient test for a head
-    assert "kept" not in prepare_upscale(counts, photons=PhotonRules(keep_returns=None)).model_name
+    off = prepare_upscale(counts, photons=PhotonRules(keep_returns=None))
+    assert "P(return)" not in off.model_name and "kept" not in off.model_name and not off.photons.by_probability
     assert prepare_upscale(np.full((2, 8, 12), 0.5, np.float32)).model_name == DEFAULT_MODELS["depth"]
     with pytest.raises(TypeError, match="default"):
         prepare_upscale(counts, model=3)
@@ -413,7 +415,6 @@ def test_keep_returns_keeps_the_surface_a_head_calls_sky(sky_everywhere, half_sk
     assert (upscale(half_sky, None, model=path, read=Reading(units="normalised"), photons=PhotonRules(keep_returns=None)).depth == 1.0).all()
     result = upscale(half_sky, None, model=path, read=Reading(units="normalised"), photons=PhotonRules(keep_returns=1e-3))
     assert AUTO_KEEP_RETURNS == 1e-3
-    np.testing.assert_array_equal(upscale(half_sky, None, model=path, read=Reading(units="normalised")).depth, result.depth)
     quiet = np.asarray(ambient_only(half_sky, alpha=1e-3, pixels=1))
     assert quiet[:, :, :6].mean() < 0.01 and quiet[:, :, 6:].all()  # one surface pixel of a first frame passes
     hr_quiet = np.repeat(np.repeat(quiet, 4, axis=1), 4, axis=2)
