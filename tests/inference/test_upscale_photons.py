@@ -59,11 +59,13 @@ def depth_model(tmp_path_factory):
 
 
 def test_histograms_through_a_photon_model_equal_the_library(photon_model, counts):
-    """A model with a no-return head marks no return itself: "auto" leaves the ambient test off for it."""
+    """A model with a no-return head marks no return itself: "auto" leaves the ambient test off for it, and with the
+    head alone deciding (keep_returns off) the output is the library's."""
     model, path = photon_model
-    result = upscale(counts, None, model=path, read=Reading(units="normalised"))
+    result = upscale(counts, None, model=path, read=Reading(units="normalised"), photons=PhotonRules(keep_returns=None))
     np.testing.assert_allclose(result.depth, np.clip(super_resolve_histograms(model, counts), 0, 1), atol=1e-6)
     assert result.ambient_alpha is None and result.summary()["ambient_alpha"] is None
+    assert prepare_upscale(counts, model=path).ambient_alpha is None  # by default too
 
 
 def test_depth_to_a_photon_model_is_refused(photon_model):
