@@ -338,7 +338,7 @@ def _histogram_job(rec, gate, source, tag_notes, choice, planned, read: Reading,
 
 def _probability_at(no_return_logit: float) -> float:
     """The P(return) below which a pixel is no return at a no-return threshold (a logit of P(no return))."""
-    return float(1.0 / (1.0 + np.exp(float(no_return_logit))))
+    return float(np.exp(-np.logaddexp(0.0, float(no_return_logit))))  # 1 / (1 + e^logit), no overflow
 
 
 def _refuse_photon_model(planned) -> None:
