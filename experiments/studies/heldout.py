@@ -1,0 +1,319 @@
+"""The held-out benchmark: the photon benchmark's regimes on public third-party depth that jaxsr's scene generator did
+not make and training never sees, beside the test scenes, for bicubic, the paper's TR4 and the default for
+histograms.
+
+    # 1. the data, from fetched repositories (bare git mirrors or checkouts), into a folder outside the repository
+    python experiments/studies/heldout.py prepare --data /work/data/heldout \\
+        --source isl-org/Open3D=/work/.mirror/isl-org+Open3D/repo --source yanzq95/STDNet=/work/.mirror/yanzq95+STDNet/repo
+    # 2. the scores (resumable: each scene-regime is kept in <out>.cache.json as it is done)
+    python experiments/studies/heldout.py score --data /work/data/heldout --photons 3 14 --snr 1.3 0.3 0.1
+    python experiments/studies/heldout.py score --data /work/data/heldout          # every regime of the benchmark
+
+Data (`heldout_data.SETS`: repository, commit, paths, licence, units of each): three static indoor scenes (a NYU
+Depth V2, a TUM RGB-D and a SUN RGB-D frame, each repeated over 30 frames) and a rendered indoor dToF video with
+moving objects (DyDToF school_shot8, 30 frames), as 128 x 256 radial metres + intensity. The test scenes: the
+benchmark's (harness.scoring.TEST_SCENES, 500 frames each).
+
+Regimes: `_photon_benchmark.PHOTONS` x `SNRS` (signal photons per LR pixel with a return, frame SNR) and the paper's
+(14 photons, each scene's own SNR: the test scenes' 1.3, 1.3, 3; the held-out scenes have none, so 1.3), drawn
+as the benchmark draws them (`benchmark_clips`: the laser and ambient calibrated over each whole sequence, photons
+drawn for the frames the methods read). `--frames` frames scored per scene, spread over it.
+
+Methods, on the same photons:
+- bicubic of the centre-of-mass depth;
+- the paper's TR4 (bundled `paper-tr4`) reading the centre of mass;
+- the default for histograms, as `jaxsr.upscale` chooses it (`jaxsr.app.DEFAULT_MODELS["histograms"]`): with a
+  no-return head, its no return kept only where the pixel's own photons over 9 frames pass for ambient light
+  alone at `jaxsr.app.AUTO_KEEP_RETURNS` (`_photon_benchmark.returns_kept`, the keep rule `jaxsr upscale` applies).
+
+Scores per scene and regime: PSNR over all pixels (normalised depth clipped to [0, 1], no return = 1.0, as the
+photon benchmark scores it); true returns dropped: the share of HR pixels with a return whose 8 neighbours all
+hold a return (away from the edges of no-return regions) that a method outputs as no return (normalised >=
+`NO_RETURN_AT`); no return shown as depth: the share of the pixels without a return (beyond the 35 m gate, sky)
+output as depth. Writes experiments/results/heldout.md (or --out) and a .json of the raw numbers beside it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+from scipy import ndimage
+
+import jaxsr
+from jaxsr.app import AUTO_KEEP_RETURNS, DEFAULT_MODELS
+from jaxsr.config import DEFAULT_MEAN_SIGNAL, SensorConfig
+
+import heldout_data  # beside this script
+from _photon_benchmark import (NO_RETURN_AT, PHOTONS, SNRS, benchmark_clips, bicubic_output,  # noqa: E402
+                               regime_label, returns_kept)
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
+from harness.reports import header, markdown_table, write_atomic  # noqa: E402
+from harness.scoring import SCENE_LABELS, SEQUENCE_FRAMES, TEST_SCENES, frame_scores, scored_frames, scored_output  # noqa: E402
+
+BICUBIC, PAPER_TR4, DEFAULT = "bicubic", "paper's TR4", "default"
+METHODS = (BICUBIC, PAPER_TR4, DEFAULT)
+FIRST = ((3.0, 14.0), (1.3, 0.3, 0.1))  # the regimes the issue measured the gap in, run first
+
+
+# ------------------------------------------------------------------------------------------------ the measures
+
+def away_from_edges(gt) -> np.ndarray:
+    """(T, H, W) True for HR pixels with a return (normalised ground truth < 1) whose 8 neighbours all hold a
+    return; none beyond the frame counts against it."""
+    ret = np.asarray(gt) < 1.0
+    return np.stack([ndimage.minimum_filter(r.astype(np.uint8), size=3, mode="nearest").astype(bool) for r in ret])
+
+
+def shares(sr, gt) -> tuple[float, float, int, int]:
+    """(% of returns away from the edges output as no return (sr >= NO_RETURN_AT or NaN), % of no-return pixels
+    (gt >= 1) output as depth, how many pixels of each kind): NaN where there is none of a kind."""
+    sr, gt = np.asarray(sr), np.asarray(gt)
+    as_depth = sr < NO_RETURN_AT  # NaN compares False: no return
+    inner, sky = away_from_edges(gt), gt >= 1.0
+    dropped = 100.0 * float((~as_depth[inner]).mean()) if inner.any() else float("nan")
+    shown = 100.0 * float(as_depth[sky].mean()) if sky.any() else float("nan")
+    return dropped, shown, int(inner.sum()), int(sky.sum())
+
+
+def method_outputs(models: dict, clip, flags) -> dict:
+    """{method: (sr, gt)} on the clip's scored frames: bicubic, the paper's TR4 and the default (its keep rule's
+    decision `flags`, (F, h, w) of the scored frames)."""
+    out = {BICUBIC: bicubic_output(clip, SensorConfig().scale),
+           PAPER_TR4: scored_output(models[PAPER_TR4], clip)}
+    model = models[DEFAULT]
+    if model.has_no_return_head:
+        sr = returns_kept(model, clip.network_input(model.config.inputs), clip.scored, flags)
+        out[DEFAULT] = (sr, clip.gt[clip.scored])
+    else:
+        out[DEFAULT] = scored_output(model, clip)
+    return out
+
+
+def score_scene(models: dict, name: str, seq, photons: float, snr, *, frames: int, seed: int = 0) -> dict:
+    """One scene at one regime: {method: {"psnr": [per frame], "dropped_pct", "as_depth_pct"}, "returns",
+    "no_return"} (pixel counts over the scored frames)."""
+    total = len(seq.depth)
+    scored = scored_frames(frames, total)
+    radius = max(m.config.tr for m in models.values())
+    key = jax.random.fold_in(jax.random.key(seed), int(photons * 1000) * 7919 + int(-1 if snr is None else snr * 1000))
+    keep = ("keep", float(AUTO_KEEP_RETURNS))
+    clips, flags = benchmark_clips({name: seq}, photons, snr, scored=scored, radius=radius, key=key,
+                                   tests=(keep,))
+    clip = clips[name]
+    result = {}
+    for method, (sr, gt) in method_outputs(models, clip, flags[name][keep]).items():
+        psnr, _ = frame_scores(sr, gt)
+        dropped, shown, n_ret, n_sky = shares(sr, gt)
+        result[method] = {"psnr": np.round(np.asarray(psnr, float), 4).tolist(), "dropped_pct": dropped,
+                          "as_depth_pct": shown}
+    result["returns"], result["no_return"] = n_ret, n_sky
+    return result
+
+
+def load_methods() -> tuple[dict, dict]:
+    """({method: Model}, {method: what it is}) of the networks scored."""
+    name = DEFAULT_MODELS["histograms"]
+    models = {PAPER_TR4: jaxsr.load_model("paper-tr4"), DEFAULT: jaxsr.load_model(name)}
+    rule = (f", its no return kept only where the pixel's own photons over 9 frames pass for ambient light alone "
+            f"(alpha {AUTO_KEEP_RETURNS:g})" if models[DEFAULT].has_no_return_head else "")
+    return models, {BICUBIC: "bicubic of the centre of mass", PAPER_TR4: "bundled paper-tr4",
+                    DEFAULT: f"bundled {name}{rule}"}
+
+
+def regimes(photons, snrs, paper: bool = True) -> list:
+    """[(photons, snr)] of the grid, the issue's first (`FIRST`) first, then the paper's (snr None)."""
+    grid = [(float(p), float(s)) for p in photons for s in snrs]
+    first = [(p, s) for p, s in grid if p in FIRST[0] and s in FIRST[1]]
+    return first + [r for r in grid if r not in first] + ([(DEFAULT_MEAN_SIGNAL, None)] if paper else [])
+
+
+def cache_key(group: str, name: str, photons: float, snr, frames: int) -> str:
+    return f"{group}|{name}|{photons:g}|{'own' if snr is None else f'{snr:g}'}|{frames}"
+
+
+def run(models: dict, groups: dict, grid, *, frames: dict, cache_path: Path, seed: int = 0, log=print) -> dict:
+    """Score every scene of `groups` ({group: {name: sequence}}) at every regime of `grid`, reusing and extending
+    the cache file (one entry per scene-regime, written as each is done)."""
+    cache = json.loads(cache_path.read_text()) if cache_path.exists() else {}
+    for p, s in grid:
+        for group, seqs in groups.items():
+            for name, seq in seqs.items():
+                key = cache_key(group, name, p, s, frames[group])
+                if key in cache:
+                    continue
+                started = time.time()
+                cache[key] = score_scene(models, name, seq, p, s, frames=frames[group], seed=seed)
+                write_atomic(cache_path, json.dumps(cache) + "\n")
+                log(f"{group} {name}, {regime_label(p, s)}: " + ", ".join(
+                    f"{m} {np.mean(cache[key][m]['psnr']):.2f} dB" for m in METHODS)
+                    + f" ({time.time() - started:.0f} s)")
+    return cache
+
+
+# ------------------------------------------------------------------------------------------------ the report
+
+def summary(cache: dict, groups: dict, grid, frames: dict) -> list:
+    """Per regime and group: the mean over scenes of each method's mean PSNR, the pooled dropped and shown
+    shares (weighted by pixel counts), per-scene PSNRs. [{"photons", "snr", "groups": {group: {...}}}]."""
+    rows = []
+    for p, s in grid:
+        row = {"photons": p, "snr": "own" if s is None else s, "groups": {}}
+        for group, seqs in groups.items():
+            entries = {n: cache.get(cache_key(group, n, p, s, frames[group])) for n in seqs}
+            if any(e is None for e in entries.values()):
+                continue
+            g = {}
+            for m in METHODS:
+                ret = sum(e["returns"] for e in entries.values())
+                sky = sum(e["no_return"] for e in entries.values())
+                weighted = lambda k, n: (sum(np.nan_to_num(e[m][k]) * e[n] for e in entries.values()) / total
+                                         if (total := sum(e[n] for e in entries.values())) else float("nan"))
+                g[m] = {"psnr": float(np.mean([np.mean(e[m]["psnr"]) for e in entries.values()])),
+                        "scenes": {n: float(np.mean(e[m]["psnr"])) for n, e in entries.items()},
+                        "dropped_pct": weighted("dropped_pct", "returns") if ret else float("nan"),
+                        "as_depth_pct": weighted("as_depth_pct", "no_return") if sky else float("nan")}
+            row["groups"][group] = g
+        rows.append(row)
+    return rows
+
+
+def _f(x, fmt="{:.2f}"):
+    return "-" if x is None or not np.isfinite(x) else fmt.format(x)
+
+
+def tables(rows, groups: dict) -> str:
+    """The report's tables: PSNR beside each other, the default against the paper's TR4 on each, the no-return
+    shares; then the held-out scenes one by one."""
+    names = list(groups)
+    head = ["regime"] + [f"{g}: {m}" for g in names for m in METHODS] + [f"{g}: default - TR4" for g in names]
+    body = []
+    for r in rows:
+        if not r["groups"]:
+            continue
+        cells = [regime_label(r["photons"], None if r["snr"] == "own" else r["snr"])]
+        for g in names:
+            cells += [_f(r["groups"].get(g, {}).get(m, {}).get("psnr")) for m in METHODS]
+        for g in names:
+            x = r["groups"].get(g)
+            cells.append(_f(x[DEFAULT]["psnr"] - x[PAPER_TR4]["psnr"], "{:+.2f}") if x else "-")
+        body.append(cells)
+    text = "### Mean PSNR (dB) over the scenes of each group\n\n" + markdown_table(head, body) + "\n\n"
+    head = ["regime"] + [f"{g}: {m} dropped %" for g in names for m in (PAPER_TR4, DEFAULT)] + [
+        f"{g}: {m} no return as depth %" for g in names for m in (PAPER_TR4, DEFAULT)]
+    body = []
+    for r in rows:
+        if not r["groups"]:
+            continue
+        cells = [regime_label(r["photons"], None if r["snr"] == "own" else r["snr"])]
+        for k in ("dropped_pct", "as_depth_pct"):
+            for g in names:
+                cells += [_f(r["groups"].get(g, {}).get(m, {}).get(k), "{:.3f}") for m in (PAPER_TR4, DEFAULT)]
+        body.append(cells)
+    text += ("### True returns dropped (away from the edges) and no return shown as depth\n\n"
+             "Pooled over each group's scored pixels; `-` where a group has no pixel of the kind (the held-out "
+             "scenes lie within the gate: no sky).\n\n" + markdown_table(head, body) + "\n\n")
+    for g in names:
+        scenes = list(groups[g])
+        head = ["regime"] + [f"{n}: {m}" for n in scenes for m in METHODS]
+        body = []
+        for r in rows:
+            x = r["groups"].get(g)
+            if not x:
+                continue
+            body.append([regime_label(r["photons"], None if r["snr"] == "own" else r["snr"])]
+                        + [_f(x[m]["scenes"][n]) for n in scenes for m in METHODS])
+        text += f"### {g}: PSNR (dB) per scene\n\n" + markdown_table(head, body) + "\n\n"
+    return text
+
+
+# ------------------------------------------------------------------------------------------------ the command
+
+def write_report(out: Path, rows, groups, frames, info, manifest, args, started, pending=()) -> None:
+    """experiments/results/heldout.md (out) and its .json: the sets, the methods and the tables of `rows`."""
+    heldout = groups["held-out"]
+    sets = "\n".join(f"- `{n}` ({m['kind']}, {m['frames']} frames, {m['range_m'][0]}-{m['range_m'][1]} m): "
+                     f"{m['holds']}; {m['repo']} @ {m['commit'][:10]} (`{m['paths'][0]}`); {m['licence']}; "
+                     f"units: {m['units']}" for n, m in manifest.items() if n in heldout)
+    test_text = (f"the test scenes ({', '.join(SCENE_LABELS[n] for n in TEST_SCENES)}), {args.test_frames} frames "
+                 f"each of {SEQUENCE_FRAMES}" if args.test_frames else "no test scenes (`--test-frames 0`)")
+    waiting = (f"**Still running**: {len(pending)} regimes to go ({', '.join(regime_label(p, s) for p, s in pending)})."
+               "\n\n" if pending else "")
+    text = (header("Held-out benchmark: the photon regimes on third-party depth", started) + waiting
+            + f"Held-out scenes ({args.frames} frames scored each of their 30), from `{args.data}`:\n\n{sets}\n\n"
+            f"Beside them {test_text}. Noise seed {args.seed}; every method of a scene-regime reads the same "
+            "photons. Methods: " + "; ".join(f"{k}: {v}" for k, v in info.items()) + ".\n\n" + tables(rows, groups))
+    write_atomic(out, text)
+    write_atomic(out.with_suffix(".json"), json.dumps({"methods": info, "frames": frames, "seed": args.seed,
+                                                       "sets": {n: manifest.get(n) for n in heldout},
+                                                       "regimes": rows}, indent=1) + "\n")
+
+
+def _sources(specs) -> dict:
+    out = {}
+    for spec in specs:
+        repo, sep, folder = spec.partition("=")
+        if not sep or "/" not in repo or not folder:
+            raise SystemExit(f"--source expects OWNER/NAME=FOLDER, got {spec!r}")
+        out[repo] = folder
+    return out
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="step", required=True)
+    prep = sub.add_parser("prepare", help="write the held-out scenes from fetched repositories")
+    prep.add_argument("--source", action="append", default=[], metavar="OWNER/NAME=FOLDER",
+                      help="a repository's bare git mirror or checkout (see heldout_data.SETS); repeatable")
+    prep.add_argument("--data", default=str(heldout_data.DEFAULT_DATA), help="the data folder (outside the repo)")
+    prep.add_argument("--sets", nargs="+", default=None, help=f"sets to write (default all: {list(heldout_data.SETS)})")
+    score = sub.add_parser("score", help="score the methods on the held-out scenes beside the test scenes")
+    score.add_argument("--data", default=str(heldout_data.DEFAULT_DATA), help="the data folder `prepare` wrote")
+    score.add_argument("--frames", type=int, default=4, help="frames scored per held-out scene (default 4 of 30)")
+    score.add_argument("--test-frames", type=int, default=4,
+                       help=f"frames scored per test scene, of its {SEQUENCE_FRAMES} (default 4; 0: no test scenes)")
+    score.add_argument("--photons", type=float, nargs="+", default=list(PHOTONS))
+    score.add_argument("--snr", type=float, nargs="+", default=list(SNRS))
+    score.add_argument("--seed", type=int, default=0)
+    score.add_argument("--out", default="experiments/results/heldout.md", help="the results file (.json beside it)")
+    args = parser.parse_args(argv)
+    if args.step == "prepare":
+        sources = _sources(args.source)
+        if not sources:
+            raise SystemExit("prepare: give at least one --source OWNER/NAME=FOLDER (see heldout_data.SETS)")
+        try:
+            heldout_data.prepare(sources, args.data, names=args.sets)
+        except (FileNotFoundError, ValueError) as e:
+            raise SystemExit(str(e)) from None
+        return
+    started = time.time()
+    try:
+        heldout = heldout_data.load_scenes(args.data)
+    except FileNotFoundError as e:
+        raise SystemExit(str(e)) from None
+    groups = {"held-out": heldout}
+    frames = {"held-out": args.frames}
+    if args.test_frames:
+        groups["test scenes"] = jaxsr.scenes.test_sequences(n_frames=SEQUENCE_FRAMES, names=TEST_SCENES)
+        frames["test scenes"] = args.test_frames
+    models, info = load_methods()
+    grid = regimes(args.photons, args.snr)
+    out = Path(args.out)
+    manifest_path = Path(args.data) / "manifest.json"
+    manifest = json.loads(manifest_path.read_text()) if manifest_path.exists() else {}
+    for done in range(1, len(grid) + 1):  # the report rewritten as each regime is done: a long run shows progress
+        cache = run(models, groups, grid[done - 1:done], frames=frames, cache_path=out.with_suffix(".cache.json"),
+                    seed=args.seed)
+        write_report(out, summary(cache, groups, grid[:done], frames), groups, frames, info, manifest, args,
+                     started, pending=grid[done:])
+    print(f"wrote {out} and {out.with_suffix('.json')}")
+
+
+if __name__ == "__main__":
+    main()
