@@ -123,6 +123,29 @@ SETS = {
 }
 
 
+@dataclasses.dataclass(frozen=True)
+class Recording:
+    """A real single-photon recording with photons enough for an all-photon reference, copied verbatim into the data
+    folder's real/ for experiments/studies/real_photons.py (its SOURCES name the same files)."""
+
+    repo: str
+    commit: str
+    path: str
+    licence: str
+    holds: str
+    units: str
+
+
+REAL = {
+    "face.mat": Recording(
+        "photon-efficient-imaging/pseudo-array", "e086df6beb34b91455207240a1e84c103bbe226e", "data_face.mat",
+        "no licence file; the data of Shin et al., 'Photon-efficient computational 3-D and reflectivity imaging with "
+        "single-photon detectors', IEEE TCI 2015",
+        "a raster-scanned mannequin face: `Ts` (340, 340) cell of photon arrival times per pixel, 8.3 per pixel",
+        "arrival times in the system's time bins (uint16, width not given)"),
+}
+
+
 def read_blob(root, path: str, commit: str) -> bytes:
     """The bytes of `path` in a source folder: a checkout's file, else `git show commit:path` of a (bare) git
     repository. FileNotFoundError (saying which) where neither holds it."""
@@ -233,7 +256,8 @@ def describe(name: str, scene: dict, src: Source, gate: float) -> dict:
 
 def prepare(sources: dict, data, *, names=None, static_frames: int = STATIC_FRAMES, log=print) -> dict:
     """Write each set of `names` (default: all) whose repository has a folder in `sources` ({"owner/name": folder})
-    into `data`, with manifest.json; returns the manifest. Sets whose repository is not given are skipped with a
+    into `data`, and copy each recording of `REAL` (named by its file) into data/real/, with manifest.json;
+    returns the manifest. Sets whose repository is not given are skipped with a
     line (the manifest keeps what an earlier run wrote of them)."""
     data = Path(data)
     data.mkdir(parents=True, exist_ok=True)
@@ -241,8 +265,10 @@ def prepare(sources: dict, data, *, names=None, static_frames: int = STATIC_FRAM
     manifest = json.loads(manifest_path.read_text()) if manifest_path.exists() else {}
     gate = SensorConfig().d_max
     for name in names or list(SETS):
+        if name in REAL:
+            continue
         if name not in SETS:
-            raise ValueError(f"prepare: unknown set {name!r}; expected one of {sorted(SETS)}")
+            raise ValueError(f"prepare: unknown set {name!r}; expected one of {sorted(SETS) + sorted(REAL)}")
         src = SETS[name]
         if src.repo not in sources:
             log(f"skipping {name}: no folder given for {src.repo}")
@@ -251,6 +277,12 @@ def prepare(sources: dict, data, *, names=None, static_frames: int = STATIC_FRAM
         write_scene(data, name, scene, src)
         manifest[name] = describe(name, scene, src, gate)
         log(f"{name}: {len(scene['depth'])} frames, {manifest[name]['range_m'][0]}-{manifest[name]['range_m'][1]} m")
+    for file, rec in REAL.items():
+        if rec.repo in sources and (names is None or file in names):
+            with atomic_path(data / "real" / file, overwrite=True, make_parents=True) as tmp:
+                Path(tmp).write_bytes(read_blob(sources[rec.repo], rec.path, rec.commit))
+            manifest[f"real/{file}"] = dataclasses.asdict(rec)
+            log(f"real/{file}: copied from {rec.repo}")
     write_text_atomic(manifest_path, json.dumps(manifest, indent=1) + "\n")
     return manifest
 

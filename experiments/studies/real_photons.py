@@ -1,4 +1,5 @@
-"""Real photons with a reference: two real single-photon recordings made into low-resolution
+"""Real photons with a reference: real single-photon recordings (two in ../shared/realdata, one more held out)
+made into low-resolution
 photon videos at 1-16 photons per LR pixel and frame, upscaled x4 by bicubic, TV, the bundled TR0 and TR4 (and
 any `--model`), and scored against the depth of all the recording's photons at full resolution.
 
@@ -8,10 +9,16 @@ any `--model`), and scored against the depth of all the recording's photons at f
     python experiments/studies/real_photons.py --model TR4-photons+2=tr4-photons --no-return-logit TR4-photons+2=2
     python experiments/studies/real_photons.py --model K=tr4-photons --no-return-logit K=2 --keep-returns K=0.001
 
-Data (`--data`, default ../shared/realdata beside the repository; never copied into the project:
+Data (`--data`, one or more folders, default ../shared/realdata beside the repository; never copied into the project;
+each recording read from the first folder that holds it, those no folder holds skipped with a line:
 docs/own-sensor.md, "Real recordings", says where each file comes from): tower.mat (160 x 160 pixels, photon
 arrival times in ps, gate mm..MM = 200 ns, 3.7 photons per pixel) and two_layer.mat (100 x 100, arrival times in
-the system's time bins of unknown width, 51 photons per pixel), read with `jaxsr.read_time_tags`.
+the system's time bins of unknown width, 51 photons per pixel), read with `jaxsr.read_time_tags`; held out
+(`experiments/studies/heldout.py prepare` copies it from its repository, heldout_data.REAL): face.mat (340 x 340, a
+mannequin face raster-scanned, time bins of unknown width, 8.3 photons per pixel). Considered and left out: the
+K11 building 21 km away (Li et al., 21km_K11_night.mat): with 1.24 signal photons per pixel its all-photon
+reference is only about 17.5 dB from itself (two halves of its photons, `reference_noise`), too noisy to score
+against.
 
 The photon video: the photons of each 4 x 4 block of pixels make one LR pixel (160 x 160 -> 40 x 40, 100 x 100
 -> 25 x 25). A seeded random permutation of all the recording's photons is cut into consecutive runs of
@@ -107,6 +114,9 @@ SOURCES = (
     Source("tower", "tower.mat", "data_processed", 1e-12, None, True),
     # the system's time bins, width not given by the source: a nominal 1 ps, the depth relative to the gate
     Source("two_layer", "two_layer.mat", "photon_times", 1e-12, "gate", False),
+    # held out (experiments/studies/heldout_data.py, REAL): a raster-scanned mannequin face in the system's time
+    # bins (width not given)
+    Source("face", "face.mat", "Ts", 1e-12, "gate", False),
 )
 
 
@@ -137,6 +147,11 @@ class PhotonFrames:
 
 
 # ------------------------------------------------------------------------------------------------ photons
+
+def found_sources(folders, sources=SOURCES) -> list:
+    """[(source, the first of `folders` holding its file, or None)] for each of `sources`."""
+    return [(s, next((Path(f) for f in folders if (Path(f) / s.file).is_file()), None)) for s in sources]
+
 
 def crop_tags(tags: TimeTags, y0: int, x0: int, h: int, w: int) -> TimeTags:
     """The photons of pixels [y0, y0 + h) x [x0, x0 + w), on a grid of that size."""
@@ -704,9 +719,11 @@ def raw(results, info, settings) -> dict:
 
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--data", default=str(DEFAULT_DATA) if DEFAULT_DATA.is_dir() else None,
-                        help="folder holding tower.mat and two_layer.mat (default ../shared/realdata beside the "
-                             "repository, where it exists)")
+    parser.add_argument("--data", nargs="+", action="extend",
+                        default=[str(DEFAULT_DATA)] if DEFAULT_DATA.is_dir() else None,
+                        help="folders holding the recordings of SOURCES (tower.mat, two_layer.mat; face.mat, which "
+                             "`experiments/studies/heldout.py prepare` writes into its real/ folder), searched after "
+                             "../shared/realdata beside the repository, where it exists")
     parser.add_argument("--levels", type=float, nargs="+", default=list(LEVELS),
                         help="photons per LR pixel and frame (default 1 2 4 8 16)")
     parser.add_argument("--frames", type=int, default=MAX_FRAMES,
@@ -742,7 +759,14 @@ def main(argv=None) -> None:
     started = time.time()
     models, info, ambient = load_models(args.model, args.no_return_logit, args.ambient_alpha,
                                        args.no_return_shares, args.keep_returns)
-    recordings = [read_recording(args.data, s) for s in SOURCES]
+    recordings = []
+    for source, folder in found_sources(args.data):
+        if folder is None:
+            print(f"skipping {source.name}: no --data folder holds {source.file}")
+        else:
+            recordings.append(read_recording(folder, source))
+    if not recordings:
+        raise SystemExit(f"no recordings: none of {', '.join(s.file for s in SOURCES)} in {', '.join(args.data)}")
     results = evaluate(recordings, models, levels=args.levels, max_frames=args.frames, tv_frames=args.tv_frames,
                        tv=not args.no_tv, seed=args.seed, picture_level=args.picture_level, ambient=ambient,
                        confidence={n: (float(a) if a else None) for n, _, a in
@@ -753,7 +777,7 @@ def main(argv=None) -> None:
     png = out.with_suffix(".png")
     picture(results, recordings, png)
     text = (header("Real photons against an all-photon reference", started)
-            + "Two real single-photon recordings made into LR photon videos and upscaled x4; each method's output "
+            + f"{len(recordings)} real single-photon recordings ({', '.join(r.name for r in recordings)}) made into LR photon videos and upscaled x4; each method's output "
             "is scored against the depth from all the recording's photons at full resolution. How the video and "
             "the reference are made: the docstring of experiments/studies/real_photons.py. In short: 4 x 4 pixels "
             "-> one LR pixel; a seeded random permutation of all photons cut into disjoint frames of L photons per LR "
