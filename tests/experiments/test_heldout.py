@@ -211,3 +211,18 @@ def test_the_prepared_held_out_scenes():
         assert (seq.depth > 0).all(), name
         if seq.kind == "static":
             assert (seq.depth == seq.depth[:1]).all()
+
+
+@pytest.mark.slow  # compiles the calibration and the rates: seconds on 2 cores
+def test_dim_returns_in_closed_form():
+    # two planes of equal reflectivity, 5 m on the left and 20 m on the right: signal goes as 1 / r^2, so at a
+    # mean of 3 photons per LR pixel the near half gets 2 * 3 * 400 / 425 = 5.65 and the far half 0.35
+    h, w = SensorConfig().hr_shape
+    depth = np.full((2, h, w), 5.0, np.float32)
+    depth[:, :, w // 2:] = 20.0
+    seq = SimpleNamespace(depth=depth, intensity=np.full_like(depth, 0.5))
+    d = heldout.dim_returns(seq, 3.0, 1.3, every=1)
+    assert d["dim_pct"] == pytest.approx(50.0)
+    near, far = (1 - 5.0 / 35) ** 2, (1 - 20.0 / 35) ** 2
+    assert d["cost"] == pytest.approx((near + far) / 2, rel=1e-5)
+    assert d["dim_cost"] == pytest.approx(far, rel=1e-5)
