@@ -75,6 +75,16 @@ def away_from_edges(gt) -> np.ndarray:
     return np.stack([ndimage.minimum_filter(r.astype(np.uint8), size=3, mode="nearest").astype(bool) for r in ret])
 
 
+def dropped_error(sr, gt) -> float:
+    """% of the squared error (output clipped to [0, 1], NaN as no return, as PSNR counts it) that lies on true
+    returns output as no return, anywhere in the frame; NaN where there is no error."""
+    sr, gt = np.asarray(sr, np.float64), np.asarray(gt, np.float64)
+    out = np.clip(np.where(np.isnan(sr), 1.0, sr), 0.0, 1.0)
+    err = (out - gt) ** 2
+    total = err.sum()
+    return 100.0 * float(err[(gt < 1.0) & (out >= NO_RETURN_AT)].sum() / total) if total > 0 else float("nan")
+
+
 def shares(sr, gt) -> tuple[float, float, int, int]:
     """(% of returns away from the edges output as no return (sr >= NO_RETURN_AT or NaN), % of no-return pixels
     (gt >= 1) output as depth, how many pixels of each kind): NaN where there is none of a kind."""
@@ -136,7 +146,7 @@ def score_scene(models: dict, name: str, seq, photons: float, snr, *, frames: in
         psnr, _ = frame_scores(sr, gt)
         dropped, shown, n_ret, n_sky = shares(sr, gt)
         result[method] = {"psnr": np.round(np.asarray(psnr, float), 4).tolist(), "dropped_pct": dropped,
-                          "as_depth_pct": shown}
+                          "as_depth_pct": shown, "dropped_error_pct": dropped_error(sr, gt)}
     result["returns"], result["no_return"] = n_ret, n_sky
     return result
 
@@ -200,7 +210,10 @@ def summary(cache: dict, groups: dict, grid, frames: dict) -> list:
                 sky = sum(e["no_return"] for e in entries.values())
                 weighted = lambda k, n: (sum(np.nan_to_num(e[m][k]) * e[n] for e in entries.values()) / total
                                          if (total := sum(e[n] for e in entries.values())) else float("nan"))
+                errors = [e[m].get("dropped_error_pct") for e in entries.values()]
                 g[m] = {"psnr": float(np.mean([np.mean(e[m]["psnr"]) for e in entries.values()])),
+                        "dropped_error_pct": {n: e[m].get("dropped_error_pct") for n, e in entries.items()}
+                        if None not in errors else None,
                         "scenes": {n: float(np.mean(e[m]["psnr"])) for n, e in entries.items()},
                         "dropped_pct": weighted("dropped_pct", "returns") if ret else float("nan"),
                         "as_depth_pct": weighted("as_depth_pct", "no_return") if sky else float("nan")}
@@ -244,6 +257,22 @@ def tables(rows, groups: dict) -> str:
     text += ("### True returns dropped (away from the edges) and no return shown as depth\n\n"
              "Pooled over each group's scored pixels; `-` where a group has no pixel of the kind (the held-out "
              "scenes lie within the gate: no sky).\n\n" + markdown_table(head, body) + "\n\n")
+    body = []
+    for r in rows:
+        for g in names:
+            x = r["groups"].get(g)
+            if not x or x[DEFAULT]["dropped_error_pct"] is None or x[PAPER_TR4]["dropped_error_pct"] is None:
+                continue
+            for n in groups[g]:
+                body.append([regime_label(r["photons"], None if r["snr"] == "own" else r["snr"]), g, n]
+                            + [_f(x[m]["dropped_error_pct"][n], "{:.1f}") for m in (PAPER_TR4, DEFAULT)]
+                            + [_f(x[m]["scenes"][n]) for m in (PAPER_TR4, DEFAULT)])
+    if body:
+        text += ("### How much of the error is returns output as no return\n\n% of each method's squared error "
+                 "(over all pixels, as PSNR counts it) on true returns it outputs as no return, anywhere in the "
+                 "frame (`dropped_error`); the regimes scored with it.\n\n"
+                 + markdown_table(["regime", "group", "scene", f"{PAPER_TR4} %", f"{DEFAULT} %",
+                                   f"{PAPER_TR4} PSNR", f"{DEFAULT} PSNR"], body) + "\n\n")
     for g in names:
         scenes = list(groups[g])
         head = ["regime"] + [f"{n}: {m}" for n in scenes for m in METHODS]

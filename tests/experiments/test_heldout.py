@@ -226,3 +226,11 @@ def test_dim_returns_in_closed_form():
     near, far = (1 - 5.0 / 35) ** 2, (1 - 20.0 / 35) ** 2
     assert d["cost"] == pytest.approx((near + far) / 2, rel=1e-5)
     assert d["dim_cost"] == pytest.approx(far, rel=1e-5)
+
+
+def test_dropped_error_is_the_share_of_squared_error_on_dropped_returns():
+    gt = np.array([[[0.2, 0.2, 0.5, 1.0]]])
+    sr = np.array([[[1.0, 0.3, np.nan, 0.4]]])  # a return dropped, one off by 0.1, NaN: dropped, sky as depth
+    err = [0.8 ** 2, 0.1 ** 2, 0.5 ** 2, 0.6 ** 2]
+    assert heldout.dropped_error(sr, gt) == pytest.approx(100 * (err[0] + err[2]) / sum(err))
+    assert np.isnan(heldout.dropped_error(gt, gt))
