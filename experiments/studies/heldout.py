@@ -136,7 +136,9 @@ def score_scene(models: dict, name: str, seq, photons: float, snr, *, frames: in
     total = len(seq.depth)
     scored = scored_frames(frames, total)
     radius = max(m.config.tr for m in models.values())
-    key = jax.random.fold_in(jax.random.key(seed), int(photons * 1000) * 7919 + int(-1 if snr is None else snr * 1000))
+    # one key per regime, from its numbers (wrapped into fold_in's 32 bits): the same photons whatever else runs
+    regime = (int(photons * 1000) * 7919 + int(-1 if snr is None else snr * 1000)) % 2 ** 32
+    key = jax.random.fold_in(jax.random.key(seed), regime)
     keep = ("keep", float(AUTO_KEEP_RETURNS))
     clips, flags = benchmark_clips({name: seq}, photons, snr, scored=scored, radius=radius, key=key,
                                    tests=(keep,))
