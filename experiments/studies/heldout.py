@@ -130,15 +130,20 @@ def method_outputs(models: dict, clip, flags) -> dict:
     return out
 
 
+def regime_key(seed: int, photons: float, snr):
+    """One noise key per regime, from its numbers (wrapped into fold_in's 32 bits): the same photons whatever else
+    runs, and for the paper's (snr None) not those of SNR 1.3."""
+    regime = (int(photons * 1000) * 7919 + int(-1 if snr is None else snr * 1000)) % 2 ** 32
+    return jax.random.fold_in(jax.random.key(seed), regime)
+
+
 def score_scene(models: dict, name: str, seq, photons: float, snr, *, frames: int, seed: int = 0) -> dict:
     """One scene at one regime: {method: {"psnr": [per frame], "dropped_pct", "as_depth_pct"}, "returns",
     "no_return"} (pixel counts over the scored frames)."""
     total = len(seq.depth)
     scored = scored_frames(frames, total)
     radius = max(m.config.tr for m in models.values())
-    # one key per regime, from its numbers (wrapped into fold_in's 32 bits): the same photons whatever else runs
-    regime = (int(photons * 1000) * 7919 + int(-1 if snr is None else snr * 1000)) % 2 ** 32
-    key = jax.random.fold_in(jax.random.key(seed), regime)
+    key = regime_key(seed, photons, snr)
     keep = ("keep", float(AUTO_KEEP_RETURNS))
     clips, flags = benchmark_clips({name: seq}, photons, snr, scored=scored, radius=radius, key=key,
                                    tests=(keep,))

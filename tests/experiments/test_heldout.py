@@ -234,3 +234,9 @@ def test_dropped_error_is_the_share_of_squared_error_on_dropped_returns():
     err = [0.8 ** 2, 0.1 ** 2, 0.5 ** 2, 0.6 ** 2]
     assert heldout.dropped_error(sr, gt) == pytest.approx(100 * (err[0] + err[2]) / sum(err))
     assert np.isnan(heldout.dropped_error(gt, gt))
+
+
+def test_regime_keys_differ_and_take_1000_photons():
+    keys = [heldout.regime_key(0, p, s) for p in (1.0, 14.0, 1000.0) for s in (0.1, 5.0, None)]
+    data = {tuple(np.asarray(jax.random.key_data(k)).ravel()) for k in keys}
+    assert len(data) == len(keys)  # one noise per regime, 1000 photons within fold_in's 32 bits
