@@ -23,9 +23,12 @@ drawn for the frames the methods read). `--frames` frames scored per scene, spre
 Methods, on the same photons:
 - bicubic of the centre-of-mass depth;
 - the paper's TR4 (bundled `paper-tr4`) reading the centre of mass;
-- the default for histograms, as `jaxsr.upscale` chooses it (`jaxsr.app.DEFAULT_MODELS["histograms"]`): with a
-  no-return head, its no return kept only where the pixel's own photons over 9 frames pass for ambient light
-  alone at `jaxsr.app.AUTO_KEEP_RETURNS` (`_photon_benchmark.returns_kept`, the keep rule `jaxsr upscale` applies).
+- "default": the model `jaxsr.upscale` chooses for histograms (`jaxsr.app.DEFAULT_MODELS["histograms"]`) with,
+  for a model with a no-return head, the keep rule on the head's logit: its no return kept only where the pixel's
+  own photons over 9 frames pass for ambient light alone at `jaxsr.app.AUTO_KEEP_RETURNS`
+  (`_photon_benchmark.returns_kept`; `jaxsr upscale --keep-returns 0.001`). That was the default decision until
+  the confidence's P(return) < 0.5 replaced the logit (CHANGELOG, "A confidence people can threshold"); this script
+  does not yet score that decision.
 
 Scores per scene and regime: PSNR over all pixels (normalised depth clipped to [0, 1], no return = 1.0, as the
 photon benchmark scores it); true returns dropped: the share of HR pixels with a return whose 8 neighbours all
@@ -162,8 +165,9 @@ def load_methods() -> tuple[dict, dict]:
     """({method: Model}, {method: what it is}) of the networks scored."""
     name = DEFAULT_MODELS["histograms"]
     models = {PAPER_TR4: jaxsr.load_model("paper-tr4"), DEFAULT: jaxsr.load_model(name)}
-    rule = (f", its no return kept only where the pixel's own photons over 9 frames pass for ambient light alone "
-            f"(alpha {AUTO_KEEP_RETURNS:g})" if models[DEFAULT].has_no_return_head else "")
+    rule = (f", its head's no return kept only where the pixel's own photons over 9 frames pass for ambient light "
+            f"alone (alpha {AUTO_KEEP_RETURNS:g}: --keep-returns {AUTO_KEEP_RETURNS:g})"
+            if models[DEFAULT].has_no_return_head else "")
     return models, {BICUBIC: "bicubic of the centre of mass", PAPER_TR4: "bundled paper-tr4",
                     DEFAULT: f"bundled {name}{rule}"}
 
