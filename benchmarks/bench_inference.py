@@ -27,7 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxsr.config import ModelConfig, SensorConfig
+from jaxsr.config import ModelConfig, Sensor
 from jaxsr.inference import (
     DEFAULT_BATCH_SIZE,
     Stream,
@@ -38,7 +38,7 @@ from jaxsr.inference import (
 from jaxsr.nn import Model, apply_model, flops_per_frame, init_model
 from jaxsr.runtime import compiler_options
 
-SENSOR = SensorConfig()
+SENSOR = Sensor()
 FRAMES = 16
 MATMUL = 2048  # the side of the square matrices of the ceiling
 

@@ -9,7 +9,7 @@ import pytest
 
 import jaxsr
 
-SENSOR = jaxsr.SensorConfig()
+SENSOR = jaxsr.Sensor()
 
 
 def scene_batch(n_frames):

@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 
 from jaxsr.nn import layers
-from jaxsr.config import DEFAULT_CLIP_OUTPUTS, PRESETS, ModelConfig, SensorConfig
+from jaxsr.config import DEFAULT_CLIP_OUTPUTS, PRESETS, ModelConfig, Sensor
 from jaxsr.training.data import log_uniform, random_crop, scene_batches, sequence_batches, sequence_clips
 from jaxsr.nn.layers import conv3d_native, conv3d_stacked, conv3d_taps
 from jaxsr.nn import apply_model, apply_model_sequence, flops_per_frame, init_model, sequence_radius
@@ -39,7 +39,7 @@ CPU = PRESETS["cpu"]
 
 def _hr_sequence(frames=12, seed=0):
     """A street-like synthetic HR sequence: a ground ramp, boxes moving 1 LR px/frame, sky on top."""
-    h, w = SensorConfig().hr_shape
+    h, w = Sensor().hr_shape
     yy = np.mgrid[:h, :w][0]
     rng = np.random.default_rng(seed)
     depth = np.empty((frames, h, w), np.float32)
@@ -151,7 +151,7 @@ def test_conv3d_forward_backward(benchmark, impl):
 def _clips_2026_11_22(depth, intensity, frames, train_cfg):
     """The data source of 2026-11-22: each clip of `frames` frames simulated whole, then a random crop kept.
     Returns make_batch: key -> (clips (B, frames, h, w), gt (B, frames, H, W))."""
-    sensor = SensorConfig()
+    sensor = Sensor()
 
     def example(key):
         k_start, k_snr, k_sig, k_noise, k_crop = jax.random.split(key, 5)

@@ -29,7 +29,7 @@ import jax
 import numpy as np
 
 import jaxsr
-from jaxsr.config import PRESETS, ModelConfig, SensorConfig
+from jaxsr.config import PRESETS, ModelConfig, Optics, Sensor
 from jaxsr.nn import Model, init_model
 from jaxsr.runtime import enable_compilation_cache
 
@@ -83,7 +83,7 @@ def error_bar(ivs):
     return np.array([[m - lo for m, lo, _ in ivs], [hi - m for m, _, hi in ivs]])
 
 
-def comparison_video(path, clip, models, scale, *, frames=32, fps=8.0, sensor=SensorConfig()):
+def comparison_video(path, clip, models, scale, *, frames=32, fps=8.0, sensor=Sensor()):
     """A short video of the clip's first `frames` consecutive frames: bicubic | each model | truth, in metres on
     one colour scale (`jaxsr.io.DepthVideoWriter`). models: {label: Model}. Returns the frames written."""
     from jaxsr.io import DepthVideoWriter
@@ -191,7 +191,7 @@ def main():
     enable_compilation_cache()
     trs = args.trs or ([0, 1] if args.quick else [0, 1, 2, 3, 4])
     frames = args.frames or (8 if args.quick else 100)
-    sensor = SensorConfig(scale=args.scale)
+    sensor = Sensor(optics=Optics(scale=args.scale))
     pretrained = args.train is None and not args.quick
     preset = args.train or "cpu"
     suffix = ("_x8" if args.scale == 8 else "") + ("_quick" if args.quick else "" if pretrained else f"_{preset}")

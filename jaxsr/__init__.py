@@ -17,10 +17,11 @@ _guard_cpu_fusions()
 import importlib as _importlib
 import warnings as _warnings
 
-from . import app, baselines, eval, inference, io, nn, scenes, sensor, training
+from . import app, baselines, eval, inference, io, nn, scenes, sensor, spad, training
 from .app import simulate_recording, upscale
 from .baselines import bicubic, lanczos, tv_super_resolve
-from .config import PRESETS, DepthScale, Gate, ModelConfig, SensorConfig, TrainConfig
+from .config import PRESETS, ModelConfig, TrainConfig
+from .spad import DepthScale, Gate, Optics, Pulse, Sensor, SensorConfig
 from .eval import paired_interval, psnr, ssim, ssim_global, temporal_coherence
 from .inference import (
     Stream,
@@ -62,9 +63,10 @@ from .training import evaluate, fit
 
 __all__ = [
     # the pipeline's stages
-    "sensor", "scenes", "nn", "baselines", "training", "inference", "io", "eval", "app",
+    "spad", "sensor", "scenes", "nn", "baselines", "training", "inference", "io", "eval", "app",
     # configuration
-    "SensorConfig", "ModelConfig", "TrainConfig", "Gate", "DepthScale", "PRESETS",
+    "Sensor", "Gate", "Optics", "Pulse", "DepthScale", "ModelConfig", "TrainConfig", "PRESETS",
+    "SensorConfig",  # deprecated: Sensor
     # sensor: depth -> photons -> depth
     "expected_histograms", "simulate_histograms", "calibrate", "normalise_depth", "denormalise_depth",
     "centre_of_mass", "maximum_likelihood_depth", "TimeTags", "read_time_tags", "histogram_time_tags",

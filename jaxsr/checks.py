@@ -10,7 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .config import SensorConfig
+from .config import Sensor
 
 # How far normalised depth may stray outside [0, 1] by float rounding (a resize, a float16 round trip) and
 # still be taken as normalised (and clipped): far less than any depth in metres, which is 0 only at the lens.
@@ -39,9 +39,9 @@ def require_array(name, what, x):
 
 
 def require_sensor(name, sensor):
-    """Refuse anything but a `SensorConfig` (None, a dict) with a TypeError, before an attribute error would."""
-    if not isinstance(sensor, SensorConfig):
-        raise TypeError(f"{name}: sensor must be a jaxsr.SensorConfig, got {type(sensor).__name__}")
+    """Refuse anything but a `Sensor` (None, a dict) with a TypeError, before an attribute error would."""
+    if not isinstance(sensor, Sensor):
+        raise TypeError(f"{name}: sensor must be a jaxsr.Sensor, got {type(sensor).__name__}")
     return sensor
 
 
@@ -52,8 +52,9 @@ def require_hr_pair(name, depth, intensity, sensor):
     hr = tuple(sensor.hr_shape)
     if depth.ndim < 2 or depth.shape[-2:] != hr:
         raise ValueError(
-            f"{name}: depth must have shape (..., {hr[0]}, {hr[1]}) (HR rows, cols of the SensorConfig), got "
-            f"{depth.shape}; for another frame size use SensorConfig(hr_shape=...) divisible by scale {sensor.scale}"
+            f"{name}: depth must have shape (..., {hr[0]}, {hr[1]}) (HR rows, cols of the Sensor), got "
+            f"{depth.shape}; for another frame size use Sensor(optics=Optics(lr_shape=...)) ({sensor.scale} HR "
+            "pixels per SPAD pixel)"
         )
     if intensity.shape != depth.shape:
         raise ValueError(f"{name}: intensity shape {intensity.shape} must equal depth shape {depth.shape}")

@@ -1,7 +1,6 @@
-"""Frozen configuration dataclasses shared by every stage of the pipeline.
-
-`SensorConfig` is a pytree: the fields that define array shapes (frame size, scale, bin count) are static
-metadata, the physical numbers are leaves, so a sweep can `jax.vmap` or `jax.grad` over them.
+"""Frozen configuration dataclasses shared by every stage of the pipeline: the network (`ModelConfig`) and its
+training (`TrainConfig`, `PhotonRegime`, `PRESETS`). The sensor is described once in `jaxsr.spad` (`Sensor`,
+its names importable from here too).
 """
 
 from __future__ import annotations
@@ -11,7 +10,10 @@ import math
 import numbers
 
 import jax
-import jax.numpy as jnp
+
+# the sensor's description lives in jaxsr.spad; its names stay importable from here
+from .spad import (METRES_PER_SECOND, MIN_LR_SIDE, TRAINED_RANGE_M, DepthScale, Gate, Optics, Pulse,  # noqa: F401
+                   Sensor, SensorConfig)
 
 # Mean signal photons per LR pixel with a return (docs/sensor-model.md, section 2). The paper does not give it; this is
 # the level at which bicubic upsampling of centre-of-mass depth on our three test scenes comes closest to the
@@ -20,143 +22,6 @@ DEFAULT_MEAN_SIGNAL = 14.0
 # Training draws the photon level log-uniformly around it (half to double), so models meet brighter and
 # darker scenes than the calibrated one.
 TRAIN_MEAN_SIGNAL_RANGE = (DEFAULT_MEAN_SIGNAL / 2, DEFAULT_MEAN_SIGNAL * 2)
-
-
-@dataclasses.dataclass(frozen=True)
-class SensorConfig:
-    """A SPAD direct time-of-flight sensor and its optics (docs/sensor-model.md, sections 1-2).
-
-    Static (shape-defining): `hr_shape` (rows, cols of the HR frame), `scale` (HR pixels per LR pixel along
-    each axis) and `bins` (histogram bins K). Leaves (physical, differentiable): `d_max` (m, the range gate and
-    the depth normalisation), `fov_deg` (horizontal field of view, degrees), `irf_sigma` (Gaussian IRF width,
-    bins), `r_min` (m, floor of the inverse-square law) and `ambient_floor` (a0, ambient added to every
-    pixel's reflectivity: dark targets, dark counts).
-    """
-
-    hr_shape: tuple[int, int] = dataclasses.field(default=(128, 256), metadata=dict(static=True))
-    scale: int = dataclasses.field(default=4, metadata=dict(static=True))
-    bins: int = dataclasses.field(default=16, metadata=dict(static=True))
-    d_max: float = 35.0
-    fov_deg: float = 30.0
-    irf_sigma: float = 0.4
-    r_min: float = 0.5
-    ambient_floor: float = 0.05
-
-    def __post_init__(self):
-        h, w = self.hr_shape
-        if self.scale < 1 or h % self.scale or w % self.scale:
-            raise ValueError(
-                f"SensorConfig: HR shape {self.hr_shape} must be divisible by scale {self.scale}"
-            )
-        if self.bins < 2:
-            raise ValueError(f"SensorConfig: bins must be >= 2, got {self.bins}")
-
-    @property
-    def lr_shape(self) -> tuple[int, int]:
-        """(rows, cols) of the SPAD (LR) frame."""
-        return (self.hr_shape[0] // self.scale, self.hr_shape[1] // self.scale)
-
-    @property
-    def bin_width(self):
-        """Metres of radial range per histogram bin."""
-        return self.d_max / self.bins
-
-    @property
-    def focal_px(self):
-        """Focal length in HR pixels: (W/2) / tan(fov/2), square pixels."""
-        return (self.hr_shape[1] / 2) / jnp.tan(jnp.deg2rad(self.fov_deg) / 2)
-
-
-jax.tree_util.register_dataclass(
-    SensorConfig,
-    data_fields=["d_max", "fov_deg", "irf_sigma", "r_min", "ambient_floor"],
-    meta_fields=["hr_shape", "scale", "bins"],
-)
-
-
-# Smallest LR frame side the network is run on: below 4 pixels every output pixel lies in the border the network
-# pads, and a (T, h, w) array with such a side is more likely another layout (frames last, histograms) than frames.
-MIN_LR_SIDE = 4
-# Metres of radial range per second of round-trip time: r = c t / 2.
-METRES_PER_SECOND = 299_792_458.0 / 2
-# The range the bundled models were trained on: radial 0 .. 35 m as normalised depth 0 .. 1 (docs/sensor-model.md).
-TRAINED_RANGE_M = 35.0
-
-
-@dataclasses.dataclass(frozen=True)
-class Gate:
-    """The time grid of a photon histogram: `bins` (K, static) bins of `bin_width` metres of radial range each,
-    the first starting at `start` metres (bin k covers start + [k, k + 1) * bin_width). Times convert to range
-    as r = c t / 2 (`Gate.from_time`). The paper's sensor is Gate(16, 35 / 16, 0.0) (`Gate.of_sensor`)."""
-
-    bins: int = dataclasses.field(default=16, metadata=dict(static=True))
-    bin_width: float = TRAINED_RANGE_M / 16
-    start: float = 0.0
-
-    def __post_init__(self):
-        if int(self.bins) != self.bins or self.bins < 2:
-            raise ValueError(f"Gate: bins must be an integer >= 2, got {self.bins}")
-        if _concrete_float(self.bin_width, lambda v: not (v > 0 and v < float("inf"))):
-            raise ValueError(f"Gate: bin_width must be a finite number of metres > 0, got {self.bin_width}")
-        if _concrete_float(self.start, lambda v: not (abs(v) < float("inf"))):
-            raise ValueError(f"Gate: start must be a finite number of metres, got {self.start}")
-
-    @classmethod
-    def from_time(cls, bins: int, bin_width_s: float, start_s: float = 0.0) -> "Gate":
-        """A gate given in round-trip time: `bins` bins of `bin_width_s` seconds from `start_s` seconds.
-        Returns a Gate in metres (r = c t / 2)."""
-        return cls(bins, bin_width_s * METRES_PER_SECOND, start_s * METRES_PER_SECOND)
-
-    @classmethod
-    def of_sensor(cls, sensor: "SensorConfig") -> "Gate":
-        """The gate of a simulated sensor: `sensor.bins` bins over [0, d_max). Returns a Gate."""
-        return cls(sensor.bins, sensor.bin_width, 0.0)
-
-    @property
-    def length(self):
-        """Metres of range the gate covers: bins * bin_width."""
-        return self.bins * self.bin_width
-
-    @property
-    def end(self):
-        """Metres at which the gate closes: start + length."""
-        return self.start + self.length
-
-
-@dataclasses.dataclass(frozen=True)
-class DepthScale:
-    """How radial metres map to the network's normalised depth: n = (r - offset) / span, so `offset` metres is
-    the network's 0 and `offset + span` its 1.0 (no return). The bundled models were trained with offset 0 and
-    span `TRAINED_RANGE_M` (35 m); a span far from that shows them depth steps of another size than they learned.
-    `DepthScale.for_gate(gate)` puts the network's 0 at the gate's start and keeps the trained 35 m span."""
-
-    offset: float = 0.0
-    span: float = TRAINED_RANGE_M
-
-    def __post_init__(self):
-        if _concrete_float(self.span, lambda v: not (v > 0 and v < float("inf"))):
-            raise ValueError(f"DepthScale: span must be a finite number of metres > 0, got {self.span}")
-        if _concrete_float(self.offset, lambda v: not (abs(v) < float("inf"))):
-            raise ValueError(f"DepthScale: offset must be a finite number of metres, got {self.offset}")
-
-    @classmethod
-    def for_gate(cls, gate: Gate, span: float | None = None) -> "DepthScale":
-        """The gate's start as the network's 0 m, and `span` metres (default the trained 35 m) as its 1.0."""
-        return cls(gate.start, TRAINED_RANGE_M if span is None else span)
-
-
-def _concrete_float(value, bad) -> bool:
-    """bad(float(value)) for a concrete number; False for a tracer (checked by the caller's maths instead)."""
-    try:
-        return bool(bad(float(value)))
-    except ValueError:  # a string: not a number at all
-        return True
-    except (TypeError, jax.errors.ConcretizationTypeError):
-        return False
-
-
-jax.tree_util.register_dataclass(Gate, data_fields=["bin_width", "start"], meta_fields=["bins"])
-jax.tree_util.register_dataclass(DepthScale, data_fields=["offset", "span"], meta_fields=[])
 
 
 # The network's temporal forms (`ModelConfig.temporal`).

@@ -78,7 +78,7 @@ def test_no_arrays_list_is_current():
 
 # A user's script on the main path keeps working unchanged: these stay at the top level, without a warning.
 MAIN_PATH = ["load_model", "Model", "super_resolve", "super_resolve_histograms", "iter_super_resolve", "Stream",
-             "simulate_histograms", "expected_histograms", "centre_of_mass", "SensorConfig", "ModelConfig",
+             "simulate_histograms", "expected_histograms", "centre_of_mass", "Sensor", "ModelConfig",
              "init_model", "apply_model", "save_model", "read_metadata", "read_depth", "write_depth", "read_sequence",
              "write_sequence", "pipeline_metric", "fit", "bicubic", "psnr", "ssim", "scenes"]
 
@@ -121,7 +121,7 @@ REFUSED = {
     "centre_of_mass None": (lambda: jaxsr.centre_of_mass(None), TypeError,
                             "centre_of_mass: counts must be an array of numbers, got None"),
     "centre_of_mass sensor None": (lambda: jaxsr.centre_of_mass(np.ones((4, 4, 16)), None), TypeError,
-                                   "centre_of_mass: sensor must be a jaxsr.SensorConfig, got NoneType"),
+                                   "centre_of_mass: sensor must be a jaxsr.Sensor, got NoneType"),
     "centre_of_mass 0 bins": (lambda: jaxsr.centre_of_mass(np.zeros((2, 4, 4, 0))), ValueError,
                               r"counts must have shape \(\.\.\., 16\)"),
     "simulate_histograms depth None": (lambda: jaxsr.simulate_histograms(KEY, None, HR, snr=1.0), TypeError,
@@ -133,7 +133,7 @@ REFUSED = {
     "simulate_histograms seed as key": (lambda: jaxsr.simulate_histograms(0, HR, HR, snr=1.0), TypeError,
                                         "key must be a jax.random key"),
     "simulate_histograms sensor None": (lambda: jaxsr.simulate_histograms(KEY, HR, HR, None, snr=1.0), TypeError,
-                                        "sensor must be a jaxsr.SensorConfig"),
+                                        "sensor must be a jaxsr.Sensor"),
     "simulate_histograms 0 x 0 frames": (lambda: jaxsr.simulate_histograms(KEY, np.zeros((2, 0, 0)),
                                                                            np.zeros((2, 0, 0)), snr=1.0),
                                          ValueError, r"depth must have shape \(\.\.\., 128, 256\)"),

@@ -8,7 +8,7 @@ from hypothesis.extra.numpy import arrays
 
 import jaxsr
 
-SENSOR = jaxsr.SensorConfig()
+SENSOR = jaxsr.Sensor()
 counts_strategy = arrays(np.float32, (5, 16), elements=st.floats(0, 1e6, width=32).map(np.floor))
 
 

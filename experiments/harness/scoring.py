@@ -25,7 +25,7 @@ from jax.sharding import PartitionSpec as P
 
 import jaxsr
 from jaxsr import scenes
-from jaxsr.config import DEFAULT_MEAN_SIGNAL, MODEL_INPUTS, PRESETS, ModelConfig, SensorConfig, TrainConfig
+from jaxsr.config import DEFAULT_MEAN_SIGNAL, MODEL_INPUTS, PRESETS, ModelConfig, Optics, Sensor, TrainConfig
 from jaxsr.inference import in_form, super_resolve, super_resolve_histograms
 from jaxsr.io.checkpoint import resolve_model_path
 from jaxsr.runtime import compiler_options
@@ -103,7 +103,7 @@ def _simulate(key, depth, intensity, sensor, snr, mean_signal):
     return counts, jaxsr.centre_of_mass(counts, sensor), jaxsr.normalise_depth(depth, sensor)
 
 
-def simulate_clip(key, seq, *, sensor: SensorConfig = SensorConfig(), snr=None,
+def simulate_clip(key, seq, *, sensor: Sensor = Sensor(), snr=None,
                   mean_signal: float = DEFAULT_MEAN_SIGNAL, name=None) -> Clip:
     """Histograms, centre of mass and normalised ground truth of a `TestSequence`-like record (depth,
     intensity, fps, snr), at its own SNR unless `snr` is given."""
@@ -130,7 +130,7 @@ def scored_frames(n: int, total: int = SEQUENCE_FRAMES) -> np.ndarray:
     return ((np.arange(n) + 0.5) * total / n).astype(int)
 
 
-def test_clips(n_frames: int, *, seed: int = 0, sensor: SensorConfig = SensorConfig(), names=TEST_SCENES,
+def test_clips(n_frames: int, *, seed: int = 0, sensor: Sensor = Sensor(), names=TEST_SCENES,
                spread: bool = False):
     """The test scenes simulated at their SNR (noise from `seed`): their first `n_frames` frames or, with
     `spread`, all `SEQUENCE_FRAMES` of them with `n_frames` spread over them to score (`Clip.scored`)."""
@@ -313,7 +313,7 @@ def _com_bicubic(counts, sensor):
     return jaxsr.bicubic(jaxsr.centre_of_mass(counts, sensor), scale=sensor.scale)
 
 
-def bicubic_fps(clip: Clip, *, sensor: SensorConfig = SensorConfig(), frames: int = 32, min_time: float = 3.0):
+def bicubic_fps(clip: Clip, *, sensor: Sensor = Sensor(), frames: int = 32, min_time: float = 3.0):
     """End-to-end frames/s of the bicubic baseline: histograms -> centre of mass -> bicubic, `frames` at once."""
     counts = jnp.asarray(clip.counts[:frames])
     return frames_per_second(lambda: np.asarray(_com_bicubic(counts, sensor)), frames, min_time=min_time)
@@ -333,7 +333,7 @@ def get_model(tr: int, *, pretrained: bool, preset: str, runs: Path, scale: int 
             raise SystemExit("bundled weights are x4 only; train x8 models with --train")
         model = jaxsr.load_model(f"tr{tr}")
         return model, jaxsr.read_metadata(Path(jaxsr.__file__).parent / "weights" / f"tr{tr}.npz").get("card", {})
-    sensor = SensorConfig(scale=scale)
+    sensor = Sensor(optics=Optics(scale=scale))
     cfg = ModelConfig(tr=tr, scale=scale)
     out = runs / ("quick" if quick else preset) / f"x{scale}" / f"tr{tr}"
     make_batch = None

@@ -64,7 +64,7 @@ PAPER_OTHERS = {
     "iSeeBetter (paper)": ((20.47, 0.784), (21.96, 0.837), (28.74, 0.843), 33.0),
     "HistNet (paper)": ((19.14, 0.812), (20.14, 0.858), (27.18, 0.881), 0.25),
 }
-SENSOR = jaxsr.SensorConfig()
+SENSOR = jaxsr.Sensor()
 
 
 @jax.jit

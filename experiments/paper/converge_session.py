@@ -82,10 +82,10 @@ def quick_data(tr: int, train_cfg):
     sliding before it (8 frames at the sensor's HR size, held in memory), as (make_batch, validation)."""
     import jax.numpy as jnp
 
-    from jaxsr.config import SensorConfig
+    from jaxsr.config import Sensor
     from jaxsr.training import run_keys, sequence_batches, validation_set
 
-    h, w = SensorConfig().hr_shape
+    h, w = Sensor().hr_shape
     yy, xx = jnp.mgrid[:h, :w]
     depth = jnp.stack([jnp.where((abs(yy - h / 2) < h / 5) & (abs(xx - 20 - 8 * t) < w / 8), 12.0, 30.0 + yy / h)
                        for t in range(8)])

@@ -96,7 +96,7 @@ def main():
     args = parser.parse_args()
     started = time.time()
     enable_compilation_cache()
-    sensor = jaxsr.SensorConfig()
+    sensor = jaxsr.Sensor()
     models = {tr: load_tr(tr, args.weights) for tr in args.trs}
     seed_runs = load_seed_runs(args.seed_runs)
     span = max(args.span, args.frames)

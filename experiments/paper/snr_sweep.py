@@ -65,7 +65,7 @@ def main():
     args = parser.parse_args()
     started = time.time()
     enable_compilation_cache()
-    sensor = jaxsr.SensorConfig()
+    sensor = jaxsr.Sensor()
     seqs = scenes.test_sequences(n_frames=args.frames, names=TEST_SCENES)
     models = {f"TR{tr}": load_tr(tr, args.weights) for tr in args.trs}
     baselines, cards, skipped = load_baselines(args.baselines, args.baseline_weights)

@@ -84,7 +84,7 @@ def baseline_probe(name: str, train_cfg, *, pretrain: bool = False):
     cfg = CONFIGS[name]
     pretrain_steps = 1 << 30 if pretrain else 0  # every timed step in the phase asked for
     how = recipe(cfg)  # the probe starts from fresh weights as the run does
-    step = how.step(cfg, train_cfg, how.data(cfg, train_cfg, jaxsr.SensorConfig()), pretrain_steps=pretrain_steps)
+    step = how.step(cfg, train_cfg, how.data(cfg, train_cfg, jaxsr.Sensor()), pretrain_steps=pretrain_steps)
     ts = [how.init(jax.random.key(0), cfg, None)]
     return step_timer(lambda t, key, i: step(t, key, i), ts)
 

@@ -21,7 +21,7 @@ import numpy as np
 
 import jaxsr
 from jaxsr.baselines import block_mean
-from jaxsr.config import DEFAULT_MEAN_SIGNAL, MODEL_INPUTS, SensorConfig
+from jaxsr.config import DEFAULT_MEAN_SIGNAL, MODEL_INPUTS, Sensor
 from jaxsr.io.checkpoint import resolve_model_path
 from jaxsr.inference import no_return_where, overrule_no_return
 from jaxsr.nn import network_inputs
@@ -71,7 +71,7 @@ def needed_frames(scored, total: int, radius: int) -> np.ndarray:
     return np.unique(np.clip(scored[:, None] + np.arange(-radius, radius + 1), 0, total - 1))
 
 
-def benchmark_clips(seqs: dict, photons: float, snr, *, scored, radius: int, key, sensor=SensorConfig(),
+def benchmark_clips(seqs: dict, photons: float, snr, *, scored, radius: int, key, sensor=Sensor(),
                  tests=(), static: bool = False) -> dict:
     """The sequences at one regime: {name: Clip} of the frames the methods need (`needed_frames`), with `scored`
     as positions in them. snr None: each sequence's own. The laser and ambient are calibrated over the whole
@@ -205,7 +205,7 @@ def frame_interval(a, b, spacing: float, seed: int = 0):
 
 
 def evaluate(models: dict, seqs: dict, *, frames: int, photons=PHOTONS, snrs=SNRS, tv_frames: int = 0,
-             seed: int = 0, sensor=SensorConfig(), paper: bool = True, no_return: bool = True, ambient=None,
+             seed: int = 0, sensor=Sensor(), paper: bool = True, no_return: bool = True, ambient=None,
              static: bool = False, log=print) -> dict:
     """Score bicubic, TV (tv_frames > 0) and `models` ({label: Model}) on `seqs` ({name: sequence record with
     depth, intensity, fps, snr}) at every (photons, snr) regime, plus the paper's (14 photons, own SNR), and the

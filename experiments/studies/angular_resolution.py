@@ -3,7 +3,7 @@ horizontal field of view, 0.47 deg per LR pixel) on the three test scenes render
 
     python experiments/studies/angular_resolution.py [--frames 16] [--trs 0 4] [--weights DIR]
 
-Each setting renders the same fixed scenes (same cameras, same motion) through another `SensorConfig`
+Each setting renders the same fixed scenes (same cameras, same motion) through another `Sensor`
 (HR = 4 x LR, square pixels), simulates histograms at each scene's SNR, takes the centre of mass and scores
 bicubic and the models against that sensor's own HR ground truth. Two photon levels: the calibrated
 14 signal photons per LR pixel for every sensor (the sensor is changed, the photon budget per pixel is not),
@@ -24,14 +24,14 @@ import numpy as np
 
 import jaxsr
 from jaxsr import scenes
-from jaxsr.config import DEFAULT_MEAN_SIGNAL, SensorConfig
+from jaxsr.config import DEFAULT_MEAN_SIGNAL, Optics, Sensor
 from jaxsr.runtime import enable_compilation_cache
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
 from harness.scoring import SCENE_LABELS, TEST_SCENES, add_model_args, load_tr, score, simulate_clip, weights_source  # noqa: E402
 from harness.reports import hand_written_tail, header, markdown_table, write_atomic  # noqa: E402
 
-NATIVE = SensorConfig()
+NATIVE = Sensor()
 
 
 class Setting(NamedTuple):
@@ -55,10 +55,10 @@ def same_laser_factor(lr_shape, fov_deg) -> float:
     return (pitch_deg(lr_shape, fov_deg) / pitch_deg(NATIVE.lr_shape, float(NATIVE.fov_deg))) ** 2
 
 
-def sensor_of(setting: Setting) -> SensorConfig:
+def sensor_of(setting: Setting) -> Sensor:
     """The simulated sensor of a setting: HR = scale x LR, the setting's field of view, all else native."""
     h, w = setting.lr_shape
-    return SensorConfig(hr_shape=(h * NATIVE.scale, w * NATIVE.scale), fov_deg=setting.fov_deg)
+    return Sensor(optics=Optics.of_hr((h * NATIVE.scale, w * NATIVE.scale), fov_deg=setting.fov_deg))
 
 
 SETTINGS = (

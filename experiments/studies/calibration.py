@@ -54,7 +54,7 @@ def main():
     parser.add_argument("--out", default="experiments/results/calibration.md")
     args = parser.parse_args()
     started = time.time()
-    sensor = jaxsr.SensorConfig()
+    sensor = jaxsr.Sensor()
     sequences = {
         name: seq._replace(depth=seq.depth[:: args.stride], intensity=seq.intensity[:: args.stride])
         for name, seq in scenes.test_sequences(n_frames=args.frames, names=list(PAPER_BICUBIC)).items()

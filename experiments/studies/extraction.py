@@ -61,7 +61,7 @@ def main():
     parser.add_argument("--out", default="experiments/results/extraction.md")
     args = parser.parse_args()
     started = time.time()
-    sensor = jaxsr.SensorConfig()
+    sensor = jaxsr.Sensor()
     rows = []
     key = jax.random.key(args.seed)
     for signal in SIGNALS:

@@ -37,7 +37,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxsr.config import SensorConfig
+from jaxsr.config import Sensor
 from jaxsr.scenes import (
     TEST_SEQUENCES,
     empty_scene,
@@ -61,7 +61,7 @@ MOVING_NORM = 0.01  # normalised depth (temporal_use.py)
 CLIP_FRAMES = 3
 FIRST_SEED = 500
 QUANTILES = (0.05, 0.25, 0.5, 0.75, 0.95)
-SENSOR = SensorConfig()
+SENSOR = Sensor()
 READING = "## Reading"  # the hand-written commentary at the end of the results file, kept by a re-run
 
 _render = jax.jit(render_sequence, static_argnames=("sensor",))

@@ -32,7 +32,7 @@ import jax
 import numpy as np
 
 import jaxsr
-from jaxsr.config import PhotonRegime, SensorConfig
+from jaxsr.config import Optics, PhotonRegime, Sensor
 from jaxsr.io.checkpoint import resolve_model_path
 from jaxsr.training import CALIBRATION_SEED, calibrate_no_return, no_return_set
 from jaxsr.training.no_return import (DEFAULT_THRESHOLDS, MIN_PHOTONS, NO_RETURN_AT, PHOTON_EDGES,
@@ -116,7 +116,7 @@ def main(argv=None) -> None:
                         help=f"count the bands of photon levels from this one up (default {MIN_PHOTONS:g})")
     parser.add_argument("--seed", type=int, default=CALIBRATION_SEED,
                         help="the draws' key, jax.random.key(SEED) (default jaxsr.training.CALIBRATION_SEED)")
-    parser.add_argument("--frame", type=int, nargs=2, default=SensorConfig().hr_shape, metavar=("ROWS", "COLS"),
+    parser.add_argument("--frame", type=int, nargs=2, default=Sensor().hr_shape, metavar=("ROWS", "COLS"),
                         help="HR frame size of the draws (default the sensor's 128 256)")
     parser.add_argument("--write", default=None, metavar="OUT.npz", help="save the calibrated model there")
     parser.add_argument("--force", action="store_true", help="let --write replace an existing file")
@@ -128,7 +128,7 @@ def main(argv=None) -> None:
     model = jaxsr.load_model(args.model)
     if not getattr(model.config, "no_return_head", False):
         sys.exit(f"{args.model}: a model without a no-return head (ModelConfig.no_return_head); nothing to calibrate")
-    sensor = SensorConfig(hr_shape=tuple(args.frame))
+    sensor = Sensor(optics=Optics.of_hr(tuple(args.frame)))
     validation = no_return_set(model.config.tr, draws=args.draws, photon_range=args.photons, snr_range=args.snr,
                                sensor=sensor, inputs=model.config.inputs, key=jax.random.key(args.seed),
                                batch=args.batch)

@@ -119,7 +119,7 @@ def main(argv=None) -> None:
     enable_compilation_cache()
     started = time.perf_counter()
     say = lambda msg: print(f"{name} [{time.perf_counter() - started:.0f} s] {msg}", flush=True)  # noqa: E731
-    sensor = jaxsr.SensorConfig()
+    sensor = jaxsr.Sensor()
     regime = PhotonRegime(signal_range=tuple(args.signal_range), snr_range=tuple(args.snr_range),
                           no_return_prob=args.no_return_prob, thin_prob=args.thin_prob, static_prob=args.static_prob,
                           paper_prob=args.paper_share)

@@ -31,7 +31,7 @@ def main():
     args = parser.parse_args()
     started = time.time()
     seq = scenes.test_sequences(n_frames=args.frames, names=["scene1_street"])["scene1_street"]
-    sensor = jaxsr.SensorConfig()
+    sensor = jaxsr.Sensor()
     counts = jaxsr.simulate_histograms(jax.random.key(0), seq.depth, seq.intensity, sensor, snr=seq.snr)
     lr = jaxsr.centre_of_mass(counts, sensor)
     hr = jaxsr.super_resolve(jaxsr.load_model("tr4"), lr, form="model")

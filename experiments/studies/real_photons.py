@@ -252,7 +252,7 @@ def model_input(model, frames: PhotonFrames) -> np.ndarray:
     inputs = tuple(getattr(model.config, "inputs", ("depth",)))
     if inputs == ("depth",):
         return frames.depth
-    channels = iter_network_inputs(frames.counts, jaxsr.SensorConfig(bins=frames.gate.bins), inputs)
+    channels = iter_network_inputs(frames.counts, jaxsr.Sensor(gate=jaxsr.Gate.spanning(35.0, frames.gate.bins)), inputs)
     return np.stack(list(gate_frames(channels, frames.gate, frames.scale)))
 
 
@@ -285,7 +285,7 @@ def lr_all_photons(rec: Recording) -> tuple[np.ndarray, np.ndarray]:
     `jaxsr.sensor.return_significance`."""
     frames, _ = histogram_frames(bin_pixels(rec.tags), rec.gate, rec.scale)
     counts = np.asarray(frames.counts, np.float32).sum(0)
-    return counts, np.asarray(jaxsr.sensor.return_significance(counts, jaxsr.SensorConfig(bins=BINS)))
+    return counts, np.asarray(jaxsr.sensor.return_significance(counts, jaxsr.Sensor(gate=jaxsr.Gate.spanning(35.0, BINS))))
 
 
 def reference_sky(all_photons) -> np.ndarray:
@@ -356,7 +356,7 @@ def recording_snr(all_photons) -> float:
     """The recording's frame SNR from all its photons in LR blocks (`lr_all_photons`; `jaxsr.sensor.frame_snr`:
     signal / ambient photons over the blocks with a return; a second surface in a block counts as ambient, so
     two_layer reads low)."""
-    return jaxsr.sensor.frame_snr(all_photons[0], jaxsr.SensorConfig(bins=BINS))
+    return jaxsr.sensor.frame_snr(all_photons[0], jaxsr.Sensor(gate=jaxsr.Gate.spanning(35.0, BINS)))
 
 
 def reference_noise(rec: Recording, valid, *, seed=0) -> dict:
@@ -503,13 +503,13 @@ def evaluate(recordings, models: dict, *, levels=LEVELS, max_frames: int = MAX_F
                     outputs[label] = confidence_decided(model, frames, confidence[label])
                     continue
                 if decision_of((ambient or {}).get(label, ("", 0.0)))[0] == "keep":
-                    quiet = no_return_decision(frames.counts, jaxsr.SensorConfig(bins=frames.gate.bins),
+                    quiet = no_return_decision(frames.counts, jaxsr.Sensor(gate=jaxsr.Gate.spanning(35.0, frames.gate.bins)),
                                                ambient[label])
                     outputs[label] = returns_kept(model, model_input(model, frames), np.arange(len(lr)), quiet)
                     continue
                 outputs[label] = jaxsr.super_resolve(model, model_input(model, frames), form="model")
                 if label in (ambient or {}):
-                    flags = no_return_decision(frames.counts, jaxsr.SensorConfig(bins=frames.gate.bins),
+                    flags = no_return_decision(frames.counts, jaxsr.Sensor(gate=jaxsr.Gate.spanning(35.0, frames.gate.bins)),
                                                ambient[label])
                     outputs[label] = no_return_where(outputs[label], np.asarray(flags))
             scores = {m: masked_scores(sr, ref, valid, sky, edge, near, sky_beside) for m, sr in outputs.items()}

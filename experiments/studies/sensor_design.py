@@ -24,6 +24,7 @@ import numpy as np
 import optimistix as optx
 
 import jaxsr
+from jaxsr.config import Optics
 from jaxsr.runtime import enable_compilation_cache
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
@@ -39,16 +40,16 @@ def score_fn(model, depth, intensity, sensor0, keys, budget):
     of mass (no network), all at `budget` signal photons per LR pixel."""
 
     def noisy(sigma, snr):
-        sensor = dataclasses.replace(sensor0, irf_sigma=sigma)
+        sensor = sensor0.replace(irf_sigma=sigma)
         return jnp.mean(jax.vmap(lambda k: jaxsr.pipeline_metric(k, depth, intensity, sensor, model, snr=snr,
                                                                  mean_signal=budget))(keys))
 
     def noise_free(sigma, snr):
-        sensor = dataclasses.replace(sensor0, irf_sigma=sigma)
+        sensor = sensor0.replace(irf_sigma=sigma)
         return jaxsr.pipeline_metric(None, depth, intensity, sensor, model, snr=snr, mean_signal=budget)
 
     def bicubic(sigma, snr):
-        sensor = dataclasses.replace(sensor0, irf_sigma=sigma)
+        sensor = sensor0.replace(irf_sigma=sigma)
         gt = jaxsr.normalise_depth(depth, sensor)
 
         def one(k):
@@ -82,7 +83,7 @@ def surrogate_check(model, depth, intensity, sensor0, keys, points):
     three as (mean, standard error over keys)."""
 
     def psnr(key, x, mean_signal, gradient="normal"):
-        sensor = dataclasses.replace(sensor0, irf_sigma=x[0])
+        sensor = sensor0.replace(irf_sigma=x[0])
         return jaxsr.pipeline_metric(key, depth, intensity, sensor, model, snr=x[1], mean_signal=mean_signal,
                                      gradient=gradient)
 
@@ -112,7 +113,7 @@ def com_check(keys, cases):
     depth per LR pixel, reflectivity 0.8): the two surrogates (mean over keys, +- s.e.) against the central
     difference (h = 0.02 bins) of the Monte-Carlo mean with the same keys. cases: (label, bin positions (4, 8),
     mean_signal, snr). Returns rows (label, mean_signal, snr, normal, straight-through, fd)."""
-    small = jaxsr.SensorConfig(hr_shape=(16, 32))
+    small = jaxsr.Sensor(optics=jaxsr.Optics.of_hr((16, 32)))
     intensity = jnp.full(small.hr_shape, 0.8)
 
     @functools.partial(jax.jit, static_argnums=0)
@@ -120,7 +121,7 @@ def com_check(keys, cases):
         truth = depth[::4, ::4] / small.d_max
 
         def loss(key, sigma, gradient):
-            sensor = dataclasses.replace(small, irf_sigma=sigma)
+            sensor = small.replace(irf_sigma=sigma)
             counts = jaxsr.simulate_histograms(key, depth, intensity, sensor, snr=snr, mean_signal=mean_signal,
                                                gradient=gradient)
             return jnp.mean((jaxsr.centre_of_mass(counts, sensor) - truth) ** 2)
@@ -225,7 +226,7 @@ def main():
     enable_compilation_cache()
 
     model = jaxsr.load_model("tr0")
-    sensor = jaxsr.SensorConfig()
+    sensor = jaxsr.Sensor()
     seq = jaxsr.scenes.test_sequences(n_frames=args.frames, names=[args.sequence])[args.sequence]
     depth, intensity = jnp.asarray(seq.depth), jnp.asarray(seq.intensity)
     keys = jax.random.split(jax.random.key(0), args.keys)
@@ -252,7 +253,7 @@ def main():
 
     # the surrogate check on a small problem: a 64 x 128 HR crop (16 x 32 LR), 2 frames
     crop = (slice(0, 2), slice(32, 96), slice(64, 192))
-    small = dataclasses.replace(sensor, hr_shape=(64, 128))
+    small = sensor.replace(optics=Optics.of_hr((64, 128), sensor.scale, sensor.fov_deg))
     t = time.time()
     check = surrogate_check(model, depth[crop], intensity[crop], small,
                             jax.random.split(jax.random.key(1), args.check_keys),

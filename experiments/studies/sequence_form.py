@@ -123,7 +123,7 @@ def main():
     parser.add_argument("--out", default="experiments/results/sequence_form.md")
     args = parser.parse_args()
     started = time.time()
-    sensor = jaxsr.SensorConfig()
+    sensor = jaxsr.Sensor()
     clip = test_clips(max(args.score_frames, args.frames, args.gap_frames), names=["scene1_street"])["scene1_street"]
 
     speed, warm, agree = measure_speed(args.trs, clip.counts[: args.frames], sensor, args.rounds)

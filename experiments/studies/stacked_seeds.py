@@ -39,7 +39,7 @@ DEVICES = use_cpu_cores()  # as `jaxsr train` runs: before any JAX operation
 
 import numpy as np  # noqa: E402
 
-from jaxsr.config import PRESETS, ModelConfig, SensorConfig  # noqa: E402
+from jaxsr.config import PRESETS, ModelConfig, Sensor  # noqa: E402
 from jaxsr.training import choose_mesh, fit, recipe, replicate, run_keys  # noqa: E402
 from jaxsr.training.epochs import _advance, _stack  # noqa: E402 (the loop's own steps, timed alone)
 
@@ -64,7 +64,7 @@ def _timer(advance, train, runs: int):
 
 def measure_steps(cfg, train_cfg, seeds, *, rounds: int, steps: int):
     """Per round: (seconds of `steps` steps of each seed's run in turn, seconds of `steps` stacked steps)."""
-    how, sensor = recipe(cfg), SensorConfig()
+    how, sensor = recipe(cfg), Sensor()
     mesh = choose_mesh("auto", train_cfg.batch_size)
     make_batch = how.data(cfg, train_cfg, sensor)
     step_fn = how.step(cfg, train_cfg, make_batch, sensor=sensor, mesh=mesh)
@@ -91,7 +91,7 @@ def measure_fit(cfg, train_cfg, seeds, *, epochs: int, steps: int):
     another, their frames over their summed training time)."""
     train_cfg = dataclasses.replace(train_cfg, epochs=epochs, examples_per_epoch=steps * train_cfg.batch_size,
                                     val_frames=2)
-    make_batch = recipe(cfg).data(cfg, train_cfg, SensorConfig())  # one source: the single runs share a compile
+    make_batch = recipe(cfg).data(cfg, train_cfg, Sensor())  # one source: the single runs share a compile
     frames = steps * train_cfg.batch_size
     with tempfile.TemporaryDirectory() as tmp:
         together = fit(cfg, train_cfg, out=f"{tmp}/stacked", seeds=list(seeds), make_batch=make_batch,

@@ -88,7 +88,7 @@ def main():
     args = parser.parse_args()
     started = time.time()
     enable_compilation_cache()
-    sensor = jaxsr.SensorConfig()
+    sensor = jaxsr.Sensor()
     clips = test_clips(args.frames)
     clip0 = clips[TEST_SCENES[0]]
     walkers = {fps: walkers_clip(fps, args.fps_frames, t0=0.0, seed=0, sensor=sensor)[0] for fps in RATES}

@@ -64,7 +64,7 @@ def main():
     parser.add_argument("--out", default="experiments/results/temporal_use")
     args = parser.parse_args()
     started = time.time()
-    sensor = jaxsr.SensorConfig()
+    sensor = jaxsr.Sensor()
     clips = {f"walkers {fps:g} FPS": walkers_clip(fps, args.frames, t0=0.0, seed=0, sensor=sensor)[0]
              for fps in (1.0, 100.0)}
     clips.update({SCENE_LABELS[n]: c for n, c in test_clips(args.frames).items()})

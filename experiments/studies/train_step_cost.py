@@ -30,7 +30,7 @@ import time
 import jax
 import jax.numpy as jnp
 
-from jaxsr.config import PRESETS, ModelConfig, SensorConfig
+from jaxsr.config import PRESETS, ModelConfig, Sensor
 from jaxsr.nn.duf import apply_model_train, init_model
 from jaxsr.scenes import training_clip
 from jaxsr.training import default_data, make_train_step
@@ -90,7 +90,7 @@ def _cost(compiled) -> dict:
             "kernels": _kernels(compiled.as_text())}
 
 
-def step_parts(tr: int, batch: int, sensor: SensorConfig = SensorConfig()):
+def step_parts(tr: int, batch: int, sensor: Sensor = Sensor()):
     """The step's parts at the paper preset: {name: (function, example arguments)}, each function taking the
     outputs of the one before (render -> simulate -> network -> adam), and the whole step."""
     model_cfg = ModelConfig(tr=tr)

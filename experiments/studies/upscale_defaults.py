@@ -48,7 +48,7 @@ import numpy as np
 from _photon_benchmark import calibration, evaluate  # beside this script
 
 import jaxsr
-from jaxsr.config import SensorConfig
+from jaxsr.config import Sensor
 from jaxsr.app import (AUTO_AMBIENT_ALPHA, AUTO_AMBIENT_MIN_SIGNAL_SNR, AUTO_AMBIENT_MIN_SNR, FEW_PHOTONS, HEAD_FRAMES,
                        auto_ambient_alpha, photon_levels)
 from jaxsr.sensor import calibrated_rates, sample_poisson
@@ -74,7 +74,7 @@ def _head_counts(key, depth, intensity, alpha, beta, sensor):
     return sample_poisson(key, calibrated_rates(depth, intensity, alpha, beta, sensor), method="fast")
 
 
-def estimated_levels(seq, photons: float, snr: float, *, key, sensor=SensorConfig()) -> tuple[float, float]:
+def estimated_levels(seq, photons: float, snr: float, *, key, sensor=Sensor()) -> tuple[float, float]:
     """`photon_levels` (SNR, signal photons) of a scene's first HEAD_FRAMES frames drawn at one regime (calibrated
     over the whole sequence, as the benchmark's regimes are): what `jaxsr upscale` would read from it."""
     alpha, beta = calibration(jnp.asarray(seq.depth), jnp.asarray(seq.intensity), jnp.float32(snr),

@@ -12,7 +12,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-from ..config import TRAINED_RANGE_M, DepthScale, Gate, SensorConfig
+from ..config import TRAINED_RANGE_M, DepthScale, Gate, Optics, Sensor
 from ..inference import (DEFAULT_PRECISION, iter_ambient_only, iter_network_inputs, iter_returns_kept,
                          iter_super_resolve, lr_blocks, no_return_where, overrule_no_return)
 from ..inference.confidence import (EVIDENCE_FRAMES, NO_RETURN_AT, ConfidenceCoefficients, coefficients_for,
@@ -259,7 +259,7 @@ def _depth_job(rec, source, choice, planned, read: Reading, photons: PhotonRules
                              "depth frames")
     units = guess_units(rec) if read.units is None else read.units
     r = 4 if planned.model is None else int(planned.model.architecture.scale(planned.model.config))
-    sensor = SensorConfig() if r == 4 else SensorConfig(scale=r)
+    sensor = Sensor(optics=Optics(scale=r))
     check_frames(rec, units)
 
     def lr_stream():
@@ -292,7 +292,7 @@ def _histogram_job(rec, gate, source, tag_notes, choice, planned, read: Reading,
     if found[0]:
         warnings += (_clipped_note(*found),)
     counts = clipped_recording(rec) if read.clip_negative else rec
-    sensor = SensorConfig(bins=gate.bins)
+    sensor = Sensor(gate=Gate.spanning(TRAINED_RANGE_M, gate.bins))
     # what the photons say, read once (not after clipping: the clipped counts' ambient is no longer the sensor's)
     levels = None if read.clip_negative else photon_levels(counts, gate.bins)
 

@@ -11,7 +11,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..config import SensorConfig
+from ..config import TRAINED_RANGE_M, Gate, Sensor
 from ..sensor.peaks import frame_levels
 from .specs import PhotonRules, is_auto
 
@@ -64,7 +64,7 @@ def photon_levels(counts, bins: int) -> PhotonLevels:
     for frame in itertools.islice(counts, HEAD_FRAMES):
         head = np.asarray(frame, np.float32) if head is None else head + frame
         frames += 1
-    snr, signal = frame_levels(head, SensorConfig(bins=bins))  # of the sum: one frame's worth of signal
+    snr, signal = frame_levels(head, Sensor(gate=Gate.spanning(TRAINED_RANGE_M, bins)))  # of the sum: one frame's worth of signal
     return PhotonLevels(snr, signal / frames)
 
 

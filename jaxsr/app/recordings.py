@@ -20,7 +20,7 @@ import numpy as np
 
 from ..io import formats as io
 from ..checks import NORMALISED_SLACK, npz_array_bytes, require_memory, require_normalised_depth
-from ..config import MIN_LR_SIDE, TRAINED_RANGE_M, DepthScale, Gate, SensorConfig
+from ..config import MIN_LR_SIDE, TRAINED_RANGE_M, DepthScale, Gate, Sensor
 from ..sensor.effects import clip_negative_counts
 from ..sensor.gates import from_network_depth, to_network_depth
 from ..sensor.forward import normalise_depth
@@ -266,7 +266,7 @@ def clipped_recording(recording: Recording) -> Recording:
     """A histogram recording with its negative counts clipped at 0 (`jaxsr.sensor.clip_negative_counts`), frame
     by frame as it streams: background-subtracted histograms made fit for the centre of mass, which refuses
     negative counts. Frames (h, w, K) float32; NaN stays NaN (and is refused downstream)."""
-    sensor = SensorConfig(bins=int(recording.shape[-1]))
+    sensor = Sensor(gate=Gate.spanning(TRAINED_RANGE_M, int(recording.shape[-1])))
 
     def frames():
         for f in recording:
@@ -306,7 +306,7 @@ def to_metres(frame, units: str) -> np.ndarray:
     return np.where(f == 0, np.float32(np.inf), metres) if units in _ZERO_IS_NO_RETURN else metres
 
 
-def normalised_frames(recording: Recording, units: str, sensor: SensorConfig):
+def normalised_frames(recording: Recording, units: str, sensor: Sensor):
     """Depth frames of a recording as LR normalised depth: metres (or mm, cm, km: `to_metres`) -> `normalise_depth`
     (NaN, inf, negative and beyond d_max: no return, 1.0); normalised -> checked as `super_resolve` checks it (NaN
     -> 1.0, values outside [0, 1] by more than float rounding refused with a message that suggests --units m)."""

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..baselines.interpolation import bicubic
 from ..checks import require_memory
-from ..config import DEFAULT_MEAN_SIGNAL, SensorConfig
+from ..config import DEFAULT_MEAN_SIGNAL, Sensor
 from ..eval.metrics import psnr, ssim
 from ..scenes import KINDS, sequence
 from ..sensor.forward import normalise_depth, require_scalar_levels, simulate_histograms
@@ -126,7 +126,7 @@ def simulate_recording(out, *, kind: str = "street", input=None, frames: int = 2
     Renders `frames` frames of a procedural scene of `kind` ("street", "road", "courtyard" or "walkers", --kind)
     at `fps` frames/s with a `camera` ("static", "moving" or "random"), or reads an AirSim recording folder
     (`input`, --input: airsim_rec.txt + images; then kind, frames, fps and camera are not used), on the paper's
-    sensor (`SensorConfig()`); simulates photon histograms at a mean frame signal-to-background ratio `snr` with
+    sensor (`Sensor()`); simulates photon histograms at a mean frame signal-to-background ratio `snr` with
     `mean_signal` signal photons per LR pixel (default `DEFAULT_MEAN_SIGNAL`), random seed `seed` (the scene
     draws from key(seed), the photons from key(seed + 1)); extracts the centre-of-mass depth.
 
@@ -145,7 +145,7 @@ def simulate_recording(out, *, kind: str = "street", input=None, frames: int = 2
     (a bad option, frames beyond this machine's memory, AirSim frames of another size) or FileNotFoundError, with
     the messages `jaxsr simulate` prints; nothing is written then.
     """
-    sensor = SensorConfig()
+    sensor = Sensor()
     _check_options(kind, frames, fps, snr, mean_signal, camera, seed)
     out = None if out is None else _check_out(out, overwrite)
     n = int(frames) if input is None else _airsim_frames(input)

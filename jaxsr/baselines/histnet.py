@@ -44,14 +44,14 @@ import numbers
 import jax
 import jax.numpy as jnp
 
-from ..config import MODEL_LIMITS, SensorConfig, check_int_field
+from ..config import MODEL_LIMITS, Sensor, check_int_field
 from ..nn.model import Architecture, register_architecture
 from ..nn.layers import conv2d, conv2d_transpose, init_conv2d, init_from_normals, max_pool2
 from ..sensor.peaks import centre_of_mass, median_of_bins
 
 __all__ = ["HistNetConfig", "histnet_features", "second_peak_depth", "init_histnet", "apply_histnet",
            "apply_histnet_features"]
-_SENSOR = SensorConfig()  # the default sensor
+_SENSOR = Sensor()  # the default sensor
 
 _DEPTH_KEYS = ("pool1", "pool2", "pool3", "pool4")
 
@@ -83,7 +83,7 @@ class HistNetConfig:
         return tuple(self.width * 2**i for i in range(5))
 
 
-def second_peak_depth(counts, cfg: HistNetConfig = HistNetConfig(), *, sensor: SensorConfig = _SENSOR):
+def second_peak_depth(counts, cfg: HistNetConfig = HistNetConfig(), *, sensor: Sensor = _SENSOR):
     """Ruget's second-peak depth: the first peak (argmax +- peak_half bins) replaced by the median, then the
     centre of mass of what is left where its peak is significant (z = second_peak_z), else 1.0 (no return).
 
@@ -106,7 +106,7 @@ def _pooled_histograms(counts, r):
     return counts.reshape(b, h // r, r, w // r, r, k).sum(axis=(2, 4))
 
 
-def histnet_features(counts, cfg: HistNetConfig = HistNetConfig(), *, sensor: SensorConfig = _SENSOR):
+def histnet_features(counts, cfg: HistNetConfig = HistNetConfig(), *, sensor: Sensor = _SENSOR):
     """HistNet's depth inputs from LR photon histograms (x4 sensor).
 
     counts: (B, h, w, K) with h, w divisible by 4 (H = 4h, W = 4w). Returns {"d1": (B, H, W) first-peak depth,
@@ -193,7 +193,7 @@ def apply_histnet_features(params, features: dict, intensity):
 
 
 def apply_histnet(params, counts, intensity, cfg: HistNetConfig = HistNetConfig(), *,
-                  sensor: SensorConfig = _SENSOR):
+                  sensor: Sensor = _SENSOR):
     """HistNet: LR photon histograms + HR intensity -> HR depth.
 
     counts: (B, h, w, K) photon counts (h, w divisible by 4); intensity: (B, 4h, 4w) HR intensity in [0, 1].
@@ -205,7 +205,7 @@ def apply_histnet(params, counts, intensity, cfg: HistNetConfig = HistNetConfig(
     return apply_histnet_features(params, features, intensity)
 
 
-def _apply(params, state, inputs, cfg: HistNetConfig, *, sensor: SensorConfig = _SENSOR, conv3d_impl: str = "auto"):
+def _apply(params, state, inputs, cfg: HistNetConfig, *, sensor: Sensor = _SENSOR, conv3d_impl: str = "auto"):
     counts, intensity = inputs
     return apply_histnet(params, counts, intensity, cfg, sensor=sensor)
 

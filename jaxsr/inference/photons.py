@@ -12,7 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..config import MIN_LR_SIDE, SensorConfig
+from ..config import MIN_LR_SIDE, Sensor
 from ..nn.inputs import network_inputs
 from ..nn.model import Model
 from ..sensor.peaks import ambient_only, capped_for_sum, check_ambient_settings, check_false_alarm_rate
@@ -26,7 +26,7 @@ def _inputs_chunk(counts, sensor, inputs):
     return network_inputs(counts, sensor, inputs)
 
 
-def iter_centre_of_mass(counts: Iterable, sensor: SensorConfig = SensorConfig(), *,
+def iter_centre_of_mass(counts: Iterable, sensor: Sensor = Sensor(), *,
                         chunk: int = 16) -> Iterator[np.ndarray]:
     """Centre-of-mass depth of a stream of histogram frames, `chunk` frames per compiled call.
 
@@ -36,7 +36,7 @@ def iter_centre_of_mass(counts: Iterable, sensor: SensorConfig = SensorConfig(),
     return iter_network_inputs(counts, sensor, chunk=chunk)
 
 
-def iter_network_inputs(counts: Iterable, sensor: SensorConfig = SensorConfig(), inputs=("depth",), *,
+def iter_network_inputs(counts: Iterable, sensor: Sensor = Sensor(), inputs=("depth",), *,
                         chunk: int = 16) -> Iterator[np.ndarray]:
     """A network's input frames from a stream of histogram frames (`jaxsr.nn.network_inputs`), `chunk` frames per
     compiled call: (h, w) depth for inputs ("depth",), else (h, w, len(inputs)); float32. Counts are checked as
@@ -74,7 +74,7 @@ def _ambient_centre(window, alpha, sensor, pixels, frames):
     return ambient_only(summed, sensor, alpha=alpha, pixels=pixels, frames=1)[0]
 
 
-def iter_ambient_only(counts: Iterable, sensor: SensorConfig = SensorConfig(), *, alpha: float = 1e-3,
+def iter_ambient_only(counts: Iterable, sensor: Sensor = Sensor(), *, alpha: float = 1e-3,
                       pixels: int = 3, frames: int = 9) -> Iterator[np.ndarray]:
     """`jaxsr.sensor.ambient_only` over a stream of histogram frames, frame by frame: (h, w) bool per frame, True
     where the photons of the `pixels` x `pixels` pixels and `frames` frames around a pixel pass for ambient light
@@ -126,7 +126,7 @@ def check_keep_returns(keep_returns, ambient_alpha, has_head: bool, where: str =
                          "has no head: give one that has (tr4-ambient, tr0-ambient, tr4-photons, tr0-photons)")
 
 
-def super_resolve_histograms(model: Model, counts, sensor: SensorConfig = SensorConfig(), *, intensity=None,
+def super_resolve_histograms(model: Model, counts, sensor: Sensor = Sensor(), *, intensity=None,
                              batch_size: int | None = None, conv3d_impl: str = "auto",
                              tile: int | None = DEFAULT_TILE, precision: str = DEFAULT_PRECISION,
                              form: str = DEFAULT_FORM, ambient_alpha: float | None = None,
@@ -154,8 +154,8 @@ def super_resolve_histograms(model: Model, counts, sensor: SensorConfig = Sensor
                    "jaxsr.apply_histograms(model, counts, sensor)")
     _require_model(model, "super_resolve_histograms")
     precision = check_precision(model, precision, "super_resolve_histograms")
-    if not isinstance(sensor, SensorConfig):
-        raise TypeError(f"super_resolve_histograms: sensor is a jaxsr.SensorConfig (e.g. SensorConfig(bins=32)), got "
+    if not isinstance(sensor, Sensor):
+        raise TypeError(f"super_resolve_histograms: sensor is a jaxsr.Sensor (e.g. Sensor(gate=Gate.spanning(35.0, bins=32))), got "
                         f"{type(sensor).__name__}")
     if counts is None or isinstance(counts, (str, bytes)):
         raise TypeError(f"super_resolve_histograms: expected photon counts (T, h, w, {sensor.bins}), got "
@@ -244,7 +244,7 @@ def _shares_at_hr(shares, scale: int):
     return jax.image.resize(shares, (*lead, h * scale, w * scale), "linear")
 
 
-def _no_return_where_ambient(out, counts, sensor: SensorConfig, alpha: float) -> np.ndarray:
+def _no_return_where_ambient(out, counts, sensor: Sensor, alpha: float) -> np.ndarray:
     for t, flags in enumerate(iter_ambient_only(counts, sensor, alpha=alpha)):
         out[t] = no_return_where(out[t], flags)
     return out
@@ -255,7 +255,7 @@ def _histogram_chunk(model: Model, counts, intensity, sensor):
     return model.architecture.apply(model.params, model.state, (counts, intensity), model.config, sensor=sensor)
 
 
-def _histograms_through_model(model: Model, counts, intensity, sensor: SensorConfig, batch_size: int) -> np.ndarray:
+def _histograms_through_model(model: Model, counts, intensity, sensor: Sensor, batch_size: int) -> np.ndarray:
     """A histogram-reading model over (T, h, w, K) counts and (T, H, W) intensity, `batch_size` frames per call
     (the last call padded by repeating its final frame, so that every call has one shape)."""
     r = model.architecture.scale(model.config)

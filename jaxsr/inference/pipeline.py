@@ -2,9 +2,9 @@
 
 sensor model (rates) -> Poisson draw (or, with no key, the rates themselves) -> centre of mass -> the network
 -> PSNR or Huber loss against the normalised HR ground truth. One jitted, pure function of arrays and pytrees,
-so `jax.grad` differentiates it with respect to the sensor's physical leaves (`SensorConfig`'s `irf_sigma`,
-`ambient_floor`, `r_min`, `d_max`), the photon levels (`snr`, `mean_signal`), the scene (depth, intensity) and
-the network's weights, and `jax.vmap` maps it over a batch of sensors (a `SensorConfig` whose leaves are arrays
+so `jax.grad` differentiates it with respect to the sensor's physical leaves (the `Sensor`'s pulse sigma,
+`ambient_floor`, `r_min`, the gate's bin width, the depth span), the photon levels (`snr`, `mean_signal`), the scene (depth, intensity) and
+the network's weights, and `jax.vmap` maps it over a batch of sensors (a `Sensor` whose leaves are arrays
 with a leading axis). Through a draw the derivative is a surrogate (`simulate_histograms(gradient=...)`); with
 `key=None` it is exact.
 """
@@ -16,7 +16,7 @@ import functools
 import jax
 import jax.numpy as jnp
 
-from ..config import DEFAULT_MEAN_SIGNAL, SensorConfig
+from ..config import DEFAULT_MEAN_SIGNAL, Sensor
 from ..eval.metrics import huber_loss, psnr
 from ..nn.duf import check_conv
 from ..nn.model import Model
@@ -56,7 +56,7 @@ def pipeline_metric(
     key,
     depth,
     intensity,
-    sensor: SensorConfig,
+    sensor: Sensor,
     model: Model,
     *,
     snr,
@@ -75,7 +75,7 @@ def pipeline_metric(
     -> `centre_of_mass` -> the network (its temporal form, ends edge-replicated, BN in inference mode) -> the
     mean over frames of PSNR (dB, prediction clipped to [0, 1]) or the Huber loss (unclipped) against
     `normalise_depth(depth)`. Differentiable with respect to `depth`, `intensity`, `snr`, `mean_signal`,
-    `huber_delta`, the sensor's leaves and `model`'s params; vmappable over any of them (e.g. a `SensorConfig`
+    `huber_delta`, the sensor's leaves and `model`'s params; vmappable over any of them (e.g. a `Sensor`
     whose leaves have a leading batch axis). Through the draw the derivative is `gradient`'s surrogate, biased
     where a pixel's histogram peak can jump to a background bin (experiments/results/sensor_design.md); with
     `key=None` the expected counts replace the draw and the derivative is exact (but for the centre of mass's
@@ -85,7 +85,7 @@ def pipeline_metric(
       key: a `jax.random` key for the photon draw, or None for the noise-free path (expected counts).
       depth: (T, H, W) radial metres (no return: NaN, inf, negative, beyond d_max); (H, W) = `sensor.hr_shape`.
       intensity: (T, H, W) reflectivity proxy in [0, 1].
-      sensor: the `SensorConfig`; its `scale` must be the model's.
+      sensor: the `Sensor`; its `scale` must be the model's.
       model: a `Model` (e.g. `jaxsr.load_model("tr0")`).
       snr: frame SNR (> 0).
       mean_signal: mean signal photons per LR pixel with a return (>= 0).

@@ -13,7 +13,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from ..config import SensorConfig
+from ..config import Sensor
 from ..nn.duf import apply_model_sequence
 from ..nn.inputs import network_inputs
 from ..nn.model import Model
@@ -73,7 +73,7 @@ def network_over_sequence(model: Model, lr, *, conv3d_impl: str = "auto", precis
     return arch.apply(model.params, model.state, windows(lr, arch.input_radius(cfg)), cfg, **conv)
 
 
-def apply_histograms(model: Model, counts, sensor: SensorConfig = SensorConfig(), *, intensity=None,
+def apply_histograms(model: Model, counts, sensor: Sensor = Sensor(), *, intensity=None,
                      form: str = DEFAULT_FORM, conv3d_impl: str = "auto", precision: str = DEFAULT_PRECISION):
     """The network over a whole sequence of photon histograms: (T, h, w, K) counts (finite, >= 0) -> (T, h r, w r)
     HR normalised depth, a JAX array; jit-, vmap- and grad-compatible (the gradient flows through the centre of mass

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import SensorConfig
+from ..config import Sensor
 from ..sensor.camera import AXES, DEPTH_KINDS, Intrinsics, as_intrinsics, back_project
 from .files import atomic_folder, atomic_path, check_new_file, check_output_folder, refuse_link
 from .previews import _colourise
@@ -32,7 +32,7 @@ from .previews import _colourise
 __all__ = ["DEFAULT_FOV_DEG", "points_camera", "depth_points", "write_ply", "write_point_cloud",
            "write_point_clouds", "PointCloudWriter", "check_points", "check_points_folder"]
 
-DEFAULT_FOV_DEG = float(SensorConfig().fov_deg)  # the sensor model's horizontal field of view, 30 degrees
+DEFAULT_FOV_DEG = float(Sensor().fov_deg)  # the sensor model's horizontal field of view, 30 degrees
 _PLY_TYPES = {("f", 4): "float", ("u", 1): "uchar", ("u", 4): "uint"}  # (NumPy kind, bytes): PLY's name
 
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..config import DepthScale, SensorConfig
+from ..config import DepthScale, Gate, Sensor
 from .formats import write_image
 from ..sensor.forward import denormalise_depth
 from ..sensor.gates import from_network_depth
@@ -36,7 +36,7 @@ def _to_metres(frame, d_min, d_max):
     """(H, W) normalised [0, 1] -> metres d_min + n (d_max - d_min), inf for no return
     (`jaxsr.sensor.gates.from_network_depth`; with d_min 0, `jaxsr.sensor.forward.denormalise_depth`)."""
     if d_min == 0:
-        return np.asarray(denormalise_depth(frame, SensorConfig(d_max=d_max)), np.float32)
+        return np.asarray(denormalise_depth(frame, Sensor(gate=Gate.spanning(d_max), depth=DepthScale(0.0, d_max))), np.float32)
     return np.asarray(from_network_depth(frame, DepthScale(d_min, d_max - d_min)), np.float32)
 
 

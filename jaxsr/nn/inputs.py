@@ -14,7 +14,8 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from ..config import MODEL_INPUTS, SensorConfig
+from ..config import MODEL_INPUTS, Sensor
+from ..sensor.gates import gate_to_network
 from ..sensor.peaks import ambient_photons, centre_of_mass, peak_evidence
 
 __all__ = ["PHOTON_SCALE", "encode_photons", "network_inputs"]
@@ -28,14 +29,16 @@ def encode_photons(photons):
     return jnp.log1p(jnp.maximum(photons, 0.0)) / jnp.log1p(PHOTON_SCALE)
 
 
-def network_inputs(counts, sensor: SensorConfig = SensorConfig(), inputs=("depth",)):
+def network_inputs(counts, sensor: Sensor = Sensor(), inputs=("depth",)):
     """The network's input from histograms: (..., K) counts -> (..., ) depth for inputs ("depth",), else
-    (..., len(inputs)) channels in the order of `inputs` (depth first). Counts as `centre_of_mass` takes them
-    (finite, >= 0; traced, an unusable histogram is no return with signal and background 0). jit/vmap-able."""
+    (..., len(inputs)) channels in the order of `inputs` (depth first). The depth is the centre of mass on the
+    sensor's depth scale (`jaxsr.sensor.gates.gate_to_network`: the gate's start at `sensor.depth.offset` metres
+    and so on; for the paper's sensor, `centre_of_mass` itself). Counts as `centre_of_mass` takes them (finite,
+    >= 0; traced, an unusable histogram is no return with signal and background 0). jit/vmap-able."""
     inputs = tuple(inputs)
     if not inputs or inputs[0] != "depth" or not set(inputs) <= set(MODEL_INPUTS):
         raise ValueError(f"network_inputs: inputs must be 'depth' then names of {MODEL_INPUTS}, got {inputs}")
-    depth = centre_of_mass(counts, sensor)
+    depth = gate_to_network(centre_of_mass(counts, sensor), sensor)
     if inputs == ("depth",):
         return depth
     signal, background = peak_evidence(counts, sensor)

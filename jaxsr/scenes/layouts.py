@@ -51,7 +51,7 @@ KINDS = ("street", "road", "courtyard", "walkers")
 
 
 # A static camera's view, for layouts that keep moving objects in it: the default sensor's half field of view
-# (`SensorConfig.fov_deg` = 30) and the largest yaw `_camera` draws.
+# (`Optics.fov_deg` = 30) and the largest yaw `_camera` draws.
 HALF_FOV = math.radians(15.0)
 MAX_YAW = 0.15
 PERSON_HALF_LENGTH = 0.45  # m: a walking person's extent along the heading (swinging legs), each way

@@ -12,7 +12,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from ..config import SensorConfig
+from ..config import Sensor
 from .primitives import Boxes, Camera, Cylinders, Ellipsoids, Motion, Scene
 
 __all__ = ["BOX", "CYL", "ELL", "NEAR", "Group", "pose_all", "project_bounds"]
@@ -113,7 +113,7 @@ def _pose_ellipsoids(e: Ellipsoids, cam_pos, psi, t):
 
 
 
-def project_bounds(aabb, sensor: SensorConfig, tilt):
+def project_bounds(aabb, sensor: Sensor, tilt):
     """Conservative pixel bounds (P, 4): col_min, col_max, row_min, row_max (continuous pixel coordinates)."""
     h, w = sensor.hr_shape
     f = sensor.focal_px

@@ -11,7 +11,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from ..config import SensorConfig
+from ..config import Sensor
 from ..sensor.forward import pixel_rays
 from .pose import BOX, CYL, ELL, NEAR, Group, pose_all, project_bounds
 from .primitives import Scene
@@ -168,7 +168,7 @@ def _cast_tiled(kind, group: Group, dx, dy, sensor, tiles, k_max, tilt):
     return untile(t_min), untile(i_min)
 
 
-def tile_overflow(scene: Scene, t, *, sensor: SensorConfig = SensorConfig(), tiles=None, k_max=None):
+def tile_overflow(scene: Scene, t, *, sensor: Sensor = Sensor(), tiles=None, k_max=None):
     """Diagnostic: for each primitive type, the largest number of primitives touching one tile minus its
     `k_max` (> 0 means the tiled renderer dropped the farthest ones somewhere). Returns a dict of ints.
 
@@ -243,7 +243,7 @@ DEFAULT_K_MAX = (8, 10, 6)
 
 
 
-def render(scene: Scene, t, *, sensor: SensorConfig = SensorConfig(), tiles=DEFAULT_TILES, k_max=DEFAULT_K_MAX):
+def render(scene: Scene, t, *, sensor: Sensor = Sensor(), tiles=DEFAULT_TILES, k_max=DEFAULT_K_MAX):
     """Render one HR frame of `scene` at time `t` (s).
 
     Returns (depth, intensity), each (H, W) = sensor.hr_shape, float32: radial depth in metres (inf where the
@@ -303,7 +303,7 @@ def render(scene: Scene, t, *, sensor: SensorConfig = SensorConfig(), tiles=DEFA
     return depth.astype(jnp.float32), jnp.clip(intensity, 0.0, 1.0).astype(jnp.float32)
 
 
-def seen_primitives(scene: Scene, t, *, sensor: SensorConfig = SensorConfig(), stride: int = 8):
+def seen_primitives(scene: Scene, t, *, sensor: Sensor = Sensor(), stride: int = 8):
     """Which primitives are in sight at time `t` (s): those that are the nearest hit, in front of the ground and
     within the sensor's range (radial depth <= `sensor.d_max`), on at least one ray of a grid through every
     `stride`-th HR pixel centre (stride 8: 16 x 32 rays, about 2 % of a render's work). A primitive in the frame
@@ -318,7 +318,7 @@ def seen_primitives(scene: Scene, t, *, sensor: SensorConfig = SensorConfig(), s
     return jnp.bincount(jnp.where(hit, index, offset).ravel(), length=offset + 1)[:offset] > 0
 
 
-def grid_depth(scene: Scene, t, *, sensor: SensorConfig = SensorConfig(), stride: int = 8):
+def grid_depth(scene: Scene, t, *, sensor: Sensor = Sensor(), stride: int = 8):
     """Radial depth (m, inf = no return) on a grid through every `stride`-th HR pixel centre at time `t` (s):
     the values `render` gives at those pixels (rows and cols stride // 2 + stride * i), without its tiling, at a
     fraction 1 / stride^2 of the pixels. Args: scene (Scene), t (s, scalar), stride (static int). Returns
@@ -328,7 +328,7 @@ def grid_depth(scene: Scene, t, *, sensor: SensorConfig = SensorConfig(), stride
     return jnp.where(jnp.isfinite(z), z * norm, _INF).astype(jnp.float32)
 
 
-def _grid_cast(scene: Scene, t, sensor: SensorConfig, stride: int):
+def _grid_cast(scene: Scene, t, sensor: Sensor, stride: int):
     """The nearest primitive on the ray grid of `seen_primitives`: (planar depth of the nearest primitive (inf if
     none), its index in `pose_all`'s order, the ground's planar depth (column of rows), the rays' norms, the
     number of primitives)."""
@@ -348,7 +348,7 @@ def _grid_cast(scene: Scene, t, sensor: SensorConfig, stride: int):
     return z, index, t_gnd, norm, offset
 
 
-def render_sequence(scene: Scene, times, *, sensor: SensorConfig = SensorConfig(), tiles=DEFAULT_TILES,
+def render_sequence(scene: Scene, times, *, sensor: Sensor = Sensor(), tiles=DEFAULT_TILES,
                     k_max=DEFAULT_K_MAX):
     """Render `scene` at each time of `times` (T,) s: (depth, intensity), each (T, H, W).
 

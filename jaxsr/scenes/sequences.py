@@ -14,7 +14,7 @@ import math
 import jax
 import jax.numpy as jnp
 
-from ..config import SensorConfig
+from ..config import Sensor
 from .layouts import sample_scene
 from .pose import pose_all, project_bounds
 from .primitives import Scene
@@ -24,7 +24,7 @@ __all__ = ["MOVING_DEPTH", "in_view_lr_shift", "mean_lr_shift", "moving_share", 
            "training_scene"]
 
 
-def sequence(key, n_frames, fps, *, kind=None, sensor: SensorConfig = SensorConfig(), t0=0.0, camera="random",
+def sequence(key, n_frames, fps, *, kind=None, sensor: Sensor = Sensor(), t0=0.0, camera="random",
              **options):
     """Render a random scene for `n_frames` (static int) frames at `fps` frames per second from time `t0` (s).
 
@@ -42,7 +42,7 @@ def _sequence_jit(key, n_frames, fps, t0, sensor, kind, camera, options):
     return render_sequence(scene, times, sensor=sensor)
 
 
-def _image_motion(scene: Scene, t, sensor: SensorConfig, margin):
+def _image_motion(scene: Scene, t, sensor: Sensor, margin):
     """Per primitive (P,), in the order of `pose_all`'s groups: the image speed of its bounding-box centre in LR
     px per second (the exact derivative of the projection, camera motion and pan included) and whether it is
     active, in front of the camera and its projected bounds overlap the frame widened by `margin` frames on
@@ -77,7 +77,7 @@ def _mean_moving(speed, counted, fps):
 
 
 @jax.jit
-def mean_lr_shift(scene: Scene, fps, *, sensor: SensorConfig = SensorConfig(), t=0.0):
+def mean_lr_shift(scene: Scene, fps, *, sensor: Sensor = Sensor(), t=0.0):
     """Mean image motion of the moving objects, in LR pixels per frame at `fps`.
 
     Args: scene (a `Scene`), fps (frames per second, scalar), t (s, scalar). For every active primitive whose
@@ -93,7 +93,7 @@ def mean_lr_shift(scene: Scene, fps, *, sensor: SensorConfig = SensorConfig(), t
 
 
 @functools.partial(jax.jit, static_argnames="stride")
-def in_view_lr_shift(scene: Scene, fps, *, sensor: SensorConfig = SensorConfig(), t=0.0, stride: int = 8):
+def in_view_lr_shift(scene: Scene, fps, *, sensor: Sensor = Sensor(), t=0.0, stride: int = 8):
     """Mean image motion of the moving objects in sight, in LR pixels per frame at `fps`.
 
     As `mean_lr_shift`, but the mean is over the moving primitives that are seen at time t: the nearest hit on
@@ -118,7 +118,7 @@ MOVING_DEPTH = 0.01
 MOTION_STRIDE = 4
 
 
-def moving_share(scene: Scene, t, dt, *, sensor: SensorConfig = SensorConfig(), stride: int = MOTION_STRIDE):
+def moving_share(scene: Scene, t, dt, *, sensor: Sensor = Sensor(), stride: int = MOTION_STRIDE):
     """Share of the rays of a grid through every `stride`-th HR pixel whose radial depth (no return = d_max)
     changes by more than `MOVING_DEPTH` (1 cm) between times t and t + dt (s): the motion a depth clip shows.
     A grid ray is a pixel of `render`, so a share > 0 means the rendered frames differ there too. The image
@@ -132,7 +132,7 @@ def moving_share(scene: Scene, t, dt, *, sensor: SensorConfig = SensorConfig(), 
     return jnp.mean(jnp.abs(depth(t + dt) - depth(t)) > MOVING_DEPTH)
 
 
-def training_scene(key, *, sensor: SensorConfig = SensorConfig(), shift_range=(0.2, 5.0), motion: str = "drawn"):
+def training_scene(key, *, sensor: Sensor = Sensor(), shift_range=(0.2, 5.0), motion: str = "drawn"):
     """Draw the scene, frame rate and time of a training clip (see `training_clip`), without rendering.
 
     Returns (scene, fps, t): a `Scene`, frames per second (scalar) and the time (s, scalar) the clip is centred
@@ -204,7 +204,7 @@ def _training_scene_jit(key, sensor, shift_range, motion="drawn"):
     return scene, fps, t
 
 
-def training_clip(key, n_frames, *, sensor: SensorConfig = SensorConfig(), shift_range=(0.2, 5.0),
+def training_clip(key, n_frames, *, sensor: Sensor = Sensor(), shift_range=(0.2, 5.0),
                   return_info=False, motion: str = "drawn"):
     """A random training clip whose motion in sight is log-uniform in `shift_range` LR pixels per frame.
 

@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..io.files import atomic_path
-from ..config import SensorConfig
+from ..config import Sensor
 from .layouts import empty_scene, sample_scene
 from .raycast import render_sequence
 
@@ -152,7 +152,7 @@ def test_scene(name):
 _render_jit = jax.jit(render_sequence, static_argnames=("sensor", "tiles", "k_max"))
 
 
-def test_sequence(name, *, n_frames=500, sensor: SensorConfig = SensorConfig()):
+def test_sequence(name, *, n_frames=500, sensor: Sensor = Sensor()):
     """Render one named fixed sequence (deterministic). See `TEST_SEQUENCES` for the names.
 
     Returns a `TestSequence`: depth (n_frames, H, W) radial metres (inf = no return), intensity (n_frames, H, W)
@@ -166,7 +166,7 @@ def test_sequence(name, *, n_frames=500, sensor: SensorConfig = SensorConfig()):
     return TestSequence(name, depth, intensity, fps, snr, kind, description)
 
 
-def test_sequences(*, n_frames=500, names=None, sensor: SensorConfig = SensorConfig()):
+def test_sequences(*, n_frames=500, names=None, sensor: Sensor = Sensor()):
     """The paper's three test scenes, the validation sequences and the frame-rate study sequence.
 
     Returns a dict name -> `TestSequence` (depth and intensity of shape (n_frames, H, W), fps, snr).

@@ -5,7 +5,7 @@ Pixel conventions are OpenCV's and Open3D's (`cv2.calibrateCamera`'s K, `open3d.
 the pixel in row v, column u has its centre at image coordinates (u, v); (cx, cy) is the principal point in those
 coordinates, so a centred camera of a W x H frame has cx = (W - 1) / 2, cy = (H - 1) / 2. The ray through a pixel
 is D = ((u - cx) / fx, (v - cy) / fy, 1) in the OpenCV camera frame. The sensor model's camera
-(`SensorConfig.fov_deg` across the width, square pixels, rays through col + 0.5, row + 0.5 about the frame's
+(`Sensor.fov_deg` across the width, square pixels, rays through col + 0.5, row + 0.5 about the frame's
 centre, `jaxsr.sensor.forward.pixel_rays`) is `Intrinsics.from_fov(hr_shape, fov_deg)`.
 
 Depth is "radial" (the range r along the ray: what a time-of-flight sensor measures and what jaxsr's depth is; the

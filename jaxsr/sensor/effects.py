@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..checks import is_concrete, require_bins
-from ..config import SensorConfig
+from ..config import Sensor
 
 __all__ = [
     "dark_counts",
@@ -213,19 +213,19 @@ def thin_returns(key, shape, *, lines, width_range=(1.0, 8.0), max_lines: int = 
     return on.any(0)
 
 
-def with_irf_sigma(sensor: SensorConfig, irf_sigma):
-    """The sensor with another IRF width (bins): `dataclasses.replace(sensor, irf_sigma=irf_sigma)`, checked.
+def with_irf_sigma(sensor: Sensor, irf_sigma):
+    """The sensor with another IRF width (bins): `sensor.replace(irf_sigma=irf_sigma)`, checked.
 
-    `SensorConfig.irf_sigma` is a pytree leaf, so the width may be traced: a per-clip width drawn inside a
+    The pulse's sigma (`Sensor.pulse.sigma`) is a pytree leaf, so the width may be traced: a per-clip width drawn inside a
     jitted, vmapped data source simulates each clip with its own pulse (`irf_bin_weights` reads it from the
     config). Eagerly a width that is not finite and > 0 is a `ValueError`; traced, it makes the rates NaN.
-    Returns a `SensorConfig`.
+    Returns a `Sensor`.
     """
     _check_scalar("with_irf_sigma", "irf_sigma", irf_sigma, strict=True, unit=" bins")
-    return dataclasses.replace(sensor, irf_sigma=irf_sigma)
+    return sensor.replace(irf_sigma=irf_sigma)
 
 
-def clip_negative_counts(counts, sensor: SensorConfig = SensorConfig()):
+def clip_negative_counts(counts, sensor: Sensor = Sensor()):
     """Background-subtracted histograms (some published data sets) -> counts the depth extractors accept.
 
     `centre_of_mass` and `maximum_likelihood_depth` refuse negative counts (eagerly a `ValueError`, traced "no

@@ -6,14 +6,14 @@ config is a pytree whose physical numbers are leaves. Eager calls validate shape
 checked, and the values have these meanings instead (a bad pixel is read as a valid one and turns no other
 pixel NaN; a bad scalar turns everything NaN):
 
-- depth: NaN, inf, negative and beyond `d_max` mean "no return" (signal weight 0), eager or traced alike;
+- depth: NaN, inf, negative and outside the sensor's gate mean "no return" (signal weight 0), eager or traced alike;
 - intensity: a non-finite value is a black pixel (rho = 0: no signal, ambient floor only) and a finite one
   outside [0, 1] is clipped to it, for that pixel alone (eagerly both are a `ValueError`);
 - scalars: `snr` not finite and > 0, `mean_signal` not finite and >= 0, or a sensor leaf out of its domain
-  (`d_max`, `irf_sigma`, `r_min` finite and > 0, `ambient_floor` finite and >= 0) make every rate and count
+  (the gate's bin width, the depth span, the pulse's sigma, `r_min` finite and > 0, `ambient_floor` finite and >= 0) make every rate and count
   NaN, and `calibrate` return (NaN, NaN).
 
-Conventions: depth is radial range in metres along each pixel's ray; NaN, inf, negative and beyond-`d_max`
+Conventions: depth is radial range in metres along each pixel's ray; NaN, inf, negative and beyond-the-gate
 depths mean "no return". Intensity is a reflectivity proxy in [0, 1].
 """
 
@@ -24,11 +24,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..checks import is_concrete, require_hr_pair
-from ..config import DEFAULT_MEAN_SIGNAL, SensorConfig
+from ..config import DEFAULT_MEAN_SIGNAL, Sensor
 from .poisson import PATHWISE_ESTIMATORS, poisson_pathwise, sample_poisson
 
 
-def planar_to_radial(z, sensor: SensorConfig = SensorConfig()):
+def planar_to_radial(z, sensor: Sensor = Sensor()):
     """Convert a planar z-buffer (AirSim "DepthPlanar") to radial range along each pixel's ray.
 
     r = z * sqrt(1 + ((u - cx)/f)^2 + ((v - cy)/f)^2), pixel centres u = col + 0.5, v = row + 0.5,
@@ -45,7 +45,7 @@ def planar_to_radial(z, sensor: SensorConfig = SensorConfig()):
     return z * ray_norm(sensor)
 
 
-def pixel_rays(sensor: SensorConfig = SensorConfig(), *, tilt=0.0):
+def pixel_rays(sensor: Sensor = Sensor(), *, tilt=0.0):
     """Ray directions of the HR pixel centres (col + 0.5, row + 0.5) in the camera frame (x right, y up, z
     forward), scaled so that their z component is 1.
 
@@ -61,21 +61,23 @@ def pixel_rays(sensor: SensorConfig = SensorConfig(), *, tilt=0.0):
     return dx, dy, norm
 
 
-def ray_norm(sensor: SensorConfig = SensorConfig()):
+def ray_norm(sensor: Sensor = Sensor()):
     """(H, W) length of the ray direction (x, y, 1) through each HR pixel centre: radial = planar * norm."""
     return pixel_rays(sensor)[2]
 
 
-def has_return(depth, sensor: SensorConfig = SensorConfig()):
-    """Boolean mask of pixels that return signal: finite, non-negative and within the range gate."""
+def has_return(depth, sensor: Sensor = Sensor()):
+    """Boolean mask of pixels that return signal: finite, non-negative and within the range gate
+    [gate.start, gate.end]."""
     depth = jnp.asarray(depth)
-    return jnp.isfinite(depth) & (depth >= 0) & (depth <= sensor.d_max)
+    return jnp.isfinite(depth) & (depth >= 0) & (depth >= sensor.gate.start) & (depth <= sensor.gate.end)
 
 
-def normalise_depth(depth, sensor: SensorConfig = SensorConfig()):
-    """Radial metres -> normalised depth clip(r / d_max, 0, 1), with "no return" mapped to 1.0.
+def normalise_depth(depth, sensor: Sensor = Sensor()):
+    """Radial metres -> normalised depth clip((r - offset) / span, 0, 1) on the sensor's depth scale
+    (`sensor.depth`; by default r / 35 m), with "no return" (outside the gate, `has_return`) mapped to 1.0.
 
-    The normalisation is global (fixed d_max), never per frame, so that video does not flicker.
+    The normalisation is global (a fixed scale), never per frame, so that video does not flicker.
 
     Args:
       depth: (...) radial depth in metres.
@@ -83,32 +85,34 @@ def normalise_depth(depth, sensor: SensorConfig = SensorConfig()):
       (...) float normalised depth in [0, 1].
     """
     depth = jnp.asarray(depth, dtype=jnp.result_type(float))
-    safe = jnp.where(has_return(depth, sensor), depth, sensor.d_max)
-    return jnp.clip(safe / sensor.d_max, 0.0, 1.0)
+    scale = sensor.depth
+    safe = jnp.where(has_return(depth, sensor), depth, scale.offset + scale.span)
+    return jnp.clip((safe - scale.offset) / scale.span, 0.0, 1.0)
 
 
-def denormalise_depth(norm, sensor: SensorConfig = SensorConfig()):
-    """Normalised depth -> radial metres norm * d_max, with "no return" mapped to +inf.
+def denormalise_depth(norm, sensor: Sensor = Sensor()):
+    """Normalised depth -> radial metres offset + norm * span on the sensor's depth scale (`sensor.depth`; by
+    default norm * 35 m), with "no return" mapped to +inf.
 
     The one threshold: no return is normalised 1.0 and above (docs/sensor-model.md: 1.0 is the no-return code, and
     r > d_max lies past the range gate), and anything below 1.0 is a return, however close to 1 (0.999 ->
     34.965 m at d_max = 35 m). Network outputs are not clipped, but no margin below 1.0 would separate "far"
     from "nothing": training targets put a wall at 34.9 m at 0.997 and the sky at exactly 1.0, so a margin
     would turn real far returns into sky. Below 0 is clipped to 0 m. NaN is no return, as in
-    `normalise_depth` and `jaxsr.io.formats.read_depth`. The inverse of `normalise_depth` for depths in [0, d_max);
-    d_max itself normalises to 1.0 and so comes back as no return.
+    `normalise_depth` and `jaxsr.io.formats.read_depth`. The inverse of `normalise_depth` for depths in the gate
+    and below offset + span; offset + span itself normalises to 1.0 and so comes back as no return.
 
     Args:
       norm: (...) normalised depth, nominally [0, 1].
     Returns:
-      (...) float radial depth in metres, in [0, d_max) or +inf.
+      (...) float radial depth in metres, in [offset, offset + span) or +inf.
     """
     norm = jnp.asarray(norm, dtype=jnp.result_type(float))
     no_return = jnp.isnan(norm) | (norm >= 1.0)
-    return jnp.where(no_return, jnp.inf, jnp.clip(norm, 0.0, 1.0) * sensor.d_max)
+    return jnp.where(no_return, jnp.inf, sensor.depth.offset + jnp.clip(norm, 0.0, 1.0) * sensor.depth.span)
 
 
-def irf_bin_weights(tau, sensor: SensorConfig = SensorConfig()):
+def irf_bin_weights(tau, sensor: Sensor = Sensor()):
     """Fraction of a return at `tau` (bins) that falls into each of the K bins.
 
     h_k(tau) = Phi((k+1-tau)/sigma) - Phi((k-tau)/sigma): a Gaussian IRF integrated over each bin,
@@ -125,7 +129,7 @@ def irf_bin_weights(tau, sensor: SensorConfig = SensorConfig()):
     return cdf[..., 1:] - cdf[..., :-1]
 
 
-def gate_fraction(tau, sensor: SensorConfig = SensorConfig()):
+def gate_fraction(tau, sensor: Sensor = Sensor()):
     """Fraction of a return at `tau` (bins) that falls inside the gate [0, K): the sum over k of
     `irf_bin_weights`, Phi((K - tau)/sigma) - Phi(-tau/sigma). About 1/2 for a return at 0 m or at d_max.
 
@@ -161,7 +165,7 @@ def _reflectivity(intensity):
     return jnp.where(rho < 0, 0.0, jnp.where(rho > 1, 1.0, rho))
 
 
-def _photon_terms(depth, intensity, sensor: SensorConfig):
+def _photon_terms(depth, intensity, sensor: Sensor):
     """Per-LR-pixel un-calibrated sums: (signal histogram shape, sum s_i inside the gate, sum a_i).
 
     s_i = rho_i / max(r_i, r_min)^2 for pixels with a return (else 0); a_i = rho_i + a0, with rho_i the
@@ -174,10 +178,11 @@ def _photon_terms(depth, intensity, sensor: SensorConfig):
     intensity = _reflectivity(jnp.asarray(intensity, dtype=depth.dtype))
     ret = has_return(depth, sensor)
     # Keep a finite stand-in where there is no return, so gradients through `where` stay finite.
-    r = jnp.where(ret, depth, sensor.d_max)
+    gate = sensor.gate
+    r = jnp.where(ret, depth, gate.end)
     s = jnp.where(ret, intensity / jnp.maximum(r, sensor.r_min) ** 2, 0.0)
     a = intensity + sensor.ambient_floor
-    tau = sensor.bins * r / sensor.d_max
+    tau = gate.bins * (r - gate.start) / gate.length  # bins from the gate's start
 
     def signal(s_i, tau_i):
         return s_i[..., None] * irf_bin_weights(tau_i, sensor)
@@ -195,15 +200,16 @@ def _photon_terms(depth, intensity, sensor: SensorConfig):
     )
 
 
-def _physical_scalars(sensor: SensorConfig, snr, mean_signal):
+def _physical_scalars(sensor: Sensor, snr, mean_signal):
     """name -> (value, must be > 0 rather than >= 0, what it is): every scalar the rates depend on."""
     return {
         "snr": (snr, True, " (signal / background photons)"),
         "mean_signal": (mean_signal, False, " photons per LR pixel"),
-        "SensorConfig.d_max": (sensor.d_max, True, " m"),
-        "SensorConfig.irf_sigma": (sensor.irf_sigma, True, " bins"),
-        "SensorConfig.r_min": (sensor.r_min, True, " m"),
-        "SensorConfig.ambient_floor": (sensor.ambient_floor, False, ""),
+        "Sensor.gate.bin_width": (sensor.gate.bin_width, True, " m"),
+        "Sensor.depth.span": (sensor.depth.span, True, " m"),
+        "Sensor.pulse.sigma": (sensor.irf_sigma, True, " bins"),
+        "Sensor.r_min": (sensor.r_min, True, " m"),
+        "Sensor.ambient_floor": (sensor.ambient_floor, False, ""),
     }
 
 
@@ -211,7 +217,7 @@ def _in_domain(x, strict, xp):
     return xp.isfinite(x) & ((x > 0) if strict else (x >= 0))
 
 
-def levels_valid(sensor: SensorConfig, snr, mean_signal):
+def levels_valid(sensor: Sensor, snr, mean_signal):
     """Whether every physical scalar of `sensor`, `snr` and `mean_signal` lies in its domain (finite, positive
     where it must be), as a traced value to select on (e.g. NaN for a score under jit or vmap), not a check.
 
@@ -222,7 +228,7 @@ def levels_valid(sensor: SensorConfig, snr, mean_signal):
     return ok
 
 
-def _calibrate_from_sums(s_sum, a_sum, sensor: SensorConfig, *, snr, mean_signal):
+def _calibrate_from_sums(s_sum, a_sum, sensor: Sensor, *, snr, mean_signal):
     """alpha, beta from per-LR-pixel sums over everything passed (docs/sensor-model.md, "Calibration"): s_sum the
     signal inside the gate (`_photon_terms`), a_sum the ambient. Both NaN when a physical scalar is out of its
     domain (which only a traced call can reach)."""
@@ -273,7 +279,7 @@ def check_photon_args(name, depth, intensity, sensor, snr, mean_signal):
     return depth, intensity
 
 
-def calibrate(depth, intensity, sensor: SensorConfig = SensorConfig(), *, snr, mean_signal=DEFAULT_MEAN_SIGNAL):
+def calibrate(depth, intensity, sensor: Sensor = Sensor(), *, snr, mean_signal=DEFAULT_MEAN_SIGNAL):
     """Laser (alpha) and ambient (beta) scale factors that hit a target frame SNR and signal level.
 
     Computed once over everything passed (a whole sequence: laser and sun do not change frame to frame).
@@ -297,7 +303,7 @@ def calibrate(depth, intensity, sensor: SensorConfig = SensorConfig(), *, snr, m
 
 
 def expected_histograms(
-    depth, intensity, sensor: SensorConfig = SensorConfig(), *, snr, mean_signal=DEFAULT_MEAN_SIGNAL
+    depth, intensity, sensor: Sensor = Sensor(), *, snr, mean_signal=DEFAULT_MEAN_SIGNAL
 ):
     """Expected photon counts per LR pixel and bin (the Poisson rates), calibrated to `snr`, `mean_signal`.
 
@@ -321,7 +327,7 @@ def expected_histograms(
     return alpha * signal_hist + (beta / sensor.bins) * a_sum[..., None]
 
 
-def calibrated_rates(depth, intensity, alpha, beta, sensor: SensorConfig = SensorConfig()):
+def calibrated_rates(depth, intensity, alpha, beta, sensor: Sensor = Sensor()):
     """The rates of `expected_histograms` with given scale factors, for any `(..., h*scale, w*scale)` HR window.
 
     alpha, beta: from `calibrate` over a whole clip; depth, intensity: a window of it aligned to the LR grid
@@ -346,7 +352,7 @@ def simulate_histograms(
     key,
     depth,
     intensity,
-    sensor: SensorConfig = SensorConfig(),
+    sensor: Sensor = Sensor(),
     *,
     snr,
     mean_signal=DEFAULT_MEAN_SIGNAL,

@@ -11,10 +11,10 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from ..config import TRAINED_RANGE_M, DepthScale, Gate, SensorConfig
+from ..config import TRAINED_RANGE_M, DepthScale, Gate, Sensor
 from .peaks import centre_of_mass
 
-__all__ = ["gate_depth", "to_network_depth", "from_network_depth", "gate_warnings"]
+__all__ = ["gate_depth", "to_network_depth", "from_network_depth", "gate_to_network", "gate_warnings"]
 
 
 def gate_depth(counts, gate: Gate = Gate(), *, window: int = 1, z: float = 0.0, return_mask: bool = False):
@@ -32,7 +32,7 @@ def gate_depth(counts, gate: Gate = Gate(), *, window: int = 1, z: float = 0.0, 
     Returns:
       (...) radial range in metres, +inf where there is no usable return; with `return_mask`, (range, valid).
     """
-    norm, valid = centre_of_mass(counts, SensorConfig(bins=gate.bins), window=window, z=z, return_mask=True)
+    norm, valid = centre_of_mass(counts, Sensor(gate=gate), window=window, z=z, return_mask=True)
     depth = jnp.where(valid, gate.start + norm * gate.length, jnp.inf)
     return (depth, valid) if return_mask else depth
 
@@ -65,6 +65,26 @@ def from_network_depth(norm, scale: DepthScale = DepthScale()):
     norm = jnp.asarray(norm, dtype=jnp.result_type(float))
     no_return = jnp.isnan(norm) | (norm >= 1.0)
     return jnp.where(no_return, jnp.inf, scale.offset + jnp.clip(norm, 0.0, 1.0) * scale.span)
+
+
+def gate_to_network(norm, sensor: Sensor = Sensor()):
+    """Depth normalised to the sensor's gate (tau / K, as `jaxsr.centre_of_mass` gives it; 1.0 = no return) ->
+    the network's normalised depth on the sensor's depth scale: the range gate.start + n * gate.length, then
+    `to_network_depth` (beyond offset + span: no return; before offset: 0). The identity (to the bit) when the
+    depth scale is the gate's own, as for the paper's sensor. jit-, vmap- and grad-compatible.
+
+    Args:
+      norm: (...) gate-normalised depth.
+    Returns:
+      (...) normalised depth on `sensor.depth`, in [0, 1].
+    """
+    gate, scale = sensor.gate, sensor.depth
+    norm = jnp.asarray(norm)
+    # n' = a + n b: a = 0 and b = 1 exactly for the paper's sensor, so its depth passes unchanged
+    a = (gate.start - scale.offset) / scale.span
+    b = gate.length / scale.span
+    out = a + norm * b
+    return jnp.where((norm >= 1.0) | ~(out <= 1.0), 1.0, jnp.clip(out, 0.0, 1.0)).astype(norm.dtype)
 
 
 def gate_warnings(gate: Gate, scale: DepthScale) -> list[str]:

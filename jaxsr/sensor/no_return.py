@@ -36,7 +36,7 @@ import functools
 import jax
 import jax.numpy as jnp
 
-from ..config import SensorConfig
+from ..config import Sensor
 from .peaks import (
     _check_counts,
     _usable,
@@ -89,7 +89,7 @@ def _grow(seeds, through):
     return jax.lax.while_loop(lambda c: c[1], step, (seeds, jnp.array(True)))[0]
 
 
-def _excess(n, sensor: SensorConfig):
+def _excess(n, sensor: Sensor):
     """(excess, ambient per bin) of (h, w, K) histograms: the photons of the window of the centre of mass's width
     around the largest bin minus the window's share of the photons outside it (no median: a median of bins is 0
     at a few photons), and the photons outside it per bin."""
@@ -101,7 +101,7 @@ def _excess(n, sensor: SensorConfig):
     return jnp.maximum(inside - width * ambient, 0.0), ambient
 
 
-def share_of_window(summed, sensor: SensorConfig = SensorConfig(), *, alpha=1e-3, pixels: int = 3):
+def share_of_window(summed, sensor: Sensor = Sensor(), *, alpha=1e-3, pixels: int = 3):
     """The share of no return of each LR pixel of one frame, from its histograms summed over the frames of its
     window: (h, w, K) -> (h, w) float32 in [0, 1]. 1 where `ambient_only`'s `pixels` x `pixels` test of the sum
     flags the pixel or the region grows into it, a share at the regions' borders, 0 elsewhere (see the module).
@@ -141,7 +141,7 @@ def _shares(counts, alpha, sensor, pixels, frames):
     return jax.vmap(lambda s: share_of_window(s, sensor, alpha=alpha, pixels=pixels))(summed)
 
 
-def no_return_shares(counts, sensor: SensorConfig = SensorConfig(), *, alpha=1e-3, pixels: int = 3,
+def no_return_shares(counts, sensor: Sensor = Sensor(), *, alpha=1e-3, pixels: int = 3,
                      frames: int = 9):
     """The share of each LR pixel without a return, from a video's histograms: (T, h, w, K) counts -> (T, h, w)
     float32 in [0, 1], each frame's from its histograms summed over the `frames` frames centred on it (cut at the

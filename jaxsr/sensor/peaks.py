@@ -19,7 +19,7 @@ import numpy as np
 import optimistix as optx
 
 from ..checks import is_concrete, require_bins
-from ..config import SensorConfig
+from ..config import Sensor
 
 NO_RETURN = 1.0
 
@@ -67,12 +67,12 @@ def median_of_bins(n):
     return 0.5 * (lower + upper)
 
 
-def default_window(sensor: SensorConfig):
+def default_window(sensor: Sensor):
     """Half-width w of the centre-of-mass window in bins: 1 if irf_sigma <= 0.5 bins, else 2."""
     return jnp.where(sensor.irf_sigma <= 0.5, 1, 2)
 
 
-def centre_of_mass(counts, sensor: SensorConfig = SensorConfig(), *, window=None, z=0.0, return_mask=False):
+def centre_of_mass(counts, sensor: Sensor = Sensor(), *, window=None, z=0.0, return_mask=False):
     """Background-subtracted centre of mass around the histogram peak.
 
     b = median over bins (robust background per bin), k* = first argmax, window W = k* +- w clipped to
@@ -105,7 +105,7 @@ def centre_of_mass(counts, sensor: SensorConfig = SensorConfig(), *, window=None
     return (depth, valid) if return_mask else depth
 
 
-def _window(sensor: SensorConfig, window):
+def _window(sensor: Sensor, window):
     """The half-width in bins: `window` (eagerly checked) or the sensor's default."""
     if window is None:
         return default_window(sensor)
@@ -117,19 +117,19 @@ def _window(sensor: SensorConfig, window):
     return window
 
 
-def _peak_window(n, sensor: SensorConfig, window):
+def _peak_window(n, sensor: Sensor, window):
     """(..., K) bool: the bins within the half-width of the first argmax (clipped to the gate)."""
     return jnp.abs(jnp.arange(sensor.bins) - jnp.argmax(n, axis=-1)[..., None]) <= _window(sensor, window)
 
 
-def _peak_excess(n, sensor: SensorConfig, window):
+def _peak_excess(n, sensor: Sensor, window):
     """(counts above the median background in the window around the first argmax (..., K), the median (...))."""
     background = median_of_bins(n)
     in_window = _peak_window(n, sensor, window)
     return jnp.where(in_window, jnp.maximum(n - background[..., None], 0.0), 0.0), background
 
 
-def peak_evidence(counts, sensor: SensorConfig = SensorConfig(), *, window=None):
+def peak_evidence(counts, sensor: Sensor = Sensor(), *, window=None):
     """How much a histogram says about its return: (signal, background) in photons per pixel.
 
     signal = the counts above the median background in the centre of mass's window (the photons the depth
@@ -146,7 +146,7 @@ def peak_evidence(counts, sensor: SensorConfig = SensorConfig(), *, window=None)
     return jnp.where(usable, signal, 0.0), jnp.where(usable, background * sensor.bins, 0.0)
 
 
-def ambient_photons(counts, sensor: SensorConfig = SensorConfig(), *, window=None):
+def ambient_photons(counts, sensor: Sensor = Sensor(), *, window=None):
     """The ambient (and dark) photons of the whole gate, estimated from the mean of the bins outside the peak's
     window: photons outside x K / (bins outside).
 
@@ -180,7 +180,7 @@ EXACT_TAIL_MAX_PHOTONS = 1e5
 HUGE_BIN = 2.0**100
 
 
-def return_significance(counts, sensor: SensorConfig = SensorConfig(), *, window=None):
+def return_significance(counts, sensor: Sensor = Sensor(), *, window=None):
     """How unlikely ambient light alone makes a histogram: log of a p-value (<= 0), low where it holds a return.
 
     Ambient and dark photons fall uniformly over the gate, so given a histogram's N photons, the photons in any
@@ -259,7 +259,7 @@ def window_sums(counts, frames: int, pixels: int = 1):
     return jax.lax.reduce_window(padded, 0.0, jax.lax.add, (frames, pixels, pixels, 1), (1, 1, 1, 1), "VALID")
 
 
-def ambient_only(counts, sensor: SensorConfig = SensorConfig(), *, alpha=1e-3, pixels: int = 3, frames: int = 9,
+def ambient_only(counts, sensor: Sensor = Sensor(), *, alpha=1e-3, pixels: int = 3, frames: int = 9,
                  window=None):
     """Where the photons around each pixel are consistent with ambient light alone: the no-return test of a video.
 
@@ -297,7 +297,7 @@ def ambient_only(counts, sensor: SensorConfig = SensorConfig(), *, alpha=1e-3, p
     return return_significance(window_sums(n, frames, pixels), sensor, window=window) > jnp.log(alpha)
 
 
-def frame_snr(counts, sensor: SensorConfig = SensorConfig(), *, false_alarm=1e-3):
+def frame_snr(counts, sensor: Sensor = Sensor(), *, false_alarm=1e-3):
     """The frame SNR a recording was made at, as `calibrate` defines it (mean signal / mean ambient photons per
     LR pixel with a return), estimated from its histograms: (T, h, w, K) or (h, w, K) counts, summed over the
     frames first. Over the pixels whose summed histogram holds a return (`return_significance` <= log
@@ -310,7 +310,7 @@ def frame_snr(counts, sensor: SensorConfig = SensorConfig(), *, false_alarm=1e-3
     return _levels("frame_snr", counts, sensor, false_alarm)[0]
 
 
-def signal_photons(counts, sensor: SensorConfig = SensorConfig(), *, false_alarm=1e-3):
+def signal_photons(counts, sensor: Sensor = Sensor(), *, false_alarm=1e-3):
     """The mean signal photons per LR pixel with a return and per frame a recording was made at (`calibrate`'s
     `mean_signal`), estimated as `frame_snr` estimates the SNR (the same pixels, signal = the photons beyond the
     ambient level, over the frames summed, divided by their number). Pixels whose returns are too faint to be
@@ -319,7 +319,7 @@ def signal_photons(counts, sensor: SensorConfig = SensorConfig(), *, false_alarm
     return _levels("signal_photons", counts, sensor, false_alarm)[1]
 
 
-def frame_levels(counts, sensor: SensorConfig = SensorConfig(), *, false_alarm=1e-3) -> tuple[float, float]:
+def frame_levels(counts, sensor: Sensor = Sensor(), *, false_alarm=1e-3) -> tuple[float, float]:
     """(`frame_snr`, `signal_photons`) of the same counts from one significance scan (each alone scans again)."""
     return _levels("frame_levels", counts, sensor, false_alarm)
 
@@ -392,7 +392,7 @@ def _poisson_nll(theta, args):
 
 
 def maximum_likelihood_depth(
-    counts, sensor: SensorConfig = SensorConfig(), *, max_steps: int = 64, rtol=1e-5, atol=1e-5, return_mask=False
+    counts, sensor: Sensor = Sensor(), *, max_steps: int = 64, rtol=1e-5, atol=1e-5, return_mask=False
 ):
     """Per-pixel Poisson maximum-likelihood fit of (tau, signal, background) under the sensor's IRF.
 

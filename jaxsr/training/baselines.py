@@ -33,7 +33,7 @@ from ..baselines.rbpn import (
     init_discriminator,
     init_rbpn,
 )
-from ..config import SensorConfig, TrainConfig
+from ..config import Sensor, TrainConfig
 from ..eval.metrics import psnr
 from ..inference.frames import super_resolve
 from ..inference.photons import super_resolve_histograms
@@ -62,7 +62,7 @@ __all__ = [
     "super_resolve_baseline",
 ]
 
-_SENSOR = SensorConfig()  # the default sensor
+_SENSOR = Sensor()  # the default sensor
 
 
 def _crop(key, counts, intensity, gt, patch, scale):
@@ -81,7 +81,7 @@ def _crop(key, counts, intensity, gt, patch, scale):
     return counts, hr(intensity), hr(gt)
 
 
-def histogram_batches(train_cfg: TrainConfig, *, sensor: SensorConfig = _SENSOR):
+def histogram_batches(train_cfg: TrainConfig, *, sensor: Sensor = _SENSOR):
     """HistNet's data source: `make_batch(key)` with `batch_size` random single-frame scenes.
 
     Per example: `jaxsr.scenes.training_clip` (1 frame) -> SNR and mean signal log-uniform in the config's ranges
@@ -104,7 +104,7 @@ def histogram_batches(train_cfg: TrainConfig, *, sensor: SensorConfig = _SENSOR)
     return make_batch
 
 
-def make_histnet_train_step(cfg: HistNetConfig, make_batch, *, schedule, sensor: SensorConfig = _SENSOR):
+def make_histnet_train_step(cfg: HistNetConfig, make_batch, *, schedule, sensor: Sensor = _SENSOR):
     """The jitted HistNet train step: step(params, opt_state, key, step) -> (params, opt_state, metrics).
 
     make_batch: key -> (counts (B, h, w, K), intensity (B, H, W), gt (B, H, W)), e.g. `histogram_batches`;
@@ -208,7 +208,7 @@ def _check_kind(kind: str, who: str) -> None:
         raise ValueError(f"{who}: unknown baseline {kind!r}; expected one of {', '.join(BASELINES)}")
 
 
-def baseline_validation_set(key, kind: str, cfg, train_cfg: TrainConfig, *, sensor: SensorConfig = _SENSOR) -> dict:
+def baseline_validation_set(key, kind: str, cfg, train_cfg: TrainConfig, *, sensor: Sensor = _SENSOR) -> dict:
     """The validation frames of `jaxsr.training.data.validation_set` (the first `val_frames` of each validation
     sequence at its own SNR, `val_mean_signal`, the same noise for the same key) with what each baseline reads:
     "counts" (N, h, w, K) and "intensity" (N, H, W) for HistNet, "windows" (N, frames, h, w) for iSeeBetter; plus
@@ -219,7 +219,7 @@ def baseline_validation_set(key, kind: str, cfg, train_cfg: TrainConfig, *, sens
     return _validation(key, cfg, train_cfg, sensor)
 
 
-def _validation(key, cfg, train_cfg: TrainConfig, sensor: SensorConfig) -> dict:
+def _validation(key, cfg, train_cfg: TrainConfig, sensor: Sensor) -> dict:
     """`baseline_validation_set` for the baseline of `cfg`, as its recipe's validation: what it reads, as its
     architecture says (windows of its input radius, or histograms with the HR intensity)."""
     arch = architecture(cfg)
@@ -243,7 +243,7 @@ def _rbpn_windows(params, windows, cfg):
     return apply_rbpn(params, windows, cfg)
 
 
-def evaluate_baseline(model: Model, validation: dict, *, sensor: SensorConfig = _SENSOR) -> dict:
+def evaluate_baseline(model: Model, validation: dict, *, sensor: Sensor = _SENSOR) -> dict:
     """Validation of a learned baseline: {"loss": its training content loss (HistNet mean |hr - gt|, iSeeBetter
     MSE), "psnr": mean per-frame PSNR (dB) of the clipped output}, Python floats. validation:
     `baseline_validation_set`."""
@@ -288,7 +288,7 @@ def _histnet_init(key, cfg: HistNetConfig, init=None) -> dict:
     return {"params": params, "state": {}, "opt": adam_init(params)}
 
 
-def _histnet_step(cfg, train_cfg: TrainConfig, make_batch, *, sensor: SensorConfig = _SENSOR, mesh=None,
+def _histnet_step(cfg, train_cfg: TrainConfig, make_batch, *, sensor: Sensor = _SENSOR, mesh=None,
                   conv3d_impl="auto", pretrain_steps: int = 0):
     if pretrain_steps:
         raise ValueError("fit: pretrain_epochs is iSeeBetter's (a generator trained alone before its GAN), not "
@@ -297,7 +297,7 @@ def _histnet_step(cfg, train_cfg: TrainConfig, make_batch, *, sensor: SensorConf
 
 
 @functools.lru_cache(maxsize=4)
-def _histnet_run(cfg, train_cfg: TrainConfig, make_batch, sensor: SensorConfig):
+def _histnet_run(cfg, train_cfg: TrainConfig, make_batch, sensor: Sensor):
     step = make_histnet_train_step(cfg, make_batch, schedule=lr_schedule(train_cfg), sensor=sensor)
 
     def run(ts, key, i):
@@ -324,7 +324,7 @@ def _iseebetter_init(key, cfg: RBPNConfig, init=None) -> dict:
     return {"params": g, "state": {}, "opt": g_opt, "disc": d, "disc_state": d_state, "disc_opt": d_opt}
 
 
-def _iseebetter_step(cfg, train_cfg: TrainConfig, make_batch, *, sensor: SensorConfig = _SENSOR, mesh=None,
+def _iseebetter_step(cfg, train_cfg: TrainConfig, make_batch, *, sensor: Sensor = _SENSOR, mesh=None,
                      conv3d_impl="auto", pretrain_steps: int = 0):
     """run(ts, key, step) -> (ts, metrics): steps below `pretrain_steps` train the generator alone on its content
     loss (`make_rbpn_train_step`; the discriminator waits), the rest are GAN steps (`make_iseebetter_train_step`);
@@ -408,7 +408,7 @@ def _is_baseline(model: Model) -> bool:
 
 
 def super_resolve_baseline(model: Model, *, counts=None, intensity=None, lr=None, batch_size: int = 4,
-                           sensor: SensorConfig = _SENSOR) -> np.ndarray:
+                           sensor: Sensor = _SENSOR) -> np.ndarray:
     """Deprecated: `jaxsr.super_resolve(model, lr)` (iSeeBetter) or `jaxsr.super_resolve_histograms(model, counts,
     intensity=intensity)` (HistNet). Returns (T, H, W) HR normalised depth for (T, ...) inputs (NumPy, not
     clipped)."""
@@ -423,7 +423,7 @@ def super_resolve_baseline(model: Model, *, counts=None, intensity=None, lr=None
 
 
 def fit_baseline(kind: str, cfg, train_cfg: TrainConfig, *, out, make_batch=None, validation: dict | None = None,
-                 sensor: SensorConfig = _SENSOR, resume: bool = False, callback=None, card_extra: dict | None = None,
+                 sensor: Sensor = _SENSOR, resume: bool = False, callback=None, card_extra: dict | None = None,
                  pretrain_epochs: int = 0):
     """Deprecated: `jaxsr.fit`, which trains every architecture in one loop (the same file names; the card and
     the per-epoch keys are `fit`'s, and run folders begun by jaxsr 0.1's fit_baseline are refused on resume).

@@ -28,7 +28,7 @@ import jax.numpy as jnp
 
 import json
 
-from ..config import PAPER_REGIME, PhotonRegime, SensorConfig, TrainConfig
+from ..config import PAPER_REGIME, PhotonRegime, Sensor, TrainConfig
 from ..sensor.effects import dark_counts, dead_pixels, hot_pixels, no_return_regions, thin_returns, with_irf_sigma
 from ..nn.inputs import network_inputs
 from ..sensor.poisson import sample_poisson
@@ -53,7 +53,7 @@ __all__ = [
 ]
 
 _SCENES = "jaxsr.scenes.training_clip -> simulate_histograms -> centre_of_mass"  # the default data, described
-_SENSOR = SensorConfig()  # the default sensor
+_SENSOR = Sensor()  # the default sensor
 
 
 def run_keys(seed: int):
@@ -107,7 +107,7 @@ def _crop_origin(key, shape: tuple[int, int], patch: tuple[int, int], who: str):
     return jax.random.randint(ky, (), 0, h - ph + 1), jax.random.randint(kx, (), 0, w - pw + 1)
 
 
-def _simulate_clip(key, depth, intensity, train_cfg: TrainConfig, sensor: SensorConfig, inputs=("depth",)):
+def _simulate_clip(key, depth, intensity, train_cfg: TrainConfig, sensor: Sensor, inputs=("depth",)):
     """(T, H, W) HR radial depth + intensity -> (LR clip (T, h, w) (or (T, h, w, C) for more `inputs`), GT of
     every frame (T, H, W)), cropped."""
     k_snr, k_sig, k_noise, k_crop = jax.random.split(key, 4)
@@ -141,7 +141,7 @@ def _centre_frames(make_clips, tr: int):
     return make_batch
 
 
-def scene_batches(tr: int, train_cfg: TrainConfig, *, sensor: SensorConfig = SensorConfig(), inputs=("depth",)):
+def scene_batches(tr: int, train_cfg: TrainConfig, *, sensor: Sensor = Sensor(), inputs=("depth",)):
     """The default data source: `make_batch(key)` rendering `batch_size` random scenes.
 
     Per example: `jaxsr.scenes.training_clip` (2tr+1 frames, motion log-uniform in `motion_range`) -> SNR and
@@ -155,7 +155,7 @@ def scene_batches(tr: int, train_cfg: TrainConfig, *, sensor: SensorConfig = Sen
     return make_batch
 
 
-def scene_clips(frames: int, train_cfg: TrainConfig, *, sensor: SensorConfig = _SENSOR, inputs=("depth",)):
+def scene_clips(frames: int, train_cfg: TrainConfig, *, sensor: Sensor = _SENSOR, inputs=("depth",)):
     """Rendered training clips for the sequence form: `make_batch(key)` with `batch_size` random scenes of
     `frames` frames each, simulated as in `scene_batches` (one SNR, mean signal and crop per clip).
 
@@ -227,7 +227,7 @@ def _regime_description(regime: PhotonRegime, inputs=("depth",)):
 
 
 def regime_clips(frames: int, train_cfg: TrainConfig, regime: PhotonRegime = PhotonRegime(), *,
-                 sensor: SensorConfig = _SENSOR, inputs=("depth",)):
+                 sensor: Sensor = _SENSOR, inputs=("depth",)):
     """Training clips spanning real sensors: `make_batch(key)` with `batch_size` random scenes of `frames` frames,
     every parameter of `regime` drawn per clip (`regime_parameters`).
 
@@ -310,7 +310,7 @@ def regime_draws(key, batch_size: int, regime: PhotonRegime = PhotonRegime()) ->
 
 
 def regime_batches(tr: int, train_cfg: TrainConfig, regime: PhotonRegime = PhotonRegime(), *,
-                   sensor: SensorConfig = SensorConfig(), inputs=("depth",)):
+                   sensor: Sensor = Sensor(), inputs=("depth",)):
     """`regime_clips` as windows: `make_batch(key) -> (windows (B, 2tr+1, h, w), gt (B, h*r, w*r))`, the ground
     truth of the centre frame (like `scene_batches`, with the photon regimes of `regime`). Carries `description`
     and `regime` for the training card."""
@@ -320,7 +320,7 @@ def regime_batches(tr: int, train_cfg: TrainConfig, regime: PhotonRegime = Photo
     return make_batch
 
 
-def sequence_batches(depth, intensity, tr: int, train_cfg: TrainConfig, *, sensor: SensorConfig = SensorConfig()):
+def sequence_batches(depth, intensity, tr: int, train_cfg: TrainConfig, *, sensor: Sensor = Sensor()):
     """A data source drawing windows from HR sequences held in memory (e.g. AirSim recordings read from files).
 
     depth: (N, T, H, W) or (T, H, W) radial metres (inf/NaN/beyond d_max = no return); intensity: the same
@@ -333,7 +333,7 @@ def sequence_batches(depth, intensity, tr: int, train_cfg: TrainConfig, *, senso
     return make_batch
 
 
-def sequence_clips(depth, intensity, frames: int, train_cfg: TrainConfig, *, sensor: SensorConfig = _SENSOR):
+def sequence_clips(depth, intensity, frames: int, train_cfg: TrainConfig, *, sensor: Sensor = _SENSOR):
     """Training clips of `frames` frames drawn from HR sequences held in memory, for the sequence form.
 
     depth, intensity: as for `sequence_batches`, with T >= frames. Per example: a random sequence and start
@@ -343,7 +343,7 @@ def sequence_clips(depth, intensity, frames: int, train_cfg: TrainConfig, *, sen
     return _sequence_clips(depth, intensity, frames, train_cfg, sensor, "sequence_clips", "the clip")
 
 
-def _sequence_clips(depth, intensity, frames: int, train_cfg: TrainConfig, sensor: SensorConfig, who: str,
+def _sequence_clips(depth, intensity, frames: int, train_cfg: TrainConfig, sensor: Sensor, who: str,
                     what: str):
     """`sequence_clips`, with the caller's name and what `frames` is for its error messages."""
     depth = jnp.asarray(depth, jnp.float32)
@@ -378,7 +378,7 @@ def _field(seq, name):
     return seq[name] if isinstance(seq, dict) else getattr(seq, name)
 
 
-def validation_set(key, tr: int, train_cfg: TrainConfig, *, sensor: SensorConfig = SensorConfig(), sequences=None,
+def validation_set(key, tr: int, train_cfg: TrainConfig, *, sensor: Sensor = Sensor(), sequences=None,
                    inputs=("depth",)):
     """Fixed validation windows: the first `val_frames` frames of each named sequence at its own SNR.
 

@@ -19,7 +19,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
-from ..config import ModelConfig, SensorConfig, TrainConfig
+from ..config import ModelConfig, Sensor, TrainConfig
 from ..eval.metrics import huber_loss, psnr
 from ..inference.frames import super_resolve
 from ..io.checkpoint import config_to_dict, load_model
@@ -237,7 +237,7 @@ def initial_weights(k_init, model_cfg: ModelConfig, init) -> tuple[dict, dict]:
     return jax.tree_util.tree_map(jnp.asarray, (model.params, model.state))
 
 
-def default_data(model_cfg: ModelConfig, train_cfg: TrainConfig, sensor: SensorConfig = SensorConfig()):
+def default_data(model_cfg: ModelConfig, train_cfg: TrainConfig, sensor: Sensor = Sensor()):
     """`fit`'s data source when none is given: rendered scenes, as windows of 2tr+1 frames (window form,
     `scene_batches`) or clips of `train_cfg.clip_length` frames (sequence form, `scene_clips`).
     Returns make_batch: key -> (inputs, gt) of that source."""
@@ -263,7 +263,7 @@ def _step(cfg: ModelConfig, train_cfg: TrainConfig, make_batch, *, sensor=None, 
     return run
 
 
-def _validation(key, cfg: ModelConfig, train_cfg: TrainConfig, sensor: SensorConfig) -> dict:
+def _validation(key, cfg: ModelConfig, train_cfg: TrainConfig, sensor: Sensor) -> dict:
     return validation_set(key, cfg.tr, train_cfg, sensor=sensor, inputs=cfg.inputs)
 
 

@@ -32,7 +32,7 @@ import jax
 import jax.numpy as jnp
 from jax.sharding import Mesh
 
-from ..config import SensorConfig, TrainConfig
+from ..config import Sensor, TrainConfig
 from ..io.files import folder_lock
 from ..nn.model import Model, architecture
 from .data import run_keys
@@ -56,7 +56,7 @@ def fit(
     seeds=None,
     make_batch=None,
     validation: dict | None = None,
-    sensor: SensorConfig = SensorConfig(),
+    sensor: Sensor = Sensor(),
     resume: bool = False,
     overwrite: bool = False,
     mesh: Mesh | None | str = "auto",

@@ -27,7 +27,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..config import PhotonRegime, SensorConfig, TrainConfig
+from ..config import PhotonRegime, Sensor, TrainConfig
 from ..nn.duf import apply_model_raw
 from ..nn.model import Model
 from .data import regime_batches, regime_draws
@@ -64,7 +64,7 @@ TARGET_DROPPED = 2.0  # % of true returns dropped, at most (the no-return goal, 
 
 
 def no_return_set(tr: int, *, draws: int, photon_range=CALIBRATION_PHOTONS, regime: PhotonRegime = PhotonRegime(),
-                  snr_range=None, sensor: SensorConfig = SensorConfig(), inputs=("depth", "signal", "background"),
+                  snr_range=None, sensor: Sensor = Sensor(), inputs=("depth", "signal", "background"),
                   key=None, batch: int = 8, patch=None) -> dict:
     """A fixed calibration set: `draws` windows of 2tr+1 frames drawn by `regime_batches` from `regime` with the
     photon level log-uniform in `photon_range` (mean signal photons per LR pixel with a return), no-return

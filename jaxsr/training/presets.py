@@ -12,7 +12,7 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 
-from ..config import PRESETS, ModelConfig, PhotonRegime, SensorConfig
+from ..config import PRESETS, ModelConfig, Optics, PhotonRegime, Sensor
 from ..io.checkpoint import config_from_dict, load_model, read_metadata, resolve_model_path
 from ..io.files import check_output_folder, removing_new_folder
 from ..io.formats import read_npz_arrays
@@ -23,7 +23,7 @@ from .duf import initial_weights
 from .folders import RUN_FILES, _check_seeds, _check_stack_folder, _latest_state, resume_config, seed_folder
 from .loop import fit
 from .recipes import recipe
-from .sensor_file import card_entry, read_sensor_file, sensor_differences
+from .sensor_file import card_entry, read_sensor_file, sensor_differences, training_sensor
 
 __all__ = ["MAX_TR", "train", "sequence_data", "finetune", "regime_validation", "FINETUNE_LR_FACTOR",
            "PHOTON_INPUTS"]
@@ -33,7 +33,7 @@ __all__ = ["MAX_TR", "train", "sequence_data", "finetune", "regime_validation", 
 MAX_TR = 8
 
 
-def sequence_data(path, model_cfg: ModelConfig, train_cfg, sensor: SensorConfig):
+def sequence_data(path, model_cfg: ModelConfig, train_cfg, sensor: Sensor):
     """The data source for HR sequences from an .npz with arrays depth (radial m) and intensity, (N, T, H, W),
     read and checked now: windows of 2 tr + 1 frames for the window form, clips of `train_cfg.clip_length` frames
     for the sequence form. Returns make_batch (key -> (inputs, gt)); ValueError for another file or dtype."""
@@ -101,7 +101,7 @@ def train(out, *, arch: str = "duf", tr: int = 4, scale: int = 4, temporal: str 
             raise ValueError(f"train: {arch} trains at x4 on rendered scenes from random weights (no data, init or "
                              "scale)")
         model_cfg = published
-    sensor = SensorConfig() if scale == 4 else SensorConfig(scale=scale)
+    sensor = Sensor(optics=Optics(scale=scale))
     _check_out(out, resume, seeds=seeds, overwrite=overwrite)
     if init is not None and not isinstance(init, Model):
         _check_weights(init)
@@ -173,7 +173,7 @@ FINETUNE_LR_FACTOR = 0.1
 PHOTON_INPUTS = {"inputs": ("depth", "signal", "background"), "no_return_head": True}
 
 
-def regime_validation(tr: int, train_cfg, regime: PhotonRegime, *, batches: int, sensor: SensorConfig,
+def regime_validation(tr: int, train_cfg, regime: PhotonRegime, *, batches: int, sensor: Sensor,
                       inputs=("depth",), key=None, snrs=None) -> dict:
     """A fixed validation set drawn from a photon regime: `batches` batches of `regime_batches(tr, train_cfg,
     regime, ...)` drawn with keys folded from `key` (default a fixed key independent of any training keys), as
@@ -232,7 +232,7 @@ def _init_config(init, photons: bool | None) -> ModelConfig:
     return cfg
 
 
-def _start_score(model_cfg: ModelConfig, train_cfg, init, validation: dict, sensor: SensorConfig) -> dict:
+def _start_score(model_cfg: ModelConfig, train_cfg, init, validation: dict, sensor: Sensor) -> dict:
     """The validation score of the weights a fine-tune starts from (as `fit` starts: widened to photon inputs
     with the run's init key where asked), {"val_loss", "val_psnr"}: the mark its epochs have to beat."""
     params, state = initial_weights(run_keys(train_cfg.seed)[0], model_cfg, init)
@@ -263,7 +263,7 @@ def finetune(out, *, sensor_file, init="tr4", epochs: int = 10, steps_per_epoch:
     folder); the model keeps their architecture and TR, in the window form, and with `photons` True reads
     the photons behind each depth too (`PHOTON_INPUTS`; None keeps what `init` reads). Training: `epochs`
     epochs of `steps_per_epoch` steps of the `preset`'s batch and LR crops (cut to the sensor's frame) on
-    `regime_batches` with the file's SensorConfig and PhotonRegime, Adam's rate `FINETUNE_LR_FACTOR` x the
+    `regime_batches` with the file's training sensor and PhotonRegime, Adam's rate `FINETUNE_LR_FACTOR` x the
     preset's, cut 10x after half the epochs, early stopping after max(3, epochs / 4) epochs without progress;
     validation on `val_batches` batches of the same regime drawn with fixed keys (`regime_validation`).
     The training card records the sensor file (its text, gate, IRF fit, the `jaxsr upscale` gate flags), the
@@ -281,7 +281,8 @@ def finetune(out, *, sensor_file, init="tr4", epochs: int = 10, steps_per_epoch:
     _check_minutes(checkpoint_minutes)
     _check_out(out, resume, overwrite=overwrite)
     _check_init_outside(init, out, resume)
-    sensor, regime, info = read_sensor_file(sensor_file)
+    file_sensor, regime, info = read_sensor_file(sensor_file)
+    sensor = training_sensor(file_sensor)  # what is simulated: the gate at the scenes' range, a window of the frame
     model_cfg = _init_config(init, photons)
     _check_weights(init)
     entry = card_entry(info)

@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 
 from ..baselines.interpolation import bicubic
-from ..config import SensorConfig, TrainConfig
+from ..config import Sensor, TrainConfig
 from ..eval.metrics import psnr
 from ..io.checkpoint import config_to_dict, read_metadata, resolve_model_path
 from ..nn.model import Model
@@ -60,7 +60,7 @@ def _epoch_record(run: _Run, epoch: dict, val: dict, *, bicubic_psnr: float | No
     }
 
 
-def _training_card(run: _Run, *, train_cfg: TrainConfig, settings: dict, sensor: SensorConfig, validation: dict,
+def _training_card(run: _Run, *, train_cfg: TrainConfig, settings: dict, sensor: Sensor, validation: dict,
                    bicubic_psnr: float | None, data: str) -> dict:
     """The training card saved with the checkpoints: data, sensor, amount of training, hardware, validation."""
     return {

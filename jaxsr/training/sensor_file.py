@@ -16,10 +16,13 @@
     snr_range = [8.0, 32.0]        # frame SNR (signal / ambient photons), drawn log-uniformly
     no_return_prob = 0.5           # optional: the other fields of `jaxsr.config.PhotonRegime`
 
-`read_sensor_file(path)` returns the training sensor (`SensorConfig`), the photon regime (`PhotonRegime`) and a
-dict of what was read and derived (the file's text, the gate, the IRF fit, warnings, the `jaxsr upscale` gate
+`read_sensor_file(path)` returns the sensor (`jaxsr.Sensor`: the one description that `jaxsr upscale --sensor`,
+the library's functions and fine-tuning take), the photon regime (`PhotonRegime`) and a dict of what was read and
+derived (the file's text, the gate, the IRF fit, warnings, the `jaxsr upscale` gate
 options); every key is checked, and an unknown key or a bad value is refused (ValueError) naming the file, the
 key and what was expected. Pure functions otherwise: `parse_sensor_file(text)` does the same on a string.
+`training_sensor(sensor)` is the sensor as fine-tuning simulates it (the gate moved to the procedural scenes' range,
+a window of a large frame).
 
 The network's sensor model has a Gaussian pulse: a measured IRF is summarised by the sigma of the Gaussian
 fitted to it (`fit_irf`, integrated over each sample as the simulation integrates it over each bin); the fit's
@@ -33,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import METRES_PER_SECOND, MIN_LR_SIDE, PhotonRegime, SensorConfig
+from ..config import METRES_PER_SECOND, MIN_LR_SIDE, DepthScale, Gate, Optics, PhotonRegime, Pulse, Sensor
 from ..sensor.quantities import TIME_UNITS
 
 try:  # Python 3.11+
@@ -41,7 +44,7 @@ try:  # Python 3.11+
 except ModuleNotFoundError:  # pragma: no cover - Python 3.10 with the `tomli` backport
     import tomli as tomllib
 
-__all__ = ["read_sensor_file", "parse_sensor_file", "fit_irf", "read_irf_file", "card_entry", "sensor_differences",
+__all__ = ["read_sensor_file", "parse_sensor_file", "training_sensor", "fit_irf", "read_irf_file", "card_entry", "sensor_differences",
            "IRF_RESIDUAL_WARN", "MAX_RENDER_SIDE", "PAPER_PITCH_DEG"]
 
 SCALE = 4  # the bundled models' upsampling factor, and so the fine-tune's
@@ -328,10 +331,11 @@ def _quantity(metres: float, key: str) -> str:
     return f"{metres:.10g}m" if key.endswith("_m") else f"{metres / _LENGTH['ns']:.10g}ns"
 
 
-def parse_sensor_file(text: str, *, source: str = "sensor file", base_dir=".") -> tuple[SensorConfig, PhotonRegime,
-                                                                                        dict]:
+def parse_sensor_file(text: str, *, source: str = "sensor file", base_dir=".",
+                      photons: bool = True) -> tuple[Sensor, PhotonRegime | None, dict]:
     """`read_sensor_file` on the TOML `text` (named `source` in messages; an irf_file is read relative to
-    `base_dir`). Returns (SensorConfig, PhotonRegime, info); ValueError for an unknown key or a bad value."""
+    `base_dir`). Returns (Sensor, PhotonRegime, info); ValueError for an unknown key or a bad value. photons=False:
+    the [photons] table is optional (the regime None without it), as reading a recording needs only [sensor]."""
     try:
         doc = tomllib.loads(text)
     except RecursionError:  # tables or arrays nested thousands deep
@@ -350,11 +354,11 @@ def parse_sensor_file(text: str, *, source: str = "sensor file", base_dir=".") -
                 top[key] = check(doc[key])
             except _Bad as e:
                 raise ValueError(f"{source}: {key}: {e}, got {doc[key]!r}") from None
-    for name in ("sensor", "photons"):
+    for name in ("sensor", "photons") if photons else ("sensor",):
         if name not in doc:
             raise ValueError(f"{source}: needs a [{name}] table")
     s = _checked_table(source, "sensor", doc["sensor"], _SENSOR_KEYS)
-    p = _checked_table(source, "photons", doc["photons"], _PHOTON_KEYS)
+    p = _checked_table(source, "photons", doc["photons"], _PHOTON_KEYS) if "photons" in doc else None
     where = f"{source}: [sensor]"
     bins, rows, cols = s["bins"], s["lr_rows"], s["lr_cols"]
     bin_width, bin_width_key = _metres(s, "bin_width", where, required=True)
@@ -398,7 +402,8 @@ def parse_sensor_file(text: str, *, source: str = "sensor file", base_dir=".") -
     if sigma > 3.0:
         warnings.append(f"the pulse's sigma ({sigma:.3g} bins) is wider than any the bundled models met (0.3-3 bins)")
 
-    (render_rows, render_cols), fov = _render_window(rows, cols, s.get("fov_deg", min(90.0, PAPER_PITCH_DEG * cols)))
+    fov_deg = s.get("fov_deg", min(90.0, PAPER_PITCH_DEG * cols))
+    (render_rows, render_cols), fov = _render_window(rows, cols, fov_deg)
     if (render_rows, render_cols) != (rows, cols):
         warnings.append(f"training renders a centred window of {render_rows} x {render_cols} LR pixels of the "
                         f"{rows} x {cols} field, at its angular pitch (the network trains on crops anyway)")
@@ -407,18 +412,17 @@ def parse_sensor_file(text: str, *, source: str = "sensor file", base_dir=".") -
                         f"about {SCENE_DEPTH_M[0]:g}-{SCENE_DEPTH_M[1]:g} m, so "
                         + ("most of them lie beyond the gate (no return)" if span < GATE_WARN_M[0] else
                            "they fill only the first bins of the gate"))
-    sensor = SensorConfig(
-        hr_shape=(render_rows * SCALE, render_cols * SCALE), scale=SCALE, bins=bins, d_max=span, fov_deg=fov,
-        # the inverse-square law over the gate seen from its start: flat up to the gate's start, as it nearly is
-        # across a gate far from the sensor
-        r_min=max(SensorConfig.r_min, gate_start),
-    )  # irf_sigma stays the default: it only picks the centre of mass's 1-bin window, as `jaxsr upscale` reads
-    regime_fields = dict(p)
-    regime_fields.update(irf_sigma_range=(sigma, sigma), irf_paper=sigma, irf_paper_prob=1.0)
-    try:
-        regime = PhotonRegime(**regime_fields)
-    except ValueError as e:
-        raise ValueError(f"{source}: [photons] {e}") from None
+    # the network's 0 .. 1 spans the gate (the `--span gate` of `jaxsr upscale`)
+    sensor = Sensor(gate=Gate(bins, bin_width, gate_start), optics=Optics((rows, cols), SCALE, fov_deg),
+                    pulse=Pulse(sigma), depth=DepthScale(gate_start, span))
+    regime = None
+    if p is not None:
+        regime_fields = dict(p)
+        regime_fields.update(irf_sigma_range=(sigma, sigma), irf_paper=sigma, irf_paper_prob=1.0)
+        try:
+            regime = PhotonRegime(**regime_fields)
+        except ValueError as e:
+            raise ValueError(f"{source}: [photons] {e}") from None
     gate = {"bins": bins, "bin_width_m": bin_width, "start_m": gate_start, "span_m": span}
     # the gate flags in the units the file gave (a time as ns, a range as m; the start as the width when unset)
     options = (f"--bins {bins} --bin-width {_quantity(bin_width, bin_width_key)} "
@@ -428,7 +432,7 @@ def parse_sensor_file(text: str, *, source: str = "sensor file", base_dir=".") -
         "text": text,
         **top,
         "sensor": {key: list(v) if isinstance(v, tuple) else v for key, v in s.items()},
-        "photons": {key: list(v) if isinstance(v, tuple) else v for key, v in p.items()},
+        "photons": {key: list(v) if isinstance(v, tuple) else v for key, v in (p or {}).items()},
         "lr_shape": [rows, cols],
         "render_lr_shape": [render_rows, render_cols],
         "fov_deg": fov,
@@ -440,14 +444,14 @@ def parse_sensor_file(text: str, *, source: str = "sensor file", base_dir=".") -
     return sensor, regime, info
 
 
-def read_sensor_file(path) -> tuple[SensorConfig, PhotonRegime, dict]:
-    """A sensor's TOML file (see the module docstring) -> (SensorConfig, PhotonRegime, info).
+def read_sensor_file(path, *, photons: bool = True) -> tuple[Sensor, PhotonRegime | None, dict]:
+    """A sensor's TOML file (see the module docstring) -> (Sensor, PhotonRegime, info).
 
-    SensorConfig: the sensor as training simulates it: HR frame 4 x (lr_rows, lr_cols) (a centred window of
-    at most `MAX_RENDER_SIDE` LR pixels a side at the sensor's angular pitch), bins K, d_max = K x bin width
-    (the gate's length: the network's 0 is the gate's start and 1.0 its end), fov_deg (default: the paper's
-    pitch, 30 deg per 64 columns, at most 90 deg), r_min = the gate's start (the inverse-square law flat
-    across a far gate). PhotonRegime: [photons] over `PhotonRegime`'s defaults, every clip with the
+    Sensor: the gate (bins, bin width, start), the optics (lr_rows x lr_cols SPAD pixels, the bundled models'
+    scale 4, fov_deg: default the paper's pitch, 30 deg per 64 columns, at most 90 deg), the pulse
+    (irf_sigma_bins, or the Gaussian fitted to irf_file) and the depth scale of the gate (the network's 0 at the
+    gate's start, its 1.0 at the gate's end); `training_sensor` of it is what fine-tuning simulates.
+    PhotonRegime (None when photons=False and the file has no [photons]): [photons] over `PhotonRegime`'s defaults, every clip with the
     sensor's pulse (irf_sigma_bins, or the Gaussian fitted to irf_file). info: "text" (the file as read),
     "sensor" and "photons" (the keys as given), "gate" (bins, bin_width_m, start_m, span_m), "irf" (sigma_bins,
     its source and the fit), "lr_shape", "render_lr_shape", "fov_deg", "upscale_options" (the `jaxsr upscale`
@@ -462,8 +466,21 @@ def read_sensor_file(path) -> tuple[SensorConfig, PhotonRegime, dict]:
         text = path.read_text(encoding="utf-8")
     except UnicodeDecodeError:
         raise ValueError(f"{path}: not a text file; expected a sensor's TOML file") from None
-    sensor, regime, info = parse_sensor_file(text, source=str(path), base_dir=path.parent)
+    sensor, regime, info = parse_sensor_file(text, source=str(path), base_dir=path.parent, photons=photons)
     return sensor, regime, dict(info, path=str(path))
+
+
+def training_sensor(sensor: Sensor) -> Sensor:
+    """The sensor as fine-tuning simulates it: its frame, or a centred window of at most `MAX_RENDER_SIDE` SPAD
+    pixels a side at its angular pitch (the network trains on crops anyway); its bins and bin width over a gate
+    moved to start at 0 m, so that the procedural scenes (about 3.6-46 m) fill it, with the network's 0 .. 1 over
+    the gate as the sensor reads it; r_min the gate's start (the inverse-square law flat across the gate seen from
+    its start, as it nearly is across a gate far from the sensor); its pulse."""
+    (rows, cols), fov = _render_window(*sensor.lr_shape, float(sensor.fov_deg))
+    gate = sensor.gate
+    return Sensor(gate=Gate(gate.bins, gate.bin_width, 0.0), optics=Optics((rows, cols), sensor.scale, fov),
+                  pulse=sensor.pulse, depth=DepthScale(0.0, gate.length),
+                  r_min=max(Sensor.r_min, float(gate.start)), ambient_floor=sensor.ambient_floor)
 
 
 def card_entry(info: dict) -> dict:

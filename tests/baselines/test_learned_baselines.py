@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import jaxsr
-from jaxsr.config import SensorConfig
+from jaxsr.config import Optics, Sensor
 from jaxsr.nn import count_params
 
 
@@ -152,7 +152,7 @@ def test_flow_recovers_a_known_shift_to_a_tenth_of_a_pixel():
 
 
 def test_second_peak_depth_finds_the_weaker_return():
-    sensor = SensorConfig()
+    sensor = Sensor()
     hist = np.full((2, 16), 2.0)
     hist[:, 3] += 60.0  # the first return, bin 3
     hist[0, 11] += 30.0  # a second return in the first pixel only
@@ -176,7 +176,7 @@ def test_gan_losses_closed_forms():
 
 # --- a few training steps lower the loss on a fixed batch ----------------------------------------------------------
 
-SMALL_SENSOR = SensorConfig(hr_shape=(32, 64))
+SMALL_SENSOR = Sensor(optics=Optics.of_hr((32, 64)))
 
 
 @jax.jit

@@ -10,7 +10,7 @@ import pytest
 
 import _photon_benchmark as bench  # experiments/studies (pytest's pythonpath)
 import photon_regimes
-from jaxsr.config import ModelConfig, SensorConfig
+from jaxsr.config import ModelConfig, Sensor
 from jaxsr.nn import Model, init_model
 
 TINY = dict(base=8, growth=4, head=16, filter_hidden=16)
@@ -18,7 +18,7 @@ TINY = dict(base=8, growth=4, head=16, filter_hidden=16)
 
 def synthetic_sequence(frames=12, snr=1.3):
     """A sloped floor with a box moving across it (radial metres), uniform reflectivity."""
-    h, w = SensorConfig().hr_shape
+    h, w = Sensor().hr_shape
     depth = np.broadcast_to(np.linspace(30.0, 5.0, h, dtype=np.float32)[:, None], (frames, h, w)).copy()
     for t in range(frames):
         depth[t, 40:80, 20 + 4 * t:60 + 4 * t] = 8.0
@@ -143,7 +143,7 @@ def test_load_models_gives_each_name_one_no_return_decision():
     with pytest.raises(SystemExit, match="no no-return head"):
         bench.load_models(["A=tr4"], (), (), (), ["A=0.001"])
     with pytest.raises(ValueError, match="unknown decision 'sky'"):
-        bench.no_return_decision(np.zeros((1, 2, 2, 16), np.float32), SensorConfig(), ("sky", 1e-3))
+        bench.no_return_decision(np.zeros((1, 2, 2, 16), np.float32), Sensor(), ("sky", 1e-3))
     with pytest.raises(SystemExit, match=r"false-alarm rate in \(0, 1\)"):
         bench.load_models(["A=tr4"], (), (), ["A=2"])
 

@@ -168,7 +168,7 @@ def test_a_photon_model_reads_the_depth_and_the_photons_behind_it():
     x = real_photons.model_input(Model(*init_model(jax.random.key(0), wide), wide), frames)
     assert x.shape == (2, 6, 6, 3)
     np.testing.assert_allclose(x[..., 0], frames.depth, atol=1e-6)
-    np.testing.assert_allclose(x[..., 1:], jaxsr.nn.network_inputs(counts, jaxsr.SensorConfig(),
+    np.testing.assert_allclose(x[..., 1:], jaxsr.nn.network_inputs(counts, jaxsr.Sensor(),
                                                                    wide.inputs)[..., 1:], atol=1e-6)
 
 
@@ -192,7 +192,7 @@ def test_returns_kept_overrules_the_head_only_where_the_block_shows_a_return():
                       inputs=("depth", "signal", "background"), no_return_head=True)
     params, state = init_model(jax.random.key(0), cfg)
     bias = params["no_return"]["conv2"]["b"]
-    quiet = bench.no_return_decision(counts, jaxsr.SensorConfig(), ("keep", 1e-3))
+    quiet = bench.no_return_decision(counts, jaxsr.Sensor(), ("keep", 1e-3))
     assert quiet.shape == (3, 6, 6) and not quiet[:, :3].any() and quiet[:, 3:].all()
     for shift, calls_sky in ((50.0, True), (-50.0, False)):  # a head that calls everything sky, then nothing
         params["no_return"]["conv2"]["b"] = bias + shift

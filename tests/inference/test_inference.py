@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxsr.config import ModelConfig, SensorConfig
+from jaxsr.config import ModelConfig, Sensor
 from jaxsr.inference import iter_centre_of_mass, iter_super_resolve, super_resolve, super_resolve_histograms
 from jaxsr.nn import Model, apply_model, init_model
 from jaxsr.sensor.peaks import centre_of_mass
@@ -74,7 +74,7 @@ def test_streaming_holds_a_bounded_number_of_frames():
 
 
 def test_super_resolve_histograms_is_com_then_super_resolve():
-    sensor = SensorConfig()
+    sensor = Sensor()
     model = _model(1)
     counts = jax.random.poisson(jax.random.key(4), 2.0, (5, 4, 6, sensor.bins)).astype(jnp.float32)
     out = super_resolve_histograms(model, counts, sensor, batch_size=2)

@@ -12,9 +12,23 @@ import jaxsr
 from jaxsr.sensor.poisson import NORMAL_ABOVE, poisson_pathwise, sample_poisson
 
 # Small enough that compiling a gradient through the whole pipeline takes seconds: x2, 8 bins, one dense block.
-SMALL = jaxsr.SensorConfig(hr_shape=(8, 16), scale=2, bins=8)
+SMALL = jaxsr.Sensor(gate=jaxsr.Gate.spanning(35.0, 8), optics=jaxsr.Optics.of_hr((8, 16), 2))
 TINY = jaxsr.ModelConfig(tr=0, scale=2, base=8, growth=4, head=16, filter_hidden=16, same_blocks=1, filter_size=3)
-LEAVES = ("irf_sigma", "ambient_floor", "r_min", "d_max")
+# the sensor's physical leaves, as paths into the Sensor's parts
+LEAVES = (("pulse", "sigma"), ("ambient_floor",), ("r_min",), ("gate", "bin_width"), ("depth", "span"))
+
+
+def _leaf(sensor, path):
+    for name in path:
+        sensor = getattr(sensor, name)
+    return sensor
+
+
+def _stepped(sensor, path, h):
+    """The sensor with the leaf at `path` moved by h."""
+    if len(path) == 1:
+        return dataclasses.replace(sensor, **{path[0]: getattr(sensor, path[0]) + h})
+    return dataclasses.replace(sensor, **{path[0]: _stepped(getattr(sensor, path[0]), path[1:], h)})
 
 
 def _scene(seed=0, frames=3, sky=True):
@@ -99,7 +113,7 @@ def test_surrogate_matches_finite_differences_of_the_monte_carlo_mean_with_plent
     keys = jax.random.split(jax.random.key(2), 2000)
 
     def loss(key, sigma, mean_signal, snr, gradient):
-        sensor = dataclasses.replace(SMALL, irf_sigma=sigma)
+        sensor = SMALL.replace(irf_sigma=sigma)
         counts = jaxsr.simulate_histograms(key, depth, intensity, sensor, snr=snr, mean_signal=mean_signal,
                                            gradient=gradient)
         return jnp.mean((jaxsr.centre_of_mass(counts, sensor) - truth) ** 2)
@@ -143,10 +157,9 @@ def test_noise_free_gradient_equals_finite_differences(model):
         f = lambda *a: value_and_grads(*a)[0]  # noqa: E731  (one compilation for values and gradients)
         grads = value_and_grads(*args)[1]
         h = 1e-6
-        for name in LEAVES:
-            step = lambda s: dataclasses.replace(sensor, **{name: getattr(sensor, name) + s})  # noqa: E731
-            fd = (f(step(h), *args[1:]) - f(step(-h), *args[1:])) / (2 * h)
-            assert float(getattr(grads[0], name)) == pytest.approx(float(fd), rel=1e-4, abs=1e-9), name
+        for path in LEAVES:
+            fd = (f(_stepped(sensor, path, h), *args[1:]) - f(_stepped(sensor, path, -h), *args[1:])) / (2 * h)
+            assert float(_leaf(grads[0], path)) == pytest.approx(float(fd), rel=1e-4, abs=1e-9), path
         for k in range(1, 5):
             up, down = list(args), list(args)
             up[k], down[k] = args[k] + h, args[k] - h
@@ -172,7 +185,7 @@ def test_vmap_over_sensors_equals_a_loop_and_gradients_are_finite_at_the_extreme
     and every value and gradient is finite."""
     depth, intensity = _scene()
     cases = [(0.3, 0.05, 1.3, 14.0), (0.7, 0.0, 1.3, 0.0), (1.2, 0.2, 1e-3, 14.0), (0.4, 0.05, 1e4, 14.0)]
-    sensors = [dataclasses.replace(SMALL, irf_sigma=s, ambient_floor=a) for s, a, _, _ in cases]
+    sensors = [SMALL.replace(irf_sigma=s, ambient_floor=a) for s, a, _, _ in cases]
     snrs, levels = (jnp.asarray([c[k] for c in cases], jnp.float32) for k in (2, 3))
     batch = jax.tree.map(lambda *x: jnp.stack(x), *sensors)
     got = jax.vmap(score_and_grads, (None, None, 0, 0, 0))(depth, intensity, batch, snrs, levels)
@@ -202,7 +215,7 @@ def test_pipeline_metric_refuses_bad_input(model):
     with pytest.raises(ValueError, match="model must be a jaxsr.Model"):
         jaxsr.pipeline_metric(key, depth, intensity, SMALL, (model.params, model.state), snr=1.0)
     with pytest.raises(ValueError, match="x2 but the sensor's scale is 4"):
-        jaxsr.pipeline_metric(key, depth, intensity, jaxsr.SensorConfig(hr_shape=(8, 16), scale=4, bins=8), model,
+        jaxsr.pipeline_metric(key, depth, intensity, jaxsr.Sensor(gate=jaxsr.Gate.spanning(35.0, 8), optics=jaxsr.Optics.of_hr((8, 16), 4)), model,
                               snr=1.0)
 
 
@@ -214,7 +227,7 @@ def test_traced_out_of_domain_levels_and_sensor_leaves_give_nan(model):
     @jax.jit
     @jax.vmap
     def score(snr, mean_signal, irf_sigma):
-        sensor = dataclasses.replace(SMALL, irf_sigma=irf_sigma)
+        sensor = SMALL.replace(irf_sigma=irf_sigma)
         return jaxsr.pipeline_metric(jax.random.key(0), depth, intensity, sensor, model, snr=snr,
                                      mean_signal=mean_signal)
 

@@ -13,7 +13,7 @@ import pytest
 
 import jaxsr
 from jaxsr import cli
-from jaxsr.config import ModelConfig, SensorConfig
+from jaxsr.config import ModelConfig, Optics, Sensor
 from jaxsr.app import ModelChoice, Reading, prepare_upscale, upscale, upscale_memory
 from jaxsr.inference import (DEFAULT_FORM, DEFAULT_PRECISION, FORM_TOLERANCE_DB, Stream, in_form, iter_super_resolve,
                              measure_form_equivalence, super_resolve, super_resolve_histograms)
@@ -21,7 +21,7 @@ from jaxsr.nn import Model, apply_model_sequence, init_model
 from jaxsr.runtime import cpu_bfloat16_features
 
 TINY = dict(base=8, growth=4, head=16, filter_hidden=16)
-SENSOR = SensorConfig()
+SENSOR = Sensor()
 # bfloat16 keeps 8 bits of mantissa: a tiny random network's normalised output moves by up to about 1e-2
 BF16_ATOL = 3e-2
 # measured on the test sequences (experiments/results/inference_forms.md): bfloat16 within 0.05 dB of float32
@@ -105,7 +105,7 @@ def test_bfloat16_reaches_the_stream_and_the_histograms():
 @pytest.mark.slow  # 7 s; bfloat16 is emulated on most CPUs
 def test_pipeline_metric_takes_a_precision(model_path):
     model = jaxsr.load_model(model_path)
-    sensor = SensorConfig(hr_shape=(32, 32))
+    sensor = Sensor(optics=Optics.of_hr((32, 32)))
     depth = np.full((3, 32, 32), 10.0, np.float32)
     intensity = np.full((3, 32, 32), 0.5, np.float32)
     f32 = jaxsr.pipeline_metric(None, depth, intensity, sensor, model, snr=2.0, precision="float32")

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import jaxsr
-from jaxsr.config import ModelConfig, SensorConfig
+from jaxsr.config import ModelConfig, Sensor
 from jaxsr.nn import Model, init_model
 
 TINY = dict(base=8, growth=4, head=16, filter_hidden=16)
@@ -49,7 +49,7 @@ def test_histograms_equal_super_resolve_histograms_and_differentiate_to_the_coun
     cfg = ModelConfig(tr=0, inputs=("depth", "signal", "background"), no_return_head=True, **TINY)
     m = Model(*init_model(jax.random.key(3), cfg), cfg)
     counts = np.asarray(jax.random.poisson(jax.random.key(1), 2.0, (3, 8, 12, 16)), np.float32)
-    sensor = SensorConfig()
+    sensor = Sensor()
     traced = jax.jit(jaxsr.apply_histograms)(m, counts, sensor)
     np.testing.assert_allclose(np.asarray(traced), jaxsr.super_resolve_histograms(m, counts, sensor), atol=1e-5)
     grad = jax.grad(lambda c: jnp.mean(jaxsr.apply_histograms(m, c, sensor)))(counts)
@@ -70,7 +70,7 @@ def test_host_side_functions_refuse_tracing_naming_the_traced_route():
 
 def test_the_host_side_functions_refuse_what_they_cannot_mean():
     """Complex input is refused (the imaginary part was dropped); a batch larger than the frames is cut to them (3
-    frames padded to a batch of 10^9 allocated 238 GiB); a dict as the sensor is a TypeError naming SensorConfig."""
+    frames padded to a batch of 10^9 allocated 238 GiB); a dict as the sensor is a TypeError naming Sensor."""
     m, lr = model(), lr_seq(3)
     with pytest.raises(ValueError, match="complex values"):
         jaxsr.super_resolve(m, lr + 0j)
@@ -81,5 +81,5 @@ def test_the_host_side_functions_refuse_what_they_cannot_mean():
     np.testing.assert_allclose(jaxsr.super_resolve(m, lr, batch_size=10**9), jaxsr.super_resolve(m, lr), atol=1e-5)
     with pytest.raises(ValueError, match="batch_size must be an integer >= 1"):
         jaxsr.super_resolve(m, lr, batch_size=2.5)
-    with pytest.raises(TypeError, match="sensor is a jaxsr.SensorConfig"):
+    with pytest.raises(TypeError, match="sensor is a jaxsr.Sensor"):
         jaxsr.super_resolve_histograms(m, np.ones((2, 8, 12, 16)), {"bins": 16})

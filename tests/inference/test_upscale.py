@@ -7,13 +7,13 @@ import numpy as np
 import pytest
 
 from jaxsr import cli, io
-from jaxsr.config import SensorConfig
+from jaxsr.config import Sensor
 from jaxsr.inference import super_resolve
 from jaxsr.sensor.peaks import centre_of_mass
 from jaxsr.sensor.forward import normalise_depth
 from jaxsr.io.previews import COLOUR_BAR_HEIGHT
 
-SENSOR = SensorConfig()
+SENSOR = Sensor()
 
 
 @pytest.fixture(scope="module")

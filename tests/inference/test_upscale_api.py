@@ -10,12 +10,12 @@ import pytest
 
 import jaxsr
 from jaxsr import cli, io
-from jaxsr.config import SensorConfig
+from jaxsr.config import Gate, Sensor
 from jaxsr.app import PhotonRules, Reading, UpscaleResult, Writing, prepare_upscale, upscale, write_upscaled
 from jaxsr.io.checkpoint import load_model
 from upscale_specs import specs
 
-SENSOR = SensorConfig()
+SENSOR = Sensor()
 
 
 @pytest.fixture(scope="module")
@@ -65,7 +65,7 @@ def test_npy_output_equals_the_command_and_in_memory(tmp_path, model_path, metre
 
 def test_histograms_to_npz_with_a_gate_and_preview_equal_the_command(tmp_path, model_path, capsys):
     counts = np.asarray(jax.random.poisson(jax.random.key(1), 1.5, (3, 32, 64, 8)))
-    io.write_histograms(tmp_path / "h.npz", counts, sensor=SensorConfig(bins=8))
+    io.write_histograms(tmp_path / "h.npz", counts, sensor=Sensor(gate=Gate.spanning(35.0, 8)))
     result = upscale(tmp_path / "h.npz", tmp_path / "api.npz", model=model_path, read=Reading(bins=8, bin_width="25ns", gate_start=10.0), write=Writing(preview=tmp_path / "api.png"), batch_size=2)
     status, summary, err = command(tmp_path / "h.npz", tmp_path / "cli.npz", "--model", model_path, "--bins", "8",
                                    "--bin-width", "25ns", "--gate-start", "10m", "--preview", tmp_path / "cli.png",

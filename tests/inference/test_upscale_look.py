@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from jaxsr import cli, io
-from jaxsr.config import SensorConfig
+from jaxsr.config import Optics, Sensor
 from jaxsr.sensor.forward import pixel_rays
 
-SENSOR = SensorConfig()
+SENSOR = Sensor()
 # reading a video back starts ffmpeg (fork + exec at once) in a process where JAX runs threads
 pytestmark = pytest.mark.filterwarnings("ignore:os.fork:RuntimeWarning")
 T = 3
@@ -61,7 +61,7 @@ def test_video_and_points_of_a_gated_recording(tmp_path, model_path, gated, caps
     assert imageio_ffmpeg.count_frames_and_secs(str(tmp_path / "v.mp4"))[0] == T
     files = sorted((tmp_path / "pts").iterdir())
     assert [f.name for f in files] == [f"frame_{t:06d}.ply" for t in range(T)]
-    dx, dy, _ = (np.asarray(a) for a in pixel_rays(SensorConfig(hr_shape=(128, 256), scale=1)))
+    dx, dy, _ = (np.asarray(a) for a in pixel_rays(Sensor(optics=Optics.of_hr((128, 256), 1))))
     for f, d in zip(files, out):
         v = read_ply(f)
         valid = np.isfinite(d)
@@ -86,7 +86,7 @@ def test_gif_fps_fov_and_no_overwrite(tmp_path, model_path, gated, capsys):
     out = np.load(tmp_path / "out.npy")
     v = read_ply(tmp_path / "pts" / "frame_000000.ply")
     assert v.dtype.names == ("x", "y", "z") and len(v) == np.isfinite(out[0]).sum()
-    dx = np.asarray(pixel_rays(SensorConfig(hr_shape=(128, 256), scale=1, fov_deg=60.0))[0])
+    dx = np.asarray(pixel_rays(Sensor(optics=Optics.of_hr((128, 256), 1, fov_deg=60.0)))[0])
     valid = np.isfinite(out[0])
     np.testing.assert_allclose(v["x"] / v["z"], dx[np.nonzero(valid)[1]], rtol=1e-4, atol=1e-6)
     # the video and the point clouds are never replaced without --force (checked before any work)

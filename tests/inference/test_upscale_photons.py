@@ -6,7 +6,7 @@ import jax
 import numpy as np
 import pytest
 
-from jaxsr.config import ModelConfig, SensorConfig
+from jaxsr.config import ModelConfig, Optics, Sensor
 from jaxsr.app import (
     AUTO_AMBIENT_ALPHA,
     AUTO_AMBIENT_MIN_FRAMES,
@@ -27,7 +27,7 @@ from jaxsr.inference import super_resolve_histograms
 from jaxsr.io.checkpoint import load_model, save_model
 from jaxsr.nn import Model, init_model, with_no_return_logit
 
-SENSOR = SensorConfig()
+SENSOR = Sensor()
 TINY = dict(base=8, growth=4, head=16, filter_hidden=16)
 
 
@@ -132,7 +132,7 @@ def test_a_recording_beyond_the_trained_snr_is_said(photon_model):
     depth = np.full((4, 32, 48), 12.0, np.float32)
     depth[:, :, 24:] = 20.0
     intensity = np.full_like(depth, 0.5)
-    sensor = SensorConfig(hr_shape=(32, 48))
+    sensor = Sensor(optics=Optics.of_hr((32, 48)))
 
     def counts(snr):
         alpha, beta = calibrate(jnp.asarray(depth), jnp.asarray(intensity), sensor, snr=snr, mean_signal=20.0)
@@ -167,7 +167,7 @@ def test_frame_snr_reads_the_calibrated_snr():
 
     depth = np.broadcast_to(np.linspace(8.0, 30.0, 48, dtype=np.float32)[None, None], (6, 32, 48)).copy()
     intensity = np.full_like(depth, 0.6)
-    sensor = SensorConfig(hr_shape=(32, 48))
+    sensor = Sensor(optics=Optics.of_hr((32, 48)))
     for snr, within in ((0.1, 1.0), (1.3, 0.25), (5.0, 0.25), (20.0, 0.25)):
         c = simulate_histograms(jax.random.key(1), jnp.asarray(depth), jnp.asarray(intensity), sensor, snr=snr,
                                 mean_signal=14.0)
@@ -186,7 +186,7 @@ def test_signal_photons_reads_the_calibrated_signal():
 
     depth = np.broadcast_to(np.linspace(8.0, 30.0, 48, dtype=np.float32)[None, None], (6, 32, 48)).copy()
     intensity = np.full_like(depth, 0.6)
-    sensor = SensorConfig(hr_shape=(32, 48))
+    sensor = Sensor(optics=Optics.of_hr((32, 48)))
     for snr in (0.3, 5.0):
         for photons in (1.0, 3.0, 14.0, 100.0):
             c = simulate_histograms(jax.random.key(1), jnp.asarray(depth), jnp.asarray(intensity), sensor, snr=snr,

@@ -102,7 +102,7 @@ def test_wrong_channels_and_types_raise(tmp_path):
 
 
 def test_sequences_and_histograms_round_trip(tmp_path):
-    from jaxsr.config import SensorConfig
+    from jaxsr.config import Sensor
 
     d = np.stack([depth_frame(seed=s) for s in range(3)])
     inten = np.random.default_rng(0).uniform(0, 1, d.shape).astype(np.float32)
@@ -115,7 +115,7 @@ def test_sequences_and_histograms_round_trip(tmp_path):
     np.testing.assert_array_equal(io.read_sequence(tmp_path / "s.npy")["depth"], d)
 
     counts = np.random.default_rng(1).poisson(3.0, (3, 4, 6, 16)).astype(np.float32)
-    io.write_histograms(tmp_path / "h.npz", counts, depth=d, sensor=SensorConfig(), snr=1.3)
+    io.write_histograms(tmp_path / "h.npz", counts, depth=d, sensor=Sensor(), snr=1.3)
     h = io.read_histograms(tmp_path / "h.npz")
     assert h["counts"].dtype == np.uint16
     np.testing.assert_array_equal(h["counts"], counts)
@@ -184,10 +184,10 @@ def _airsim_folder(tmp_path, planar, gray, stamps):
 
 
 def test_read_airsim_converts_planar_to_radial(tmp_path):
-    from jaxsr.config import SensorConfig
+    from jaxsr.config import Sensor
     from jaxsr.sensor.forward import planar_to_radial
 
-    sensor = SensorConfig()
+    sensor = Sensor()
     h, w = sensor.hr_shape
     planar = [np.full((h, w), 10.0, np.float32), np.full((h, w), 12.0, np.float32)]
     gray = [np.full((h, w), 0.4, np.float32), np.full((h, w), 0.8, np.float32)]

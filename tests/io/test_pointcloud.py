@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from jaxsr import io
-from jaxsr.config import SensorConfig
+from jaxsr.config import Optics, Sensor
 from jaxsr.sensor import Intrinsics
 from jaxsr.sensor.forward import pixel_rays
 
@@ -63,7 +63,7 @@ def test_one_vertex_per_valid_pixel_on_the_sensor_rays(tmp_path, fov):
     assert n == len(v) == valid.sum()
     p = xyz(v)
     np.testing.assert_allclose(np.linalg.norm(p, axis=1), d[valid], rtol=1e-6)  # radial metres
-    dx, dy, _ = (np.asarray(a) for a in pixel_rays(SensorConfig(hr_shape=d.shape, scale=1, fov_deg=fov)))
+    dx, dy, _ = (np.asarray(a) for a in pixel_rays(Sensor(optics=Optics.of_hr(d.shape, 1, fov_deg=fov))))
     rows, cols = np.nonzero(valid)
     # OpenCV axes: the sensor model's rays with y down (pixel_rays' y is up)
     np.testing.assert_allclose(p[:, 0] / p[:, 2], dx[cols], rtol=1e-5, atol=1e-6)
@@ -95,7 +95,7 @@ def test_colours_and_default_fov(tmp_path):
     io.write_point_cloud(tmp_path / "c.ply", d, colour="depth")
     header, v = read_ply(tmp_path / "c.ply")
     assert {"property uchar red", "property uchar green", "property uchar blue"} <= set(header)
-    assert io.DEFAULT_FOV_DEG == SensorConfig().fov_deg == 30.0
+    assert io.DEFAULT_FOV_DEG == Sensor().fov_deg == 30.0
     gray = np.linspace(0, 1, d.size).reshape(d.shape)
     io.write_point_cloud(tmp_path / "g.ply", d, colour=gray)
     _, g = read_ply(tmp_path / "g.ply")

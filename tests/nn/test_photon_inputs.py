@@ -9,7 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxsr.config import ModelConfig, PhotonRegime, SensorConfig, TrainConfig
+from jaxsr.config import ModelConfig, PhotonRegime, Sensor, TrainConfig
 from jaxsr.inference import Stream, super_resolve, super_resolve_histograms
 from jaxsr.io.checkpoint import load_model, save_model
 from jaxsr.nn import (Model, apply_model, apply_model_features, apply_model_raw, apply_model_train, encode_photons,
@@ -20,7 +20,7 @@ from jaxsr.temporal import windows as temporal_windows
 from jaxsr.training import regime_batches, regime_parameters
 from jaxsr.training.duf import initial_weights, model_loss
 
-SENSOR = SensorConfig()
+SENSOR = Sensor()
 TINY = dict(base=8, growth=4, head=16, filter_hidden=16)
 PHOTONS = ("depth", "signal", "background")
 # the network compiled whole: eagerly each of its ops compiles on its own (seconds per test)

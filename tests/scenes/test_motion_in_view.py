@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 
 from jaxsr import scenes
-from jaxsr.config import SensorConfig
+from jaxsr.config import Sensor
 from jaxsr.scenes.pose import pose_all
 
-SENSOR = SensorConfig()
+SENSOR = Sensor()
 H, W = SENSOR.hr_shape
 F = float(SENSOR.focal_px)
 PERSON_CYLINDERS = 5  # legs, arms, torso (`jaxsr.scenes.objects.person`); the walkers' people come first

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 from jaxsr import scenes
-from jaxsr.config import SensorConfig
+from jaxsr.config import Sensor
 from jaxsr.scenes import Boxes, Cylinders, Ellipsoids, Motion, test_sets, tile_overflow
 from jaxsr.sensor.forward import planar_to_radial
 
-SENSOR = SensorConfig()
+SENSOR = Sensor()
 H, W = SENSOR.hr_shape
 F = float(SENSOR.focal_px)
 T = 8

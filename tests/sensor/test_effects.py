@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxsr.config import SensorConfig
+from jaxsr.config import Sensor
 from jaxsr.sensor import (
     calibrated_rates,
     centre_of_mass,
@@ -24,7 +24,7 @@ from jaxsr.sensor import (
     with_irf_sigma,
 )
 
-SENSOR = SensorConfig()
+SENSOR = Sensor()
 H, W = SENSOR.hr_shape
 h, w = SENSOR.lr_shape
 K = SENSOR.bins
@@ -126,7 +126,7 @@ def test_thin_returns_are_lines_of_the_width_asked():
 
 def test_with_irf_sigma_widens_the_pulse_and_traces():
     wide = with_irf_sigma(SENSOR, 2.0)
-    assert wide.irf_sigma == 2.0 and dataclasses.replace(SENSOR, irf_sigma=2.0) == wide
+    assert wide.irf_sigma == 2.0 and SENSOR.replace(irf_sigma=2.0) == wide
     tau = jnp.array(8.0)
     assert float(irf_bin_weights(tau, wide).max()) < float(irf_bin_weights(tau, SENSOR).max())
     depth, intensity = scene(1)

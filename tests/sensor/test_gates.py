@@ -5,7 +5,7 @@ import jax
 import numpy as np
 import pytest
 
-from jaxsr.config import METRES_PER_SECOND, TRAINED_RANGE_M, DepthScale, Gate, SensorConfig
+from jaxsr.config import METRES_PER_SECOND, TRAINED_RANGE_M, DepthScale, Gate, Sensor
 from jaxsr.sensor.gates import from_network_depth, gate_depth, gate_warnings, to_network_depth
 from jaxsr.sensor.peaks import centre_of_mass
 from jaxsr.sensor.forward import irf_bin_weights, normalise_depth
@@ -18,7 +18,7 @@ def synthetic_histogram(range_m, gate, *, signal=500.0, background=2.0):
     """Noise-free counts of one surface at `range_m` over `gate` (Gaussian IRF of sigma 0.4 bins,
     docs/sensor-model.md)."""
     tau = (range_m - gate.start) / gate.bin_width
-    h = np.asarray(irf_bin_weights(np.float32(tau), SensorConfig(bins=gate.bins)))
+    h = np.asarray(irf_bin_weights(np.float32(tau), Sensor(gate=Gate.spanning(35.0, gate.bins))))
     return (signal * h + background).astype(np.float32)
 
 
@@ -48,7 +48,7 @@ def test_default_gate_is_the_paper_sensor():
     rng = np.random.default_rng(0)
     counts = rng.poisson(2.0, (4, 16)).astype(np.float32)
     counts[0] = 0  # no return
-    gate = Gate.of_sensor(SensorConfig())
+    gate = Gate.of_sensor(Sensor())
     com = np.asarray(jax.jit(centre_of_mass)(counts))
     np.testing.assert_allclose(gate_depth_jit(counts, gate), np.where(com < 1, com * 35.0, np.inf), rtol=1e-6)
     d = np.array([0.0, 3.0, 34.9, 35.0, 40.0, np.inf, np.nan], np.float32)

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 import jaxsr
-from jaxsr.config import SensorConfig
+from jaxsr.config import Sensor
 from jaxsr.inference import no_return_where
 from jaxsr.sensor import ambient_only, no_return_shares, share_of_window
 
-CFG = SensorConfig()
+CFG = Sensor()
 K = CFG.bins
 
 

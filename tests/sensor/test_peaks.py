@@ -10,7 +10,7 @@ from scipy.special import ndtr
 import jaxsr
 from jaxsr.sensor.peaks import default_window
 
-CFG = jaxsr.SensorConfig()
+CFG = jaxsr.Sensor()
 K = CFG.bins
 
 
@@ -82,9 +82,9 @@ def test_window_edges_and_ties():
 
 def test_window_default_follows_irf_width():
     assert int(default_window(CFG)) == 1
-    assert int(default_window(jaxsr.SensorConfig(irf_sigma=0.6))) == 2
+    assert int(default_window(jaxsr.Sensor(pulse=jaxsr.Pulse(0.6)))) == 2
     hist = irf_histogram(np.array([7.3]), sigma=0.9, signal=100.0)
-    wide = float(jaxsr.centre_of_mass(hist, jaxsr.SensorConfig(irf_sigma=0.9))[0]) * K
+    wide = float(jaxsr.centre_of_mass(hist, jaxsr.Sensor(pulse=jaxsr.Pulse(0.9)))[0]) * K
     narrow = float(jaxsr.centre_of_mass(hist, CFG, window=1)[0]) * K
     assert abs(wide - 7.3) < abs(narrow - 7.3)
 

@@ -12,7 +12,7 @@ from jax.test_util import check_grads
 import jaxsr
 from jaxsr.sensor import forward as sensor_mod
 
-SMALL = jaxsr.SensorConfig(hr_shape=(16, 24), scale=4)
+SMALL = jaxsr.Sensor(optics=jaxsr.Optics.of_hr((16, 24), 4))
 
 
 def reference_rates(depth, intensity, cfg, snr, mean_signal):
@@ -129,7 +129,7 @@ def test_poisson_mean_and_variance_over_keys():
 
 
 def test_planar_to_radial_closed_form():
-    cfg = jaxsr.SensorConfig()
+    cfg = jaxsr.Sensor()
     z = np.full(cfg.hr_shape, 10.0)
     r = np.asarray(jaxsr.sensor.planar_to_radial(z, cfg))
     f = (cfg.hr_shape[1] / 2) / math.tan(math.radians(15))
@@ -143,13 +143,13 @@ def test_planar_to_radial_closed_form():
 
 
 def test_normalise_depth_conventions():
-    cfg = jaxsr.SensorConfig()
+    cfg = jaxsr.Sensor()
     d = jnp.array([0.0, 17.5, 35.0, 35.01, jnp.inf, jnp.nan, -1.0, 1e6])
     np.testing.assert_allclose(jaxsr.normalise_depth(d, cfg), [0, 0.5, 1, 1, 1, 1, 1, 1])
 
 
 def test_denormalise_depth_inverts_normalise_depth_inside_the_range():
-    cfg = jaxsr.SensorConfig(d_max=20.0)
+    cfg = jaxsr.Sensor(gate=jaxsr.Gate.spanning(20.0, 16), depth=jaxsr.DepthScale(0.0, 20.0))
     # up to the last float32 below d_max: the largest depth that is still a return
     d = np.concatenate([np.random.default_rng(0).uniform(0.0, 20.0, 1000), [0.0, np.nextafter(np.float32(20), 0)]])
     back = np.asarray(jaxsr.denormalise_depth(jaxsr.normalise_depth(d.astype(np.float32), cfg), cfg))
@@ -159,7 +159,7 @@ def test_denormalise_depth_inverts_normalise_depth_inside_the_range():
 
 def test_denormalise_depth_no_return_and_nan():
     """Normalised 1.0 and above is no return; just below 1 is a return; NaN is no return; below 0 is 0 m."""
-    cfg = jaxsr.SensorConfig()
+    cfg = jaxsr.Sensor()
     below_one = np.nextafter(np.float32(1), np.float32(0))
     norm = jnp.array([0.5, 1.0, 1.2, below_one, jnp.nan, -0.1])
     out = np.asarray(jaxsr.denormalise_depth(norm, cfg))
@@ -199,7 +199,7 @@ def test_jit_equals_eager_and_vmap_equals_loop():
 
 
 def test_sensor_config_is_a_pytree_with_static_shapes():
-    cfg = jaxsr.SensorConfig()
+    cfg = jaxsr.Sensor()
     leaves, treedef = jax.tree_util.tree_flatten(cfg)
     assert len(leaves) == 5
     assert jax.tree_util.tree_unflatten(treedef, leaves) == cfg
@@ -209,7 +209,7 @@ def test_sensor_config_is_a_pytree_with_static_shapes():
     sigmas = jnp.array([0.3, 0.4, 0.6])
 
     def rates(sigma):
-        cfg_s = jaxsr.SensorConfig(hr_shape=SMALL.hr_shape, scale=4, irf_sigma=sigma)
+        cfg_s = jaxsr.Sensor(optics=jaxsr.Optics.of_hr(SMALL.hr_shape, 4), pulse=jaxsr.Pulse(sigma))
         return jaxsr.expected_histograms(depth, intensity, cfg_s, snr=1.3, mean_signal=5.0)
 
     got = jax.vmap(rates)(sigmas)
@@ -222,10 +222,10 @@ def test_gradients_match_finite_differences_float64():
     intensity = rng.uniform(0.1, 1.0, SMALL.hr_shape)
     weights = rng.normal(size=(4, 6, 16))
     with jax.enable_x64(True):
-        cfg = jaxsr.SensorConfig(hr_shape=SMALL.hr_shape, scale=4, irf_sigma=jnp.float64(0.4))
+        cfg = jaxsr.Sensor(optics=jaxsr.Optics.of_hr(SMALL.hr_shape, 4), pulse=jaxsr.Pulse(jnp.float64(0.4)))
 
         def loss(d, i, snr, sigma):
-            c = jaxsr.SensorConfig(hr_shape=SMALL.hr_shape, scale=4, irf_sigma=sigma)
+            c = jaxsr.Sensor(optics=jaxsr.Optics.of_hr(SMALL.hr_shape, 4), pulse=jaxsr.Pulse(sigma))
             return jnp.sum(weights * jaxsr.expected_histograms(d, i, c, snr=snr, mean_signal=5.0))
 
         args = (jnp.asarray(depth), jnp.asarray(intensity), jnp.float64(1.3), cfg.irf_sigma)
@@ -259,14 +259,14 @@ def test_extremes_are_finite(snr, mean_signal):
 def test_black_scene_and_zero_ambient():
     depth = np.full(SMALL.hr_shape, 10.0)
     intensity = np.zeros(SMALL.hr_shape)
-    cfg = jaxsr.SensorConfig(hr_shape=SMALL.hr_shape, scale=4, ambient_floor=0.0)
+    cfg = jaxsr.Sensor(optics=jaxsr.Optics.of_hr(SMALL.hr_shape, 4), ambient_floor=0.0)
     rates = jaxsr.expected_histograms(depth, intensity, cfg, snr=1.0, mean_signal=4.0)
     assert np.all(np.isfinite(rates))
     lit = np.full(SMALL.hr_shape, 0.5)
     lit[:4, :4] = 0.0  # one LR block without any light: no signal and no ambient there
 
     def loss(i, a0):
-        c = jaxsr.SensorConfig(hr_shape=SMALL.hr_shape, scale=4, ambient_floor=a0)
+        c = jaxsr.Sensor(optics=jaxsr.Optics.of_hr(SMALL.hr_shape, 4), ambient_floor=a0)
         return jnp.sum(jaxsr.expected_histograms(depth, i, c, snr=1.0, mean_signal=4.0))
 
     grads = jax.grad(loss, argnums=(0, 1))(jnp.asarray(lit, jnp.float32), jnp.float32(0.0))
@@ -291,7 +291,7 @@ def test_bad_shapes_raise(depth_shape, intensity_shape, match):
 
 def test_hr_not_divisible_by_scale_raises():
     with pytest.raises(ValueError, match="divisible by scale"):
-        jaxsr.SensorConfig(hr_shape=(18, 24), scale=4)
+        jaxsr.Sensor(optics=jaxsr.Optics.of_hr((18, 24), 4))
 
 
 @pytest.mark.parametrize("bad", [-0.1, 1.5, np.nan])

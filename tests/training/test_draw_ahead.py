@@ -12,7 +12,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).parent))
 from test_train import TINY, tiny_train_cfg, toy_batches  # noqa: E402
 
-from jaxsr.config import ModelConfig, SensorConfig, TrainConfig  # noqa: E402
+from jaxsr.config import ModelConfig, Sensor, TrainConfig  # noqa: E402
 from jaxsr.nn import init_model  # noqa: E402
 from jaxsr.training import draw_batches, make_train_step, scene_batches  # noqa: E402
 from jaxsr.training.optim import adam_init  # noqa: E402
@@ -48,6 +48,6 @@ def test_drawn_batches_are_those_the_step_draws_and_give_the_same_update():
 
 @pytest.mark.slow  # the scene renderer compiles in about a minute on 2 cores
 def test_drawn_scene_batches_are_those_the_step_draws():
-    sensor = SensorConfig()
+    sensor = Sensor()
     cfg = TrainConfig(batch_size=2, patch=(8, 16))
     _same_batches(scene_batches(ModelConfig(tr=0).tr, cfg, sensor=sensor), jax.random.key(5), [0, 4])

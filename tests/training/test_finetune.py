@@ -63,7 +63,7 @@ def test_a_good_file_gives_the_sensor_the_regime_and_the_gate():
     assert sensor.bins == 32 and sensor.scale == 4 and sensor.hr_shape == (96, 160)
     assert sensor.d_max == pytest.approx(32 * bin_width) and sensor.fov_deg == 20.0
     assert sensor.r_min == 120.0  # the inverse-square law seen from the gate's start
-    assert sensor.irf_sigma == jaxsr.SensorConfig().irf_sigma  # read out as jaxsr upscale reads (1-bin window)
+    assert sensor.irf_sigma == jaxsr.Sensor().irf_sigma  # read out as jaxsr upscale reads (1-bin window)
     assert regime.signal_range == (2.0, 8.0) and regime.snr_range == (1.0, 10.0)
     assert regime.no_return_prob == 0.2 and regime.dark_prob == 0.0 and regime.motion == "drawn"
     assert regime.thin_prob == 0.5 and regime.thin_lines_max == PhotonRegime().thin_lines_max
@@ -95,7 +95,7 @@ def test_defaults_and_a_large_sensor_rendered_as_a_window():
     assert info["render_lr_shape"] == [256, 256] and sensor.hr_shape == (1024, 1024)
     # the paper's pitch (30 deg / 64 columns), capped at 90 deg, over the sensor's 512 columns; the window keeps it
     assert info["fov_deg"] == sensor.fov_deg == pytest.approx(np.degrees(2 * np.arctan(np.tan(np.radians(45)) / 2)))
-    assert sensor.r_min == jaxsr.SensorConfig().r_min and info["gate"]["start_m"] == 0.0
+    assert sensor.r_min == jaxsr.Sensor().r_min and info["gate"]["start_m"] == 0.0
     assert any("centred window" in w for w in info["warnings"])
     assert info["upscale_options"] == "--bins 32 --bin-width 2m --gate-start 0m --span gate"
 

@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxsr.config import ModelConfig, PhotonRegime, SensorConfig, TrainConfig
+from jaxsr.config import ModelConfig, Optics, PhotonRegime, Sensor, TrainConfig
 from jaxsr.io.checkpoint import load_model, read_metadata, save_model, save_tree
 from jaxsr.nn import Model, apply_model, apply_model_raw, init_model, merge_no_return
 from jaxsr.training import (calibrate_no_return, choose_no_return_logit, no_return_outputs, no_return_table,
@@ -218,7 +218,7 @@ def test_calibration_of_a_tiny_model():
 @pytest.mark.slow
 def test_regime_draws_give_each_clips_parameters():
     """regime_draws(key) names the photon level and SNR each clip of make_batch(key) was drawn with."""
-    sensor = SensorConfig(hr_shape=(32, 64))
+    sensor = Sensor(optics=Optics.of_hr((32, 64)))
     regime = PhotonRegime(signal_range=(0.5, 1000.0), snr_range=(20.0, 20.0), irf_paper_prob=1.0, dark_prob=0.0,
                           hot_prob=0.0, dead_prob=0.0, no_return_prob=0.0)
     cfg = dataclasses.replace(TrainConfig(), batch_size=6, patch=None)

@@ -9,11 +9,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxsr.config import PAPER_REGIME, PhotonRegime, SensorConfig, TrainConfig
+from jaxsr.config import PAPER_REGIME, PhotonRegime, Sensor, TrainConfig
 from jaxsr.nn.inputs import PHOTON_SCALE
 from jaxsr.training import regime_batches, regime_clips, regime_parameters
 
-SENSOR = SensorConfig()
+SENSOR = Sensor()
 
 
 def test_regime_is_json_ready_and_checked():

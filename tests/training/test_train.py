@@ -19,7 +19,7 @@ import pytest
 from jax.test_util import check_grads
 
 from jaxsr.io.checkpoint import load_model, read_metadata, save_tree
-from jaxsr.config import PRESETS, ModelConfig, SensorConfig, TrainConfig
+from jaxsr.config import PRESETS, ModelConfig, Optics, Sensor, TrainConfig
 from jaxsr.training.data import random_crop, sequence_batches, validation_set
 from jaxsr.eval.metrics import psnr
 from jaxsr.nn import apply_model, apply_model_train, init_model
@@ -147,7 +147,7 @@ def test_random_crop_is_aligned():
 def test_patch_rates_are_the_crop_of_the_whole_clips():
     """A training patch is simulated alone (`calibrated_rates` with the whole clip's calibration): its rates
     must be that window of `expected_histograms` of the whole clip (the reference, computed whole)."""
-    sensor = SensorConfig()
+    sensor = Sensor()
     h, w = sensor.hr_shape
     rng = np.random.default_rng(0)
     depth = rng.uniform(2.0, 40.0, (2, h, w)).astype(np.float32)
@@ -164,7 +164,7 @@ def test_patch_rates_are_the_crop_of_the_whole_clips():
 def test_patch_batches_align_lr_with_gt():
     """With a patch, the LR windows are drawn for the crop whose GT they return: at a high photon count the
     centre of mass of each LR pixel is its HR block's normalised depth (a shift by one LR pixel would not be)."""
-    sensor = SensorConfig()
+    sensor = Sensor()
     h, w = sensor.lr_shape
     rng = np.random.default_rng(1)
     blocks = rng.uniform(3.0, 30.0, (3, h, w)).astype(np.float32)  # one depth per LR pixel, 3 frames
@@ -210,7 +210,7 @@ def test_scaled_presets_change_only_the_amount_of_training(name):
     assert float(lr(cfg.epochs * spe - 1)) == pytest.approx(cfg.lr * cfg.lr_decay)
     assert cfg.patience < cfg.epochs
     # the crops fit the sensor's LR frame (random_crop refuses larger ones)
-    assert all(p <= s for p, s in zip(cfg.patch, SensorConfig().lr_shape))
+    assert all(p <= s for p, s in zip(cfg.patch, Sensor().lr_shape))
 
 
 @pytest.mark.parametrize("change,message", [
@@ -566,7 +566,7 @@ def test_stacked_layers_gradients_through_the_taps_equal_the_stacked_ones(monkey
 # --- data sources -----------------------------------------------------------------------------------------
 
 def test_sequence_batches_from_hr_arrays():
-    sensor = SensorConfig(hr_shape=(16, 32))
+    sensor = Sensor(optics=Optics.of_hr((16, 32)))
     rng = np.random.default_rng(0)
     depth = np.full((2, 6, 16, 32), 10.0, np.float32)
     depth[:, :, :, 16:] = 20.0
@@ -592,7 +592,7 @@ def test_sequence_batches_from_hr_arrays():
 def test_validation_set_from_the_named_sequences():
     """The default validation data: the first frames of the scenes module's named validation sequences."""
     cfg = dataclasses.replace(PRESETS["cpu"], val_frames=2)
-    sensor = SensorConfig()
+    sensor = Sensor()
     val = validation_set(jax.random.key(0), 1, cfg)
     n = 2 * len(cfg.val_sequences)
     assert (val["windows"].shape == (n, 3, 32, 64) and val["gt"].shape == (n, 128, 256)
@@ -614,7 +614,7 @@ def test_validation_set_from_the_named_sequences():
 def test_validation_set_simulates_each_sequence_at_its_own_snr():
     """The same flat wall at SNR 1000 and 0.01: centre of mass finds it in the first; in the second the ambient
     light often hides the peak (errors of a tenth of the range). Sequences may be dicts or objects with fields."""
-    sensor = SensorConfig(hr_shape=(16, 32))
+    sensor = Sensor(optics=Optics.of_hr((16, 32)))
     depth = np.full((3, 16, 32), 10.0, np.float32)
     intensity = np.full_like(depth, 0.8)
     seqs = {"clear": {"depth": depth, "intensity": intensity, "snr": 1000.0},
