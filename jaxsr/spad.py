@@ -274,12 +274,31 @@ class Sensor:
     irf_sigma = property(lambda self: self.pulse.sigma, doc="The pulse's Gaussian width, bins.")
 
 
-jax.tree_util.register_dataclass(Gate, data_fields=["bin_width", "start"], meta_fields=["bins"])
-jax.tree_util.register_dataclass(DepthScale, data_fields=["offset", "span"], meta_fields=[])
-jax.tree_util.register_dataclass(Optics, data_fields=["fov_deg"], meta_fields=["lr_shape", "scale"])
-jax.tree_util.register_dataclass(Pulse, data_fields=["sigma"], meta_fields=[])
-jax.tree_util.register_dataclass(Sensor, data_fields=["gate", "optics", "pulse", "depth", "r_min", "ambient_floor"],
-                                 meta_fields=[])
+def _register(cls, data_fields: list[str], meta_fields: list[str]) -> None:
+    """Register `cls` as a pytree: `data_fields` leaves (or subtrees), `meta_fields` static. Unflattening sets the
+    fields without `__post_init__`: a gradient, a `jax.tree.map` or a filter spec (equinox, optimistix) rebuilds
+    the parts with values that are no metres at all (negative, booleans, None), which only a user's call checks."""
+    def flatten_with_keys(x):
+        return [(jax.tree_util.GetAttrKey(n), getattr(x, n)) for n in data_fields], tuple(getattr(x, n)
+                                                                                          for n in meta_fields)
+
+    def flatten(x):
+        return [getattr(x, n) for n in data_fields], tuple(getattr(x, n) for n in meta_fields)
+
+    def unflatten(meta, data):
+        obj = object.__new__(cls)
+        for name, value in (*zip(meta_fields, meta), *zip(data_fields, data)):
+            object.__setattr__(obj, name, value)
+        return obj
+
+    jax.tree_util.register_pytree_with_keys(cls, flatten_with_keys, unflatten, flatten)
+
+
+_register(Gate, ["bin_width", "start"], ["bins"])
+_register(DepthScale, ["offset", "span"], [])
+_register(Optics, ["fov_deg"], ["lr_shape", "scale"])
+_register(Pulse, ["sigma"], [])
+_register(Sensor, ["gate", "optics", "pulse", "depth", "r_min", "ambient_floor"], [])
 
 
 def SensorConfig(hr_shape=(128, 256), scale: int = 4, bins: int = 16, d_max: float = TRAINED_RANGE_M,
