@@ -11,9 +11,15 @@ import numbers
 
 import jax
 
-# the sensor's description lives in jaxsr.spad; its names stay importable from here
-from .spad import (METRES_PER_SECOND, MIN_LR_SIDE, TRAINED_RANGE_M, DepthScale, Gate, Optics, Pulse,  # noqa: F401
-                   Sensor, SensorConfig)
+__all__ = ["DEFAULT_MEAN_SIGNAL", "TRAIN_MEAN_SIGNAL_RANGE", "TEMPORAL_FORMS", "PRECISIONS", "MODEL_INPUTS",
+           "MODEL_LIMITS", "check_int_field", "ModelConfig", "DEFAULT_CLIP_OUTPUTS", "TrainConfig", "PhotonRegime",
+           "PAPER_REGIME", "PRESETS",
+           # the sensor's description lives in jaxsr.spad; its names stay importable from here
+           "METRES_PER_SECOND", "MIN_LR_SIDE", "TRAINED_RANGE_M", "DepthScale", "Gate", "Optics", "Pulse", "Sensor",
+           "SensorConfig"]
+
+from .spad import (METRES_PER_SECOND, MIN_LR_SIDE, TRAINED_RANGE_M, DepthScale, Gate, Optics, Pulse, Sensor,
+                   SensorConfig)
 
 # Mean signal photons per LR pixel with a return (docs/sensor-model.md, section 2). The paper does not give it; this is
 # the level at which bicubic upsampling of centre-of-mass depth on our three test scenes comes closest to the

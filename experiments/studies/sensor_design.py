@@ -12,7 +12,6 @@ photon keys (common random numbers), so neighbouring points differ by the sensor
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import functools
 import sys
 import time

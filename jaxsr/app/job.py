@@ -12,7 +12,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-from ..config import TRAINED_RANGE_M, DepthScale, Gate, Optics, Sensor
+from ..config import DepthScale, Gate, Optics, Sensor
 from ..inference import (DEFAULT_PRECISION, iter_ambient_only, iter_network_inputs, iter_returns_kept,
                          iter_super_resolve, lr_blocks, no_return_where, overrule_no_return)
 from ..inference.confidence import (EVIDENCE_FRAMES, NO_RETURN_AT, ConfidenceCoefficients, coefficients_for,
@@ -25,7 +25,7 @@ from .memory import HISTOGRAM_CHUNK, check_result_memory
 from .models import finish_model, has_head, plan_model, trained_snr_range
 from .photons import (AMBIENT_FRAMES, HEAD_FRAMES, PhotonDecision, decide_photon_rules, few_photons_warnings,
                       photon_levels, rule_warnings, snr_warnings)
-from .recordings import (Recording, check_frames, clipped_recording, gate_frames, guess_units, normalised_frames,
+from .recordings import (Recording, check_frames, clipped_recording, guess_units, normalised_frames,
                          open_recording, time_tag_recording, to_units)
 from .specs import ModelChoice, PhotonRules, Reading, is_auto
 
@@ -270,7 +270,7 @@ def _depth_job(rec, source, choice, planned, read: Reading, photons: PhotonRules
     # inside a region of no return (a pixel and its 8 neighbours), the output is no return too: a network reading
     # depth alone shows some of a sky band as depth, and nothing there says a surface is
     interior = None if model.has_no_return_head else (lambda: (no_return_interior(f) for f in lr_stream()))
-    return UpscaleJob(rec, model, description, description, units, None, DepthScale(0.0, float(sensor.d_max)), (),
+    return UpscaleJob(rec, model, description, description, units, None, sensor.depth, (),
                       source, choice.precision, model_id=name, _lr_stream=lr_stream, _ambient_stream=interior)
 
 
@@ -285,19 +285,19 @@ def no_return_interior(lr) -> np.ndarray:
 def _histogram_job(rec, gate, source, tag_notes, choice, planned, read: Reading, photons: PhotonRules) -> UpscaleJob:
     """The job of photon histograms (time tags already histogrammed): the gate's depth scale, the photon levels
     and the rules they decide, and streams of the network's input and the rules' flags."""
-    scale = DepthScale.for_gate(gate, gate.length if read.span == "gate" else read.span)
+    sensor = read.sensor_of_gate(gate)
+    scale = sensor.depth
     warnings = tag_notes + tuple(gate_warnings(gate, scale))
     units = "m" if read.units is None else read.units
     found = check_frames(rec, units, gate, clip_negative=read.clip_negative)  # (0, 0) unless clip_negative
     if found[0]:
         warnings += (_clipped_note(*found),)
     counts = clipped_recording(rec) if read.clip_negative else rec
-    sensor = Sensor(gate=Gate.spanning(TRAINED_RANGE_M, gate.bins))
     # what the photons say, read once (not after clipping: the clipped counts' ambient is no longer the sensor's)
     levels = None if read.clip_negative else photon_levels(counts, gate.bins)
 
     def lr_stream(channels):
-        return gate_frames(iter_network_inputs(counts, sensor, channels, chunk=HISTOGRAM_CHUNK), gate, scale)
+        return iter_network_inputs(counts, sensor, channels, chunk=HISTOGRAM_CHUNK)
 
     enable_compilation_cache()
     model, model_id, name = finish_model(choice, planned, "histograms",
@@ -402,7 +402,10 @@ def _open(input, read: Reading, max_memory):
             raise ValueError("give both --bin-width and --gate-start, or neither (the gate then spans the photons)")
         if read.clip_negative:
             raise ValueError("--clip-negative applies to histograms only (counts of time tags are never negative)")
-        gate = gate_of_tags(tags, bins=read.n_bins) if width is None else Gate(read.n_bins, width, start)
+        if read.sensor is not None:
+            gate = read.sensor.gate
+        else:
+            gate = gate_of_tags(tags, bins=read.n_bins) if width is None else Gate(read.n_bins, width, start)
         outside = "drop" if read.drop_outside else "error"
         rec = time_tag_recording(tags, gate, outside=outside, max_memory=max_memory)
         source = str(input) if not isinstance(input, TimeTags) else tags.source
@@ -420,9 +423,5 @@ def _open(input, read: Reading, max_memory):
     if rec.kind == "depth":
         read.refuse_for_depth()
         return rec, None, source, ()
-    default = Gate()
-    bins = int(rec.shape[-1]) if read.bins is None else read.bins  # the array says how many; --bins checks it
-    if width is None:  # bins read from the data span the trained range, as the bundled sensor's 16 do
-        width = default.bin_width if read.bins is not None else TRAINED_RANGE_M / bins
-    gate = Gate(bins, width, 0.0 if start is None else start)
-    return rec, gate, source, ()
+    # the array says how many bins; --bins and --sensor check it
+    return rec, read.sensor_for(None if read.bins is not None else int(rec.shape[-1])).gate, source, ()

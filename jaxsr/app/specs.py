@@ -22,7 +22,7 @@ import os
 import numpy as np
 
 from ..checks import one_positive_number
-from ..config import PRECISIONS
+from ..config import PRECISIONS, TRAINED_RANGE_M, DepthScale, Gate, Sensor
 from ..inference import DEFAULT_FORM, DEFAULT_PRECISION, FORMS
 from ..nn.model import Model
 from ..io.pointcloud import points_camera
@@ -89,7 +89,9 @@ class Reading:
     array to read; drop_outside: ignore photons outside the gate (default: refuse them). clip_negative
     (histograms): clip negative counts at 0, as background-subtracted data need, and say how many. units
     (--units): of depth input and array output, one of `DEPTH_UNITS` (None: guessed, see
-    `jaxsr.app.recordings.guess_units`; histograms give metres).
+    `jaxsr.app.recordings.guess_units`; histograms give metres). sensor (--sensor): the sensor instead of the
+    gate's options, a `jaxsr.Sensor` or its TOML file (`jaxsr.Sensor.from_file`: its gate, depth scale and pulse).
+    `sensor_for` is the `jaxsr.Sensor` the histograms are read with.
 
     Built checked: bin_width and gate_start are held in metres, span in metres or "gate", time_unit in seconds."""
 
@@ -103,6 +105,7 @@ class Reading:
     drop_outside: bool = False
     clip_negative: bool = False
     units: str | None = None
+    sensor: str | os.PathLike | Sensor | None = None
 
     def __post_init__(self):
         if self.kind is not None and self.kind not in KINDS:
@@ -132,6 +135,15 @@ class Reading:
                 set_(name, _flag(getattr(self, name)))
             except TypeError as e:
                 raise TypeError(f"{name}: {e}") from None
+        if self.sensor is not None:
+            if self.gate_options:
+                raise ValueError("--sensor gives the gate and the depth scale: --bins, --bin-width, --gate-start and "
+                                 "--span do not go beside it")
+            if isinstance(self.sensor, (str, os.PathLike)):
+                set_("sensor", Sensor.from_file(self.sensor))
+            elif not isinstance(self.sensor, Sensor):
+                raise TypeError(f"sensor (--sensor): expected a jaxsr.Sensor or its TOML file, got "
+                                f"{type(self.sensor).__name__}")
         if self.units is not None and self.units not in DEPTH_UNITS:
             raise ValueError(f"units is one of {', '.join(map(repr, DEPTH_UNITS))}, got {self.units!r}")
         tag_only = self.tag_options
@@ -158,8 +170,32 @@ class Reading:
         """The gate's bins: `bins`, default 16."""
         return DEFAULT_BINS if self.bins is None else int(self.bins)
 
+    def sensor_for(self, bins: int | None = None) -> Sensor:
+        """The sensor histograms are read with: `sensor`, or the gate's options (the flags' route): `bins`
+        (default the histograms' own, `bins` here, else 16) bins of bin_width (default: 35 m over the histograms'
+        own bins, 35 / 16 m beside --bins) from gate_start (default 0), the network's 0 at the gate's start and
+        its 1.0 `span` metres on (default the trained 35 m; "gate": the gate's end). Raises ValueError where the
+        histograms' bins differ from the sensor's."""
+        if self.sensor is not None:
+            if bins is not None and int(bins) != self.sensor.bins:
+                raise ValueError(f"the histograms have {int(bins)} bins and the sensor (--sensor) {self.sensor.bins}")
+            return self.sensor
+        n = int(bins) if self.bins is None and bins is not None else self.n_bins
+        width = self.bin_width
+        if width is None:  # bins read from the data span the trained range, as the bundled sensor's 16 do
+            width = Gate().bin_width if self.bins is not None else TRAINED_RANGE_M / n
+        return self.sensor_of_gate(Gate(n, width, 0.0 if self.gate_start is None else self.gate_start))
+
+    def sensor_of_gate(self, gate: Gate) -> Sensor:
+        """The sensor of a gate (given, or found from time tags) with the depth scale `span` says, or `sensor`."""
+        if self.sensor is not None:
+            return self.sensor
+        return Sensor(gate=gate, depth=DepthScale.for_gate(gate, gate.length if self.span == "gate" else self.span))
+
     def refuse_for_depth(self) -> None:
         """Raise ValueError for an option that depth frames cannot take (they hold no photons)."""
+        if self.sensor is not None:
+            raise ValueError("--sensor applies to histograms and time tags only (depth frames hold no photons)")
         if self.gate_options or self.drop_outside:
             raise ValueError("--bins, --bin-width, --gate-start and --span apply to histograms and time tags only")
         if self.clip_negative:

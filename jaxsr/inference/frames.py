@@ -29,13 +29,14 @@ from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
 from ..checks import require_normalised_depth
-from ..config import MIN_LR_SIDE
+from ..config import MIN_LR_SIDE, Sensor
 from ..eval.metrics import psnr
 from ..nn.duf import apply_model_raw, apply_model_sequence
 from ..nn.model import Model
 from ..runtime import compiler_options
 from .forms import DEFAULT_FORM, DEFAULT_PRECISION, FORM_TOLERANCE_DB, check_precision, in_form
 from .traced import refuse_tracing
+from .units import check_units, lr_to_network, network_to_units
 
 # Frames per device and batch when `batch_size=None`: on XLA:CPU larger batches are no faster per frame
 # (benchmarks/bench_inference.py), and one frame per device keeps the latency of a stream low.
@@ -278,10 +279,10 @@ def iter_super_resolve(model: Model, frames: Iterable, *, batch_size: int | None
         yield from drain(pending)
 
 
-def super_resolve(model: Model, lr_seq, *, batch_size: int | None = None, conv3d_impl: str = "auto",
-                  tile: int | None = DEFAULT_TILE, precision: str = DEFAULT_PRECISION,
-                  form: str = DEFAULT_FORM) -> np.ndarray:
-    """Super-resolve a whole LR depth sequence: (T, h, w) -> (T, h r, w r) normalised depth (NumPy, float32), for
+def super_resolve(model: Model, lr_seq, *, units: str = "normalised", sensor: Sensor | None = None,
+                  batch_size: int | None = None, conv3d_impl: str = "auto", tile: int | None = DEFAULT_TILE,
+                  precision: str = DEFAULT_PRECISION, form: str = DEFAULT_FORM) -> np.ndarray:
+    """Super-resolve a whole LR depth sequence: (T, h, w) -> (T, h r, w r) depth in `units` (NumPy, float32), for
     any h, w >= `MIN_LR_SIDE` (large frames in spatial tiles of at most `tile` LR pixels a side, margins included,
     with the same result; see `iter_super_resolve`).
 
@@ -293,11 +294,16 @@ def super_resolve(model: Model, lr_seq, *, batch_size: int | None = None, conv3d
     bounded by the batch (see `iter_super_resolve`); the HR result is assembled on the host. `lr_seq` is
     normalised depth in [0, 1] (1 or NaN = no return; checked as in `iter_super_resolve`), or (T, h, w, C) for a
     model reading photons too (`jaxsr.nn.network_inputs`). For a differentiable, traceable version, call
-    `apply_model(params, state, jaxsr.windows(lr_seq, tr), cfg)`.
+    `jaxsr.apply_sequence(model, lr_seq)`.
+    units: "normalised" (default: the network's scale, as jaxsr always read and wrote it) or "m": `lr_seq` in radial
+    metres (NaN, inf or beyond the depth span = no return) and the result in metres (inf = no return), converted on
+    `sensor`'s depth scale (`jaxsr.Sensor.depth`; default `Sensor()`, 0-35 m; `sensor` is refused beside
+    normalised depth, on which it would do nothing).
     precision: as in `iter_super_resolve`. form: the temporal form (`FORMS`, `in_form`), default `DEFAULT_FORM`.
     """
     _require_model(model, "super_resolve")
     refuse_tracing(lr_seq, "super_resolve", "jaxsr.apply_sequence(model, lr_seq)")
+    sensor = check_units("super_resolve", units, sensor, depth_input=True)
     if lr_seq is None or isinstance(lr_seq, (str, bytes)):
         raise TypeError(f"super_resolve: expected an LR sequence array (T, h, w), got {type(lr_seq).__name__}")
     if np.iscomplexobj(lr_seq):
@@ -311,11 +317,13 @@ def super_resolve(model: Model, lr_seq, *, batch_size: int | None = None, conv3d
                                      "super_resolve_histograms")
         raise ValueError(f"super_resolve: expected an LR sequence {shape} with T >= 1, got shape {lr_seq.shape}"
                          + hint)
+    if units != "normalised":
+        lr_seq = np.asarray(lr_to_network(lr_seq, units, sensor, channels=want == 4))
     r = model.architecture.scale(model.config)
     out = np.empty((lr_seq.shape[0], lr_seq.shape[1] * r, lr_seq.shape[2] * r), np.float32)
     for t, hr in enumerate(iter_super_resolve(model, lr_seq, batch_size=batch_size, conv3d_impl=conv3d_impl,
                                               tile=tile, precision=precision, form=form)):
-        out[t] = hr
+        out[t] = hr if units == "normalised" else np.asarray(network_to_units(hr, units, sensor))
     return out
 
 

@@ -18,6 +18,7 @@ from ..nn.model import Model
 from ..sensor.peaks import ambient_only, capped_for_sum, check_ambient_settings, check_false_alarm_rate
 from .forms import DEFAULT_FORM, DEFAULT_PRECISION, check_precision, in_form
 from .traced import refuse_tracing
+from .units import check_units, network_to_units
 from .frames import DEFAULT_BATCH_SIZE, DEFAULT_TILE, _require_model, default_batch_size, iter_super_resolve
 
 
@@ -126,21 +127,24 @@ def check_keep_returns(keep_returns, ambient_alpha, has_head: bool, where: str =
                          "has no head: give one that has (tr4-ambient, tr0-ambient, tr4-photons, tr0-photons)")
 
 
-def super_resolve_histograms(model: Model, counts, sensor: Sensor = Sensor(), *, intensity=None,
+def super_resolve_histograms(model: Model, counts, sensor: Sensor = Sensor(), *, units: str = "normalised",
+                             intensity=None,
                              batch_size: int | None = None, conv3d_impl: str = "auto",
                              tile: int | None = DEFAULT_TILE, precision: str = DEFAULT_PRECISION,
                              form: str = DEFAULT_FORM, ambient_alpha: float | None = None,
                              keep_returns: float | None = None) -> np.ndarray:
-    """Super-resolve photon histograms: (T, h, w, K) counts -> (T, h r, w r) normalised depth (NumPy, float32).
+    """Super-resolve photon histograms: (T, h, w, K) counts -> (T, h r, w r) depth in `units` (NumPy, float32):
+    "normalised" (default; the network's scale, the sensor's depth scale `sensor.depth`) or "m" (radial metres,
+    inf = no return).
 
     A model that reads depth (the DUF network, iSeeBetter) gets the centre-of-mass depth of each frame
-    (`jaxsr.centre_of_mass` with `sensor`, K = `sensor.bins` over the sensor's gate [0, d_max): the normalised
-    depth is tau / K), and the photons behind it if its config lists more `inputs` (`jaxsr.nn.network_inputs`),
+    (`jaxsr.centre_of_mass` with `sensor`, K = `sensor.bins` over the sensor's gate, put on its depth scale:
+    `jaxsr.nn.network_inputs`), and the photons behind it if its config lists more `inputs` (`jaxsr.nn.network_inputs`),
     `super_resolve`d, streaming (see `iter_super_resolve`; `batch_size`, `conv3d_impl`, `tile` and `precision`
     as there, `form` as in `super_resolve`). A model that reads histograms (HistNet) gets the counts themselves
     with `intensity` (T, h r, w r), the HR intensity in [0, 1] it is guided by (required for it, refused
-    otherwise), frame by frame in batches of `batch_size`. Any h, w >= `MIN_LR_SIDE`; for histograms over
-    another gate, see `jaxsr.Gate` and `jaxsr.sensor.gate_depth`.
+    otherwise), frame by frame in batches of `batch_size`. Any h, w >= `MIN_LR_SIDE`; histograms over another
+    gate: `jaxsr.Sensor(gate=jaxsr.Gate(bins, bin_width, start))`.
     ambient_alpha: also output no return (1.0) wherever the photons around an LR pixel pass for ambient light
     alone at this false-alarm rate (`jaxsr.sensor.ambient_only`: 3 x 3 pixels, 9 frames; default None: off). It
     empties the insides of sky and absorbing regions that a model shows as depth, and drops returns too faint to
@@ -155,7 +159,7 @@ def super_resolve_histograms(model: Model, counts, sensor: Sensor = Sensor(), *,
     _require_model(model, "super_resolve_histograms")
     precision = check_precision(model, precision, "super_resolve_histograms")
     if not isinstance(sensor, Sensor):
-        raise TypeError(f"super_resolve_histograms: sensor is a jaxsr.Sensor (e.g. Sensor(gate=Gate.spanning(35.0, bins=32))), got "
+        raise TypeError(f"super_resolve_histograms: sensor is a jaxsr.Sensor (e.g. Sensor(gate=Gate(32, 0.5))), got "
                         f"{type(sensor).__name__}")
     if counts is None or isinstance(counts, (str, bytes)):
         raise TypeError(f"super_resolve_histograms: expected photon counts (T, h, w, {sensor.bins}), got "
@@ -166,6 +170,7 @@ def super_resolve_histograms(model: Model, counts, sensor: Sensor = Sensor(), *,
     if counts.ndim != 4 or counts.shape[0] < 1 or min(counts.shape[1:3]) < MIN_LR_SIDE:
         raise ValueError(f"super_resolve_histograms: expected counts (T, h, w, {sensor.bins}) with T >= 1 and h, w >= "
                          f"{MIN_LR_SIDE}, got shape {counts.shape}")
+    check_units("super_resolve_histograms", units, sensor, depth_input=False)
     model = in_form(model, form, "super_resolve_histograms")
     if ambient_alpha is not None:  # refused before any work
         check_false_alarm_rate("super_resolve_histograms: ambient_alpha", ambient_alpha)
@@ -173,7 +178,8 @@ def super_resolve_histograms(model: Model, counts, sensor: Sensor = Sensor(), *,
     r = model.architecture.scale(model.config)
     if model.reads_histograms:
         out = _histograms_through_model(model, counts, intensity, sensor, batch_size or DEFAULT_BATCH_SIZE)
-        return out if ambient_alpha is None else _no_return_where_ambient(out, counts, sensor, ambient_alpha)
+        out = out if ambient_alpha is None else _no_return_where_ambient(out, counts, sensor, ambient_alpha)
+        return _in_units(out, units, sensor)
     if intensity is not None:
         raise ValueError(f"super_resolve_histograms: a {model.kind} model reads depth, not intensity; "
                          "pass intensity only to a model that reads histograms (HistNet)")
@@ -189,7 +195,16 @@ def super_resolve_histograms(model: Model, counts, sensor: Sensor = Sensor(), *,
                                    **options)
     for t, hr in enumerate(stream):
         out[t] = hr
-    return out if ambient_alpha is None else _no_return_where_ambient(out, counts, sensor, ambient_alpha)
+    out = out if ambient_alpha is None else _no_return_where_ambient(out, counts, sensor, ambient_alpha)
+    return _in_units(out, units, sensor)
+
+
+def _in_units(out, units: str, sensor: Sensor) -> np.ndarray:
+    if units == "normalised":
+        return out
+    for t in range(out.shape[0]):  # frame by frame: one frame's temporaries at a time
+        out[t] = np.asarray(network_to_units(out[t], units, sensor))
+    return out
 
 
 def no_return_where(hr, flags):

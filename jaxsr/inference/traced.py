@@ -19,6 +19,7 @@ from ..nn.inputs import network_inputs
 from ..nn.model import Model
 from ..temporal import windows
 from .forms import DEFAULT_FORM, DEFAULT_PRECISION, check_precision, in_form
+from .units import check_units, lr_to_network, network_to_units
 
 __all__ = ["apply_sequence", "apply_histograms", "network_over_sequence", "refuse_tracing"]
 
@@ -39,16 +40,18 @@ def _model(model, who: str, form: str, precision: str) -> Model:
     return in_form(model, form, who)
 
 
-def apply_sequence(model: Model, lr_seq, *, form: str = DEFAULT_FORM, conv3d_impl: str = "auto",
-                   precision: str = DEFAULT_PRECISION):
+def apply_sequence(model: Model, lr_seq, *, units: str = "normalised", sensor: Sensor | None = None,
+                   form: str = DEFAULT_FORM, conv3d_impl: str = "auto", precision: str = DEFAULT_PRECISION):
     """The network over a whole LR sequence: (T, h, w) LR normalised depth (1.0 or NaN = no return; (T, h, w, C)
     channels for a model reading photons too, `jaxsr.nn.network_inputs`) -> (T, h r, w r) HR normalised depth, a
     JAX array, not clipped. jit-, vmap- (over leading sequences) and grad-compatible; equal to `super_resolve` on
     the same sequence to float32 rounding. Each frame reads its temporal neighbours, the ends edge-replicated, in
     the form `form` picks (`jaxsr.inference.in_form`: "auto" as `super_resolve` runs it). NaN input reads as no
-    return; values outside [0, 1] are clipped (a host-side function would refuse them). conv3d_impl, precision:
-    as for `jaxsr.nn.apply_model`."""
+    return; values outside [0, 1] are clipped (a host-side function would refuse them). units: "normalised"
+    (default) or "m": radial metres in and out on `sensor`'s depth scale, as `super_resolve` takes them (the
+    gradient flows through the conversion). conv3d_impl, precision: as for `jaxsr.nn.apply_model`."""
     model = _model(model, "apply_sequence", form, precision)
+    sensor = check_units("apply_sequence", units, sensor, depth_input=True)
     if model.reads_histograms:
         raise ValueError(f"apply_sequence: a {model.kind} model reads photon histograms; use apply_histograms")
     lr = jnp.asarray(lr_seq, jnp.float32)
@@ -57,10 +60,12 @@ def apply_sequence(model: Model, lr_seq, *, form: str = DEFAULT_FORM, conv3d_imp
         want = "(T, h, w)" if channels == 1 else f"(T, h, w, {channels})"
         raise ValueError(f"apply_sequence: expected an LR sequence {want} for a model reading {model.channels}, got "
                          f"shape {lr.shape}")
+    lr = lr_to_network(lr, units, sensor, channels=channels > 1)
     depth = lr[..., 0] if channels > 1 else lr
     depth = jnp.clip(jnp.where(jnp.isnan(depth), 1.0, depth), 0.0, 1.0)
-    return network_over_sequence(model, depth if channels == 1 else lr.at[..., 0].set(depth),
-                                 conv3d_impl=conv3d_impl, precision=precision)
+    hr = network_over_sequence(model, depth if channels == 1 else lr.at[..., 0].set(depth),
+                               conv3d_impl=conv3d_impl, precision=precision)
+    return network_to_units(hr, units, sensor)
 
 
 def network_over_sequence(model: Model, lr, *, conv3d_impl: str = "auto", precision: str = DEFAULT_PRECISION):
@@ -73,15 +78,17 @@ def network_over_sequence(model: Model, lr, *, conv3d_impl: str = "auto", precis
     return arch.apply(model.params, model.state, windows(lr, arch.input_radius(cfg)), cfg, **conv)
 
 
-def apply_histograms(model: Model, counts, sensor: Sensor = Sensor(), *, intensity=None,
+def apply_histograms(model: Model, counts, sensor: Sensor = Sensor(), *, units: str = "normalised", intensity=None,
                      form: str = DEFAULT_FORM, conv3d_impl: str = "auto", precision: str = DEFAULT_PRECISION):
-    """The network over a whole sequence of photon histograms: (T, h, w, K) counts (finite, >= 0) -> (T, h r, w r)
-    HR normalised depth, a JAX array; jit-, vmap- and grad-compatible (the gradient flows through the centre of mass
-    and the photon channels to the counts). A model reading depth (and photon channels) gets
+    """The network over a whole sequence of photon histograms: (T, h, w, K) counts (finite, >= 0; K =
+    `sensor.bins` over its gate) -> (T, h r, w r) HR depth in `units` ("normalised" on the sensor's depth scale, or
+    "m": radial metres, inf = no return), a JAX array; jit-, vmap- and grad-compatible (the gradient flows
+    through the centre of mass and the photon channels to the counts). A model reading depth (and photon channels) gets
     `jaxsr.nn.network_inputs(counts, sensor, model.channels)` (`apply_sequence`); one reading histograms (HistNet)
     gets the counts with `intensity` (T, h r, w r), which it needs. Equal to `super_resolve_histograms` without its
     no-return tests (`ambient_alpha`, `keep_returns`) to float32 rounding."""
     model = _model(model, "apply_histograms", form, precision)
+    sensor = check_units("apply_histograms", units, sensor, depth_input=False)
     counts = jnp.asarray(counts, jnp.float32)
     if counts.ndim != 4:
         raise ValueError(f"apply_histograms: expected counts (T, h, w, K), got shape {counts.shape}")
@@ -89,7 +96,11 @@ def apply_histograms(model: Model, counts, sensor: Sensor = Sensor(), *, intensi
         if intensity is None:
             raise ValueError(f"apply_histograms: a {model.kind} model reads the HR intensity (T, h r, w r) too: give "
                              "intensity")
-        return model.architecture.apply(model.params, model.state, (counts, jnp.asarray(intensity, jnp.float32)),
-                                        model.config, conv3d_impl=conv3d_impl)
+        hr = model.architecture.apply(model.params, model.state, (counts, jnp.asarray(intensity, jnp.float32)),
+                                      model.config, conv3d_impl=conv3d_impl)
+        return network_to_units(hr, units, sensor)
+    if counts.shape[-1] != sensor.bins:
+        raise ValueError(f"apply_histograms: counts have {counts.shape[-1]} bins, the sensor's gate {sensor.bins}")
     lr = network_inputs(counts, sensor, model.channels)
-    return apply_sequence(model, lr, form="model", conv3d_impl=conv3d_impl, precision=precision)
+    hr = apply_sequence(model, lr, form="model", conv3d_impl=conv3d_impl, precision=precision)
+    return network_to_units(hr, units, sensor)

@@ -424,7 +424,8 @@ def read_sequence(path, *, max_memory=None):
 
 def write_histograms(path, counts, *, depth=None, sensor=None, overwrite=False, **metadata):
     """Write photon histograms (T, h, w, K) (non-negative integers; stored uint16 when they fit, else int32),
-    optionally the ground-truth HR depth (T, H, W) and the sensor config and metadata (JSON), as .npz.
+    optionally the ground-truth HR depth (T, H, W) and the sensor (`jaxsr.Sensor.to_dict`) and metadata (JSON), as
+    .npz.
 
     Args: path (.npz), counts (T, h, w, K), depth (T, H, W) or None. Returns None.
     """
@@ -436,10 +437,7 @@ def write_histograms(path, counts, *, depth=None, sensor=None, overwrite=False, 
     dtype = np.uint16 if counts.max(initial=0) <= np.iinfo(np.uint16).max else np.int32
     config = {}
     if sensor is not None:
-        import dataclasses
-
-        config = {k: (list(v) if isinstance(v, tuple) else float(v) if not isinstance(v, int) else v)
-                  for k, v in dataclasses.asdict(sensor).items()}
+        config = sensor.to_dict()  # the jaxsr.Sensor, read back by jaxsr.Sensor.from_dict
     arrays = dict(counts=counts.astype(dtype), config=np.array(json.dumps(config)),
                   metadata=np.array(json.dumps(metadata)))
     if depth is not None:

@@ -17,7 +17,6 @@ gives each clip its own masks.
 
 from __future__ import annotations
 
-import dataclasses
 
 import jax
 import jax.numpy as jnp

@@ -28,7 +28,7 @@ def test_simulate_scene(tmp_path, capsys):
     assert summary["counts_shape"] == [3, 32, 64, 16] and summary["snr"] == 1.3
     h = io.read_histograms(out / "histograms.npz")
     assert h["counts"].shape == (3, 32, 64, 16) and h["depth"].shape == (3, 128, 256)
-    assert h["config"]["bins"] == 16 and h["metadata"]["kind"] == "walkers"
+    assert h["config"]["gate"]["bins"] == 16 and h["metadata"]["kind"] == "walkers"
     com = np.load(out / "com_depth.npy")
     assert com.shape == (3, 32, 64) and 0 <= com.min() and com.max() <= 1
     gt = np.load(out / "gt_depth.npy")

@@ -1,7 +1,6 @@
 """Sensor effects (jaxsr.sensor.effects): dark counts, hot and dead pixels, no-return regions, a per-clip IRF
 width and clipping background-subtracted counts; closed forms, shapes, jit/vmap, gradients, bad input, extremes."""
 
-import dataclasses
 
 import jax
 import jax.numpy as jnp
