@@ -154,6 +154,8 @@ def main(argv=None) -> int:
         sys.unraisablehook = _redeliver_dropped_interruptions(unraisable_hook)
     with warnings.catch_warnings():
         warnings.showwarning = _print_warning(args.command)
+        for note in getattr(args, "old_spellings", ()):  # flags given in their old spelling (`_args.OldSpelling`)
+            print(f"jaxsr {args.command}: warning: {note}", file=sys.stderr)
         try:
             status = _run(args, argv)
         finally:

@@ -123,3 +123,51 @@ span.__doc__ = """An argparse type: metres of range mapped onto the network's [0
 or 'gate' (the gate's length)."""
 memory = _argument_type(checks.parse_memory, "memory")
 memory.__doc__ = "An argparse type: a size with its unit, such as 16GB or 512MiB (bytes > 0)."
+
+
+# --- the command's conventions, the same in every subcommand (docs/cli.md, "Conventions"): the input positional,
+# the output -o/--output, the model -m/--model, -f/--force, -q/--quiet; old spellings kept for one release --------
+
+class OldSpelling(argparse.Action):
+    """A flag's old spelling: it stores what the new one stores and notes a warning, which `jaxsr.cli.main` prints
+    once the command starts (`jaxsr CMD: warning: ...`)."""
+
+    def __init__(self, option_strings, dest, new: str, **kwargs):
+        self.new = new
+        super().__init__(option_strings, dest, **kwargs)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        setattr(namespace, self.dest, values)
+        note_old_spelling(namespace, option_string, self.new)
+
+
+def note_old_spelling(namespace, old: str, new: str) -> None:
+    """Note on the parsed arguments that `old` was given for `new` (printed as a warning by `jaxsr.cli.main`)."""
+    notes = list(getattr(namespace, "old_spellings", ()))
+    notes.append(f"{old} is the old spelling of {new} and goes in the next release")
+    namespace.old_spellings = notes
+
+
+def add_output(p, what: str, *, old_out: bool = True) -> None:
+    """-o/--output (the output: `what`), and the old --out."""
+    p.add_argument("-o", "--output", default=None, metavar="PATH", help=f"{what} (required)")
+    if old_out:
+        p.add_argument("--out", dest="output", action=OldSpelling, new="-o/--output", help=argparse.SUPPRESS)
+
+
+def add_force(p, what: str, group=None) -> None:
+    """-f/--force."""
+    (group or p).add_argument("-f", "--force", action="store_true", help=what)
+
+
+def add_quiet(p) -> None:
+    """-q/--quiet, and --no-progress (the same: no progress bar)."""
+    p.add_argument("-q", "--quiet", "--no-progress", dest="no_progress", action="store_true",
+                   help="no progress bar")
+
+
+def required_output(args) -> str:
+    """The output the arguments give; ValueError (one line, exit 2) when none is."""
+    if args.output is None:
+        raise ValueError("the output is required: -o/--output PATH")
+    return args.output

@@ -6,6 +6,7 @@ gate flags."""
 
 from __future__ import annotations
 
+import argparse
 import shlex
 
 from pathlib import Path
@@ -14,7 +15,7 @@ from ..config import PRESETS
 from ..io.checkpoint import read_metadata
 from ..training.presets import finetune
 from ..training.sensor_file import read_sensor_file
-from ._args import int_range, seed
+from ._args import OldSpelling, add_force, add_output, add_quiet, int_range, required_output, seed
 
 
 def add_parser(subparsers):
@@ -22,12 +23,13 @@ def add_parser(subparsers):
     p.add_argument("--sensor", required=True, metavar="FILE",
                    help="the sensor's TOML file: [sensor] bins, bin width, gate, pulse, resolution; [photons] "
                    "signal and SNR ranges (see docs/finetune.md)")
-    p.add_argument("--from", dest="init", default="tr4", metavar="MODEL",
+    p.add_argument("-m", "--model", dest="init", default="tr4", metavar="MODEL",
                    help="the model to start from: tr0..tr4 (bundled), a checkpoint or a run folder (default tr4)")
-    p.add_argument("--out", required=True, metavar="DIR", help="output folder (metrics.jsonl, best.npz, last.npz)")
+    p.add_argument("--from", dest="init", action=OldSpelling, new="-m/--model", help=argparse.SUPPRESS)
+    add_output(p, "output folder OUT (metrics.jsonl, best.npz, last.npz)")
     again = p.add_mutually_exclusive_group()
     again.add_argument("--resume", action="store_true", help="continue the run in OUT (from last.npz or resume.npz)")
-    again.add_argument("--force", action="store_true", help="start a new run in OUT, replacing the run it holds")
+    add_force(p, "start a new run in OUT, replacing the run it holds", again)
     p.add_argument("--epochs", type=int_range(1), default=10, metavar="N", help="epochs to train (default 10)")
     p.add_argument("--steps-per-epoch", type=int_range(1), default=256, metavar="N",
                    help="optimiser steps per epoch (default 256, of the preset's batch of 4)")
@@ -42,7 +44,7 @@ def add_parser(subparsers):
     p.add_argument("--checkpoint-minutes", type=float, default=10.0, metavar="M",
                    help="save the train state inside an epoch (OUT/resume.npz) every this many minutes of training "
                    "(default 10; 0: every step; inf: never)")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_quiet(p)
     p.set_defaults(func=run)
 
 
@@ -64,21 +66,23 @@ def _summary(info: dict) -> list[str]:
 
 def run(args) -> int:
     """Fine-tune as the arguments say; prints the sensor, the best epoch and the upscale command."""
+    out = required_output(args)
     _, _, info = read_sensor_file(args.sensor)  # a bad file is one error line before anything else
     for line in _summary(info):
         print(line)
-    _, history = finetune(args.out, sensor_file=args.sensor, init=args.init, epochs=args.epochs,
+    _, history = finetune(out, sensor_file=args.sensor, init=args.init, epochs=args.epochs,
                           steps_per_epoch=args.steps_per_epoch, val_batches=args.val_batches, preset=args.preset,
                           photons=True if args.photons else None, seed=args.seed, resume=args.resume,
                           overwrite=args.force, checkpoint_minutes=args.checkpoint_minutes,
                           progress=not args.no_progress)  # a warning: one line on stderr (`jaxsr.cli.main`)
     best = min(history, key=lambda r: r["val_loss"]) if history else None
     if best:
-        start = read_metadata(Path(args.out) / "best.npz").get("card", {}).get("finetune", {}).get("start")
+        start = read_metadata(Path(out) / "best.npz").get("card", {}).get("finetune", {}).get("start")
         against = [f"bicubic {best['val_bicubic_psnr']:.2f} dB"] if best.get("val_bicubic_psnr") is not None else []
         against += [f"the starting model {start['val_psnr']:.2f} dB"] if start else []
         print(f"best epoch {best['epoch']}: val loss {best['val_loss']:.3e}, val PSNR {best['val_psnr']:.2f} dB"
-              + (f" ({', '.join(against)})" if against else "") + f" -> {Path(args.out) / 'best.npz'}")
-    print(f"run it: jaxsr upscale RECORDING OUTPUT --model {shlex.quote(str(args.out))} {info['upscale_options']}  "
-          "(RECORDING: the sensor's histograms, or time tags with --input timetags --time-unit ...)")
+              + (f" ({', '.join(against)})" if against else "") + f" -> {Path(out) / 'best.npz'}")
+    print(f"run it: jaxsr upscale RECORDING -o OUTPUT -m {shlex.quote(str(out))} --sensor "
+          f"{shlex.quote(str(args.sensor))}  (RECORDING: the sensor's histograms, or time tags with -k timetags "
+          "--time-unit ...)")
     return 0

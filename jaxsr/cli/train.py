@@ -17,7 +17,7 @@ from ..runtime import JOIN_TIMEOUT_S, init_distributed
 from ..nn.model import architectures
 from ..training.presets import MAX_TR, train
 from ..training.folders import seed_folder
-from ._args import int_range, positive_float, seed, seed_list
+from ._args import add_force, add_output, add_quiet, int_range, positive_float, required_output, seed, seed_list
 
 
 def add_parser(subparsers):
@@ -29,10 +29,10 @@ def add_parser(subparsers):
     p.add_argument("--scale", type=int_range(1), default=4, help="upsampling factor (4, or 8)")
     p.add_argument("--preset", choices=sorted(PRESETS), default="cpu",
                    help="training preset (see jaxsr.config.PRESETS)")
-    p.add_argument("--out", required=True, help="output folder (metrics.jsonl, best.npz, last.npz)")
+    add_output(p, "output folder OUT (metrics.jsonl, best.npz, last.npz)")
     again = p.add_mutually_exclusive_group()
     again.add_argument("--resume", action="store_true", help="continue the run in OUT (from last.npz or resume.npz)")
-    again.add_argument("--force", action="store_true", help="start a new run in OUT, replacing the run it holds")
+    add_force(p, "start a new run in OUT, replacing the run it holds", again)
     seeding = p.add_mutually_exclusive_group()
     seeding.add_argument("--seed", type=seed, default=None, help="override the preset's seed (0..2^32-1)")
     seeding.add_argument("--seeds", type=seed_list, default=None, metavar="K,K,...",
@@ -57,7 +57,7 @@ def add_parser(subparsers):
                    help="save the train state inside an epoch (OUT/resume.npz) every this many minutes of training, so "
                    "that a stopped run resumes (--resume) with at most that much lost (default 10; 0: every step; "
                    "inf: never)")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_quiet(p)
     across = p.add_argument_group(
         "across processes", "one run over several processes or hosts (JAX's multi-controller runtime): every process "
         "runs this same command with its own --process-id; the preset's batch is the global one, split over all "
@@ -86,7 +86,8 @@ def join_processes(args) -> None:
 def run(args) -> int:
     """Train as the arguments say; prints the best epoch. Configs and data are built (and checked) before any work.
     A warning (e.g. a resumed run with nothing to train) is one line on stderr, as `jaxsr.cli.main` prints it."""
-    result = train(args.out, arch=args.arch, tr=args.tr, scale=args.scale, temporal=args.temporal,
+    out = required_output(args)
+    result = train(out, arch=args.arch, tr=args.tr, scale=args.scale, temporal=args.temporal,
                    preset=args.preset, seed=args.seed, seeds=args.seeds, epochs=args.epochs,
                    clip_frames=args.clip_frames, data=args.data, init=args.init, resume=args.resume,
                    overwrite=args.force, checkpoint_minutes=args.checkpoint_minutes, progress=not args.no_progress)
@@ -94,7 +95,7 @@ def run(args) -> int:
     for k, (_, history) in runs.items():
         best = min(history, key=lambda r: r["val_loss"]) if history else None
         if best and jax.process_index() == 0:  # across processes: the one that wrote OUT
-            folder = Path(args.out) if k is None else seed_folder(args.out, k)
+            folder = Path(out) if k is None else seed_folder(out, k)
             print(("" if k is None else f"seed {k}: ") + f"best epoch {best['epoch']}: val loss "
                   f"{best['val_loss']:.3e}, val PSNR {best['val_psnr']:.2f} dB -> {folder / 'best.npz'}")
     return 0

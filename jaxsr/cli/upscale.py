@@ -15,6 +15,7 @@ over the sensor's true range in metres. Prints a JSON summary on stdout (`Upscal
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 
@@ -24,27 +25,35 @@ from ..app import (AUTO_AMBIENT_ALPHA, AUTO_AMBIENT_MIN_FRAMES, AUTO_AMBIENT_MIN
 from ..config import PRECISIONS, TRAINED_RANGE_M
 from ..inference import DEFAULT_FORM, DEFAULT_PRECISION, FORMS
 from ..checks import MEMORY_SHARE
-from ._args import (ambient_alpha, fields_of_view, finite_float, four_numbers, int_range, memory, positive_float,
-                    range_or_time, span, time_unit)
+from ._args import (OldSpelling, add_force, add_output, add_quiet, ambient_alpha, fields_of_view, finite_float,
+                    four_numbers, int_range, memory, positive_float, range_or_time, required_output, span, time_unit)
 
 
 def add_parser(subparsers):
     p = subparsers.add_parser("upscale", help="super-resolve a recording (depth or histograms) x4 with a trained model",
                               description="Super-resolve a recording of any frame size (h, w >= 4). INPUT: .npy / "
                               ".npz array of depth (T, h, w) or photon counts (T, h, w, bins), a folder or quoted glob "
-                              "pattern of EXR, PFM, TIFF or 16-bit PNG depth frames, or photon time tags (--input "
+                              "pattern of EXR, PFM, TIFF or 16-bit PNG depth frames, or photon time tags (--kind "
                               "timetags: a MATLAB v4-v7 .mat cell array of per-pixel arrival times, or an .npz table "
-                              "'pixel', 'time', 'shape'). OUTPUT: .npy / .npz, or a folder of frames (--frame-format). "
-                              "Your own sensor, e.g.: jaxsr upscale tags.mat out.npz --input timetags --time-unit 1ps "
-                              "--bins 16 --bin-width 12.5ns --gate-start 5.18us")
+                              "'pixel', 'time', 'shape'). -o/--output: .npy / .npz, or a folder of frames "
+                              "(--frame-format). Your own sensor, e.g.: jaxsr upscale tags.mat -o out.npz -k timetags "
+                              "--time-unit 1ps --sensor my_sensor.toml (or --bins 16 --bin-width 12.5ns --gate-start "
+                              "5.18us)")
     p.add_argument("input", help="the recording")
-    p.add_argument("output", help="output .npy, .npz or folder")
-    p.add_argument("--model", default="default", help="default (the bundled model that fits the input), tr0..tr4 "
+    p.add_argument("old_output", nargs="?", default=None, metavar="OUTPUT",
+                   help="the old spelling of -o/--output (goes in the next release)")
+    add_output(p, "output .npy, .npz or folder", old_out=False)
+    p.add_argument("-m", "--model", default="default", help="default (the bundled model that fits the input), tr0..tr4 "
                    "(bundled weights; paper-tr0..paper-tr4 always the paper's), auto (choose TR from the measured "
                    "motion), or a checkpoint path")
-    p.add_argument("--input", dest="input_kind", choices=list(KINDS), default=None,
+    p.add_argument("-k", "--kind", dest="input_kind", choices=list(KINDS), default=None,
                    help="what INPUT holds (default: depth or histograms from the data; time tags must be named)")
+    p.add_argument("--input", dest="input_kind", choices=list(KINDS), action=OldSpelling, new="-k/--kind",
+                   help=argparse.SUPPRESS)
     g = p.add_argument_group("histogram gate (histograms and time tags)")
+    g.add_argument("--sensor", default=None, metavar="FILE",
+                   help="the sensor's TOML file, as jaxsr finetune --sensor takes it (docs/own-sensor.md): its gate, "
+                   "depth scale and pulse, instead of --bins, --bin-width, --gate-start and --span")
     g.add_argument("--bins", type=int_range(2), default=None, help="histogram bins K (default: the histograms' own; 16 for time tags)")
     g.add_argument("--bin-width", type=range_or_time, default=None,
                    help="width of a bin as a time (12.5ns, 250ps) or a range (2.19m); default 35 m / 16, or for time "
@@ -147,15 +156,22 @@ def add_parser(subparsers):
                    help="the colour map of previews, videos and point clouds (a matplotlib name; default turbo)")
     g.add_argument("--points-colour", choices=["depth", "none"], default="depth",
                    help="--points: colour the points by depth (default) or write x, y, z only")
-    p.add_argument("--force", action="store_true", help="overwrite OUTPUT (and the preview, video and point clouds)")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_force(p, "overwrite the output (and the preview, video and point clouds)")
+    add_quiet(p)
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
+    if args.old_output is not None:
+        if args.output is not None:
+            raise ValueError(f"two outputs: {args.old_output} and -o/--output {args.output}; give -o/--output alone")
+        args.output = args.old_output
+        print("jaxsr upscale: warning: OUTPUT after INPUT is the old spelling of -o/--output OUTPUT and goes in the "
+              "next release", file=sys.stderr)
+    output = required_output(args)
     read = Reading(kind=args.input_kind, bins=args.bins, bin_width=args.bin_width, gate_start=args.gate_start,
                    span=args.span, time_unit=args.time_unit, variable=args.variable, drop_outside=args.drop_outside,
-                   clip_negative=args.clip_negative, units=args.units)
+                   clip_negative=args.clip_negative, units=args.units, sensor=args.sensor)
     model = ModelChoice(args.model, form=args.form, precision=args.precision, no_return_logit=args.no_return_logit,
                         min_fps=args.min_fps)
     photons = PhotonRules(ambient_alpha=args.ambient_alpha, keep_returns=args.keep_returns)
@@ -165,7 +181,7 @@ def run(args) -> int:
                     points_axes=args.points_axes,
                     points_colour=None if args.points_colour == "none" else args.points_colour, overwrite=args.force,
                     vmin=args.vmin, vmax=args.vmax, cmap=args.cmap)
-    result = upscale(args.input, args.output, model=model, read=read, photons=photons, write=write,
+    result = upscale(args.input, output, model=model, read=read, photons=photons, write=write,
                      batch_size=args.batch_size, max_memory=args.max_memory, progress=not args.no_progress,
                      report=lambda line: print(f"jaxsr upscale: {line}", file=sys.stderr, flush=True))
     print(json.dumps(result.summary()))

@@ -85,9 +85,9 @@ def normalise_depth(depth, sensor: Sensor = Sensor()):
       (...) float normalised depth in [0, 1].
     """
     depth = jnp.asarray(depth, dtype=jnp.result_type(float))
-    scale = sensor.depth
-    safe = jnp.where(has_return(depth, sensor), depth, scale.offset + scale.span)
-    return jnp.clip((safe - scale.offset) / scale.span, 0.0, 1.0)
+    scale, ret = sensor.depth, has_return(depth, sensor)
+    safe = jnp.where(ret, depth, scale.offset)  # a finite stand-in: gradients through `where` stay finite
+    return jnp.where(ret, jnp.clip((safe - scale.offset) / scale.span, 0.0, 1.0), 1.0)
 
 
 def denormalise_depth(norm, sensor: Sensor = Sensor()):

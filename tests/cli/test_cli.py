@@ -21,8 +21,8 @@ SUBCOMMANDS = {"simulate", "train", "finetune", "upscale", "info", "models"}
 @pytest.mark.slow  # 10-18 s: keeps the default suite under 8 minutes on 2 cores
 def test_simulate_scene(tmp_path, capsys):
     out = tmp_path / "sim"
-    rc = cli.main(["simulate", "--kind", "walkers", "--frames", "3", "--fps", "25", "--snr", "1.3", "--seed", "0",
-                   "--out", str(out)])
+    rc = cli.main(["simulate", "--scene", "walkers", "--frames", "3", "--fps", "25", "--snr", "1.3", "--seed", "0",
+                   "--output", str(out)])
     assert rc == 0
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert summary["counts_shape"] == [3, 32, 64, 16] and summary["snr"] == 1.3
@@ -44,13 +44,13 @@ def test_simulate_scene(tmp_path, capsys):
     want = float(np.mean(psnr(bicubic(com, scale=4), normalise_depth(gt))))
     assert summary["bicubic_psnr_db"] == pytest.approx(want, abs=0.01)
     # A second run refuses to overwrite, then overwrites with --force.
-    assert cli.main(["simulate", "--kind", "walkers", "--frames", "3", "--out", str(out)]) == 2
+    assert cli.main(["simulate", "--scene", "walkers", "--frames", "3", "--output", str(out)]) == 2
     assert "--force" in capsys.readouterr().err
-    assert cli.main(["simulate", "--kind", "walkers", "--frames", "3", "--out", str(out), "--force"]) == 0
+    assert cli.main(["simulate", "--scene", "walkers", "--frames", "3", "--output", str(out), "--force"]) == 0
 
 
 def test_simulate_missing_input_is_a_clear_error(tmp_path, capsys):
-    assert cli.main(["simulate", "--input", str(tmp_path / "nope"), "--out", str(tmp_path / "o")]) == 2
+    assert cli.main(["simulate", str(tmp_path / "nope"), "--output", str(tmp_path / "o")]) == 2
     assert "airsim_rec.txt" in capsys.readouterr().err
 
 
@@ -96,7 +96,7 @@ def test_help_lists_every_subcommand(capsys):
 ])
 def test_train_bad_arguments_exit_2(tmp_path, capsys, args, message):
     with pytest.raises(SystemExit) as e:
-        cli.main(["train", "--out", str(tmp_path / "run"), *args])
+        cli.main(["train", "--output", str(tmp_path / "run"), *args])
     err = capsys.readouterr().err
     assert e.value.code == 2 and message in err
     assert err.count("\n") == 1 and err.startswith("jaxsr train: error: "), err  # one line, no usage block
@@ -107,7 +107,7 @@ def test_train_bad_arguments_exit_2(tmp_path, capsys, args, message):
     (["--scale", "3"], "must be divisible by scale 3"),
 ])
 def test_train_bad_values_are_errors_before_any_training(tmp_path, capsys, args, message):
-    assert cli.main(["train", "--out", str(tmp_path / "run"), *args]) == 2
+    assert cli.main(["train", "--output", str(tmp_path / "run"), *args]) == 2
     err = capsys.readouterr().err
     assert err.startswith("jaxsr train: error: ") and message in err
     assert not (tmp_path / "run").exists()
@@ -128,7 +128,7 @@ def test_train_checkpoint_minutes_reach_fit_as_seconds(tmp_path, monkeypatch, mi
 
     got = {}
     monkeypatch.setattr(presets, "fit", lambda *a, **kw: (got.update(kw), (None, []))[1])
-    assert cli.main(["train", "--tr", "0", "--out", str(tmp_path / "run"), "--no-progress",
+    assert cli.main(["train", "--tr", "0", "--output", str(tmp_path / "run"), "--no-progress",
                      "--checkpoint-minutes", minutes]) == 0
     assert got["checkpoint_every_s"] == seconds
 
@@ -138,7 +138,7 @@ def test_train_is_one_library_call_for_every_architecture(tmp_path, monkeypatch)
 
     got = []
     monkeypatch.setattr(presets, "fit", lambda cfg, *a, **kw: (got.append(cfg), (None, []))[1])
-    assert cli.main(["train", "--arch", "histnet", "--out", str(tmp_path / "h"), "--no-progress"]) == 0
+    assert cli.main(["train", "--arch", "histnet", "--output", str(tmp_path / "h"), "--no-progress"]) == 0
     assert got[-1] == jaxsr.baselines.HistNetConfig()
     jaxsr.training.train(tmp_path / "d", tr=1, temporal="sequence", progress=False)
     assert got[-1] == jaxsr.ModelConfig(tr=1, temporal="sequence")
@@ -187,7 +187,7 @@ def test_a_warning_of_train_or_finetune_is_one_line(tmp_path, monkeypatch, capsy
                                      "irf_sigma_bins = 0.5\n\n[photons]\nsignal_range = [2.0, 8.0]\n"
                                      "snr_range = [5.0, 20.0]\n")
     argv = (["train", "--tr", "0"] if command == "train" else ["finetune", "--sensor", str(tmp_path / "s.toml")])
-    assert cli.main([*argv, "--out", str(tmp_path / "run"), "--no-progress"]) == 0
+    assert cli.main([*argv, "--output", str(tmp_path / "run"), "--no-progress"]) == 0
     assert capsys.readouterr().err.splitlines() == [f"jaxsr {command}: warning: a resumed run has nothing to train"]
 
 

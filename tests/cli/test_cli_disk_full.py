@@ -80,7 +80,7 @@ def test_upscale_on_a_full_disk_exits_1_with_one_line_and_leaves_nothing(tmp_pat
     before = tree(tmp_path)
     monkeypatch.setattr(module, name, replacement())
     monkeypatch.chdir(tmp_path)
-    status, line = run_full(["upscale", "in.npy", output, "--model", model_path, "--no-progress"], capsys)
+    status, line = run_full(["upscale", "in.npy", "-o", output, "--model", model_path, "--no-progress"], capsys)
     assert status == 1
     assert line == f"jaxsr upscale: error: {FULL} {named}; nothing was written (the partial {partial} was removed)"
     assert tree(tmp_path) == before  # no output, no hidden temporary
@@ -92,7 +92,7 @@ def test_simulate_on_a_full_disk_exits_1_and_leaves_no_folder(tmp_path, monkeypa
     final place, and neither OUT nor the temporary folder is left."""
     monkeypatch.setattr(np, "savez_compressed", half_then_full)
     monkeypatch.chdir(tmp_path)
-    status, line = run_full(["simulate", "--kind", "walkers", "--frames", "2", "--out", "sim"], capsys)
+    status, line = run_full(["simulate", "--scene", "walkers", "--frames", "2", "--output", "sim"], capsys)
     assert status == 1
     want = os.path.join("sim", "histograms.npz")
     assert line == f"jaxsr simulate: error: {FULL} {want}; nothing was written (the partial folder was removed)"
@@ -110,7 +110,7 @@ def test_train_on_a_full_disk_exits_1_and_leaves_no_run_folder(tmp_path, monkeyp
     monkeypatch.setattr(presets, "fit", fit_that_saves)
     monkeypatch.setattr(np, "savez", half_then_full)
     monkeypatch.chdir(tmp_path)
-    status, line = run_full(["train", "--tr", "0", "--out", "run", "--no-progress"], capsys)
+    status, line = run_full(["train", "--tr", "0", "--output", "run", "--no-progress"], capsys)
     assert status == 1
     want = os.path.join("run", "best.npz")
     assert line == f"jaxsr train: error: {FULL} {want}; nothing was written (the partial file was removed)"
@@ -122,7 +122,7 @@ def test_a_real_training_run_on_a_full_disk(tmp_path, monkeypatch, capsys):
     """The real loop (1-2 min on two cores): its first save inside the epoch (--checkpoint-minutes 0) fails."""
     monkeypatch.setattr(np, "savez", half_then_full)
     monkeypatch.chdir(tmp_path)
-    status, line = run_full(["train", "--tr", "0", "--epochs", "1", "--out", "run", "--no-progress",
+    status, line = run_full(["train", "--tr", "0", "--epochs", "1", "--output", "run", "--no-progress",
                              "--checkpoint-minutes", "0"], capsys)
     assert status == 1 and line.startswith(f"jaxsr train: error: {FULL} {os.path.join('run', 'resume.npz')};")
     assert tree(tmp_path) == []
@@ -137,7 +137,7 @@ def test_another_os_error_is_one_line_and_exit_1(tmp_path, model_path, monkeypat
 
     monkeypatch.setattr(np, "savez_compressed", io_error)
     monkeypatch.chdir(tmp_path)
-    status, line = run_full(["upscale", "in.npy", "out.npz", "--model", model_path, "--no-progress"], capsys)
+    status, line = run_full(["upscale", "in.npy", "-o", "out.npz", "--model", model_path, "--no-progress"], capsys)
     assert status == 1
     assert line == ("jaxsr upscale: error: input/output error while writing out.npz; nothing was written (the "
                     "partial file was removed)")
@@ -156,7 +156,7 @@ def test_an_os_error_outside_the_writes_is_one_line_too(monkeypatch, capsys, err
         raise error
 
     monkeypatch.setattr(command, "upscale", fail)
-    assert run_full(["upscale", "in.npy", "out.npy"], capsys) == (1, f"jaxsr upscale: error: {said}")
+    assert run_full(["upscale", "in.npy", "-o", "out.npy"], capsys) == (1, f"jaxsr upscale: error: {said}")
 
 
 # --- a read-only file system: the user's choice of place (exit 2), wherever it is met -------------------------
@@ -177,7 +177,7 @@ def test_a_read_only_file_system_is_exit_2_wherever_it_is_met(tmp_path, model_pa
     if where == "outside the writes":
         monkeypatch.setattr(command, "upscale", read_only)
     monkeypatch.chdir(tmp_path)
-    status, line = run_full(["upscale", "in.npy", "out.npz", "--model", model_path, "--no-progress"], capsys)
+    status, line = run_full(["upscale", "in.npy", "-o", "out.npz", "--model", model_path, "--no-progress"], capsys)
     assert status == 2
     assert line == ("jaxsr upscale: error: cannot write out.npz: read-only file system; choose a folder you can "
                     "write to" if where.startswith("the write") else
@@ -202,7 +202,7 @@ def small_tmpfs(tmp_path):
 def test_png_frames_on_a_really_full_disk_exit_1_and_leave_nothing(small_tmpfs, model_path, tmp_path, capsys):
     """OpenImageIO's PNG writer reports a failed write in its error text only: 41 empty frames and exit 0 before."""
     np.save(tmp_path / "in.npy", np.random.default_rng(0).uniform(2, 30, (8, 64, 64)).astype(np.float32))
-    status = cli.main(["upscale", str(tmp_path / "in.npy"), str(small_tmpfs / "out"), "--model", str(model_path),
+    status = cli.main(["upscale", str(tmp_path / "in.npy"), "-o", str(small_tmpfs / "out"), "--model", str(model_path),
                        "--frame-format", "png", "--units", "m", "--no-progress"])
     err = capsys.readouterr().err
     assert status == 1 and FULL in err and err.count("\n") == 2, err  # the note on the work, then the error
@@ -212,7 +212,7 @@ def test_png_frames_on_a_really_full_disk_exit_1_and_leave_nothing(small_tmpfs, 
 def test_a_video_on_a_really_full_disk_is_one_line_naming_it(small_tmpfs, model_path, tmp_path, capsys):
     """ffmpeg's failure on a full disk: one line naming the video, not ffmpeg's lines and a hidden temporary's."""
     np.save(tmp_path / "in.npy", np.random.default_rng(0).uniform(2, 30, (20, 32, 64)).astype(np.float32))
-    status = cli.main(["upscale", str(tmp_path / "in.npy"), str(tmp_path / "out.npy"), "--model", str(model_path),
+    status = cli.main(["upscale", str(tmp_path / "in.npy"), "-o", str(tmp_path / "out.npy"), "--model", str(model_path),
                        "--units", "m", "--video", str(small_tmpfs / "v.gif"), "--no-progress"])
     err = capsys.readouterr().err
     assert status == 1 and f"{FULL} {small_tmpfs / 'v.gif'}" in err and "partial" in err.splitlines()[-1], err

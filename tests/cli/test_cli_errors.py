@@ -83,69 +83,69 @@ def _negative_counts():
 CASES = {
     # shapes no network runs on (any h, w >= 4 does), and histograms of other than --bins bins
     "upscale 3x64 array": (lambda p: np.save(p / "in.npy", np.full((3, 3, 64), 0.5, np.float32)),
-                           ["upscale", "in.npy", "out.npy", "--model", "MODEL"], ["3 x 64", "at least 4 x 4"]),
+                           ["upscale", "in.npy", "-o", "out.npy", "--model", "MODEL"], ["3 x 64", "at least 4 x 4"]),
     "upscale folder of 64x3 frames": (lambda p: _frames(p, (64, 3)),
-                                      ["upscale", "frames", "out", "--model", "MODEL"], ["64 x 3", "at least 4 x 4"]),
+                                      ["upscale", "frames", "-o", "out", "--model", "MODEL"], ["64 x 3", "at least 4 x 4"]),
     "upscale histograms of 8 bins": (lambda p: np.save(p / "in.npy", np.ones((2, 32, 64, 8), np.uint16)),
-                                     ["upscale", "in.npy", "out.npy", "--model", "MODEL", "--bins", "16"],
+                                     ["upscale", "in.npy", "-o", "out.npy", "--model", "MODEL", "--bins", "16"],
                                      ["8 bins", "16 bins", "--bins"]),
     "upscale --bin-width without a unit": (lambda p: np.save(p / "in.npy", np.ones((2, 32, 64, 16), np.uint16)),
-                                           ["upscale", "in.npy", "out.npy", "--model", "MODEL", "--bin-width", "3"],
+                                           ["upscale", "in.npy", "-o", "out.npy", "--model", "MODEL", "--bin-width", "3"],
                                            ["--bin-width", "with its unit"]),
     "upscale negative counts": (lambda p: np.save(p / "in.npy", _negative_counts()),
-                                ["upscale", "in.npy", "out.npy", "--model", "MODEL"],
+                                ["upscale", "in.npy", "-o", "out.npy", "--model", "MODEL"],
                                 ["frame 1", "negative photon counts", "--clip-negative"]),
     "upscale --clip-negative for depth": (lambda p: np.save(p / "in.npy", np.full((3, 32, 64), 0.5, np.float32)),
-                                          ["upscale", "in.npy", "out.npy", "--model", "MODEL", "--clip-negative"],
+                                          ["upscale", "in.npy", "-o", "out.npy", "--model", "MODEL", "--clip-negative"],
                                           ["--clip-negative applies to histograms only"]),
     "upscale --bins for depth": (lambda p: np.save(p / "in.npy", np.full((3, 32, 64), 0.5, np.float32)),
-                                 ["upscale", "in.npy", "out.npy", "--model", "MODEL", "--bins", "8"],
+                                 ["upscale", "in.npy", "-o", "out.npy", "--model", "MODEL", "--bins", "8"],
                                  ["histograms and time tags only"]),
     "upscale time tags of MATLAB v7.3": (lambda p: (p / "t.mat").write_bytes(b"MATLAB 7.3 MAT-file".ljust(124)
                                                                             + b"\x00\x02IM" + b"\0" * 400),
-                                         ["upscale", "t.mat", "out.npy", "--model", "MODEL", "--input", "timetags",
+                                         ["upscale", "t.mat", "-o", "out.npy", "--model", "MODEL", "--kind", "timetags",
                                           "--time-unit", "1ps"], ["v7.3", "-v7"]),
     "upscale time tags outside the gate": (lambda p: np.savez(p / "t.npz", pixel=np.arange(16), time=np.arange(16.0),
                                                               shape=np.array([4, 4])),
-                                           ["upscale", "t.npz", "out.npy", "--model", "MODEL", "--input", "timetags",
+                                           ["upscale", "t.npz", "-o", "out.npy", "--model", "MODEL", "--kind", "timetags",
                                             "--time-unit", "1ns", "--gate-start", "2ns", "--bin-width", "1ns"],
                                            ["2 of 16 photons", "outside the gate", "--drop-outside"]),
     # tracebacks that must be messages
     "upscale --model .npy": (lambda p: (np.save(p / "in.npy", np.full((3, 32, 64), 0.5, np.float32)),
                                         np.save(p / "m.npy", np.zeros(3))),
-                             ["upscale", "in.npy", "out.npy", "--model", "m.npy"], [".npy array"]),
+                             ["upscale", "in.npy", "-o", "out.npy", "--model", "m.npy"], [".npy array"]),
     "info .npy": (lambda p: np.save(p / "m.npy", np.zeros(3)), ["info", "m.npy"], [".npy array"]),
     # files that are not what their suffix says: named as such, never "load it unsafely" (numpy's pickle advice)
     "upscale random bytes as .npy": (lambda p: (p / "in.npy").write_bytes(bytes(range(256)) * 4),
-                                     ["upscale", "in.npy", "out.npy", "--model", "MODEL"], ["not an NPY file"]),
+                                     ["upscale", "in.npy", "-o", "out.npy", "--model", "MODEL"], ["not an NPY file"]),
     "upscale text as .npy": (lambda p: (p / "in.npy").write_text("depth,1,2\n"),
-                             ["upscale", "in.npy", "out.npy", "--model", "MODEL"], ["not an NPY file"]),
+                             ["upscale", "in.npy", "-o", "out.npy", "--model", "MODEL"], ["not an NPY file"]),
     "upscale --model of random bytes": (lambda p: (np.save(p / "in.npy", np.full((3, 32, 64), 0.5, np.float32)),
                                                    (p / "m.npz").write_bytes(bytes(range(256)))),
-                                        ["upscale", "in.npy", "out.npy", "--model", "m.npz"], ["not an .npz file"]),
+                                        ["upscale", "in.npy", "-o", "out.npy", "--model", "m.npz"], ["not an .npz file"]),
     # checked before the set-up (rendering the validation sequences took 20-40 s first)
     "train --init of random bytes": (lambda p: (p / "w.npz").write_bytes(bytes(range(256))),
-                                     ["train", "--tr", "0", "--init", "w.npz", "--out", "run"], ["not an .npz file"]),
+                                     ["train", "--tr", "0", "--init", "w.npz", "--output", "run"], ["not an .npz file"]),
     "train --data .npy": (lambda p: np.save(p / "d.npy", np.zeros(3)),
-                          ["train", "--data", "d.npy", "--out", "run"], ["expected an .npz"]),
-    "train --tr 99": (None, ["train", "--tr", "99", "--out", "run"], ["--tr", "from 0 to 8", "memory"]),
-    "train --checkpoint-minutes -1": (None, ["train", "--checkpoint-minutes", "-1", "--out", "run"],
+                          ["train", "--data", "d.npy", "--output", "run"], ["expected an .npz"]),
+    "train --tr 99": (None, ["train", "--tr", "99", "--output", "run"], ["--tr", "from 0 to 8", "memory"]),
+    "train --checkpoint-minutes -1": (None, ["train", "--checkpoint-minutes", "-1", "--output", "run"],
                                       ["--checkpoint-minutes", "minutes >= 0"]),
-    "simulate --frames 0": (None, ["simulate", "--frames", "0", "--out", "S"], ["--frames", ">= 1"]),
+    "simulate --frames 0": (None, ["simulate", "--frames", "0", "--output", "S"], ["--frames", ">= 1"]),
     # options checked before the work
     "upscale --preview exists": (lambda p: (np.save(p / "in.npy", np.full((3, 32, 64), 0.5, np.float32)),
                                             (p / "strip.png").write_bytes(b"keep")),
-                                 ["upscale", "in.npy", "out.npy", "--model", "MODEL", "--preview", "strip.png"],
+                                 ["upscale", "in.npy", "-o", "out.npy", "--model", "MODEL", "--preview", "strip.png"],
                                  ["strip.png exists", "--force"]),
     "upscale --min-fps nan": (lambda p: np.save(p / "in.npy", np.full((3, 32, 64), 0.5, np.float32)),
-                              ["upscale", "in.npy", "out.npy", "--model", "auto", "--min-fps", "nan"],
+                              ["upscale", "in.npy", "-o", "out.npy", "--model", "auto", "--min-fps", "nan"],
                               ["--min-fps", "finite number > 0"]),
     "upscale --min-fps with a fixed model": (lambda p: np.save(p / "in.npy", np.full((3, 32, 64), 0.5, np.float32)),
-                                             ["upscale", "in.npy", "out.npy", "--model", "MODEL", "--min-fps", "5"],
+                                             ["upscale", "in.npy", "-o", "out.npy", "--model", "MODEL", "--min-fps", "5"],
                                              ["--model auto only"]),
     # a finished run is not replaced without --resume or --force
     "train over a run": (lambda p: ((p / "run").mkdir(), (p / "run" / "metrics.jsonl").write_text("{}\n")),
-                         ["train", "--tr", "0", "--epochs", "1", "--out", "run"], ["holds a training run", "--force"]),
+                         ["train", "--tr", "0", "--epochs", "1", "--output", "run"], ["holds a training run", "--force"]),
 }
 
 
@@ -179,7 +179,7 @@ def test_upscale_any_array_is_upscaled_or_refused_cleanly(tmp_path_factory, mode
     folder = tmp_path_factory.mktemp("any")
     np.save(folder / "in.npy", arr)
     before = tree(folder)
-    done = jaxsr(folder, "upscale", "in.npy", "out.npy", "--model", model_path, "--no-progress",
+    done = jaxsr(folder, "upscale", "in.npy", "-o", "out.npy", "--model", model_path, "--no-progress",
                  *(["--units", units] if units else []))
     event(f"exit status {done.returncode}")
     assert "Traceback" not in done.stderr, done.stderr
@@ -200,7 +200,7 @@ def test_negative_counts_are_refused_with_the_hint_then_clipped_with_clip_negati
     histograms clipped beforehand."""
     np.save(tmp_path / "in.npy", _negative_counts())
     before = tree(tmp_path)
-    args = ("upscale", "in.npy", "out.npy", "--model", model_path, "--no-progress")
+    args = ("upscale", "in.npy", "-o", "out.npy", "--model", model_path, "--no-progress")
     assert_refused(jaxsr(tmp_path, *args), "upscale", tmp_path, before, "in.npy: frame 1 holds negative photon "
                    "counts", "pass --clip-negative")
     done = jaxsr(tmp_path, *args, "--clip-negative")
@@ -209,7 +209,7 @@ def test_negative_counts_are_refused_with_the_hint_then_clipped_with_clip_negati
                                            "(--clip-negative: background-subtracted histograms)"), done.stderr
     assert json.loads(done.stdout)["negative_counts_clipped"] == {"counts": 3, "pixels": 2}
     np.save(tmp_path / "clipped.npy", np.maximum(_negative_counts(), 0))
-    assert jaxsr(tmp_path, "upscale", "clipped.npy", "want.npy", "--model", model_path).returncode == 0
+    assert jaxsr(tmp_path, "upscale", "clipped.npy", "-o", "want.npy", "--model", model_path).returncode == 0
     np.testing.assert_array_equal(np.load(tmp_path / "out.npy"), np.load(tmp_path / "want.npy"))
 
 
@@ -251,7 +251,7 @@ def _interrupt(tmp_path, model_path, output, sig, frames=2000):
     ignored = signal.getsignal(sig) == signal.SIG_IGN  # never so for SIGKILL, which has no disposition to set
     inherited = signal.signal(sig, signal.SIG_DFL) if ignored else None
     try:
-        proc = subprocess.Popen([sys.executable, "-m", "jaxsr.cli", "upscale", "in.npy", output, "--model",
+        proc = subprocess.Popen([sys.executable, "-m", "jaxsr.cli", "upscale", "in.npy", "-o", output, "--model",
                                  str(model_path), "--no-progress", "--batch-size", "2"], cwd=tmp_path, env=ENV,
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     finally:
@@ -292,7 +292,7 @@ def test_an_upscale_started_with_sighup_ignored_outlives_the_terminal(tmp_path, 
     """`nohup jaxsr ... &` ignores SIGHUP so that the command outlives the terminal; `jaxsr` put its own handler in
     its place and died with the terminal (exit 129). A signal ignored at the start stays ignored."""
     np.save(tmp_path / "in.npy", np.random.default_rng(0).uniform(0, 1, (40, 32, 64)).astype(np.float32))
-    command = [sys.executable, "-m", "jaxsr.cli", "upscale", "in.npy", "out.npy", "--model", str(model_path),
+    command = [sys.executable, "-m", "jaxsr.cli", "upscale", "in.npy", "-o", "out.npy", "--model", str(model_path),
                "--no-progress", "--batch-size", "2"]
     # as nohup does (not with preexec_fn, which forks this process, JAX's threads and all)
     nohup = f"import os, signal, sys; signal.signal(signal.SIGHUP, signal.SIG_IGN); os.execv(sys.executable, {command})"
@@ -314,7 +314,7 @@ def test_the_temporary_a_killed_upscale_left_is_removed_by_the_next_run(tmp_path
     left = sorted(set(tree(tmp_path)) - set(before))
     assert len(left) == 1 and re.fullmatch(rf"\.out\.[A-Za-z0-9-]+-{proc.pid}\.[a-z0-9_]+\.partial\.npy", left[0][0])
     np.save(tmp_path / "short.npy", np.full((2, 32, 64), 0.5, np.float32))
-    done = jaxsr(tmp_path, "upscale", "short.npy", "out.npy", "--model", model_path, "--no-progress")
+    done = jaxsr(tmp_path, "upscale", "short.npy", "-o", "out.npy", "--model", model_path, "--no-progress")
     assert done.returncode == 0, done.stderr
     assert (f"jaxsr upscale: warning: removed 1 temporary file of out.npy that a stopped writer left (process "
             f"{proc.pid}, no longer running)") in done.stderr.splitlines(), done.stderr
@@ -324,7 +324,7 @@ def test_the_temporary_a_killed_upscale_left_is_removed_by_the_next_run(tmp_path
 @pytest.mark.slow
 def test_a_finished_run_is_refused_then_replaced_with_force(tmp_path):
     """A finished run, then the same command with fewer epochs and no --resume."""
-    args = ["train", "--tr", "0", "--preset", "cpu", "--no-progress", "--out", "R"]
+    args = ["train", "--tr", "0", "--preset", "cpu", "--no-progress", "--output", "R"]
     assert jaxsr(tmp_path, *args, "--epochs", "1", timeout=1800).returncode == 0
     before = tree(tmp_path)
     best = (tmp_path / "R" / "best.npz").read_bytes()
@@ -341,6 +341,6 @@ def test_nan_in_a_metres_array_is_no_return(tmp_path, model_path):
     depth = np.full((2, 32, 64), 8.0, np.float32)
     depth[:, :, 40:] = np.nan
     np.save(tmp_path / "in.npy", depth)
-    done = jaxsr(tmp_path, "upscale", "in.npy", "out.npy", "--model", model_path, "--units", "m")
+    done = jaxsr(tmp_path, "upscale", "in.npy", "-o", "out.npy", "--model", model_path, "--units", "m")
     assert done.returncode == 0, done.stderr
     assert np.load(tmp_path / "out.npy").shape == (2, 128, 256)

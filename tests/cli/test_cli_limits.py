@@ -70,12 +70,12 @@ def test_a_huge_frame_is_refused_with_its_memory_estimate_before_the_work(tmp_pa
     the frame's size alone (its result held, at least), or, with a budget that holds that, of the whole work."""
     np.save(tmp_path / "big.npy", np.full((1, 4097, 4097), 0.5, np.float32))
     monkeypatch.chdir(tmp_path)
-    line = refused(["upscale", "big.npy", "out.npz", "--model", model_path, "--max-memory", "3GB"], capsys, tmp_path,
-                   "upscaling 1 frame of 4097 x 4097 to 16388 x 16388 needs at least about ",
+    line = refused(["upscale", "big.npy", "-o", "out.npz", "--model", model_path, "--max-memory", "3GB"], capsys,
+                   tmp_path, "upscaling 1 frame of 4097 x 4097 to 16388 x 16388 needs at least about ",
                    "more than the 3.0 GB allowed by --max-memory", "or more (max_memory=) to try anyway")
     least = float(line.split("needs at least about ")[1].split(" GB")[0])
     assert 4 < least < 8  # the input frame, the result and the HR frames of a batch of one: 4.8 GB
-    line = refused(["upscale", "big.npy", "out.npz", "--model", model_path, "--max-memory", f"{least + 0.1}GB"],
+    line = refused(["upscale", "big.npy", "-o", "out.npz", "--model", model_path, "--max-memory", f"{least + 0.1}GB"],
                    capsys, tmp_path, "upscaling 1 frame of 4097 x 4097 to 16388 x 16388 needs about ",
                    "allowed by --max-memory", "to try anyway")
     need = float(line.split("needs about ")[1].split(" GB")[0])
@@ -85,13 +85,13 @@ def test_a_huge_frame_is_refused_with_its_memory_estimate_before_the_work(tmp_pa
 def test_a_huge_batch_runs_as_the_recording_and_is_refused_beyond_the_budget(depth, model_path, capsys):
     """--batch-size 1000000 allocated 8 GB for 3 frames (every batch padded to its size): a batch is at most the
     recording, the same output; and a batch the budget cannot hold is refused, naming --batch-size."""
-    assert run(["upscale", "in.npy", "one.npy", "--model", model_path, "--batch-size", "1", "--no-progress"],
+    assert run(["upscale", "in.npy", "-o", "one.npy", "--model", model_path, "--batch-size", "1", "--no-progress"],
                capsys)[0] == 0
-    assert run(["upscale", "in.npy", "huge.npy", "--model", model_path, "--batch-size", "1000000", "--no-progress",
+    assert run(["upscale", "in.npy", "-o", "huge.npy", "--model", model_path, "--batch-size", "1000000", "--no-progress",
                 "--max-memory", "2GB"], capsys)[0] == 0
     np.testing.assert_allclose(np.load(depth / "huge.npy"), np.load(depth / "one.npy"), atol=1e-6)
     np.save(depth / "long.npy", np.full((400, 32, 64), 0.5, np.float32))
-    refused(["upscale", "long.npy", "out.npz", "--model", model_path, "--batch-size", "1000000", "--max-memory",
+    refused(["upscale", "long.npy", "-o", "out.npz", "--model", model_path, "--batch-size", "1000000", "--max-memory",
              "1GB"], capsys, depth, "upscaling 400 frames of 32 x 64 to 128 x 256 needs about",
             "give a smaller --batch-size (now 400) or an .npy or folder OUTPUT (written frame by frame, not held)")
 
@@ -107,10 +107,10 @@ def test_an_npz_input_reads_only_its_recording_and_checks_its_size_first(tmp_pat
     monkeypatch.setattr(np.lib.npyio.NpzFile, "__getitem__",
                         lambda self, key: read.append((Path(self.zip.filename).name, key)) or real(self, key))
     monkeypatch.chdir(tmp_path)
-    status, out, _ = run(["upscale", "h.npz", "out.npy", "--model", model_path, "--no-progress"], capsys)
+    status, out, _ = run(["upscale", "h.npz", "-o", "out.npy", "--model", model_path, "--no-progress"], capsys)
     assert status == 0 and json.loads(out)["shape"] == [2, 128, 256]
     assert {key for name, key in read if name == "h.npz"} == {"counts", "metadata"}, read
-    refused(["upscale", "h.npz", "out2.npy", "--model", model_path, "--max-memory", "100kB"], capsys, tmp_path,
+    refused(["upscale", "h.npz", "-o", "out2.npy", "--model", model_path, "--max-memory", "100kB"], capsys, tmp_path,
             "h.npz: its array 'counts' needs about 131 kB of memory, more than the 100 kB allowed by --max-memory")
 
 
@@ -123,24 +123,24 @@ def test_time_tags_of_many_bins_or_frames_are_refused_with_the_estimate(tmp_path
     np.savez(tmp_path / "far.npz", pixel=np.arange(2048), time=5000.0 + np.arange(2048), frame=frame,
              shape=np.array([32, 64]), time_unit_s=1e-12)
     monkeypatch.chdir(tmp_path)
-    tags = ["--input", "timetags", "--model", model_path]
-    refused(["upscale", "t.npz", "out.npy", *tags, "--bins", "100000", "--max-memory", "1GB"], capsys, tmp_path,
+    tags = ["--kind", "timetags", "--model", model_path]
+    refused(["upscale", "t.npz", "-o", "out.npy", *tags, "--bins", "100000", "--max-memory", "1GB"], capsys, tmp_path,
             "t.npz: histogramming 1 frame of 32 x 64 pixels x 100000 bins needs about 1.6 GB", "give fewer --bins")
-    refused(["upscale", "far.npz", "out.npy", *tags], capsys, tmp_path,
+    refused(["upscale", "far.npz", "-o", "out.npy", *tags], capsys, tmp_path,
             "far.npz: histogramming 10000001 frames (frame indices up to 10000000)", "check the frame indices")
 
 
 def test_max_memory_is_a_size_with_its_unit(depth, model_path, capsys):
     with pytest.raises(SystemExit) as caught:  # argparse's one line
-        cli.main(["upscale", "in.npy", "out.npy", "--model", str(model_path), "--max-memory", "16"])
+        cli.main(["upscale", "in.npy", "-o", "out.npy", "--model", str(model_path), "--max-memory", "16"])
     assert caught.value.code == 2
     assert "argument --max-memory: expected a size > 0 with its unit" in capsys.readouterr().err
-    refused(["simulate", "--frames", "100000", "--out", "sim", "--max-memory", "8GB"], capsys, depth,
+    refused(["simulate", "--frames", "100000", "--output", "sim", "--max-memory", "8GB"], capsys, depth,
             "simulating 100000 frames needs about 1500.7 GB of memory, more than the 8.0 GB allowed",
             "simulate the recording in parts")
     (depth / "airsim").mkdir()  # an AirSim recording is counted by its rows before its images are read
     (depth / "airsim" / "airsim_rec.txt").write_text("TimeStamp\tImageFile\n" + "0\tx.pfm\n" * 1000)
-    refused(["simulate", "--input", "airsim", "--out", "sim", "--max-memory", "10GB"], capsys, depth,
+    refused(["simulate", "airsim", "--output", "sim", "--max-memory", "10GB"], capsys, depth,
             "simulating 1000 frames needs about 15.7 GB of memory")
 
 
@@ -155,13 +155,13 @@ def test_time_tag_warnings_are_lines_and_a_negative_gate_start_is_refused(tmp_pa
     times[:5] = 1e8
     np.savez(tmp_path / "t.npz", pixel=np.arange(2048), time=times, shape=np.array([32, 64]))
     monkeypatch.chdir(tmp_path)
-    gate = ["--input", "timetags", "--model", model_path, "--no-progress", "--bin-width", "1ns", "--gate-start", "0ns"]
-    status, _, lines = run(["upscale", "t.npz", "out.npy", *gate, "--time-unit", "1fs", "--drop-outside"], capsys)
+    gate = ["--kind", "timetags", "--model", model_path, "--no-progress", "--bin-width", "1ns", "--gate-start", "0ns"]
+    status, _, lines = run(["upscale", "t.npz", "-o", "out.npy", *gate, "--time-unit", "1fs", "--drop-outside"], capsys)
     assert status == 0
     assert lines[0] == "jaxsr upscale: warning: t.npz: 5 of 2048 photons outside the gate dropped (--drop-outside)"
     assert lines[1].startswith("jaxsr upscale: warning: t.npz: the photons fall inside 0.01% of the gate; is the "
                                "time unit right? with --time-unit 1ps (not 1fs) 100% of them would fall inside"), lines
-    refused(["upscale", "t.npz", "out2.npy", "--input", "timetags", "--model", model_path, "--time-unit", "1ps",
+    refused(["upscale", "t.npz", "-o", "out2.npy", "--kind", "timetags", "--model", model_path, "--time-unit", "1ps",
              "--bin-width", "1ns", "--gate-start=-2ns"], capsys, tmp_path,
             "gate_start (--gate-start): expected a range >= 0 from the laser pulse, got -0.299792 m")
 
@@ -173,9 +173,9 @@ def test_a_folder_that_cannot_be_written_into_is_refused_before_the_work(depth, 
     """A read-only output folder was an OSError traceback. Root writes anywhere, so os.access (which reports a
     read-only file system to root too) is made to refuse."""
     monkeypatch.setattr(os, "access", lambda path, mode: os.path.abspath(path) != str(depth))
-    refused(["upscale", "in.npy", "out.npy", "--model", model_path], capsys, depth,
+    refused(["upscale", "in.npy", "-o", "out.npy", "--model", model_path], capsys, depth,
             f"cannot write out.npy: {depth} is not writable; choose a folder you can write to")
-    refused(["upscale", "in.npy", "frames", "--model", model_path], capsys, depth,
+    refused(["upscale", "in.npy", "-o", "frames", "--model", model_path], capsys, depth,
             f"cannot write frames: {depth} is not writable")
 
 
@@ -189,7 +189,7 @@ def test_a_read_only_file_system_found_at_the_write_is_exit_2_and_leaves_nothing
 
     monkeypatch.setattr(tempfile, factory, read_only)
     before = tree(depth)
-    status, _, lines = run(["upscale", "in.npy", output, "--model", model_path, "--no-progress"], capsys)
+    status, _, lines = run(["upscale", "in.npy", "-o", output, "--model", model_path, "--no-progress"], capsys)
     assert status == 2 and len(lines) == 2, lines  # what is read with which model, then the error
     assert lines[-1] == (f"jaxsr upscale: error: cannot write {output}: read-only file system; choose a folder you "
                          "can write to")
@@ -202,18 +202,18 @@ def test_a_symbolic_link_as_output_is_refused_up_front(depth, model_path, capsys
     (depth / "real").mkdir()
     os.symlink(depth / "real", depth / "frames")
     os.symlink(depth / "nowhere.npy", depth / "out.npy")
-    refused(["upscale", "in.npy", "frames", "--model", model_path], capsys, depth,
+    refused(["upscale", "in.npy", "-o", "frames", "--model", model_path], capsys, depth,
             f"frames is a symbolic link (to {depth / 'real'}); OUTPUT is moved into place by a rename")
-    refused(["upscale", "in.npy", "out.npy", "--model", model_path, "--force"], capsys, depth,
+    refused(["upscale", "in.npy", "-o", "out.npy", "--model", model_path, "--force"], capsys, depth,
             "out.npy is a symbolic link", "give the path it points to")
 
 
 def test_frame_format_applies_to_a_folder_and_a_folder_is_metres(depth, model_path, capsys):
     """--frame-format with an .npy output was silently ignored; the summary of a folder of frames said the
     input's units (normalised) while the frames are metres."""
-    refused(["upscale", "in.npy", "out.npy", "--model", model_path, "--frame-format", "png"], capsys, depth,
+    refused(["upscale", "in.npy", "-o", "out.npy", "--model", model_path, "--frame-format", "png"], capsys, depth,
             "--frame-format) applies to a folder OUTPUT (one file per frame), not out.npy")
-    status, out, lines = run(["upscale", "in.npy", "frames", "--model", model_path, "--no-progress"], capsys)
+    status, out, lines = run(["upscale", "in.npy", "-o", "frames", "--model", model_path, "--no-progress"], capsys)
     assert status == 0 and "input units normalised" in lines[-1]
     summary = json.loads(out)
     assert summary["units"] == "m" and summary["input_units"] == "normalised"
@@ -227,7 +227,7 @@ def test_png_frames_beyond_65_m_are_refused_or_counted(tmp_path, model_path, cap
     counts[..., 9] = 20.0  # a return in bin 9 of 16
     np.save(tmp_path / "h.npy", counts)
     monkeypatch.chdir(tmp_path)
-    args = ["upscale", "h.npy", "frames", "--model", model_path, "--frame-format", "png", "--no-progress"]
+    args = ["upscale", "h.npy", "-o", "frames", "--model", model_path, "--frame-format", "png", "--no-progress"]
     refused([*args, "--gate-start", "70m", "--bin-width", "2m"], capsys, tmp_path,
             "16-bit PNG frames hold depth up to 65.535 m, and this recording's range starts at 70 m",
             "choose --frame-format exr, pfm or tif")
@@ -265,7 +265,7 @@ def test_a_result_too_large_to_hold_is_refused_before_any_frame_is_read(tmp_path
     np.lib.format.open_memmap(tmp_path / "long.npy", "w+", np.float32, (frames, *shape))[:] = 0.5
     monkeypatch.setattr(Recording, "__iter__", lambda self: unread())
     monkeypatch.chdir(tmp_path)
-    refused(["upscale", "long.npy", "out.npz", "--model", model_path, "--max-memory", "900MB"], capsys, tmp_path,
+    refused(["upscale", "long.npy", "-o", "out.npz", "--model", model_path, "--max-memory", "900MB"], capsys, tmp_path,
             "upscaling 2000 frames of 64 x 64 to 256 x 256 needs at least about")
 
 

@@ -134,7 +134,7 @@ def test_a_header_that_claims_terabytes_is_refused_in_one_line(tmp_path, capsys,
         for n, data in entries.items():
             z.writestr(n, data)
     # the metadata is read by jaxsr info, the weights when the model loads
-    command = ["info", str(path)] if entry == "__metadata__" else ["upscale", str(path), str(tmp_path / "o.npy"),
+    command = ["info", str(path)] if entry == "__metadata__" else ["upscale", str(path), "-o", str(tmp_path / "o.npy"),
                                                                     "--model", str(path)]
     assert cli.main(command) == 2
     err = capsys.readouterr().err

@@ -252,7 +252,7 @@ def test_upscale_says_how_the_network_ran(tr3_path, tmp_path, capsys):
     window = upscale(lr, None, model=ModelChoice(model_path, form="window"), read=Reading(units="normalised")).depth
     assert np.abs(window - auto).max() > 1e-3
     np.save(tmp_path / "in.npy", lr)
-    status = cli.main(["upscale", str(tmp_path / "in.npy"), str(tmp_path / "out.npy"), "--model", str(model_path),
+    status = cli.main(["upscale", str(tmp_path / "in.npy"), "-o", str(tmp_path / "out.npy"), "--model", str(model_path),
                        "--units", "normalised", "--precision", "bfloat16", "--form", "window", "--no-progress"])
     captured = capsys.readouterr()
     assert status == 0 and json.loads(captured.out)["frames"] == FRAMES
@@ -275,7 +275,7 @@ def test_the_memory_estimate_counts_the_sequence_forms_shared_frames(tr3_path):
 def test_the_command_refuses_an_unknown_choice(option, bad, model_path, tmp_path, capsys):
     np.save(tmp_path / "in.npy", _seq(2, shape=(8, 8)))
     with pytest.raises(SystemExit) as stop:
-        cli.main(["upscale", str(tmp_path / "in.npy"), str(tmp_path / "out.npy"), "--model", str(model_path),
+        cli.main(["upscale", str(tmp_path / "in.npy"), "-o", str(tmp_path / "out.npy"), "--model", str(model_path),
                   option, bad])
     assert stop.value.code == 2
     assert f"argument {option}: invalid choice: '{bad}'" in capsys.readouterr().err

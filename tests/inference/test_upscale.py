@@ -26,7 +26,7 @@ def metres():
 
 
 def upscale(*args):
-    return cli.main(["upscale", *map(str, args), "--no-progress"])
+    return cli.main(["upscale", str(args[0]), "-o", *map(str, args[1:]), "--no-progress"])
 
 
 def expected(model_path, lr):

@@ -29,7 +29,7 @@ def metres():
 
 def command(*args, capsys):
     """`jaxsr upscale ARGS` in-process: (exit status, the JSON summary or None, stderr)."""
-    status = cli.main(["upscale", *map(str, args), "--no-progress"])
+    status = cli.main(["upscale", str(args[0]), "-o", *map(str, args[1:]), "--no-progress"])
     captured = capsys.readouterr()
     return status, (json.loads(captured.out) if status == 0 else None), captured.err
 
@@ -182,7 +182,7 @@ def test_write_upscaled_checks_its_output(tmp_path, model_path, metres):
 def test_simulate_recording_equals_the_command(tmp_path, capsys):
     """`jaxsr.simulate_recording`, the library call behind `jaxsr simulate`: the same files and summary."""
     result = jaxsr.simulate_recording(tmp_path / "api", kind="walkers", frames=2, seed=3)
-    assert cli.main(["simulate", "--kind", "walkers", "--frames", "2", "--seed", "3", "--out",
+    assert cli.main(["simulate", "--scene", "walkers", "--frames", "2", "--seed", "3", "--output",
                      str(tmp_path / "cli")]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert dict(result.summary(), out=None) == dict(summary, out=None)

@@ -8,7 +8,7 @@ from jaxsr import cli, io
 
 
 def command(*args):
-    return cli.main(["upscale", *map(str, args), "--no-progress"])
+    return cli.main(["upscale", str(args[0]), "-o", *map(str, args[1:]), "--no-progress"])
 
 
 @pytest.fixture

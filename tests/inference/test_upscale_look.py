@@ -20,7 +20,7 @@ T = 3
 
 
 def upscale(*args):
-    return cli.main(["upscale", *map(str, args), "--no-progress"])
+    return cli.main(["upscale", str(args[0]), "-o", *map(str, args[1:]), "--no-progress"])
 
 
 def read_ply(path):

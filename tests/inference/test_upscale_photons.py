@@ -113,11 +113,11 @@ def test_cli_no_return_logit(photon_model, counts, tmp_path, capsys):
     src = tmp_path / "counts.npy"
     np.save(src, counts)
     out = tmp_path / "out.npy"
-    assert main(["upscale", str(src), str(out), "--model", str(photon_model[1]), "--no-return-logit", "1e6",
+    assert main(["upscale", str(src), "-o", str(out), "--model", str(photon_model[1]), "--no-return-logit", "1e6",
                  "--units", "normalised", "--no-progress"]) == 0
     assert not (np.load(out) >= 1.0).any()
     with pytest.raises(SystemExit) as e:
-        main(["upscale", str(src), str(tmp_path / "b.npy"), "--no-return-logit", "inf"])
+        main(["upscale", str(src), "-o", str(tmp_path / "b.npy"), "--no-return-logit", "inf"])
     assert e.value.code == 2 and "finite number" in capsys.readouterr().err
 
 
@@ -243,10 +243,10 @@ def test_ambient_alpha_is_refused_for_depth_and_out_of_range(photon_model, half_
     src = tmp_path / "counts.npy"
     np.save(src, half_sky)
     out = tmp_path / "out.npy"
-    assert main(["upscale", str(src), str(out), "--model", "tr0", "--ambient-alpha", "1e-3", "--units",
+    assert main(["upscale", str(src), "-o", str(out), "--model", "tr0", "--ambient-alpha", "1e-3", "--units",
                  "normalised", "--no-progress"]) == 0
     assert (np.load(out)[:, :, 32:] == 1.0).all()
-    assert main(["upscale", str(src), str(tmp_path / "b.npy"), "--ambient-alpha", "2"]) == 2
+    assert main(["upscale", str(src), "-o", str(tmp_path / "b.npy"), "--ambient-alpha", "2"]) == 2
     assert "false-alarm rate" in capsys.readouterr().err
 
 
@@ -313,11 +313,11 @@ def test_ambient_alpha_auto_is_the_default_and_follows_the_recording(photon_mode
     np.save(src, half_sky)
     for setting, tested in (("auto", True), ("off", False), ("1e-3", True)):
         out = tmp_path / f"{setting}.npy"
-        assert main(["upscale", str(src), str(out), "--model", str(path), "--ambient-alpha", setting,
+        assert main(["upscale", str(src), "-o", str(out), "--model", str(path), "--ambient-alpha", setting,
                      "--units", "normalised", "--no-progress"]) == 0
         assert np.array_equal(np.load(out), explicit) == tested, setting
     with pytest.raises(SystemExit) as e:
-        main(["upscale", str(src), str(tmp_path / "b.npy"), "--ambient-alpha", "sometimes"])
+        main(["upscale", str(src), "-o", str(tmp_path / "b.npy"), "--ambient-alpha", "sometimes"])
     assert e.value.code == 2 and "auto, off or a false-alarm rate" in capsys.readouterr().err
 
 
@@ -433,10 +433,10 @@ def test_keep_returns_keeps_the_surface_a_head_calls_sky(sky_everywhere, half_sk
         super_resolve_histograms(load_model("tr0"), half_sky, keep_returns=1e-3)
     src, out = tmp_path / "counts.npy", tmp_path / "out.npy"
     np.save(src, half_sky)
-    assert main(["upscale", str(src), str(out), "--model", str(path), "--keep-returns", "1e-3", "--units",
+    assert main(["upscale", str(src), "-o", str(out), "--model", str(path), "--keep-returns", "1e-3", "--units",
                  "normalised", "--no-progress"]) == 0
     np.testing.assert_allclose(np.load(out), result.depth, atol=1e-6)
-    assert main(["upscale", str(src), str(tmp_path / "off.npy"), "--model", str(path), "--keep-returns", "off",
+    assert main(["upscale", str(src), "-o", str(tmp_path / "off.npy"), "--model", str(path), "--keep-returns", "off",
                  "--units", "normalised", "--no-progress"]) == 0
     assert (np.load(tmp_path / "off.npy") == 1.0).all()
     capsys.readouterr()
@@ -452,5 +452,5 @@ def test_keep_returns_keeps_the_surface_a_head_calls_sky(sky_everywhere, half_sk
         prepare_upscale("/nonexistent/input.npy", photons=PhotonRules(ambient_alpha=1e-3, keep_returns=1e-3))
     with pytest.raises(ValueError, match=r"false-alarm rate in \[1e-30, 1\)"):
         prepare_upscale("/nonexistent/input.npy", photons=PhotonRules(keep_returns=2.0))
-    assert main(["upscale", str(src), str(tmp_path / "b.npy"), "--keep-returns", "0"]) == 2
+    assert main(["upscale", str(src), "-o", str(tmp_path / "b.npy"), "--keep-returns", "0"]) == 2
     assert "false-alarm rate" in capsys.readouterr().err

@@ -27,7 +27,7 @@ def model_path(tmp_path_factory):
 
 
 def upscale(*args):
-    return cli.main(["upscale", *map(str, args), "--no-progress"])
+    return cli.main(["upscale", str(args[0]), "-o", *map(str, args[1:]), "--no-progress"])
 
 
 def test_depth_of_another_size(tmp_path, model_path):
@@ -53,7 +53,7 @@ def test_time_tags_over_a_gate_far_away(tmp_path, model_path, capsys):
     pixel = np.concatenate([pixel, noise])
     t_ns = np.concatenate([t_ns, rng.uniform(10007, 10230, noise.size)])
     np.savez(tmp_path / "tags.npz", pixel=pixel, time=t_ns, shape=np.array([h, w]), time_unit_s=1e-9)
-    args = ["--input", "timetags", "--bins", "16", "--bin-width", "14.5ns", "--gate-start", "10.007us"]
+    args = ["--kind", "timetags", "--bins", "16", "--bin-width", "14.5ns", "--gate-start", "10.007us"]
     assert upscale(tmp_path / "tags.npz", tmp_path / "out.npz", "--model", model_path, *args) == 0
     captured = capsys.readouterr()
     assert "warning" not in captured.err  # a 35 m gate on the trained span

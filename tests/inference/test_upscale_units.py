@@ -48,7 +48,7 @@ def test_units_that_could_be_misread_are_not_guessed(model_path, array, words):
 
 def test_the_cli_refuses_an_integer_array_in_one_line_and_converts_with_units_mm(tmp_path, model_path, capsys):
     np.save(tmp_path / "in.npy", np.stack([MM, MM]))
-    args = ["upscale", str(tmp_path / "in.npy"), str(tmp_path / "out.npy"), "--model", str(model_path),
+    args = ["upscale", str(tmp_path / "in.npy"), "-o", str(tmp_path / "out.npy"), "--model", str(model_path),
             "--no-progress"]
     assert cli.main(args) == 2
     err = capsys.readouterr().err
@@ -57,7 +57,7 @@ def test_the_cli_refuses_an_integer_array_in_one_line_and_converts_with_units_mm
     assert cli.main([*args, "--units", "mm"]) == 0
     assert json.loads(capsys.readouterr().out)["units"] == "mm"
     np.save(tmp_path / "m.npy", np.stack([np.where(MM > 0, MM / 1000, np.inf)] * 2).astype(np.float32))
-    assert cli.main(["upscale", str(tmp_path / "m.npy"), str(tmp_path / "m_out.npy"), "--model", str(model_path),
+    assert cli.main(["upscale", str(tmp_path / "m.npy"), "-o", str(tmp_path / "m_out.npy"), "--model", str(model_path),
                      "--no-progress", "--units", "m"]) == 0
     got, want = np.load(tmp_path / "out.npy"), np.load(tmp_path / "m_out.npy")
     assert got.dtype == np.float32 and np.array_equal(np.isinf(got), np.isinf(want))

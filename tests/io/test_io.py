@@ -119,7 +119,8 @@ def test_sequences_and_histograms_round_trip(tmp_path):
     h = io.read_histograms(tmp_path / "h.npz")
     assert h["counts"].dtype == np.uint16
     np.testing.assert_array_equal(h["counts"], counts)
-    assert h["config"]["hr_shape"] == [128, 256] and h["config"]["d_max"] == 35.0
+    assert h["config"]["optics"]["lr_shape"] == [32, 64] and h["config"]["gate"]["bin_width"] == 35.0 / 16
+    assert Sensor.from_dict(h["config"]) == Sensor()  # the sensor written is the sensor read
     assert h["metadata"]["snr"] == 1.3
     with pytest.raises(ValueError, match="non-negative integers"):
         io.write_histograms(tmp_path / "bad.npz", counts + 0.5)

@@ -335,7 +335,7 @@ def test_bad_input_is_refused_clearly():
 
 def test_train_command_checks_the_clip_before_any_training(tmp_path, capsys):
     out = tmp_path / "run"
-    assert cli.main(["train", "--tr", "4", "--temporal", "sequence", "--clip-frames", "14", "--out", str(out)]) == 2
+    assert cli.main(["train", "--tr", "4", "--temporal", "sequence", "--clip-frames", "14", "--output", str(out)]) == 2
     err = capsys.readouterr().err
     assert err.startswith("jaxsr train: error: ") and "clip_frames must be at least 2R + 1 = 15" in err
     assert not out.exists()

@@ -82,13 +82,13 @@ def test_init_distributed_after_jax_started_says_so(monkeypatch):
 def test_the_command_refuses_a_partial_description(monkeypatch, tmp_path, capsys):
     for name in (*DISTRIBUTED_ENV, *SLURM):
         monkeypatch.delenv(name, raising=False)
-    assert main(["train", "--out", str(tmp_path / "run"), "--num-processes", "2"]) == 2
+    assert main(["train", "--output", str(tmp_path / "run"), "--num-processes", "2"]) == 2
     assert "jaxsr train: error: init_distributed: training across processes needs" in capsys.readouterr().err
     monkeypatch.setenv("JAXSR_PROCESS_ID", "5")
-    assert main(["train", "--out", str(tmp_path / "run"), "--coordinator", "h:1", "--num-processes", "2"]) == 2
+    assert main(["train", "--output", str(tmp_path / "run"), "--coordinator", "h:1", "--num-processes", "2"]) == 2
     assert "process id 5 is outside 0..1" in capsys.readouterr().err
     with pytest.raises(SystemExit) as e:
-        main(["train", "--out", str(tmp_path / "run"), "--num-processes", "0"])
+        main(["train", "--output", str(tmp_path / "run"), "--num-processes", "0"])
     assert e.value.code == 2 and "--num-processes" in capsys.readouterr().err
     assert not (tmp_path / "run").exists()
 

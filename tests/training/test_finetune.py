@@ -238,8 +238,8 @@ def test_finetune_builds_on_train_and_records_the_sensor(tmp_path, monkeypatch):
     monkeypatch.setattr(presets, "_start_score", lambda *a, **kw: {"val_loss": 1.0, "val_psnr": 20.0})
     monkeypatch.setattr(presets, "fit", lambda cfg, train_cfg, **kw: (got.update(kw, cfg=cfg, train_cfg=train_cfg),
                                                                      (None, []))[1])
-    assert cli.main(["finetune", "--sensor", str(tmp_path / "s.toml"), "--from", str(tmp_path / "tiny.npz"),
-                     "--out", str(tmp_path / "run"), "--epochs", "6", "--steps-per-epoch", "3", "--no-progress"]) == 0
+    assert cli.main(["finetune", "--sensor", str(tmp_path / "s.toml"), "--model", str(tmp_path / "tiny.npz"),
+                     "--output", str(tmp_path / "run"), "--epochs", "6", "--steps-per-epoch", "3", "--no-progress"]) == 0
     base = PRESETS["bundle"]
     assert got["cfg"] == TINY
     assert got["train_cfg"] == dataclasses.replace(base, lr=base.lr / 10, epochs=6, examples_per_epoch=12,
@@ -303,10 +303,10 @@ def test_finetune_user_errors_are_one_line(tmp_path, capsys):
     for args, message in (
             (["--sensor", str(tmp_path / "none.toml")], "no such file"),
             (["--sensor", str(tmp_path / "bad.toml")], "[sensor] bins: expected an integer from 2 to 4096, got 1"),
-            (["--sensor", str(tmp_path / "s.toml"), "--from", "tr9"], "no checkpoint at 'tr9'"),
-            (["--sensor", str(tmp_path / "s.toml"), "--from", "histnet"], "expected a model of the paper's network"),
+            (["--sensor", str(tmp_path / "s.toml"), "--model", "tr9"], "no checkpoint at 'tr9'"),
+            (["--sensor", str(tmp_path / "s.toml"), "--model", "histnet"], "expected a model of the paper's network"),
             (["--sensor", str(tmp_path / "s.toml"), "--resume"], "nothing to resume")):
-        assert cli.main(["finetune", "--out", str(tmp_path / "run"), "--no-progress", *args]) == 2
+        assert cli.main(["finetune", "--output", str(tmp_path / "run"), "--no-progress", *args]) == 2
         err = capsys.readouterr().err
         assert err.startswith("jaxsr finetune: error: ") and message in err and err.count("\n") == 1, err
     assert not (tmp_path / "run").exists()
@@ -323,8 +323,8 @@ def test_the_starting_model_inside_out_is_refused_and_kept(tmp_path, capsys):
     shutil.copy(resolve_model_path("tr1"), tmp_path / "run" / "best.npz")
     before = (tmp_path / "run" / "best.npz").read_bytes()
     for start in (tmp_path / "run", tmp_path / "run" / "best.npz"):
-        assert cli.main(["finetune", "--out", str(tmp_path / "run"), "--no-progress", "--sensor",
-                         str(tmp_path / "s.toml"), "--from", str(start), "--force"]) == 2
+        assert cli.main(["finetune", "--output", str(tmp_path / "run"), "--no-progress", "--sensor",
+                         str(tmp_path / "s.toml"), "--model", str(start), "--force"]) == 2
         assert "lies inside --out" in capsys.readouterr().err
     assert (tmp_path / "run" / "best.npz").read_bytes() == before
 
@@ -344,7 +344,7 @@ def test_upscale_takes_a_run_folder(tmp_path, capsys):
     _tiny_model((tmp_path / "run").mkdir() or tmp_path / "run" / "best.npz")
     depth = np.random.default_rng(0).uniform(0.1, 0.9, (2, 6, 8)).astype(np.float32)
     np.save(tmp_path / "lr.npy", depth)
-    assert cli.main(["upscale", str(tmp_path / "lr.npy"), str(tmp_path / "hr.npy"), "--model", str(tmp_path / "run"),
+    assert cli.main(["upscale", str(tmp_path / "lr.npy"), "-o", str(tmp_path / "hr.npy"), "--model", str(tmp_path / "run"),
                      "--no-progress"]) == 0
     assert np.load(tmp_path / "hr.npy").shape == (2, 24, 32)
     capsys.readouterr()
@@ -357,7 +357,7 @@ def test_finetune_end_to_end_resume_and_upscale(tmp_path, capsys):
     (tmp_path / "s.toml").write_text(TINY_TOML)
     _tiny_model(tmp_path / "tiny.npz")
     out = tmp_path / "run"
-    args = ["finetune", "--sensor", str(tmp_path / "s.toml"), "--from", str(tmp_path / "tiny.npz"), "--out", str(out),
+    args = ["finetune", "--sensor", str(tmp_path / "s.toml"), "--model", str(tmp_path / "tiny.npz"), "--output", str(out),
             "--steps-per-epoch", "2", "--val-batches", "1", "--no-progress"]
     assert cli.main([*args, "--epochs", "1"]) == 0
     printed = capsys.readouterr().out
@@ -382,7 +382,7 @@ def test_finetune_end_to_end_resume_and_upscale(tmp_path, capsys):
     counts = np.random.default_rng(0).poisson(0.3, (2, 8, 8, 16)).astype(np.float32)
     counts[..., 5] += 4
     np.save(tmp_path / "counts.npy", counts)
-    assert cli.main(["upscale", str(tmp_path / "counts.npy"), str(tmp_path / "hr.npz"), "--model", str(out),
+    assert cli.main(["upscale", str(tmp_path / "counts.npy"), "-o", str(tmp_path / "hr.npz"), "--model", str(out),
                      "--bins", "16", "--bin-width", "2m", "--gate-start", "0m", "--span", "gate", "--no-progress"]) == 0
     assert np.load(tmp_path / "hr.npz")["depth"].shape == (2, 32, 32)
 

@@ -191,7 +191,7 @@ def test_a_seed_that_stops_early_stops_while_the_others_train_on(tmp_path, monke
 ])
 def test_train_refuses_bad_seeds_in_one_line(tmp_path, capsys, args, message):
     with pytest.raises(SystemExit) as e:
-        cli.main(["train", "--tr", "0", "--out", str(tmp_path / "run"), *args])
+        cli.main(["train", "--tr", "0", "--output", str(tmp_path / "run"), *args])
     err = capsys.readouterr().err
     assert e.value.code == 2 and message in err, err
     assert err.count("\n") == 1 and err.startswith("jaxsr train: error: "), err
@@ -210,17 +210,17 @@ def test_train_seeds_reach_fit_and_each_seed_is_reported(tmp_path, monkeypatch, 
 
     monkeypatch.setattr(presets, "fit", fake_fit)
     out = tmp_path / "runs"
-    assert cli.main(["train", "--tr", "0", "--out", str(out), "--seeds", "2,0", "--no-progress"]) == 0
+    assert cli.main(["train", "--tr", "0", "--output", str(out), "--seeds", "2,0", "--no-progress"]) == 0
     assert got["seeds"] == (2, 0) and got["out"] == str(out)
     assert capsys.readouterr().out.splitlines() == [
         f"seed {s}: best epoch 1: val loss 5.000e-01, val PSNR 30.00 dB -> {out / f'seed{s}' / 'best.npz'}"
         for s in (2, 0)]
     # --resume needs a run in one of the seeds' folders; the folder itself must not hold a run
-    assert cli.main(["train", "--tr", "0", "--out", str(tmp_path / "none"), "--seeds", "0,1", "--resume"]) == 2
+    assert cli.main(["train", "--tr", "0", "--output", str(tmp_path / "none"), "--seeds", "0,1", "--resume"]) == 2
     assert "no seed folder of" in capsys.readouterr().err
     (tmp_path / "one").mkdir()
     (tmp_path / "one" / "last.npz").write_bytes(b"")
-    assert cli.main(["train", "--tr", "0", "--out", str(tmp_path / "one"), "--seeds", "0,1"]) == 2
+    assert cli.main(["train", "--tr", "0", "--output", str(tmp_path / "one"), "--seeds", "0,1"]) == 2
     assert "a stacked run trains each seed in a folder inside out" in capsys.readouterr().err
     with pytest.raises(ValueError, match="seed and seeds exclude each other"):
         presets.train(tmp_path / "x", tr=0, seed=1, seeds=[0, 1])

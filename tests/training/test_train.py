@@ -338,7 +338,7 @@ def test_resume_refuses_a_run_without_its_train_state_and_a_folder_without_a_run
         with pytest.raises(FileNotFoundError, match="nothing to resume"):
             train(out, tr=0, resume=True, progress=False)
     assert not (tmp_path / "missing").exists() and not any((tmp_path / "empty").iterdir())
-    assert main(["train", "--tr", "0", "--out", str(tmp_path / "missing"), "--resume", "--no-progress"]) == 2
+    assert main(["train", "--tr", "0", "--output", str(tmp_path / "missing"), "--resume", "--no-progress"]) == 2
 
 
 def test_resuming_a_run_that_has_its_epochs_warns_that_there_is_nothing_to_train(tmp_path, monkeypatch, capsys):
@@ -361,7 +361,7 @@ def test_resuming_a_run_that_has_its_epochs_warns_that_there_is_nothing_to_train
     # the CLI says it on one line, exit 0
     monkeypatch.setattr(cli_train, "train", lambda *a, **k: (__import__("warnings").warn("the run in X already has "
                         "2 epochs (epochs=1); nothing to train", stacklevel=2), (None, []))[1])
-    assert main(["train", "--out", str(tmp_path), "--resume", "--epochs", "1", "--no-progress"]) == 0
+    assert main(["train", "--output", str(tmp_path), "--resume", "--epochs", "1", "--no-progress"]) == 0
     assert capsys.readouterr().err == ("jaxsr train: warning: the run in X already has 2 epochs (epochs=1); nothing "
                                        "to train\n")
 
@@ -634,9 +634,9 @@ def test_train_command_end_to_end(tmp_path):
     from jaxsr.cli import main
 
     out = tmp_path / "tr0"
-    assert main(["train", "--tr", "0", "--preset", "cpu", "--epochs", "1", "--out", str(out), "--no-progress"]) == 0
+    assert main(["train", "--tr", "0", "--preset", "cpu", "--epochs", "1", "--output", str(out), "--no-progress"]) == 0
     assert (out / "best.npz").exists() and (out / "last.npz").exists()
-    assert main(["train", "--tr", "0", "--preset", "cpu", "--epochs", "2", "--out", str(out), "--no-progress",
+    assert main(["train", "--tr", "0", "--preset", "cpu", "--epochs", "2", "--output", str(out), "--no-progress",
                  "--resume"]) == 0
     lines = (out / "metrics.jsonl").read_text().splitlines()
     assert len(lines) == 2
