@@ -411,7 +411,7 @@ def _open(input, read: Reading, max_memory):
         source = str(input) if not isinstance(input, TimeTags) else tags.source
         return rec, gate, source, tuple(time_tag_warnings(tags, gate, outside=outside))
     if read.tag_options:
-        raise ValueError(f"{', '.join(read.tag_options)} applies to --input timetags only")
+        raise ValueError(f"{', '.join(read.tag_options)} applies to time tags only (--kind timetags)")
     if isinstance(input, Recording):
         rec, source = input, str(input.source)
         if read.kind is not None and read.kind != rec.kind:

@@ -105,7 +105,7 @@ def _kind_of(ndim, requested, source):
     want = {"depth": 3, "histograms": 4}
     if kind is None or ndim != want[kind]:
         raise ValueError(f"{source}: expected depth (T, h, w) or histograms (T, h, w, bins), got {ndim} "
-                         f"dimensions" + (f" for --input {requested}" if requested else ""))
+                         f"dimensions" + (f" for --kind {requested}" if requested else ""))
     return kind
 
 

@@ -61,9 +61,9 @@ def _check_out(path, overwrite):
     already holds any of `SIMULATION_OUTPUTS` unless `overwrite`; a symbolic link and a place this process cannot
     write into in any case."""
     out = Path(path)
-    refuse_link(out, "--out")
+    refuse_link(out, "-o/--output")
     if out.exists() and not out.is_dir():
-        raise FileExistsError(f"{out} is a file; --out is a folder")
+        raise FileExistsError(f"{out} is a file; -o/--output is a folder")
     clash = [n for n in SIMULATION_OUTPUTS if (out / n).exists()]
     if clash and not overwrite:
         raise FileExistsError(f"{out} already holds {', '.join(clash)}; pass --force to overwrite")
@@ -121,11 +121,11 @@ def _scene(input, kind, frames, fps, camera, seed, sensor):
 def simulate_recording(out, *, kind: str = "street", input=None, frames: int = 20, fps: float = 25.0,
                        snr: float = 1.3, mean_signal: float | None = None, camera: str = "static", seed: int = 0,
                        overwrite: bool = False, max_memory=None, report=None) -> Simulation:
-    """Simulate a SPAD recording and write it: `jaxsr simulate --out OUT` in one call.
+    """Simulate a SPAD recording and write it: `jaxsr simulate -o OUT` in one call.
 
     Renders `frames` frames of a procedural scene of `kind` ("street", "road", "courtyard" or "walkers", --kind)
     at `fps` frames/s with a `camera` ("static", "moving" or "random"), or reads an AirSim recording folder
-    (`input`, --input: airsim_rec.txt + images; then kind, frames, fps and camera are not used), on the paper's
+    (`input`, AIRSIM_DIR: airsim_rec.txt + images; then kind, frames, fps and camera are not used), on the paper's
     sensor (`Sensor()`); simulates photon histograms at a mean frame signal-to-background ratio `snr` with
     `mean_signal` signal photons per LR pixel (default `DEFAULT_MEAN_SIGNAL`), random seed `seed` (the scene
     draws from key(seed), the photons from key(seed + 1)); extracts the centre-of-mass depth.

@@ -34,7 +34,7 @@ from .recordings import DEPTH_UNITS
 __all__ = ["AUTO", "KINDS", "FRAME_FORMATS", "Reading", "ModelChoice", "PhotonRules", "Writing", "is_auto"]
 
 AUTO = "auto"
-KINDS = ("depth", "histograms", "timetags")  # what an input holds (--input)
+KINDS = ("depth", "histograms", "timetags")  # what an input holds (-k/--kind)
 FRAME_FORMATS = ("exr", "pfm", "tif", "png")  # frame files of a folder OUTPUT
 DEFAULT_BINS = 16
 # the ranges a gate's bin and the network's [0, 1] may span, metres: a SPAD's bins are picoseconds to microseconds
@@ -79,7 +79,7 @@ def check_fps(fps, what: str) -> float:
 
 @dataclasses.dataclass(frozen=True)
 class Reading:
-    """What is read. kind (--input): "depth", "histograms" or "timetags" (None: depth or histograms from the
+    """What is read. kind (-k/--kind): "depth", "histograms" or "timetags" (None: depth or histograms from the
     data; time tags must be named). bins, bin_width, gate_start (histograms and time tags): the gate, `bins`
     (default: the histograms' own, then spanning 35 m unless bin_width says; 16 for time tags) bins of bin_width
     from gate_start, metres or strings with a unit ("12.5ns", "2.19m"; a time
@@ -109,7 +109,7 @@ class Reading:
 
     def __post_init__(self):
         if self.kind is not None and self.kind not in KINDS:
-            raise ValueError(f"kind (--input) is one of {', '.join(KINDS)}, got {self.kind!r}")
+            raise ValueError(f"kind (--kind) is one of {', '.join(KINDS)}, got {self.kind!r}")
         if self.bins is not None and (isinstance(self.bins, bool) or not isinstance(self.bins, numbers.Integral)
                                       or self.bins < 2):
             raise ValueError(f"bins (--bins): expected an integer >= 2, got {self.bins!r}")
@@ -148,7 +148,7 @@ class Reading:
             raise ValueError(f"units is one of {', '.join(map(repr, DEPTH_UNITS))}, got {self.units!r}")
         tag_only = self.tag_options
         if tag_only and self.kind in ("depth", "histograms"):
-            raise ValueError(f"{', '.join(tag_only)} applies to --input timetags only")
+            raise ValueError(f"{', '.join(tag_only)} applies to time tags only (--kind timetags)")
         if self.kind == "depth":
             self.refuse_for_depth()
         if self.clip_negative and self.kind == "timetags":

@@ -1,10 +1,11 @@
 """The `jaxsr` command: argument parsing and the subcommand runners, nothing else (the work is done by the
 library modules they call).
 
-    jaxsr simulate --kind street --frames 20 --fps 25 --snr 1.3 --seed 0 --out DIR [--force]
-    jaxsr simulate --input AIRSIM_FOLDER --out DIR [--snr 1.3]
-    jaxsr train --tr 4 --preset cpu --out runs/tr4 [--resume | --force]
-    jaxsr upscale INPUT OUTPUT [--model tr4|auto|CHECKPOINT] [--preview strip.png]
+    jaxsr simulate --scene street --frames 20 --fps 25 --snr 1.3 --seed 0 -o DIR [-f]
+    jaxsr simulate AIRSIM_FOLDER -o DIR [--snr 1.3]
+    jaxsr train --tr 4 --preset cpu -o runs/tr4 [--resume | -f]
+    jaxsr finetune --sensor my_sensor.toml -m tr4 -o my_tr4
+    jaxsr upscale INPUT -o OUTPUT [-m tr4|auto|CHECKPOINT] [--sensor my_sensor.toml] [--preview strip.png]
     jaxsr info tr4 [--json]
     jaxsr models [--json]
     jaxsr --version

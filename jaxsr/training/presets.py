@@ -132,7 +132,7 @@ def _check_out(out, resume: bool, *, seeds=None, overwrite: bool = False):
     folders = [Path(out)] if seeds is None else [seed_folder(out, s) for s in seeds]
     for folder in {Path(out), *folders}:
         if folder.exists() and not folder.is_dir():
-            raise FileExistsError(f"{folder} is a file; --out is a folder")
+            raise FileExistsError(f"{folder} is a file; -o/--output is a folder")
     for folder in {Path(out), *folders}:  # a read-only place was refused only at the first write, minutes on
         check_output_folder(folder)
     if seeds is not None:
@@ -161,7 +161,7 @@ def _fit_in_new_folder(out, model_cfg, train_cfg, *, resume: bool, seeds=None, *
             resumed = [resume_config(folder, train_cfg) for folder in folders or [out]]
             if any(cfg != resumed[0] for cfg in resumed):
                 raise ValueError(f"--resume: the seeds' runs in {out} validate on different sequences; resume each "
-                                 "alone (--seed K --out OUT/seedK)")
+                                 "alone (--seed K -o OUT/seedK)")
             train_cfg = resumed[0]
         return fit(model_cfg, train_cfg, out=out, resume=resume, seeds=seeds, **fit_args)
 
@@ -216,18 +216,18 @@ def _init_config(init, photons: bool | None) -> ModelConfig:
     meta = read_metadata(path)
     name = meta.get("architecture", meta.get("baseline", "duf"))  # files older than the name: the DUF network
     if "config" not in meta or name not in architectures() or architecture(name).config_type is not ModelConfig:
-        raise ValueError(f"--from {init}: expected a model of the paper's network (tr0..tr4 or a checkpoint of it), "
+        raise ValueError(f"-m/--model {init}: expected a model of the paper's network (tr0..tr4 or a checkpoint of it), "
                          f"got {'a ' + str(name) + ' model' if 'config' in meta else 'a file that holds no model'}")
     cfg = dataclasses.replace(config_from_dict(ModelConfig, meta["config"]), temporal="window",
                               no_return_logit=ModelConfig().no_return_logit)
     if cfg.scale != 4:
-        raise ValueError(f"--from {init}: a x{cfg.scale} model; fine-tuning trains x4 models")
+        raise ValueError(f"-m/--model {init}: a x{cfg.scale} model; fine-tuning trains x4 models")
     reads_photons = DUF.reads_photons(cfg) or DUF.no_return_head(cfg)
     if photons:  # the photon inputs added to what the model reads (tr4-ambient keeps its ambient channel)
         inputs = cfg.inputs + tuple(n for n in PHOTON_INPUTS["inputs"] if n not in cfg.inputs)
         return dataclasses.replace(cfg, inputs=inputs, no_return_head=True)
     if photons is False and reads_photons:
-        raise ValueError(f"--from {init}: the model reads {', '.join(cfg.inputs)}; a model cannot be narrowed to "
+        raise ValueError(f"-m/--model {init}: the model reads {', '.join(cfg.inputs)}; a model cannot be narrowed to "
                          "depth alone (leave photons unset to keep its inputs)")
     return cfg
 
@@ -248,8 +248,8 @@ def _check_init_outside(init, out, resume: bool) -> None:
     start = Path(resolve_model_path(init)).resolve()
     folder = Path(out).resolve()
     if folder == start or folder in start.parents:
-        raise ValueError(f"--from {init} lies inside --out {out}, which this run writes over: copy the starting "
-                         "model elsewhere first, or choose another --out")
+        raise ValueError(f"-m/--model {init} lies inside -o/--output {out}, which this run writes over: copy the starting "
+                         "model elsewhere first, or choose another -o/--output")
 
 
 def finetune(out, *, sensor_file, init="tr4", epochs: int = 10, steps_per_epoch: int = 256, val_batches: int = 16,
@@ -296,12 +296,12 @@ def finetune(out, *, sensor_file, init="tr4", epochs: int = 10, steps_per_epoch:
         card = saved.get("card", {})
         if "sensor_file" not in card:
             raise ValueError(f"--resume: the run in {out} is not a fine-tune to a sensor file (one of jaxsr train?); "
-                             "use --force to start over in its place, or another --out")
+                             "use --force to start over in its place, or another -o/--output")
         differ = sensor_differences(card, entry, regime)
         if differ:
             raise ValueError(f"--resume: {sensor_file} describes another sensor than the run in {out} was trained "
                              f"for ({card['sensor_file'].get('path')}): {', '.join(differ)} differ; use --force to "
-                             "start over, or another --out")
+                             "start over, or another -o/--output")
         # a resumed run keeps its schedule (the rate's cut and the patience), so that --epochs may extend it
         saved_cfg = saved.get("train_config", {})
         schedule = {k: saved_cfg.get(k, v) for k, v in schedule.items()}

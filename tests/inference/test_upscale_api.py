@@ -101,7 +101,7 @@ def test_folder_output_equals_the_command(tmp_path, model_path, metres, capsys):
     (lambda p: np.save(p / "in.npy", np.full((2, 32, 64), 0.5)), {"bins": 8}, ValueError, "histograms and time tags"),
     (lambda p: np.save(p / "in.npy", np.full((2, 32, 64), 0.5)), {"min_fps": 5.0}, ValueError, "--model auto only"),
     (lambda p: np.save(p / "in.npy", np.full((2, 32, 64), 0.5)), {"time_unit": "1ps"}, ValueError,
-     "--input timetags only"),
+     "applies to time tags only"),
     (lambda p: np.save(p / "in.npy", np.ones((2, 32, 64, 8))), {"bins": 16}, ValueError, "8 bins"),
     (lambda p: (np.save(p / "in.npy", np.full((2, 32, 64), 0.5)), (p / "out.npy").write_bytes(b"keep")), {},
      FileExistsError, "--force"),

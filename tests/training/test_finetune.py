@@ -16,8 +16,9 @@ from jaxsr.config import PRESETS, PhotonRegime
 from jaxsr.io.checkpoint import resolve_model_path, save_model
 from jaxsr.nn import init_model
 from jaxsr.nn.model import Model
-from jaxsr.training import fit_irf, parse_sensor_file, read_irf_file, read_sensor_file
+from jaxsr.training import fit_irf, parse_sensor_file, read_irf_file, read_sensor_file, training_sensor
 from jaxsr.training import sensor_file as sf
+
 
 GOOD = """
 description = "a test sensor"
@@ -60,10 +61,13 @@ TINY = jaxsr.ModelConfig(tr=0, base=8, growth=4, head=16, filter_hidden=16)
 def test_a_good_file_gives_the_sensor_the_regime_and_the_gate():
     sensor, regime, info = parse_sensor_file(GOOD, source="good.toml")
     bin_width = 250e-12 * jaxsr.config.METRES_PER_SECOND
-    assert sensor.bins == 32 and sensor.scale == 4 and sensor.hr_shape == (96, 160)
-    assert sensor.d_max == pytest.approx(32 * bin_width) and sensor.fov_deg == 20.0
-    assert sensor.r_min == 120.0  # the inverse-square law seen from the gate's start
-    assert sensor.irf_sigma == jaxsr.Sensor().irf_sigma  # read out as jaxsr upscale reads (1-bin window)
+    assert sensor.bins == 32 and sensor.scale == 4 and sensor.lr_shape == (24, 40) and sensor.fov_deg == 20.0
+    assert sensor.gate == jaxsr.Gate(32, pytest.approx(bin_width), 120.0) and sensor.irf_sigma == 0.8
+    assert sensor.depth == jaxsr.DepthScale(120.0, pytest.approx(32 * bin_width))  # the network's 0 .. 1: the gate
+    trained = training_sensor(sensor)  # what fine-tuning simulates: the gate from 0 m, the file's pulse
+    assert trained.hr_shape == (96, 160) and trained.d_max == pytest.approx(32 * bin_width)
+    assert trained.r_min == 120.0  # the inverse-square law seen from the gate's start
+    assert trained.irf_sigma == 0.8  # read out (the centre of mass's window) as jaxsr upscale --sensor reads
     assert regime.signal_range == (2.0, 8.0) and regime.snr_range == (1.0, 10.0)
     assert regime.no_return_prob == 0.2 and regime.dark_prob == 0.0 and regime.motion == "drawn"
     assert regime.thin_prob == 0.5 and regime.thin_lines_max == PhotonRegime().thin_lines_max
@@ -92,10 +96,12 @@ def test_defaults_and_a_large_sensor_rendered_as_a_window():
         "lr_cols = 40", "lr_cols = 512").replace("bin_width_ps = 250  ", "bin_width_m = 2.0").replace(
         "gate_start_m = 120.0\n", "")
     sensor, _, info = parse_sensor_file(text)
-    assert info["render_lr_shape"] == [256, 256] and sensor.hr_shape == (1024, 1024)
+    trained = training_sensor(sensor)
+    assert sensor.lr_shape == (300, 512) and sensor.fov_deg == 90.0
+    assert info["render_lr_shape"] == [256, 256] and trained.hr_shape == (1024, 1024)
     # the paper's pitch (30 deg / 64 columns), capped at 90 deg, over the sensor's 512 columns; the window keeps it
-    assert info["fov_deg"] == sensor.fov_deg == pytest.approx(np.degrees(2 * np.arctan(np.tan(np.radians(45)) / 2)))
-    assert sensor.r_min == jaxsr.Sensor().r_min and info["gate"]["start_m"] == 0.0
+    assert info["fov_deg"] == trained.fov_deg == pytest.approx(np.degrees(2 * np.arctan(np.tan(np.radians(45)) / 2)))
+    assert trained.r_min == jaxsr.Sensor().r_min and info["gate"]["start_m"] == 0.0
     assert any("centred window" in w for w in info["warnings"])
     assert info["upscale_options"] == "--bins 32 --bin-width 2m --gate-start 0m --span gate"
 
@@ -325,7 +331,7 @@ def test_the_starting_model_inside_out_is_refused_and_kept(tmp_path, capsys):
     for start in (tmp_path / "run", tmp_path / "run" / "best.npz"):
         assert cli.main(["finetune", "--output", str(tmp_path / "run"), "--no-progress", "--sensor",
                          str(tmp_path / "s.toml"), "--model", str(start), "--force"]) == 2
-        assert "lies inside --out" in capsys.readouterr().err
+        assert "lies inside -o/--output" in capsys.readouterr().err
     assert (tmp_path / "run" / "best.npz").read_bytes() == before
 
 
