@@ -7,7 +7,7 @@ under 0.05 dB, each with its training card; writes experiments/results/weights.m
         --trained-with "python experiments/paper/campaign.py"
     python experiments/paper/bundle_weights.py --measure-forms [--trs 0 1 2 3 4] [--form-frames 48]
 
-The window-form models come from `jaxsr train --tr N --preset bundle --out runs/bundle/trN` and are bundled as
+The window-form models come from `jaxsr train --tr N --preset bundle -o runs/bundle/trN` and are bundled as
 tr<N>.npz (results/weights.md); the sequence-form models from `experiments/studies/train_sequence_bundle.py` and are
 bundled as tr<N>-seq.npz (`jaxsr.load_model("tr4-seq")`; results/weights_sequence.md). `--checkpoint select` (the
 default) bundles whichever of best.npz (the epoch with the lowest validation loss during training) and last.npz
@@ -203,7 +203,7 @@ def main(argv=None):
                 print(*rows[-1], flush=True)
                 continue
         trained_with = args.trained_with or (
-            f"jaxsr train --tr {tr} --preset bundle --out {run}" if args.form == "window" else
+            f"jaxsr train --tr {tr} --preset bundle -o {run}" if args.form == "window" else
             f"python experiments/studies/train_sequence_bundle.py --trs {tr} --runs {args.runs}")
         card = dict(card, trained_with=trained_with,
                     checkpoint={"file": f"{chosen}.npz", "rule": args.checkpoint,

@@ -1,7 +1,7 @@
 """How much do models trained alike differ? Test-scene PSNR of several training runs (e.g. the same TR and
 preset with different seeds) beside the bundled models, to tell a TR's effect from training-to-training spread.
 
-    jaxsr train --tr 0 --preset bundle --seed 1 --out runs/seeds/tr0_s1      # and --seed 2 ...
+    jaxsr train --tr 0 --preset bundle --seed 1 -o runs/seeds/tr0_s1      # and --seed 2 ...
     python experiments/paper/seed_spread.py runs/seeds/tr0_s1 runs/seeds/tr0_s2 [--frames 100]
 
 Each run folder contributes its last.npz (the final epoch, as bundled for TR1-TR3) and best.npz.

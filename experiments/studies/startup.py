@@ -27,7 +27,7 @@ from harness.reports import header, markdown_table, write_atomic  # noqa: E402
 def run(args, cache, inp, out):
     env = dict(os.environ, JAXSR_CACHE_DIR=str(cache))
     t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "jaxsr.cli", "upscale", str(inp), str(out), "--model", args.model,
+    subprocess.run([sys.executable, "-m", "jaxsr.cli", "upscale", str(inp), "-o", str(out), "-m", args.model,
                     "--no-progress", "--force"], env=env, check=True, capture_output=True)
     return time.perf_counter() - t0
 
@@ -53,7 +53,7 @@ def main():
             rows.append([model, f"{off:.1f}", f"{cold:.1f}", f"{warm:.1f}", f"{size:.1f}"])
             print(*rows[-1], flush=True)
     text = header("Cold and warm start of `jaxsr upscale`", started)
-    text += (f"Wall time (s) of `jaxsr upscale in.npy out.npy --model M` on {args.frames} frames of 32 x 64, each "
+    text += (f"Wall time (s) of `jaxsr upscale in.npy -o out.npy -m M` on {args.frames} frames of 32 x 64, each "
              "a fresh process: with the compilation cache disabled (JAXSR_CACHE_DIR=off), with an empty cache "
              "(cold), and again with the cache the cold run filled (warm).\n\n")
     text += markdown_table(["model", "no cache", "cold", "warm", "cache MB"], rows)
