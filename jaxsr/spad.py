@@ -163,6 +163,13 @@ class Optics:
         """Focal length in HR pixels: (W/2) / tan(fov/2), square pixels."""
         return (self.hr_shape[1] / 2) / jnp.tan(jnp.deg2rad(self.fov_deg) / 2)
 
+    def intrinsics(self, *, hr: bool = True):
+        """The pinhole of the HR frame (or, hr=False, of the SPAD frame) in OpenCV's terms: a
+        `jaxsr.sensor.Intrinsics` (fx, fy, cx, cy in pixels), as point clouds take it. Needs a concrete fov_deg."""
+        from .sensor.camera import Intrinsics  # late: jaxsr.sensor imports this module
+
+        return Intrinsics.from_fov(self.hr_shape if hr else self.lr_shape, float(self.fov_deg))
+
 
 @dataclasses.dataclass(frozen=True)
 class Pulse:

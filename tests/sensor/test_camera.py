@@ -9,7 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxsr.config import SensorConfig
+from jaxsr.config import Optics, Sensor
 from jaxsr.sensor import Intrinsics, as_intrinsics, back_project, pixel_rays
 
 project = jax.jit(back_project, static_argnames=("depth_kind", "axes"))  # one compile a call's shapes, not an op's
@@ -52,9 +52,9 @@ def test_no_return_gives_nan_points_and_zero_gradients():
 
 
 def test_the_sensor_models_camera_is_its_field_of_view():
-    assert Intrinsics.from_fov(SensorConfig().hr_shape, SensorConfig().fov_deg).fx == pytest.approx(
-        float(SensorConfig().focal_px), rel=1e-6)
-    sensor = SensorConfig(hr_shape=(16, 24), scale=1, fov_deg=50.0)
+    assert Intrinsics.from_fov(Sensor().hr_shape, Sensor().fov_deg).fx == pytest.approx(
+        float(Sensor().focal_px), rel=1e-6)
+    sensor = Sensor(optics=Optics.of_hr((16, 24), 1, fov_deg=50.0))
     cam = Intrinsics.from_fov(sensor.hr_shape, sensor.fov_deg)
     h, w = sensor.hr_shape
     assert (cam.cx, cam.cy) == ((w - 1) / 2, (h - 1) / 2) and cam.fx == cam.fy

@@ -69,6 +69,9 @@ def test_a_sensor_is_a_pytree_that_jits_vmaps_and_round_trips_as_json():
     leaves, tree = jax.tree.flatten(sensor)
     assert len(leaves) == 8 and jax.tree.unflatten(tree, leaves) == sensor
     assert Sensor.from_dict(sensor.to_dict()) == sensor
+    # the optics in OpenCV's terms, as point clouds take them: the HR frame's pinhole, the SPAD frame's 4x coarser
+    hr, lr = sensor.optics.intrinsics(), sensor.optics.intrinsics(hr=False)
+    assert hr.fx == pytest.approx(float(sensor.focal_px)) and lr.scaled(4) == pytest.approx(hr)
     widths = jnp.array([0.5, 1.0, 2.0])
     ends = jax.vmap(lambda w: jax.jit(lambda s: s.d_max)(sensor.replace(gate=Gate(32, w, 10.0))))(widths)
     np.testing.assert_allclose(ends, 10.0 + 32 * widths)
