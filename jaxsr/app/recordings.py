@@ -22,7 +22,7 @@ from ..io import formats as io
 from ..checks import NORMALISED_SLACK, npz_array_bytes, require_memory, require_normalised_depth
 from ..config import MIN_LR_SIDE, TRAINED_RANGE_M, DepthScale, Gate, Sensor
 from ..sensor.effects import clip_negative_counts
-from ..sensor.gates import from_network_depth, to_network_depth
+from ..sensor.gates import from_network_depth, gate_to_network
 from ..sensor.forward import normalise_depth
 from ..sensor.quantities import RANGE_UNITS
 from ..sensor.timetags import histogram_time_tags
@@ -277,13 +277,14 @@ def clipped_recording(recording: Recording) -> Recording:
 
 def gate_frames(com_frames, gate: Gate, scale: DepthScale):
     """Centre-of-mass frames normalised to the gate (tau / K, 1.0 = no return, as `iter_centre_of_mass` gives
-    them for K = gate.bins) -> the network's normalised depth under `scale`: the range gate.start + n *
-    gate.length in metres, then `to_network_depth`. Yields (h, w) float32 frames; (h, w, C) frames of
-    `iter_network_inputs` keep their photon channels, the depth in channel 0 converted."""
+    them for K = gate.bins) -> the network's normalised depth under `scale` (`jaxsr.sensor.gates.gate_to_network`,
+    as `jaxsr.nn.network_inputs` reads a `Sensor(gate=gate, depth=scale)`). Yields (h, w) float32 frames; (h, w, C)
+    frames of `iter_network_inputs` for the gate's own scale keep their photon channels, the depth in channel 0
+    converted."""
+    sensor = Sensor(gate=gate, depth=scale)
     for f in com_frames:
         depth = f[..., 0] if f.ndim == 3 else f
-        metres = np.where(depth >= 1.0, np.inf, float(gate.start) + np.float64(depth) * float(gate.length))
-        network = np.asarray(to_network_depth(metres, scale), np.float32)
+        network = np.asarray(gate_to_network(np.asarray(depth, np.float32), sensor), np.float32)
         yield np.concatenate([network[..., None], f[..., 1:]], axis=-1) if f.ndim == 3 else network
 
 
