@@ -54,6 +54,44 @@ def test_simulate_missing_input_is_a_clear_error(tmp_path, capsys):
     assert "airsim_rec.txt" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("new,old", [
+    (["upscale", "rec.npz", "-o", "out.npz", "-k", "histograms", "-m", "tr4", "-f", "-q"],
+     ["upscale", "rec.npz", "--output", "out.npz", "--input", "histograms", "--model", "tr4", "--force",
+      "--no-progress"]),
+    (["simulate", "--scene", "road", "-o", "sim", "-f"], ["simulate", "--kind", "road", "--out", "sim", "--force"]),
+    (["simulate", "airsim", "-o", "sim"], ["simulate", "--input", "airsim", "--out", "sim"]),
+    (["train", "--tr", "0", "-o", "run", "-f", "-q"], ["train", "--tr", "0", "--out", "run", "--force",
+                                                       "--no-progress"]),
+    (["finetune", "--sensor", "s.toml", "-m", "tr0", "-o", "run"],
+     ["finetune", "--sensor", "s.toml", "--from", "tr0", "--out", "run"]),
+])
+def test_every_subcommand_spells_the_same_things_the_same_way(new, old):
+    """-o/--output, -m/--model, -k/--kind, -f/--force, -q/--quiet; the old spellings give the same arguments, with
+    a note for each (printed as a warning line by `main`)."""
+    parser = cli.build_parser()
+    got_new, got_old = vars(parser.parse_args(new)), vars(parser.parse_args(old))
+    notes = got_old.pop("old_spellings", [])
+    assert "old_spellings" not in got_new and len(notes) == sum(a in ("--out", "--input", "--kind", "--from")
+                                                                for a in old)
+    if "old_input" in got_old:  # simulate's AirSim folder: positional now
+        got_old["source"], got_old["old_input"] = got_old["old_input"], None
+    assert {k: v for k, v in got_old.items() if k not in ("func", "before_jax")} == {
+        k: v for k, v in got_new.items() if k not in ("func", "before_jax")}
+
+
+def test_old_spellings_work_with_a_warning_line_and_the_output_is_required(tmp_path, capsys):
+    assert cli.main(["simulate", "--input", str(tmp_path / "nope"), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert err[:2] == ["jaxsr simulate: warning: --input is the old spelling of AIRSIM_DIR and goes in the next "
+                       "release", "jaxsr simulate: warning: --out is the old spelling of -o/--output and goes in the "
+                       "next release"] and "airsim_rec.txt" in err[-1]
+    np.save(tmp_path / "in.npy", np.full((2, 8, 8), 0.5, np.float32))
+    assert cli.main(["upscale", str(tmp_path / "in.npy"), "-q"]) == 2
+    assert capsys.readouterr().err == "jaxsr upscale: error: the output is required: -o/--output PATH\n"
+    assert cli.main(["upscale", str(tmp_path / "in.npy"), "a.npy", "-o", "b.npy"]) == 2
+    assert "two outputs" in capsys.readouterr().err
+
+
 def test_parser_needs_a_command(capsys):
     with pytest.raises(SystemExit) as e:
         cli.main([])
