@@ -308,15 +308,20 @@ _register(Pulse, ["sigma"], [])
 _register(Sensor, ["gate", "optics", "pulse", "depth", "r_min", "ambient_floor"], [])
 
 
-def SensorConfig(hr_shape=(128, 256), scale: int = 4, bins: int = 16, d_max: float = TRAINED_RANGE_M,
+def SensorConfig(*args, **kwargs) -> Sensor:
+    """Deprecated (jaxsr 0.2's flat sensor), with its fields (hr_shape, scale, bins, d_max, fov_deg, irf_sigma,
+    r_min, ambient_floor), positional or keyword. Returns the `Sensor` of `bins` bins over [0, d_max) m read as the
+    network's [0, 1], an HR frame `hr_shape` at `scale`, `fov_deg`, a pulse of `irf_sigma` bins. Use `Sensor`."""
+    return _flat_sensor(*args, **kwargs)
+
+
+def _flat_sensor(hr_shape=(128, 256), scale: int = 4, bins: int = 16, d_max: float = TRAINED_RANGE_M,
                  fov_deg: float = 30.0, irf_sigma: float = 0.4, r_min: float = 0.5,
                  ambient_floor: float = 0.05) -> Sensor:
-    """Deprecated (jaxsr 0.2's flat sensor): the `Sensor` of `bins` bins over [0, d_max) m read as the network's
-    [0, 1], an HR frame `hr_shape` at `scale`, `fov_deg`, a pulse of `irf_sigma` bins. Use `Sensor`."""
     warnings.warn("jaxsr.SensorConfig is deprecated: use jaxsr.Sensor(gate=Gate.spanning(d_max, bins), "
                   "optics=Optics.of_hr(hr_shape, scale, fov_deg), pulse=Pulse(irf_sigma), "
                   "depth=DepthScale(0, d_max)); SensorConfig goes in the next release", DeprecationWarning,
-                  stacklevel=2)
+                  stacklevel=3)
     if isinstance(bins, bool) or not isinstance(bins, numbers.Integral) or bins < 2:
         raise ValueError(f"SensorConfig: bins must be >= 2, got {bins}")
     return Sensor(gate=Gate.spanning(d_max, bins), optics=Optics.of_hr(hr_shape, scale, fov_deg),
