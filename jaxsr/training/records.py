@@ -16,7 +16,7 @@ import jax.numpy as jnp
 from ..baselines.interpolation import bicubic
 from ..config import Sensor, TrainConfig
 from ..eval.metrics import psnr
-from ..io.checkpoint import config_to_dict, read_metadata, resolve_model_path
+from ..io.checkpoint import read_metadata, resolve_model_path
 from ..nn.model import Model
 from .folders import _latest_state
 from .run_state import _Run
@@ -65,7 +65,7 @@ def _training_card(run: _Run, *, train_cfg: TrainConfig, settings: dict, sensor:
     """The training card saved with the checkpoints: data, sensor, amount of training, hardware, validation."""
     return {
         "data": data,
-        "sensor": jax.tree_util.tree_map(lambda v: v.tolist() if hasattr(v, "tolist") else v, config_to_dict(sensor)),
+        "sensor": sensor.to_dict(),  # jaxsr.Sensor.from_dict reads it back
         "steps": run.step,
         "epochs": run.epoch,
         "examples": run.step * train_cfg.batch_size,
