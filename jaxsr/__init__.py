@@ -21,7 +21,7 @@ from . import app, baselines, eval, inference, io, nn, scenes, sensor, spad, tra
 from .app import simulate_recording, upscale
 from .baselines import bicubic, lanczos, tv_super_resolve
 from .config import PRESETS, ModelConfig, TrainConfig
-from .spad import DepthScale, Gate, Optics, Pulse, Sensor, SensorConfig
+from .spad import DepthScale, Gate, Optics, Pulse, Sensor
 from .eval import paired_interval, psnr, ssim, ssim_global, temporal_coherence
 from .inference import (
     Stream,
@@ -61,12 +61,13 @@ from .sensor import (
 from .temporal import windows
 from .training import evaluate, fit
 
+SensorConfig = spad.SensorConfig  # deprecated (a DeprecationWarning when called): jaxsr.Sensor
+
 __all__ = [
     # the pipeline's stages
-    "spad", "sensor", "scenes", "nn", "baselines", "training", "inference", "io", "eval", "app",
+    "sensor", "scenes", "nn", "baselines", "training", "inference", "io", "eval", "app",
     # configuration
     "Sensor", "Gate", "Optics", "Pulse", "DepthScale", "ModelConfig", "TrainConfig", "PRESETS",
-    "SensorConfig",  # deprecated: Sensor
     # sensor: depth -> photons -> depth
     "expected_histograms", "simulate_histograms", "calibrate", "normalise_depth", "denormalise_depth",
     "centre_of_mass", "maximum_likelihood_depth", "TimeTags", "read_time_tags", "histogram_time_tags",
