@@ -64,7 +64,8 @@ def photon_levels(counts, bins: int) -> PhotonLevels:
     for frame in itertools.islice(counts, HEAD_FRAMES):
         head = np.asarray(frame, np.float32) if head is None else head + frame
         frames += 1
-    snr, signal = frame_levels(head, Sensor(gate=Gate.spanning(TRAINED_RANGE_M, bins)))  # of the sum: one frame's worth of signal
+    # of the sum: one frame's worth of signal
+    snr, signal = frame_levels(head, Sensor(gate=Gate.spanning(TRAINED_RANGE_M, bins)))
     return PhotonLevels(snr, signal / frames)
 
 

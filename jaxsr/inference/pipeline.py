@@ -3,9 +3,9 @@
 sensor model (rates) -> Poisson draw (or, with no key, the rates themselves) -> centre of mass -> the network
 -> PSNR or Huber loss against the normalised HR ground truth. One jitted, pure function of arrays and pytrees,
 so `jax.grad` differentiates it with respect to the sensor's physical leaves (the `Sensor`'s pulse sigma,
-`ambient_floor`, `r_min`, the gate's bin width, the depth span), the photon levels (`snr`, `mean_signal`), the scene (depth, intensity) and
-the network's weights, and `jax.vmap` maps it over a batch of sensors (a `Sensor` whose leaves are arrays
-with a leading axis). Through a draw the derivative is a surrogate (`simulate_histograms(gradient=...)`); with
+`ambient_floor`, `r_min`, the gate's bin width, the depth span), the photon levels (`snr`, `mean_signal`), the
+scene (depth, intensity) and the network's weights, and `jax.vmap` maps it over a batch of sensors (a `Sensor`
+whose leaves are arrays with a leading axis). Through a draw the derivative is a surrogate (`simulate_histograms(gradient=...)`); with
 `key=None` it is exact.
 """
 

@@ -36,7 +36,8 @@ def _to_metres(frame, d_min, d_max):
     """(H, W) normalised [0, 1] -> metres d_min + n (d_max - d_min), inf for no return
     (`jaxsr.sensor.gates.from_network_depth`; with d_min 0, `jaxsr.sensor.forward.denormalise_depth`)."""
     if d_min == 0:
-        return np.asarray(denormalise_depth(frame, Sensor(gate=Gate.spanning(d_max), depth=DepthScale(0.0, d_max))), np.float32)
+        sensor = Sensor(gate=Gate.spanning(d_max), depth=DepthScale(0.0, d_max))
+        return np.asarray(denormalise_depth(frame, sensor), np.float32)
     return np.asarray(from_network_depth(frame, DepthScale(d_min, d_max - d_min)), np.float32)
 
 

@@ -215,7 +215,8 @@ def thin_returns(key, shape, *, lines, width_range=(1.0, 8.0), max_lines: int = 
 def with_irf_sigma(sensor: Sensor, irf_sigma):
     """The sensor with another IRF width (bins): `sensor.replace(irf_sigma=irf_sigma)`, checked.
 
-    The pulse's sigma (`Sensor.pulse.sigma`) is a pytree leaf, so the width may be traced: a per-clip width drawn inside a
+    The pulse's sigma (`Sensor.pulse.sigma`) is a pytree leaf, so the width may be traced: a per-clip width drawn
+    inside a
     jitted, vmapped data source simulates each clip with its own pulse (`irf_bin_weights` reads it from the
     config). Eagerly a width that is not finite and > 0 is a `ValueError`; traced, it makes the rates NaN.
     Returns a `Sensor`.

@@ -10,7 +10,8 @@ pixel NaN; a bad scalar turns everything NaN):
 - intensity: a non-finite value is a black pixel (rho = 0: no signal, ambient floor only) and a finite one
   outside [0, 1] is clipped to it, for that pixel alone (eagerly both are a `ValueError`);
 - scalars: `snr` not finite and > 0, `mean_signal` not finite and >= 0, or a sensor leaf out of its domain
-  (the gate's bin width, the depth span, the pulse's sigma, `r_min` finite and > 0, `ambient_floor` finite and >= 0) make every rate and count
+  (the gate's bin width, the depth span, the pulse's sigma, `r_min` finite and > 0, `ambient_floor` finite and
+  >= 0) make every rate and count
   NaN, and `calibrate` return (NaN, NaN).
 
 Conventions: depth is radial range in metres along each pixel's ray; NaN, inf, negative and beyond-the-gate

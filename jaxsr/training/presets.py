@@ -216,8 +216,8 @@ def _init_config(init, photons: bool | None) -> ModelConfig:
     meta = read_metadata(path)
     name = meta.get("architecture", meta.get("baseline", "duf"))  # files older than the name: the DUF network
     if "config" not in meta or name not in architectures() or architecture(name).config_type is not ModelConfig:
-        raise ValueError(f"-m/--model {init}: expected a model of the paper's network (tr0..tr4 or a checkpoint of it), "
-                         f"got {'a ' + str(name) + ' model' if 'config' in meta else 'a file that holds no model'}")
+        raise ValueError(f"-m/--model {init}: expected a model of the paper's network (tr0..tr4 or a checkpoint of "
+                         f"it), got {'a ' + str(name) + ' model' if 'config' in meta else 'a file that holds no model'}")
     cfg = dataclasses.replace(config_from_dict(ModelConfig, meta["config"]), temporal="window",
                               no_return_logit=ModelConfig().no_return_logit)
     if cfg.scale != 4:
@@ -248,8 +248,8 @@ def _check_init_outside(init, out, resume: bool) -> None:
     start = Path(resolve_model_path(init)).resolve()
     folder = Path(out).resolve()
     if folder == start or folder in start.parents:
-        raise ValueError(f"-m/--model {init} lies inside -o/--output {out}, which this run writes over: copy the starting "
-                         "model elsewhere first, or choose another -o/--output")
+        raise ValueError(f"-m/--model {init} lies inside -o/--output {out}, which this run writes over: copy the "
+                         "starting model elsewhere first, or choose another -o/--output")
 
 
 def finetune(out, *, sensor_file, init="tr4", epochs: int = 10, steps_per_epoch: int = 256, val_batches: int = 16,

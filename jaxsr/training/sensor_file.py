@@ -44,7 +44,8 @@ try:  # Python 3.11+
 except ModuleNotFoundError:  # pragma: no cover - Python 3.10 with the `tomli` backport
     import tomli as tomllib
 
-__all__ = ["read_sensor_file", "parse_sensor_file", "training_sensor", "fit_irf", "read_irf_file", "card_entry", "sensor_differences",
+__all__ = ["read_sensor_file", "parse_sensor_file", "training_sensor", "fit_irf", "read_irf_file", "card_entry",
+           "sensor_differences",
            "IRF_RESIDUAL_WARN", "MAX_RENDER_SIDE", "PAPER_PITCH_DEG"]
 
 SCALE = 4  # the bundled models' upsampling factor, and so the fine-tune's
@@ -451,7 +452,8 @@ def read_sensor_file(path, *, photons: bool = True) -> tuple[Sensor, PhotonRegim
     scale 4, fov_deg: default the paper's pitch, 30 deg per 64 columns, at most 90 deg), the pulse
     (irf_sigma_bins, or the Gaussian fitted to irf_file) and the depth scale of the gate (the network's 0 at the
     gate's start, its 1.0 at the gate's end); `training_sensor` of it is what fine-tuning simulates.
-    PhotonRegime (None when photons=False and the file has no [photons]): [photons] over `PhotonRegime`'s defaults, every clip with the
+    PhotonRegime (None when photons=False and the file has no [photons]): [photons] over `PhotonRegime`'s defaults,
+    every clip with the
     sensor's pulse (irf_sigma_bins, or the Gaussian fitted to irf_file). info: "text" (the file as read),
     "sensor" and "photons" (the keys as given), "gate" (bins, bin_width_m, start_m, span_m), "irf" (sigma_bins,
     its source and the fit), "lr_shape", "render_lr_shape", "fov_deg", "upscale_options" (the `jaxsr upscale`
