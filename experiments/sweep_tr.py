@@ -191,7 +191,7 @@ def main():
     enable_compilation_cache()
     trs = args.trs or ([0, 1] if args.quick else [0, 1, 2, 3, 4])
     frames = args.frames or (8 if args.quick else 100)
-    sensor = Sensor(optics=Optics(scale=args.scale))
+    sensor = Sensor(optics=Optics.of_hr(Sensor().hr_shape, args.scale))
     pretrained = args.train is None and not args.quick
     preset = args.train or "cpu"
     suffix = ("_x8" if args.scale == 8 else "") + ("_quick" if args.quick else "" if pretrained else f"_{preset}")

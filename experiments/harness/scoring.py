@@ -333,7 +333,7 @@ def get_model(tr: int, *, pretrained: bool, preset: str, runs: Path, scale: int 
             raise SystemExit("bundled weights are x4 only; train x8 models with --train")
         model = jaxsr.load_model(f"tr{tr}")
         return model, jaxsr.read_metadata(Path(jaxsr.__file__).parent / "weights" / f"tr{tr}.npz").get("card", {})
-    sensor = Sensor(optics=Optics(scale=scale))
+    sensor = Sensor(optics=Optics.of_hr(Sensor().hr_shape, scale))  # the paper's HR frame at this scale
     cfg = ModelConfig(tr=tr, scale=scale)
     out = runs / ("quick" if quick else preset) / f"x{scale}" / f"tr{tr}"
     make_batch = None

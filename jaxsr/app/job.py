@@ -259,7 +259,7 @@ def _depth_job(rec, source, choice, planned, read: Reading, photons: PhotonRules
                              "depth frames")
     units = guess_units(rec) if read.units is None else read.units
     r = 4 if planned.model is None else int(planned.model.architecture.scale(planned.model.config))
-    sensor = Sensor(optics=Optics(scale=r))
+    sensor = Sensor(optics=Optics.of_hr(Sensor().hr_shape, r))
     check_frames(rec, units)
 
     def lr_stream():

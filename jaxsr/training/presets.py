@@ -101,7 +101,7 @@ def train(out, *, arch: str = "duf", tr: int = 4, scale: int = 4, temporal: str 
             raise ValueError(f"train: {arch} trains at x4 on rendered scenes from random weights (no data, init or "
                              "scale)")
         model_cfg = published
-    sensor = Sensor(optics=Optics(scale=scale))
+    sensor = Sensor(optics=Optics.of_hr(Sensor().hr_shape, scale))  # the paper's HR frame at this scale
     _check_out(out, resume, seeds=seeds, overwrite=overwrite)
     if init is not None and not isinstance(init, Model):
         _check_weights(init)
