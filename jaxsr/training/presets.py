@@ -216,8 +216,9 @@ def _init_config(init, photons: bool | None) -> ModelConfig:
     meta = read_metadata(path)
     name = meta.get("architecture", meta.get("baseline", "duf"))  # files older than the name: the DUF network
     if "config" not in meta or name not in architectures() or architecture(name).config_type is not ModelConfig:
+        got = f"a {name} model" if "config" in meta else "a file that holds no model"
         raise ValueError(f"-m/--model {init}: expected a model of the paper's network (tr0..tr4 or a checkpoint of "
-                         f"it), got {'a ' + str(name) + ' model' if 'config' in meta else 'a file that holds no model'}")
+                         f"it), got {got}")
     cfg = dataclasses.replace(config_from_dict(ModelConfig, meta["config"]), temporal="window",
                               no_return_logit=ModelConfig().no_return_logit)
     if cfg.scale != 4:
