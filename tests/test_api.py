@@ -33,7 +33,6 @@ NO_ARRAYS = {
     "read_metadata": "a checkpoint path -> a dict",
     "step_decay": "scalars -> a schedule step -> lr",
     "enable_compilation_cache": "a folder",
-    "SensorConfig": "deprecated: the flat sensor's numbers -> a jaxsr.Sensor",
     "load_model": "a path or bundled name -> a Model",
     "save_model": "a path and a Model",
     "use_cpu_cores": "a device count",
