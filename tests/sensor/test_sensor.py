@@ -198,10 +198,11 @@ def test_jit_equals_eager_and_vmap_equals_loop():
     np.testing.assert_array_equal(jax.jit(sim)(key, depth, intensity), sim(key, depth, intensity))
 
 
-def test_sensor_config_is_a_pytree_with_static_shapes():
+def test_the_sensor_is_a_pytree_with_static_shapes():
     cfg = jaxsr.Sensor()
     leaves, treedef = jax.tree_util.tree_flatten(cfg)
-    assert len(leaves) == 5
+    # bin width, gate start, field of view, pulse sigma, depth offset and span, r_min, ambient floor
+    assert len(leaves) == 8
     assert jax.tree_util.tree_unflatten(treedef, leaves) == cfg
     # vmap over a physical parameter: the IRF width
     rng = np.random.default_rng(8)
@@ -405,19 +406,21 @@ def test_an_array_of_photon_levels_is_refused_as_not_a_scalar(level, jit):
 
 
 @pytest.mark.parametrize(
-    "field,value", [("d_max", 0.0), ("d_max", np.nan), ("irf_sigma", 0.0), ("irf_sigma", -0.4), ("r_min", 0.0),
-                    ("ambient_floor", -0.05), ("ambient_floor", np.inf)]
+    "path,value", [(("gate", "bin_width"), 0.0), (("gate", "bin_width"), np.nan), (("depth", "span"), 0.0),
+                   (("pulse", "sigma"), 0.0), (("pulse", "sigma"), -0.4), (("r_min",), 0.0),
+                   (("ambient_floor",), -0.05), (("ambient_floor",), np.inf)]
 )
 @pytest.mark.parametrize("jit", [False, True])
-def test_invalid_sensor_physics_raises_eagerly_and_is_nan_everywhere_traced(field, value, jit):
+def test_invalid_sensor_physics_raises_eagerly_and_is_nan_everywhere_traced(path, value, jit):
     depth, intensity = _scene()
 
     def rates(v):
-        cfg = dataclasses.replace(SMALL, **{field: v})
+        part = v if len(path) == 1 else dataclasses.replace(getattr(SMALL, path[0]), **{path[1]: v})
+        cfg = dataclasses.replace(SMALL, **{path[0]: part})
         return jaxsr.expected_histograms(depth, intensity, cfg, snr=1.3, mean_signal=5.0)
 
     if not jit:
-        with pytest.raises(ValueError, match=field):
+        with pytest.raises(ValueError, match=path[-1]):
             rates(value)
     else:
         assert np.all(np.isnan(jax.jit(rates)(jnp.float32(value))))
