@@ -55,7 +55,7 @@ REGIMES = ("3:1.3", "14:1.3", "3:0.3", "14:0.3")
 NO_RETURN_FRACTION, NO_RETURN_SKY = 0.3, 0.5  # the photon benchmark's regions
 KEEP_ALPHA = 1e-3  # today's keep rule (jaxsr.app.photons.AUTO_KEEP_RETURNS)
 GOALS = {"ece": 0.05, "auroc": 0.95, "coverage": (0.85, 0.95)}
-SENSOR = jaxsr.SensorConfig()
+SENSOR = jaxsr.Sensor()
 R = EVIDENCE_FRAMES // 2
 
 

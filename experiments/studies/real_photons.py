@@ -232,7 +232,7 @@ def confidence_decided(model, frames: PhotonFrames, guard: float | None = None) 
     LR pixel's own photons over 9 frames pass for ambient light alone at it (`jaxsr upscale`'s default: 0.001)."""
     raw = np.stack(list(iter_super_resolve(model, iter(model_input(model, frames)), raw=True)))
     coeffs = coefficients_for(None, True)
-    sensor = jaxsr.SensorConfig(bins=frames.gate.bins)
+    sensor = jaxsr.Sensor(gate=jaxsr.Gate.spanning(35.0, frames.gate.bins))
     per_unit = float(frames.scale.span) / float(frames.gate.bin_width)
     out = []
     for r, window in zip(raw, iter_count_windows(iter(np.asarray(frames.counts)), EVIDENCE_FRAMES)):

@@ -12,7 +12,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-from ..config import DepthScale, Gate, Optics, Sensor
+from ..config import TRAINED_RANGE_M, DepthScale, Gate, Optics, Sensor
 from ..inference import (DEFAULT_PRECISION, iter_ambient_only, iter_network_inputs, iter_returns_kept,
                          iter_super_resolve, lr_blocks, no_return_where, overrule_no_return)
 from ..inference.confidence import (EVIDENCE_FRAMES, NO_RETURN_AT, ConfidenceCoefficients, coefficients_for,
@@ -161,7 +161,7 @@ class UpscaleJob:
         raw = iter_super_resolve(self.model, lr, batch_size=batch_size, precision=self.precision, raw=head)
         quiet = self._keep_stream() if self._keep_stream is not None else None
         ambient = self._ambient_stream() if self._ambient_stream is not None else None
-        sensor = SensorConfig(bins=self.gate.bins)
+        sensor = Sensor(gate=Gate.spanning(TRAINED_RANGE_M, self.gate.bins))  # its bins: the evidence's grid
         bins_per_unit = float(self.scale.span) / float(self.gate.bin_width)
         threshold = float(self.model.config.no_return_logit) if head else 0.0
         windows = iter_count_windows(self._count_stream(), EVIDENCE_FRAMES)

@@ -33,7 +33,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..config import SensorConfig
+from ..config import Sensor
 from ..sensor.peaks import (
     _check_counts,
     _peak_excess,
@@ -112,7 +112,7 @@ def coefficients_for(model_name: str | None, has_head: bool) -> ConfidenceCoeffi
     return ConfidenceCoefficients(features, tuple(entry["probability"]), tuple(entry["std"]))
 
 
-def centre_of_mass_std(counts, sensor: SensorConfig = SensorConfig()):
+def centre_of_mass_std(counts, sensor: Sensor = Sensor()):
     """The standard deviation, in bins, of each histogram's centre of mass (`jaxsr.centre_of_mass`) under Poisson
     noise: (..., K) counts -> (...). The delta method on tau = sum (k + 0.5) x_k / sum x_k over the peak's window,
     each bin's variance its expected count (the excess x_k plus the median background b): var = sum (k + 0.5 -
@@ -138,7 +138,7 @@ def _evidence(log_p):
 
 
 @functools.partial(jax.jit, static_argnames=("sensor",))
-def evidence_maps(window, sensor: SensorConfig = SensorConfig()):
+def evidence_maps(window, sensor: Sensor = Sensor()):
     """The photon features of the centre frame of a (F, h, w, K) window of histograms (F = `EVIDENCE_FRAMES`, frames
     beyond a sequence zero): a dict of (h, w) float32 maps: "evidence" (the pixel's histograms summed over the
     window: log(1 - log p) of `return_significance`), "evidence_3x3" (its 3 x 3 neighbourhood's), "signal"
@@ -209,7 +209,7 @@ def _frame(window, hr_depth, head_logit, probability, std, bins_per_unit, sensor
     return p, sigma
 
 
-def confidence_frame(window, hr_depth, coefficients: ConfidenceCoefficients, sensor: SensorConfig = SensorConfig(),
+def confidence_frame(window, hr_depth, coefficients: ConfidenceCoefficients, sensor: Sensor = Sensor(),
                      *, head_logit=None, bins_per_unit=None):
     """One frame's confidence: (P(return) (H, W) float32 in [0, 1], depth std in bins (H, W) float32).
 

@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..config import PhotonRegime, SensorConfig, TrainConfig
+from ..config import PhotonRegime, Sensor, TrainConfig
 from ..inference.confidence import (EVIDENCE_FRAMES, INTERVAL_Z, NO_RETURN_AT, evidence_maps, return_features,
                                     std_features)
 from ..nn.duf import apply_model_raw
@@ -42,7 +42,7 @@ CONFIDENCE_REGIME = PhotonRegime(signal_range=(1.0, 1000.0), snr_range=(0.1, 5.0
 
 
 def confidence_clips(key, *, frames: int, regime: PhotonRegime = CONFIDENCE_REGIME,
-                     sensor: SensorConfig = SensorConfig(), patch=None):
+                     sensor: Sensor = Sensor(), patch=None):
     """One simulated clip as `jaxsr.training.regime_clips` draws it, its histograms kept: (counts (frames, h, w, K),
     gt (frames, H, W) normalised, parameters dict). patch: (rows, cols) LR, a random crop (None: whole frames).
     jit-able with frames, regime, sensor and patch static."""
@@ -69,7 +69,7 @@ def confidence_clips(key, *, frames: int, regime: PhotonRegime = CONFIDENCE_REGI
 
 
 def confidence_set(model: Model, *, draws: int, key=None, regime: PhotonRegime = CONFIDENCE_REGIME,
-                   sensor: SensorConfig = SensorConfig(), patch=None, log=None) -> dict:
+                   sensor: Sensor = Sensor(), patch=None, log=None) -> dict:
     """What the confidence is fitted on: `draws` clips (`confidence_clips`, whole frames or LR crops of `patch`; key default
     jax.random.key(CONFIDENCE_SEED), clip i from fold_in(key, i)), the model (window form) run once on each clip's
     centre frame.
@@ -113,7 +113,7 @@ def confidence_set(model: Model, *, draws: int, key=None, regime: PhotonRegime =
     return out
 
 
-def set_features(data: dict, sensor: SensorConfig = SensorConfig(), *, bins_per_unit=None) -> dict:
+def set_features(data: dict, sensor: Sensor = Sensor(), *, bins_per_unit=None) -> dict:
     """Per HR pixel of a `confidence_set`: {"probability": (M, 6) `return_features`, "std": (M, 4) `std_features`,
     "returns": (M,) bool truth, "error_bins": (M,) |depth - truth| in bins where both hold a return (NaN
     elsewhere), "clip": (M,) the clip's index}, M = N H W."""

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from jaxsr.app import AUTO_KEEP_RETURNS, ModelChoice, upscale
-from jaxsr.config import ModelConfig, SensorConfig
+from jaxsr.config import ModelConfig, Sensor
 from jaxsr.eval import auroc, expected_calibration_error, interval_coverage
 from jaxsr.inference.confidence import (EVIDENCE_FRAMES, HEAD_FEATURES, PHOTON_FEATURES, STD_FEATURES,
                                         centre_of_mass_std, coefficients_for, confidence_frame, iter_count_windows,
@@ -16,7 +16,7 @@ from jaxsr.nn import Model, init_model
 from jaxsr.sensor import ambient_only
 from jaxsr.training.confidence import fit_depth_std, fit_logistic
 
-SENSOR = SensorConfig()
+SENSOR = Sensor()
 TINY = dict(base=8, growth=4, head=16, filter_hidden=16)
 
 

@@ -359,7 +359,7 @@ def test_the_command_says_what_it_waits_for_and_gives_up_in_one_line(monkeypatch
         monkeypatch.delenv(name, raising=False)
     monkeypatch.setattr(runtime, "_backend_started", lambda: False)
     address = f"127.0.0.1:{_free_port()}"
-    args = ["train", "--out", str(tmp_path / "run"), "--coordinator", address, "--num-processes", "2"]
+    args = ["train", "--output", str(tmp_path / "run"), "--coordinator", address, "--num-processes", "2"]
     assert main([*args, "--process-id", "1", "--join-timeout", "0.5"]) == 2
     err = capsys.readouterr().err.splitlines()
     assert err == [f"jaxsr train: process 1 of 2: waiting for process 0 at {address} (up to 0.5 s)",
@@ -426,7 +426,7 @@ def test_the_coordinator_listens_at_the_address_given_only(tmp_path):
 def test_a_process_alone_ends_in_one_line_or_at_ctrl_c(tmp_path, process_id):
     """No JAX abort ("Check failure", exit 134) at the timeout and no wait Ctrl-C cannot end: exit 2 after one
     line, and 130 at Ctrl-C, with nothing written."""
-    command = [sys.executable, "-m", "jaxsr.cli", "train", "--out", str(tmp_path / "run"), "--coordinator",
+    command = [sys.executable, "-m", "jaxsr.cli", "train", "--output", str(tmp_path / "run"), "--coordinator",
                f"127.0.0.1:{_free_port()}", "--num-processes", "2", "--process-id", str(process_id)]
     alone = subprocess.run([*command, "--join-timeout", "1"], capture_output=True, text=True, timeout=120,
                            cwd=tmp_path, env=_env())

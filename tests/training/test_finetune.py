@@ -456,9 +456,9 @@ def test_damaged_starting_weights_are_refused_before_the_set_up(tmp_path, monkey
     for name in ("regime_batches", "regime_validation", "sequence_data", "_fit_in_new_folder"):
         monkeypatch.setattr(presets, name, set_up)
     (tmp_path / "s.toml").write_text(TINY_TOML)
-    for command in (["finetune", "--sensor", str(tmp_path / "s.toml"), "--from", str(path)],
+    for command in (["finetune", "--sensor", str(tmp_path / "s.toml"), "--model", str(path)],
                     ["train", "--tr", "0", "--init", str(path)]):
-        assert cli.main([*command, "--out", str(tmp_path / "run"), "--no-progress"]) == 2
+        assert cli.main([*command, "--output", str(tmp_path / "run"), "--no-progress"]) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and "start.npz" in err, err
         assert ("claims 4e+12 bytes" if damage == "a header claiming terabytes" else "non-finite") in err, err
@@ -493,7 +493,7 @@ def test_an_out_on_a_read_only_file_system_is_refused_before_the_set_up(read_onl
     (tmp_path / "s.toml").write_text(TINY_TOML)
     for out in (read_only_tmpfs / "run", read_only_tmpfs):
         for command in (["finetune", "--sensor", str(tmp_path / "s.toml")], ["train", "--tr", "0"]):
-            assert cli.main([*command, "--out", str(out), "--no-progress"]) == 2
+            assert cli.main([*command, "--output", str(out), "--no-progress"]) == 2
             err = capsys.readouterr().err
             assert err.count("\n") == 1 and f"{read_only_tmpfs} is on a read-only file system" in err, err
 
@@ -508,8 +508,7 @@ def test_the_printed_upscale_command_survives_a_shell(tmp_path, monkeypatch, cap
     monkeypatch.setattr(command, "finetune", lambda *args, **kwargs: (None, []))
     (tmp_path / "s.toml").write_text(TINY_TOML)
     out = str(tmp_path / "my runs\tv1" / "it's here")
-    assert cli.main(["finetune", "--sensor", str(tmp_path / "s.toml"), "--out", out, "--no-progress"]) == 0
+    assert cli.main(["finetune", "--sensor", str(tmp_path / "s.toml"), "--output", out, "--no-progress"]) == 0
     line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("run it: "))
     words = shlex.split(line.removeprefix("run it: ").split("  (RECORDING")[0])
-    assert words[:5] == ["jaxsr", "upscale", "RECORDING", "OUTPUT", "--model"] and words[5] == out
-    assert words[6:] == read_sensor_file(tmp_path / "s.toml")[2]["upscale_options"].split()
+    assert words == ["jaxsr", "upscale", "RECORDING", "-o", "OUTPUT", "-m", out, "--sensor", str(tmp_path / "s.toml")]
