@@ -52,7 +52,7 @@ from scipy import ndimage
 
 import jaxsr
 from jaxsr.app import AUTO_KEEP_RETURNS, DEFAULT_MODELS
-from jaxsr.config import DEFAULT_MEAN_SIGNAL, SensorConfig
+from jaxsr.config import DEFAULT_MEAN_SIGNAL, Sensor
 from jaxsr.inference import lr_blocks
 from jaxsr.sensor import calibrated_rates, normalise_depth
 
@@ -105,7 +105,7 @@ def dim_returns(seq, photons: float = 3.0, snr: float = 1.3, *, every: int = 10)
     over the whole sequence; "cost": mean (1 - normalised depth)^2 over the HR returns, the squared error of one
     output as no return; "dim_cost": the same over the HR pixels of those dim LR pixels; "median_depth":
     normalised}. Every `every`-th frame is counted."""
-    sensor = SensorConfig()
+    sensor = Sensor()
     alpha, _ = calibration(jnp.asarray(seq.depth), jnp.asarray(seq.intensity), jnp.float32(snr),
                            jnp.float32(photons), sensor)
     depth, intensity = jnp.asarray(seq.depth[::every]), jnp.asarray(seq.intensity[::every])
@@ -122,7 +122,7 @@ def dim_returns(seq, photons: float = 3.0, snr: float = 1.3, *, every: int = 10)
 def method_outputs(models: dict, clip, flags) -> dict:
     """{method: (sr, gt)} on the clip's scored frames: bicubic, the paper's TR4 and the default (its keep rule's
     decision `flags`, (F, h, w) of the scored frames)."""
-    out = {BICUBIC: bicubic_output(clip, SensorConfig().scale),
+    out = {BICUBIC: bicubic_output(clip, Sensor().scale),
            PAPER_TR4: scored_output(models[PAPER_TR4], clip)}
     model = models[DEFAULT]
     if model.has_no_return_head:
@@ -306,7 +306,7 @@ def why_table(groups: dict) -> str:
     for g, seqs in groups.items():
         for n, seq in seqs.items():
             d = dim_returns(seq)
-            body.append([g, n, f"{d['median_depth'] * SensorConfig().d_max:.1f}", f"{d['dim_pct']:.1f}",
+            body.append([g, n, f"{d['median_depth'] * Sensor().d_max:.1f}", f"{d['dim_pct']:.1f}",
                          f"{d['cost']:.2f}", _f(d["dim_cost"])])
     return ("### What a dropped return costs\n\nPer scene (every 10th frame): the median depth of its returns (m), "
             "the share of its LR pixels with a return whose expected signal is below one photon at 3 photons "

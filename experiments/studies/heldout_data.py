@@ -30,7 +30,7 @@ from typing import Callable
 import numpy as np
 from PIL import Image
 
-from jaxsr.config import SensorConfig
+from jaxsr.config import Sensor
 from jaxsr.io.files import atomic_path, write_text_atomic
 
 DEFAULT_DATA = Path.home() / ".cache" / "jaxsr" / "heldout"
@@ -218,7 +218,7 @@ def hr_frame(depth_m: np.ndarray, rgb: np.ndarray, intrinsics, shape) -> tuple[n
             intensity_of(crop_rows(rgb, aspect), shape))
 
 
-def read_source(name: str, root, *, shape=SensorConfig().hr_shape, static_frames: int = STATIC_FRAMES) -> dict:
+def read_source(name: str, root, *, shape=Sensor().hr_shape, static_frames: int = STATIC_FRAMES) -> dict:
     """The set `name` of `SETS` read from its source folder: {"depth", "intensity"} (T, H, W) float32."""
     src = SETS[name]
     frames = []
@@ -263,7 +263,7 @@ def prepare(sources: dict, data, *, names=None, static_frames: int = STATIC_FRAM
     data.mkdir(parents=True, exist_ok=True)
     manifest_path = data / "manifest.json"
     manifest = json.loads(manifest_path.read_text()) if manifest_path.exists() else {}
-    gate = SensorConfig().d_max
+    gate = Sensor().d_max
     for name in names or list(SETS):
         if name in REAL:
             continue

@@ -17,7 +17,7 @@ from PIL import Image
 
 import heldout  # experiments/studies (pytest's pythonpath)
 import heldout_data as hd
-from jaxsr.config import MODEL_INPUTS, ModelConfig, SensorConfig
+from jaxsr.config import MODEL_INPUTS, ModelConfig, Sensor
 from jaxsr.nn import Model, init_model
 from jaxsr.sensor.forward import planar_to_radial
 
@@ -54,7 +54,7 @@ def test_tum_and_sun_units():
 
 
 def test_radial_matches_the_library_at_its_own_camera():
-    sensor = SensorConfig()
+    sensor = Sensor()
     h, w = sensor.hr_shape
     f = (w / 2) / np.tan(np.deg2rad(15.0))  # PHYSICS.md: 30 deg horizontal field of view
     z = np.random.default_rng(0).uniform(1.0, 30.0, (h, w))
@@ -114,7 +114,7 @@ def test_prepare_from_a_git_repository_and_load(tmp_path, monkeypatch):
     manifest = hd.prepare({hd.OPEN3D: bare}, data, names=["tum-desk"], static_frames=5, log=lambda _: None)
     scenes = hd.load_scenes(data)
     seq = scenes["tum-desk"]
-    h, w = SensorConfig().hr_shape
+    h, w = Sensor().hr_shape
     assert seq.depth.shape == seq.intensity.shape == (5, h, w) and seq.kind == "static" and seq.snr == 1.3
     np.testing.assert_array_equal(seq.depth[0], seq.depth[4])  # a still scene
     # a plane 2 m ahead: radial range 2 m at the principal point, more towards the corners (the crop's corner ray,
@@ -178,7 +178,7 @@ def tiny(cfg):
 
 @pytest.mark.slow  # compiles two small networks and the photon draw: about 20 s on 2 cores, more when busy
 def test_score_scene_on_a_synthetic_sequence():
-    h, w = SensorConfig().hr_shape
+    h, w = Sensor().hr_shape
     depth = np.broadcast_to(np.linspace(30.0, 5.0, h, dtype=np.float32)[:, None], (6, h, w)).copy()
     depth[:, :10] = np.inf  # a band of sky
     seq = SimpleNamespace(depth=depth, intensity=np.full_like(depth, 0.5), fps=30.0, snr=1.3)
@@ -206,7 +206,7 @@ def test_the_prepared_held_out_scenes():
     scenes = hd.load_scenes(DATA)
     assert scenes and set(scenes) <= set(manifest)
     for name, seq in scenes.items():
-        assert seq.depth.shape[1:] == SensorConfig().hr_shape == seq.intensity.shape[1:]
+        assert seq.depth.shape[1:] == Sensor().hr_shape == seq.intensity.shape[1:]
         assert np.isfinite(seq.intensity).all() and 0.0 <= seq.intensity.min() and seq.intensity.max() <= 1.0
         assert (seq.depth > 0).all(), name
         if seq.kind == "static":
@@ -217,7 +217,7 @@ def test_the_prepared_held_out_scenes():
 def test_dim_returns_in_closed_form():
     # two planes of equal reflectivity, 5 m on the left and 20 m on the right: signal goes as 1 / r^2, so at a
     # mean of 3 photons per LR pixel the near half gets 2 * 3 * 400 / 425 = 5.65 and the far half 0.35
-    h, w = SensorConfig().hr_shape
+    h, w = Sensor().hr_shape
     depth = np.full((2, h, w), 5.0, np.float32)
     depth[:, :, w // 2:] = 20.0
     seq = SimpleNamespace(depth=depth, intensity=np.full_like(depth, 0.5))
