@@ -38,6 +38,20 @@ def require_array(name, what, x):
     return jnp.asarray(x)
 
 
+def require_numbers(name: str, what: str, x) -> np.ndarray:
+    """`x` as a NumPy array of integers or floats (what the host functions read: depth, counts). Booleans, text,
+    Python objects and complex values are a ValueError naming `what`, as `jaxsr upscale` refuses them, not numbers
+    NumPy would make of them; a masked array too, whose mask NumPy would drop."""
+    if isinstance(x, np.ma.MaskedArray):
+        raise ValueError(f"{name}: {what} is a masked array, whose mask would be dropped; fill the masked values first "
+                         "(numpy.ma.filled; NaN is no return in normalised depth)")
+    arr = np.asarray(x)
+    if arr.dtype.kind not in "iuf":
+        raise ValueError(f"{name}: {what} holds {arr.dtype} values; expected real numbers (an integer or floating "
+                         "point array)")
+    return arr
+
+
 def require_sensor(name, sensor):
     """Refuse anything but a `Sensor` (None, a dict) with a TypeError, before an attribute error would."""
     if not isinstance(sensor, Sensor):

@@ -56,6 +56,7 @@ def check_outputs(output, writing: Writing = Writing(), *, input=None) -> Output
     force = writing.overwrite
     reads = {"the input": _read_paths(input), "the reference": _read_paths(writing.reference)}  # listed once
     out = None if output is None else check_output(output, force=force)
+    _refuse_inside_folder_output(out, writing)
     preview = None if writing.preview is None else check_preview(writing.preview, force=force, output=out)
     video = None if writing.video is None else check_video(writing.video, force=force, output=out)
     points = None if writing.points is None else check_points(writing.points, force=force, output=out)
@@ -69,6 +70,20 @@ def check_outputs(output, writing: Writing = Writing(), *, input=None) -> Output
         raise ValueError(f"frame_format (--frame-format) applies to a folder OUTPUT (one file per frame), not "
                          f"{'an output kept in memory' if out is None else out}")
     return Outputs(out, preview, video, points, writing)
+
+
+def _refuse_inside_folder_output(out: Path | None, writing: Writing) -> None:
+    """Refuse a preview, video or point clouds' folder inside a folder OUTPUT: the folder is written as a whole and
+    holds this run's frames alone (a new or empty folder is claimed by one rename, which what is written into it
+    first would make fail after the work; with --force an earlier run's frame_* files are removed from it)."""
+    if out is None or out.suffix.lower() in ARRAY_FORMATS:
+        return
+    folder = out.resolve()
+    for what, spec in (("the preview", writing.preview), ("the video", writing.video),
+                       ("the point clouds' folder", writing.points)):
+        if spec is not None and folder in Path(spec).resolve().parents:
+            raise ValueError(f"{spec}: {what} lies inside the folder OUTPUT {out}, which holds the frames alone; "
+                             "write it beside that folder")
 
 
 def _read_paths(source) -> tuple[set[Path], set[Path]]:

@@ -37,6 +37,7 @@ AUTO = "auto"
 KINDS = ("depth", "histograms", "timetags")  # what an input holds (-k/--kind)
 FRAME_FORMATS = ("exr", "pfm", "tif", "png")  # frame files of a folder OUTPUT
 DEFAULT_BINS = 16
+DEFAULT_CMAP = "turbo"  # the colour map of previews, videos and point clouds
 # the ranges a gate's bin and the network's [0, 1] may span, metres: a SPAD's bins are picoseconds to microseconds
 # (0.1 mm to 1 km), and float32 depth on spans beyond these holds nothing the models can mean
 BIN_WIDTH_RANGE_M = (1e-4, 1e3)
@@ -298,8 +299,8 @@ class Writing:
     is "radial" range (None: the sensor's) or "planar" z; points_axes (--points-axes): "opencv" (None: x right, y
     down, z forward) or "opengl" (x right, y up, z backward). vmin, vmax (--vmin, --vmax): the colour scale of
     previews, videos and point clouds in metres (None: the recording's depth range, read from its first frames);
-    cmap (--cmap): a matplotlib colour map. overwrite (--force): replace an existing output, preview, video or
-    point clouds."""
+    cmap (--cmap): a matplotlib colour map (None: `DEFAULT_CMAP`); vmin, vmax and cmap are refused without a picture
+    to colour. overwrite (--force): replace an existing output, preview, video or point clouds."""
 
     frame_format: str | None = None
     preview: str | os.PathLike | None = None
@@ -312,7 +313,7 @@ class Writing:
     overwrite: bool = False
     vmin: float | None = None
     vmax: float | None = None
-    cmap: str = "turbo"
+    cmap: str | None = None
     intrinsics: object = None
     lr_intrinsics: object = None
     points_depth: str | None = None
@@ -340,9 +341,17 @@ class Writing:
             raise ValueError(f"vmin (--vmin) must be below vmax (--vmax), got {self.vmin:g} and {self.vmax:g}")
         import matplotlib  # late: the colour maps are only needed where pictures are drawn
 
-        if self.cmap not in matplotlib.colormaps:
+        if self.cmap is not None and self.cmap not in matplotlib.colormaps:
             raise ValueError(f"cmap (--cmap): expected a matplotlib colour map such as 'turbo' or 'viridis', got "
                              f"{self.cmap!r}")
+        if self.preview is None and self.video is None and self.points is None:  # no picture to colour
+            given = [flag for flag, v in (("--vmin", self.vmin), ("--vmax", self.vmax), ("--cmap", self.cmap))
+                     if v is not None]
+            if given:
+                raise ValueError(f"{', '.join(given)} appl{'ies' if len(given) == 1 else 'y'} to --preview, --video "
+                                 "and --points only (the colour scale of pictures)")
+        if self.cmap is None:
+            object.__setattr__(self, "cmap", DEFAULT_CMAP)
         try:
             object.__setattr__(self, "overwrite", _flag(self.overwrite))
         except TypeError as e:

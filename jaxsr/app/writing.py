@@ -255,10 +255,7 @@ def _write(job: UpscaleJob, outputs: Outputs, frame_format, ref, batch_size: int
                     extra[0][t], extra[1][t] = conf, std
                 if side_maps is not None:
                     side_maps[0][t], side_maps[1][t] = conf, std
-                if np.isnan(hr).any():  # never "no return": a model whose config or weights compute nothing
-                    raise ValueError(f"model {job.label or job.model_name}: its output holds NaN in frame {t} "
-                                     f"({np.isnan(hr).mean():.0%} of the pixels) from finite input: it computes "
-                                     "nothing usable (check its config and weights, jaxsr info); nothing written")
+                _require_depth_output(hr, t, job.label or job.model_name)
                 if t == preview_t:
                     preview_hr.append(hr)
                 if film is not None or clouds is not None:
@@ -319,6 +316,29 @@ def _write(job: UpscaleJob, outputs: Outputs, frame_format, ref, batch_size: int
                         saturated += np.count_nonzero(np.isfinite(f) & (f > PNG_MAX_M))
                 finish()
     return saturated, depth, (None, None) if extra is None else extra
+
+
+# Normalised network output further than one whole span outside [0, 1] (the gate) is no depth of any scene (the
+# bundled TR0, TR4 and TR0-ambient stay within [-0.41, 1.33] on noise, checkerboards, flicker and all-sky frames):
+# a frame that holds it in most of its pixels comes from weights or a config that compute nothing, and would be
+# written as no return and 0 m without a word.
+OUTPUT_SPANS_BEYOND = 1.0
+
+
+def _require_depth_output(hr, t: int, name: str) -> None:
+    """Raise ValueError where the network's output frame `hr` (normalised, unclipped) is not depth: NaN or inf in
+    any pixel, or more than `OUTPUT_SPANS_BEYOND` spans outside [0, 1] in most of them; never written as no return."""
+    finite = np.isfinite(hr)
+    if not finite.all():
+        what = "NaN" if np.isnan(hr).any() else "inf"
+        raise ValueError(f"model {name}: its output holds {what} in frame {t} ({1 - finite.mean():.0%} of the pixels) "
+                         "from finite input: it computes nothing usable (check its config and weights, jaxsr info); "
+                         "nothing written")
+    far = np.mean((hr < -OUTPUT_SPANS_BEYOND) | (hr > 1 + OUTPUT_SPANS_BEYOND))
+    if far > 0.5:
+        raise ValueError(f"model {name}: its output in frame {t} lies more than a whole depth span outside the gate in "
+                         f"{far:.0%} of the pixels (normalised {float(hr.min()):.3g} to {float(hr.max()):.3g}): it "
+                         "computes nothing usable (check its config and weights, jaxsr info); nothing written")
 
 
 def _colour_range(job: UpscaleJob, write: Writing) -> tuple[float, float]:

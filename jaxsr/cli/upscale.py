@@ -152,9 +152,9 @@ def add_parser(subparsers):
                    help="the colour scale's first depth in metres (default: the recording's nearest returns)")
     g.add_argument("--vmax", type=finite_float, default=None, metavar="M",
                    help="the colour scale's last depth in metres (default: the recording's farthest returns)")
-    g.add_argument("--cmap", default="turbo", metavar="NAME",
+    g.add_argument("--cmap", default=None, metavar="NAME",
                    help="the colour map of previews, videos and point clouds (a matplotlib name; default turbo)")
-    g.add_argument("--points-colour", choices=["depth", "none"], default="depth",
+    g.add_argument("--points-colour", choices=["depth", "none"], default=None,
                    help="--points: colour the points by depth (default) or write x, y, z only")
     add_force(p, "overwrite the output (and the preview, video and point clouds)")
     add_quiet(p)
@@ -162,6 +162,8 @@ def add_parser(subparsers):
 
 
 def run(args) -> int:
+    if args.points_colour is not None and args.points is None:
+        raise ValueError("--points-colour applies to --points only")
     if args.old_output is not None:
         if args.output is not None:
             raise ValueError(f"two outputs: {args.old_output} and -o/--output {args.output}; give -o/--output alone")
@@ -179,7 +181,7 @@ def run(args) -> int:
                     reference=args.reference, points=args.points, fov_deg=args.fov,
                     intrinsics=args.intrinsics, lr_intrinsics=args.lr_intrinsics, points_depth=args.points_depth,
                     points_axes=args.points_axes,
-                    points_colour=None if args.points_colour == "none" else args.points_colour, overwrite=args.force,
+                    points_colour=None if args.points_colour == "none" else "depth", overwrite=args.force,
                     vmin=args.vmin, vmax=args.vmax, cmap=args.cmap)
     result = upscale(args.input, output, model=model, read=read, photons=photons, write=write,
                      batch_size=args.batch_size, max_memory=args.max_memory, progress=not args.no_progress,

@@ -28,7 +28,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
-from ..checks import require_normalised_depth
+from ..checks import require_normalised_depth, require_numbers
 from ..config import MIN_LR_SIDE, Sensor
 from ..eval.metrics import psnr
 from ..nn.duf import apply_model_raw, apply_model_sequence
@@ -110,13 +110,13 @@ def _require_model(model, who: str) -> Model:
     return model
 
 
-def _check_frame(frame, shape, index, inputs=("depth",)):
+def _check_frame(frame, shape, index, inputs=("depth",), who: str = "super_resolve"):
     """One LR frame checked for a network reading `inputs`: (h, w) normalised depth, or (h, w, C) channels, depth
-    first and photon channels finite and >= 0 (`jaxsr.nn.network_inputs`)."""
-    refuse_tracing(frame, "super_resolve", "jaxsr.apply_sequence(model, lr_seq)")
+    first and photon channels finite and >= 0 (`jaxsr.nn.network_inputs`); `who` names the caller in messages."""
+    refuse_tracing(frame, who, "jaxsr.apply_sequence(model, lr_seq)")
     if np.iscomplexobj(frame):
-        raise ValueError(f"super_resolve: frame {index} holds complex values; expected real LR normalised depth")
-    frame = np.asarray(frame, np.float32)
+        raise ValueError(f"{who}: frame {index} holds complex values; expected real LR normalised depth")
+    frame = np.asarray(require_numbers(who, f"frame {index}", frame), np.float32)
     ndim = 2 if len(inputs) == 1 else 3
     if (frame.ndim != ndim or (ndim == 3 and frame.shape[-1] != len(inputs))
             or (shape is not None and frame.shape != shape) or min(frame.shape[:2]) < MIN_LR_SIDE):
@@ -124,14 +124,14 @@ def _check_frame(frame, shape, index, inputs=("depth",)):
                                                      f"(h, w, {len(inputs)}) with h, w >= {MIN_LR_SIDE}")
         what = "LR normalised depth" if ndim == 2 else (f"the channels {inputs} of jaxsr.nn.network_inputs; give "
                                                         "photon histograms to super_resolve_histograms")
-        raise ValueError(f"super_resolve: frame {index} has shape {frame.shape}, expected {want} ({what})")
+        raise ValueError(f"{who}: frame {index} has shape {frame.shape}, expected {want} ({what})")
     if ndim == 2:
-        return require_normalised_depth(f"super_resolve: frame {index}", frame)
+        return require_normalised_depth(f"{who}: frame {index}", frame)
     photons = frame[..., 1:]
     if not (np.all(np.isfinite(photons)) and photons.min() >= 0):
-        raise ValueError(f"super_resolve: frame {index}'s channels {inputs[1:]} must be finite and >= 0 (encoded "
+        raise ValueError(f"{who}: frame {index}'s channels {inputs[1:]} must be finite and >= 0 (encoded "
                          "photons, jaxsr.nn.encode_photons)")
-    depth = require_normalised_depth(f"super_resolve: frame {index}'s depth", frame[..., 0])
+    depth = require_normalised_depth(f"{who}: frame {index}'s depth", frame[..., 0])
     return np.concatenate([depth[..., None], photons], axis=-1)
 
 
@@ -308,7 +308,7 @@ def super_resolve(model: Model, lr_seq, *, units: str = "normalised", sensor: Se
         raise TypeError(f"super_resolve: expected an LR sequence array (T, h, w), got {type(lr_seq).__name__}")
     if np.iscomplexobj(lr_seq):
         raise ValueError("super_resolve: the LR sequence holds complex values; expected real normalised depth")
-    lr_seq = np.asarray(lr_seq, np.float32)
+    lr_seq = np.asarray(require_numbers("super_resolve", "the LR sequence", lr_seq), np.float32)
     inputs = model.channels
     want = 3 if len(inputs) == 1 else 4
     if lr_seq.ndim != want or lr_seq.shape[0] < 1:

@@ -12,6 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..checks import require_numbers
 from ..config import MIN_LR_SIDE, Sensor
 from ..nn.inputs import network_inputs
 from ..nn.model import Model
@@ -166,7 +167,7 @@ def super_resolve_histograms(model: Model, counts, sensor: Sensor = Sensor(), *,
                         f"{type(counts).__name__}")
     if np.iscomplexobj(counts):
         raise ValueError("super_resolve_histograms: the counts hold complex values; expected real photon counts")
-    counts = np.asarray(counts)
+    counts = require_numbers("super_resolve_histograms", "the counts", counts)
     if counts.ndim != 4 or counts.shape[0] < 1 or min(counts.shape[1:3]) < MIN_LR_SIDE:
         raise ValueError(f"super_resolve_histograms: expected counts (T, h, w, {sensor.bins}) with T >= 1 and h, w >= "
                          f"{MIN_LR_SIDE}, got shape {counts.shape}")

@@ -62,7 +62,8 @@ class Stream:
 
     def push(self, frame) -> np.ndarray | None:
         """Feed LR frame t (h, w); returns HR frame t - R (h r, w r), or None while t < R."""
-        frame = _check_frame(frame, self._shape, self._fed - self.latency if self._shape else 0, self.model.channels)
+        frame = _check_frame(frame, self._shape, self._fed - self.latency if self._shape else 0, self.model.channels,
+                             who="Stream.push")
         if self._shape is None:  # a new stream: R copies of the first frame before it (edge padding)
             self._shape = frame.shape
             self._buffers = stream_init(self.model.config, frame.shape[:2])

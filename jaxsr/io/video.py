@@ -197,6 +197,14 @@ class DepthVideoWriter:
             if self.frames_written == 0:
                 raise ValueError(f"{self.path}: no frames to write")
 
+    def _abandon(self) -> None:
+        """Stop ffmpeg without finishing the file (its temporary is removed by the atomic block): no wait for it, and
+        no word of its own (imageio-ffmpeg's "No frames have been written" would stand beside Ctrl-C's)."""
+        writer, self._writer = self._writer, None
+        if writer is not None:
+            with contextlib.suppress(BaseException):
+                writer.throw(KeyboardInterrupt)  # imageio-ffmpeg kills ffmpeg on an interrupt, and says nothing
+
     def _ffmpeg_failed(self, error) -> WriteError:
         """ffmpeg's failure (a closed pipe, its multi-line stderr naming the hidden temporary) as one `WriteError`
         naming the video: "no space left on device while writing v.gif" where the disk is full."""
@@ -206,6 +214,9 @@ class DepthVideoWriter:
         return WriteError(errno.EIO, self.path, f"ffmpeg failed ({first[:200]})")
 
     def __exit__(self, exc_type, exc, tb):
+        if exc_type is not None:  # the block failed or was interrupted: that is what to report, not the video
+            self._abandon()
+            return self._atomic.__exit__(exc_type, exc, tb)
         try:
             self.finish()
         except BaseException as e:

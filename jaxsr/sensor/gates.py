@@ -10,11 +10,13 @@ choice takes the models outside what they were trained on.
 from __future__ import annotations
 
 import jax.numpy as jnp
+import numpy as np
 
 from ..config import TRAINED_RANGE_M, DepthScale, Gate, Sensor
 from .peaks import centre_of_mass
 
-__all__ = ["gate_depth", "to_network_depth", "from_network_depth", "gate_to_network", "gate_warnings"]
+__all__ = ["gate_depth", "to_network_depth", "from_network_depth", "gate_to_network", "gate_warnings",
+           "require_float32_depth"]
 
 
 def gate_depth(counts, gate: Gate = Gate(), *, window: int = 1, z: float = 0.0, return_mask: bool = False):
@@ -87,6 +89,20 @@ def gate_to_network(norm, sensor: Sensor = Sensor()):
     return jnp.where((norm >= 1.0) | ~(out <= 1.0), 1.0, jnp.clip(out, 0.0, 1.0)).astype(norm.dtype)
 
 
+def require_float32_depth(far_m: float, bin_width_m: float, where: str = "the gate") -> None:
+    """Raise ValueError where float32 metres (the output's, and the training's) step by more than a bin at `far_m`,
+    the far end of the depth scale: the depth within the gate could not be written (a start of 10^10 m steps by
+    1 km, and every pixel would read as the gate's start)."""
+    with np.errstate(over="ignore"):
+        step = float(np.spacing(np.float32(far_m)))  # NaN beyond float32 (inf)
+    if not step <= bin_width_m:
+        where_float32 = ("beyond float32 metres (the output's)" if np.isnan(step) else
+                         f"where float32 metres (the output's) step by {step:.3g} m, more than a bin "
+                         f"({bin_width_m:.3g} m)")
+        raise ValueError(f"{where} ends {far_m:.4g} m away, {where_float32}: no depth within it could be written; "
+                         "give the gate start as 0 (depth from the gate's start) and add the start back in float64")
+
+
 def gate_warnings(gate: Gate, scale: DepthScale) -> list[str]:
     """What the bundled models never saw in this gate and scale, as sentences (empty for the paper's sensor).
 
@@ -99,6 +115,7 @@ def gate_warnings(gate: Gate, scale: DepthScale) -> list[str]:
     if end <= lo or start >= hi:
         raise ValueError(f"the gate [{start:g}, {end:g}) m lies outside the depth scale's [{lo:g}, {hi:g}) m: every "
                          "return would be read as 0 m or no return; put the scale's offset at the gate start")
+    require_float32_depth(hi, float(gate.bin_width))
     out = []
     if end > hi or start < lo:
         out.append(f"the gate [{start:g}, {end:g}) m extends past the depth scale's [{lo:g}, {hi:g}) m: returns "

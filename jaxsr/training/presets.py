@@ -103,6 +103,7 @@ def train(out, *, arch: str = "duf", tr: int = 4, scale: int = 4, temporal: str 
         model_cfg = published
     sensor = Sensor(optics=Optics.of_hr(Sensor().hr_shape, scale))  # the paper's HR frame at this scale
     _check_out(out, resume, seeds=seeds, overwrite=overwrite)
+    _check_init_outside(init, out, resume, flag="--init")
     if init is not None and not isinstance(init, Model):
         _check_weights(init)
     make_batch = sequence_data(data, model_cfg, train_cfg, sensor) if data is not None else None
@@ -241,15 +242,16 @@ def _start_score(model_cfg: ModelConfig, train_cfg, init, validation: dict, sens
     return {"val_loss": float(val["loss"]), "val_psnr": float(val["psnr"])}
 
 
-def _check_init_outside(init, out, resume: bool) -> None:
-    """Refuse starting weights that lie inside the run folder a new run writes over (--force deletes them at the
-    first save, and the closing advice would name a file that is gone); resuming reads the run's own state."""
+def _check_init_outside(init, out, resume: bool, *, flag: str = "-m/--model") -> None:
+    """Refuse starting weights (`flag`: finetune's -m/--model, train's --init) that lie inside the run folder a new
+    run writes over (--force deletes them at the first save, and the closing advice would name a file that is
+    gone); resuming reads the run's own state."""
     if resume or not isinstance(init, (str, os.PathLike)):
         return
     start = Path(resolve_model_path(init)).resolve()
     folder = Path(out).resolve()
     if folder == start or folder in start.parents:
-        raise ValueError(f"-m/--model {init} lies inside -o/--output {out}, which this run writes over: copy the "
+        raise ValueError(f"{flag} {init} lies inside -o/--output {out}, which this run writes over: copy the "
                          "starting model elsewhere first, or choose another -o/--output")
 
 

@@ -38,6 +38,7 @@ import numpy as np
 
 from ..config import METRES_PER_SECOND, MIN_LR_SIDE, DepthScale, Gate, Optics, PhotonRegime, Pulse, Sensor
 from ..sensor.quantities import TIME_UNITS
+from ..sensor.gates import require_float32_depth
 
 try:  # Python 3.11+
     import tomllib
@@ -224,7 +225,7 @@ def read_irf_file(path) -> np.ndarray:
                              f"shape {values.shape} and dtype {values.dtype}")
     else:
         try:
-            text = path.read_text(encoding="utf-8", errors="strict")
+            text = path.read_text(encoding="utf-8-sig", errors="strict")  # a spreadsheet's byte-order mark too
         except UnicodeDecodeError:
             raise ValueError(f"irf_file {path}: not a text file; expected one column of numbers (or an .npy "
                              "array)") from None
@@ -371,6 +372,7 @@ def parse_sensor_file(text: str, *, source: str = "sensor file", base_dir=".",
                          f"{hi / 1e3:g} km of range per bin ({lo / METRES_PER_SECOND * 1e12:.2g} ps to "
                          f"{hi / METRES_PER_SECOND * 1e6:.2g} us)")
     span = bins * bin_width
+    require_float32_depth(gate_start + span, bin_width, f"{where} the gate")
     warnings = []
 
     # the pulse: a sigma in bins, or the Gaussian fitted to a measured IRF
@@ -465,7 +467,7 @@ def read_sensor_file(path, *, photons: bool = True) -> tuple[Sensor, PhotonRegim
         raise FileNotFoundError(f"--sensor: no such file: {path}" if not path.exists() else
                                 f"--sensor: {path} is not a file; expected a sensor's TOML file")
     try:
-        text = path.read_text(encoding="utf-8")
+        text = path.read_text(encoding="utf-8-sig")  # the byte-order mark some editors (Notepad) begin a file with
     except UnicodeDecodeError:
         raise ValueError(f"{path}: not a text file; expected a sensor's TOML file") from None
     sensor, regime, info = parse_sensor_file(text, source=str(path), base_dir=path.parent, photons=photons)
