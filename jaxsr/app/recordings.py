@@ -335,6 +335,12 @@ def guess_units(recording: Recording, *, ask: str = "pass --units (units=): m, m
         f = np.asarray(head, np.float32)
     f = f[~np.isnan(f)]
     finite = f[np.isfinite(f)]
+    if not f.size:  # no evidence either way: metres read as normalised would come out as 1.0 everywhere
+        raise ValueError(f"{src}: the first frame is NaN (no return) in every pixel, which says nothing of its "
+                         f"units; {ask}")
+    if finite.size == f.size and np.all(finite < 0):  # negative is no return: every pixel would be
+        raise ValueError(f"{src}: the first frame's depth is negative in every pixel (negative is no return; depth "
+                         f"along a camera's -z axis? negate it); {ask}")
     if not np.all(np.isfinite(f) & (f >= -NORMALISED_SLACK) & (f <= 1 + NORMALISED_SLACK)):
         if finite.size and np.all(np.isposinf(f) | ((f >= -NORMALISED_SLACK) & (f <= 1 + NORMALISED_SLACK))):
             raise ValueError(f"{src}: depth within [0, 1] with inf for no return could be kilometres (or metres of "

@@ -237,6 +237,16 @@ def load_npy(path, *, mmap_mode=None):
         if f.read(len(NPY_SIGNATURE)) != NPY_SIGNATURE:
             raise ValueError(f"cannot read {path}: not an NPY file (it does not begin with the NPY signature; an "
                              ".npy is what numpy.save writes)")
+        f.seek(0)
+        try:  # the header alone (a pickle is never loaded): an array of Python objects is said as such
+            read = {(1, 0): np.lib.format.read_array_header_1_0,
+                    (2, 0): np.lib.format.read_array_header_2_0}.get(np.lib.format.read_magic(f))
+            dtype = None if read is None else read(f)[2]
+        except (ValueError, EOFError, OSError, SyntaxError):
+            dtype = None  # a damaged header: np.load says what is wrong below
+    if dtype is not None and dtype.hasobject:
+        raise ValueError(f"cannot read {path}: it holds Python objects ({dtype}), not numbers; an .npy of numbers is "
+                         "what numpy.save writes of a numeric array (objects would need unpickling, which is unsafe)")
     try:
         return np.load(path, mmap_mode=mmap_mode, allow_pickle=False)
     except (ValueError, EOFError, OSError) as e:

@@ -93,3 +93,15 @@ def test_previews_span_the_true_range(tmp_path):
         assert np.all(img[0, 20] == 0)  # no return: black
     with pytest.raises(ValueError, match="d_min < d_max"):
         io.write_preview(tmp_path / "x.png", d, d_min=40.0, d_max=35.0)
+
+
+@pytest.mark.parametrize("suffix", [".mp4", ".gif"])
+def test_an_interrupted_video_reports_the_interrupt_and_leaves_nothing(tmp_path, suffix, caplog):
+    """Ctrl-C before (or between) frames: the KeyboardInterrupt goes on (the command's exit 130), not "no frames to
+    write" (exit 2), with no word of imageio-ffmpeg's and no file."""
+    path = tmp_path / f"v{suffix}"
+    with pytest.raises(KeyboardInterrupt):
+        with DepthVideoWriter(path, (32, 64), labels=("in", "out"), frames=3):
+            raise KeyboardInterrupt
+    assert list(tmp_path.iterdir()) == []
+    assert "No frames have been written" not in caplog.text

@@ -512,3 +512,41 @@ def test_the_printed_upscale_command_survives_a_shell(tmp_path, monkeypatch, cap
     line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("run it: "))
     words = shlex.split(line.removeprefix("run it: ").split("  (RECORDING")[0])
     assert words == ["jaxsr", "upscale", "RECORDING", "-o", "OUTPUT", "-m", out, "--sensor", str(tmp_path / "s.toml")]
+
+
+def test_a_byte_order_mark_is_read_past(tmp_path):
+    """Notepad and spreadsheets begin UTF-8 files with a byte-order mark: the sensor file was "not valid TOML",
+    and an IRF column lost its first sample (taken for a header line) without a word."""
+    (tmp_path / "s.toml").write_text("\ufeff" + TINY_TOML, encoding="utf-8")
+    sensor, _, _ = read_sensor_file(tmp_path / "s.toml")
+    assert sensor.bins == 16
+    (tmp_path / "irf.csv").write_text("\ufeff100\n5\n1\n0\n0\n", encoding="utf-8")
+    np.testing.assert_array_equal(read_irf_file(tmp_path / "irf.csv"), [100, 5, 1, 0, 0])
+
+
+@pytest.mark.parametrize("start", ["gate_start_m = 1e300", "gate_start_m = 1e10", "gate_start_ns = 1e300"])
+def test_a_gate_beyond_float32_metres_is_refused(start):
+    """Float32 metres cannot hold depth within such a gate (training and upscale alike); it was accepted and the
+    run's closing command refused by upscale after the training."""
+    with pytest.raises(ValueError, match=r"\[sensor\] the gate ends .* float32 metres"):
+        parse_sensor_file(TINY_TOML.replace("bins = 16", f"bins = 16\n{start}"))
+    parse_sensor_file(TINY_TOML.replace("bins = 16", "bins = 16\ngate_start_m = 200e3"))  # 200 km: 1.6 cm steps
+
+
+@pytest.mark.parametrize("seeds", [None, "0,1"])
+def test_train_refuses_init_weights_inside_out(tmp_path, capsys, monkeypatch, seeds):
+    """jaxsr train --init inside -o/--output --force deleted the starting weights at the first save, as
+    finetune's -m/--model did; refused before any work, the weights kept."""
+    from jaxsr.training import presets
+
+    monkeypatch.setattr(presets, "_fit_in_new_folder", lambda *a, **k: pytest.fail("trained"))
+    run = tmp_path / "run"
+    folder = run if seeds is None else run / "seed0"
+    folder.mkdir(parents=True)
+    _tiny_model(folder / "best.npz")
+    before = (folder / "best.npz").read_bytes()
+    args = ["train", "--tr", "0", "--epochs", "1", "--quiet", "-o", str(run), "--force",
+            "--init", str(folder / "best.npz")] + ([] if seeds is None else ["--seeds", seeds])
+    assert cli.main(args) == 2
+    assert "--init" in (err := capsys.readouterr().err) and "lies inside -o/--output" in err
+    assert (folder / "best.npz").read_bytes() == before
