@@ -28,10 +28,23 @@ def add_parser(subparsers):
     p.set_defaults(func=run)
 
 
+def _finite(value):
+    """`value` with every NaN or infinite float (a card may hold one: Python's json reads NaN and Infinity) as None,
+    null in JSON, which has no such numbers."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite(v) for v in value]
+    return value
+
+
 def run(args) -> int:
     info = model_info(args.model)
     if args.json:
-        print(json.dumps(info, indent=1))  # ASCII: control characters and the rest escaped (\u001b)
+        # ASCII: control characters and the rest escaped (\u001b); strict JSON, which jq and browsers parse
+        print(json.dumps(_finite(info), indent=1, allow_nan=False))
         return 0
     for line in summary(info, args.model):
         print(printable(shortened(line, CARD_LINE_CHARS)))

@@ -139,3 +139,12 @@ def test_a_header_that_claims_terabytes_is_refused_in_one_line(tmp_path, capsys,
     assert cli.main(command) == 2
     err = capsys.readouterr().err
     assert "claims 4e+12 bytes" in err and "a damaged or hostile file" in err and err.count("\n") == 1, err
+
+
+def test_json_output_is_strict_json_with_nan_in_the_card(tmp_path, capsys):
+    """Python's json reads NaN and Infinity in a card; --json printed them back, which jq and browsers refuse."""
+    path = tiny_model(tmp_path / "m.npz", {"validation": {"psnr": float("nan"), "loss": float("inf"), "frames": 3}})
+    status, out, _ = info(path, capsys, "--json")
+    assert status == 0
+    card = json.loads(out, parse_constant=lambda name: pytest.fail(f"{name} in --json"))["card"]
+    assert card["validation"] == {"psnr": None, "loss": None, "frames": 3}

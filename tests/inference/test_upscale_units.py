@@ -85,7 +85,8 @@ def test_float_metres_and_normalised_are_guessed_as_before(tmp_path, model_path)
     assert lr(np.full((2, 8, 4), 0.5, np.float32), model_path)[0].units == "normalised"
     near = np.linspace(0.05, 1.0, 32, dtype=np.float32).reshape(8, 4)  # with its sky (1.0)
     assert lr(np.stack([near] * 2), model_path)[0].units == "normalised"
-    assert lr(np.full((2, 8, 4), np.nan, np.float32), model_path)[0].units == "normalised"
+    with pytest.raises(ValueError, match="NaN .* in every pixel, which says nothing of its units"):  # 1.0 or inf?
+        lr(np.full((2, 8, 4), np.nan, np.float32), model_path)
     assert lr(np.full((2, 8, 4), np.inf, np.float32), model_path)[0].units == "m"
     (tmp_path / "frames").mkdir()  # 16-bit PNG frames are millimetres by their format: read as metres, no question
     for t in range(2):
