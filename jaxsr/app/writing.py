@@ -75,13 +75,15 @@ class UpscaleResult:
     def summary(self) -> dict:
         """The JSON summary `jaxsr upscale` prints: frames, output, shape, units (of the output; input_units too
         where the input's differ), model and model_description, for histograms the gate, the depth scale (metres) and the ambient-only
-        test's rate (null: none) and `keep_returns`' where set, the video and point clouds' file or folder where
-        written, and with --clip-negative the negative counts clipped and the pixels holding them."""
+        test's rate (null: none) and `keep_returns`' where set, the preview, the video and the point clouds' file or
+        folder where written, and with --clip-negative the negative counts clipped and the pixels holding them."""
         out = {"frames": self.frames, "output": None if self.output is None else str(self.output),
                "shape": list(self.shape), "units": self.units, "model": self.model,
                "model_description": self.model_description}
         if self.input_units is not None:
             out["input_units"] = self.input_units
+        if self.preview is not None:
+            out["preview"] = str(self.preview)
         if self.video is not None:
             out["video"] = str(self.video)
         if self.points is not None:

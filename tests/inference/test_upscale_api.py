@@ -77,7 +77,8 @@ def test_histograms_to_npz_with_a_gate_and_preview_equal_the_command(tmp_path, m
     assert api["metadata"]["model"] == cli_out["metadata"]["model"]
     np.testing.assert_array_equal(io.read_image(tmp_path / "api.png"), io.read_image(tmp_path / "cli.png"))
     assert result.gate.bins == 8 and result.gate.start == 10.0 and result.preview == tmp_path / "api.png"
-    assert dict(result.summary(), output=None) == dict(summary, output=None)
+    assert summary["preview"] == str(tmp_path / "cli.png")
+    assert dict(result.summary(), output=None, preview=None) == dict(summary, output=None, preview=None)
     for note in result.notes[:-1]:  # the gate's warnings, printed by the command as they are
         assert f"jaxsr upscale: {note}" in err
 

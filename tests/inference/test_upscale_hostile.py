@@ -137,3 +137,10 @@ def test_a_stream_names_itself(model_path):
 def test_io_still_reads_numbers(tmp_path):
     np.save(tmp_path / "a.npy", np.arange(6, dtype=np.float32))
     np.testing.assert_array_equal(io.formats.load_npy(tmp_path / "a.npy"), np.arange(6))
+
+
+def test_the_summary_names_the_preview_as_it_names_the_video(tmp_path, depth, model_path, capsys):
+    import json
+
+    assert command(depth, tmp_path / "o.npy", "--model", model_path, "--preview", tmp_path / "p.png") == 0
+    assert json.loads(capsys.readouterr().out)["preview"] == str(tmp_path / "p.png")
