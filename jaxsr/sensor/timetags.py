@@ -265,7 +265,10 @@ def gate_of_tags(tags: TimeTags, *, bins: int = 16) -> Gate:
     a Gate in metres (its start >= 0, as --gate-start must be); raises ValueError when there are no photons, all
     arrive at one time, or some at a negative time (before the laser pulse: a gate in negative metres would give
     negative depth)."""
-    if tags.time.size == 0 or tags.time.max() <= tags.time.min():
+    if tags.time.size == 0:
+        raise ValueError(f"{tags.source}: holds no photons (no time tag in any pixel); expected a recording's "
+                         "photon arrival times")
+    if tags.time.max() <= tags.time.min():
         raise ValueError(f"{tags.source}: {tags.time.size} photons at one arrival time; give the gate "
                          "(--gate-start, --bin-width)")
     negative = int(np.count_nonzero(tags.time < 0))

@@ -144,3 +144,10 @@ def test_the_summary_names_the_preview_as_it_names_the_video(tmp_path, depth, mo
 
     assert command(depth, tmp_path / "o.npy", "--model", model_path, "--preview", tmp_path / "p.png") == 0
     assert json.loads(capsys.readouterr().out)["preview"] == str(tmp_path / "p.png")
+
+
+def test_a_time_tag_table_without_photons_says_so(tmp_path, model_path, capsys):
+    np.savez(tmp_path / "t.npz", pixel=np.zeros(0, np.int64), time=np.zeros(0), shape=np.array([8, 8]))
+    assert command(tmp_path / "t.npz", tmp_path / "o.npy", "--model", model_path, "--input", "timetags",
+                   "--time-unit", "1ps") == 2
+    assert "t.npz: holds no photons" in capsys.readouterr().err
