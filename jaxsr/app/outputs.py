@@ -143,13 +143,14 @@ def _check_ancestors(path: Path) -> None:
 
 
 def check_preview(spec, *, force: bool, output=None) -> Path:
-    """A preview path (.png): refuses an existing file unless `force`, a missing folder, and the OUTPUT path
-    itself. Writes nothing."""
+    """A preview path (.png): refuses an existing file unless `force`, a missing folder, a symbolic link and the
+    OUTPUT path itself. Writes nothing."""
     path = Path(spec)
     if path.suffix.lower() != ".png":
         raise ValueError(f"{path}: the preview is a .png file")
     if output is not None and path.resolve() == Path(output).resolve():
         raise ValueError(f"{path}: the preview and OUTPUT are the same file")
+    refuse_link(path, "the preview")  # a dangling one passed for a new file, then failed after the work
     check_new_file(path, force=force, what="the preview")
     return path
 

@@ -151,3 +151,16 @@ def test_a_time_tag_table_without_photons_says_so(tmp_path, model_path, capsys):
     assert command(tmp_path / "t.npz", tmp_path / "o.npy", "--model", model_path, "--input", "timetags",
                    "--time-unit", "1ps") == 2
     assert "t.npz: holds no photons" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("target_exists, flags", [(False, []), (True, ["--force"])])
+def test_a_preview_that_is_a_symbolic_link_is_refused_before_the_work(tmp_path, depth, model_path, capsys,
+                                                                       target_exists, flags):
+    """A dangling link passed as a new file and failed after the work ("created by another writer", the output
+    lost); with --force the link was replaced by the picture. Refused like OUTPUT, the video and the points."""
+    if target_exists:
+        (tmp_path / "real.png").write_text("mine")
+    (tmp_path / "p.png").symlink_to(tmp_path / "real.png")
+    assert command(depth, tmp_path / "o.npy", "--model", model_path, "--preview", tmp_path / "p.png", *flags) == 2
+    assert "p.png is a symbolic link" in capsys.readouterr().err
+    assert (tmp_path / "p.png").is_symlink() and not (tmp_path / "o.npy").exists()
