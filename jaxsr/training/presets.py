@@ -139,9 +139,10 @@ def _check_out(out, resume: bool, *, seeds=None, overwrite: bool = False):
     if seeds is not None:
         _check_stack_folder(Path(out))
     if resume and not any((folder / name).exists() for folder in folders for name in RUN_FILES):
-        what = out if seeds is None else f"no seed folder of {out} ({', '.join(f.name for f in folders)})"
-        raise FileNotFoundError(f"--resume: nothing to resume: {what} holds no training run (none of "
-                                f"{', '.join(RUN_FILES)}); leave out --resume to start one")
+        what = (f"{out} holds no training run (none of" if seeds is None else
+                f"no seed folder of {out} ({', '.join(f.name for f in folders)}) holds a training run (one of")
+        raise FileNotFoundError(f"--resume: nothing to resume: {what} {', '.join(RUN_FILES)}); leave out --resume "
+                                "to start one")
     if not (resume or overwrite):
         for folder in folders:
             held = [name for name in RUN_FILES if (folder / name).exists()]

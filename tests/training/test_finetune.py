@@ -550,3 +550,10 @@ def test_train_refuses_init_weights_inside_out(tmp_path, capsys, monkeypatch, se
     assert cli.main(args) == 2
     assert "--init" in (err := capsys.readouterr().err) and "lies inside -o/--output" in err
     assert (folder / "best.npz").read_bytes() == before
+
+
+def test_resuming_stacked_seeds_without_a_run_says_so_plainly(tmp_path, capsys):
+    """It said "no seed folder ... holds no training run", which means the opposite."""
+    assert cli.main(["train", "--tr", "0", "--out", str(tmp_path / "run"), "--seeds", "0,1", "--resume",
+                     "--no-progress"]) == 2
+    assert "no seed folder of" in (err := capsys.readouterr().err) and "(seed0, seed1) holds a training run" in err
