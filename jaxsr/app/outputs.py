@@ -73,14 +73,14 @@ def check_outputs(output, writing: Writing = Writing(), *, input=None) -> Output
 
 
 def _refuse_inside_folder_output(out: Path | None, writing: Writing) -> None:
-    """Refuse a preview, video or point clouds' folder inside a folder OUTPUT: the folder is written as a whole and
-    holds this run's frames alone (a new or empty folder is claimed by one rename, which what is written into it
-    first would make fail after the work; with --force an earlier run's frame_* files are removed from it)."""
+    """Refuse a preview, video or point clouds (a folder or a .ply) inside a folder OUTPUT: the folder is written as
+    a whole and holds this run's frames alone (a new or empty folder is claimed by one rename, which what is written
+    into it first would make fail after the work; with --force an earlier run's frame_* files are removed)."""
     if out is None or out.suffix.lower() in ARRAY_FORMATS:
         return
     folder = out.resolve()
     for what, spec in (("the preview", writing.preview), ("the video", writing.video),
-                       ("the point clouds' folder", writing.points)):
+                       ("the point clouds", writing.points)):
         if spec is not None and folder in Path(spec).resolve().parents:
             raise ValueError(f"{spec}: {what} lies inside the folder OUTPUT {out}, which holds the frames alone; "
                              "write it beside that folder")

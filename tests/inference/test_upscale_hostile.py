@@ -28,7 +28,8 @@ def depth(tmp_path):
     ("the preview", ["--preview", "out/p.png"]),                       # failed after the work, p.png left behind
     ("the preview", ["--preview", "out/frame_000099.png", "--force"]),  # deleted as an earlier run's frame
     ("the video", ["--video", "out/v.gif"]),
-    ("the point clouds' folder", ["--points", "out/clouds"]),
+    ("the point clouds", ["--points", "out/clouds"]),
+    ("the point clouds", ["--points", "out/all.ply"]),
 ])
 def test_pictures_inside_a_folder_output_are_refused_before_the_work(tmp_path, depth, model_path, capsys, monkeypatch,
                                                                       what, flags):
