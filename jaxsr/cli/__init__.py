@@ -69,6 +69,9 @@ class _Parser(argparse.ArgumentParser):
     """argparse, but a bad argument is one line on stderr (no usage block), exit status 2."""
 
     def error(self, message):
+        if message.startswith("argument --") and message.endswith(": expected one argument"):
+            flag = message.split()[1].split("/")[0].rstrip(":")  # argparse takes a value such as -5m for an option
+            message += f" (one that begins with '-' is written {flag}=VALUE)"
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 

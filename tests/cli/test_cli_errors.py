@@ -344,3 +344,13 @@ def test_nan_in_a_metres_array_is_no_return(tmp_path, model_path):
     done = jaxsr(tmp_path, "upscale", "in.npy", "-o", "out.npy", "--model", model_path, "--units", "m")
     assert done.returncode == 0, done.stderr
     assert np.load(tmp_path / "out.npy").shape == (2, 128, 256)
+
+
+def test_a_value_that_looks_like_a_flag_is_explained(capsys):
+    """argparse takes -5m (or -1GB, -1,2) for an option and says only "expected one argument"."""
+    from jaxsr import cli
+
+    with pytest.raises(SystemExit) as stop:
+        cli.main(["upscale", "in.npy", "out.npy", "--gate-start", "-5m"])
+    assert stop.value.code == 2
+    assert "expected one argument (one that begins with '-' is written --gate-start=VALUE)" in capsys.readouterr().err
