@@ -335,7 +335,7 @@ def guess_units(recording: Recording, *, ask: str = "pass --units (units=): m, m
         f = np.asarray(head, np.float32)
     f = f[~np.isnan(f)]
     finite = f[np.isfinite(f)]
-    if not f.size:  # no evidence either way: metres read as normalised would come out as 1.0 everywhere
+    if head.size and not f.size:  # no evidence either way: metres read as normalised would come out as 1.0
         raise ValueError(f"{src}: the first frame is NaN (no return) in every pixel, which says nothing of its "
                          f"units; {ask}")
     if finite.size == f.size and np.all(finite < 0):  # negative is no return: every pixel would be
