@@ -338,7 +338,7 @@ def guess_units(recording: Recording, *, ask: str = "pass --units (units=): m, m
     if head.size and not f.size:  # no evidence either way: metres read as normalised would come out as 1.0
         raise ValueError(f"{src}: the first frame is NaN (no return) in every pixel, which says nothing of its "
                          f"units; {ask}")
-    if finite.size == f.size and np.all(finite < 0):  # negative is no return: every pixel would be
+    if finite.size and finite.size == f.size and np.all(finite < 0):  # negative is no return: every pixel would be
         raise ValueError(f"{src}: the first frame's depth is negative in every pixel (negative is no return; depth "
                          f"along a camera's -z axis? negate it); {ask}")
     if not np.all(np.isfinite(f) & (f >= -NORMALISED_SLACK) & (f <= 1 + NORMALISED_SLACK)):
