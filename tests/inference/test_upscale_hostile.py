@@ -109,7 +109,10 @@ def test_a_gate_beyond_float32_metres_is_refused(tmp_path, model_path, capsys):
     assert command(tmp_path / "c.npy", tmp_path / "o.npy", "--model", model_path, "--gate-start", "1e10m") == 2
     assert "float32 metres (the output's) step by 1.02e+03 m, more than a bin" in capsys.readouterr().err
     assert not (tmp_path / "o.npy").exists()
-    assert command(tmp_path / "c.npy", tmp_path / "o.npy", "--model", model_path, "--gate-start", "200km") == 0
+    from jaxsr.config import DepthScale, Gate
+    from jaxsr.sensor import gate_warnings
+
+    gate_warnings(Gate(16, 2.1875, 200e3), DepthScale(200e3, 35.0))  # 200 km (1.6 cm steps) stays allowed
 
 
 @pytest.mark.parametrize("make, message", [
