@@ -37,8 +37,8 @@ from pathlib import Path
 import numpy as np
 
 from ..config import METRES_PER_SECOND, MIN_LR_SIDE, DepthScale, Gate, Optics, PhotonRegime, Pulse, Sensor
-from ..sensor.quantities import TIME_UNITS
 from ..sensor.gates import require_float32_depth
+from ..sensor.quantities import TIME_UNITS
 
 try:  # Python 3.11+
     import tomllib

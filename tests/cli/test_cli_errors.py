@@ -351,6 +351,6 @@ def test_a_value_that_looks_like_a_flag_is_explained(capsys):
     from jaxsr import cli
 
     with pytest.raises(SystemExit) as stop:
-        cli.main(["upscale", "in.npy", "out.npy", "--gate-start", "-5m"])
+        cli.main(["upscale", "in.npy", "-o", "out.npy", "--gate-start", "-5m"])
     assert stop.value.code == 2
     assert "expected one argument (one that begins with '-' is written --gate-start=VALUE)" in capsys.readouterr().err

@@ -13,8 +13,8 @@ import jaxsr
 from jaxsr import cli, io
 
 
-def command(*args):
-    return cli.main(["upscale", *map(str, args), "--no-progress"])
+def command(recording, output, *args):
+    return cli.main(["upscale", str(recording), "-o", str(output), *map(str, args), "-q"])
 
 
 @pytest.fixture
@@ -38,7 +38,7 @@ def test_pictures_inside_a_folder_output_are_refused_before_the_work(tmp_path, d
     if "--force" in flags:
         (tmp_path / "out" / "notes.txt").write_text("mine")
     before = sorted(f.name for f in (tmp_path / "out").iterdir())
-    assert command(depth, "out", "--model", model_path, *flags) == 2
+    assert command(depth, "out", "-m", model_path, *flags) == 2
     assert f"{what} lies inside the folder OUTPUT out" in capsys.readouterr().err
     assert sorted(f.name for f in (tmp_path / "out").iterdir()) == before
 
@@ -71,7 +71,7 @@ def test_output_that_is_no_depth_is_refused_not_written_as_no_return(tmp_path, m
     (["--points-colour", "none"], "--points-colour applies to --points only"),
 ])
 def test_colour_flags_without_a_picture_are_refused(tmp_path, depth, model_path, capsys, flags, message):
-    assert command(depth, tmp_path / "o.npy", "--model", model_path, *flags) == 2
+    assert command(depth, tmp_path / "o.npy", "-m", model_path, *flags) == 2
     assert message in capsys.readouterr().err
     assert not (tmp_path / "o.npy").exists()
 
@@ -80,7 +80,7 @@ def test_colour_flags_with_a_picture_still_work(tmp_path, depth, model_path):
     from jaxsr.app import Writing
 
     assert Writing().cmap == "turbo" and Writing(preview="p.png", cmap="jet").cmap == "jet"
-    assert command(depth, tmp_path / "o.npy", "--model", model_path, "--preview", tmp_path / "p.png", "--vmin", "3",
+    assert command(depth, tmp_path / "o.npy", "-m", model_path, "--preview", tmp_path / "p.png", "--vmin", "3",
                    "--cmap", "viridis") == 0
 
 
@@ -90,7 +90,7 @@ def test_colour_flags_with_a_picture_still_work(tmp_path, depth, model_path):
 ])
 def test_a_first_frame_that_says_nothing_of_its_units_asks_for_them(tmp_path, model_path, capsys, first, message):
     np.save(tmp_path / "rec.npy", np.full((3, 8, 8), first, np.float32))
-    assert command(tmp_path / "rec.npy", tmp_path / "o.npy", "--model", model_path) == 2
+    assert command(tmp_path / "rec.npy", tmp_path / "o.npy", "-m", model_path) == 2
     err = capsys.readouterr().err
     assert message in err and "pass --units" in err
     assert not (tmp_path / "o.npy").exists()
@@ -98,7 +98,7 @@ def test_a_first_frame_that_says_nothing_of_its_units_asks_for_them(tmp_path, mo
 
 def test_an_npy_of_python_objects_is_said_to_be_one(tmp_path, model_path, capsys):
     np.save(tmp_path / "rec.npy", np.full((3, 8, 8), 12.0).astype(object), allow_pickle=True)
-    assert command(tmp_path / "rec.npy", tmp_path / "o.npy", "--model", model_path) == 2
+    assert command(tmp_path / "rec.npy", tmp_path / "o.npy", "-m", model_path) == 2
     err = capsys.readouterr().err
     assert "it holds Python objects" in err and "damaged" not in err
 
@@ -106,7 +106,7 @@ def test_an_npy_of_python_objects_is_said_to_be_one(tmp_path, model_path, capsys
 def test_a_gate_beyond_float32_metres_is_refused(tmp_path, model_path, capsys):
     """At 10^10 m float32 metres step by 1 km: every pixel would be written as the gate's start."""
     np.save(tmp_path / "c.npy", np.random.default_rng(0).poisson(2.0, (3, 8, 8, 16)).astype(np.float32))
-    assert command(tmp_path / "c.npy", tmp_path / "o.npy", "--model", model_path, "--gate-start", "1e10m") == 2
+    assert command(tmp_path / "c.npy", tmp_path / "o.npy", "-m", model_path, "--gate-start", "1e10m") == 2
     assert "float32 metres (the output's) step by 1.02e+03 m, more than a bin" in capsys.readouterr().err
     assert not (tmp_path / "o.npy").exists()
     from jaxsr.config import DepthScale, Gate
@@ -146,13 +146,13 @@ def test_io_still_reads_numbers(tmp_path):
 def test_the_summary_names_the_preview_as_it_names_the_video(tmp_path, depth, model_path, capsys):
     import json
 
-    assert command(depth, tmp_path / "o.npy", "--model", model_path, "--preview", tmp_path / "p.png") == 0
+    assert command(depth, tmp_path / "o.npy", "-m", model_path, "--preview", tmp_path / "p.png") == 0
     assert json.loads(capsys.readouterr().out)["preview"] == str(tmp_path / "p.png")
 
 
 def test_a_time_tag_table_without_photons_says_so(tmp_path, model_path, capsys):
     np.savez(tmp_path / "t.npz", pixel=np.zeros(0, np.int64), time=np.zeros(0), shape=np.array([8, 8]))
-    assert command(tmp_path / "t.npz", tmp_path / "o.npy", "--model", model_path, "--input", "timetags",
+    assert command(tmp_path / "t.npz", tmp_path / "o.npy", "-m", model_path, "-k", "timetags",
                    "--time-unit", "1ps") == 2
     assert "t.npz: holds no photons" in capsys.readouterr().err
 
@@ -165,6 +165,6 @@ def test_a_preview_that_is_a_symbolic_link_is_refused_before_the_work(tmp_path, 
     if target_exists:
         (tmp_path / "real.png").write_text("mine")
     (tmp_path / "p.png").symlink_to(tmp_path / "real.png")
-    assert command(depth, tmp_path / "o.npy", "--model", model_path, "--preview", tmp_path / "p.png", *flags) == 2
+    assert command(depth, tmp_path / "o.npy", "-m", model_path, "--preview", tmp_path / "p.png", *flags) == 2
     assert "p.png is a symbolic link" in capsys.readouterr().err
     assert (tmp_path / "p.png").is_symlink() and not (tmp_path / "o.npy").exists()

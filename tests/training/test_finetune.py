@@ -554,6 +554,6 @@ def test_train_refuses_init_weights_inside_out(tmp_path, capsys, monkeypatch, se
 
 def test_resuming_stacked_seeds_without_a_run_says_so_plainly(tmp_path, capsys):
     """It said "no seed folder ... holds no training run", which means the opposite."""
-    assert cli.main(["train", "--tr", "0", "--out", str(tmp_path / "run"), "--seeds", "0,1", "--resume",
+    assert cli.main(["train", "--tr", "0", "-o", str(tmp_path / "run"), "--seeds", "0,1", "--resume",
                      "--no-progress"]) == 2
     assert "no seed folder of" in (err := capsys.readouterr().err) and "(seed0, seed1) holds a training run" in err
