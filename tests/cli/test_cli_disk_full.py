@@ -185,20 +185,6 @@ def test_a_read_only_file_system_is_exit_2_wherever_it_is_met(tmp_path, model_pa
     assert tree(tmp_path) == ["in.npy"]
 
 
-@pytest.fixture
-def small_tmpfs(tmp_path):
-    """A 256 kB tmpfs (a really full disk), where this process may mount one (root); the test is skipped elsewhere."""
-    import subprocess
-
-    mount = tmp_path / "small"
-    mount.mkdir()
-    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=256k", "tmpfs", str(mount)], capture_output=True,
-                      check=False).returncode:
-        pytest.skip("cannot mount a tmpfs here")
-    yield mount
-    subprocess.run(["umount", str(mount)], check=False)
-
-
 def test_png_frames_on_a_really_full_disk_exit_1_and_leave_nothing(small_tmpfs, model_path, tmp_path, capsys):
     """OpenImageIO's PNG writer reports a failed write in its error text only: 41 empty frames and exit 0 before."""
     np.save(tmp_path / "in.npy", np.random.default_rng(0).uniform(2, 30, (8, 64, 64)).astype(np.float32))

@@ -8,6 +8,7 @@ import time
 import jax
 import numpy as np
 import pytest
+from hostile_files import claim_terabytes
 
 from jaxsr import cli
 from jaxsr.config import ModelConfig
@@ -120,19 +121,8 @@ def test_an_error_quoting_a_huge_config_is_cut(tmp_path, capsys):
 def test_a_header_that_claims_terabytes_is_refused_in_one_line(tmp_path, capsys, entry):
     """An .npy header claiming 10^12 elements in an entry of a few bytes: one line naming the file, not NumPy's
     "Unable to allocate 3.64 TiB" traceback."""
-    import io as bytes_io
-    import zipfile
-
     path = tiny_model(tmp_path / "m.npz", {})
-    with zipfile.ZipFile(path) as z:
-        entries = {n: z.read(n) for n in z.namelist()}
-    name = next(n for n in entries if n.startswith("params/")) if entry == "weights" else "__metadata__.npy"
-    lie = bytes_io.BytesIO()
-    np.lib.format.write_array_header_1_0(lie, {"descr": "<f4", "fortran_order": False, "shape": (10**12,)})
-    entries[name] = lie.getvalue() + b"\0" * 16
-    with zipfile.ZipFile(path, "w") as z:
-        for n, data in entries.items():
-            z.writestr(n, data)
+    claim_terabytes(path, None if entry == "weights" else "__metadata__.npy")
     # the metadata is read by jaxsr info, the weights when the model loads
     command = ["info", str(path)] if entry == "__metadata__" else ["upscale", str(path), "-o", str(tmp_path / "o.npy"),
                                                                     "--model", str(path)]

@@ -9,6 +9,7 @@ import json
 import jax
 import numpy as np
 import pytest
+from hostile_files import claim_terabytes
 
 import jaxsr
 from jaxsr import cli
@@ -428,9 +429,6 @@ def test_damaged_starting_weights_are_refused_before_the_set_up(tmp_path, monkey
     """`finetune --from` and `train --init` read only the starting model's metadata up front: its weights, a
     header claiming 10^12 floats or NaN, were refused in one line only after the validation set was drawn
     (minutes). Now before any data is made, and nothing is written."""
-    import io as bytes_io
-    import zipfile
-
     from jaxsr.training import presets
 
     cfg = jaxsr.ModelConfig(tr=0, base=4, growth=2, head=4, filter_hidden=4)
@@ -440,15 +438,7 @@ def test_damaged_starting_weights_are_refused_before_the_set_up(tmp_path, monkey
         params["stem"]["b"] = np.full_like(params["stem"]["b"], np.nan)
     path = save_model(tmp_path / "start.npz", Model(params, state, cfg))
     if damage == "a header claiming terabytes":
-        with zipfile.ZipFile(path) as z:
-            entries = {n: z.read(n) for n in z.namelist()}
-        name = next(n for n in entries if n.startswith("params/"))
-        lie = bytes_io.BytesIO()
-        np.lib.format.write_array_header_1_0(lie, {"descr": "<f4", "fortran_order": False, "shape": (10**12,)})
-        entries[name] = lie.getvalue() + b"\0" * 16
-        with zipfile.ZipFile(path, "w") as z:
-            for n, data in entries.items():
-                z.writestr(n, data)
+        claim_terabytes(path)
 
     def set_up(*args, **kwargs):
         raise AssertionError("the set-up began")
@@ -463,20 +453,6 @@ def test_damaged_starting_weights_are_refused_before_the_set_up(tmp_path, monkey
         assert err.count("\n") == 1 and "start.npz" in err, err
         assert ("claims 4e+12 bytes" if damage == "a header claiming terabytes" else "non-finite") in err, err
     assert not (tmp_path / "run").exists()
-
-
-@pytest.fixture
-def read_only_tmpfs(tmp_path):
-    """A read-only tmpfs, where this process may mount one (root); the test is skipped elsewhere."""
-    import subprocess
-
-    mount = tmp_path / "read-only"
-    mount.mkdir()
-    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k,ro", "tmpfs", str(mount)], capture_output=True,
-                      check=False).returncode:
-        pytest.skip("cannot mount a tmpfs here")
-    yield mount
-    subprocess.run(["umount", str(mount)], check=False)
 
 
 def test_an_out_on_a_read_only_file_system_is_refused_before_the_set_up(read_only_tmpfs, tmp_path, monkeypatch,
