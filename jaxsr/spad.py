@@ -2,7 +2,7 @@
 (`Pulse`) and the depth scale the network reads (`DepthScale`).
 
 The same object is built from Python (`Sensor(gate=Gate.spanning(35.0, bins=32))`), from a sensor's TOML file
-(`Sensor.from_file`, `jaxsr.training.read_sensor_file`) and from the command's flags (`jaxsr.app.Reading.sensor`),
+(`jaxsr.training.read_sensor`) and from the command's flags (`jaxsr.app.Reading.sensor`),
 and it is what the simulator (`jaxsr.simulate_histograms`), the readers (`jaxsr.centre_of_mass`,
 `jaxsr.nn.network_inputs`), the super-resolution functions (`jaxsr.super_resolve_histograms`,
 `jaxsr.apply_histograms`, metres in and out with `units="m"`), the command and fine-tuning take.
@@ -163,34 +163,18 @@ class Optics:
         """Focal length in HR pixels: (W/2) / tan(fov/2), square pixels."""
         return (self.hr_shape[1] / 2) / jnp.tan(jnp.deg2rad(self.fov_deg) / 2)
 
-    def intrinsics(self, *, hr: bool = True):
-        """The pinhole of the HR frame (or, hr=False, of the SPAD frame) in OpenCV's terms: a
-        `jaxsr.sensor.Intrinsics` (fx, fy, cx, cy in pixels), as point clouds take it. Needs a concrete fov_deg."""
-        from .sensor.camera import Intrinsics  # late: jaxsr.sensor imports this module
-
-        return Intrinsics.from_fov(self.hr_shape if hr else self.lr_shape, float(self.fov_deg))
-
 
 @dataclasses.dataclass(frozen=True)
 class Pulse:
     """The sensor's instrument response (laser pulse and timing jitter) as the Gaussian the forward model bins:
     `sigma` in histogram bins. It also sets the centre of mass's window (1 bin up to sigma 0.5, else 2).
-    `Pulse.measured(counts)` fits the Gaussian to a measured IRF."""
+    `jaxsr.training.fit_irf(counts)["sigma_bins"]` is the sigma of the Gaussian fitted to a measured IRF."""
 
     sigma: float = 0.4
 
     def __post_init__(self):
         if _concrete_float(self.sigma, lambda v: not (v > 0 and v < float("inf"))):
             raise ValueError(f"Pulse: sigma must be a finite width in bins > 0, got {self.sigma}")
-
-    @classmethod
-    def measured(cls, counts, *, sample_width_bins: float = 1.0) -> "Pulse":
-        """The pulse of a measured IRF: counts per sample, `sample_width_bins` histogram bins apart, summarised by
-        the sigma of the Gaussian fitted to it (`jaxsr.training.fit_irf`). ValueError for a curve without a
-        pulse above its background."""
-        from .training.sensor_file import fit_irf  # late: scipy, and training imports this module
-
-        return cls(fit_irf(counts, sample_width_bins=sample_width_bins)["sigma_bins"])
 
 
 def _part(name: str, value, cls):
@@ -228,14 +212,6 @@ class Sensor:
             raise ValueError(f"Sensor: r_min must be a finite number of metres > 0, got {self.r_min}")
         if _concrete_float(self.ambient_floor, lambda v: not (v >= 0 and v < float("inf"))):
             raise ValueError(f"Sensor: ambient_floor must be a finite number >= 0, got {self.ambient_floor}")
-
-    @classmethod
-    def from_file(cls, path) -> "Sensor":
-        """The sensor of a TOML file's [sensor] table (docs/own-sensor.md; `jaxsr.training.read_sensor_file`
-        reads its [photons] too)."""
-        from .training.sensor_file import read_sensor_file  # late: training imports this module
-
-        return read_sensor_file(path, photons=False)[0]
 
     def replace(self, **changes) -> "Sensor":
         """A copy with parts replaced: the part names (gate, optics, pulse, depth, r_min, ambient_floor) or the

@@ -14,8 +14,8 @@ STAGES = {"sensor", "scenes", "nn", "baselines", "training", "inference", "io", 
 # The stages from the bottom up: a stage imports only stages below it (the command on top, then the application,
 # training, the engine of inference, the metrics, the files, the networks and the physics)
 LAYERS = ("sensor", "scenes", "nn", "baselines", "io", "eval", "inference", "training", "app", "cli")
-FLAT = {"config", "runtime", "joining", "checks", "temporal"}  # besides __init__: at most 8 modules stay flat
-BOTTOM = FLAT | {"eval", "eval.metrics", "eval.stats", "nn.layers", "nn.model", "io.files", "sensor.poisson"}
+FLAT = {"config", "spad", "runtime", "joining", "checks", "temporal"}  # besides __init__: at most 8 modules stay flat
+BOTTOM = FLAT | {"eval", "eval.metrics", "eval.stats", "eval.calibration", "nn.layers", "nn.model", "io.files", "sensor.poisson"}
 
 
 def module_name(path: Path) -> str:

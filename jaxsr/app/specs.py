@@ -29,6 +29,7 @@ from ..io.pointcloud import points_camera
 from ..sensor.camera import AXES, DEPTH_KINDS, Intrinsics, as_intrinsics
 from ..sensor.peaks import check_false_alarm_rate
 from ..sensor.quantities import parse_span, parse_time_unit, range_metres
+from ..training.sensor_file import read_sensor
 from .recordings import DEPTH_UNITS
 
 __all__ = ["AUTO", "KINDS", "FRAME_FORMATS", "Reading", "ModelChoice", "PhotonRules", "Writing", "is_auto"]
@@ -91,7 +92,7 @@ class Reading:
     (histograms): clip negative counts at 0, as background-subtracted data need, and say how many. units
     (--units): of depth input and array output, one of `DEPTH_UNITS` (None: guessed, see
     `jaxsr.app.recordings.guess_units`; histograms give metres). sensor (--sensor): the sensor instead of the
-    gate's options, a `jaxsr.Sensor` or its TOML file (`jaxsr.Sensor.from_file`: its gate, depth scale and pulse).
+    gate's options, a `jaxsr.Sensor` or its TOML file (`jaxsr.training.read_sensor`: its gate, depth scale and pulse).
     `sensor_for` is the `jaxsr.Sensor` the histograms are read with.
 
     Built checked: bin_width and gate_start are held in metres, span in metres or "gate", time_unit in seconds."""
@@ -141,7 +142,7 @@ class Reading:
                 raise ValueError("--sensor gives the gate and the depth scale: --bins, --bin-width, --gate-start and "
                                  "--span do not go beside it")
             if isinstance(self.sensor, (str, os.PathLike)):
-                set_("sensor", Sensor.from_file(self.sensor))
+                set_("sensor", read_sensor(self.sensor))
             elif not isinstance(self.sensor, Sensor):
                 raise TypeError(f"sensor (--sensor): expected a jaxsr.Sensor or its TOML file, got "
                                 f"{type(self.sensor).__name__}")

@@ -35,9 +35,7 @@ import numpy as np
 
 from ..config import Sensor
 from ..sensor.peaks import (
-    _check_counts,
-    _peak_excess,
-    _usable,
+    centre_of_mass_std,
     peak_evidence,
     return_significance,
     window_sums,
@@ -53,7 +51,6 @@ __all__ = [
     "ConfidenceCoefficients",
     "load_confidence",
     "coefficients_for",
-    "centre_of_mass_std",
     "evidence_maps",
     "return_features",
     "return_probability",
@@ -70,7 +67,6 @@ NO_RETURN_AT = 0.99  # a normalised output at or above it reads as no return (th
 INTERVAL_Z = 1.6448536  # a 90 % interval is +- this many standard deviations
 _MAX_LOGIT = 30.0  # logits clipped to it: beyond, the head says nothing more, and float32 sigmoids saturate
 _SPREAD_FLOOR = 0.01  # bins: the output's local spread below it reads as flat
-_COM_FLOOR = 0.01  # bins: a centre of mass's std below it (huge counts) reads as this
 # the features, in the order of the coefficients (`return_features`, `std_features`)
 HEAD_FEATURES = ("bias", "head_logit", "evidence", "evidence_3x3", "signal", "head_logit_x_signal")
 PHOTON_FEATURES = ("bias", "output_no_return", "evidence", "evidence_3x3", "signal", "output_x_signal")
@@ -110,26 +106,6 @@ def coefficients_for(model_name: str | None, has_head: bool) -> ConfidenceCoeffi
         entry = models["head" if has_head else "photons"]
     features = HEAD_FEATURES if entry["head"] else PHOTON_FEATURES
     return ConfidenceCoefficients(features, tuple(entry["probability"]), tuple(entry["std"]))
-
-
-def centre_of_mass_std(counts, sensor: Sensor = Sensor()):
-    """The standard deviation, in bins, of each histogram's centre of mass (`jaxsr.centre_of_mass`) under Poisson
-    noise: (..., K) counts -> (...). The delta method on tau = sum (k + 0.5) x_k / sum x_k over the peak's window,
-    each bin's variance its expected count (the excess x_k plus the median background b): var = sum (k + 0.5 -
-    tau)^2 (x_k + b) / (sum x_k)^2. A histogram without excess (no photons, a flat one) gets the std of a depth
-    uniform over the gate, K / sqrt(12). Counts as `centre_of_mass` takes them."""
-    n, usable = _usable(_check_counts("centre_of_mass_std", counts, sensor))
-    n = n * jnp.minimum(1.0, 2.0**60 / jnp.maximum(jnp.max(n, axis=-1, keepdims=True), 1.0))  # sums stay finite
-    excess, background = _peak_excess(n, sensor, None)
-    mass = jnp.sum(excess, axis=-1)
-    k = jnp.arange(sensor.bins) + 0.5
-    tau = jnp.sum(k * excess, axis=-1) / jnp.maximum(mass, 1e-30)
-    in_window = excess > 0
-    spread = jnp.where(in_window, (k - tau[..., None]) ** 2 * (excess + background[..., None]), 0.0)
-    var = jnp.sum(spread, axis=-1) / jnp.maximum(mass, 1e-30) ** 2
-    flat = sensor.bins / np.sqrt(12.0)
-    std = jnp.where(usable & (mass > 0), jnp.sqrt(var), flat)
-    return jnp.clip(std, _COM_FLOOR, flat)
 
 
 def _evidence(log_p):

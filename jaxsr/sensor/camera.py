@@ -43,6 +43,12 @@ class Intrinsics(NamedTuple):
     cy: float
 
     @classmethod
+    def of_optics(cls, optics, *, hr: bool = True) -> "Intrinsics":
+        """The pinhole of a `jaxsr.Optics`' HR frame (or, hr=False, its SPAD frame), in OpenCV's terms, as point
+        clouds take it. Needs a concrete fov_deg."""
+        return cls.from_fov(optics.hr_shape if hr else optics.lr_shape, float(optics.fov_deg))
+
+    @classmethod
     def from_fov(cls, shape, fov_deg) -> "Intrinsics":
         """The centred camera of an (H, W) frame whose fields of view span its width and height: fov_deg a
         horizontal angle in degrees (square pixels, fy = fx) or (horizontal, vertical). Returns `Intrinsics`

@@ -129,6 +129,30 @@ def _peak_excess(n, sensor: Sensor, window):
     return jnp.where(in_window, jnp.maximum(n - background[..., None], 0.0), 0.0), background
 
 
+
+COM_STD_FLOOR = 0.01  # bins: a centre of mass's std below it (huge counts) reads as this
+
+
+def centre_of_mass_std(counts, sensor: Sensor = Sensor()):
+    """The standard deviation, in bins, of each histogram's centre of mass (`jaxsr.centre_of_mass`) under Poisson
+    noise: (..., K) counts -> (...). The delta method on tau = sum (k + 0.5) x_k / sum x_k over the peak's window,
+    each bin's variance its expected count (the excess x_k plus the median background b): var = sum (k + 0.5 -
+    tau)^2 (x_k + b) / (sum x_k)^2. A histogram without excess (no photons, a flat one) gets the std of a depth
+    uniform over the gate, K / sqrt(12). Counts as `centre_of_mass` takes them."""
+    n, usable = _usable(_check_counts("centre_of_mass_std", counts, sensor))
+    n = n * jnp.minimum(1.0, 2.0**60 / jnp.maximum(jnp.max(n, axis=-1, keepdims=True), 1.0))  # sums stay finite
+    excess, background = _peak_excess(n, sensor, None)
+    mass = jnp.sum(excess, axis=-1)
+    k = jnp.arange(sensor.bins) + 0.5
+    tau = jnp.sum(k * excess, axis=-1) / jnp.maximum(mass, 1e-30)
+    in_window = excess > 0
+    spread = jnp.where(in_window, (k - tau[..., None]) ** 2 * (excess + background[..., None]), 0.0)
+    var = jnp.sum(spread, axis=-1) / jnp.maximum(mass, 1e-30) ** 2
+    flat = sensor.bins / np.sqrt(12.0)
+    std = jnp.where(usable & (mass > 0), jnp.sqrt(var), flat)
+    return jnp.clip(std, COM_STD_FLOOR, flat)
+
+
 def peak_evidence(counts, sensor: Sensor = Sensor(), *, window=None):
     """How much a histogram says about its return: (signal, background) in photons per pixel.
 

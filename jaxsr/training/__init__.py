@@ -49,7 +49,7 @@ from .processes import choose_mesh, replicate
 from .folders import RESUME_FILE, RUN_FILES, resume_config, seed_folder
 from .loop import fit
 from .presets import FINETUNE_LR_FACTOR, MAX_TR, PHOTON_INPUTS, finetune, regime_validation, sequence_data, train
-from .sensor_file import fit_irf, parse_sensor_file, read_irf_file, read_sensor_file, training_sensor
+from .sensor_file import fit_irf, parse_sensor_file, read_irf_file, read_sensor, read_sensor_file, training_sensor
 from .no_return import (CALIBRATION_SEED, calibrate_no_return, choose_no_return_logit, no_return_outputs,
                         no_return_set, no_return_table)
 
@@ -67,7 +67,7 @@ __all__ = [
     "fit", "resume_config", "seed_folder", "train", "sequence_data", "MAX_TR", "choose_mesh", "replicate", "RUN_FILES",
     "RESUME_FILE",
     "finetune", "regime_validation", "FINETUNE_LR_FACTOR", "PHOTON_INPUTS",
-    "read_sensor_file", "parse_sensor_file", "training_sensor", "fit_irf", "read_irf_file",
+    "read_sensor", "read_sensor_file", "parse_sensor_file", "training_sensor", "fit_irf", "read_irf_file",
     "calibrate_no_return", "choose_no_return_logit", "no_return_outputs", "no_return_set", "no_return_table",
     "CALIBRATION_SEED",
     # deprecated (jaxsr 0.1): jaxsr.nn.Model, jaxsr.save_model / load_model, jaxsr.super_resolve*, jaxsr.fit

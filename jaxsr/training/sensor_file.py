@@ -447,6 +447,11 @@ def parse_sensor_file(text: str, *, source: str = "sensor file", base_dir=".",
     return sensor, regime, info
 
 
+def read_sensor(path) -> Sensor:
+    """The `jaxsr.Sensor` of a TOML file's [sensor] table (`read_sensor_file` reads its [photons] too)."""
+    return read_sensor_file(path, photons=False)[0]
+
+
 def read_sensor_file(path, *, photons: bool = True) -> tuple[Sensor, PhotonRegime | None, dict]:
     """A sensor's TOML file (see the module docstring) -> (Sensor, PhotonRegime, info).
 

@@ -9,9 +9,10 @@ from jaxsr.app import AUTO_KEEP_RETURNS, ModelChoice, upscale
 from jaxsr.config import ModelConfig, Sensor
 from jaxsr.eval import auroc, expected_calibration_error, interval_coverage
 from jaxsr.inference.confidence import (EVIDENCE_FRAMES, HEAD_FEATURES, PHOTON_FEATURES, STD_FEATURES,
-                                        centre_of_mass_std, coefficients_for, confidence_frame, iter_count_windows,
+                                        coefficients_for, confidence_frame, iter_count_windows,
                                         load_confidence, no_return_by_probability, no_return_logit_of)
 from jaxsr.io.checkpoint import save_model
+from jaxsr.sensor import centre_of_mass_std
 from jaxsr.nn import Model, init_model
 from jaxsr.sensor import ambient_only
 from jaxsr.training.confidence import fit_depth_std, fit_logistic

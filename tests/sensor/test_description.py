@@ -14,9 +14,10 @@ from jaxsr import cli
 from jaxsr.app import Reading
 from jaxsr.config import METRES_PER_SECOND, ModelConfig
 from jaxsr.nn import Model, init_model
+from jaxsr.sensor.camera import Intrinsics
 from jaxsr.sensor.gates import from_network_depth, to_network_depth
 from jaxsr.spad import DepthScale, Gate, Optics, Pulse, Sensor, SensorConfig
-from jaxsr.training.sensor_file import parse_sensor_file, training_sensor
+from jaxsr.training.sensor_file import parse_sensor_file, read_sensor, training_sensor
 
 TINY = dict(base=8, growth=4, head=16, filter_hidden=16)
 
@@ -59,7 +60,7 @@ def test_flags_toml_and_python_build_the_same_sensor(tmp_path):
     # the file given to --sensor is that sensor too
     (tmp_path / "s.toml").write_text(TOML)
     assert flags_sensor(["upscale", "rec.npz", "-o", "o.npz", "--sensor", str(tmp_path / "s.toml")]) == from_toml
-    assert Sensor.from_file(tmp_path / "s.toml") == from_toml
+    assert read_sensor(tmp_path / "s.toml") == from_toml
     with pytest.raises(ValueError, match="--sensor gives the gate"):
         Reading(bins=16, sensor=tmp_path / "s.toml")
 
@@ -70,7 +71,7 @@ def test_a_sensor_is_a_pytree_that_jits_vmaps_and_round_trips_as_json():
     assert len(leaves) == 8 and jax.tree.unflatten(tree, leaves) == sensor
     assert Sensor.from_dict(sensor.to_dict()) == sensor
     # the optics in OpenCV's terms, as point clouds take them: the HR frame's pinhole, the SPAD frame's 4x coarser
-    hr, lr = sensor.optics.intrinsics(), sensor.optics.intrinsics(hr=False)
+    hr, lr = Intrinsics.of_optics(sensor.optics), Intrinsics.of_optics(sensor.optics, hr=False)
     assert hr.fx == pytest.approx(float(sensor.focal_px)) and lr.scaled(4) == pytest.approx(hr)
     widths = jnp.array([0.5, 1.0, 2.0])
     ends = jax.vmap(lambda w: jax.jit(lambda s: s.d_max)(sensor.replace(gate=Gate(32, w, 10.0))))(widths)
