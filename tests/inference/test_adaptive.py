@@ -69,3 +69,46 @@ def test_load_study_errors(tmp_path):
     (tmp_path / "bad.json").write_text('{"motion": []}')
     with pytest.raises(ValueError, match="psnr"):
         load_study(tmp_path / "bad.json")
+
+
+def _photon_scene(v, *, photons, snr, sky, frames=16, seed=0):
+    """Centre-of-mass LR frames (T, 32, 64) of a scene through jaxsr's sensor model: a wall sloping from 20 to
+    30 m, three boxes 8-12 m away translating at v LR px/frame and, with `sky`, no return in the top quarter
+    (ambient light alone there)."""
+    import jax
+
+    import jaxsr
+    from jaxsr.config import SensorConfig
+
+    h, w = 128, 256
+    yy, xx = np.mgrid[:h, :w]
+    depth, intensity = [], []
+    for t in range(frames):
+        d = 20.0 + 10.0 * xx / w
+        for k in range(3):
+            cx = (40 + 80 * k + 4 * v * t) % w
+            d = np.where((np.abs(xx - cx) < 16) & (np.abs(yy - 80) < 40), 8.0 + 2.0 * k, d)
+        if sky:
+            d = np.where(yy < h // 4, np.inf, d)
+        depth.append(d)
+        intensity.append(0.3 + 0.4 * ((xx // 16 + yy // 16) % 2))
+    sensor = SensorConfig(hr_shape=(h, w))
+    counts = jaxsr.simulate_histograms(jax.random.key(seed), np.asarray(depth, np.float32),
+                                       np.asarray(intensity, np.float32), sensor, snr=snr, mean_signal=photons)
+    return np.asarray(jaxsr.centre_of_mass(counts, sensor), np.float32)
+
+
+@pytest.mark.parametrize("snr", [0.1, 0.3, 1.3, 5.0])
+@pytest.mark.parametrize("sky", [False, True])
+def test_a_static_camera_reads_static_whatever_the_ambient_light_and_sky(snr, sky):
+    """Ambient light alone (sky, surfaces whose peak drowns) puts a pixel's centre of mass anywhere in the gate
+    from frame to frame: noise, not motion. At 3, 14 and 100 signal photons per pixel."""
+    for photons in (3.0, 14.0, 100.0):
+        est = estimate_motion(_photon_scene(0.0, photons=photons, snr=snr, sky=sky, seed=int(10 * snr + photons)))
+        assert est.motion == 0.0 and not est.saturated, (photons, est)
+
+
+@pytest.mark.parametrize("sky", [False, True])
+def test_motion_through_photon_noise_and_sky(sky):
+    est = estimate_motion(_photon_scene(1.0, photons=14.0, snr=1.3, sky=sky))
+    assert est.motion == pytest.approx(1.0, rel=0.25) and not est.saturated
