@@ -142,7 +142,11 @@ def run(args):
 
 
 def report(rows, args, started) -> str:
-    best = {id(r): min(v for c, v in r["median_m"].items() if r["dropped"][c] <= MAX_DROPPED) for r in rows}
+    def best_of(r):  # among the candidates that keep the returns (all where none does)
+        kept = [v for c, v in r["median_m"].items() if r["dropped"][c] <= MAX_DROPPED]
+        return min(kept or r["median_m"].values())
+
+    best = {id(r): best_of(r) for r in rows}
     holds = {c: all(r["median_m"][c] <= RULE * best[id(r)] and r["dropped"][c] <= MAX_DROPPED for r in rows)
              for c in args.candidates}
     worst = {c: max(r["median_m"][c] / best[id(r)] for r in rows) for c in args.candidates}
@@ -183,6 +187,7 @@ def main(argv=None):
     args = p.parse_args(argv)
     args.levels = [tuple(float(v) for v in lv.split(":")) for lv in args.levels]
     rows, started = run(args)
+    write_atomic(str(Path(args.out).with_suffix(".json")), json.dumps({"rows": rows}) + "\n")  # kept if the report fails
     text = report(rows, args, started)
     write_atomic(args.out, text)
     write_atomic(str(Path(args.out).with_suffix(".json")), json.dumps(

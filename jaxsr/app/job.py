@@ -304,11 +304,13 @@ def _histogram_job(rec, gate, source, tag_notes, choice, planned, read: Reading,
 
     enable_compilation_cache()
     model, model_id, name = finish_model(choice, planned, "histograms",
-                                         lambda: _head(lr_stream(("depth",)), HEAD_FRAMES))
+                                         lambda: _head(lr_stream(("depth",)), HEAD_FRAMES),
+                                         float("nan") if levels is None else levels.signal)
     head_frames = min(HEAD_FRAMES, rec.frames)
     if levels is not None:
         if model.has_no_return_head:
-            warnings += snr_warnings(trained_snr_range(choice, "histograms"), levels.snr, head_frames,
+            named = ModelChoice(model_id) if choice.is_auto else choice  # the model auto picked, by name
+            warnings += snr_warnings(trained_snr_range(named, "histograms"), levels.snr, head_frames,
                                      choice.no_return_logit)
         elif not model.reads_photons:
             warnings += few_photons_warnings(levels.signal, head_frames)

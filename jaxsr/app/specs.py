@@ -85,7 +85,8 @@ class Reading:
     (default: the histograms' own, then spanning 35 m unless bin_width says; 16 for time tags) bins of bin_width
     from gate_start, metres or strings with a unit ("12.5ns", "2.19m"; a time
     converts as r = c t / 2); default 35 m / 16 from 0 (time tags: the photons' span). span: metres of range from
-    the gate's start mapped onto the network's [0, 1] (default the trained 35 m), or "gate" (the gate's length).
+    the gate's start mapped onto the network's [0, 1] (default None: the depth the first frames' returns reach,
+    `jaxsr.sensor.data_span`), or "gate" (the gate's length).
     time_unit (--time-unit, time tags): seconds per time unit or a string such as "1ps"; variable: the .mat cell
     array to read; drop_outside: ignore photons outside the gate (default: refuse them). clip_negative
     (histograms): clip negative counts at 0, as background-subtracted data need, and say how many. units

@@ -10,7 +10,7 @@ import pytest
 from jaxsr import cli
 from jaxsr.io.checkpoint import load_model, save_model
 from jaxsr.config import DepthScale, Gate, ModelConfig
-from jaxsr.sensor.gates import from_network_depth, gate_depth, to_network_depth
+from jaxsr.sensor.gates import data_span, from_network_depth, gate_depth, gate_warnings, to_network_depth
 from jaxsr.inference import super_resolve
 from jaxsr.nn import Model, init_model
 from jaxsr.sensor.timetags import histogram_time_tags, read_time_tags
@@ -56,24 +56,51 @@ def test_time_tags_over_a_gate_far_away(tmp_path, model_path, capsys):
     args = ["--kind", "timetags", "--bins", "16", "--bin-width", "14.5ns", "--gate-start", "10.007us"]
     assert upscale(tmp_path / "tags.npz", tmp_path / "out.npz", "--model", model_path, *args) == 0
     captured = capsys.readouterr()
-    assert "warning" not in captured.err  # a 35 m gate on the trained span
+    assert "warning" not in captured.err  # a 35 m gate on the span fitted to the wall
     summary = json.loads(captured.out)
     gate = Gate.from_time(16, 14.5e-9, 10.007e-6)
-    assert summary["gate"]["start_m"] == pytest.approx(gate.start) and summary["scale"]["span_m"] == 35.0
     counts = histogram_time_tags(read_time_tags(tmp_path / "tags.npz"), gate)
     lr_m = np.asarray(gate_depth(counts, gate))
+    span = data_span(lr_m, gate)  # the wall's 5-25 m from the gate start, plus 10 %
+    assert summary["gate"]["start_m"] == pytest.approx(gate.start) and summary["scale"]["span_m"] == pytest.approx(span)
+    assert 25 < span < 30
     assert np.median(np.abs(lr_m - truth)) < 0.25 * gate.bin_width  # the centre of mass finds the wall
-    scale = DepthScale.for_gate(gate)
+    scale = DepthScale.for_gate(gate, span)
     want = from_network_depth(super_resolve(load_model(model_path), to_network_depth(lr_m, scale)), scale)
     got = np.load(tmp_path / "out.npz")["depth"]
     assert got.shape == (1, 48, 80)
     np.testing.assert_allclose(got, want, rtol=1e-6)
 
 
-def test_a_long_gate_warns(tmp_path, model_path, capsys):
+def test_a_span_that_cuts_the_returns_warns(tmp_path, model_path, capsys):
+    """Returns spread over a 128 m gate, the span given as 35 m: most of them read as no return, and the warning
+    says how many; left to its default the span covers them and nothing is said."""
     counts = np.random.default_rng(3).poisson(1.0, (1, 8, 8, 32)).astype(np.uint16)
     np.save(tmp_path / "h.npy", counts)
-    assert upscale(tmp_path / "h.npy", tmp_path / "o.npy", "--model", model_path, "--bins", "32", "--bin-width",
-                   "4m") == 0
+    gate = ["--bins", "32", "--bin-width", "4m"]
+    assert upscale(tmp_path / "h.npy", tmp_path / "o.npy", "--model", model_path, *gate, "--span", "35") == 0
     err = capsys.readouterr().err
-    assert "jaxsr upscale: warning: the gate [0, 128) m extends past" in err and "coarser" not in err
+    assert "of the returns in the first frames lie outside the depth scale's [0, 35) m" in err
+    assert "coarser" not in err
+    assert upscale(tmp_path / "h.npy", tmp_path / "o2.npy", "--model", model_path, *gate) == 0
+    assert "warning" not in capsys.readouterr().err
+
+
+def test_data_span():
+    gate = Gate(200, 0.0375, 1.0)  # 7.5 m from 1 m
+    depth = 1.0 + np.linspace(0.5, 4.5, 1000)
+    assert data_span(np.append(depth, np.inf), gate) == pytest.approx(np.percentile(depth - 1.0, 99) * 1.1)
+    assert data_span(np.full(10, 1.01), gate) == pytest.approx(8 * 0.0375)  # at least 8 bins
+    assert data_span(np.full(10, 8.4), gate) == pytest.approx(7.5)  # at most the gate
+    assert data_span(np.array([np.inf]), gate) == pytest.approx(7.5)  # no return seen: the gate
+
+
+def test_the_span_warnings_say_what_the_returns_show():
+    """A short-range scene (1.5-6 m) in a 7.5 m gate: the gate's own length and the fitted span draw no warning
+    about the span; the trained 35 m does (its depth steps look 5x smaller to the network)."""
+    gate = Gate(200, 0.0375, 0.0)
+    returns = np.random.default_rng(0).uniform(1.5, 6.0, 5000)
+    assert gate_warnings(gate, DepthScale.for_gate(gate, data_span(returns, gate)), returns) == []
+    assert gate_warnings(gate, DepthScale.for_gate(gate, gate.length), returns) == []
+    (line,) = gate_warnings(gate, DepthScale.for_gate(gate, 35.0), returns)
+    assert "fit a depth span of 6.5" in line and "leave --span out" in line
