@@ -79,7 +79,8 @@ def run_clips(args):
                     scores = {}
                     for m in args.models:
                         job = prepare_upscale(counts, model=m)
-                        scores[m] = score(np.stack(list(job.iter_frames(units="normalised"))), truth)
+                        metres = np.stack(list(job.iter_frames(units="m")))  # on the 35 m scale of the truth
+                        scores[m] = score(np.asarray(to_network_depth(metres, DepthScale()), np.float32), truth)
                     clips.append({"split": split, "class": cls, "scene": f"{kind} ({camera}, {fps:g} fps)",
                                   "seed": seed, "photons": photons, "signal": levels.signal, "snr": levels.snr,
                                   "motion": est.motion, "saturated": est.saturated, "scores": scores, "lr": lr})

@@ -1,13 +1,16 @@
-"""Scene-adaptive temporal radius: measure the motion in a recording, pick the TR that the frame-rate study
-found best for that motion (beyond the paper, which fixes TR per model).
+"""Scene-adaptive model: measure the motion in a recording, pick the TR that the frame-rate study found best for
+that motion (beyond the paper, which fixes TR per model), or for photon histograms the bundled model a simulated
+study found best at the motion and photon level.
 
 The paper's frame-rate study shows the trade: more frames help while objects move little between frames, and
 hurt once they move far (the network cannot align them). `estimate_motion` measures the motion of the moving
 parts of the scene in LR pixels per frame from the centre-of-mass frames themselves, by block matching at
 several frame lags; `choose_tr` looks that motion up in the table `experiments/paper/fps_study.py` measured
 (`jaxsr/weights/frame_rate_study.json`: PSNR of each TR against the same estimator's motion, and each TR's
-frames/s) and returns the best TR within a frame-rate budget; `resolve_model` loads the bundled weights it
-picks (`jaxsr upscale --model auto`).
+frames/s) and returns the best TR within a frame-rate budget; `choose_photon_model` does the same over every
+bundled model that reads histograms, in the table `experiments/studies/model_auto.py` measured
+(`jaxsr/weights/model_auto_study.json`: PSNR against signal photons per pixel and motion); `resolve_model` loads
+the bundled weights `choose_tr` picks (`jaxsr upscale --model auto` on depth frames).
 """
 
 from __future__ import annotations
@@ -101,8 +104,9 @@ def _block_match(a, b, ma, mb, *, radius: int = SEARCH_RADIUS):
 
 class MotionEstimate(NamedTuple):
     """`motion`: LR px per frame of the moving parts (0 when nothing moves); `lag`: the frame lag it was
-    measured at; `moving_fraction`: the share of pixels found moving; `saturated`: True when even one frame
-    apart the motion reaches the search radius (the motion is at least `motion`)."""
+    measured at; `moving_fraction`: the share of the surface's pixels found moving; `saturated`: True when at
+    every lag the shifts exceed half the search radius (the motion is at least `motion`); `surface_fraction`: the
+    share of pixels that hold a surface, which the motion is measured on."""
 
     motion: float
     lag: int
@@ -114,15 +118,22 @@ class MotionEstimate(NamedTuple):
 def estimate_motion(lr_seq, *, max_frames: int = 64) -> MotionEstimate:
     """Motion of the moving parts of a recording in LR pixels per frame, from its first `max_frames` frames.
 
-    lr_seq: (T, h, w) LR normalised depth (centre of mass), T >= 2. Frames are 3x3-median filtered; for frame
-    lags k = 1, 2, 4, 8 every pair (t, t + k) is block matched (5x5 blocks, shifts up to 6 px). A pixel moves
-    when its zero-shift difference is above twice the frame's typical (noise) difference and its best shift
-    explains at least half of it (a share under 0.2 % of the pixels counts as noise). The motion is the mean
-    best shift of moving pixels over k at the longest lag whose shifts stay within half the search radius
-    (small motions are measured over several frames, large ones over one). When no lag qualifies the lag-1
-    shift is returned, or the search radius when changed pixels match no shift at all, as `saturated`: the
-    motion is at least that. Measured on synthetic translating blocks (tests/inference/test_adaptive.py): within 15 %
-    from 0.25 to 2 px/frame. Returns a `MotionEstimate` (motion, lag, moving_fraction, saturated).
+    lr_seq: (T, h, w) LR normalised depth (centre of mass), T >= 2 (4 or more to measure anything). Only pixels
+    that hold a surface count (`_coherent`): the centre of mass of ambient light alone (sky, beyond the gate, too
+    few photons) falls anywhere in the gate from frame to frame. Frames are 3x3-median filtered; for frame lags
+    k = 1, 2, 4, 8 (3k below T) every pair (t, t + k) is block matched (5x5 blocks of surface, shifts up to 6
+    px). A pixel moves when its zero-shift difference is above twice the frame's typical (noise) difference, its
+    best shift explains at least half of it, and its content is matched again at that shift twice along its way
+    (`_followed`); a share of the surface under MIN_MOVING counts as noise. The motion is the mean shift of
+    moving pixels over k at the longest lag whose shifts stay within half the search radius (small motions are
+    measured over several frames, large ones over one); where every lag's exceed it, the shortest lag's, as
+    `saturated`: the motion is at least that. Nothing moving reads 0.
+
+    Measured (tests/inference/test_adaptive.py): translating blocks within 15 % from 0.25 to 5 px/frame; a static
+    scene through jaxsr's sensor model reads 0 at 3 to 100 signal photons and frame SNR 0.1 to 5, with and without
+    sky. Motion that few photons at a low SNR hide (3 photons at SNR 0.3 and below), or faster than the search
+    radius with nothing matched, reads 0. Returns a `MotionEstimate` (motion, lag, moving_fraction, saturated,
+    surface_fraction).
     """
     seq = np.asarray(lr_seq, np.float32)[:max_frames]
     if seq.ndim != 3 or seq.shape[0] < 2:
