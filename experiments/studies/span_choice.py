@@ -10,7 +10,7 @@ the candidates for the span are:
 - "gate": the gate's length (`--span gate`);
 - "data": the depth the recording shows (`jaxsr.sensor.data_span`, the command's default since this study): its
   LR returns' 99th percentile from the gate start (the first `HEAD_FRAMES` frames' centre of mass) widened by
-  10 %, at least 8 bins, at most the gate;
+  10 %, at least 16 bins, at most the gate;
 - "2 x gate": a fixed multiple of the gate.
 
 Scenes: the scene generator's street, road, courtyard and walkers (static and moving cameras; not the test

@@ -64,7 +64,7 @@ def add_parser(subparsers):
     g.add_argument("--span", type=span, default=None,
                    help="metres of range from the gate start mapped onto the network's [0, 1], or 'gate' (the "
                    "gate's length); default: the depth the first 64 frames' returns reach (their 99th percentile "
-                   "plus 10 %%, at least 8 bins, at most the gate)")
+                   "plus 10 %%, at least 16 bins, at most the gate)")
     g.add_argument("--time-unit", type=time_unit, default=None,
                    help="time tags: duration of one time unit, such as 1ps (needed unless an .npz says time_unit_s)")
     g.add_argument("--variable", default=None, help="time tags: the .mat cell array to read (default: the only one)")

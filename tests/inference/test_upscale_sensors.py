@@ -61,9 +61,9 @@ def test_time_tags_over_a_gate_far_away(tmp_path, model_path, capsys):
     gate = Gate.from_time(16, 14.5e-9, 10.007e-6)
     counts = histogram_time_tags(read_time_tags(tmp_path / "tags.npz"), gate)
     lr_m = np.asarray(gate_depth(counts, gate))
-    span = data_span(lr_m, gate)  # the wall's 5-25 m from the gate start, plus 10 %
+    span = data_span(lr_m, gate)  # 16 bins: never coarser than the trained 1/16 of the span, the whole gate
     assert summary["gate"]["start_m"] == pytest.approx(gate.start) and summary["scale"]["span_m"] == pytest.approx(span)
-    assert 25 < span < 30
+    assert span == pytest.approx(gate.length)
     assert np.median(np.abs(lr_m - truth)) < 0.25 * gate.bin_width  # the centre of mass finds the wall
     scale = DepthScale.for_gate(gate, span)
     want = from_network_depth(super_resolve(load_model(model_path), to_network_depth(lr_m, scale)), scale)
@@ -90,7 +90,7 @@ def test_data_span():
     gate = Gate(200, 0.0375, 1.0)  # 7.5 m from 1 m
     depth = 1.0 + np.linspace(0.5, 4.5, 1000)
     assert data_span(np.append(depth, np.inf), gate) == pytest.approx(np.percentile(depth - 1.0, 99) * 1.1)
-    assert data_span(np.full(10, 1.01), gate) == pytest.approx(8 * 0.0375)  # at least 8 bins
+    assert data_span(np.full(10, 1.01), gate) == pytest.approx(16 * 0.0375)  # at least 16 bins
     assert data_span(np.full(10, 8.4), gate) == pytest.approx(7.5)  # at most the gate
     assert data_span(np.array([np.inf]), gate) == pytest.approx(7.5)  # no return seen: the gate
 
