@@ -25,7 +25,7 @@ no return counts as an infinite error), with the share of those returns dropped.
 
 The rule for the default: within 25 % of the best candidate's median error on every gate and photon level, the
 best among the candidates that output at most 1 % of the returns as no return (a span that drops the far
-returns scores the near ones alone: the trained 35 m on a 100 m gate drops 15 %).
+returns scores the near ones alone: the trained 35 m on a 100 m gate drops 13-16 %).
 Writes experiments/results/span_choice.md (or --out) and a .json beside it.
 """
 

@@ -23,8 +23,8 @@ __all__ = ["gate_depth", "to_network_depth", "from_network_depth", "gate_to_netw
 # The depth span the data shows (`data_span`): its returns' SPAN_PERCENTILE-th percentile from the gate start, times
 # SPAN_MARGIN, at least SPAN_MIN_BINS bins (a bin no coarser than the trained 1/16 of the span: the paper's 16 bins
 # keep their 35 m) and at most the gate.
-# On gates of 3 to 300 m it came within 25 % of the best median error of every span measured, the gate's length
-# and the trained 35 m among them, which fell to 1.9x and 10x (experiments/results/span_choice.md)
+# On simulated gates of 3 to 300 m it had the lowest median depth error of the spans measured; the gate's length
+# came to 1.9x it and the trained 35 m to 13x (experiments/results/span_choice.md)
 SPAN_PERCENTILE = 99.0
 SPAN_MARGIN = 1.1
 SPAN_MIN_BINS = 16
@@ -140,7 +140,7 @@ def gate_warnings(gate: Gate, scale: DepthScale, returns=None) -> list[str]:
     return or as 0 m. With `returns` (radial metres of the returns a recording's first frames show, inf for no
     return), warns where 1 % of them or more lie outside the span (they read as no return, or 0 m) and where the
     span is 2x or more the one `data_span` fits to them (the network sees their depth steps that much smaller than
-    it learned: on simulated gates of 3 to 15 m the trained 35 m measured 2.6 to 13x the median depth error of the
+    it learned: on simulated gates of 3 to 15 m the trained 35 m measured 2.7 to 13x the median depth error of the
     fitted span, experiments/results/span_choice.md); without `returns`, where part of the gate lies outside the
     span. Warns when a bin is over 2x wider than the trained 1/16 of the span
     (coarser depth)."""
@@ -167,7 +167,7 @@ def gate_warnings(gate: Gate, scale: DepthScale, returns=None) -> list[str]:
         if float(scale.span) >= 2.0 * fitted:
             out.append(f"the returns in the first frames fit a depth span of {fitted:.3g} m, and the span is "
                        f"{float(scale.span):g} m: the network sees their depth steps "
-                       f"{float(scale.span) / fitted:.3g}x smaller than it learned (in simulation 2.6 to 13x the "
+                       f"{float(scale.span) / fitted:.3g}x smaller than it learned (in simulation 2.7 to 13x the "
                        "depth error of the fitted span); leave --span out to fit it")
     coarse = float(gate.bin_width) / float(scale.span) * 16
     if coarse > 2.0:
