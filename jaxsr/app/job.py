@@ -293,7 +293,7 @@ def _histogram_job(rec, gate, source, tag_notes, choice, planned, read: Reading,
     returns = head_returns(counts, gate, HEAD_FRAMES)
     sensor = read.sensor_of_gate(gate, data_span(returns, gate))
     scale = sensor.depth  # what network_inputs, the output's metres and the confidence's bins all read
-    warnings = tag_notes + tuple(gate_warnings(gate, scale, returns))
+    warnings = tag_notes + tuple(gate_warnings(gate, scale, returns=returns))
     if found[0]:
         warnings += (_clipped_note(*found),)
     # what the photons say, read once (not after clipping: the clipped counts' ambient is no longer the sensor's)

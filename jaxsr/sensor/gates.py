@@ -133,7 +133,7 @@ def data_span(depth, gate: Gate) -> float:
     return float(min(length, max(reach, SPAN_MIN_BINS * float(gate.bin_width))))
 
 
-def gate_warnings(gate: Gate, scale: DepthScale, returns=None) -> list[str]:
+def gate_warnings(gate: Gate, scale: DepthScale, *, returns=None) -> list[str]:
     """What the bundled models never saw in this gate and scale, as sentences (empty for the paper's sensor).
 
     Raises ValueError if the gate lies wholly outside [offset, offset + span): every return would read as no

@@ -100,7 +100,7 @@ def test_the_span_warnings_say_what_the_returns_show():
     about the span; the trained 35 m does (its depth steps look 5x smaller to the network)."""
     gate = Gate(200, 0.0375, 0.0)
     returns = np.random.default_rng(0).uniform(1.5, 6.0, 5000)
-    assert gate_warnings(gate, DepthScale.for_gate(gate, data_span(returns, gate)), returns) == []
-    assert gate_warnings(gate, DepthScale.for_gate(gate, gate.length), returns) == []
-    (line,) = gate_warnings(gate, DepthScale.for_gate(gate, 35.0), returns)
+    assert gate_warnings(gate, DepthScale.for_gate(gate, data_span(returns, gate)), returns=returns) == []
+    assert gate_warnings(gate, DepthScale.for_gate(gate, gate.length), returns=returns) == []
+    (line,) = gate_warnings(gate, DepthScale.for_gate(gate, 35.0), returns=returns)
     assert "fit a depth span of 6.5" in line and "leave --span out" in line

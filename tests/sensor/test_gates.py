@@ -81,8 +81,8 @@ def test_warnings_say_what_the_models_never_saw():
     assert gate_warnings(long, DepthScale.for_gate(long, span=long.length)) == []
     fine = Gate(160, 1.0, 0.0)  # 160 m in 1 m bins
     near = np.linspace(2.0, 20.0, 500)  # but returns within 20 m of a 160 m span look 7x flatter than fitted
-    assert gate_warnings(fine, DepthScale.for_gate(fine, span=fine.length), np.full(9, 150.0)) == []
-    (line,) = gate_warnings(fine, DepthScale.for_gate(fine, span=fine.length), near)
+    assert gate_warnings(fine, DepthScale.for_gate(fine, span=fine.length), returns=np.full(9, 150.0)) == []
+    (line,) = gate_warnings(fine, DepthScale.for_gate(fine, span=fine.length), returns=near)
     assert "fit a depth span of 21.8 m" in line and "7.34x smaller" in line
     with pytest.raises(ValueError, match="lies outside the depth scale"):
         gate_warnings(gate, DepthScale())  # a gate at 1 km read with the network's 0 at 0 m
