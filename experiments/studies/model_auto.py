@@ -36,7 +36,7 @@ import jaxsr
 from jaxsr.app import prepare_upscale
 from jaxsr.app.models import DEFAULT_MODELS
 from jaxsr.app.photons import photon_levels
-from jaxsr.config import DepthScale, SensorConfig
+from jaxsr.config import DepthScale, Optics, Sensor
 from jaxsr.inference.adaptive import MODEL_TABLE, choose_photon_model, estimate_motion, load_study
 from jaxsr.runtime import enable_compilation_cache
 from jaxsr.scenes import sequence
@@ -61,7 +61,7 @@ def score(out, truth) -> float:
 
 
 def run_clips(args):
-    sensor = SensorConfig(hr_shape=tuple(args.hr))
+    sensor = Sensor(optics=Optics.of_hr(tuple(args.hr)))
     clips = []
     for split, offset in SPLITS.items():
         for cls, members in CLASSES.items():

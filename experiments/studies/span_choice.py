@@ -43,7 +43,7 @@ import numpy as np
 import jaxsr
 from jaxsr.app import prepare_upscale
 from jaxsr.app.specs import Reading
-from jaxsr.config import TRAINED_RANGE_M, Gate, SensorConfig
+from jaxsr.config import TRAINED_RANGE_M, DepthScale, Gate, Optics, Sensor
 from jaxsr.runtime import enable_compilation_cache
 from jaxsr.scenes import sequence
 
@@ -94,7 +94,7 @@ def run(args):
     started = time.time()
     enable_compilation_cache()
     hr = tuple(args.hr)
-    render = SensorConfig(hr_shape=hr)
+    render = Sensor(optics=Optics.of_hr(hr))
     scenes = []
     for kind, camera, seed in SCENES:
         depth, intensity = sequence(jax.random.key(seed), args.frames, 25.0, kind=kind, sensor=render, camera=camera)
@@ -112,7 +112,8 @@ def run(args):
                 for fill in FILLS:
                     s = fill * length / TRAINED_RANGE_M
                     d = depth * s  # inf (no return) stays inf
-                    sensor = SensorConfig(hr_shape=hr, bins=bins, d_max=length, r_min=0.5 * s)
+                    sensor = Sensor(gate=Gate.spanning(length, bins), optics=Optics.of_hr(hr),
+                                    depth=DepthScale(0.0, length), r_min=0.5 * s)
                     key = jax.random.key(1000 * i + int(100 * fill) + int(photons))
                     counts = np.asarray(jaxsr.simulate_histograms(key, d, intensity, sensor, snr=snr,
                                                                   mean_signal=photons))

@@ -78,7 +78,7 @@ def _photon_scene(v, *, photons, snr, sky, frames=16, seed=0):
     import jax
 
     import jaxsr
-    from jaxsr.config import SensorConfig
+    from jaxsr.config import Optics, Sensor
 
     h, w = 128, 256
     yy, xx = np.mgrid[:h, :w]
@@ -92,7 +92,7 @@ def _photon_scene(v, *, photons, snr, sky, frames=16, seed=0):
             d = np.where(yy < h // 4, np.inf, d)
         depth.append(d)
         intensity.append(0.3 + 0.4 * ((xx // 16 + yy // 16) % 2))
-    sensor = SensorConfig(hr_shape=(h, w))
+    sensor = Sensor(optics=Optics.of_hr((h, w)))
     counts = jaxsr.simulate_histograms(jax.random.key(seed), np.asarray(depth, np.float32),
                                        np.asarray(intensity, np.float32), sensor, snr=snr, mean_signal=photons)
     return np.asarray(jaxsr.centre_of_mass(counts, sensor), np.float32)
