@@ -104,3 +104,26 @@ def test_the_span_warnings_say_what_the_returns_show():
     assert gate_warnings(gate, DepthScale.for_gate(gate, gate.length), returns=returns) == []
     (line,) = gate_warnings(gate, DepthScale.for_gate(gate, 35.0), returns=returns)
     assert "fit a depth span of 6.5" in line and "leave --span out" in line
+
+
+def test_the_fitted_span_is_the_sensor_the_network_reads_with(model_path):
+    """A wall 3-6 m away in a 35 m gate of 128 bins: the job's depth scale spans the metres data_span fits (not the
+    trained 35 m), and the network's input is the centre of mass on that scale, the scale the output's metres and
+    the confidence's bins read too. A sensor file's own depth scale is kept as given."""
+    from jaxsr import Sensor
+    from jaxsr.app import prepare_upscale
+    from jaxsr.app.specs import Reading
+
+    gate = Gate(128, 35.0 / 128, 0.0)
+    rng = np.random.default_rng(5)
+    wall = np.linspace(3.0, 6.0, 16)[None, None, :].repeat(8, 1)  # (1, 8, 16) metres
+    peak = (wall / gate.bin_width).astype(int)[..., None] == np.arange(128)
+    counts = rng.poisson(0.02 + 20.0 * peak, (2, 8, 16, 128)).astype(np.uint16)
+    job = prepare_upscale(counts, model=model_path, read=Reading(kind="histograms", bins=128, bin_width=gate.bin_width))
+    lr_m = np.asarray(gate_depth(counts[0], gate))
+    span = data_span(lr_m, gate)
+    assert span < 10.0 and float(job.scale.span) == pytest.approx(span)
+    np.testing.assert_allclose(next(job.lr_frames()), to_network_depth(lr_m, job.scale), atol=1e-6)
+    own = Sensor(gate=gate, depth=DepthScale(0.0, 35.0))
+    assert float(prepare_upscale(counts, model=model_path, read=Reading(kind="histograms", sensor=own)).scale.span) \
+        == 35.0
