@@ -76,7 +76,8 @@ def span_of(candidate: str, gate: Gate) -> float | None:
 
 def warning_kind(text: str) -> str:
     """A gate warning's kind, without its numbers."""
-    for words, kind in (("extends past", "gate past the span"), ("lie outside the depth scale", "returns past the span"),
+    for words, kind in (("extends past", "gate past the span"),
+                        ("lie outside the depth scale", "returns past the span"),
                         ("fit a depth span of", "span 2x or more the fitted"), ("coarser depth", "coarse bins")):
         if words in text:
             return kind
@@ -188,7 +189,8 @@ def main(argv=None):
     args = p.parse_args(argv)
     args.levels = [tuple(float(v) for v in lv.split(":")) for lv in args.levels]
     rows, started = run(args)
-    write_atomic(str(Path(args.out).with_suffix(".json")), json.dumps({"rows": rows}) + "\n")  # kept if the report fails
+    # the rows kept if the report fails
+    write_atomic(str(Path(args.out).with_suffix(".json")), json.dumps({"rows": rows}) + "\n")
     text = report(rows, args, started)
     write_atomic(args.out, text)
     write_atomic(str(Path(args.out).with_suffix(".json")), json.dumps(

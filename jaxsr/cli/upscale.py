@@ -5,9 +5,9 @@ Argument parsing and messages only: the flags become the application's four spec
 batch, not for the whole sequence. Everything is checked before the model runs: the options, the output and
 preview paths, the model, and every input frame. Histograms and photon time tags are read over a gate (--bins,
 --bin-width, --gate-start) and put on the network's scale with the gate's start as its 0 m and --span metres
-(default the depth the recording's returns reach) as its 1.0; where that takes the models outside what they were trained on, a warning
-line says so. Negative counts (background-subtracted histograms) are refused unless --clip-negative, which clips
-them at 0 and says how many, in how many pixels. Outputs are written atomically and never replace an existing
+(default the depth the recording's returns reach) as its 1.0; where that takes the models outside what they
+were trained on, a warning line says so. Negative counts (background-subtracted histograms) are refused unless
+--clip-negative, which clips them at 0 and says how many, in how many pixels. Outputs are written atomically and never replace an existing
 file or write into a non-empty folder without --force. --video writes an .mp4 / .gif to watch (input | output |
 --reference) and --points PLY point clouds (a folder of one per frame, or one file), both streamed frame by frame
 over the sensor's true range in metres. Prints a JSON summary on stdout (`UpscaleResult.summary()`).
