@@ -10,8 +10,9 @@ read), `ModelChoice` (which model, how it runs), `PhotonRules` (the photon tests
 
 Frames stream from the input through the model to the output, so a long recording needs memory for a batch, not
 for the whole sequence. Histograms and photon time tags are read over a gate and put on the network's scale with
-the gate's start as its 0 m and `Reading.span` metres (default the trained 35 m) as its 1.0; where that takes
-the models outside what they were trained on, the job's warnings say so. Outputs never replace an existing file
+the gate's start as its 0 m and `Reading.span` metres (default the depth the first frames' returns reach,
+`jaxsr.sensor.data_span`) as its 1.0; where that takes the models outside what they were trained on, the job's
+warnings say so. Outputs never replace an existing file
 or write into a non-empty folder unless `Writing.overwrite`.
 """
 

@@ -19,7 +19,7 @@ from ..inference.confidence import (EVIDENCE_FRAMES, NO_RETURN_AT, ConfidenceCoe
                                     confidence_frame, iter_count_windows, no_return_by_probability)
 from ..nn.model import Model
 from ..runtime import enable_compilation_cache
-from ..sensor.gates import gate_warnings
+from ..sensor.gates import data_span, gate_depth, gate_warnings
 from ..sensor.timetags import TIME_TAG_FORMATS, TimeTags, gate_of_tags, read_time_tags, time_tag_warnings
 from .memory import HISTOGRAM_CHUNK, check_result_memory
 from .models import finish_model, has_head, plan_model, trained_snr_range
@@ -285,14 +285,17 @@ def no_return_interior(lr) -> np.ndarray:
 def _histogram_job(rec, gate, source, tag_notes, choice, planned, read: Reading, photons: PhotonRules) -> UpscaleJob:
     """The job of photon histograms (time tags already histogrammed): the gate's depth scale, the photon levels
     and the rules they decide, and streams of the network's input and the rules' flags."""
-    sensor = read.sensor_of_gate(gate)
-    scale = sensor.depth
-    warnings = tag_notes + tuple(gate_warnings(gate, scale))
     units = "m" if read.units is None else read.units
     found = check_frames(rec, units, gate, clip_negative=read.clip_negative)  # (0, 0) unless clip_negative
+    counts = clipped_recording(rec) if read.clip_negative else rec
+    # the depth span: the sensor's (--sensor), given (--span), the gate's, or by default the depth the first
+    # frames' returns reach
+    returns = head_returns(counts, gate, HEAD_FRAMES)
+    sensor = read.sensor_of_gate(gate, data_span(returns, gate))
+    scale = sensor.depth  # what network_inputs, the output's metres and the confidence's bins all read
+    warnings = tag_notes + tuple(gate_warnings(gate, scale, returns=returns))
     if found[0]:
         warnings += (_clipped_note(*found),)
-    counts = clipped_recording(rec) if read.clip_negative else rec
     # what the photons say, read once (not after clipping: the clipped counts' ambient is no longer the sensor's)
     levels = None if read.clip_negative else photon_levels(counts, gate.bins)
 
@@ -301,11 +304,13 @@ def _histogram_job(rec, gate, source, tag_notes, choice, planned, read: Reading,
 
     enable_compilation_cache()
     model, model_id, name = finish_model(choice, planned, "histograms",
-                                         lambda: _head(lr_stream(("depth",)), HEAD_FRAMES))
+                                         lambda: _head(lr_stream(("depth",)), HEAD_FRAMES),
+                                         float("nan") if levels is None else levels.signal)
     head_frames = min(HEAD_FRAMES, rec.frames)
     if levels is not None:
         if model.has_no_return_head:
-            warnings += snr_warnings(trained_snr_range(choice, "histograms"), levels.snr, head_frames,
+            named = ModelChoice(model_id) if choice.is_auto else choice  # the model auto picked, by name
+            warnings += snr_warnings(trained_snr_range(named, "histograms"), levels.snr, head_frames,
                                      choice.no_return_logit)
         elif not model.reads_photons:
             warnings += few_photons_warnings(levels.signal, head_frames)
@@ -339,6 +344,15 @@ def _histogram_job(rec, gate, source, tag_notes, choice, planned, read: Reading,
 def _probability_at(no_return_logit: float) -> float:
     """The P(return) below which a pixel is no return at a no-return threshold (a logit of P(no return))."""
     return float(np.exp(-np.logaddexp(0.0, float(no_return_logit))))  # 1 / (1 + e^logit), no overflow
+
+
+def head_returns(counts, gate: Gate, frames: int) -> np.ndarray:
+    """Radial metres of the returns the first `frames` frames of (h, w, bins) counts show (their centre of mass
+    over the gate), flattened; no return (inf) left out. Negative counts (background-subtracted) count as 0."""
+    out = [np.asarray(gate_depth(np.maximum(np.asarray(f, np.float32), 0.0), gate)).ravel()
+           for f in itertools.islice(counts, frames)]
+    depth = np.concatenate(out) if out else np.zeros(0)
+    return depth[np.isfinite(depth)]
 
 
 def _refuse_photon_model(planned) -> None:

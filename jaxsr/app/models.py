@@ -13,7 +13,8 @@ from typing import Callable, NamedTuple
 import numpy as np
 
 from ..config import PhotonRegime
-from ..inference import check_precision, choose_tr, in_form
+from ..inference import check_precision, choose_photon_model, choose_tr, in_form
+from ..inference.adaptive import MODEL_TABLE, load_model_table
 from ..io.checkpoint import load_model, read_metadata, resolve_model_path, stored_architecture
 from ..nn.duf import with_no_return_logit
 from ..nn.model import Model
@@ -26,11 +27,12 @@ __all__ = ["DEFAULT_MODELS", "BUNDLED_USES", "PlannedModel", "ChosenModel", "pla
 # TR4 reads; histograms and time tags also give the photons behind it, which tr4-ambient reads: ahead of TR4 in
 # every simulated regime and by 2 dB on average on two real recordings (docs/results/photon-regimes.md, the default)
 DEFAULT_MODELS = {"depth": "tr4", "histograms": "tr4-ambient"}
-AUTO_TRS = tuple(f"tr{k}" for k in range(5))  # what model="auto" picks among
+AUTO_TRS = tuple(f"tr{k}" for k in range(5))  # what model="auto" picks among for depth frames
+# and for histograms and time tags: every bundled model the model table scores (photon models included)
 # The bundled models and when to use each (`jaxsr models`); the weights are in jaxsr/weights
 BUNDLED_USES = {
     "tr0": "the paper's network from one frame: the fastest",
-    "tr1": "the paper's network from 3 frames (--model auto picks TR0-TR4 by the measured motion)",
+    "tr1": "the paper's network from 3 frames (--model auto picks a model by the measured motion and photons)",
     "tr2": "the paper's network from 5 frames",
     "tr3": "the paper's network from 7 frames",
     "tr4": "the paper's network from 9 frames",
@@ -59,6 +61,9 @@ def plan_model(choice: ModelChoice) -> PlannedModel:
         name = "default" if choice.is_default else "auto"
         for path in picks(name):
             resolve_model_path(path)
+        if choice.is_auto and choice.no_return_logit is not None:
+            raise ValueError("no_return_logit (--no-return-logit) applies to models with a no-return head; --model "
+                             "auto may pick one without (tr0..tr4): name one that has, such as tr4-ambient")
         if choice.no_return_logit is not None and not any(heads(name)):
             raise ValueError(f"no_return_logit (--no-return-logit) applies to models with a no-return head; --model "
                              f"{name} picks {' or '.join(picks(name))}, which have none: name one that has, such as "
@@ -82,14 +87,19 @@ class ChosenModel(NamedTuple):
 
 
 def finish_model(choice: ModelChoice, planned: PlannedModel, kind: str,
-                 lr_head: Callable[[], np.ndarray]) -> ChosenModel:
+                 lr_head: Callable[[], np.ndarray], signal: float = float("nan")) -> ChosenModel:
     """The second step, once the recording is open: the model for input of `kind` ("depth" or "histograms"), with
-    `lr_head()` the recording's first LR frames where "auto" measures the motion; at the choice's no-return
-    threshold, in its form, its precision checked."""
+    `lr_head()` the recording's first LR frames where "auto" measures the motion and `signal` the signal photons per
+    LR pixel and frame of histograms (`jaxsr.app.photon_levels`); at the choice's no-return threshold, in its form,
+    its precision checked. "auto" picks, for depth frames, the TR that `choose_tr` finds best at the motion; for
+    histograms, the bundled model `choose_photon_model` finds best at the motion and signal."""
     model, name = planned
     if choice.is_default:
         name = DEFAULT_MODELS[kind]
         model = load_model(name)
+    elif choice.is_auto and kind == "histograms":
+        picked = choose_photon_model(lr_head(), signal, min_fps=choice.min_fps)
+        model, name = load_model(picked.model), picked.model
     elif choice.is_auto:
         picked = choose_tr(lr_head(), min_fps=choice.min_fps)
         model, name = load_model(f"tr{picked.tr}"), f"tr{picked.tr}"
@@ -105,8 +115,14 @@ def finish_model(choice: ModelChoice, planned: PlannedModel, kind: str,
 def picks(name: str, kind: str | None = None) -> list[str]:
     """The bundled models that "auto" or "default" may pick (for input of `kind`, where given)."""
     if name == "auto":
-        return list(AUTO_TRS)
+        return list(AUTO_TRS) if kind == "depth" else list(dict.fromkeys(AUTO_TRS + auto_photon_models()))
     return [DEFAULT_MODELS[kind]] if kind else sorted(set(DEFAULT_MODELS.values()))
+
+
+def auto_photon_models() -> tuple[str, ...]:
+    """The bundled models "auto" picks among for histograms and time tags: those the model table scores (none
+    where the table is missing: `plan_model` then says so)."""
+    return tuple(load_model_table()["psnr"]) if MODEL_TABLE.is_file() else ()
 
 
 def heads(name: str, kind: str | None = None) -> list[bool]:

@@ -86,7 +86,8 @@ class Reading:
     (default: the histograms' own, then spanning 35 m unless bin_width says; 16 for time tags) bins of bin_width
     from gate_start, metres or strings with a unit ("12.5ns", "2.19m"; a time
     converts as r = c t / 2); default 35 m / 16 from 0 (time tags: the photons' span). span: metres of range from
-    the gate's start mapped onto the network's [0, 1] (default the trained 35 m), or "gate" (the gate's length).
+    the gate's start mapped onto the network's [0, 1] (default None: the depth the first frames' returns reach,
+    `jaxsr.sensor.data_span`), or "gate" (the gate's length).
     time_unit (--time-unit, time tags): seconds per time unit or a string such as "1ps"; variable: the .mat cell
     array to read; drop_outside: ignore photons outside the gate (default: refuse them). clip_negative
     (histograms): clip negative counts at 0, as background-subtracted data need, and say how many. units
@@ -176,8 +177,9 @@ class Reading:
         """The sensor histograms are read with: `sensor`, or the gate's options (the flags' route): `bins`
         (default the histograms' own, `bins` here, else 16) bins of bin_width (default: 35 m over the histograms'
         own bins, 35 / 16 m beside --bins) from gate_start (default 0), the network's 0 at the gate's start and
-        its 1.0 `span` metres on (default the trained 35 m; "gate": the gate's end). Raises ValueError where the
-        histograms' bins differ from the sensor's."""
+        its 1.0 `span` metres on (default the trained 35 m here; the histogram job fits it to the data, see
+        `sensor_of_gate`; "gate": the gate's end). Raises ValueError where the histograms' bins differ from the
+        sensor's."""
         if self.sensor is not None:
             if bins is not None and int(bins) != self.sensor.bins:
                 raise ValueError(f"the histograms have {int(bins)} bins and the sensor (--sensor) {self.sensor.bins}")
@@ -188,11 +190,14 @@ class Reading:
             width = Gate().bin_width if self.bins is not None else TRAINED_RANGE_M / n
         return self.sensor_of_gate(Gate(n, width, 0.0 if self.gate_start is None else self.gate_start))
 
-    def sensor_of_gate(self, gate: Gate) -> Sensor:
-        """The sensor of a gate (given, or found from time tags) with the depth scale `span` says, or `sensor`."""
+    def sensor_of_gate(self, gate: Gate, fitted_span: float | None = None) -> Sensor:
+        """The sensor of a gate (given, or found from time tags) with the depth scale `span` says, or `sensor`.
+        Where `span` is None the scale spans `fitted_span` metres (the histogram job's `jaxsr.sensor.data_span`),
+        or the trained 35 m without it."""
         if self.sensor is not None:
             return self.sensor
-        return Sensor(gate=gate, depth=DepthScale.for_gate(gate, gate.length if self.span == "gate" else self.span))
+        span = gate.length if self.span == "gate" else fitted_span if self.span is None else self.span
+        return Sensor(gate=gate, depth=DepthScale.for_gate(gate, span))
 
     def refuse_for_depth(self) -> None:
         """Raise ValueError for an option that depth frames cannot take (they hold no photons)."""

@@ -5,9 +5,9 @@ Argument parsing and messages only: the flags become the application's four spec
 batch, not for the whole sequence. Everything is checked before the model runs: the options, the output and
 preview paths, the model, and every input frame. Histograms and photon time tags are read over a gate (--bins,
 --bin-width, --gate-start) and put on the network's scale with the gate's start as its 0 m and --span metres
-(default the trained 35 m) as its 1.0; where that takes the models outside what they were trained on, a warning
-line says so. Negative counts (background-subtracted histograms) are refused unless --clip-negative, which clips
-them at 0 and says how many, in how many pixels. Outputs are written atomically and never replace an existing
+(default the depth the recording's returns reach) as its 1.0; where that takes the models outside what they
+were trained on, a warning line says so. Negative counts (background-subtracted histograms) are refused unless
+--clip-negative, which clips them at 0 and says how many, in how many pixels. Outputs are written atomically and never replace an existing
 file or write into a non-empty folder without --force. --video writes an .mp4 / .gif to watch (input | output |
 --reference) and --points PLY point clouds (a folder of one per frame, or one file), both streamed frame by frame
 over the sensor's true range in metres. Prints a JSON summary on stdout (`UpscaleResult.summary()`).
@@ -22,7 +22,7 @@ import sys
 from ..app import (AUTO_AMBIENT_ALPHA, AUTO_AMBIENT_MIN_FRAMES, AUTO_AMBIENT_MIN_SIGNAL_SNR, AUTO_AMBIENT_MIN_SNR,
                    AUTO_KEEP_RETURNS, DEPTH_UNITS, FRAME_FORMATS, KINDS, ModelChoice, PhotonRules, Reading, Writing,
                    upscale)
-from ..config import PRECISIONS, TRAINED_RANGE_M
+from ..config import PRECISIONS
 from ..inference import DEFAULT_FORM, DEFAULT_PRECISION, FORMS
 from ..checks import MEMORY_SHARE
 from ._args import (OldSpelling, add_force, add_output, add_quiet, ambient_alpha, fields_of_view, finite_float,
@@ -44,8 +44,8 @@ def add_parser(subparsers):
                    help="the old spelling of -o/--output (goes in the next release)")
     add_output(p, "output .npy, .npz or folder", old_out=False)
     p.add_argument("-m", "--model", default="default", help="default (the bundled model that fits the input), tr0..tr4 "
-                   "(bundled weights; paper-tr0..paper-tr4 always the paper's), auto (choose TR from the measured "
-                   "motion), or a checkpoint path")
+                   "(bundled weights; paper-tr0..paper-tr4 always the paper's), auto (choose the model from the "
+                   "measured motion and, for histograms and time tags, photons), or a checkpoint path")
     p.add_argument("-k", "--kind", dest="input_kind", choices=list(KINDS), default=None,
                    help="what INPUT holds (default: depth or histograms from the data; time tags must be named)")
     p.add_argument("--input", dest="input_kind", choices=list(KINDS), action=OldSpelling, new="-k/--kind",
@@ -62,9 +62,9 @@ def add_parser(subparsers):
                    help="start of the first bin as a time (5.18us) or a range (776m); default 0, or for time tags "
                    "the first photon")
     g.add_argument("--span", type=span, default=None,
-                   help=f"metres of range from the gate start mapped onto the network's [0, 1] (default "
-                   f"{TRAINED_RANGE_M:g}, the models' training range), or 'gate' (the gate's length: for time tags "
-                   "whose unit is unknown)")
+                   help="metres of range from the gate start mapped onto the network's [0, 1], or 'gate' (the "
+                   "gate's length); default: the depth the first 64 frames' returns reach (their 99th percentile "
+                   "plus 10 %%, at least 16 bins, at most the gate)")
     g.add_argument("--time-unit", type=time_unit, default=None,
                    help="time tags: duration of one time unit, such as 1ps (needed unless an .npz says time_unit_s)")
     g.add_argument("--variable", default=None, help="time tags: the .mat cell array to read (default: the only one)")

@@ -46,6 +46,9 @@ from .adaptive import (
     TRChoice,
     load_study,
     choose_tr,
+    ModelPick,
+    load_model_table,
+    choose_photon_model,
     resolve_model,
 )
 from .pipeline import (
@@ -91,6 +94,9 @@ __all__ = [
     "TRChoice",
     "load_study",
     "choose_tr",
+    "ModelPick",
+    "load_model_table",
+    "choose_photon_model",
     "resolve_model",
     "METRICS",
     "pipeline_metric",

@@ -66,6 +66,7 @@ from .gates import (
     to_network_depth,
     from_network_depth,
     gate_warnings,
+    data_span,
 )
 from .timetags import (
     TIME_TAG_FORMATS,
@@ -128,6 +129,7 @@ __all__ = [
     "to_network_depth",
     "from_network_depth",
     "gate_warnings",
+    "data_span",
     "TIME_TAG_FORMATS",
     "TimeTags",
     "time_tags_from_cells",

@@ -248,8 +248,8 @@ def _time_unit(value, where: str) -> float | None:
 def _unit_s(tags: TimeTags) -> float:
     if tags.time_unit_s is None:
         raise ValueError(f"{tags.source}: the time unit of the tags is unknown; give it (time_unit_s, --time-unit "
-                         "such as 1ps); if nobody knows it, any nominal unit with a depth span of the gate "
-                         "(--span gate) gives the same normalised depth")
+                         "such as 1ps); if nobody knows it, any nominal unit gives the same normalised depth "
+                         "with the default span, fitted to the returns, or --span gate")
     return _time_unit(tags.time_unit_s, f"{tags.source}: time_unit_s")
 
 

@@ -56,7 +56,7 @@ def test_tum_and_sun_units():
 def test_radial_matches_the_library_at_its_own_camera():
     sensor = Sensor()
     h, w = sensor.hr_shape
-    f = (w / 2) / np.tan(np.deg2rad(15.0))  # PHYSICS.md: 30 deg horizontal field of view
+    f = (w / 2) / np.tan(np.deg2rad(15.0))  # docs/sensor-model.md: 30 deg horizontal field of view
     z = np.random.default_rng(0).uniform(1.0, 30.0, (h, w))
     # OpenCV's principal point of the centre (col = u) is (w - 1) / 2; jaxsr's pixel centres are col + 0.5
     ours = hd.to_radial(z, (f, f, (w - 1) / 2, (h - 1) / 2))

@@ -5,7 +5,7 @@ import jax
 import numpy as np
 import pytest
 
-from jaxsr.config import METRES_PER_SECOND, TRAINED_RANGE_M, DepthScale, Gate, Sensor
+from jaxsr.config import METRES_PER_SECOND, DepthScale, Gate, Sensor
 from jaxsr.sensor.gates import from_network_depth, gate_depth, gate_warnings, to_network_depth
 from jaxsr.sensor.peaks import centre_of_mass
 from jaxsr.sensor.forward import irf_bin_weights, normalise_depth
@@ -77,8 +77,13 @@ def test_warnings_say_what_the_models_never_saw():
     long = Gate(16, 10.0, 0.0)  # 160 m
     said = " ".join(gate_warnings(long, DepthScale.for_gate(long)))
     assert "extends past" in said and "no return" in said and "coarser" in said
-    said = " ".join(gate_warnings(long, DepthScale.for_gate(long, span=long.length)))
-    assert "4.57x" in said and str(int(TRAINED_RANGE_M)) in said
+    # a span far from the trained 35 m is no fault in itself: the gate's own length draws no warning
+    assert gate_warnings(long, DepthScale.for_gate(long, span=long.length)) == []
+    fine = Gate(160, 1.0, 0.0)  # 160 m in 1 m bins
+    near = np.linspace(2.0, 20.0, 500)  # but returns within 20 m of a 160 m span look 7x flatter than fitted
+    assert gate_warnings(fine, DepthScale.for_gate(fine, span=fine.length), returns=np.full(9, 150.0)) == []
+    (line,) = gate_warnings(fine, DepthScale.for_gate(fine, span=fine.length), returns=near)
+    assert "fit a depth span of 21.8 m" in line and "7.34x smaller" in line
     with pytest.raises(ValueError, match="lies outside the depth scale"):
         gate_warnings(gate, DepthScale())  # a gate at 1 km read with the network's 0 at 0 m
 
