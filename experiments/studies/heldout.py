@@ -8,6 +8,7 @@ histograms (what `jaxsr.upscale` gives, and the same model with the keep rule on
     # 2. the scores (resumable: each scene-regime is kept in <out>.cache.json as it is done)
     python experiments/studies/heldout.py score --data /work/data/heldout --photons 3 14 --snr 1.3   # the first
     python experiments/studies/heldout.py score --data /work/data/heldout          # every regime of the benchmark
+    python experiments/studies/heldout.py score --data /work/data/heldout --photons 3 14 --snr 1.3 0.3 --grid-only
     python experiments/studies/heldout.py score --data /work/data/heldout --report-only   # the report of the cache
 
 Data (`heldout_data.SETS`: repository, commit, paths, licence, units of each): three static indoor scenes (a NYU
