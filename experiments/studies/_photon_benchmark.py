@@ -56,13 +56,15 @@ def calibration(depth, intensity, snr, mean_signal, sensor):
     return calibrate(depth, intensity, sensor, snr=snr, mean_signal=mean_signal)
 
 
-@functools.partial(jax.jit, static_argnames=("sensor", "tests"))
-def _draw(key, depth, intensity, alpha, beta, sensor, tests=()):
-    """Network inputs, normalised ground truth and, for each (kind, alpha) of `tests`, its `no_return_decision`
-    (the frames drawn are consecutive around each scored frame, so a scored frame's test sums its own)."""
+@functools.partial(jax.jit, static_argnames=("sensor", "tests", "keep_counts"))
+def _draw(key, depth, intensity, alpha, beta, sensor, tests=(), keep_counts=False):
+    """Network inputs, normalised ground truth, for each (kind, alpha) of `tests` its `no_return_decision` (the
+    frames drawn are consecutive around each scored frame, so a scored frame's test sums its own) and, with
+    keep_counts, the photon counts (T, h, w, K) themselves (else an empty (T, 0))."""
     counts = sample_poisson(key, calibrated_rates(depth, intensity, alpha, beta, sensor), method="fast")
     flags = tuple(no_return_decision(counts, sensor, test) for test in tests)
-    return network_inputs(counts, sensor, MODEL_INPUTS), normalise_depth(depth, sensor), flags
+    kept = counts.astype(jnp.float32) if keep_counts else jnp.zeros((len(depth), 0), jnp.float32)
+    return network_inputs(counts, sensor, MODEL_INPUTS), normalise_depth(depth, sensor), flags, kept
 
 
 def needed_frames(scored, total: int, radius: int) -> np.ndarray:
@@ -72,12 +74,14 @@ def needed_frames(scored, total: int, radius: int) -> np.ndarray:
 
 
 def benchmark_clips(seqs: dict, photons: float, snr, *, scored, radius: int, key, sensor=Sensor(),
-                 tests=(), static: bool = False) -> dict:
+                 tests=(), static: bool = False, counts: bool = False) -> dict:
     """The sequences at one regime: {name: Clip} of the frames the methods need (`needed_frames`), with `scored`
     as positions in them. snr None: each sequence's own. The laser and ambient are calibrated over the whole
     sequence, as `simulate_histograms` would, and photons are drawn only for those frames. static: each of those
     frames shows the scored frame nearest to it (`nearest_scored`; the calibration still of the whole moving
-    sequence, so that a scored frame gets the same photons as without). Returns (clips, ambient): ambient {name:
+    sequence, so that a scored frame gets the same photons as without). counts: keep the photon counts in
+    `Clip.counts` (T, h, w, K), for methods that read histograms (else (T, 0): the methods read the centre of
+    mass and the photons' channels). Returns (clips, ambient): ambient {name:
     {(kind, alpha): (F, h, w)}}, the `no_return_decision` of the scored frames for each test of `tests`."""
     clips, ambient = {}, {}
     for i, (name, seq) in enumerate(seqs.items()):
@@ -87,11 +91,10 @@ def benchmark_clips(seqs: dict, photons: float, snr, *, scored, radius: int, key
         # the ambient-only test sums 9 frames: each scored frame needs its +-4 (else windows far apart would meet)
         keep = needed_frames(scored, len(seq.depth), max(radius, AMBIENT_RADIUS) if tests else radius)
         shown = nearest_scored(len(seq.depth), scored)[keep] if static else keep
-        x, gt, flags = _draw(jax.random.fold_in(key, i), jnp.asarray(seq.depth[shown]),
-                             jnp.asarray(seq.intensity[shown]), alpha, beta, sensor, tuple(tests))
+        x, gt, flags, kept = _draw(jax.random.fold_in(key, i), jnp.asarray(seq.depth[shown]),
+                                   jnp.asarray(seq.intensity[shown]), alpha, beta, sensor, tuple(tests), counts)
         x = np.asarray(x)
-        counts = np.zeros((len(keep), 0), np.float32)  # not kept: the methods read the centre of mass (+ photons)
-        clips[name] = Clip(name, x[..., 0], counts, np.asarray(gt), float(seq.fps), s,
+        clips[name] = Clip(name, x[..., 0], np.asarray(kept), np.asarray(gt), float(seq.fps), s,
                            np.asarray(seq.intensity[shown], np.float32), np.searchsorted(keep, scored), x[..., 1:],
                            channels=MODEL_INPUTS[1:])
         ambient[name] = {a: np.asarray(f)[clips[name].scored] for a, f in zip(tests, flags)}

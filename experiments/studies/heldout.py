@@ -1,6 +1,6 @@
 """The held-out benchmark: the photon benchmark's regimes on public third-party depth that jaxsr's scene generator did
 not make and training never sees, beside the test scenes, for bicubic, the paper's TR4 and the default for
-histograms.
+histograms (what `jaxsr.upscale` gives, and the same model with the keep rule on its head's logit).
 
     # 1. the data, from fetched repositories (bare git mirrors or checkouts), into a folder outside the repository
     python experiments/studies/heldout.py prepare --data /work/data/heldout \\
@@ -8,6 +8,8 @@ histograms.
     # 2. the scores (resumable: each scene-regime is kept in <out>.cache.json as it is done)
     python experiments/studies/heldout.py score --data /work/data/heldout --photons 3 14 --snr 1.3   # the issue's first
     python experiments/studies/heldout.py score --data /work/data/heldout          # every regime of the benchmark
+    python experiments/studies/heldout.py score --data /work/data/heldout --photons 3 14 --snr 1.3 0.3 --grid-only
+    python experiments/studies/heldout.py score --data /work/data/heldout --report-only   # the report of the cache
 
 Data (`heldout_data.SETS`: repository, commit, paths, licence, units of each): three static indoor scenes (a NYU
 Depth V2, a TUM RGB-D and a SUN RGB-D frame, each repeated over 30 frames) and a rendered indoor dToF video with
@@ -23,12 +25,14 @@ drawn for the frames the methods read). `--frames` frames scored per scene, spre
 Methods, on the same photons:
 - bicubic of the centre-of-mass depth;
 - the paper's TR4 (bundled `paper-tr4`) reading the centre of mass;
-- "default": the model `jaxsr.upscale` chooses for histograms (`jaxsr.app.DEFAULT_MODELS["histograms"]`) with,
-  for a model with a no-return head, the keep rule on the head's logit: its no return kept only where the pixel's
-  own photons over 9 frames pass for ambient light alone at `jaxsr.app.AUTO_KEEP_RETURNS`
-  (`_photon_benchmark.returns_kept`; `jaxsr upscale --keep-returns 0.001`). That was the default decision until
-  the confidence's P(return) < 0.5 replaced the logit (CHANGELOG, "A confidence people can threshold"); this script
-  does not yet score that decision.
+- "jaxsr.upscale default": what a user gets, `jaxsr.upscale(counts, None, read=Reading(units="normalised"))` with
+  every other option the library's default (the model `DEFAULT_MODELS["histograms"]`, the gate read from the
+  histograms: their 16 bins over the sensor's 35 m, the confidence's no-return decision: no return where P(return)
+  < 0.5 and the pixel's own photons over 9 frames pass for ambient light alone), on the photon counts of each scored
+  frame's +-4 frames;
+- "tr4-ambient + keep 0.001": that model with the keep rule on its head's logit (`_photon_benchmark.returns_kept`,
+  `jaxsr upscale --keep-returns 0.001`), the default decision before the confidence's P(return); cached as
+  "default" before the other was scored (`OLD_NAMES`). Where both output depth the two are the same numbers.
 
 Scores per scene and regime: PSNR over all pixels (normalised depth clipped to [0, 1], no return = 1.0, as the
 photon benchmark scores it); true returns dropped: the share of HR pixels with a return whose 8 neighbours all
@@ -51,9 +55,10 @@ import numpy as np
 from scipy import ndimage
 
 import jaxsr
-from jaxsr.app import AUTO_KEEP_RETURNS, DEFAULT_MODELS
+from jaxsr.app import AUTO_KEEP_RETURNS, DEFAULT_MODELS, Reading
 from jaxsr.config import DEFAULT_MEAN_SIGNAL, Sensor
 from jaxsr.inference import lr_blocks
+from jaxsr.nn import Model
 from jaxsr.sensor import calibrated_rates, normalise_depth
 
 import heldout_data  # beside this script
@@ -64,8 +69,15 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: th
 from harness.reports import header, markdown_table, write_atomic  # noqa: E402
 from harness.scoring import SCENE_LABELS, SEQUENCE_FRAMES, TEST_SCENES, frame_scores, scored_frames, scored_output  # noqa: E402
 
-BICUBIC, PAPER_TR4, DEFAULT = "bicubic", "paper's TR4", "default"
-METHODS = (BICUBIC, PAPER_TR4, DEFAULT)
+BICUBIC, PAPER_TR4 = "bicubic", "paper's TR4"
+# the default model for histograms with the keep rule on its head's logit: the default decision until the
+# confidence's P(return) replaced it; cached as "default" before there was another (`OLD_NAMES`)
+KEEP = f"{DEFAULT_MODELS['histograms']} + keep {AUTO_KEEP_RETURNS:g}"
+UPSCALE = "jaxsr.upscale default"  # what a user gets: `jaxsr.upscale(counts, None)` with the library's defaults
+METHODS = (BICUBIC, PAPER_TR4, KEEP, UPSCALE)
+DEFAULTS = (KEEP, UPSCALE)  # set against the paper's TR4 in the report
+OWN_KEY = (UPSCALE,)  # cached under a key of their own: the entries of the methods before them stay valid
+OLD_NAMES = {"default": KEEP}
 FIRST = ((3.0, 14.0), (1.3, 0.3, 0.1))  # the regimes the issue measured the gap in, run first
 
 
@@ -119,18 +131,38 @@ def dim_returns(seq, photons: float = 3.0, snr: float = 1.3, *, every: int = 10)
             "median_depth": float(np.median(gt[ret]))}
 
 
-def method_outputs(models: dict, clip, flags) -> dict:
-    """{method: (sr, gt)} on the clip's scored frames: bicubic, the paper's TR4 and the default (its keep rule's
-    decision `flags`, (F, h, w) of the scored frames)."""
-    out = {BICUBIC: bicubic_output(clip, Sensor().scale),
-           PAPER_TR4: scored_output(models[PAPER_TR4], clip)}
-    model = models[DEFAULT]
-    if model.has_no_return_head:
-        sr = returns_kept(model, clip.network_input(model.config.inputs), clip.scored, flags)
-        out[DEFAULT] = (sr, clip.gt[clip.scored])
-    else:
-        out[DEFAULT] = scored_output(model, clip)
-    return out
+def kept_output(model: Model, clip, flags) -> tuple[np.ndarray, np.ndarray]:
+    """(sr, gt) of the scored frames: `model` with, for one with a no-return head, the keep rule's decision
+    `flags` ((F, h, w) of the scored frames) on its head's logit."""
+    if not model.has_no_return_head:
+        return scored_output(model, clip)
+    return returns_kept(model, clip.network_input(model.config.inputs), clip.scored, flags), clip.gt[clip.scored]
+
+
+def upscale_output(model, clip) -> tuple[np.ndarray, np.ndarray]:
+    """(sr, gt) of the scored frames: `jaxsr.upscale` of the clip's photon counts (T, h, w, K) with the library's
+    defaults (`model` "default" as a user gives none; the gate read from the histograms: their K bins over the
+    sensor's 35 m), in normalised units. The clip's frames are each scored frame's window (+-4 frames, what the
+    network, the no-return tests and the confidence read), one after another."""
+    if clip.counts.ndim != 4 or clip.counts.shape[-1] == 0:
+        raise ValueError(f"{UPSCALE}: clip {clip.name!r} was made without its photon counts (benchmark_clips("
+                         "counts=True))")
+    result = jaxsr.upscale(clip.counts, None, model=model, read=Reading(units="normalised"))
+    return np.asarray(result.depth)[clip.scored], clip.gt[clip.scored]
+
+
+def method_outputs(models: dict, clip, flags, methods=METHODS) -> dict:
+    """{method: (sr, gt)} on the clip's scored frames for each of `methods`: bicubic, the paper's TR4, the
+    default model with the keep rule (its decision `flags`, (F, h, w) of the scored frames) and `jaxsr.upscale`'s
+    default (the clip made with its counts)."""
+    outputs = {BICUBIC: lambda: bicubic_output(clip, Sensor().scale),
+               PAPER_TR4: lambda: scored_output(models[PAPER_TR4], clip),
+               KEEP: lambda: kept_output(models[KEEP], clip, flags),
+               UPSCALE: lambda: upscale_output(models[UPSCALE], clip)}
+    unknown = [m for m in methods if m not in outputs]
+    if unknown:
+        raise ValueError(f"method_outputs: unknown methods {unknown}; expected some of {list(outputs)}")
+    return {m: outputs[m]() for m in methods}
 
 
 def regime_key(seed: int, photons: float, snr):
@@ -140,19 +172,22 @@ def regime_key(seed: int, photons: float, snr):
     return jax.random.fold_in(jax.random.key(seed), regime)
 
 
-def score_scene(models: dict, name: str, seq, photons: float, snr, *, frames: int, seed: int = 0) -> dict:
+def score_scene(models: dict, name: str, seq, photons: float, snr, *, frames: int, seed: int = 0,
+                methods=METHODS) -> dict:
     """One scene at one regime: {method: {"psnr": [per frame], "dropped_pct", "as_depth_pct"}, "returns",
-    "no_return"} (pixel counts over the scored frames)."""
+    "no_return"} (pixel counts over the scored frames) for each of `methods`. Every method reads the same photons
+    whichever are scored: the frames drawn are those of the largest radius of the networks of `models` and of the
+    keep rule's 9 frames."""
     total = len(seq.depth)
     scored = scored_frames(frames, total)
-    radius = max(m.config.tr for m in models.values())
+    radius = max(m.config.tr for m in models.values() if isinstance(m, Model))
     key = regime_key(seed, photons, snr)
     keep = ("keep", float(AUTO_KEEP_RETURNS))
     clips, flags = benchmark_clips({name: seq}, photons, snr, scored=scored, radius=radius, key=key,
-                                   tests=(keep,))
+                                   tests=(keep,), counts=UPSCALE in methods)
     clip = clips[name]
     result = {}
-    for method, (sr, gt) in method_outputs(models, clip, flags[name][keep]).items():
+    for method, (sr, gt) in method_outputs(models, clip, flags[name][keep], methods).items():
         psnr, _ = frame_scores(sr, gt)
         dropped, shown, n_ret, n_sky = shares(sr, gt)
         result[method] = {"psnr": np.round(np.asarray(psnr, float), 4).tolist(), "dropped_pct": dropped,
@@ -162,20 +197,24 @@ def score_scene(models: dict, name: str, seq, photons: float, snr, *, frames: in
 
 
 def load_methods() -> tuple[dict, dict]:
-    """({method: Model}, {method: what it is}) of the networks scored."""
+    """({method: Model, or what `jaxsr.upscale` takes as its model}, {method: what it is}) of the methods scored."""
     name = DEFAULT_MODELS["histograms"]
-    models = {PAPER_TR4: jaxsr.load_model("paper-tr4"), DEFAULT: jaxsr.load_model(name)}
+    models = {PAPER_TR4: jaxsr.load_model("paper-tr4"), KEEP: jaxsr.load_model(name), UPSCALE: "default"}
     rule = (f", its head's no return kept only where the pixel's own photons over 9 frames pass for ambient light "
-            f"alone (alpha {AUTO_KEEP_RETURNS:g}: --keep-returns {AUTO_KEEP_RETURNS:g})"
-            if models[DEFAULT].has_no_return_head else "")
+            f"alone (alpha {AUTO_KEEP_RETURNS:g}: --keep-returns {AUTO_KEEP_RETURNS:g}), the default decision "
+            "before the confidence's P(return)" if models[KEEP].has_no_return_head else "")
     return models, {BICUBIC: "bicubic of the centre of mass", PAPER_TR4: "bundled paper-tr4",
-                    DEFAULT: f"bundled {name}{rule}"}
+                    KEEP: f"bundled {name}{rule}",
+                    UPSCALE: "`jaxsr.upscale(counts, None, read=Reading(units=\"normalised\"))` with every other "
+                             "option the library's default (what a user gets: the model, the gate read from the "
+                             "histograms, the no-return decision), on the photon counts of each scored frame's "
+                             "+-4 frames"}
 
 
-def regimes(photons, snrs, paper: bool = True) -> list:
-    """[(photons, snr)]: the issue's regimes (`FIRST`: 3 and 14 photons at SNR 1.3, 0.3 and 0.1) first, then the
-    rest of the grid `photons` x `snrs`, then the paper's (snr None)."""
-    first = [(p, s) for p in FIRST[0] for s in FIRST[1]]
+def regimes(photons, snrs, paper: bool = True, first: bool = True) -> list:
+    """[(photons, snr)]: the issue's regimes (`FIRST`: 3 and 14 photons at SNR 1.3, 0.3 and 0.1) first (unless
+    not `first`), then the rest of the grid `photons` x `snrs`, then the paper's (snr None)."""
+    first = [(p, s) for p in FIRST[0] for s in FIRST[1]] if first else []
     grid = [(float(p), float(s)) for p in photons for s in snrs]
     return first + [r for r in grid if r not in first] + ([(DEFAULT_MEAN_SIGNAL, None)] if paper else [])
 
@@ -184,22 +223,49 @@ def cache_key(group: str, name: str, photons: float, snr, frames: int) -> str:
     return f"{group}|{name}|{photons:g}|{'own' if snr is None else f'{snr:g}'}|{frames}"
 
 
+def slot(key: str, method: str) -> str:
+    """Where a method's scores of a scene-regime are cached: the scene-regime's key, or for a method of
+    `OWN_KEY` a key of its own beside it."""
+    return f"{key}|{method}" if method in OWN_KEY else key
+
+
+def load_cache(path: Path) -> dict:
+    """The cache file's entries ({} where there is none), methods cached under an earlier name (`OLD_NAMES`)
+    under their name now."""
+    cache = json.loads(path.read_text()) if path.exists() else {}
+    return {k: {OLD_NAMES.get(m, m): v for m, v in e.items()} for k, e in cache.items()}
+
+
+def cached(cache: dict, key: str) -> dict:
+    """A scene-regime's scores held in the cache, every method's slot merged: {method: ..., "returns",
+    "no_return"}."""
+    out = dict(cache.get(key, {}))
+    for m in OWN_KEY:
+        out.update(cache.get(slot(key, m), {}))
+    return out
+
+
 def run(models: dict, groups: dict, grid, *, frames: dict, cache_path: Path, seed: int = 0, log=print) -> dict:
     """Score every scene of `groups` ({group: {name: sequence}}) at every regime of `grid`, reusing and extending
-    the cache file (one entry per scene-regime, written as each is done)."""
-    cache = json.loads(cache_path.read_text()) if cache_path.exists() else {}
+    the cache file (each method's scores of a scene-regime in its `slot`, written as each scene-regime is done):
+    only the methods a scene-regime's entries lack are scored."""
+    cache = load_cache(cache_path)
     for p, s in grid:
         for group, seqs in groups.items():
             for name, seq in seqs.items():
                 key = cache_key(group, name, p, s, frames[group])
-                if key in cache:
+                missing = [m for m in METHODS if m not in cached(cache, key)]
+                if not missing:
                     continue
                 started = time.time()
-                cache[key] = score_scene(models, name, seq, p, s, frames=frames[group], seed=seed)
+                result = score_scene(models, name, seq, p, s, frames=frames[group], seed=seed, methods=missing)
+                for m in missing:
+                    cache[slot(key, m)] = {**cache.get(slot(key, m), {}), m: result[m], "returns": result["returns"],
+                                           "no_return": result["no_return"]}
                 write_atomic(cache_path, json.dumps(cache) + "\n")
                 log(f"{group} {name}, {regime_label(p, s)}: " + ", ".join(
-                    f"{m} {np.mean(cache[key][m]['psnr']):.2f} dB" for m in METHODS)
-                    + f" ({time.time() - started:.0f} s)")
+                    f"{m} {np.mean(cached(cache, key)[m]['psnr']):.2f} dB" for m in METHODS)
+                    + f" ({', '.join(missing)} in {time.time() - started:.0f} s)")
     return cache
 
 
@@ -207,16 +273,15 @@ def run(models: dict, groups: dict, grid, *, frames: dict, cache_path: Path, see
 
 def summary(cache: dict, groups: dict, grid, frames: dict) -> list:
     """Per regime and group: the mean over scenes of each method's mean PSNR, the pooled dropped and shown
-    shares (weighted by pixel counts), per-scene PSNRs. [{"photons", "snr", "groups": {group: {...}}}]."""
+    shares (weighted by pixel counts), per-scene PSNRs, for each method that has scored every scene of the group
+    (a group none has scored is left out). [{"photons", "snr", "groups": {group: {method: {...}}}}]."""
     rows = []
     for p, s in grid:
         row = {"photons": p, "snr": "own" if s is None else s, "groups": {}}
         for group, seqs in groups.items():
-            entries = {n: cache.get(cache_key(group, n, p, s, frames[group])) for n in seqs}
-            if any(e is None for e in entries.values()):
-                continue
+            entries = {n: cached(cache, cache_key(group, n, p, s, frames[group])) for n in seqs}
             g = {}
-            for m in METHODS:
+            for m in (m for m in METHODS if all(m in e for e in entries.values())):
                 ret = sum(e["returns"] for e in entries.values())
                 sky = sum(e["no_return"] for e in entries.values())
                 weighted = lambda k, n: (sum(np.nan_to_num(e[m][k]) * e[n] for e in entries.values()) / total
@@ -228,7 +293,8 @@ def summary(cache: dict, groups: dict, grid, frames: dict) -> list:
                         "scenes": {n: float(np.mean(e[m]["psnr"])) for n, e in entries.items()},
                         "dropped_pct": weighted("dropped_pct", "returns") if ret else float("nan"),
                         "as_depth_pct": weighted("as_depth_pct", "no_return") if sky else float("nan")}
-            row["groups"][group] = g
+            if g:
+                row["groups"][group] = g
         rows.append(row)
     return rows
 
@@ -238,10 +304,11 @@ def _f(x, fmt="{:.2f}"):
 
 
 def tables(rows, groups: dict) -> str:
-    """The report's tables: PSNR beside each other, the default against the paper's TR4 on each, the no-return
-    shares; then the held-out scenes one by one."""
+    """The report's tables: PSNR beside each other, each of the defaults (`DEFAULTS`) against the paper's TR4 on
+    each group, the no-return shares; then the held-out scenes one by one."""
     names = list(groups)
-    head = ["regime"] + [f"{g}: {m}" for g in names for m in METHODS] + [f"{g}: default - TR4" for g in names]
+    head = (["regime"] + [f"{g}: {m}" for g in names for m in METHODS]
+            + [f"{g}: {m} - TR4" for g in names for m in DEFAULTS])
     body = []
     for r in rows:
         if not r["groups"]:
@@ -251,11 +318,13 @@ def tables(rows, groups: dict) -> str:
             cells += [_f(r["groups"].get(g, {}).get(m, {}).get("psnr")) for m in METHODS]
         for g in names:
             x = r["groups"].get(g)
-            cells.append(_f(x[DEFAULT]["psnr"] - x[PAPER_TR4]["psnr"], "{:+.2f}") if x else "-")
+            cells += [_f(x[m]["psnr"] - x[PAPER_TR4]["psnr"], "{:+.2f}") if x and {m, PAPER_TR4} <= set(x) else "-"
+                      for m in DEFAULTS]
         body.append(cells)
     text = "### Mean PSNR (dB) over the scenes of each group\n\n" + markdown_table(head, body) + "\n\n"
-    head = ["regime"] + [f"{g}: {m} dropped %" for g in names for m in (PAPER_TR4, DEFAULT)] + [
-        f"{g}: {m} no return as depth %" for g in names for m in (PAPER_TR4, DEFAULT)]
+    compared = (PAPER_TR4, *DEFAULTS)
+    head = ["regime"] + [f"{g}: {m} dropped %" for g in names for m in compared] + [
+        f"{g}: {m} no return as depth %" for g in names for m in compared]
     body = []
     for r in rows:
         if not r["groups"]:
@@ -263,7 +332,7 @@ def tables(rows, groups: dict) -> str:
         cells = [regime_label(r["photons"], None if r["snr"] == "own" else r["snr"])]
         for k in ("dropped_pct", "as_depth_pct"):
             for g in names:
-                cells += [_f(r["groups"].get(g, {}).get(m, {}).get(k), "{:.3f}") for m in (PAPER_TR4, DEFAULT)]
+                cells += [_f(r["groups"].get(g, {}).get(m, {}).get(k), "{:.3f}") for m in compared]
         body.append(cells)
     text += ("### True returns dropped (away from the edges) and no return shown as depth\n\n"
              "Pooled over each group's scored pixels; `-` where a group has no pixel of the kind (the held-out "
@@ -272,18 +341,18 @@ def tables(rows, groups: dict) -> str:
     for r in rows:
         for g in names:
             x = r["groups"].get(g)
-            if not x or x[DEFAULT]["dropped_error_pct"] is None or x[PAPER_TR4]["dropped_error_pct"] is None:
+            if not x or any(x.get(m, {}).get("dropped_error_pct") is None for m in compared):
                 continue
             for n in groups[g]:
                 body.append([regime_label(r["photons"], None if r["snr"] == "own" else r["snr"]), g, n]
-                            + [_f(x[m]["dropped_error_pct"][n], "{:.1f}") for m in (PAPER_TR4, DEFAULT)]
-                            + [_f(x[m]["scenes"][n]) for m in (PAPER_TR4, DEFAULT)])
+                            + [_f(x[m]["dropped_error_pct"][n], "{:.1f}") for m in compared]
+                            + [_f(x[m]["scenes"][n]) for m in compared])
     if body:
         text += ("### How much of the error is returns output as no return\n\n% of each method's squared error "
                  "(over all pixels, as PSNR counts it) on true returns it outputs as no return, anywhere in the "
                  "frame (`dropped_error`); the regimes scored with it.\n\n"
-                 + markdown_table(["regime", "group", "scene", f"{PAPER_TR4} %", f"{DEFAULT} %",
-                                   f"{PAPER_TR4} PSNR", f"{DEFAULT} PSNR"], body) + "\n\n")
+                 + markdown_table(["regime", "group", "scene"] + [f"{m} %" for m in compared]
+                                  + [f"{m} PSNR" for m in compared], body) + "\n\n")
     for g in names:
         scenes = list(groups[g])
         head = ["regime"] + [f"{n}: {m}" for n in scenes for m in METHODS]
@@ -293,7 +362,7 @@ def tables(rows, groups: dict) -> str:
             if not x:
                 continue
             body.append([regime_label(r["photons"], None if r["snr"] == "own" else r["snr"])]
-                        + [_f(x[m]["scenes"][n]) for n in scenes for m in METHODS])
+                        + [_f(x[m]["scenes"][n]) if m in x else "-" for n in scenes for m in METHODS])
         text += f"### {g}: PSNR (dB) per scene\n\n" + markdown_table(head, body) + "\n\n"
     return text
 
@@ -317,7 +386,7 @@ def why_table(groups: dict) -> str:
                               "cost of a dropped return", "the same, dim pixels"], body) + "\n\n")
 
 
-def write_report(out: Path, rows, groups, frames, info, manifest, args, started, pending=()) -> None:
+def write_report(out: Path, rows, groups, frames, info, manifest, args, started, pending=(), running=True) -> None:
     """experiments/results/heldout.md (out) and its .json: the sets, the methods and the tables of `rows`."""
     heldout = groups["held-out"]
     sets = "\n".join(f"- `{n}` ({m['kind']}, {m['frames']} frames, {m['range_m'][0]}-{m['range_m'][1]} m): "
@@ -325,8 +394,10 @@ def write_report(out: Path, rows, groups, frames, info, manifest, args, started,
                      f"units: {m['units']}" for n, m in manifest.items() if n in heldout)
     test_text = (f"the test scenes ({', '.join(SCENE_LABELS[n] for n in TEST_SCENES)}), {args.test_frames} frames "
                  f"each of {SEQUENCE_FRAMES}" if args.test_frames else "no test scenes (`--test-frames 0`)")
-    waiting = (f"**Still running**: {len(pending)} regimes to go ({', '.join(regime_label(p, s) for p, s in pending)})."
-               "\n\n" if pending else "")
+    listed = ", ".join(regime_label(p, s) for p, s in pending)
+    waiting = ("" if not pending else f"**Still running**: {len(pending)} regimes to go ({listed}).\n\n" if running
+               else f"**Not scored by every method** ({len(pending)} regimes: {listed}): `-` where a method has no "
+                    "score.\n\n")
     text = (header("Held-out benchmark: the photon regimes on third-party depth", started) + waiting
             + f"Held-out scenes ({args.frames} frames scored each of their 30), from `{args.data}`:\n\n{sets}\n\n"
             f"Beside them {test_text}. Noise seed {args.seed}; every method of a scene-regime reads the same "
@@ -365,6 +436,8 @@ def main(argv=None) -> None:
     score.add_argument("--snr", type=float, nargs="+", default=list(SNRS),
                        help="frame SNRs of the grid (default the benchmark's 0.1 1.3 5; the issue's 3 and 14 photons "
                             "at 1.3, 0.3 and 0.1 always run first)")
+    score.add_argument("--grid-only", action="store_true",
+                       help="only --photons x --snr and the paper's regime, not the issue's first regimes as well")
     score.add_argument("--seed", type=int, default=0)
     score.add_argument("--report-only", action="store_true",
                        help="write the report from the scores done so far (<out>.cache.json), scoring nothing")
@@ -390,17 +463,17 @@ def main(argv=None) -> None:
         groups["test scenes"] = jaxsr.scenes.test_sequences(n_frames=SEQUENCE_FRAMES, names=TEST_SCENES)
         frames["test scenes"] = args.test_frames
     models, info = load_methods()
-    grid = regimes(args.photons, args.snr)
+    grid = regimes(args.photons, args.snr, first=not args.grid_only)
     out = Path(args.out)
     manifest_path = Path(args.data) / "manifest.json"
     manifest = json.loads(manifest_path.read_text()) if manifest_path.exists() else {}
     cache_path = out.with_suffix(".cache.json")
     if args.report_only:
-        cache = json.loads(cache_path.read_text()) if cache_path.exists() else {}
-        done = [r for r in grid if all(cache_key(g, n, *r, frames[g]) in cache for g, seqs in groups.items()
-                                       for n in seqs)]
-        write_report(out, summary(cache, groups, done, frames), groups, frames, info, manifest, args, started,
-                     pending=[r for r in grid if r not in done])
+        cache = load_cache(cache_path)
+        done = [r for r in grid if all(set(METHODS) <= set(cached(cache, cache_key(g, n, *r, frames[g])))
+                                       for g, seqs in groups.items() for n in seqs)]
+        write_report(out, summary(cache, groups, grid, frames), groups, frames, info, manifest, args, started,
+                     pending=[r for r in grid if r not in done], running=False)
         print(f"wrote {out} and {out.with_suffix('.json')} ({len(done)} of {len(grid)} regimes)")
         return
     for done in range(1, len(grid) + 1):  # the report rewritten as each regime is done: a long run shows progress

@@ -165,7 +165,7 @@ def test_summary_pools_the_shares_by_pixel_counts():
     cache = {heldout.cache_key("g", "a", 3.0, 1.3, 2): entry(20.0, 1.0, 100),
              heldout.cache_key("g", "b", 3.0, 1.3, 2): entry(30.0, 4.0, 300)}
     rows = heldout.summary(cache, {"g": {"a": None, "b": None}}, grid, {"g": 2})
-    g = rows[0]["groups"]["g"][heldout.DEFAULT]
+    g = rows[0]["groups"]["g"][heldout.UPSCALE]
     assert g["psnr"] == pytest.approx(25.0) and g["dropped_pct"] == pytest.approx((1.0 * 100 + 4.0 * 300) / 400)
     assert np.isnan(g["as_depth_pct"])
     text = heldout.tables(rows, {"g": {"a": None, "b": None}})
@@ -176,21 +176,83 @@ def tiny(cfg):
     return Model(*init_model(jax.random.key(0), cfg), cfg)
 
 
-@pytest.mark.slow  # compiles two small networks and the photon draw: about 20 s on 2 cores, more when busy
-def test_score_scene_on_a_synthetic_sequence():
+def synthetic_sequence(frames=6):
     h, w = Sensor().hr_shape
-    depth = np.broadcast_to(np.linspace(30.0, 5.0, h, dtype=np.float32)[:, None], (6, h, w)).copy()
+    depth = np.broadcast_to(np.linspace(30.0, 5.0, h, dtype=np.float32)[:, None], (frames, h, w)).copy()
     depth[:, :10] = np.inf  # a band of sky
-    seq = SimpleNamespace(depth=depth, intensity=np.full_like(depth, 0.5), fps=30.0, snr=1.3)
+    return SimpleNamespace(depth=depth, intensity=np.full_like(depth, 0.5), fps=30.0, snr=1.3)
+
+
+def tiny_models():
     small = dict(base=8, growth=4, head=16, filter_hidden=16, same_blocks=1)
-    models = {heldout.PAPER_TR4: tiny(ModelConfig(tr=0, **small)),
-              heldout.DEFAULT: tiny(ModelConfig(tr=0, inputs=MODEL_INPUTS, no_return_head=True, **small))}
-    out = heldout.score_scene(models, "synthetic", seq, 3.0, 1.3, frames=2)
+    head = tiny(ModelConfig(tr=0, inputs=MODEL_INPUTS, no_return_head=True, **small))
+    # jaxsr.upscale runs the same network as the keep rule's: what differs is the decision alone
+    return {heldout.PAPER_TR4: tiny(ModelConfig(tr=0, **small)), heldout.KEEP: head, heldout.UPSCALE: head}
+
+
+@pytest.mark.slow  # compiles two small networks, the photon draw and jaxsr.upscale: about 30 s on 2 cores
+def test_score_scene_on_a_synthetic_sequence():
+    seq = synthetic_sequence()
+    w = seq.depth.shape[-1]
+    out = heldout.score_scene(tiny_models(), "synthetic", seq, 3.0, 1.3, frames=2)
     assert set(out) == set(heldout.METHODS) | {"returns", "no_return"}
     assert out["no_return"] == 2 * 10 * w  # the sky band over the two scored frames
     for m in heldout.METHODS:
         assert len(out[m]["psnr"]) == 2 and np.isfinite(out[m]["psnr"]).all()
         assert 0.0 <= out[m]["dropped_pct"] <= 100.0 and 0.0 <= out[m]["as_depth_pct"] <= 100.0
+    # one method alone reads the same photons as with the others
+    alone = heldout.score_scene(tiny_models(), "synthetic", seq, 3.0, 1.3, frames=2, methods=(heldout.UPSCALE,))
+    assert set(alone) == {heldout.UPSCALE, "returns", "no_return"}
+    assert alone[heldout.UPSCALE] == out[heldout.UPSCALE]
+
+
+@pytest.mark.slow  # compiles a small network, the photon draw and jaxsr.upscale: about 20 s on 2 cores
+def test_upscale_default_reads_the_benchmark_sensor():
+    # jaxsr.upscale of the simulated counts puts depth on the benchmark's scale (16 bins over 0-35 m, span 35 m):
+    # where it and the keep rule both output depth from the same network, the two are the same numbers
+    seq = synthetic_sequence(9)
+    models = tiny_models()
+    keep = ("keep", float(heldout.AUTO_KEEP_RETURNS))
+    clips, flags = heldout.benchmark_clips({"s": seq}, 14.0, 1.3, scored=np.array([4]), radius=0,
+                                           key=jax.random.key(1), tests=(keep,), counts=True)
+    clip = clips["s"]
+    assert clip.counts.shape == (9, *Sensor().lr_shape, Sensor().bins)
+    out = heldout.method_outputs(models, clip, flags["s"][keep], (heldout.KEEP, heldout.UPSCALE))
+    (kept, gt), (user, gt2) = out[heldout.KEEP], out[heldout.UPSCALE]
+    np.testing.assert_array_equal(gt, gt2)
+    both = (kept < heldout.NO_RETURN_AT) & (user < heldout.NO_RETURN_AT)
+    assert both.mean() > 0.5
+    np.testing.assert_allclose(user[both], np.clip(kept[both], 0.0, 1.0), atol=1e-4)  # normalised units: clipped
+    without = heldout.benchmark_clips({"s": seq}, 14.0, 1.3, scored=np.array([4]), radius=0,
+                                      key=jax.random.key(1), tests=(keep,))[0]["s"]
+    with pytest.raises(ValueError, match="without its photon counts"):
+        heldout.upscale_output("default", without)
+
+
+def test_run_reuses_the_cache_of_the_methods_before(tmp_path, monkeypatch):
+    # a cache written before jaxsr.upscale's default was scored: its "default" is the keep rule's; only the new
+    # method is scored, under a key of its own, and the old entry is read under the name the keep rule has now
+    key = heldout.cache_key("g", "a", 3.0, 1.3, 2)
+    scores = {"psnr": [20.0], "dropped_pct": 1.0, "as_depth_pct": 0.0, "dropped_error_pct": 50.0}
+    old = {key: {"bicubic": scores, "paper's TR4": scores, "default": {**scores, "psnr": [21.0]},
+                 "returns": 10, "no_return": 0}}
+    path = tmp_path / "heldout.cache.json"
+    path.write_text(json.dumps(old))
+    asked = []
+
+    def score_scene(models, name, seq, p, s, *, frames, seed, methods):
+        asked.append(tuple(methods))
+        return {**{m: {**scores, "psnr": [25.0]} for m in methods}, "returns": 10, "no_return": 0}
+
+    monkeypatch.setattr(heldout, "score_scene", score_scene)
+    cache = heldout.run({}, {"g": {"a": None}}, [(3.0, 1.3)], frames={"g": 2}, cache_path=path, log=lambda _: None)
+    assert asked == [(heldout.UPSCALE,)]
+    assert cache[key][heldout.KEEP] == old[key]["default"] and "default" not in cache[key]
+    assert set(json.loads(path.read_text())) == {key, heldout.slot(key, heldout.UPSCALE)}
+    row = heldout.summary(heldout.load_cache(path), {"g": {"a": None}}, [(3.0, 1.3)], {"g": 2})[0]["groups"]["g"]
+    assert row[heldout.KEEP]["psnr"] == 21.0 and row[heldout.UPSCALE]["psnr"] == 25.0
+    heldout.run({}, {"g": {"a": None}}, [(3.0, 1.3)], frames={"g": 2}, cache_path=path, log=lambda _: None)
+    assert len(asked) == 1  # all cached: nothing scored again
 
 
 # ------------------------------------------------------------------------------------------------ the real data
