@@ -4,7 +4,7 @@
     python experiments/studies/confidence.py --frames 1 --regimes 14:1.3 --out /tmp/c.md   # a quick look
 
 Data: the three test scenes and, with --heldout DIR, every DIR/*.npz of held-out depth (arrays "depth" in radial
-metres and "intensity" in [0, 1], (T, 128, 256); experiments/studies/heldout_data.py makes them), at each regime
+metres and "intensity" in [0, 1], (T, 128, 256); experiments/studies/_heldout_data.py makes them), at each regime
 of --regimes (signal photons per LR pixel : frame SNR). As the photon benchmark does, each sequence gets regions of
 no return (`no_return_regions`, 30 % of the HR pixels, sky weight 0.5, one mask per sequence; "with regions") so
 that there are pixels of both kinds, and the PSNR is also read on the sequences as they are ("plain"). Per

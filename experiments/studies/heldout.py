@@ -11,7 +11,7 @@ histograms (what `jaxsr.upscale` gives, and the same model with the keep rule on
     python experiments/studies/heldout.py score --data /work/data/heldout --photons 3 14 --snr 1.3 0.3 --grid-only
     python experiments/studies/heldout.py score --data /work/data/heldout --report-only   # the report of the cache
 
-Data (`heldout_data.SETS`: repository, commit, paths, licence, units of each): three static indoor scenes (a NYU
+Data (`_heldout_data.SETS`: repository, commit, paths, licence, units of each): three static indoor scenes (a NYU
 Depth V2, a TUM RGB-D and a SUN RGB-D frame, each repeated over 30 frames) and a rendered indoor dToF video with
 moving objects (DyDToF school_shot8, 30 frames), as 128 x 256 radial metres + intensity. The test scenes: the
 benchmark's (harness.scoring.TEST_SCENES, 500 frames each).
@@ -61,7 +61,7 @@ from jaxsr.inference import lr_blocks
 from jaxsr.nn import Model
 from jaxsr.sensor import calibrated_rates, normalise_depth
 
-import heldout_data  # beside this script
+import _heldout_data  # beside this script
 from _photon_benchmark import (NO_RETURN_AT, PHOTONS, SNRS, benchmark_clips, bicubic_output,  # noqa: E402
                                calibration, regime_label, returns_kept)
 
@@ -424,11 +424,11 @@ def main(argv=None) -> None:
     sub = parser.add_subparsers(dest="step", required=True)
     prep = sub.add_parser("prepare", help="write the held-out scenes from fetched repositories")
     prep.add_argument("--source", action="append", default=[], metavar="OWNER/NAME=FOLDER",
-                      help="a repository's bare git mirror or checkout (see heldout_data.SETS); repeatable")
-    prep.add_argument("--data", default=str(heldout_data.DEFAULT_DATA), help="the data folder (outside the repo)")
-    prep.add_argument("--sets", nargs="+", default=None, help=f"sets to write (default all: {list(heldout_data.SETS)})")
+                      help="a repository's bare git mirror or checkout (see _heldout_data.SETS); repeatable")
+    prep.add_argument("--data", default=str(_heldout_data.DEFAULT_DATA), help="the data folder (outside the repo)")
+    prep.add_argument("--sets", nargs="+", default=None, help=f"sets to write (default all: {list(_heldout_data.SETS)})")
     score = sub.add_parser("score", help="score the methods on the held-out scenes beside the test scenes")
-    score.add_argument("--data", default=str(heldout_data.DEFAULT_DATA), help="the data folder `prepare` wrote")
+    score.add_argument("--data", default=str(_heldout_data.DEFAULT_DATA), help="the data folder `prepare` wrote")
     score.add_argument("--frames", type=int, default=4, help="frames scored per held-out scene (default 4 of 30)")
     score.add_argument("--test-frames", type=int, default=4,
                        help=f"frames scored per test scene, of its {SEQUENCE_FRAMES} (default 4; 0: no test scenes)")
@@ -446,15 +446,15 @@ def main(argv=None) -> None:
     if args.step == "prepare":
         sources = _sources(args.source)
         if not sources:
-            raise SystemExit("prepare: give at least one --source OWNER/NAME=FOLDER (see heldout_data.SETS)")
+            raise SystemExit("prepare: give at least one --source OWNER/NAME=FOLDER (see _heldout_data.SETS)")
         try:
-            heldout_data.prepare(sources, args.data, names=args.sets)
+            _heldout_data.prepare(sources, args.data, names=args.sets)
         except (FileNotFoundError, ValueError) as e:
             raise SystemExit(str(e)) from None
         return
     started = time.time()
     try:
-        heldout = heldout_data.load_scenes(args.data)
+        heldout = _heldout_data.load_scenes(args.data)
     except FileNotFoundError as e:
         raise SystemExit(str(e)) from None
     groups = {"held-out": heldout}

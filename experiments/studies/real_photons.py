@@ -14,7 +14,7 @@ each recording read from the first folder that holds it, those no folder holds s
 docs/own-sensor.md, "Real recordings", says where each file comes from): tower.mat (160 x 160 pixels, photon
 arrival times in ps, gate mm..MM = 200 ns, 3.7 photons per pixel) and two_layer.mat (100 x 100, arrival times in
 the system's time bins of unknown width, 51 photons per pixel), read with `jaxsr.read_time_tags`; held out
-(`experiments/studies/heldout.py prepare` copies it from its repository, heldout_data.REAL): face.mat (340 x 340, a
+(`experiments/studies/heldout.py prepare` copies it from its repository, _heldout_data.REAL): face.mat (340 x 340, a
 mannequin face raster-scanned, time bins of unknown width, 8.3 photons per pixel). Considered and left out: the
 K11 building 21 km away (Li et al., 21km_K11_night.mat): with 1.24 signal photons per pixel its all-photon
 reference is only about 17.5 dB from itself (two halves of its photons, `reference_noise`), too noisy to score
@@ -114,7 +114,7 @@ SOURCES = (
     Source("tower", "tower.mat", "data_processed", 1e-12, None, True),
     # the system's time bins, width not given by the source: a nominal 1 ps, the depth relative to the gate
     Source("two_layer", "two_layer.mat", "photon_times", 1e-12, "gate", False),
-    # held out (experiments/studies/heldout_data.py, REAL): a raster-scanned mannequin face in the system's time
+    # held out (experiments/studies/_heldout_data.py, REAL): a raster-scanned mannequin face in the system's time
     # bins (width not given)
     Source("face", "face.mat", "Ts", 1e-12, "gate", False),
 )

@@ -1,4 +1,4 @@
-"""The held-out benchmark (experiments/studies/heldout_data.py, heldout.py) on tiny synthetic stand-ins of its
+"""The held-out benchmark (experiments/studies/_heldout_data.py, heldout.py) on tiny synthetic stand-ins of its
 sources: the unit rules of each format, the radial conversion against the library's, the resampling, a prepare
 run from a git repository, the measures and the report. The real data is not needed; the test that reads it
 skips where it is absent."""
@@ -16,7 +16,7 @@ import pytest
 from PIL import Image
 
 import heldout  # experiments/studies (pytest's pythonpath)
-import heldout_data as hd
+import _heldout_data as hd
 from jaxsr.config import MODEL_INPUTS, ModelConfig, Sensor
 from jaxsr.nn import Model, init_model
 from jaxsr.sensor.forward import planar_to_radial
@@ -84,7 +84,7 @@ def test_resampling_invents_no_depth_and_crops_the_middle():
 
 def fake_open3d(root: Path) -> str:
     """A git repository holding a TUM-format depth (a plane 2 m ahead with a hole) and colour frame at the paths of
-    heldout_data.SETS["tum-desk"]; returns its commit."""
+    _heldout_data.SETS["tum-desk"]; returns its commit."""
     src = hd.SETS["tum-desk"]
     depth = np.full((480, 640), 2.0 * 5000, np.uint16)  # the size its Kinect intrinsics are for
     depth[200:240, 300:340] = 0  # a hole: no measurement

@@ -157,7 +157,7 @@ def read_blob(root, path: str, commit: str) -> bytes:
                               capture_output=True).stdout
     except (subprocess.CalledProcessError, FileNotFoundError):
         raise FileNotFoundError(f"{root}: expected a checkout or git mirror holding {path} at {commit[:12]} "
-                                "(fetch the repository named in heldout_data.SETS)") from None
+                                "(fetch the repository named in _heldout_data.SETS)") from None
 
 
 def fill_missing(depth: np.ndarray) -> np.ndarray:
