@@ -37,7 +37,7 @@ import numpy as np
 import jaxsr
 from jaxsr.inference import DEFAULT_SEQUENCE_CHUNK, super_resolve, super_resolve_histograms
 from jaxsr.nn import flops_per_frame, sequence_radius
-from jaxsr.runtime import compiler_options, cpu_bfloat16_features
+from jaxsr.runtime import cpu_bfloat16_features
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
 from harness.reports import header, markdown_table, write_atomic  # noqa: E402
