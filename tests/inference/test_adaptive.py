@@ -53,6 +53,7 @@ TABLE = {  # a made-up study: TR4 best when slow, TR0 best when fast, TR4 too sl
 }
 
 
+@pytest.mark.slow  # about 11 s: the table's every cell through choose_tr
 def test_choose_tr_follows_the_table():
     assert choose_tr(_blocks(0.25), table=TABLE).tr == 4
     assert choose_tr(_blocks(1.0), table=TABLE).tr == 2
@@ -98,7 +99,9 @@ def _photon_scene(v, *, photons, snr, sky, frames=16, seed=0):
     return np.asarray(jaxsr.centre_of_mass(counts, sensor), np.float32)
 
 
-@pytest.mark.parametrize("snr", [0.1, 0.3, 1.3, 5.0])
+# the extremes of the SNR run by default, with and without sky; the middle two with -m slow (about 4 s each)
+@pytest.mark.parametrize("snr", [0.1, pytest.param(0.3, marks=pytest.mark.slow),
+                                 pytest.param(1.3, marks=pytest.mark.slow), 5.0])
 @pytest.mark.parametrize("sky", [False, True])
 def test_a_static_camera_reads_static_whatever_the_ambient_light_and_sky(snr, sky):
     """Ambient light alone (sky, surfaces whose peak drowns) puts a pixel's centre of mass anywhere in the gate

@@ -32,6 +32,7 @@ def test_jit_equals_super_resolve_and_vmap_maps_sequences(temporal):
     np.testing.assert_allclose(np.asarray(both[1]), jaxsr.super_resolve(m, lr[::-1]), atol=1e-5)
 
 
+@pytest.mark.slow  # about 20 s on 2 cores: a backward pass through TR1 compiled twice
 def test_grad_through_the_network_is_finite_and_nan_is_no_return():
     m, lr = model(), lr_seq()
     gt = jnp.full((5, 32, 48), 0.5)
@@ -45,6 +46,7 @@ def test_grad_through_the_network_is_finite_and_nan_is_no_return():
                                np.asarray(jaxsr.apply_sequence(m, ones)), atol=1e-6)
 
 
+@pytest.mark.slow  # about 19 s on 2 cores
 def test_histograms_equal_super_resolve_histograms_and_differentiate_to_the_counts():
     cfg = ModelConfig(tr=0, inputs=("depth", "signal", "background"), no_return_head=True, **TINY)
     m = Model(*init_model(jax.random.key(3), cfg), cfg)
