@@ -267,19 +267,22 @@ def test_processes_meet_and_process_0_lets_the_port_go():
         s.bind(joining.split_address(address))
 
 
-def test_a_stray_connection_does_not_count_as_a_process():
-    address = f"127.0.0.1:{_free_port()}"
-    waiting = _in_thread(joining.gather, address, 2, 20.0)
-    host, port = joining.split_address(address)
-    deadline = time.monotonic() + 10
-    while True:  # once process 0 listens: a client that is not a process of the run, then process 1
+def _connect_when_listening(address: str, wait_s: float = 10.0) -> socket.socket:
+    """A TCP connection to `address` once something listens there (within wait_s)."""
+    deadline = time.monotonic() + wait_s
+    while True:
         try:
-            stray = socket.create_connection((host, port), timeout=1)
-            break
+            return socket.create_connection(joining.split_address(address), timeout=1)
         except ConnectionRefusedError:
             assert time.monotonic() < deadline
             time.sleep(0.05)
-    with stray:
+
+
+def test_a_stray_connection_does_not_count_as_a_process():
+    address = f"127.0.0.1:{_free_port()}"
+    waiting = _in_thread(joining.gather, address, 2, 20.0)
+    # once process 0 listens: a client that is not a process of the run, then process 1
+    with _connect_when_listening(address) as stray:
         stray.sendall(b"GET / HTTP/1.0\r\n\r\n")
         joining.meet(address, 1, 2, 20.0)
     waiting()
@@ -289,15 +292,7 @@ def test_a_process_that_joined_and_left_is_waited_for_again():
     """Process 1 greets process 0 and is stopped (Ctrl-C) before the others came: it is missing again."""
     address = f"127.0.0.1:{_free_port()}"
     waiting = _in_thread(joining.gather, address, 3, 1.5)
-    deadline = time.monotonic() + 10
-    while True:
-        try:
-            left = socket.create_connection(joining.split_address(address), timeout=1)
-            break
-        except ConnectionRefusedError:
-            assert time.monotonic() < deadline
-            time.sleep(0.05)
-    with left:
+    with _connect_when_listening(address) as left:
         left.sendall(b"jaxsr-join/1 1 3\n")
     with pytest.raises(joining.JoinError, match=r"process\(es\) 1, 2 of 3 did not join"):
         waiting()
