@@ -360,7 +360,7 @@ def test_upscale_takes_a_run_folder(tmp_path, capsys):
 @pytest.mark.slow
 def test_finetune_end_to_end_resume_and_upscale(tmp_path, capsys):
     """A tiny fine-tune (8 x 8 LR sensor, a tiny network, 1 epoch of 2 steps), resumed for a second epoch, then
-    `jaxsr upscale --model RUN_FOLDER` on histograms with the gate flags the fine-tune printed."""
+    `jaxsr upscale -m RUN_FOLDER --sensor FILE` on histograms, as the fine-tune printed."""
     (tmp_path / "s.toml").write_text(TINY_TOML)
     _tiny_model(tmp_path / "tiny.npz")
     out = tmp_path / "run"
@@ -369,7 +369,7 @@ def test_finetune_end_to_end_resume_and_upscale(tmp_path, capsys):
     assert cli.main([*args, "--epochs", "1"]) == 0
     printed = capsys.readouterr().out
     assert "best epoch 1" in printed
-    assert f"--model {out} --bins 16 --bin-width 2m --gate-start 0m --span gate" in printed
+    assert f"-m {out} --sensor {tmp_path / 's.toml'}" in printed
     assert {"best.npz", "last.npz", "metrics.jsonl"} <= {p.name for p in out.iterdir()}
     card = jaxsr.read_metadata(out / "best.npz")["card"]
     assert card["sensor_file"]["text"] == TINY_TOML and card["regime"]["signal_range"] == [2.0, 8.0]
@@ -389,8 +389,8 @@ def test_finetune_end_to_end_resume_and_upscale(tmp_path, capsys):
     counts = np.random.default_rng(0).poisson(0.3, (2, 8, 8, 16)).astype(np.float32)
     counts[..., 5] += 4
     np.save(tmp_path / "counts.npy", counts)
-    assert cli.main(["upscale", str(tmp_path / "counts.npy"), "-o", str(tmp_path / "hr.npz"), "--model", str(out),
-                     "--bins", "16", "--bin-width", "2m", "--gate-start", "0m", "--span", "gate", "--no-progress"]) == 0
+    assert cli.main(["upscale", str(tmp_path / "counts.npy"), "-o", str(tmp_path / "hr.npz"), "-m", str(out),
+                     "--sensor", str(tmp_path / "s.toml"), "--no-progress"]) == 0
     assert np.load(tmp_path / "hr.npz")["depth"].shape == (2, 32, 32)
 
 
