@@ -28,8 +28,8 @@ Methods, on the same photons:
 - "jaxsr.upscale default": what a user gets, `jaxsr.upscale(counts, None, read=Reading(units="normalised"))` with
   every other option the library's default (the model `DEFAULT_MODELS["histograms"]`, the gate read from the
   histograms: their 16 bins over the sensor's 35 m, the confidence's no-return decision: no return where P(return)
-  < 0.5 and the pixel's own photons over 9 frames pass for ambient light alone), on the photon counts of each scored
-  frame's +-4 frames;
+  < 0.5 and the pixel's own photons over 9 frames, and those of the quiet pixels pooled in the 3 x 3 and 5 x 5
+  around it, pass for ambient light alone), on the photon counts of each scored frame's +-4 frames;
 - "tr4-ambient + keep 0.001": that model with the keep rule on its head's logit (`_photon_benchmark.returns_kept`,
   `jaxsr upscale --keep-returns 0.001`), the default decision before the confidence's P(return); cached as
   "default" before the other was scored (`OLD_NAMES`). Where both output depth the two are the same numbers.
@@ -207,8 +207,9 @@ def load_methods() -> tuple[dict, dict]:
                     KEEP: f"bundled {name}{rule}",
                     UPSCALE: "`jaxsr.upscale(counts, None, read=Reading(units=\"normalised\"))` with every other "
                              "option the library's default (what a user gets: the model, the gate read from the "
-                             "histograms, the no-return decision), on the photon counts of each scored frame's "
-                             "+-4 frames"}
+                             "histograms, the no-return decision: P(return) < 0.5 where the pixel's photons and "
+                             "those of the quiet pixels pooled around it pass for ambient light alone), on the photon "
+                             "counts of each scored frame's +-4 frames"}
 
 
 def regimes(photons, snrs, paper: bool = True, first: bool = True) -> list:

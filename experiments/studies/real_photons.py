@@ -229,7 +229,8 @@ def _network_depth(counts, gate, scale, z):
 def confidence_decided(model, frames: PhotonFrames, guard: float | None = None) -> np.ndarray:
     """A model with a no-return head on the frames, no return where the confidence's P(return) (its logit and each
     pixel's photons over 9 frames, `jaxsr.inference.confidence`) is below one half and, with a `guard` rate, the
-    LR pixel's own photons over 9 frames pass for ambient light alone at it (`jaxsr upscale`'s default: 0.001)."""
+    LR pixel's own photons over 9 frames, and those of the quiet pixels pooled around it (`QUIET_POOLS`), pass for
+    ambient light alone at it (`jaxsr upscale`'s default: 0.001)."""
     raw = np.stack(list(iter_super_resolve(model, iter(model_input(model, frames)), raw=True)))
     coeffs = coefficients_for(None, True)
     sensor = jaxsr.Sensor(gate=jaxsr.Gate.spanning(35.0, frames.gate.bins))
@@ -240,7 +241,7 @@ def confidence_decided(model, frames: PhotonFrames, guard: float | None = None) 
         out.append(no_return_by_probability(r[..., 0], p, model.config.no_return_logit))
     out = np.stack(out)
     if guard is not None:
-        quiet = no_return_decision(frames.counts, sensor, ("keep", guard))
+        quiet = no_return_decision(frames.counts, sensor, ("pooled", guard))
         out = np.where(lr_blocks(np.asarray(quiet), FACTOR), out, raw[..., 0])
     return out
 
@@ -746,8 +747,9 @@ def main(argv=None) -> None:
                         "(_photon_benchmark.returns_kept); repeatable")
     parser.add_argument("--confidence", action="append", default=[], metavar="NAME[=ALPHA]",
                         help="run --model NAME (one with a no-return head) with no return where the confidence's "
-                        "P(return) is below one half and, with ALPHA, the pixel's own photons over 9 frames pass for "
-                        "ambient light alone at that rate (jaxsr upscale's default: 0.001); repeatable")
+                        "P(return) is below one half and, with ALPHA, the pixel's own photons over 9 frames and those "
+                        "of the quiet pixels pooled around it pass for ambient light alone at that rate (jaxsr "
+                        "upscale's default: 0.001); repeatable")
     parser.add_argument("--picture-level", type=float, default=PICTURE_LEVEL,
                         help="photons of the pictured frame (default 2)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the photon permutations")

@@ -20,6 +20,7 @@ from ..inference.confidence import (EVIDENCE_FRAMES, NO_RETURN_AT, ConfidenceCoe
 from ..nn.model import Model
 from ..runtime import enable_compilation_cache
 from ..sensor.gates import data_span, gate_depth, gate_warnings
+from ..sensor.peaks import QUIET_POOLS
 from ..sensor.timetags import TIME_TAG_FORMATS, TimeTags, gate_of_tags, read_time_tags, time_tag_warnings
 from .memory import HISTOGRAM_CHUNK, check_result_memory
 from .models import finish_model, has_head, plan_model, trained_snr_range
@@ -169,7 +170,7 @@ class UpscaleJob:
             depth, logit = (out[..., 0], out[..., 1]) if head else (out, None)
             p, sigma = confidence_frame(window, depth, self.confidence_coefficients, sensor, head_logit=logit,
                                         bins_per_unit=bins_per_unit)
-            if self.photons.by_probability:  # where the pixel's own photons show a return, its depth stays
+            if self.photons.by_probability:  # where the photons show a return, its depth stays
                 hr = no_return_by_probability(depth, p, threshold)
                 if quiet is not None:
                     hr = np.where(lr_blocks(next(quiet), self.scale_factor), hr, depth)
@@ -325,18 +326,22 @@ def _histogram_job(rec, gate, source, tag_notes, choice, planned, read: Reading,
         name = (f"{name}, no return where P(return) < {_probability_at(model.config.no_return_logit):.3g} (the head's "
                 f"logit and the pixel's photons over {EVIDENCE_FRAMES} frames)")
     if decision.keep_returns is not None:
+        pools = " and ".join(f"{k} x {k}" for k in QUIET_POOLS)
         name = (f"{name}, {'that' if decision.by_probability else 'its'} no return kept only where the pixel's photons "
-                f"over {AMBIENT_FRAMES} frames pass for ambient alone (alpha {float(decision.keep_returns):g})")
+                f"over {AMBIENT_FRAMES} frames, and those of the quiet pixels in the {pools} around it, pass for "
+                f"ambient alone (alpha {float(decision.keep_returns):g})")
 
-    def flags(alpha, pixels):
-        return lambda: iter_ambient_only(counts, sensor, alpha=alpha, pixels=pixels, frames=AMBIENT_FRAMES)
+    def flags(alpha, pixels, pools=()):
+        return lambda: iter_ambient_only(counts, sensor, alpha=alpha, pixels=pixels, frames=AMBIENT_FRAMES,
+                                         pools=pools)
 
     return UpscaleJob(
         rec, model, name, label, units, gate, scale, warnings, source, choice.precision,
         found if read.clip_negative else None, decision, model_id, _lr_stream=lambda: lr_stream(model.channels),
         _ambient_stream=None if decision.ambient_alpha is None else flags(decision.ambient_alpha, 3),
-        # each pixel's own photons (pixels=1): a return in the block keeps the block's depth
-        _keep_stream=None if decision.keep_returns is None else flags(decision.keep_returns, 1),
+        # each pixel's own photons (pixels=1), then those of the quiet pixels around it (a dim wall's return shows
+        # in their pool): a return in the block keeps the block's depth
+        _keep_stream=None if decision.keep_returns is None else flags(decision.keep_returns, 1, QUIET_POOLS),
         _count_stream=lambda: iter(counts),
         confidence_coefficients=coefficients_for(model_id, model.has_no_return_head))
 

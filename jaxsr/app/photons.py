@@ -36,7 +36,8 @@ AUTO_AMBIENT_MIN_FRAMES = 16
 # there, but not on every real recording, so it stays a hint)
 FEW_PHOTONS = 3.0
 # keep_returns="auto": for a model with a no-return head on histograms and time tags, the confidence's no return kept
-# only where the pixel's own photons pass for ambient light alone at this rate (before the confidence: the head's). On the real tower recording it turned
+# only where the pixel's own photons, and those of the quiet pixels pooled around it (`QUIET_POOLS`), pass for
+# ambient light alone at this rate (before the confidence: the head's, with the pixel's own photons). On the real tower recording it turned
 # tr4-ambient's head alone (+2.4 to -10.4 dB against bicubic on a dim building at 1-8 photons) into +3.5 to +4.7 dB,
 # for 0.1-0.5 dB in simulation at 100-1000 photons (the sky at the edges of sky regions shown as depth)
 AUTO_KEEP_RETURNS = 1e-3
@@ -162,12 +163,13 @@ def decide_photon_rules(rules: PhotonRules, levels: PhotonLevels | None, *, mark
     whose ambient light is gone) and a model that marks no return itself or not: "auto" ambient as
     `_ambient_choice`; "auto" keep: for a head, no return where the confidence's P(return) is below the threshold
     (`by_probability`: `jaxsr.inference.confidence`, the head's logit and each pixel's photons over 9 frames) and
-    the pixel's own photons over 9 frames pass for ambient light alone at AUTO_KEEP_RETURNS, unless the counts are
-    background-subtracted (the head alone) or an ambient rate decides no return instead; a keep rate: the head's
-    no return kept only where the pixel's photons pass for ambient light alone at it."""
+    the pixel's own photons over 9 frames, and the quiet pixels' pooled around it (`QUIET_POOLS`), pass for
+    ambient light alone at AUTO_KEEP_RETURNS, unless the counts are background-subtracted (the head alone) or an
+    ambient rate decides no return instead; a keep rate: the head's no return kept only where those photons pass
+    for ambient light alone at it."""
     alpha, why = _ambient_choice(rules.ambient_alpha, levels, marks_no_return, frames)
     keep = rules.keep_returns
-    if is_auto(keep):  # the confidence decides, where each pixel's own photons do not show a return
+    if is_auto(keep):  # the confidence decides, where the photons do not show a return
         on = marks_no_return and levels is not None and alpha is None
         return PhotonDecision(alpha, why, AUTO_KEEP_RETURNS if on else None, on)
     return PhotonDecision(alpha, why, keep)

@@ -264,9 +264,10 @@ class PhotonRules:
     around a pixel pass for ambient light alone at this false-alarm rate (`jaxsr.sensor.ambient_only`); "auto"
     (default): on where the recording's photon levels say it holds (`jaxsr.app.photons.auto_ambient_alpha`), else
     off; None: off. keep_returns (--keep-returns): for a model with a no-return head, output no return only where
-    the head says so AND the pixel's own photons over 9 frames pass for ambient light alone at this rate; "auto"
-    (default): `jaxsr.app.photons.AUTO_KEEP_RETURNS` for a model with a head, unless an ambient rate decides
-    instead; None: the head decides alone. The two rates are two decisions on the same pixels: give one."""
+    the head says so AND the pixel's own photons over 9 frames, and those of the quiet pixels pooled around it
+    (`jaxsr.sensor.QUIET_POOLS`), pass for ambient light alone at this rate; "auto" (default):
+    `jaxsr.app.photons.AUTO_KEEP_RETURNS` for a model with a head, unless an ambient rate decides instead; None:
+    the head decides alone. The two rates are two decisions on the same pixels: give one."""
 
     ambient_alpha: float | str | None = AUTO
     keep_returns: float | str | None = AUTO

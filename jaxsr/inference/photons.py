@@ -16,7 +16,8 @@ from ..checks import require_numbers
 from ..config import MIN_LR_SIDE, Sensor
 from ..nn.inputs import network_inputs
 from ..nn.model import Model
-from ..sensor.peaks import ambient_only, capped_for_sum, check_ambient_settings, check_false_alarm_rate
+from ..sensor.peaks import (ambient_only, capped_for_sum, check_ambient_settings, check_false_alarm_rate,
+                            summed_histograms)
 from .forms import DEFAULT_FORM, DEFAULT_PRECISION, check_precision, in_form
 from .traced import refuse_tracing
 from .units import check_units, network_to_units
@@ -68,22 +69,22 @@ def iter_network_inputs(counts: Iterable, sensor: Sensor = Sensor(), inputs=("de
         yield from flush()
 
 
-@functools.partial(jax.jit, static_argnames=("sensor", "pixels", "frames"))
-def _ambient_centre(window, alpha, sensor, pixels, frames):
+@functools.partial(jax.jit, static_argnames=("sensor", "pixels", "frames", "pools"))
+def _ambient_centre(window, alpha, sensor, pixels, frames, pools):
     """`ambient_only` of the centre frame of a (frames, h, w, K) window, frames beyond the sequence zero: the
     window summed over its frames first (one frame's memory for the test, not the window's)."""
-    summed = jnp.sum(capped_for_sum(window, pixels * pixels * frames), axis=0, keepdims=True)
-    return ambient_only(summed, sensor, alpha=alpha, pixels=pixels, frames=1)[0]
+    summed = jnp.sum(capped_for_sum(window, summed_histograms(pixels, frames, pools)), axis=0, keepdims=True)
+    return ambient_only(summed, sensor, alpha=alpha, pixels=pixels, frames=1, pools=pools)[0]
 
 
 def iter_ambient_only(counts: Iterable, sensor: Sensor = Sensor(), *, alpha: float = 1e-3,
-                      pixels: int = 3, frames: int = 9) -> Iterator[np.ndarray]:
+                      pixels: int = 3, frames: int = 9, pools: tuple = ()) -> Iterator[np.ndarray]:
     """`jaxsr.sensor.ambient_only` over a stream of histogram frames, frame by frame: (h, w) bool per frame, True
-    where the photons of the `pixels` x `pixels` pixels and `frames` frames around a pixel pass for ambient light
-    alone at false-alarm rate `alpha` (no return to be seen). The same as `ambient_only` of the whole sequence,
-    holding only `frames` frames at a time (frame t comes once frame t + frames // 2 has been read). Counts as
-    `iter_network_inputs` checks them."""
-    check_ambient_settings("iter_ambient_only", alpha, pixels, frames)  # before the first frame is read
+    where the photons of the `pixels` x `pixels` pixels and `frames` frames around a pixel (and, with `pools`,
+    those of the flagged pixels around it) pass for ambient light alone at false-alarm rate `alpha` (no return
+    to be seen). The same as `ambient_only` of the whole sequence, holding only `frames` frames at a time (frame
+    t comes once frame t + frames // 2 has been read). Counts as `iter_network_inputs` checks them."""
+    check_ambient_settings("iter_ambient_only", alpha, pixels, frames, pools)  # before the first frame is read
     r = frames // 2
     held = deque()  # frames t - r .. t + r of the next frame t to flag (fewer at the start)
     t = first = 0  # the next frame to flag; the sequence frame held[0] is
@@ -91,7 +92,8 @@ def iter_ambient_only(counts: Iterable, sensor: Sensor = Sensor(), *, alpha: flo
     def flag(first):  # frame t from `held`, which starts at sequence frame `first`; missing frames are zero
         zero = np.zeros_like(held[0])
         window = [held[k - first] if 0 <= k - first < len(held) else zero for k in range(t - r, t + r + 1)]
-        return np.asarray(_ambient_centre(jnp.asarray(np.stack(window)), alpha, sensor, pixels, frames))
+        return np.asarray(_ambient_centre(jnp.asarray(np.stack(window)), alpha, sensor, pixels, frames,
+                                          tuple(pools)))
 
     for i, c in enumerate(counts):
         c = np.asarray(c, np.float32)

@@ -258,9 +258,19 @@ def check_false_alarm_rate(name: str, alpha) -> None:
         raise ValueError(f"{name} is a false-alarm rate in [{MIN_FALSE_ALARM_RATE:g}, 1), such as 0.001; got {alpha!r}")
 
 
-def check_ambient_settings(name: str, alpha, pixels: int = 3, frames: int = 9) -> None:
-    """Refuse settings of `ambient_only` before any work: odd sides >= 1, a false-alarm rate in range."""
-    for side, value in (("pixels", pixels), ("frames", frames)):
+# the pools of the default no-return decision (`ambient_only`): the flagged pixels in 3 x 3 and 5 x 5 around a pixel,
+# the smallest that found the returns of dim indoor walls that single pixels miss (experiments/results/
+# quiet_pools.md) at the least cost to the sky beside returns
+QUIET_POOLS = (3, 5)
+
+
+def check_ambient_settings(name: str, alpha, pixels: int = 3, frames: int = 9, pools=()) -> None:
+    """Refuse settings of `ambient_only` before any work: odd sides >= 1 (pools a tuple of them), a false-alarm
+    rate in range."""
+    if not isinstance(pools, tuple):
+        raise ValueError(f"{name}: pools must be a tuple of odd sides in pixels such as (3, 5), got {pools!r}")
+    sides = [("pixels", pixels), ("frames", frames)] + [("pools", k) for k in pools]
+    for side, value in sides:
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1 or value % 2 == 0:
             raise ValueError(f"{name}: {side} must be an odd integer >= 1, got {value!r}")
     check_false_alarm_rate(f"{name}: alpha", alpha)
@@ -284,7 +294,7 @@ def window_sums(counts, frames: int, pixels: int = 1):
 
 
 def ambient_only(counts, sensor: Sensor = Sensor(), *, alpha=1e-3, pixels: int = 3, frames: int = 9,
-                 window=None):
+                 pools: tuple = (), window=None):
     """Where the photons around each pixel are consistent with ambient light alone: the no-return test of a video.
 
     One pixel's histogram in one frame holds too few photons to tell a faint return from ambient light (at 3
@@ -298,6 +308,12 @@ def ambient_only(counts, sensor: Sensor = Sensor(), *, alpha=1e-3, pixels: int =
     the returns dropped inside their regions went from 0.6 to 1.0 % at 3 signal photons per pixel and SNR 1.3,
     to 4.5 % at 1 photon, and to 15-31 % at 1-3 photons and SNR 0.1 (experiments/results/no_return_evidence*.md).
 
+    `pools` gathers the evidence of a dim surface that no single pixel holds: a pixel stays flagged only where,
+    for each side k of `pools`, the summed histograms of the flagged pixels in the k x k pixels around it pass too
+    (at alpha / len(pools) each). Only flagged pixels are pooled, so a bright return beside sky does not unflag
+    the sky, while a dark wall of a room, whose pixels each show too few photons, shows its return in the pool
+    (`QUIET_POOLS`, the default decision of `jaxsr.upscale`: docs/photons.md, "No return").
+
     Args:
       counts: (T, h, w, K) photon counts of consecutive frames, finite and >= 0 (traced, a histogram that is not
         adds nothing to its neighbours' sums and is flagged if they hold no return).
@@ -305,11 +321,12 @@ def ambient_only(counts, sensor: Sensor = Sensor(), *, alpha=1e-3, pixels: int =
         p-values (floored near 1e-37) would flag every pixel.
       pixels, frames: the odd sides of the neighbourhood summed, in LR pixels and in frames (default 9: a TR4
         window).
+      pools: odd sides in LR pixels of the flagged neighbourhoods tested after (default none).
       window: half-width in bins of the scan (default: `default_window(sensor)`).
     Returns:
       (T, h, w) bool. jit-able with `pixels` and `frames` static; no gradient.
     """
-    check_ambient_settings("ambient_only", alpha, pixels, frames)
+    check_ambient_settings("ambient_only", alpha, pixels, frames, pools)
     if jnp.ndim(counts) != 4:
         raise ValueError(f"ambient_only: counts must be (T, h, w, {sensor.bins}) histograms of consecutive frames, "
                          f"got shape {jnp.shape(counts)}")
@@ -317,8 +334,19 @@ def ambient_only(counts, sensor: Sensor = Sensor(), *, alpha=1e-3, pixels: int =
     n, _ = _usable(jax.lax.stop_gradient(_check_counts("ambient_only", counts, sensor)))
     # each histogram capped so that sums of huge counts stay finite (pixel by pixel: one corrupt bin does not
     # rescale the others, and a stream of windows computes what the whole sequence does)
-    n = capped_for_sum(n, pixels * pixels * frames)
-    return return_significance(window_sums(n, frames, pixels), sensor, window=window) > jnp.log(alpha)
+    n = capped_for_sum(n, summed_histograms(pixels, frames, pools))
+    summed = window_sums(n, frames, pixels)
+    quiet = return_significance(summed, sensor, window=window) > jnp.log(alpha)
+    flagged = jnp.where(quiet[..., None], summed, 0.0)
+    for k in pools:  # the flagged pixels' photons pooled: a dim surface's return shows where no pixel's does
+        pooled = window_sums(flagged, 1, k)
+        quiet &= return_significance(pooled, sensor, window=window) > jnp.log(alpha / len(pools))
+    return quiet
+
+
+def summed_histograms(pixels: int, frames: int, pools: tuple = ()) -> int:
+    """The most histograms `ambient_only` adds into one test: what each is capped for (`capped_for_sum`)."""
+    return pixels * pixels * frames * max(pools, default=1) ** 2
 
 
 def frame_snr(counts, sensor: Sensor = Sensor(), *, false_alarm=1e-3):

@@ -400,6 +400,68 @@ def test_ambient_only_at_the_extremes():
     assert not np.asarray(f(clean))[:, :2].any()
 
 
+def reference_pooled(counts, alpha, frames, pools):
+    """Each pixel's own sum over the frames tested, then the sums of the flagged pixels in each pool around it."""
+    own = reference_ambient_only(counts, alpha, 1, frames)
+    r = frames // 2
+    t = counts.shape[0]
+    padded = np.pad(np.asarray(counts, np.float64), ((r, r), (0, 0), (0, 0), (0, 0)))
+    summed = sum(padded[dt:dt + t] for dt in range(frames)) * own[..., None]
+    quiet = own.copy()
+    for k in pools:
+        quiet &= reference_ambient_only(summed.astype(np.float32), alpha / len(pools), k, 1)
+    return quiet
+
+
+def _dim_wall_and_sky(seed, signal):
+    """9 frames of 24 x 24 pixels: a wall at bin 5 on the left half whose pixels each get `signal` photons a
+    frame (SNR signal / 2), bright returns (20 photons) in the right half's top rows, and sky below them."""
+    rng = np.random.default_rng(seed)
+    t, h, w = 9, 24, 24
+    rates = np.full((h, w, K), 2.0 / K)
+    rates[:, : w // 2] = irf_histogram(np.full(h * (w // 2), 5.0), signal=signal, background=2.0).reshape(
+        h, w // 2, K)
+    rates[:6, w // 2:] = irf_histogram(np.full(6 * (w - w // 2), 9.0), signal=20.0, background=2.0).reshape(
+        6, w - w // 2, K)
+    return rng.poisson(np.broadcast_to(rates, (t, h, w, K))).astype(np.float32)
+
+
+def test_pools_find_a_dim_wall_that_no_pixel_shows_and_leave_the_sky_beside_bright_returns():
+    """A wall too dim for any pixel's own 9 frames (0.4 signal photons a frame against 2 ambient): flagged as
+    ambient alone pixel by pixel, found by pooling the flagged pixels around each (but at the wall's edge with the
+    sky, which its pools reach); sky beside bright returns stays flagged, since the bright pixels are not pooled."""
+    counts = _dim_wall_and_sky(7, 0.4)
+    f = jax.jit(jaxsr.sensor.ambient_only, static_argnames=("pixels", "frames", "pools"))
+    own = np.asarray(f(counts, CFG, alpha=1e-3, pixels=1))[4]
+    pooled = np.asarray(f(counts, CFG, alpha=1e-3, pixels=1, pools=jaxsr.sensor.QUIET_POOLS))[4]
+    assert own[:, :12].mean() > 0.5  # one pixel's 9 frames hold too few photons
+    assert pooled[:, :10].mean() < 0.02  # the pools find the wall
+    assert not own[:6, 12:].any() and not pooled[:6, 12:].any()  # bright returns
+    assert pooled[6:, 15:].all()  # sky right below bright returns and beyond the wall's pools: ambient alone
+    assert not pooled[6:, 12].all()  # the cost: sky within a pool's reach of the dim wall shows its photons
+    np.testing.assert_array_equal(np.asarray(f(counts, CFG, alpha=1e-3, pixels=1, pools=(3, 5))),
+                                  reference_pooled(counts, 1e-3, 9, (3, 5)))
+
+
+def test_pools_stream_as_the_whole_sequence_and_stay_finite_at_huge_counts():
+    counts = _dim_wall_and_sky(8, 0.4)[:, :12, :16]
+    whole = np.asarray(jaxsr.sensor.ambient_only(counts, CFG, alpha=1e-3, pixels=1, pools=(3, 5)))
+    streamed = np.stack(list(jaxsr.inference.iter_ambient_only(iter(counts), CFG, alpha=1e-3, pixels=1,
+                                                               pools=(3, 5))))
+    np.testing.assert_array_equal(streamed, whole)
+    huge = np.full((9, 6, 6, K), 1e37, np.float32)
+    assert np.asarray(jaxsr.sensor.ambient_only(huge, CFG, pixels=1, pools=(3, 5))).all()  # flat: ambient
+    huge[:, :, :3, 5] *= 3.0
+    flagged = np.asarray(jaxsr.sensor.ambient_only(huge, CFG, pixels=1, pools=(3, 5)))
+    assert not flagged[:, :, :3].any() and flagged[:, :, 4:].all()
+
+
+@pytest.mark.parametrize("pools", [(2,), (3, 4), [3, 5], (0,), (True,)])
+def test_pools_refused_unless_a_tuple_of_odd_sides(pools):
+    with pytest.raises(ValueError, match="pools"):
+        jaxsr.sensor.ambient_only(np.zeros((2, 4, 4, K), np.float32), pools=pools)
+
+
 @pytest.mark.parametrize("kwargs,match", [({"pixels": 2}, "odd integer"), ({"frames": 0}, "odd integer"),
                                           ({"pixels": True}, "odd integer"), ({"alpha": 0.0}, "false-alarm rate"),
                                           ({"alpha": 1.0}, "false-alarm rate"), ({"alpha": 1e-35}, r"\[1e-30, 1\)"),
