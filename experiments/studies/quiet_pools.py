@@ -1,6 +1,6 @@
 """The pools of the default no-return decision: which neighbourhoods of quiet pixels `jaxsr.sensor.ambient_only`
-pools (`pools`, `jaxsr.sensor.QUIET_POOLS`) before a pixel is output as no return, on the test scenes and the
-held-out scenes alike.
+pools (`pools`, `jaxsr.sensor.QUIET_POOLS`) before a pixel is output as no return, and whether a lone quiet pixel
+may be (`jaxsr.sensor.without_lone_pixels`), on the test scenes and the held-out scenes alike.
 
     python experiments/studies/quiet_pools.py --data /work/data/heldout
 
@@ -8,7 +8,8 @@ The default for histograms outputs no return where the confidence's P(return) is
 photons pass for ambient light alone (`jaxsr.upscale`, keep_returns "auto"). A dim wall's pixels each hold too few
 photons over 9 frames to pass the test, so the network's no-return head decides them alone. Pooling the quiet
 pixels around each (only those: a bright return beside the sky does not pool into it) finds the wall's return; it
-costs the sky within a pool's reach of a dim surface. For each choice of pools, on the same photons and the same
+costs the sky within a pool's reach of a dim surface. A lone quiet LR pixel amid returns (a surface that returns no
+photon at all) is left to the network's depth in the default. For each choice, on the same photons and the same
 network outputs (tr4-ambient run once per scene and regime): PSNR over all pixels (no return = 1.0, as the photon
 benchmark scores it), true returns dropped away from the edges of no-return regions, and no return shown as depth.
 Scenes: the three test scenes (4 frames of 500) and the held-out scenes (`heldout.py prepare`; 4 frames of 30).
@@ -31,7 +32,7 @@ from jaxsr.app import AUTO_KEEP_RETURNS, Reading
 from jaxsr.app.job import prepare_upscale
 from jaxsr.config import Sensor
 from jaxsr.inference import iter_super_resolve, lr_blocks
-from jaxsr.sensor import ambient_only
+from jaxsr.sensor import ambient_only, without_lone_pixels
 
 import _heldout_data  # beside this script
 from _photon_benchmark import benchmark_clips, regime_label  # noqa: E402
@@ -41,8 +42,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: th
 from harness.reports import header, markdown_table, write_atomic  # noqa: E402
 from harness.scoring import SEQUENCE_FRAMES, TEST_SCENES, frame_scores, scored_frames  # noqa: E402
 
-CHOICES = {"none (each pixel alone)": (), "3": (3,), "3, 5 (the default)": (3, 5), "3, 7": (3, 7),
-           "3, 5, 9": (3, 5, 9)}
+# pools, and whether a lone pixel may be no return (True: `without_lone_pixels` applied)
+CHOICES = {"none (each pixel alone)": ((), False), "3": ((3,), False), "3, 5": ((3, 5), False),
+           "3, 7": ((3, 7), False), "3, 5, 9": ((3, 5, 9), False), "3, 5, no lone pixel (the default)": ((3, 5), True)}
 REGIMES = ((3.0, 1.3), (14.0, 1.3), (14.0, 0.3), (100.0, 1.3))
 
 
@@ -55,9 +57,11 @@ def network_outputs(clip) -> tuple[np.ndarray, np.ndarray]:
     return raw, p
 
 
-def decided(raw, p, counts, pools) -> np.ndarray:
-    """The default decision with `pools`: no return where P(return) < 1/2 and the LR pixel is quiet."""
-    quiet = np.asarray(ambient_only(jnp.asarray(counts), Sensor(), alpha=AUTO_KEEP_RETURNS, pixels=1, pools=pools))
+def decided(raw, p, counts, pools, no_lone) -> np.ndarray:
+    """The default decision with `pools`: no return where P(return) < 1/2 and the LR pixel is quiet (and, with
+    `no_lone`, so is one of its 8 neighbours)."""
+    quiet = ambient_only(jnp.asarray(counts), Sensor(), alpha=AUTO_KEEP_RETURNS, pixels=1, pools=pools)
+    quiet = np.asarray(without_lone_pixels(quiet) if no_lone else quiet)
     return np.where(lr_blocks(quiet, Sensor().scale) & (p < 0.5), np.float32(1.0), raw)
 
 
@@ -73,8 +77,8 @@ def score(groups: dict, frames: dict, seed: int = 0, log=print) -> list:
                 clip = clips[name]
                 raw, p = network_outputs(clip)
                 row = {"group": group, "scene": name, "photons": photons, "snr": snr, "choices": {}}
-                for label, pools in CHOICES.items():
-                    sr = decided(raw, p, clip.counts, pools)[clip.scored]
+                for label, (pools, no_lone) in CHOICES.items():
+                    sr = decided(raw, p, clip.counts, pools, no_lone)[clip.scored]
                     gt = clip.gt[clip.scored]
                     psnr, _ = frame_scores(sr, gt)
                     dropped, shown, n_ret, n_sky = shares(sr, gt)

@@ -230,7 +230,7 @@ def confidence_decided(model, frames: PhotonFrames, guard: float | None = None) 
     """A model with a no-return head on the frames, no return where the confidence's P(return) (its logit and each
     pixel's photons over 9 frames, `jaxsr.inference.confidence`) is below one half and, with a `guard` rate, the
     LR pixel's own photons over 9 frames, and those of the quiet pixels pooled around it (`QUIET_POOLS`), pass for
-    ambient light alone at it (`jaxsr upscale`'s default: 0.001)."""
+    ambient light alone at it and a neighbour's do too (`jaxsr upscale`'s default: 0.001, `iter_quiet`)."""
     raw = np.stack(list(iter_super_resolve(model, iter(model_input(model, frames)), raw=True)))
     coeffs = coefficients_for(None, True)
     sensor = jaxsr.Sensor(gate=jaxsr.Gate.spanning(35.0, frames.gate.bins))

@@ -13,7 +13,7 @@ from typing import Callable, Iterator
 import numpy as np
 
 from ..config import TRAINED_RANGE_M, DepthScale, Gate, Optics, Sensor
-from ..inference import (DEFAULT_PRECISION, iter_ambient_only, iter_network_inputs, iter_returns_kept,
+from ..inference import (DEFAULT_PRECISION, iter_ambient_only, iter_network_inputs, iter_quiet, iter_returns_kept,
                          iter_super_resolve, lr_blocks, no_return_where, overrule_no_return)
 from ..inference.confidence import (EVIDENCE_FRAMES, NO_RETURN_AT, ConfidenceCoefficients, coefficients_for,
                                     confidence_frame, iter_count_windows, no_return_by_probability)
@@ -329,19 +329,19 @@ def _histogram_job(rec, gate, source, tag_notes, choice, planned, read: Reading,
         pools = " and ".join(f"{k} x {k}" for k in QUIET_POOLS)
         name = (f"{name}, {'that' if decision.by_probability else 'its'} no return kept only where the pixel's photons "
                 f"over {AMBIENT_FRAMES} frames, and those of the quiet pixels in the {pools} around it, pass for "
-                f"ambient alone (alpha {float(decision.keep_returns):g})")
+                f"ambient alone (alpha {float(decision.keep_returns):g}) and a neighbour's do too")
 
-    def flags(alpha, pixels, pools=()):
-        return lambda: iter_ambient_only(counts, sensor, alpha=alpha, pixels=pixels, frames=AMBIENT_FRAMES,
-                                         pools=pools)
+    def flags(alpha, pixels):
+        return lambda: iter_ambient_only(counts, sensor, alpha=alpha, pixels=pixels, frames=AMBIENT_FRAMES)
 
     return UpscaleJob(
         rec, model, name, label, units, gate, scale, warnings, source, choice.precision,
         found if read.clip_negative else None, decision, model_id, _lr_stream=lambda: lr_stream(model.channels),
         _ambient_stream=None if decision.ambient_alpha is None else flags(decision.ambient_alpha, 3),
-        # each pixel's own photons (pixels=1), then those of the quiet pixels around it (a dim wall's return shows
-        # in their pool): a return in the block keeps the block's depth
-        _keep_stream=None if decision.keep_returns is None else flags(decision.keep_returns, 1, QUIET_POOLS),
+        # each pixel's own photons, then those of the quiet pixels around it (a dim wall's return shows in their
+        # pool), and no lone pixel: a return in the block keeps the block's depth
+        _keep_stream=None if decision.keep_returns is None else (
+            lambda: iter_quiet(counts, sensor, alpha=decision.keep_returns, frames=AMBIENT_FRAMES)),
         _count_stream=lambda: iter(counts),
         confidence_coefficients=coefficients_for(model_id, model.has_no_return_head))
 

@@ -16,8 +16,8 @@ from ..checks import require_numbers
 from ..config import MIN_LR_SIDE, Sensor
 from ..nn.inputs import network_inputs
 from ..nn.model import Model
-from ..sensor.peaks import (ambient_only, capped_for_sum, check_ambient_settings, check_false_alarm_rate,
-                            summed_histograms)
+from ..sensor.peaks import (QUIET_POOLS, ambient_only, capped_for_sum, check_ambient_settings,
+                            check_false_alarm_rate, summed_histograms, without_lone_pixels)
 from .forms import DEFAULT_FORM, DEFAULT_PRECISION, check_precision, in_form
 from .traced import refuse_tracing
 from .units import check_units, network_to_units
@@ -69,6 +69,9 @@ def iter_network_inputs(counts: Iterable, sensor: Sensor = Sensor(), inputs=("de
         yield from flush()
 
 
+_without_lone_pixels = jax.jit(without_lone_pixels)
+
+
 @functools.partial(jax.jit, static_argnames=("sensor", "pixels", "frames", "pools"))
 def _ambient_centre(window, alpha, sensor, pixels, frames, pools):
     """`ambient_only` of the centre frame of a (frames, h, w, K) window, frames beyond the sequence zero: the
@@ -112,6 +115,16 @@ def iter_ambient_only(counts: Iterable, sensor: Sensor = Sensor(), *, alpha: flo
     while held and t <= first + len(held) - 1:  # the last r frames: the sequence ends before their windows do
         yield flag(first)
         t += 1
+
+
+def iter_quiet(counts: Iterable, sensor: Sensor = Sensor(), *, alpha: float = 1e-3,
+               frames: int = 9) -> Iterator[np.ndarray]:
+    """Where the photons say no return may be output, frame by frame ((h, w) bool): the pixel's own histograms over
+    `frames` frames and those of the quiet pixels pooled around it (`QUIET_POOLS`) pass for ambient light alone at
+    `alpha`, and so does one of its 8 neighbours (`without_lone_pixels`). The photons' part of `jaxsr upscale`'s
+    no-return decision (`--keep-returns`)."""
+    for flags in iter_ambient_only(counts, sensor, alpha=alpha, pixels=1, frames=frames, pools=QUIET_POOLS):
+        yield np.asarray(_without_lone_pixels(flags))
 
 
 def check_keep_returns(keep_returns, ambient_alpha, has_head: bool, where: str = "") -> None:

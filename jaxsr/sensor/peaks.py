@@ -344,6 +344,19 @@ def ambient_only(counts, sensor: Sensor = Sensor(), *, alpha=1e-3, pixels: int =
     return quiet
 
 
+def without_lone_pixels(flags):
+    """No-return flags (..., h, w) bool, each kept only where one of its 8 neighbours is flagged too: no return is
+    a region of two LR pixels or more. A lone flagged pixel amid returns is more often a surface that sends back no
+    photon (a black screen, a real sensor's outlier pixel) than a hole of one pixel; the network's depth fills it
+    from its surroundings, as the paper's network fills every pixel. Edges count as not flagged. jit-able."""
+    f = jnp.asarray(flags, bool)
+    h, w = f.shape[-2:]
+    padded = jnp.pad(f, [(0, 0)] * (f.ndim - 2) + [(1, 1), (1, 1)])
+    around = [padded[..., 1 + dy:1 + dy + h, 1 + dx:1 + dx + w] for dy in (-1, 0, 1) for dx in (-1, 0, 1)
+              if (dy, dx) != (0, 0)]
+    return f & jnp.any(jnp.stack(around), axis=0)
+
+
 def summed_histograms(pixels: int, frames: int, pools: tuple = ()) -> int:
     """The most histograms `ambient_only` adds into one test: what each is capped for (`capped_for_sum`)."""
     return pixels * pixels * frames * max(pools, default=1) ** 2

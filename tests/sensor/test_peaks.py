@@ -456,6 +456,29 @@ def test_pools_stream_as_the_whole_sequence_and_stay_finite_at_huge_counts():
     assert not flagged[:, :, :3].any() and flagged[:, :, 4:].all()
 
 
+def test_a_lone_flagged_pixel_is_not_no_return_but_a_region_of_two_is():
+    flags = np.zeros((2, 6, 7), bool)
+    flags[0, 2, 3] = True  # alone amid returns
+    flags[0, 0, 0] = True  # alone at the corner: the frame's edge is no neighbour
+    flags[1, 1, 1] = flags[1, 2, 2] = True  # two touching at a corner: a region
+    flags[1, 4:, 4:] = True  # a block
+    got = np.asarray(jax.jit(jaxsr.sensor.without_lone_pixels)(flags))
+    want = flags.copy()
+    want[0] = False
+    np.testing.assert_array_equal(got, want)
+    assert np.asarray(jaxsr.sensor.without_lone_pixels(np.ones((3, 3), bool))).all()
+    assert not np.asarray(jaxsr.sensor.without_lone_pixels(np.ones((1, 1), bool))).any()
+
+
+def test_iter_quiet_is_the_pooled_test_without_lone_pixels():
+    counts = _dim_wall_and_sky(9, 0.4)[:, :12, :16]
+    counts[:, 9, 14] = 0.0  # a pixel that sends back no photon amid the sky: still a region with the sky
+    whole = jaxsr.sensor.without_lone_pixels(jaxsr.sensor.ambient_only(counts, CFG, alpha=1e-3, pixels=1,
+                                                                        pools=jaxsr.sensor.QUIET_POOLS))
+    got = np.stack(list(jaxsr.inference.iter_quiet(iter(counts), CFG, alpha=1e-3)))
+    np.testing.assert_array_equal(got, np.asarray(whole))
+
+
 @pytest.mark.parametrize("pools", [(2,), (3, 4), [3, 5], (0,), (True,)])
 def test_pools_refused_unless_a_tuple_of_odd_sides(pools):
     with pytest.raises(ValueError, match="pools"):
