@@ -294,7 +294,10 @@ def _histogram_job(rec, gate, source, tag_notes, choice, planned, read: Reading,
     returns = head_returns(counts, gate, HEAD_FRAMES)
     sensor = read.sensor_of_gate(gate, data_span(returns, gate))
     scale = sensor.depth  # what network_inputs, the output's metres and the confidence's bins all read
-    warnings = tag_notes + tuple(gate_warnings(gate, scale, returns=returns))
+    refit = ("a sensor file's depth scale spans its gate, as a model fine-tuned on it reads it; for another model give "
+             "the gate's flags in place of --sensor and leave --span out to fit it" if read.sensor is not None
+             else "leave --span out to fit it")
+    warnings = tag_notes + tuple(gate_warnings(gate, scale, returns=returns, refit=refit))
     if found[0]:
         warnings += (_clipped_note(*found),)
     # what the photons say, read once (not after clipping: the clipped counts' ambient is no longer the sensor's)

@@ -133,7 +133,8 @@ def data_span(depth, gate: Gate) -> float:
     return float(min(length, max(reach, SPAN_MIN_BINS * float(gate.bin_width))))
 
 
-def gate_warnings(gate: Gate, scale: DepthScale, *, returns=None) -> list[str]:
+def gate_warnings(gate: Gate, scale: DepthScale, *, returns=None,
+                  refit: str = "leave --span out to fit it") -> list[str]:
     """What the bundled models never saw in this gate and scale, as sentences (empty for the paper's sensor).
 
     Raises ValueError if the gate lies wholly outside [offset, offset + span): every return would read as no
@@ -143,7 +144,8 @@ def gate_warnings(gate: Gate, scale: DepthScale, *, returns=None) -> list[str]:
     it learned: on simulated gates of 3 to 15 m the trained 35 m measured 2.7 to 13x the median depth error of the
     fitted span, experiments/results/span_choice.md); without `returns`, where part of the gate lies outside the
     span. Warns when a bin is over 2x wider than the trained 1/16 of the span
-    (coarser depth)."""
+    (coarser depth). `refit`: how the user fits the span to the data, said after the warnings on it (the command's
+    --span by default)."""
     start, end = float(gate.start), float(gate.end)
     lo, hi = float(scale.offset), float(scale.offset + scale.span)
     if end <= lo or start >= hi:
@@ -161,14 +163,14 @@ def gate_warnings(gate: Gate, scale: DepthScale, *, returns=None) -> list[str]:
         outside = float(np.mean((seen >= hi) | (seen < lo)))
         if outside >= 0.01:
             out.append(f"{100 * outside:.3g} % of the returns in the first frames lie outside the depth scale's "
-                       f"[{lo:g}, {hi:g}) m: they read as no return (beyond) or 0 m (before); leave --span out to "
-                       "fit the span to the data, or give a longer one")
+                       f"[{lo:g}, {hi:g}) m: they read as no return (beyond) or 0 m (before); {refit}, or give a "
+                       "longer one")
         fitted = data_span(seen, Gate(gate.bins, gate.bin_width, lo))
         if float(scale.span) >= 2.0 * fitted:
             out.append(f"the returns in the first frames fit a depth span of {fitted:.3g} m, and the span is "
                        f"{float(scale.span):g} m: the network sees their depth steps "
                        f"{float(scale.span) / fitted:.3g}x smaller than it learned (in simulation 2.7 to 13x the "
-                       "depth error of the fitted span); leave --span out to fit it")
+                       f"depth error of the fitted span); {refit}")
     coarse = float(gate.bin_width) / float(scale.span) * 16
     if coarse > 2.0:
         out.append(f"bins of {float(gate.bin_width):g} m are {coarse:.3g}x the trained 1/16 of the depth span: "

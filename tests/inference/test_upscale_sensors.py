@@ -125,5 +125,8 @@ def test_the_fitted_span_is_the_sensor_the_network_reads_with(model_path):
     assert span < 10.0 and float(job.scale.span) == pytest.approx(span)
     np.testing.assert_allclose(next(job.lr_frames()), to_network_depth(lr_m, job.scale), atol=1e-6)
     own = Sensor(gate=gate, depth=DepthScale(0.0, 35.0))
-    assert float(prepare_upscale(counts, model=model_path, read=Reading(kind="histograms", sensor=own)).scale.span) \
-        == 35.0
+    job = prepare_upscale(counts, model=model_path, read=Reading(kind="histograms", sensor=own))
+    assert float(job.scale.span) == 35.0
+    # the span warning's advice fits what was given: --span is not the way under --sensor
+    (line,) = [w for w in job.warnings if "fit a depth span" in w]
+    assert "sensor file" in line and "leave --span out to fit it" in line and "in place of --sensor" in line
