@@ -323,6 +323,10 @@ def super_resolve(model: Model, lr_seq, *, units: str = "normalised", sensor: Se
     out = np.empty((lr_seq.shape[0], lr_seq.shape[1] * r, lr_seq.shape[2] * r), np.float32)
     for t, hr in enumerate(iter_super_resolve(model, lr_seq, batch_size=batch_size, conv3d_impl=conv3d_impl,
                                               tile=tile, precision=precision, form=form)):
+        if not np.all(np.isfinite(hr)):  # the input was checked: weights or a config that compute nothing
+            raise ValueError(f"super_resolve: the model's output holds NaN or inf in frame {t} "
+                             f"({1 - np.isfinite(hr).mean():.0%} of its pixels) from a usable input: it computes "
+                             "nothing usable (check its config and weights: jaxsr info)")
         out[t] = hr if units == "normalised" else np.asarray(network_to_units(hr, units, sensor))
     return out
 

@@ -65,6 +65,14 @@ def test_output_that_is_no_depth_is_refused_not_written_as_no_return(tmp_path, m
     assert not (tmp_path / "out.npy").exists()
 
 
+@pytest.mark.parametrize("bias", [np.inf, np.nan])
+def test_the_library_refuses_output_that_is_not_finite(model_path, bias):
+    """`jaxsr.super_resolve` of a model whose output is NaN or inf raised nothing and returned it (read as no
+    return by anyone who clips it); the command refused it already."""
+    with pytest.raises(ValueError, match="super_resolve: the model's output holds NaN or inf in frame 0"):
+        jaxsr.super_resolve(_with_residual_bias(model_path, bias), np.full((2, 8, 8), 0.5, np.float32))
+
+
 @pytest.mark.parametrize("flags, message", [
     (["--vmin", "3"], "--vmin applies to --preview, --video and --points only"),
     (["--vmax", "9", "--cmap", "jet"], "--vmax, --cmap apply to --preview, --video and --points only"),
