@@ -124,7 +124,8 @@ def tables(rows) -> str:
 
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--data", default=str(_heldout_data.DEFAULT_DATA), help="the held-out data (heldout.py prepare)")
+    parser.add_argument("--data", default=str(_heldout_data.DEFAULT_DATA),
+                        help="the held-out data (heldout.py prepare)")
     parser.add_argument("--frames", type=int, default=4, help="frames scored per held-out scene")
     parser.add_argument("--test-frames", type=int, default=4, help="frames scored per test scene")
     parser.add_argument("--out", default="experiments/results/quiet_pools.md")

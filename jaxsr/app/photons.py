@@ -36,8 +36,8 @@ AUTO_AMBIENT_MIN_FRAMES = 16
 # there, but not on every real recording, so it stays a hint)
 FEW_PHOTONS = 3.0
 # keep_returns="auto": for a model with a no-return head on histograms and time tags, the confidence's no return kept
-# only where the pixel's own photons, and those of the quiet pixels pooled around it (`QUIET_POOLS`), pass for
-# ambient light alone at this rate (before the confidence: the head's, with the pixel's own photons). On the real tower recording it turned
+# only where the photons pass for ambient light alone at this rate (`jaxsr.inference.iter_quiet`; before the
+# confidence and the pools: the head's, with the pixel's own photons). On the real tower recording that turned
 # tr4-ambient's head alone (+2.4 to -10.4 dB against bicubic on a dim building at 1-8 photons) into +3.5 to +4.7 dB,
 # for 0.1-0.5 dB in simulation at 100-1000 photons (the sky at the edges of sky regions shown as depth)
 AUTO_KEEP_RETURNS = 1e-3

@@ -113,7 +113,7 @@ def add_parser(subparsers):
                    "(default): where the confidence's P(return) (the head's logit and each pixel's photons over 9 "
                    "frames) is below --no-return-logit's threshold (0.5 by default) and the pixel's own photons over "
                    "9 frames, and those of the quiet pixels pooled in the 3 x 3 and 5 x 5 around it, pass for ambient "
-                   f"light alone at {AUTO_KEEP_RETURNS:g}; the head alone beside an "
+                   f"light alone at {AUTO_KEEP_RETURNS:g} in a region of two LR pixels or more; the head alone beside an "
                    "--ambient-alpha rate and for --clip-negative counts. ALPHA, such as 0.001: the rule before the "
                    "confidence, the head's own logit in place of P(return) and the photons' test at that "
                    "false-alarm rate. off: the head decides alone (docs/network.md)")

@@ -312,7 +312,7 @@ def ambient_only(counts, sensor: Sensor = Sensor(), *, alpha=1e-3, pixels: int =
     for each side k of `pools`, the summed histograms of the flagged pixels in the k x k pixels around it pass too
     (at alpha / len(pools) each). Only flagged pixels are pooled, so a bright return beside sky does not unflag
     the sky, while a dark wall of a room, whose pixels each show too few photons, shows its return in the pool
-    (`QUIET_POOLS`, the default decision of `jaxsr.upscale`: docs/photons.md, "No return").
+    (`QUIET_POOLS`, the default decision of `jaxsr.upscale`: docs/network.md, "The pools").
 
     Args:
       counts: (T, h, w, K) photon counts of consecutive frames, finite and >= 0 (traced, a histogram that is not
@@ -324,7 +324,7 @@ def ambient_only(counts, sensor: Sensor = Sensor(), *, alpha=1e-3, pixels: int =
       pools: odd sides in LR pixels of the flagged neighbourhoods tested after (default none).
       window: half-width in bins of the scan (default: `default_window(sensor)`).
     Returns:
-      (T, h, w) bool. jit-able with `pixels` and `frames` static; no gradient.
+      (T, h, w) bool. jit-able with `pixels`, `frames` and `pools` static; no gradient.
     """
     check_ambient_settings("ambient_only", alpha, pixels, frames, pools)
     if jnp.ndim(counts) != 4:
