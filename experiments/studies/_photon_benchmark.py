@@ -18,6 +18,7 @@ from types import SimpleNamespace
 import jax
 import jax.numpy as jnp
 import numpy as np
+from scipy import ndimage
 
 import jaxsr
 from jaxsr.baselines import block_mean
@@ -383,3 +384,40 @@ def _named_numbers(given, specs, flag: str, what: str) -> dict:
         if not sep or name not in [m.partition("=")[0] for m in specs]:
             raise SystemExit(f"{flag} {spec!r}: NAME must be one of --model's names")
     return out
+
+
+# ------------------------------------------------------------------------------------------------ held-out measures
+
+def away_from_edges(gt) -> np.ndarray:
+    """(T, H, W) True for HR pixels with a return (normalised ground truth < 1) whose 8 neighbours all hold a
+    return; none beyond the frame counts against it."""
+    ret = np.asarray(gt) < 1.0
+    return np.stack([ndimage.minimum_filter(r.astype(np.uint8), size=3, mode="nearest").astype(bool) for r in ret])
+
+
+def dropped_error(sr, gt) -> float:
+    """% of the squared error (output clipped to [0, 1], NaN as no return, as PSNR counts it) that lies on true
+    returns output as no return, anywhere in the frame; NaN where there is no error."""
+    sr, gt = np.asarray(sr, np.float64), np.asarray(gt, np.float64)
+    out = np.clip(np.where(np.isnan(sr), 1.0, sr), 0.0, 1.0)
+    err = (out - gt) ** 2
+    total = err.sum()
+    return 100.0 * float(err[(gt < 1.0) & (out >= NO_RETURN_AT)].sum() / total) if total > 0 else float("nan")
+
+
+def shares(sr, gt) -> tuple[float, float, int, int]:
+    """(% of returns away from the edges output as no return (sr >= NO_RETURN_AT or NaN), % of no-return pixels
+    (gt >= 1) output as depth, how many pixels of each kind): NaN where there is none of a kind."""
+    sr, gt = np.asarray(sr), np.asarray(gt)
+    as_depth = sr < NO_RETURN_AT  # NaN compares False: no return
+    inner, sky = away_from_edges(gt), gt >= 1.0
+    dropped = 100.0 * float((~as_depth[inner]).mean()) if inner.any() else float("nan")
+    shown = 100.0 * float(as_depth[sky].mean()) if sky.any() else float("nan")
+    return dropped, shown, int(inner.sum()), int(sky.sum())
+
+
+def regime_key(seed: int, photons: float, snr):
+    """One noise key per regime, from its numbers (wrapped into fold_in's 32 bits): the same photons whatever else
+    runs, and for the paper's (snr None) not those of SNR 1.3."""
+    regime = (int(photons * 1000) * 7919 + int(-1 if snr is None else snr * 1000)) % 2 ** 32
+    return jax.random.fold_in(jax.random.key(seed), regime)

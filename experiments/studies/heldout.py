@@ -49,10 +49,8 @@ import sys
 import time
 from pathlib import Path
 
-import jax
 import jax.numpy as jnp
 import numpy as np
-from scipy import ndimage
 
 import jaxsr
 from jaxsr.app import AUTO_KEEP_RETURNS, DEFAULT_MODELS, Reading
@@ -62,8 +60,8 @@ from jaxsr.nn import Model
 from jaxsr.sensor import calibrated_rates, normalise_depth
 
 import _heldout_data  # beside this script
-from _photon_benchmark import (NO_RETURN_AT, PHOTONS, SNRS, benchmark_clips, bicubic_output,  # noqa: E402
-                               calibration, regime_label, returns_kept)
+from _photon_benchmark import (PHOTONS, SNRS, benchmark_clips, bicubic_output, calibration,  # noqa: E402
+                               dropped_error, regime_key, regime_label, returns_kept, shares)
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
 from harness.reports import header, markdown_table, write_atomic  # noqa: E402
@@ -82,34 +80,6 @@ FIRST = ((3.0, 14.0), (1.3, 0.3, 0.1))  # the regimes the issue measured the gap
 
 
 # ------------------------------------------------------------------------------------------------ the measures
-
-def away_from_edges(gt) -> np.ndarray:
-    """(T, H, W) True for HR pixels with a return (normalised ground truth < 1) whose 8 neighbours all hold a
-    return; none beyond the frame counts against it."""
-    ret = np.asarray(gt) < 1.0
-    return np.stack([ndimage.minimum_filter(r.astype(np.uint8), size=3, mode="nearest").astype(bool) for r in ret])
-
-
-def dropped_error(sr, gt) -> float:
-    """% of the squared error (output clipped to [0, 1], NaN as no return, as PSNR counts it) that lies on true
-    returns output as no return, anywhere in the frame; NaN where there is no error."""
-    sr, gt = np.asarray(sr, np.float64), np.asarray(gt, np.float64)
-    out = np.clip(np.where(np.isnan(sr), 1.0, sr), 0.0, 1.0)
-    err = (out - gt) ** 2
-    total = err.sum()
-    return 100.0 * float(err[(gt < 1.0) & (out >= NO_RETURN_AT)].sum() / total) if total > 0 else float("nan")
-
-
-def shares(sr, gt) -> tuple[float, float, int, int]:
-    """(% of returns away from the edges output as no return (sr >= NO_RETURN_AT or NaN), % of no-return pixels
-    (gt >= 1) output as depth, how many pixels of each kind): NaN where there is none of a kind."""
-    sr, gt = np.asarray(sr), np.asarray(gt)
-    as_depth = sr < NO_RETURN_AT  # NaN compares False: no return
-    inner, sky = away_from_edges(gt), gt >= 1.0
-    dropped = 100.0 * float((~as_depth[inner]).mean()) if inner.any() else float("nan")
-    shown = 100.0 * float(as_depth[sky].mean()) if sky.any() else float("nan")
-    return dropped, shown, int(inner.sum()), int(sky.sum())
-
 
 def dim_returns(seq, photons: float = 3.0, snr: float = 1.3, *, every: int = 10) -> dict:
     """Why a dropped return costs a scene what it does: {"dim_pct": % of LR pixels with a return whose expected
@@ -163,13 +133,6 @@ def method_outputs(models: dict, clip, flags, methods=METHODS) -> dict:
     if unknown:
         raise ValueError(f"method_outputs: unknown methods {unknown}; expected some of {list(outputs)}")
     return {m: outputs[m]() for m in methods}
-
-
-def regime_key(seed: int, photons: float, snr):
-    """One noise key per regime, from its numbers (wrapped into fold_in's 32 bits): the same photons whatever else
-    runs, and for the paper's (snr None) not those of SNR 1.3."""
-    regime = (int(photons * 1000) * 7919 + int(-1 if snr is None else snr * 1000)) % 2 ** 32
-    return jax.random.fold_in(jax.random.key(seed), regime)
 
 
 def score_scene(models: dict, name: str, seq, photons: float, snr, *, frames: int, seed: int = 0,

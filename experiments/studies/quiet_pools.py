@@ -35,8 +35,7 @@ from jaxsr.inference import iter_super_resolve, lr_blocks
 from jaxsr.sensor import ambient_only, without_lone_pixels
 
 import _heldout_data  # beside this script
-from _photon_benchmark import benchmark_clips, regime_label  # noqa: E402
-from heldout import regime_key, shares  # noqa: E402
+from _photon_benchmark import benchmark_clips, regime_key, regime_label, shares  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
 from harness.reports import header, markdown_table, write_atomic  # noqa: E402

@@ -166,10 +166,10 @@ def super_resolve_histograms(model: Model, counts, sensor: Sensor = Sensor(), *,
     empties the insides of sky and absorbing regions that a model shows as depth, and drops returns too faint to
     stand out even summed: worth it from about 3 signal photons per pixel at SNR 1 and above, not at SNR 0.1
     (experiments/results/no_return_evidence.md).
-    keep_returns: for a model with a no-return head, a false-alarm rate: its no return is kept only where each LR
-    pixel's own photons over 9 frames pass for ambient light alone at it, elsewhere the network's depth
-    (`overrule_no_return`; `jaxsr upscale --keep-returns`); default None: the head decides. Not with
-    ambient_alpha."""
+    keep_returns: for a model with a no-return head, a false-alarm rate: its no return is kept only where the
+    photons pass for ambient light alone at it (`iter_quiet`: each LR pixel's own over 9 frames, the quiet pixels'
+    pooled around it, no lone pixel), elsewhere the network's depth (`overrule_no_return`; `jaxsr upscale
+    --keep-returns`); default None: the head decides. Not with ambient_alpha."""
     refuse_tracing((counts, intensity), "super_resolve_histograms",
                    "jaxsr.apply_histograms(model, counts, sensor)")
     _require_model(model, "super_resolve_histograms")
@@ -207,8 +207,7 @@ def super_resolve_histograms(model: Model, counts, sensor: Sensor = Sensor(), *,
     if keep_returns is None:
         stream = iter_super_resolve(model, frames, **options)
     else:
-        stream = iter_returns_kept(model, frames, iter_ambient_only(counts, sensor, alpha=keep_returns, pixels=1),
-                                   **options)
+        stream = iter_returns_kept(model, frames, iter_quiet(counts, sensor, alpha=keep_returns), **options)
     for t, hr in enumerate(stream):
         out[t] = hr
     out = out if ambient_alpha is None else _no_return_where_ambient(out, counts, sensor, ambient_alpha)
@@ -243,8 +242,8 @@ def lr_blocks(flags, scale: int) -> np.ndarray:
 
 def iter_returns_kept(model: Model, frames: Iterable, quiet: Iterable, **options) -> Iterator[np.ndarray]:
     """`iter_super_resolve(model, frames, **options)` for a model with a no-return head, its no return kept only
-    where `quiet` ((h, w) bool per frame, such as `iter_ambient_only(..., pixels=1)`: the pixel's own photons
-    pass for ambient light alone) says so, elsewhere the network's depth (`overrule_no_return` at the model's
+    where `quiet` ((h, w) bool per frame, such as `iter_quiet`'s: the photons pass for ambient light alone) says
+    so, elsewhere the network's depth (`overrule_no_return` at the model's
     threshold): the keep_returns decision of `super_resolve_histograms` and `jaxsr upscale`, streamed."""
     raw = iter_super_resolve(model, frames, raw=True, **options)
     threshold = model.config.no_return_logit
@@ -254,8 +253,8 @@ def iter_returns_kept(model: Model, frames: Iterable, quiet: Iterable, **options
 def overrule_no_return(raw, quiet, threshold: float) -> np.ndarray:
     """A no-return head's decision, kept only where the photons agree: HR (..., H, W) normalised depth from `raw`
     (..., H, W, 2) [depth, logit] (`iter_super_resolve(raw=True)`), 1.0 (no return) where the logit is above
-    `threshold` AND the pixel's LR block is `quiet` (..., h, w) bool: its own photons pass for ambient light
-    alone (`jaxsr.sensor.ambient_only` with pixels=1 over 9 frames). A head trained where ambient light is common
+    `threshold` AND the pixel's LR block is `quiet` (..., h, w) bool: its photons pass for ambient light alone
+    (`iter_quiet`, as `jaxsr upscale` decides). A head trained where ambient light is common
     can call a dim surface of a dark scene no return (a couple of photons in one bin and nothing around); summed
     over the frames those photons stand out, and the depth is kept. The price: a block that a sky edge crosses
     holds a return, so its sky part is output as depth."""

@@ -17,6 +17,7 @@ from PIL import Image
 
 import heldout  # experiments/studies (pytest's pythonpath)
 import _heldout_data as hd
+import _photon_benchmark as bench
 from jaxsr.config import MODEL_INPUTS, ModelConfig, Sensor
 from jaxsr.nn import Model, init_model
 from jaxsr.sensor.forward import planar_to_radial
@@ -138,14 +139,14 @@ def test_prepare_from_a_git_repository_and_load(tmp_path, monkeypatch):
 def test_shares_count_returns_away_from_edges_and_sky_shown_as_depth():
     gt = np.full((1, 10, 10), 0.3, np.float32)
     gt[0, :, 7:] = 1.0  # no return on the right
-    inner = heldout.away_from_edges(gt)[0]
+    inner = bench.away_from_edges(gt)[0]
     assert inner[:, :6].all() and not inner[:, 6:].any()  # column 6 touches the sky
     sr = gt.copy()
     sr[0, 2, 2] = 1.0  # a dropped return away from the edges
     sr[0, 5, 6] = 1.0  # one at the edge: not counted
     sr[0, 0, 9] = 0.5  # sky shown as depth
     sr[0, 1, 9] = np.nan  # NaN: no return
-    dropped, shown, n_ret, n_sky = heldout.shares(sr, gt)
+    dropped, shown, n_ret, n_sky = bench.shares(sr, gt)
     assert (n_ret, n_sky) == (60, 30)
     assert dropped == pytest.approx(100.0 / 60) and shown == pytest.approx(100.0 / 30)
 
@@ -294,11 +295,11 @@ def test_dropped_error_is_the_share_of_squared_error_on_dropped_returns():
     gt = np.array([[[0.2, 0.2, 0.5, 1.0]]])
     sr = np.array([[[1.0, 0.3, np.nan, 0.4]]])  # a return dropped, one off by 0.1, NaN: dropped, sky as depth
     err = [0.8 ** 2, 0.1 ** 2, 0.5 ** 2, 0.6 ** 2]
-    assert heldout.dropped_error(sr, gt) == pytest.approx(100 * (err[0] + err[2]) / sum(err))
-    assert np.isnan(heldout.dropped_error(gt, gt))
+    assert bench.dropped_error(sr, gt) == pytest.approx(100 * (err[0] + err[2]) / sum(err))
+    assert np.isnan(bench.dropped_error(gt, gt))
 
 
 def test_regime_keys_differ_and_take_1000_photons():
-    keys = [heldout.regime_key(0, p, s) for p in (1.0, 14.0, 1000.0) for s in (0.1, 5.0, None)]
+    keys = [bench.regime_key(0, p, s) for p in (1.0, 14.0, 1000.0) for s in (0.1, 5.0, None)]
     data = {tuple(np.asarray(jax.random.key_data(k)).ravel()) for k in keys}
     assert len(data) == len(keys)  # one noise per regime, 1000 photons within fold_in's 32 bits

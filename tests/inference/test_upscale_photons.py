@@ -410,16 +410,19 @@ def test_raw_output_streams_depth_and_logit_in_tiles_and_in_the_sequence_form(sk
 def test_keep_returns_keeps_the_surface_a_head_calls_sky(sky_everywhere, half_sky, tmp_path, capsys):
     """The head calls everything no return; with keep_returns (by default "auto": AUTO_KEEP_RETURNS for a model with
     a head) the surface (4 photons a pixel and frame) comes out as the network's depth and the sky stays no return:
-    the flags are each pixel's own `ambient_only`. Off (None, --keep-returns off), the head decides alone."""
+    the flags are `iter_quiet`'s (each pixel's own `ambient_only`, the quiet pixels' pools, no lone pixel). Off
+    (None, --keep-returns off), the head decides alone."""
     from jaxsr.cli import main
-    from jaxsr.sensor import ambient_only
+    from jaxsr.sensor import QUIET_POOLS, ambient_only, without_lone_pixels
 
     model, path = sky_everywhere
     assert (upscale(half_sky, None, model=path, read=Reading(units="normalised"), photons=PhotonRules(keep_returns=None)).depth == 1.0).all()
     result = upscale(half_sky, None, model=path, read=Reading(units="normalised"), photons=PhotonRules(keep_returns=1e-3))
     assert AUTO_KEEP_RETURNS == 1e-3
-    quiet = np.asarray(ambient_only(half_sky, alpha=1e-3, pixels=1))
-    assert quiet[:, :, :6].mean() < 0.01 and quiet[:, :, 6:].all()  # one surface pixel of a first frame passes
+    own = np.asarray(ambient_only(half_sky, alpha=1e-3, pixels=1))
+    assert own[:, :, :6].mean() < 0.01 and own[:, :, 6:].all()  # one surface pixel of a first frame passes
+    quiet = np.asarray(without_lone_pixels(ambient_only(half_sky, alpha=1e-3, pixels=1, pools=QUIET_POOLS)))
+    assert not quiet[:, :, :6].any() and quiet[:, :, 6:].all()  # that lone pixel is the surface's again
     hr_quiet = np.repeat(np.repeat(quiet, 4, axis=1), 4, axis=2)
     depth = super_resolve_histograms(with_no_return_logit(model, 1e6), half_sky)  # the depth under the head
     np.testing.assert_allclose(result.depth, np.clip(np.where(hr_quiet, 1.0, depth), 0, 1), atol=1e-6)

@@ -1,0 +1,23 @@
+"""The pools' study (experiments/studies/quiet_pools.py) measures the decision the library makes: its default
+choice is `jaxsr.inference.iter_quiet`'s flags with P(return) < 1/2, and each choice only moves the flags."""
+
+import numpy as np
+
+import quiet_pools  # experiments/studies (pytest's pythonpath)
+from jaxsr.config import Sensor
+from jaxsr.inference import iter_quiet, lr_blocks
+
+
+def test_the_default_choice_is_the_library_decision():
+    rng = np.random.default_rng(3)
+    counts = rng.poisson(2.0 / 16, (9, 6, 8, 16)).astype(np.float32)
+    counts[:, :, :3, 5] += rng.poisson(0.6, (9, 6, 3))  # a dim wall beside sky
+    counts[:, 2, 6] = 0.0  # a pixel that sends back nothing amid the sky
+    raw = rng.uniform(0.1, 0.9, (9, 24, 32)).astype(np.float32)
+    p = rng.uniform(0.0, 1.0, (9, 24, 32)).astype(np.float32)
+    (pools, no_lone), = [v for k, v in quiet_pools.CHOICES.items() if "the default" in k]
+    got = quiet_pools.decided(raw, p, counts, pools, no_lone)
+    quiet = lr_blocks(np.stack(list(iter_quiet(iter(counts), Sensor(), alpha=1e-3))), 4)
+    np.testing.assert_array_equal(got, np.where(quiet & (p < 0.5), np.float32(1.0), raw))
+    alone = quiet_pools.decided(raw, p, counts, (), False)
+    assert (alone == 1.0).sum() >= (got == 1.0).sum()  # pooling only ever keeps more depth
