@@ -2,12 +2,14 @@
 choice is `jaxsr.inference.iter_quiet`'s flags with P(return) < 1/2, and each choice only moves the flags."""
 
 import numpy as np
+import pytest
 
 import quiet_pools  # experiments/studies (pytest's pythonpath)
 from jaxsr.config import Sensor
 from jaxsr.inference import iter_quiet, lr_blocks
 
 
+@pytest.mark.slow  # 8-32 s on 2 cores: keeps the default suite under 8 minutes
 def test_the_default_choice_is_the_library_decision():
     rng = np.random.default_rng(3)
     counts = rng.poisson(2.0 / 16, (9, 6, 8, 16)).astype(np.float32)

@@ -104,6 +104,7 @@ def test_near_gaps_and_the_psnr_split():
 @pytest.mark.skipif(not all((DATA / s.file).is_file() for s in real_photons.SOURCES[:2]),
                     reason=f"the real recordings (tower.mat, two_layer.mat) are not in {DATA}; they are not part of "
                            "the project (docs/own-sensor.md, 'Real recordings', says where to get them)")
+@pytest.mark.slow  # 8-32 s on 2 cores: keeps the default suite under 8 minutes
 def test_core_on_crops_of_the_real_recordings(tmp_path):
     recordings = [real_photons.read_recording(DATA, real_photons.SOURCES[0], crop=(64, 64, 48)),
                   real_photons.read_recording(DATA, real_photons.SOURCES[1], crop=(24, 24, 48))]

@@ -125,6 +125,7 @@ PHOTON_TABLE = {  # a made-up study: the photon model best at few photons, the p
 }
 
 
+@pytest.mark.slow  # 8-32 s on 2 cores: keeps the default suite under 8 minutes
 def test_choose_photon_model_follows_the_table():
     from jaxsr.inference import choose_photon_model
 

@@ -443,6 +443,7 @@ def test_pools_find_a_dim_wall_that_no_pixel_shows_and_leave_the_sky_beside_brig
                                   reference_pooled(counts, 1e-3, 9, (3, 5)))
 
 
+@pytest.mark.slow  # 8-32 s on 2 cores: keeps the default suite under 8 minutes
 def test_pools_stream_as_the_whole_sequence_and_stay_finite_at_huge_counts():
     counts = _dim_wall_and_sky(8, 0.4)[:, :12, :16]
     whole = np.asarray(jaxsr.sensor.ambient_only(counts, CFG, alpha=1e-3, pixels=1, pools=(3, 5)))

@@ -50,6 +50,7 @@ def test_parameters_span_the_regime():
     assert drawn.min() >= 0.05 and drawn.max() <= 0.6
 
 
+@pytest.mark.slow  # 8-32 s on 2 cores: keeps the default suite under 8 minutes
 def test_default_source_traces():
     cfg = dataclasses.replace(TrainConfig(), batch_size=2, patch=(16, 32))
     make_batch = regime_batches(2, cfg, sensor=SENSOR)

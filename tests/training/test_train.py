@@ -91,6 +91,7 @@ def _huber_closed_form(e, d):
     return np.where(e <= d, 0.5 * e**2, d * (e - d / 2))
 
 
+@pytest.mark.slow  # 8-32 s on 2 cores: keeps the default suite under 8 minutes
 def test_huber_per_frame_and_in_validation():
     """`axis` averages per frame; `evaluate` reports the same loss as `huber_loss` on the network's output."""
     d = 0.01
@@ -144,6 +145,7 @@ def test_random_crop_is_aligned():
     np.testing.assert_array_equal(jnp.repeat(jnp.repeat(w[0], 4, 0), 4, 1), g)
 
 
+@pytest.mark.slow  # 8-32 s on 2 cores: keeps the default suite under 8 minutes
 def test_patch_rates_are_the_crop_of_the_whole_clips():
     """A training patch is simulated alone (`calibrated_rates` with the whole clip's calibration): its rates
     must be that window of `expected_histograms` of the whole clip (the reference, computed whole)."""
@@ -161,6 +163,7 @@ def test_patch_rates_are_the_crop_of_the_whole_clips():
     np.testing.assert_allclose(part, full[:, y0 : y0 + ph, x0 : x0 + pw], rtol=1e-5, atol=1e-7)
 
 
+@pytest.mark.slow  # 8-32 s on 2 cores: keeps the default suite under 8 minutes
 def test_patch_batches_align_lr_with_gt():
     """With a patch, the LR windows are drawn for the crop whose GT they return: at a high photon count the
     centre of mass of each LR pixel is its HR block's normalised depth (a shift by one LR pixel would not be)."""
@@ -230,6 +233,7 @@ def test_train_config_refuses_inconsistent_settings(change, message):
 
 # --- fitting ----------------------------------------------------------------------------------------------
 
+@pytest.mark.slow  # 8-32 s on 2 cores: keeps the default suite under 8 minutes
 def test_short_run_learns_and_beats_bicubic(tmp_path):
     from jaxsr.baselines.interpolation import bicubic
 
@@ -289,6 +293,7 @@ def test_a_folder_holding_a_run_is_refused_without_resume_or_overwrite(tmp_path)
     assert (tmp_path / "best.npz").read_bytes() != files["best.npz"]
 
 
+@pytest.mark.slow  # 8-32 s on 2 cores: keeps the default suite under 8 minutes
 def test_a_run_that_diverges_keeps_the_run_it_was_to_replace(tmp_path):
     """A non-finite loss stops the run at once with a clear error; with --force over a good run, the good run's
     files stay as they were (they are set aside at the new run's first save, and put back)."""
@@ -565,6 +570,7 @@ def test_stacked_layers_gradients_through_the_taps_equal_the_stacked_ones(monkey
 
 # --- data sources -----------------------------------------------------------------------------------------
 
+@pytest.mark.slow  # 8-32 s on 2 cores: keeps the default suite under 8 minutes
 def test_sequence_batches_from_hr_arrays():
     sensor = Sensor(optics=Optics.of_hr((16, 32)))
     rng = np.random.default_rng(0)
