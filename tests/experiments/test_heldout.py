@@ -221,7 +221,7 @@ def test_upscale_default_reads_the_benchmark_sensor():
     out = heldout.method_outputs(models, clip, flags["s"][keep], (heldout.KEEP, heldout.UPSCALE))
     (kept, gt), (user, gt2) = out[heldout.KEEP], out[heldout.UPSCALE]
     np.testing.assert_array_equal(gt, gt2)
-    both = (kept < heldout.NO_RETURN_AT) & (user < heldout.NO_RETURN_AT)
+    both = (kept < bench.NO_RETURN_AT) & (user < bench.NO_RETURN_AT)
     assert both.mean() > 0.5
     np.testing.assert_allclose(user[both], np.clip(kept[both], 0.0, 1.0), atol=1e-4)  # normalised units: clipped
     without = heldout.benchmark_clips({"s": seq}, 14.0, 1.3, scored=np.array([4]), radius=0,
