@@ -27,8 +27,8 @@ from jaxsr.io.checkpoint import resolve_model_path
 from jaxsr.inference import no_return_where, overrule_no_return
 from jaxsr.nn import network_inputs
 from jaxsr.training.no_return import no_return_outputs
-from jaxsr.sensor import (QUIET_POOLS, ambient_only, calibrate, calibrated_rates, no_return_regions,
-                          no_return_shares, normalise_depth, sample_poisson, without_lone_pixels)
+from jaxsr.sensor import (ambient_only, calibrate, calibrated_rates, no_return_regions, no_return_shares,
+                          normalise_depth, quiet_pixels, sample_poisson)
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
 from harness.scoring import BLOCK, Clip, frame_scores, frame_windows, scored_frames, scored_output  # noqa: E402
@@ -288,12 +288,11 @@ def no_return_decision(counts, sensor, setting):
     """(T, h, w) no-return decision of (T, h, w, K) counts for an `ambient` setting (`decision_of`):
     `ambient_only`'s flags or `no_return_shares`, at its false-alarm rate; for ("keep", alpha), where a head may
     mark no return (`returns_kept`): `ambient_only` of each pixel's own photons over its 9 frames; for ("pooled",
-    alpha), `jaxsr upscale`'s (`jaxsr.inference.iter_quiet`): those of the quiet pixels pooled around it too
-    (`QUIET_POOLS`), and no lone pixel (`without_lone_pixels`)."""
+    alpha), `jaxsr upscale`'s (`jaxsr.sensor.quiet_pixels`): those of the quiet pixels pooled around it too, and no
+    lone pixel."""
     kind, alpha = decision_of(setting)
     tests = {"flags": ambient_only, "shares": no_return_shares, "keep": functools.partial(ambient_only, pixels=1),
-             "pooled": lambda c, s, alpha: without_lone_pixels(ambient_only(c, s, alpha=alpha, pixels=1,
-                                                                            pools=QUIET_POOLS))}
+             "pooled": quiet_pixels}
     if kind not in tests:
         raise ValueError(f"no_return_decision: unknown decision {kind!r}; expected one of {sorted(tests)}")
     return tests[kind](counts, sensor, alpha=alpha)

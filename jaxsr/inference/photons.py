@@ -121,8 +121,9 @@ def iter_quiet(counts: Iterable, sensor: Sensor = Sensor(), *, alpha: float = 1e
                frames: int = 9) -> Iterator[np.ndarray]:
     """Where the photons say no return may be output, frame by frame ((h, w) bool): the pixel's own histograms over
     `frames` frames and those of the quiet pixels pooled around it (`QUIET_POOLS`) pass for ambient light alone at
-    `alpha`, and so does one of its 8 neighbours (`without_lone_pixels`). The photons' part of `jaxsr upscale`'s
-    no-return decision (`--keep-returns`)."""
+    `alpha`, and so does one of its 8 neighbours (`without_lone_pixels`): `jaxsr.sensor.quiet_pixels` of the whole
+    sequence, holding `frames` frames at a time. The photons' part of `jaxsr upscale`'s no-return decision
+    (`--keep-returns`)."""
     for flags in iter_ambient_only(counts, sensor, alpha=alpha, pixels=1, frames=frames, pools=QUIET_POOLS):
         yield np.asarray(_without_lone_pixels(flags))
 

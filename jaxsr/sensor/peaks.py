@@ -337,7 +337,7 @@ def ambient_only(counts, sensor: Sensor = Sensor(), *, alpha=1e-3, pixels: int =
     n = capped_for_sum(n, summed_histograms(pixels, frames, pools))
     summed = window_sums(n, frames, pixels)
     quiet = return_significance(summed, sensor, window=window) > jnp.log(alpha)
-    flagged = jnp.where(quiet[..., None], summed, 0.0)
+    flagged = jnp.where(quiet[..., None], summed, 0.0) if pools else None
     for k in pools:  # the flagged pixels' photons pooled: a dim surface's return shows where no pixel's does
         pooled = window_sums(flagged, 1, k)
         quiet &= return_significance(pooled, sensor, window=window) > jnp.log(alpha / len(pools))
@@ -355,6 +355,15 @@ def without_lone_pixels(flags):
     around = [padded[..., 1 + dy:1 + dy + h, 1 + dx:1 + dx + w] for dy in (-1, 0, 1) for dx in (-1, 0, 1)
               if (dy, dx) != (0, 0)]
     return f & jnp.any(jnp.stack(around), axis=0)
+
+
+def quiet_pixels(counts, sensor: Sensor = Sensor(), *, alpha=1e-3, frames: int = 9):
+    """The photons' part of the default no-return decision over a whole sequence: (T, h, w) bool, True where a
+    pixel's own histograms over `frames` frames and those of the quiet pixels pooled around it (`QUIET_POOLS`)
+    pass for ambient light alone at `alpha`, in a region of two pixels or more (`without_lone_pixels`).
+    `jaxsr.inference.iter_quiet` streams it. jit-able with `frames` static."""
+    flags = ambient_only(counts, sensor, alpha=alpha, pixels=1, frames=frames, pools=QUIET_POOLS)
+    return without_lone_pixels(flags)
 
 
 def summed_histograms(pixels: int, frames: int, pools: tuple = ()) -> int:

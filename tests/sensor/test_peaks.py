@@ -478,6 +478,7 @@ def test_iter_quiet_is_the_pooled_test_without_lone_pixels():
                                                                         pools=jaxsr.sensor.QUIET_POOLS))
     got = np.stack(list(jaxsr.inference.iter_quiet(iter(counts), CFG, alpha=1e-3)))
     np.testing.assert_array_equal(got, np.asarray(whole))
+    np.testing.assert_array_equal(np.asarray(jaxsr.sensor.quiet_pixels(counts, CFG, alpha=1e-3)), np.asarray(whole))
 
 
 @pytest.mark.parametrize("pools", [(2,), (3, 4), [3, 5], (0,), (True,)])
