@@ -27,7 +27,7 @@ from jaxsr.io.checkpoint import resolve_model_path
 from jaxsr.inference import no_return_where, overrule_no_return
 from jaxsr.nn import network_inputs
 from jaxsr.training.no_return import no_return_outputs
-from jaxsr.sensor import (ambient_only, calibrate, calibrated_rates, no_return_regions, no_return_shares,
+from jaxsr.sensor import (ambient_only, beside_sky, calibrate, calibrated_rates, no_return_regions, no_return_shares,
                           normalise_depth, quiet_pixels, sample_poisson)
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: the shared harness
@@ -289,10 +289,12 @@ def no_return_decision(counts, sensor, setting):
     `ambient_only`'s flags or `no_return_shares`, at its false-alarm rate; for ("keep", alpha), where a head may
     mark no return (`returns_kept`): `ambient_only` of each pixel's own photons over its 9 frames; for ("pooled",
     alpha), `jaxsr upscale`'s (`jaxsr.sensor.quiet_pixels`): those of the quiet pixels pooled around it too, and no
-    lone pixel."""
+    hole that returns enclose (`without_holes`); ("pooled-sky", alpha): that and the pixels beside the sky
+    (`jaxsr.sensor.beside_sky`, measured, not the default)."""
     kind, alpha = decision_of(setting)
     tests = {"flags": ambient_only, "shares": no_return_shares, "keep": functools.partial(ambient_only, pixels=1),
-             "pooled": quiet_pixels}
+             "pooled": quiet_pixels,
+             "pooled-sky": lambda counts, sensor, alpha: beside_sky(quiet_pixels(counts, sensor, alpha=alpha))}
     if kind not in tests:
         raise ValueError(f"no_return_decision: unknown decision {kind!r}; expected one of {sorted(tests)}")
     return tests[kind](counts, sensor, alpha=alpha)

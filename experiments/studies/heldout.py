@@ -171,8 +171,8 @@ def load_methods() -> tuple[dict, dict]:
                     UPSCALE: "`jaxsr.upscale(counts, None, read=Reading(units=\"normalised\"))` with every other "
                              "option the library's default (what a user gets: the model, the gate read from the "
                              "histograms, the no-return decision: P(return) < 0.5 where the pixel's photons and "
-                             "those of the quiet pixels pooled around it pass for ambient light alone), on the photon "
-                             "counts of each scored frame's +-4 frames"}
+                             "those of the quiet pixels pooled around it pass for ambient light alone, outside the "
+                             "holes that returns enclose), on the photon counts of each scored frame's +-4 frames"}
 
 
 def regimes(photons, snrs, paper: bool = True, first: bool = True) -> list:

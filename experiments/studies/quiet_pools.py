@@ -1,6 +1,7 @@
-"""The pools of the default no-return decision: which neighbourhoods of quiet pixels `jaxsr.sensor.ambient_only`
-pools (`pools`, `jaxsr.sensor.QUIET_POOLS`) before a pixel is output as no return, and whether a lone quiet pixel
-may be (`jaxsr.sensor.without_lone_pixels`), on the test scenes and the held-out scenes alike.
+"""The pools and holes of the default no-return decision: which neighbourhoods of quiet pixels
+`jaxsr.sensor.ambient_only` pools (`pools`, `jaxsr.sensor.QUIET_POOLS`) before a pixel is output as no return, and
+which quiet regions enclosed by returns the network's depth fills instead (`jaxsr.sensor.without_holes`,
+`jaxsr.sensor.HOLE_PIXELS`), on the test scenes and the held-out scenes alike.
 
     python experiments/studies/quiet_pools.py --data /work/data/heldout
 
@@ -8,10 +9,14 @@ The default for histograms outputs no return where the confidence's P(return) is
 photons pass for ambient light alone (`jaxsr.upscale`, keep_returns "auto"). A dim wall's pixels each hold too few
 photons over 9 frames to pass the test, so the network's no-return head decides them alone. Pooling the quiet
 pixels around each (only those: a bright return beside the sky does not pool into it) finds the wall's return; it
-costs the sky within a pool's reach of a dim surface. A lone quiet LR pixel amid returns (a surface that returns no
-photon at all) is left to the network's depth in the default. For each choice, on the same photons and the same
-network outputs (tr4-ambient run once per scene and regime): PSNR over all pixels (no return = 1.0, as the photon
-benchmark scores it), true returns dropped away from the edges of no-return regions, and no return shown as depth.
+costs the sky within a pool's reach of a dim surface. A quiet region that returns enclose on every side (a surface
+that returns no photon at all: a black screen) is left to the network's depth in the default, up to a size; sky
+and ground beyond the gate reach the frame's edge. The LR pixels beside a large quiet region (sky) hold a return
+in part of their block: `beside_sky` lets the network's P(return) say which of their HR pixels are sky (measured
+here, not in the default: on the real tower recording it drops the building's edge, real_photons_pools.md). For
+each choice, on the same photons and the same network outputs (tr4-ambient run once per scene and regime): PSNR
+over all pixels (no return = 1.0, as the photon benchmark scores it), true returns dropped away from the edges of
+no-return regions, and no return shown as depth.
 Scenes: the three test scenes (4 frames of 500) and the held-out scenes (`heldout.py prepare`; 4 frames of 30).
 Writes experiments/results/quiet_pools.md and .json beside it.
 """
@@ -32,7 +37,7 @@ from jaxsr.app import AUTO_KEEP_RETURNS, Reading
 from jaxsr.app.job import prepare_upscale
 from jaxsr.config import Sensor
 from jaxsr.inference import iter_super_resolve, lr_blocks
-from jaxsr.sensor import ambient_only, without_lone_pixels
+from jaxsr.sensor import ambient_only, beside_sky, without_holes
 
 import _heldout_data  # beside this script
 from _photon_benchmark import benchmark_clips, regime_key, regime_label, shares  # noqa: E402
@@ -41,10 +46,18 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # experiments/: th
 from harness.reports import header, markdown_table, write_atomic  # noqa: E402
 from harness.scoring import SEQUENCE_FRAMES, TEST_SCENES, frame_scores, scored_frames  # noqa: E402
 
-# pools, and whether a lone pixel may be no return (True: `without_lone_pixels` applied)
-CHOICES = {"none (each pixel alone)": ((), False), "3": ((3,), False), "3, 5": ((3, 5), False),
-           "3, 7": ((3, 7), False), "3, 5, 9": ((3, 5, 9), False), "3, 5, no lone pixel (the default)": ((3, 5), True)}
-REGIMES = ((3.0, 1.3), (14.0, 1.3), (14.0, 0.3), (100.0, 1.3))
+# pools; the largest enclosed quiet region the network's depth fills (`without_holes(max_pixels=...)`; 1: a lone
+# pixel anywhere; None: every quiet pixel may be no return); the least quiet region whose bordering pixels the
+# network's P(return) decides at HR (`beside_sky(min_pixels=...)`; None: not)
+CHOICES = {"none (each pixel alone)": ((), None, None), "3": ((3,), None, None), "3, 5": ((3, 5), None, None),
+           "3, 7": ((3, 7), None, None), "3, 5, 9": ((3, 5, 9), None, None),
+           "3, 5, no lone pixel": ((3, 5), 1, None), "3, 5, holes up to 16": ((3, 5), 16, None),
+           "3, 5, holes up to 64 (the default)": ((3, 5), 64, None), "3, 5, holes up to 256": ((3, 5), 256, None),
+           "3, 5, holes of any size": ((3, 5), 32 * 64, None),
+           "3, 5, holes up to 64, beside any quiet region": ((3, 5), 64, 0),
+           "3, 5, holes up to 64, beside sky over 64": ((3, 5), 64, 64),
+           "3, 5, holes up to 64, beside sky over 256": ((3, 5), 64, 256)}
+REGIMES = ((3.0, 1.3), (14.0, 1.3), (14.0, 0.3), (100.0, 1.3), (1000.0, 5.0))
 
 
 def network_outputs(clip) -> tuple[np.ndarray, np.ndarray]:
@@ -56,11 +69,13 @@ def network_outputs(clip) -> tuple[np.ndarray, np.ndarray]:
     return raw, p
 
 
-def decided(raw, p, counts, pools, no_lone) -> np.ndarray:
-    """The default decision with `pools`: no return where P(return) < 1/2 and the LR pixel is quiet (and, with
-    `no_lone`, so is one of its 8 neighbours)."""
+def decided(raw, p, counts, pools, max_hole, sky) -> np.ndarray:
+    """The default decision with `pools`: no return where P(return) < 1/2 and the LR pixel is quiet (with
+    `max_hole`, not in a quiet region of at most that many pixels that returns enclose, nor alone; with `sky`, or
+    beside a quiet region of more than that many pixels)."""
     quiet = ambient_only(jnp.asarray(counts), Sensor(), alpha=AUTO_KEEP_RETURNS, pixels=1, pools=pools)
-    quiet = np.asarray(without_lone_pixels(quiet) if no_lone else quiet)
+    quiet = quiet if max_hole is None else without_holes(quiet, max_hole)
+    quiet = np.asarray(quiet if sky is None else beside_sky(quiet, sky))
     return np.where(lr_blocks(quiet, Sensor().scale) & (p < 0.5), np.float32(1.0), raw)
 
 
@@ -76,8 +91,8 @@ def score(groups: dict, frames: dict, seed: int = 0, log=print) -> list:
                 clip = clips[name]
                 raw, p = network_outputs(clip)
                 row = {"group": group, "scene": name, "photons": photons, "snr": snr, "choices": {}}
-                for label, (pools, no_lone) in CHOICES.items():
-                    sr = decided(raw, p, clip.counts, pools, no_lone)[clip.scored]
+                for label, (pools, max_hole, sky) in CHOICES.items():
+                    sr = decided(raw, p, clip.counts, pools, max_hole, sky)[clip.scored]
                     gt = clip.gt[clip.scored]
                     psnr, _ = frame_scores(sr, gt)
                     dropped, shown, n_ret, n_sky = shares(sr, gt)
@@ -110,7 +125,7 @@ def tables(rows) -> str:
                          if sky else np.nan)
                 line += [f"{psnr:.2f}", f"{drop:.3f}", "-" if np.isnan(shown) else f"{shown:.2f}"]
             table.append(line)
-        out.append(markdown_table(["pools", "test scenes: PSNR (dB)", "test scenes: dropped %",
+        out.append(markdown_table(["pools, holes", "test scenes: PSNR (dB)", "test scenes: dropped %",
                                    "test scenes: no return as depth %", "held-out: PSNR (dB)", "held-out: dropped %",
                                    "held-out: no return as depth %"], table))
         out.append("")
@@ -138,11 +153,15 @@ def main(argv=None) -> None:
     rows = score(groups, {"test scenes": args.test_frames, "held-out": args.frames})
     out = Path(args.out)
     text = "\n".join([
-        header("The pools of the no-return decision", started),
+        header("The pools, holes and sky edges of the no-return decision", started),
         "",
         "The default decision for histograms (`jaxsr.upscale`: tr4-ambient, no return where P(return) < 1/2 and the LR "
         "pixel's photons pass for ambient light alone at 0.001) with each choice of the quiet pixels' pools "
-        "(`jaxsr.sensor.ambient_only(pools=...)`), on the same photons and network outputs. PSNR: mean over the "
+        "(`jaxsr.sensor.ambient_only(pools=...)`) and of the largest quiet region enclosed by returns that the "
+        "network's depth fills (`jaxsr.sensor.without_holes(max_pixels=...)`; 'no lone pixel': 1, a lone quiet "
+        "pixel anywhere; 'any size': every enclosed region), and whether the P(return) decides the HR pixels of the "
+        "LR pixels beside a quiet region larger than a size (`jaxsr.sensor.beside_sky(min_pixels=...)`; 'any': 0), "
+        "on the same photons and network outputs. PSNR: mean over the "
         "group's scenes (over all pixels, no return = 1.0); dropped: true returns output as no return, of the "
         "returns whose 8 neighbours hold a return, pooled over the group; no return as depth: of the pixels without "
         "a return (the test scenes' sky and ground beyond the 35 m gate; the held-out scenes have none).",

@@ -226,11 +226,12 @@ def _network_depth(counts, gate, scale, z):
     return jaxsr.sensor.to_network_depth(metres, scale), valid
 
 
-def confidence_decided(model, frames: PhotonFrames, guard: float | None = None) -> np.ndarray:
+def confidence_decided(model, frames: PhotonFrames, guard: float | tuple | None = None) -> np.ndarray:
     """A model with a no-return head on the frames, no return where the confidence's P(return) (its logit and each
     pixel's photons over 9 frames, `jaxsr.inference.confidence`) is below one half and, with a `guard` rate, the
     LR pixel's own photons over 9 frames, and those of the quiet pixels pooled around it (`QUIET_POOLS`), pass for
-    ambient light alone at it and a neighbour's do too (`jaxsr upscale`'s default: 0.001, `iter_quiet`)."""
+    ambient light alone at it, outside the holes that returns enclose (`jaxsr upscale`'s default: 0.001, `iter_quiet`);
+    ("pooled-sky", rate): and the pixels beside the sky left to P(return) (`jaxsr.sensor.beside_sky`)."""
     raw = np.stack(list(iter_super_resolve(model, iter(model_input(model, frames)), raw=True)))
     coeffs = coefficients_for(None, True)
     sensor = jaxsr.Sensor(gate=jaxsr.Gate.spanning(35.0, frames.gate.bins))
@@ -241,9 +242,20 @@ def confidence_decided(model, frames: PhotonFrames, guard: float | None = None) 
         out.append(no_return_by_probability(r[..., 0], p, model.config.no_return_logit))
     out = np.stack(out)
     if guard is not None:
-        quiet = no_return_decision(frames.counts, sensor, ("pooled", guard))
+        quiet = no_return_decision(frames.counts, sensor, guard if isinstance(guard, tuple) else ("pooled", guard))
         out = np.where(lr_blocks(np.asarray(quiet), FACTOR), out, raw[..., 0])
     return out
+
+
+def confidence_settings(given, beside_sky=()) -> dict:
+    """{NAME: guard} of --confidence NAME[=ALPHA] values: None without ALPHA, the rate, or ("pooled-sky", rate) for
+    a NAME of --beside-sky (which needs a rate)."""
+    settings = {n: (float(a) if a else None) for n, _, a in (c.partition("=") for c in given)}
+    for name in beside_sky:
+        if settings.get(name) is None:
+            raise SystemExit(f"--beside-sky {name}: give --confidence {name}=ALPHA first (the guard it widens)")
+        settings[name] = ("pooled-sky", settings[name])
+    return settings
 
 
 def model_input(model, frames: PhotonFrames) -> np.ndarray:
@@ -748,8 +760,12 @@ def main(argv=None) -> None:
     parser.add_argument("--confidence", action="append", default=[], metavar="NAME[=ALPHA]",
                         help="run --model NAME (one with a no-return head) with no return where the confidence's "
                         "P(return) is below one half and, with ALPHA, the pixel's own photons over 9 frames and those "
-                        "of the quiet pixels pooled around it pass for ambient light alone at that rate (jaxsr "
-                        "upscale's default: 0.001); repeatable")
+                        "of the quiet pixels pooled around it pass for ambient light alone at that rate, outside the "
+                        "holes that returns enclose, and beside the sky P(return) alone (jaxsr upscale's default: "
+                        "0.001, jaxsr.sensor.quiet_pixels); repeatable")
+    parser.add_argument("--beside-sky", action="append", default=[], metavar="NAME",
+                        help="a --confidence NAME=ALPHA whose guard also leaves the LR pixels beside a quiet region "
+                        "larger than a hole to P(return) (jaxsr.sensor.beside_sky; not the default); repeatable")
     parser.add_argument("--picture-level", type=float, default=PICTURE_LEVEL,
                         help="photons of the pictured frame (default 2)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the photon permutations")
@@ -771,8 +787,7 @@ def main(argv=None) -> None:
         raise SystemExit(f"no recordings: none of {', '.join(s.file for s in SOURCES)} in {', '.join(args.data)}")
     results = evaluate(recordings, models, levels=args.levels, max_frames=args.frames, tv_frames=args.tv_frames,
                        tv=not args.no_tv, seed=args.seed, picture_level=args.picture_level, ambient=ambient,
-                       confidence={n: (float(a) if a else None) for n, _, a in
-                                   (c.partition("=") for c in args.confidence)})
+                       confidence=confidence_settings(args.confidence, args.beside_sky))
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     goals, all_met = goal_table(results)

@@ -20,7 +20,7 @@ from ..inference.confidence import (EVIDENCE_FRAMES, NO_RETURN_AT, ConfidenceCoe
 from ..nn.model import Model
 from ..runtime import enable_compilation_cache
 from ..sensor.gates import data_span, gate_depth, gate_warnings
-from ..sensor.peaks import QUIET_POOLS
+from ..sensor.peaks import HOLE_PIXELS, QUIET_POOLS
 from ..sensor.timetags import TIME_TAG_FORMATS, TimeTags, gate_of_tags, read_time_tags, time_tag_warnings
 from .memory import HISTOGRAM_CHUNK, check_result_memory
 from .models import finish_model, has_head, plan_model, trained_snr_range
@@ -332,7 +332,8 @@ def _histogram_job(rec, gate, source, tag_notes, choice, planned, read: Reading,
         pools = " and ".join(f"{k} x {k}" for k in QUIET_POOLS)
         name = (f"{name}, {'that' if decision.by_probability else 'its'} no return kept only where the pixel's photons "
                 f"over {AMBIENT_FRAMES} frames, and those of the quiet pixels in the {pools} around it, pass for "
-                f"ambient alone (alpha {float(decision.keep_returns):g}) and a neighbour's do too")
+                f"ambient alone (alpha {float(decision.keep_returns):g}) in a region that reaches the frame's edge or "
+                f"holds more than {HOLE_PIXELS} LR pixels")
 
     def flags(alpha, pixels):
         return lambda: iter_ambient_only(counts, sensor, alpha=alpha, pixels=pixels, frames=AMBIENT_FRAMES)
@@ -342,7 +343,7 @@ def _histogram_job(rec, gate, source, tag_notes, choice, planned, read: Reading,
         found if read.clip_negative else None, decision, model_id, _lr_stream=lambda: lr_stream(model.channels),
         _ambient_stream=None if decision.ambient_alpha is None else flags(decision.ambient_alpha, 3),
         # each pixel's own photons, then those of the quiet pixels around it (a dim wall's return shows in their
-        # pool), and no lone pixel: a return in the block keeps the block's depth
+        # pool), and no hole: a quiet region that returns enclose keeps the network's depth
         _keep_stream=None if decision.keep_returns is None else (
             lambda: iter_quiet(counts, sensor, alpha=decision.keep_returns, frames=AMBIENT_FRAMES)),
         _count_stream=lambda: iter(counts),

@@ -25,6 +25,7 @@ from ..app import (AUTO_AMBIENT_ALPHA, AUTO_AMBIENT_MIN_FRAMES, AUTO_AMBIENT_MIN
 from ..config import PRECISIONS
 from ..inference import DEFAULT_FORM, DEFAULT_PRECISION, FORMS
 from ..checks import MEMORY_SHARE
+from ..sensor import HOLE_PIXELS
 from ._args import (OldSpelling, add_force, add_output, add_quiet, ambient_alpha, fields_of_view, finite_float,
                     four_numbers, int_range, memory, positive_float, range_or_time, required_output, span, time_unit)
 
@@ -113,7 +114,8 @@ def add_parser(subparsers):
                    "(default): where the confidence's P(return) (the head's logit and each pixel's photons over 9 "
                    "frames) is below --no-return-logit's threshold (0.5 by default) and the pixel's own photons over "
                    "9 frames, and those of the quiet pixels pooled in the 3 x 3 and 5 x 5 around it, pass for ambient "
-                   f"light alone at {AUTO_KEEP_RETURNS:g} in a region of two LR pixels or more; the head alone beside an "
+                   f"light alone at {AUTO_KEEP_RETURNS:g}, outside the holes that returns enclose (up to "
+                   f"{HOLE_PIXELS} LR pixels); the head alone beside an "
                    "--ambient-alpha rate and for --clip-negative counts. ALPHA, such as 0.001: the rule before the "
                    "confidence, the head's own logit in place of P(return) and the photons' test at that "
                    "false-alarm rate. off: the head decides alone (docs/network.md)")

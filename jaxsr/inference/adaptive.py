@@ -259,6 +259,10 @@ def choose_tr(lr_seq, *, min_fps: float | None = None, table: dict | None = None
 
 MODEL_TABLE = Path(__file__).parents[1] / "weights" / "model_auto_study.json"
 STATIC_MOTION = 0.05  # LR px/frame: a measured motion below this reads as the table's least motion
+# a model displaces the table's default only where its lead over it exceeds this many standard errors of the lead
+# across the table's clips: one clip per cell chose by noise (leads of 0.1-0.7 dB that reversed on other clips,
+# experiments/results/model_auto.md)
+LEAD_Z = 2.0
 
 
 class ModelPick(NamedTuple):
@@ -274,13 +278,16 @@ class ModelPick(NamedTuple):
 def load_model_table(path=None) -> dict:
     """The table `choose_photon_model` reads (experiments/studies/model_auto.py --write-table): {"signal": [...]
     signal photons per LR pixel and frame, "motion": [...] LR px/frame (as `estimate_motion` measures it),
-    "psnr": {model: [[dB at each signal (rows) and motion (columns)]]}, "fps": {model: frames/s}, "source"}."""
+    "psnr": {model: [[mean dB over the cell's clips at each signal (rows) and motion (columns)]]}, "lead_se":
+    {model: [[the standard error of its lead over "default" across those clips]]}, "default": the model for
+    histograms the command uses without --model, "fps": {model: frames/s}, "source"}."""
     path = MODEL_TABLE if path is None else Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no model table at {path}; run experiments/studies/model_auto.py --write-table")
     table = json.loads(path.read_text())
-    if not {"signal", "motion", "psnr", "fps"} <= table.keys():
-        raise ValueError(f"{path}: expected keys signal, motion, psnr and fps, got {sorted(table)}")
+    keys = {"signal", "motion", "psnr", "lead_se", "default", "fps"}
+    if not keys <= table.keys():
+        raise ValueError(f"{path}: expected keys {', '.join(sorted(keys))}, got {sorted(table)}")
     return table
 
 
@@ -298,9 +305,11 @@ def choose_photon_model(lr_head, signal: float, *, min_fps: float | None = None,
     pixel and frame (`jaxsr.app.photon_levels`) and motion (`estimate_motion` of `lr_head`, its first LR
     centre-of-mass frames (T, h, w)): the model with the highest PSNR the model table measured there
     (interpolated in log signal and log motion, held at the table's ends), among those whose frames/s reach
-    `min_fps` (the fastest when none does). A signal of NaN (no return seen) reads as the table's least.
-    table: a `load_model_table()` dict (default: the bundled one). No PSNR is predicted: the table's scores are
-    its simulated scenes', and their error on a recording of another scene and sensor is not measured."""
+    `min_fps` (the fastest when none does); the table's default instead where it reaches `min_fps` and the best
+    model's lead over it is not more than `LEAD_Z` standard errors of that lead across the table's clips (a lead
+    the clips do not establish). A signal of NaN (no return seen) reads as the table's least. table: a
+    `load_model_table()` dict (default: the bundled one). No PSNR is predicted: the table's scores are its
+    simulated scenes', and their error on a recording of another scene and sensor is not measured."""
     table = load_model_table() if table is None else table
     est = estimate_motion(lr_head)
     signal = float(signal) if np.isfinite(signal) else float(min(table["signal"]))
@@ -314,6 +323,12 @@ def choose_photon_model(lr_head, signal: float, *, min_fps: float | None = None,
                                          f"({fps[m]:.1f})")
     m = max(allowed, key=scores.get)
     budget = "" if min_fps is None else f", {len(allowed)} of {len(scores)} models reach {min_fps:g} frames/s"
+    default = table["default"]
+    if m != default and default in allowed:
+        se = _interp2(table, table["lead_se"][m], signal, est.motion)
+        if scores[m] - scores[default] <= LEAD_Z * se:
+            return ModelPick(default, est, signal, f"{seen}{budget}; the default: no model's lead over it in the "
+                                                   f"simulated model study there exceeds {LEAD_Z:g} standard errors")
     return ModelPick(m, est, signal, f"{seen}{budget}; the best of the simulated model study there")
 
 

@@ -17,7 +17,7 @@ from ..config import MIN_LR_SIDE, Sensor
 from ..nn.inputs import network_inputs
 from ..nn.model import Model
 from ..sensor.peaks import (QUIET_POOLS, ambient_only, capped_for_sum, check_ambient_settings,
-                            check_false_alarm_rate, summed_histograms, without_lone_pixels)
+                            check_false_alarm_rate, summed_histograms, without_holes)
 from .forms import DEFAULT_FORM, DEFAULT_PRECISION, check_precision, in_form
 from .traced import refuse_tracing
 from .units import check_units, network_to_units
@@ -69,7 +69,7 @@ def iter_network_inputs(counts: Iterable, sensor: Sensor = Sensor(), inputs=("de
         yield from flush()
 
 
-_without_lone_pixels = jax.jit(without_lone_pixels)
+_without_holes = jax.jit(without_holes)
 
 
 @functools.partial(jax.jit, static_argnames=("sensor", "pixels", "frames", "pools"))
@@ -121,11 +121,11 @@ def iter_quiet(counts: Iterable, sensor: Sensor = Sensor(), *, alpha: float = 1e
                frames: int = 9) -> Iterator[np.ndarray]:
     """Where the photons say no return may be output, frame by frame ((h, w) bool): the pixel's own histograms over
     `frames` frames and those of the quiet pixels pooled around it (`QUIET_POOLS`) pass for ambient light alone at
-    `alpha`, and so does one of its 8 neighbours (`without_lone_pixels`): `jaxsr.sensor.quiet_pixels` of the whole
-    sequence, holding `frames` frames at a time. The photons' part of `jaxsr upscale`'s no-return decision
-    (`--keep-returns`)."""
+    `alpha`, in a region of two pixels or more that reaches the frame's edge or is larger than a hole
+    (`without_holes`): `jaxsr.sensor.quiet_pixels` of the whole sequence, holding `frames` frames at a time. The
+    photons' part of `jaxsr upscale`'s no-return decision (`--keep-returns`)."""
     for flags in iter_ambient_only(counts, sensor, alpha=alpha, pixels=1, frames=frames, pools=QUIET_POOLS):
-        yield np.asarray(_without_lone_pixels(flags))
+        yield np.asarray(_without_holes(flags))
 
 
 def check_keep_returns(keep_returns, ambient_alpha, has_head: bool, where: str = "") -> None:
@@ -169,7 +169,7 @@ def super_resolve_histograms(model: Model, counts, sensor: Sensor = Sensor(), *,
     (experiments/results/no_return_evidence.md).
     keep_returns: for a model with a no-return head, a false-alarm rate: its no return is kept only where the
     photons pass for ambient light alone at it (`iter_quiet`: each LR pixel's own over 9 frames, the quiet pixels'
-    pooled around it, no lone pixel), elsewhere the network's depth (`overrule_no_return`; `jaxsr upscale
+    pooled around it, no hole that returns enclose), elsewhere the network's depth (`overrule_no_return`; `jaxsr upscale
     --keep-returns`); default None: the head decides. Not with ambient_alpha."""
     refuse_tracing((counts, intensity), "super_resolve_histograms",
                    "jaxsr.apply_histograms(model, counts, sensor)")

@@ -262,6 +262,10 @@ def check_false_alarm_rate(name: str, alpha) -> None:
 # the smallest that found the returns of dim indoor walls that single pixels miss (experiments/results/
 # quiet_pools.md) at the least cost to the sky beside returns
 QUIET_POOLS = (3, 5)
+# the largest region of quiet LR pixels that returns enclose and the network's depth fills (`without_holes`): the
+# black screens and furniture of indoor rooms are filled (up to 64 scored as any size on the held-out rooms,
+# experiments/results/quiet_pools.md), an opening of more than 8 x 8 LR pixels stays no return
+HOLE_PIXELS = 64
 
 
 def check_ambient_settings(name: str, alpha, pixels: int = 3, frames: int = 9, pools=()) -> None:
@@ -344,26 +348,88 @@ def ambient_only(counts, sensor: Sensor = Sensor(), *, alpha=1e-3, pixels: int =
     return quiet
 
 
-def without_lone_pixels(flags):
-    """No-return flags (..., h, w) bool, each kept only where one of its 8 neighbours is flagged too: no return is
-    a region of two LR pixels or more. A lone flagged pixel amid returns is more often a surface that sends back no
-    photon (a black screen, a real sensor's outlier pixel) than a hole of one pixel; the network's depth fills it
-    from its surroundings, as the paper's network fills every pixel. Edges count as not flagged. jit-able."""
+def without_holes(flags, max_pixels: int = HOLE_PIXELS):
+    """No-return flags (..., h, w) bool, each kept only in a region (8-connected) of two LR pixels or more that
+    reaches the frame's edge or holds more than `max_pixels` pixels. A flagged region that returns enclose on every
+    side is more often a surface that sends back no photon (a black screen, a dark object, a real sensor's outlier
+    pixels) than an opening onto nothing within the gate; the network's depth fills it from its surroundings, as the
+    paper's network fills every pixel. Sky, and ground beyond the gate, reach the frame's edge and stay no return;
+    an enclosed opening larger than `max_pixels` (a window onto the sky) does too. A lone flagged pixel is filled
+    anywhere. Edges count as not flagged. jit-able with `max_pixels` static; no gradient."""
+    def one(f):
+        h, w = f.shape
+        label, size = regions(f)
+        on_edge = jnp.zeros((h, w), bool).at[0].set(True).at[-1].set(True).at[:, 0].set(True).at[:, -1].set(True)
+        reaches_edge = jnp.zeros(h * w + 1, bool).at[label.ravel()].max((f & on_edge).ravel())
+        n = size[label]
+        return f & (n >= 2) & (reaches_edge[label] | (n > max_pixels))
+
+    return _frame_by_frame("without_holes", flags, "max_pixels", max_pixels, 1, one)
+
+
+def _frame_by_frame(name: str, flags, size_name: str, size, least: int, one):
+    """`one` mapped over the (h, w) frames of (..., h, w) `flags`, after checking them and `size` (an integer >=
+    `least`, the caller's argument `size_name`)."""
+    if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or size < least:
+        raise ValueError(f"{name}: {size_name} must be an integer >= {least}, got {size!r}")
     f = jnp.asarray(flags, bool)
+    if f.ndim < 2:
+        raise ValueError(f"{name}: flags must be (..., h, w), got shape {f.shape}")
     h, w = f.shape[-2:]
-    padded = jnp.pad(f, [(0, 0)] * (f.ndim - 2) + [(1, 1), (1, 1)])
-    around = [padded[..., 1 + dy:1 + dy + h, 1 + dx:1 + dx + w] for dy in (-1, 0, 1) for dx in (-1, 0, 1)
-              if (dy, dx) != (0, 0)]
-    return f & jnp.any(jnp.stack(around), axis=0)
+    return jax.vmap(one)(f.reshape(-1, h, w)).reshape(f.shape)
+
+
+def beside_sky(flags, min_pixels: int = HOLE_PIXELS):
+    """No-return flags (..., h, w) bool, and the LR pixels beside a flagged region (8-connected) of more than
+    `min_pixels` pixels: sky, or ground beyond the gate. Such a pixel holds a return (else it would be flagged) and
+    its block may straddle the sky's edge; with these flags the network's P(return) says which of its HR pixels are
+    sky, where the photons of the whole block keep all of them at depth. Not in the default decision: on the
+    simulated test scenes it halves the sky shown as depth, on the real tower recording (where P(return) lies
+    outside its fit) it drops the building's edge, 12 dB at 16 photons (experiments/results/real_photons_pools.md).
+    jit-able with `min_pixels` static; no gradient."""
+    def one(frame):
+        h, w = frame.shape
+        label, size = regions(frame)
+        sky = frame & (size[label] > min_pixels)
+        padded = jnp.pad(sky, 1)
+        near = jnp.any(jnp.stack([padded[1 + dy:1 + dy + h, 1 + dx:1 + dx + w]
+                                  for dy in (-1, 0, 1) for dx in (-1, 0, 1)]), axis=0)
+        return frame | near
+
+    return _frame_by_frame("beside_sky", flags, "min_pixels", min_pixels, 0, one)
+
+
+def regions(f):
+    """The 8-connected regions of an (h, w) bool mask: (label (h, w) int32, the smallest flat index of the
+    region's pixels, h w where not set; size (h w + 1,) int32, the pixels of each label, size[h w] unused).
+    Labels spread as minima over each 3 x 3 and jump along the labels they point at, until nothing changes
+    (about log of a region's length in steps for compact regions). jit-able."""
+    h, w = f.shape
+    none = h * w
+    start = jnp.where(f, jnp.arange(h * w, dtype=jnp.int32).reshape(h, w), none)
+
+    def step(state):
+        label, _ = state
+        padded = jnp.pad(label, 1, constant_values=none)
+        spread = jnp.min(jnp.stack([padded[1 + dy:1 + dy + h, 1 + dx:1 + dx + w]
+                                    for dy in (-1, 0, 1) for dx in (-1, 0, 1)]), axis=0)
+        jumped = jnp.append(spread.ravel(), none)[spread]  # the label of the pixel a label points at: same region
+        new = jnp.where(f, jnp.minimum(spread, jumped), none)
+        return new, jnp.any(new != label)
+
+    label, _ = jax.lax.while_loop(lambda state: state[1], step, (start, jnp.bool_(True)))
+    size = jnp.zeros(none + 1, jnp.int32).at[label.ravel()].add(f.ravel().astype(jnp.int32))
+    return label, size
 
 
 def quiet_pixels(counts, sensor: Sensor = Sensor(), *, alpha=1e-3, frames: int = 9):
-    """The photons' part of the default no-return decision over a whole sequence: (T, h, w) bool, True where a
-    pixel's own histograms over `frames` frames and those of the quiet pixels pooled around it (`QUIET_POOLS`)
-    pass for ambient light alone at `alpha`, in a region of two pixels or more (`without_lone_pixels`).
-    `jaxsr.inference.iter_quiet` streams it. jit-able with `frames` static."""
+    """The photons' part of the default no-return decision over a whole sequence: (T, h, w) bool, True where an
+    LR pixel's block may be output as no return where the network says so: the pixel's own histograms over
+    `frames` frames and those of the quiet pixels pooled around it (`QUIET_POOLS`) pass for ambient light alone at
+    `alpha`, in a region of two pixels or more that reaches the frame's edge or holds more than `HOLE_PIXELS`
+    (`without_holes`). `jaxsr.inference.iter_quiet` streams it. jit-able with `frames` static."""
     flags = ambient_only(counts, sensor, alpha=alpha, pixels=1, frames=frames, pools=QUIET_POOLS)
-    return without_lone_pixels(flags)
+    return without_holes(flags)
 
 
 def summed_histograms(pixels: int, frames: int, pools: tuple = ()) -> int:

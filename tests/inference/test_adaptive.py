@@ -121,6 +121,9 @@ PHOTON_TABLE = {  # a made-up study: the photon model best at few photons, the p
     "signal": [3.0, 100.0], "motion": [0.1, 3.0],
     "psnr": {"tr4-ambient": [[25.0, 24.0], [30.0, 29.0]], "tr4": [[20.0, 19.0], [32.0, 28.0]],
              "tr0-ambient": [[24.0, 24.5], [29.0, 29.5]]},
+    "lead_se": {"tr4-ambient": [[0.0, 0.0], [0.0, 0.0]], "tr4": [[0.3, 0.3], [0.3, 0.3]],
+                "tr0-ambient": [[0.1, 0.1], [0.1, 0.1]]},
+    "default": "tr4-ambient",
     "fps": {"tr4-ambient": 5.0, "tr4": 5.0, "tr0-ambient": 40.0},
 }
 
@@ -137,3 +140,20 @@ def test_choose_photon_model_follows_the_table():
     pick = choose_photon_model(still, 150.0, table=PHOTON_TABLE, min_fps=10.0)
     assert pick.model == "tr0-ambient" and "1 of 3 models reach 10" in pick.reason and "dB" not in pick.reason
     assert choose_photon_model(still, 150.0, table=PHOTON_TABLE, min_fps=100.0).model == "tr0-ambient"
+
+
+def test_choose_photon_model_leaves_the_default_only_for_a_lead_the_clips_establish():
+    """At 100 photons and fast motion tr0-ambient leads the default by 0.5 dB: with a standard error of 0.1 (a lead
+    of 5) it is chosen, with 0.3 (1.7, under LEAD_Z = 2) the default stays; from one clip (inf) nothing displaces
+    the default. A min_fps the default misses still gets the best that reaches it."""
+    from jaxsr.inference import choose_photon_model
+    from jaxsr.inference.adaptive import LEAD_Z
+
+    assert LEAD_Z == 2.0
+    fast = _blocks(5.0)
+    assert choose_photon_model(fast, 100.0, table=PHOTON_TABLE).model == "tr0-ambient"
+    for se in (0.3, float("inf")):
+        table = {**PHOTON_TABLE, "lead_se": {**PHOTON_TABLE["lead_se"], "tr0-ambient": [[se, se], [se, se]]}}
+        pick = choose_photon_model(fast, 100.0, table=table)
+        assert pick.model == "tr4-ambient" and "the default" in pick.reason and "2 standard errors" in pick.reason
+        assert choose_photon_model(fast, 100.0, table=table, min_fps=10.0).model == "tr0-ambient"

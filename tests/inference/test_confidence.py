@@ -14,7 +14,7 @@ from jaxsr.inference.confidence import (EVIDENCE_FRAMES, HEAD_FEATURES, PHOTON_F
 from jaxsr.io.checkpoint import save_model
 from jaxsr.sensor import centre_of_mass_std
 from jaxsr.nn import Model, init_model
-from jaxsr.sensor import QUIET_POOLS, ambient_only, without_lone_pixels
+from jaxsr.sensor import quiet_pixels
 from jaxsr.training.confidence import fit_depth_std, fit_logistic
 
 SENSOR = Sensor()
@@ -183,8 +183,7 @@ def test_the_default_decides_no_return_on_the_confidence_at_the_threshold_given(
     no-return threshold (0: P(return) < 0.5, unless --no-return-logit moves it) and its LR pixel's own photons over
     9 frames, and those of the quiet pixels pooled around it (QUIET_POOLS), pass for ambient light alone (at
     AUTO_KEEP_RETURNS), and so do one of its neighbours'; the confidence itself does not depend on the threshold."""
-    quiet = np.asarray(without_lone_pixels(ambient_only(counts, SENSOR, alpha=AUTO_KEEP_RETURNS, pixels=1,
-                                                        pools=QUIET_POOLS)))
+    quiet = np.asarray(quiet_pixels(counts, SENSOR, alpha=AUTO_KEEP_RETURNS))
     hr_quiet = np.repeat(np.repeat(quiet, 4, axis=1), 4, axis=2)
     assert 0.2 < hr_quiet.mean() < 0.8
     res = upscale(counts, None, model=ModelChoice(head_model_file))

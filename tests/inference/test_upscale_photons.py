@@ -26,6 +26,7 @@ from jaxsr.app import (
 from jaxsr.inference import super_resolve_histograms
 from jaxsr.io.checkpoint import load_model, save_model
 from jaxsr.nn import Model, init_model, with_no_return_logit
+from jaxsr.sensor import HOLE_PIXELS
 
 SENSOR = Sensor()
 TINY = dict(base=8, growth=4, head=16, filter_hidden=16)
@@ -407,13 +408,32 @@ def test_raw_output_streams_depth_and_logit_in_tiles_and_in_the_sequence_form(sk
                                       ModelConfig(tr=0, **TINY)), x[..., 0], raw=True))
 
 
+def test_a_black_patch_in_a_surface_keeps_depth_and_the_sky_stays_no_return(sky_everywhere):
+    """The default decision on a surface with a black patch (2 x 3 LR pixels sending back no photon, enclosed by
+    the surface) beside sky reaching the frame's edge: the head calls everything no return, the photons of the
+    patch and of the sky both pass for ambient light alone; the patch, a hole, keeps the network's depth (filled
+    from its surroundings), the sky stays no return."""
+    rng = np.random.default_rng(5)
+    counts = rng.poisson(2.0 / 16, (9, 10, 14, 16)).astype(np.float32)
+    surface = np.zeros((10, 14), bool)
+    surface[:, :8] = True
+    surface[4:6, 3:6] = False  # the black patch
+    counts[:, surface, 7] += rng.poisson(6.0, (9, int(surface.sum())))
+    result = upscale(counts, None, model=sky_everywhere[1], read=Reading(units="normalised"))
+    depth = np.asarray(result.depth)
+    assert (depth[:, :, 9 * 4:] == 1.0).all()  # the sky, beyond the column beside the surface
+    assert (depth[:, 4 * 4:6 * 4, 3 * 4:6 * 4] < 1.0).all()  # the patch
+    assert (depth[:, :, :8 * 4] < 1.0).all()
+    assert f"more than {HOLE_PIXELS} LR pixels" in result.model_description
+
+
 def test_keep_returns_keeps_the_surface_a_head_calls_sky(sky_everywhere, half_sky, tmp_path, capsys):
     """The head calls everything no return; with keep_returns (by default "auto": AUTO_KEEP_RETURNS for a model with
     a head) the surface (4 photons a pixel and frame) comes out as the network's depth and the sky stays no return:
-    the flags are `iter_quiet`'s (each pixel's own `ambient_only`, the quiet pixels' pools, no lone pixel). Off
+    the flags are `iter_quiet`'s (each pixel's own `ambient_only`, the quiet pixels' pools, no hole). Off
     (None, --keep-returns off), the head decides alone."""
     from jaxsr.cli import main
-    from jaxsr.sensor import QUIET_POOLS, ambient_only, without_lone_pixels
+    from jaxsr.sensor import ambient_only, quiet_pixels
 
     model, path = sky_everywhere
     assert (upscale(half_sky, None, model=path, read=Reading(units="normalised"), photons=PhotonRules(keep_returns=None)).depth == 1.0).all()
@@ -421,8 +441,8 @@ def test_keep_returns_keeps_the_surface_a_head_calls_sky(sky_everywhere, half_sk
     assert AUTO_KEEP_RETURNS == 1e-3
     own = np.asarray(ambient_only(half_sky, alpha=1e-3, pixels=1))
     assert own[:, :, :6].mean() < 0.01 and own[:, :, 6:].all()  # one surface pixel of a first frame passes
-    quiet = np.asarray(without_lone_pixels(ambient_only(half_sky, alpha=1e-3, pixels=1, pools=QUIET_POOLS)))
-    assert not quiet[:, :, :6].any() and quiet[:, :, 6:].all()  # that lone pixel is the surface's again
+    quiet = np.asarray(quiet_pixels(half_sky, alpha=1e-3))
+    assert not quiet[:, :, :6].any() and quiet[:, :, 6:].all()  # that lone pixel, a hole, is the surface's again
     hr_quiet = np.repeat(np.repeat(quiet, 4, axis=1), 4, axis=2)
     depth = super_resolve_histograms(with_no_return_logit(model, 1e6), half_sky)  # the depth under the head
     np.testing.assert_allclose(result.depth, np.clip(np.where(hr_quiet, 1.0, depth), 0, 1), atol=1e-6)

@@ -461,21 +461,102 @@ def test_a_lone_flagged_pixel_is_not_no_return_but_a_region_of_two_is():
     flags = np.zeros((2, 6, 7), bool)
     flags[0, 2, 3] = True  # alone amid returns
     flags[0, 0, 0] = True  # alone at the corner: the frame's edge is no neighbour
-    flags[1, 1, 1] = flags[1, 2, 2] = True  # two touching at a corner: a region
-    flags[1, 4:, 4:] = True  # a block
-    got = np.asarray(jax.jit(jaxsr.sensor.without_lone_pixels)(flags))
+    flags[1, 1, 1] = flags[1, 2, 2] = True  # two touching at a corner: a region, enclosed
+    flags[1, 4:, 4:] = True  # a block at the edge
+    got = np.asarray(jax.jit(jaxsr.sensor.without_holes, static_argnames="max_pixels")(flags, max_pixels=1))
     want = flags.copy()
     want[0] = False
     np.testing.assert_array_equal(got, want)
-    assert np.asarray(jaxsr.sensor.without_lone_pixels(np.ones((3, 3), bool))).all()
-    assert not np.asarray(jaxsr.sensor.without_lone_pixels(np.ones((1, 1), bool))).any()
+    assert np.asarray(jaxsr.sensor.without_holes(np.ones((3, 3), bool))).all()
+    assert not np.asarray(jaxsr.sensor.without_holes(np.ones((1, 1), bool))).any()
 
 
-def test_iter_quiet_is_the_pooled_test_without_lone_pixels():
-    counts = _dim_wall_and_sky(9, 0.4)[:, :12, :16]
+def test_an_enclosed_quiet_region_is_filled_up_to_its_size_and_one_at_the_edge_never():
+    """A region that returns enclose (not reaching the frame's edge) is filled while it holds at most max_pixels
+    pixels; a region reaching the edge (sky) stays however small, down to two pixels."""
+    flags = np.zeros((12, 16), bool)
+    flags[2:5, 2:5] = True  # 9 pixels, enclosed
+    flags[7:9, 9:13] = True  # 8 pixels, enclosed
+    flags[0, 14:] = True  # 2 pixels on the top edge
+    flags[10:, 0:3] = True  # 6 pixels in a corner
+    edge = np.zeros_like(flags)
+    edge[0, 14:] = edge[10:, 0:3] = True
+    for max_pixels, filled_too in ((7, None), (8, (slice(7, 9), slice(9, 13))), (9, "all")):
+        got = np.asarray(jaxsr.sensor.without_holes(flags, max_pixels))
+        want = flags.copy()
+        if filled_too == "all":
+            want = edge
+        elif filled_too is not None:
+            want[filled_too] = False
+        np.testing.assert_array_equal(got, want, err_msg=f"max_pixels {max_pixels}")
+    assert np.asarray(jaxsr.sensor.without_holes(flags)).sum() == edge.sum()  # HOLE_PIXELS fills both
+
+
+def test_regions_are_scipys_8_connected_components():
+    """`without_holes` on random masks against scipy.ndimage.label's 8-connected components, with frames stacked
+    in leading axes and under jit; a one-pixel-wide snake, the longest path a label spreads along, converges too."""
+    ndi = pytest.importorskip("scipy.ndimage")
+    rng = np.random.default_rng(0)
+
+    def expected(f, max_pixels):
+        label, n = ndi.label(f, structure=np.ones((3, 3)))
+        out = np.zeros_like(f)
+        for c in range(1, n + 1):
+            r = label == c
+            at_edge = r[0].any() or r[-1].any() or r[:, 0].any() or r[:, -1].any()
+            if r.sum() >= 2 and (at_edge or r.sum() > max_pixels):
+                out |= r
+        return out
+
+    fill = jax.jit(jaxsr.sensor.without_holes, static_argnames="max_pixels")
+    for _ in range(6):
+        flags = rng.random((2, 3, 17, 23)) < rng.uniform(0.2, 0.7)
+        max_pixels = int(rng.integers(1, 40))
+        got = np.asarray(fill(flags, max_pixels=max_pixels))
+        for index in np.ndindex(2, 3):
+            np.testing.assert_array_equal(got[index], expected(flags[index], max_pixels))
+    snake = np.zeros((15, 20), bool)
+    snake[1:-1:2, 1:-1] = True
+    snake[2:-1:4, -2] = snake[4:-1:4, 1] = True
+    label, size = jaxsr.sensor.regions(jnp.asarray(snake))
+    assert int(size[int(label[1, 1])]) == snake.sum() and len(np.unique(np.asarray(label)[snake])) == 1
+    np.testing.assert_array_equal(np.asarray(fill(snake, max_pixels=snake.sum() - 1)), snake)
+    assert not np.asarray(fill(snake, max_pixels=int(snake.sum()))).any()
+
+
+@pytest.mark.parametrize("max_pixels", [0, -3, 2.5, True, None])
+def test_without_holes_refuses_a_size_that_is_not_a_count(max_pixels):
+    with pytest.raises(ValueError, match="max_pixels"):
+        jaxsr.sensor.without_holes(np.ones((3, 3), bool), max_pixels)
+
+
+def test_beside_sky_adds_the_border_of_a_large_region_only():
+    """The LR pixels around a flagged region of more than min_pixels (8-connected, corners included) join it; a
+    region of min_pixels or fewer (a hole's size) gets no border; 0 borders every region."""
+    flags = np.zeros((2, 10, 12), bool)
+    flags[:, :, 8:] = True  # 40 pixels of sky at the right edge
+    flags[:, 4:6, 2:4] = True  # 4 pixels
+    want = flags.copy()
+    want[:, :, 7] = True
+    got = np.asarray(jax.jit(jaxsr.sensor.beside_sky, static_argnames="min_pixels")(flags, min_pixels=16))
+    np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(np.asarray(jaxsr.sensor.beside_sky(flags, 40)), flags)  # not more than 40
+    around = want.copy()
+    around[:, 3:7, 1:5] = True
+    np.testing.assert_array_equal(np.asarray(jaxsr.sensor.beside_sky(flags, 0)), around)
+    for bad in (-1, 1.5, True):
+        with pytest.raises(ValueError, match="min_pixels"):
+            jaxsr.sensor.beside_sky(flags, bad)
+
+
+def test_iter_quiet_is_the_pooled_test_without_holes():
+    counts = _dim_wall_and_sky(9, 0.4)
     counts[:, 9, 14] = 0.0  # a pixel that sends back no photon amid the sky: still a region with the sky
-    whole = jaxsr.sensor.without_lone_pixels(jaxsr.sensor.ambient_only(counts, CFG, alpha=1e-3, pixels=1,
-                                                                        pools=jaxsr.sensor.QUIET_POOLS))
+    counts[:, 2:4, 16:18] = np.random.default_rng(1).poisson(2.0 / K, (9, 2, 2, K))  # black, amid bright returns
+    flags = jaxsr.sensor.ambient_only(counts, CFG, alpha=1e-3, pixels=1, pools=jaxsr.sensor.QUIET_POOLS)
+    whole = jaxsr.sensor.without_holes(flags)
+    assert np.asarray(flags)[:, 2:4, 16:18].all() and not np.asarray(whole)[:, 2:4, 16:18].any()  # a hole, filled
+    assert np.asarray(whole)[:, 9, 14].all()
     got = np.stack(list(jaxsr.inference.iter_quiet(iter(counts), CFG, alpha=1e-3)))
     np.testing.assert_array_equal(got, np.asarray(whole))
     np.testing.assert_array_equal(np.asarray(jaxsr.sensor.quiet_pixels(counts, CFG, alpha=1e-3)), np.asarray(whole))
