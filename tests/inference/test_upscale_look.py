@@ -47,6 +47,7 @@ def gated(tmp_path_factory):
     return folder / "h.npz"
 
 
+@pytest.mark.slow  # 8-10 s on 2 cores: keeps the default suite under 8 minutes
 def test_video_and_points_of_a_gated_recording(tmp_path, model_path, gated, capsys):
     gt = np.full((T, 128, 256), 112.0, np.float32)
     gt[:, :10] = np.inf

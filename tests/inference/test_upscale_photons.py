@@ -355,6 +355,7 @@ def test_few_photons_get_a_hint_towards_the_photon_model(photon_model, half_sky)
                 if "signal photons per pixel" in w]
 
 
+@pytest.mark.slow  # 8-10 s on 2 cores: keeps the default suite under 8 minutes
 @pytest.mark.parametrize("frames", [1, 3, 9])
 def test_iter_ambient_only_streams_what_ambient_only_computes(half_sky, frames):
     """Frame by frame, holding a window, the flags of the whole sequence: short sequences (fewer frames than

@@ -50,6 +50,7 @@ def test_dark_counts_add_to_the_mean():
     np.testing.assert_allclose(per_pixel[3, 5], 0.5 + 5.0)
 
 
+@pytest.mark.slow  # 8-10 s on 2 cores: keeps the default suite under 8 minutes
 def test_dead_pixels_give_zero_counts_and_no_return():
     lam, mask = dead_pixels(jax.random.key(1), rates((3,), 5.0), fraction=0.3, return_mask=True)
     assert mask.shape == (h, w) and 0.2 < float(mask.mean()) < 0.4

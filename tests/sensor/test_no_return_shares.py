@@ -78,6 +78,7 @@ def test_at_a_few_photons_drawn_the_sky_empties_and_the_surface_stays():
     assert marked[:, :, 5 * CFG.scale:].mean() > 0.99  # the sky beyond the half block
 
 
+@pytest.mark.slow  # 8-10 s on 2 cores: keeps the default suite under 8 minutes
 def test_one_window_computes_what_the_whole_does():
     """A frame's share from its nine frames summed; the ends of the sequence sum fewer (cut, not replicated)."""
     counts, _ = split_scene(20.0, 20.0, frames=11, seed=5)
