@@ -260,6 +260,10 @@ class TrainConfig:
         return self.examples_per_epoch // self.batch_size
 
 
+# the bounds of `PhotonRegime`'s photon levels: mean signal photons per LR pixel, frame SNR
+REGIME_LIMITS = {"signal_range": (1e-3, 1e6), "snr_range": (1e-3, 1e4)}
+
+
 def _check_range(who, name, pair, lo=0.0, strict=True, hi=None):
     a, b = (float(v) for v in pair)
     if not ((a > lo if strict else a >= lo) and a <= b and (hi is None or b <= hi) and b < float("inf")):
@@ -324,9 +328,13 @@ class PhotonRegime:
 
     def __post_init__(self):
         who = "PhotonRegime"
-        for name in ("signal_range", "snr_range", "irf_sigma_range", "dark_range", "hot_level_range",
-                     "thin_width_range"):
+        for name in ("irf_sigma_range", "dark_range", "hot_level_range", "thin_width_range"):
             _check_range(who, name, getattr(self, name))
+        # the photon levels a clip is simulated at: 1e300 photons or an SNR of 1e-300 (a sensor file's typo) would
+        # only surface as NaN steps after the set-up; the SNR bounds are the simulator's tested 1e-3..1e4, the
+        # signal's a million photons per pixel and frame, beyond any SPAD's
+        for name, (lo, hi) in REGIME_LIMITS.items():
+            _check_range(who, name, getattr(self, name), lo=lo, strict=False, hi=hi)
         _check_range(who, "no_return_fraction", self.no_return_fraction, strict=False, hi=1.0)
         for name in ("irf_paper_prob", "dark_prob", "hot_prob", "hot_fraction_max", "dead_prob",
                      "dead_fraction_max", "no_return_prob", "thin_prob", "static_prob", "paper_prob"):

@@ -36,7 +36,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import METRES_PER_SECOND, MIN_LR_SIDE, DepthScale, Gate, Optics, PhotonRegime, Pulse, Sensor
+from ..config import (METRES_PER_SECOND, MIN_LR_SIDE, DepthScale, Gate, Optics, PhotonRegime, Pulse,
+                      REGIME_LIMITS, Sensor)
 from ..sensor.gates import require_float32_depth
 from ..sensor.quantities import TIME_UNITS
 
@@ -147,7 +148,8 @@ _SENSOR_KEYS = {
 }
 # [photons]: the fields of PhotonRegime a sensor file may set (the IRF comes from [sensor])
 _PHOTON_KEYS = {
-    "signal_range": _pair(), "snr_range": _pair(),
+    "signal_range": _pair(*REGIME_LIMITS["signal_range"], strict=False),
+    "snr_range": _pair(*REGIME_LIMITS["snr_range"], strict=False),
     "dark_prob": _probability, "dark_range": _pair(),
     "hot_prob": _probability, "hot_fraction_max": _probability, "hot_level_range": _pair(),
     "dead_prob": _probability, "dead_fraction_max": _probability,

@@ -25,7 +25,8 @@ def test_regime_is_json_ready_and_checked():
     for change in (dict(signal_range=(0.0, 10.0)), dict(snr_range=(5.0, 1.0)), dict(dark_prob=1.5),
                    dict(no_return_fraction=(0.2, 1.5)), dict(blob_size=0), dict(motion="fast"),
                    dict(irf_sigma_range=(0.3, float("inf"))), dict(thin_prob=1.5), dict(static_prob=1.5), dict(thin_lines_max=0),
-                   dict(thin_width_range=(0.0, 2.0))):
+                   dict(thin_width_range=(0.0, 2.0)), dict(signal_range=(1.0, 1e300)),
+                   dict(signal_range=(1e-300, 1.0)), dict(snr_range=(1.0, 1e5)), dict(snr_range=(1e-4, 1.0))):
         with pytest.raises(ValueError, match="PhotonRegime"):
             PhotonRegime(**change)
 
