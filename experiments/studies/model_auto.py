@@ -41,7 +41,8 @@ from jaxsr.app import prepare_upscale
 from jaxsr.app.models import DEFAULT_MODELS
 from jaxsr.app.photons import photon_levels
 from jaxsr.config import DepthScale, Optics, Sensor
-from jaxsr.inference.adaptive import LEAD_Z, MODEL_TABLE, choose_photon_model, estimate_motion, load_study
+from jaxsr.inference.adaptive import (LEAD_Z, MODEL_TABLE, choose_photon_model, estimate_motion, lead_holds,
+                                      load_study)
 from jaxsr.runtime import enable_compilation_cache
 from jaxsr.scenes import sequence
 from jaxsr.sensor.gates import to_network_depth
@@ -153,7 +154,7 @@ def report(clips, table, rows, args, started) -> str:
         best = max(table["psnr"], key=lambda m: table["psnr"][m][i][j])
         lead = table["psnr"][best][i][j] - table["psnr"][default][i][j]
         se = table["lead_se"][best][i][j]
-        held = best == default or lead > LEAD_Z * se
+        held = best == default or lead_holds(lead, se)
         return (f"{best} {table['psnr'][best][i][j]:.2f}" + ("" if best == default else f", {lead:+.2f} +- {se:.2f}")
                 + f"; auto: {best if held else default}")
 

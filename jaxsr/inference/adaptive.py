@@ -265,6 +265,11 @@ STATIC_MOTION = 0.05  # LR px/frame: a measured motion below this reads as the t
 LEAD_Z = 2.0
 
 
+def lead_holds(lead: float, se: float) -> bool:
+    """Whether a model's lead over the table's default (dB) exceeds `LEAD_Z` standard errors `se` of that lead."""
+    return lead > LEAD_Z * se
+
+
 class ModelPick(NamedTuple):
     """`model`: the bundled model chosen; `motion`: the `MotionEstimate`; `signal`: the signal photons per LR
     pixel and frame it was chosen at; `reason`: one line for people."""
@@ -326,7 +331,7 @@ def choose_photon_model(lr_head, signal: float, *, min_fps: float | None = None,
     default = table["default"]
     if m != default and default in allowed:
         se = _interp2(table, table["lead_se"][m], signal, est.motion)
-        if scores[m] - scores[default] <= LEAD_Z * se:
+        if not lead_holds(scores[m] - scores[default], se):
             return ModelPick(default, est, signal, f"{seen}{budget}; the default: no model's lead over it in the "
                                                    f"simulated model study there exceeds {LEAD_Z:g} standard errors")
     return ModelPick(m, est, signal, f"{seen}{budget}; the best of the simulated model study there")

@@ -359,7 +359,8 @@ def without_holes(flags, max_pixels: int = HOLE_PIXELS):
     def one(f):
         h, w = f.shape
         label, size = regions(f)
-        on_edge = jnp.zeros((h, w), bool).at[0].set(True).at[-1].set(True).at[:, 0].set(True).at[:, -1].set(True)
+        on_edge = np.ones((h, w), bool)
+        on_edge[1:-1, 1:-1] = False
         reaches_edge = jnp.zeros(h * w + 1, bool).at[label.ravel()].max((f & on_edge).ravel())
         n = size[label]
         return f & (n >= 2) & (reaches_edge[label] | (n > max_pixels))
@@ -388,13 +389,9 @@ def beside_sky(flags, min_pixels: int = HOLE_PIXELS):
     outside its fit) it drops the building's edge, 12 dB at 16 photons (experiments/results/real_photons_pools.md).
     jit-able with `min_pixels` static; no gradient."""
     def one(frame):
-        h, w = frame.shape
         label, size = regions(frame)
-        sky = frame & (size[label] > min_pixels)
-        padded = jnp.pad(sky, 1)
-        near = jnp.any(jnp.stack([padded[1 + dy:1 + dy + h, 1 + dx:1 + dx + w]
-                                  for dy in (-1, 0, 1) for dx in (-1, 0, 1)]), axis=0)
-        return frame | near
+        sky = (frame & (size[label] > min_pixels)).astype(jnp.int32)
+        return frame | (_around(sky, 0, jax.lax.max) > 0)
 
     return _frame_by_frame("beside_sky", flags, "min_pixels", min_pixels, 0, one)
 
@@ -410,9 +407,7 @@ def regions(f):
 
     def step(state):
         label, _ = state
-        padded = jnp.pad(label, 1, constant_values=none)
-        spread = jnp.min(jnp.stack([padded[1 + dy:1 + dy + h, 1 + dx:1 + dx + w]
-                                    for dy in (-1, 0, 1) for dx in (-1, 0, 1)]), axis=0)
+        spread = _around(label, none, jax.lax.min)
         jumped = jnp.append(spread.ravel(), none)[spread]  # the label of the pixel a label points at: same region
         new = jnp.where(f, jnp.minimum(spread, jumped), none)
         return new, jnp.any(new != label)
@@ -420,6 +415,11 @@ def regions(f):
     label, _ = jax.lax.while_loop(lambda state: state[1], step, (start, jnp.bool_(True)))
     size = jnp.zeros(none + 1, jnp.int32).at[label.ravel()].add(f.ravel().astype(jnp.int32))
     return label, size
+
+
+def _around(x, outside, op):
+    """`op` (jax.lax.min, max) over each (h, w) pixel's 3 x 3 neighbourhood, `outside` beyond the frame."""
+    return jax.lax.reduce_window(x, jnp.asarray(outside, x.dtype), op, (3, 3), (1, 1), "SAME")
 
 
 def quiet_pixels(counts, sensor: Sensor = Sensor(), *, alpha=1e-3, frames: int = 9):
