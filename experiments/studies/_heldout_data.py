@@ -30,7 +30,7 @@ from typing import Callable
 import numpy as np
 from PIL import Image
 
-from jaxsr.config import Sensor
+from jaxsr.config import DEFAULT_MEAN_SIGNAL, Sensor
 from jaxsr.io.files import atomic_path, write_text_atomic
 
 DEFAULT_DATA = Path.home() / ".cache" / "jaxsr" / "heldout"
@@ -45,6 +45,17 @@ OPEN3D_RGBD = "examples/test_data/RGBD/other_formats"
 STDNET = "yanzq95/STDNet"
 STDNET_COMMIT = "c55f06c31f953b4c9208fea31582acd9f11b7664"
 DYDTOF = "dataset/DyDToF/DyDToF_HR_RGB/school/school_shot8"
+
+
+FIRST = ((3.0, 14.0), (1.3, 0.3, 0.1))  # the regimes the issue measured the gap in, run first
+
+
+def regimes(photons, snrs, paper: bool = True, first: bool = True) -> list:
+    """[(photons, snr)]: the issue's regimes (`FIRST`: 3 and 14 photons at SNR 1.3, 0.3 and 0.1) first (unless
+    not `first`), then the rest of the grid `photons` x `snrs`, then the paper's (snr None)."""
+    first = [(p, s) for p in FIRST[0] for s in FIRST[1]] if first else []
+    grid = [(float(p), float(s)) for p in photons for s in snrs]
+    return first + [r for r in grid if r not in first] + ([(DEFAULT_MEAN_SIGNAL, None)] if paper else [])
 
 
 def _png16(data: bytes) -> np.ndarray:

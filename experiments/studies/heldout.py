@@ -54,12 +54,13 @@ import numpy as np
 
 import jaxsr
 from jaxsr.app import AUTO_KEEP_RETURNS, DEFAULT_MODELS, Reading
-from jaxsr.config import DEFAULT_MEAN_SIGNAL, Sensor
+from jaxsr.config import Sensor
 from jaxsr.inference import lr_blocks
 from jaxsr.nn import Model
 from jaxsr.sensor import calibrated_rates, normalise_depth
 
 import _heldout_data  # beside this script
+from _heldout_data import regimes
 from _photon_benchmark import (PHOTONS, SNRS, benchmark_clips, bicubic_output, calibration,  # noqa: E402
                                dropped_error, regime_key, regime_label, returns_kept, shares)
 
@@ -76,7 +77,6 @@ METHODS = (BICUBIC, PAPER_TR4, KEEP, UPSCALE)
 DEFAULTS = (KEEP, UPSCALE)  # set against the paper's TR4 in the report
 OWN_KEY = (UPSCALE,)  # cached under a key of their own: the entries of the methods before them stay valid
 OLD_NAMES = {"default": KEEP}
-FIRST = ((3.0, 14.0), (1.3, 0.3, 0.1))  # the regimes the issue measured the gap in, run first
 
 
 # ------------------------------------------------------------------------------------------------ the measures
@@ -173,14 +173,6 @@ def load_methods() -> tuple[dict, dict]:
                              "histograms, the no-return decision: P(return) < 0.5 where the pixel's photons and "
                              "those of the quiet pixels pooled around it pass for ambient light alone, outside the "
                              "holes that returns enclose), on the photon counts of each scored frame's +-4 frames"}
-
-
-def regimes(photons, snrs, paper: bool = True, first: bool = True) -> list:
-    """[(photons, snr)]: the issue's regimes (`FIRST`: 3 and 14 photons at SNR 1.3, 0.3 and 0.1) first (unless
-    not `first`), then the rest of the grid `photons` x `snrs`, then the paper's (snr None)."""
-    first = [(p, s) for p in FIRST[0] for s in FIRST[1]] if first else []
-    grid = [(float(p), float(s)) for p in photons for s in snrs]
-    return first + [r for r in grid if r not in first] + ([(DEFAULT_MEAN_SIGNAL, None)] if paper else [])
 
 
 def cache_key(group: str, name: str, photons: float, snr, frames: int) -> str:

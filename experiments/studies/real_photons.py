@@ -69,6 +69,8 @@ import jaxsr
 from jaxsr.inference import iter_network_inputs, iter_super_resolve, lr_blocks, no_return_where
 from jaxsr.inference.confidence import (EVIDENCE_FRAMES, coefficients_for, confidence_frame, iter_count_windows,
                                         no_return_by_probability)
+from jaxsr.app import DEPTH_ENSEMBLE, photon_levels
+from jaxsr.app.job import ensemble_depth
 from jaxsr.app.recordings import gate_frames
 from jaxsr.sensor.timetags import TimeTags
 from _photon_benchmark import (NO_RETURN_AT, TV_TR, decision_of, load_models, no_return_decision,  # studies/
@@ -245,6 +247,18 @@ def confidence_decided(model, frames: PhotonFrames, guard: float | tuple | None 
         quiet = no_return_decision(frames.counts, sensor, guard if isinstance(guard, tuple) else ("pooled", guard))
         out = np.where(lr_blocks(np.asarray(quiet), FACTOR), out, raw[..., 0])
     return out
+
+
+def with_ensemble(output: np.ndarray, frames: PhotonFrames, apply: bool = True) -> np.ndarray:
+    """`output` with its returns' depth averaged with the paper's TR4's where the frames' photon levels
+    (`photon_levels` of their first frames) reach `DEPTH_ENSEMBLE`'s, as `jaxsr upscale`'s default gives them; else
+    (or not `apply`) itself."""
+    levels = photon_levels(iter(np.asarray(frames.counts)), frames.gate.bins)
+    if not (apply and levels.signal >= DEPTH_ENSEMBLE.min_signal and levels.snr >= DEPTH_ENSEMBLE.min_snr):
+        return output
+    model = jaxsr.load_model(DEPTH_ENSEMBLE.model)
+    other = np.asarray(jaxsr.super_resolve(model, model_input(model, frames), form="model"))
+    return np.stack([ensemble_depth(o, d) for o, d in zip(output, other)])
 
 
 def confidence_settings(given, beside_sky=()) -> dict:
@@ -470,7 +484,7 @@ def empty_edges(all_photons) -> np.ndarray:
 
 def evaluate(recordings, models: dict, *, levels=LEVELS, max_frames: int = MAX_FRAMES, tv_frames: int | None = None,
              tv: bool = True, seed: int = 0, picture_level: float = PICTURE_LEVEL, ambient=None, confidence=None,
-             log=print) -> dict:
+             ensemble=(), log=print) -> dict:
     """Score nearest, bicubic, TV and `models` ({label: Model}) on each recording's photon video at every level
     against its all-photon reference. tv_frames: frames per level TV runs on (None: all). ambient: {label:
     alpha} for models whose output is also no return where `jaxsr.sensor.ambient_only` flags a pixel of the
@@ -478,7 +492,8 @@ def evaluate(recordings, models: dict, *, levels=LEVELS, max_frames: int = MAX_F
     where `jaxsr.sensor.no_return_shares` say so, or {label: ("keep", alpha)} for `_photon_benchmark.returns_kept`;
     confidence: {label: guard} for models with a no-return head whose no return is where the confidence's P(return)
     is below one half (`confidence_decided`; guard: None, or the photons' test's rate, as `jaxsr upscale` decides by
-    default at 0.001). Returns
+    default at 0.001); ensemble: labels whose returns' depth is averaged with the paper's TR4's where the frames'
+    photon levels reach `jaxsr.app.DEPTH_ENSEMBLE`'s (`with_ensemble`, as `jaxsr upscale`'s default). Returns
     {name: {"reference", "noise", "levels": [{"level", "frames", "photons_ref", "scores": {method: {psnr, mae,
     no_return: (T,)}}, "tv_frames"}], "picture": {panel: (H, W)}}}."""
     results = {}
@@ -513,7 +528,8 @@ def evaluate(recordings, models: dict, *, levels=LEVELS, max_frames: int = MAX_F
                 outputs["TV"] = tv_output(lr, tv_idx)
             for label, model in models.items():
                 if label in (confidence or {}):
-                    outputs[label] = confidence_decided(model, frames, confidence[label])
+                    outputs[label] = with_ensemble(confidence_decided(model, frames, confidence[label]), frames,
+                                                   label in ensemble)
                     continue
                 if decision_of((ambient or {}).get(label, ("", 0.0)))[0] == "keep":
                     quiet = no_return_decision(frames.counts, jaxsr.Sensor(gate=jaxsr.Gate.spanning(35.0, frames.gate.bins)),
@@ -766,6 +782,9 @@ def main(argv=None) -> None:
     parser.add_argument("--beside-sky", action="append", default=[], metavar="NAME",
                         help="a --confidence NAME=ALPHA whose guard also leaves the LR pixels beside a quiet region "
                         "larger than a hole to P(return) (jaxsr.sensor.beside_sky; not the default); repeatable")
+    parser.add_argument("--ensemble", action="append", default=[], metavar="NAME",
+                        help="a --confidence NAME whose returns' depth is averaged with the paper's TR4's where the "
+                        "photon levels reach jaxsr.app.DEPTH_ENSEMBLE's (jaxsr upscale's default); repeatable")
     parser.add_argument("--picture-level", type=float, default=PICTURE_LEVEL,
                         help="photons of the pictured frame (default 2)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the photon permutations")
@@ -777,6 +796,10 @@ def main(argv=None) -> None:
     started = time.time()
     models, info, ambient = load_models(args.model, args.no_return_logit, args.ambient_alpha,
                                        args.no_return_shares, args.keep_returns)
+    unknown = set(args.ensemble) - set(confidence_settings(args.confidence))
+    if unknown:
+        raise SystemExit(f"--ensemble {', '.join(sorted(unknown))}: give --confidence NAME first (the decision whose "
+                         "returns' depth is averaged)")
     recordings = []
     for source, folder in found_sources(args.data):
         if folder is None:
@@ -787,7 +810,7 @@ def main(argv=None) -> None:
         raise SystemExit(f"no recordings: none of {', '.join(s.file for s in SOURCES)} in {', '.join(args.data)}")
     results = evaluate(recordings, models, levels=args.levels, max_frames=args.frames, tv_frames=args.tv_frames,
                        tv=not args.no_tv, seed=args.seed, picture_level=args.picture_level, ambient=ambient,
-                       confidence=confidence_settings(args.confidence, args.beside_sky))
+                       confidence=confidence_settings(args.confidence, args.beside_sky), ensemble=set(args.ensemble))
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     goals, all_met = goal_table(results)

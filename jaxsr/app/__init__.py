@@ -23,7 +23,7 @@ from typing import Callable
 from ..checks import memory_budget
 from .job import UpscaleJob, prepare_upscale
 from .memory import upscale_memory
-from .models import DEFAULT_MODELS
+from .models import DEFAULT_MODELS, DEPTH_ENSEMBLE, DepthEnsemble
 from .outputs import Outputs, check_outputs
 from .photons import (AUTO_AMBIENT_ALPHA, AUTO_AMBIENT_MIN_FRAMES, AUTO_AMBIENT_MIN_SIGNAL_SNR, AUTO_AMBIENT_MIN_SNR,
                       AUTO_KEEP_RETURNS, FEW_PHOTONS, HEAD_FRAMES, PhotonLevels, auto_ambient_alpha, photon_levels)
@@ -34,6 +34,7 @@ from .writing import UpscaleResult, write_upscaled
 
 __all__ = ["Reading", "ModelChoice", "PhotonRules", "Writing", "upscale", "prepare_upscale", "write_upscaled",
            "UpscaleJob", "UpscaleResult", "Outputs", "check_outputs", "upscale_memory", "DEFAULT_MODELS",
+           "DEPTH_ENSEMBLE", "DepthEnsemble",
            "AUTO_AMBIENT_ALPHA", "AUTO_AMBIENT_MIN_FRAMES", "AUTO_AMBIENT_MIN_SIGNAL_SNR", "AUTO_AMBIENT_MIN_SNR",
            "AUTO_KEEP_RETURNS", "FEW_PHOTONS", "HEAD_FRAMES", "PhotonLevels", "auto_ambient_alpha", "photon_levels",
            "DEPTH_UNITS", "FRAME_FORMATS", "KINDS", "Recording", "open_recording", "to_metres", "to_units",

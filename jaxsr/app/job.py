@@ -30,7 +30,7 @@ from .recordings import (Recording, check_frames, clipped_recording, guess_units
                          open_recording, time_tag_recording, to_units)
 from .specs import ModelChoice, PhotonRules, Reading, is_auto
 
-__all__ = ["UpscaleJob", "prepare_upscale", "no_return_interior", "HISTOGRAM_CHUNK"]
+__all__ = ["UpscaleJob", "prepare_upscale", "no_return_interior", "ensemble_depth", "HISTOGRAM_CHUNK"]
 
 
 
@@ -48,7 +48,8 @@ class UpscaleJob:
     gate and scale, and on negative counts clipped; source: the input as named in messages and metadata;
     negative_counts: with `Reading.clip_negative`, (negative counts clipped at 0, pixels holding one), else None;
     precision: how the network's convolutions multiply; photons: the `PhotonDecision` (ambient-only test and
-    keep rule) that applies."""
+    keep rule) that applies; ensemble_model: the model whose depth the returns' is averaged with
+    (`jaxsr.app.DEPTH_ENSEMBLE`), None where the model's own stands."""
 
     recording: Recording
     model: Model
@@ -64,12 +65,16 @@ class UpscaleJob:
     photons: PhotonDecision = PhotonDecision(None, "", None)
     model_id: str = ""
     input_path: str | None = None  # the input where it was given as a path (never written over)
+    ensemble_model: Model | None = None
     # fresh streams of the network's input, and of the photon tests' (h, w) bool flags per frame (None: no test)
     _lr_stream: Callable[[], Iterator[np.ndarray]] = dataclasses.field(default=None, repr=False, compare=False)
     _ambient_stream: Callable[[], Iterator[np.ndarray]] | None = dataclasses.field(default=None, repr=False,
                                                                                    compare=False)
     _keep_stream: Callable[[], Iterator[np.ndarray]] | None = dataclasses.field(default=None, repr=False,
                                                                                 compare=False)
+    # a fresh stream of the ensemble model's input (None: no ensemble model)
+    _ensemble_lr_stream: Callable[[], Iterator[np.ndarray]] | None = dataclasses.field(default=None, repr=False,
+                                                                                    compare=False)
     # a fresh stream of the recording's (h, w, K) histogram frames (None: depth frames, no confidence)
     _count_stream: Callable[[], Iterator[np.ndarray]] | None = dataclasses.field(default=None, repr=False,
                                                                                  compare=False)
@@ -166,6 +171,7 @@ class UpscaleJob:
         bins_per_unit = float(self.scale.span) / float(self.gate.bin_width)
         threshold = float(self.model.config.no_return_logit) if head else 0.0
         windows = iter_count_windows(self._count_stream(), EVIDENCE_FRAMES)
+        ensemble = self._ensemble_outputs(batch_size)
         for out, window in zip(raw, windows, strict=True):
             depth, logit = (out[..., 0], out[..., 1]) if head else (out, None)
             p, sigma = confidence_frame(window, depth, self.confidence_coefficients, sensor, head_logit=logit,
@@ -182,6 +188,7 @@ class UpscaleJob:
                 hr = depth
             if ambient is not None:
                 hr = no_return_where(hr, next(ambient))
+            hr = ensemble_depth(hr, next(ensemble))
             std = np.where(hr < NO_RETURN_AT, sigma * np.float32(self.gate.bin_width), np.float32(np.nan))
             yield hr, p, std.astype(np.float32)
 
@@ -192,12 +199,20 @@ class UpscaleJob:
             return (hr for hr, _, _ in self.iter_outputs(batch_size=batch_size, lr_frames=lr_frames))
         lr = self.lr_frames() if lr_frames is None else lr_frames
         if self._keep_stream is not None:
-            return iter_returns_kept(self.model, lr, self._keep_stream(), batch_size=batch_size,
-                                     precision=self.precision)
-        out = iter_super_resolve(self.model, lr, batch_size=batch_size, precision=self.precision)
-        if self._ambient_stream is None:
-            return out
-        return (no_return_where(hr, flags) for hr, flags in zip(out, self._ambient_stream(), strict=True))
+            out = iter_returns_kept(self.model, lr, self._keep_stream(), batch_size=batch_size,
+                                    precision=self.precision)
+        else:
+            out = iter_super_resolve(self.model, lr, batch_size=batch_size, precision=self.precision)
+        if self._ambient_stream is not None:
+            out = (no_return_where(hr, flags) for hr, flags in zip(out, self._ambient_stream(), strict=True))
+        return (ensemble_depth(hr, other) for hr, other in zip(out, self._ensemble_outputs(batch_size)))
+
+    def _ensemble_outputs(self, batch_size: int | None) -> Iterator[np.ndarray | None]:
+        """The ensemble model's HR output frame by frame (None for each frame where there is none)."""
+        if self.ensemble_model is None:
+            return itertools.repeat(None)
+        return iter_super_resolve(self.ensemble_model, self._ensemble_lr_stream(), batch_size=batch_size,
+                                  precision=self.precision)
 
     def iter_frames(self, *, batch_size: int | None = None, units: str | None = None) -> Iterator[np.ndarray]:
         """The super-resolved recording, streamed: (H, W) float32 frames in `units` (default the job's: "m",
@@ -205,6 +220,16 @@ class UpscaleJob:
         units = self.units if units is None else units
         for hr in self.iter_normalised(batch_size=batch_size):
             yield to_units(hr, units, self.scale)
+
+
+def ensemble_depth(hr: np.ndarray, other: np.ndarray | None) -> np.ndarray:
+    """`hr` (HR normalised depth, the no-return decision made) with the mean of its depth and `other`'s (another
+    network's output) where both hold a return (below `NO_RETURN_AT`): two networks that err in different places
+    err less together; the decision stays `hr`'s. `hr` itself for None."""
+    if other is None:
+        return hr
+    both = (hr < NO_RETURN_AT) & (other < NO_RETURN_AT)
+    return np.where(both, np.float32(0.5) * (hr + other), hr).astype(np.float32)
 
 
 def _as_choice(model) -> ModelChoice:
@@ -267,7 +292,7 @@ def _depth_job(rec, source, choice, planned, read: Reading, photons: PhotonRules
         return normalised_frames(rec, units, sensor)
 
     enable_compilation_cache()
-    model, name, description = finish_model(choice, planned, "depth", lambda: _head(lr_stream(), HEAD_FRAMES))
+    model, name, description, _ = finish_model(choice, planned, "depth", lambda: _head(lr_stream(), HEAD_FRAMES))
     # inside a region of no return (a pixel and its 8 neighbours), the output is no return too: a network reading
     # depth alone shows some of a sky band as depth, and nothing there says a surface is
     interior = None if model.has_no_return_head else (lambda: (no_return_interior(f) for f in lr_stream()))
@@ -307,9 +332,9 @@ def _histogram_job(rec, gate, source, tag_notes, choice, planned, read: Reading,
         return iter_network_inputs(counts, sensor, channels, chunk=HISTOGRAM_CHUNK)
 
     enable_compilation_cache()
-    model, model_id, name = finish_model(choice, planned, "histograms",
-                                         lambda: _head(lr_stream(("depth",)), HEAD_FRAMES),
-                                         float("nan") if levels is None else levels.signal)
+    model, model_id, name, ensemble_model = finish_model(
+        choice, planned, "histograms", lambda: _head(lr_stream(("depth",)), HEAD_FRAMES),
+        *((float("nan"), float("nan")) if levels is None else (levels.signal, levels.snr)))
     head_frames = min(HEAD_FRAMES, rec.frames)
     if levels is not None:
         if model.has_no_return_head:
@@ -340,7 +365,9 @@ def _histogram_job(rec, gate, source, tag_notes, choice, planned, read: Reading,
 
     return UpscaleJob(
         rec, model, name, label, units, gate, scale, warnings, source, choice.precision,
-        found if read.clip_negative else None, decision, model_id, _lr_stream=lambda: lr_stream(model.channels),
+        found if read.clip_negative else None, decision, model_id, ensemble_model=ensemble_model,
+        _lr_stream=lambda: lr_stream(model.channels),
+        _ensemble_lr_stream=None if ensemble_model is None else (lambda: lr_stream(ensemble_model.channels)),
         _ambient_stream=None if decision.ambient_alpha is None else flags(decision.ambient_alpha, 3),
         # each pixel's own photons, then those of the quiet pixels around it (a dim wall's return shows in their
         # pool), and no hole: a quiet region that returns enclose keeps the network's depth

@@ -20,13 +20,32 @@ from ..nn.duf import with_no_return_logit
 from ..nn.model import Model
 from .specs import ModelChoice
 
-__all__ = ["DEFAULT_MODELS", "BUNDLED_USES", "PlannedModel", "ChosenModel", "plan_model", "finish_model", "trained_snr_range", "heads",
-           "bundled_models"]
+__all__ = ["DEFAULT_MODELS", "DEPTH_ENSEMBLE", "DepthEnsemble", "BUNDLED_USES", "PlannedModel", "ChosenModel",
+           "plan_model", "finish_model", "trained_snr_range", "heads", "bundled_models"]
 
 # model="default": the bundled model that fits the input. Depth gives only the centre of mass, which the paper's
 # TR4 reads; histograms and time tags also give the photons behind it, which tr4-ambient reads: ahead of TR4 in
 # every simulated regime and by 2 dB on average on two real recordings (docs/results/photon-regimes.md, the default)
 DEFAULT_MODELS = {"depth": "tr4", "histograms": "tr4-ambient"}
+
+
+class DepthEnsemble(NamedTuple):
+    """What model="default" adds for histograms and time tags at a high photon level: where the default model and
+    `model` both output a return, the mean of their depths, when the recording shows `min_signal` signal photons
+    per LR pixel and frame or more at a frame SNR of `min_snr` or more (`jaxsr.app.photon_levels`)."""
+
+    model: str
+    min_signal: float
+    min_snr: float
+
+
+# At 100 and 1000 photons and SNR 1.3 and 5 the two networks err in different places: the paper's TR4 places
+# third-party indoor rooms better than tr4-ambient (by 0.1-2.0 dB on the held-out mean), tr4-ambient the test scenes
+# (by 0.5-0.8 dB) and a real building's edges (2.3 dB at 51 photons). Their mean keeps most of each: +0.6 to +1.5 dB
+# over tr4-ambient's depth held-out, +0.02 to +0.09 dB on the test scenes, -0.3 dB on the real building. At 14 photons, or SNR 0.1, the paper's TR4
+# reads the centre of mass of dim pixels' few photons, or of the ambient light, as depth and the mean loses 1.6-4.2
+# dB held-out; the bounds lie between those levels (docs/results/photon-regimes.md, "Whose depth the returns take")
+DEPTH_ENSEMBLE = DepthEnsemble("paper-tr4", min_signal=50.0, min_snr=0.5)
 AUTO_TRS = tuple(f"tr{k}" for k in range(5))  # what model="auto" picks among for depth frames
 # and for histograms and time tags: every bundled model the model table scores (photon models included)
 # The bundled models and when to use each (`jaxsr models`); the weights are in jaxsr/weights
@@ -59,7 +78,7 @@ def plan_model(choice: ModelChoice) -> PlannedModel:
     a threshold applies to at least one model they may pick."""
     if choice.is_default or choice.is_auto:
         name = "default" if choice.is_default else "auto"
-        for path in picks(name):
+        for path in picks(name) + ([DEPTH_ENSEMBLE.model] if choice.is_default else []):
             resolve_model_path(path)
         if choice.is_auto and choice.no_return_logit is not None:
             raise ValueError("no_return_logit (--no-return-logit) applies to models with a no-return head; --model "
@@ -79,20 +98,24 @@ def plan_model(choice: ModelChoice) -> PlannedModel:
 
 class ChosenModel(NamedTuple):
     """`finish_model`'s result: the model; its name, which `--model` takes back (a bundled name or the path given;
-    "model" for a `Model` given loaded); and a sentence on how it was chosen and set."""
+    "model" for a `Model` given loaded); a sentence on how it was chosen and set; and the model whose depth the
+    returns' is averaged with (`DEPTH_ENSEMBLE`), None where the model's own stands."""
 
     model: Model
     name: str
     description: str
+    ensemble_model: Model | None = None
 
 
-def finish_model(choice: ModelChoice, planned: PlannedModel, kind: str,
-                 lr_head: Callable[[], np.ndarray], signal: float = float("nan")) -> ChosenModel:
+def finish_model(choice: ModelChoice, planned: PlannedModel, kind: str, lr_head: Callable[[], np.ndarray],
+                 signal: float = float("nan"), snr: float = float("nan")) -> ChosenModel:
     """The second step, once the recording is open: the model for input of `kind` ("depth" or "histograms"), with
-    `lr_head()` the recording's first LR frames where "auto" measures the motion and `signal` the signal photons per
-    LR pixel and frame of histograms (`jaxsr.app.photon_levels`); at the choice's no-return threshold, in its form,
+    `lr_head()` the recording's first LR frames where "auto" measures the motion, `signal` the signal photons per
+    LR pixel and frame of histograms and `snr` their frame SNR (`jaxsr.app.photon_levels`); at the choice's no-return threshold, in its form,
     its precision checked. "auto" picks, for depth frames, the TR that `choose_tr` finds best at the motion; for
-    histograms, the bundled model `choose_photon_model` finds best at the motion and signal."""
+    histograms, the bundled model `choose_photon_model` finds best at the motion and signal. "default" for
+    histograms at `DEPTH_ENSEMBLE`'s photon level or above also returns its model, whose depth the returns' is
+    averaged with, in the same form and precision."""
     model, name = planned
     if choice.is_default:
         name = DEFAULT_MODELS[kind]
@@ -107,9 +130,17 @@ def finish_model(choice: ModelChoice, planned: PlannedModel, kind: str,
     if choice.no_return_logit is not None:
         model = with_no_return_logit(model, choice.no_return_logit)
         description = f"{description} at no-return logit {float(choice.no_return_logit):g}"
+    ensemble_model = None
+    if (choice.is_default and kind == "histograms" and signal >= DEPTH_ENSEMBLE.min_signal
+            and snr >= DEPTH_ENSEMBLE.min_snr):  # NaN levels (none measured) compare False
+        ensemble_model = in_form(load_model(DEPTH_ENSEMBLE.model), choice.form, "form (--form)")
+        check_precision(ensemble_model, choice.precision, "precision (--precision)")
+        description = (f"{description}, its returns' depth averaged with {DEPTH_ENSEMBLE.model}'s ({signal:.0f} signal "
+                       f"photons per LR pixel at SNR {snr:.2g}: {DEPTH_ENSEMBLE.min_signal:g} or more at "
+                       f"{DEPTH_ENSEMBLE.min_snr:g} or more)")
     model = in_form(model, choice.form, "form (--form)")
     check_precision(model, choice.precision, "precision (--precision)")
-    return ChosenModel(model, name, description)
+    return ChosenModel(model, name, description, ensemble_model)
 
 
 def picks(name: str, kind: str | None = None) -> list[str]:

@@ -14,6 +14,7 @@ from jaxsr.app import (
     AUTO_AMBIENT_MIN_SNR,
     AUTO_KEEP_RETURNS,
     DEFAULT_MODELS,
+    DEPTH_ENSEMBLE,
     FEW_PHOTONS,
     ModelChoice,
     PhotonRules,
@@ -23,6 +24,8 @@ from jaxsr.app import (
     prepare_upscale,
     upscale,
 )
+from jaxsr.app.job import ensemble_depth
+from jaxsr.app.models import finish_model, plan_model
 from jaxsr.inference import super_resolve_histograms
 from jaxsr.io.checkpoint import load_model, save_model
 from jaxsr.nn import Model, init_model, with_no_return_logit
@@ -478,3 +481,54 @@ def test_keep_returns_keeps_the_surface_a_head_calls_sky(sky_everywhere, half_sk
         prepare_upscale("/nonexistent/input.npy", photons=PhotonRules(keep_returns=2.0))
     assert main(["upscale", str(src), "-o", str(tmp_path / "b.npy"), "--keep-returns", "0"]) == 2
     assert "false-alarm rate" in capsys.readouterr().err
+
+
+
+def test_ensemble_depth_averages_the_returns_and_never_the_decision():
+    """The mean of both depths where both hold a return; a pixel either calls no return keeps the decision's
+    output; None leaves the output as it is."""
+    hr = np.array([[0.2, 1.0], [0.4, 0.995]], np.float32)
+    other = np.array([[0.3, 0.3], [1.0, 0.5]], np.float32)
+    np.testing.assert_allclose(ensemble_depth(hr, other), np.array([[0.25, 1.0], [0.4, 0.995]], np.float32))
+    assert ensemble_depth(hr, other).dtype == np.float32 and ensemble_depth(hr, None) is hr
+
+
+@pytest.mark.parametrize("signal, snr, ensemble", [
+    (DEPTH_ENSEMBLE.min_signal, DEPTH_ENSEMBLE.min_snr, True), (1000.0, 5.0, True),
+    (DEPTH_ENSEMBLE.min_signal * 0.9, 5.0, False), (1000.0, DEPTH_ENSEMBLE.min_snr * 0.9, False),
+    (float("nan"), float("nan"), False)])
+def test_the_default_averages_two_networks_at_high_photon_levels(signal, snr, ensemble):
+    """model="default" for histograms: from `DEPTH_ENSEMBLE`'s signal and SNR up, its model too (said in the
+    description); below either, or unmeasured, the default model alone."""
+    chosen = finish_model(ModelChoice(), plan_model(ModelChoice()), "histograms", lambda: None, signal, snr)
+    assert chosen.name == DEFAULT_MODELS["histograms"]
+    assert (chosen.ensemble_model is not None) == ensemble
+    assert (DEPTH_ENSEMBLE.model in chosen.description) == ensemble
+    if ensemble:
+        want, got = load_model(DEPTH_ENSEMBLE.model).config, chosen.ensemble_model
+        assert (got.config.tr, got.config.inputs, got.has_no_return_head) == (want.tr, want.inputs, False)
+
+
+def test_a_named_model_or_depth_frames_run_alone():
+    """Only "default" for histograms adds a second network: a model named by the user is the model that runs."""
+    named = ModelChoice(DEFAULT_MODELS["histograms"])
+    assert finish_model(named, plan_model(named), "histograms", lambda: None, 1000.0, 5.0).ensemble_model is None
+    assert finish_model(ModelChoice(), plan_model(ModelChoice()), "depth", lambda: None, 1000.0, 5.0).ensemble_model is None
+
+
+@pytest.mark.slow  # three runs of two TR4 networks: 15-30 s on 2 cores
+def test_bright_histograms_average_the_two_depths_where_the_default_outputs_a_return():
+    """A bright surface (hundreds of photons per pixel, SNR above 1): the default's output is its model's decision
+    with the mean of its and `DEPTH_ENSEMBLE.model`'s depths on the returns, as the two give them run by name."""
+    rng = np.random.default_rng(0)
+    rate = np.full((3, 8, 12, 16), 4.0, np.float32)
+    rate[..., :6, 5] += 300.0  # a surface over the top rows; the rest ambient light alone
+    counts = rng.poisson(rate).astype(np.float32)
+    job = prepare_upscale(counts)
+    assert job.ensemble_model is not None and DEPTH_ENSEMBLE.model in job.model_name
+    read = Reading(units="normalised")
+    result = upscale(counts, None, read=read).depth
+    own = upscale(counts, None, model=DEFAULT_MODELS["histograms"], read=read).depth
+    other = upscale(counts, None, model=DEPTH_ENSEMBLE.model, read=read, photons=PhotonRules(ambient_alpha=None)).depth
+    np.testing.assert_allclose(result, ensemble_depth(own, other), atol=1e-6)
+    assert (result < 0.99).any() and (result >= 0.99).any()
