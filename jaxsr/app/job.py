@@ -48,8 +48,8 @@ class UpscaleJob:
     gate and scale, and on negative counts clipped; source: the input as named in messages and metadata;
     negative_counts: with `Reading.clip_negative`, (negative counts clipped at 0, pixels holding one), else None;
     precision: how the network's convolutions multiply; photons: the `PhotonDecision` (ambient-only test and
-    keep rule) that applies; ensemble_model: the model whose depth the returns' is averaged with
-    (`jaxsr.app.DEPTH_ENSEMBLE`), None where the model's own stands."""
+    keep rule) that applies; ensemble_model: the second network whose depth is averaged with the model's on the
+    returns (`jaxsr.app.DEPTH_ENSEMBLE`), None where the model runs alone."""
 
     recording: Recording
     model: Model

@@ -40,11 +40,12 @@ class DepthEnsemble(NamedTuple):
 
 
 # At 100 and 1000 photons and SNR 1.3 and 5 the two networks err in different places: the paper's TR4 places
-# third-party indoor rooms better than tr4-ambient (by 0.1-2.0 dB on the held-out mean), tr4-ambient the test scenes
-# (by 0.5-0.8 dB) and a real building's edges (2.3 dB at 51 photons). Their mean keeps most of each: +0.6 to +1.5 dB
-# over tr4-ambient's depth held-out, +0.02 to +0.09 dB on the test scenes, -0.3 dB on the real building. At 14 photons, or SNR 0.1, the paper's TR4
-# reads the centre of mass of dim pixels' few photons, or of the ambient light, as depth and the mean loses 1.6-4.2
-# dB held-out; the bounds lie between those levels (docs/results/photon-regimes.md, "Whose depth the returns take")
+# third-party indoor rooms better than tr4-ambient (by 0.1-2.0 dB on the held-out mean), tr4-ambient the test
+# scenes (by 0.5-0.8 dB) and a real building's edges (at 51 photons 34.90 dB, the paper's TR4 alone 32.76). Their
+# mean keeps most of each: +0.6 to +1.5 dB over tr4-ambient's depth held-out, +0.02 to +0.09 dB on the test scenes,
+# -0.34 dB on the real building. At 14 photons, or SNR 0.1, the paper's TR4 reads the centre of mass of dim pixels'
+# few photons, or of the ambient light, as depth and the mean loses 1.6-6.6 dB held-out; the bounds lie between
+# those levels (docs/results/photon-regimes.md, "Whose depth the returns take")
 DEPTH_ENSEMBLE = DepthEnsemble("paper-tr4", min_signal=50.0, min_snr=0.5)
 AUTO_TRS = tuple(f"tr{k}" for k in range(5))  # what model="auto" picks among for depth frames
 # and for histograms and time tags: every bundled model the model table scores (photon models included)
@@ -98,8 +99,8 @@ def plan_model(choice: ModelChoice) -> PlannedModel:
 
 class ChosenModel(NamedTuple):
     """`finish_model`'s result: the model; its name, which `--model` takes back (a bundled name or the path given;
-    "model" for a `Model` given loaded); a sentence on how it was chosen and set; and the model whose depth the
-    returns' is averaged with (`DEPTH_ENSEMBLE`), None where the model's own stands."""
+    "model" for a `Model` given loaded); a sentence on how it was chosen and set; and the second network whose
+    depth is averaged with the model's on the returns (`DEPTH_ENSEMBLE`), None where the model runs alone."""
 
     model: Model
     name: str
@@ -114,8 +115,8 @@ def finish_model(choice: ModelChoice, planned: PlannedModel, kind: str, lr_head:
     LR pixel and frame of histograms and `snr` their frame SNR (`jaxsr.app.photon_levels`); at the choice's no-return threshold, in its form,
     its precision checked. "auto" picks, for depth frames, the TR that `choose_tr` finds best at the motion; for
     histograms, the bundled model `choose_photon_model` finds best at the motion and signal. "default" for
-    histograms at `DEPTH_ENSEMBLE`'s photon level or above also returns its model, whose depth the returns' is
-    averaged with, in the same form and precision."""
+    histograms at `DEPTH_ENSEMBLE`'s photon level or above also returns its network, whose depth is averaged with
+    the model's on the returns, in the same form and precision."""
     model, name = planned
     if choice.is_default:
         name = DEFAULT_MODELS[kind]
