@@ -543,8 +543,10 @@ def evaluate(recordings, models: dict, *, levels=LEVELS, max_frames: int = MAX_F
                     outputs[label] = no_return_where(outputs[label], np.asarray(flags))
             scores = {m: masked_scores(sr, ref, valid, sky, edge, near, sky_beside) for m, sr in outputs.items()}
             photons_ref = float(frames.counts.sum(-1)[:, covered].mean()) if covered.any() else float("nan")
+            measured = photon_levels(iter(np.asarray(frames.counts)), frames.gate.bins)  # what the default decides on
             out["levels"].append({"level": float(level), "frames": len(lr), "photons_ref": photons_ref,
-                                  "scores": scores, "tv_frames": tv_idx})
+                                  "signal": measured.signal, "snr": measured.snr, "scores": scores,
+                                  "tv_frames": tv_idx})
             if out["picture"] is None or level == picture_level:
                 t = int(tv_idx[0]) if len(tv_idx) else 0
                 out["picture"] = {"level": float(level), "frame": t, "LR": lr[t],
@@ -613,12 +615,13 @@ def tables(results, recordings) -> str:
         if not methods:
             text.append("No level had the photons for a frame.\n")
             continue
-        rows = [[f"{e['level']:g}", str(e["frames"]), f"{e['photons_ref']:.1f}"]
+        rows = [[f"{e['level']:g}", str(e["frames"]), f"{e['photons_ref']:.1f}", f"{e['signal']:.1f} / {e['snr']:.3g}"]
                 + [f"{e['scores'][m]['psnr'].mean():.2f}" for m in methods] for e in r["levels"]]
         tv_subset = any(len(e["tv_frames"]) < e["frames"] for e in r["levels"] if "TV" in e["scores"])
         text.append("### PSNR (dB) against the reference, mean over frames" + (" (TV: on its frames only)" if tv_subset
                                                                                else "") + "\n\n"
-                    + markdown_table(["photons", "frames", "photons / LR pixel on the reference", *methods], rows))
+                    + markdown_table(["photons", "frames", "photons / LR pixel on the reference",
+                                      "measured signal / SNR (`jaxsr.app.photon_levels`)", *methods], rows))
         rows = [[f"{e['level']:g}"] + [f"{_finite_mean(e['scores'][m]['psnr_near'])} / "
                                        f"{_finite_mean(e['scores'][m]['psnr_away'])}" for m in methods]
                 for e in r["levels"]]
@@ -731,7 +734,8 @@ def picture(results, recordings, path) -> None:
 
 def raw(results, info, settings) -> dict:
     def level(e):
-        return {"level": e["level"], "frames": e["frames"], "photons_ref": e["photons_ref"],
+        return {"level": e["level"], "frames": e["frames"], "photons_ref": e["photons_ref"], "signal": e["signal"],
+                "snr": e["snr"],
                 "tv_frames": np.asarray(e["tv_frames"]).tolist(),
                 "scores": {m: {k: [None if np.isnan(x) else x for x in np.round(np.asarray(v, float), 5).tolist()]
                                for k, v in s.items()}

@@ -23,7 +23,7 @@ from ..sensor.gates import data_span, gate_depth, gate_warnings
 from ..sensor.peaks import HOLE_PIXELS, QUIET_POOLS
 from ..sensor.timetags import TIME_TAG_FORMATS, TimeTags, gate_of_tags, read_time_tags, time_tag_warnings
 from .memory import HISTOGRAM_CHUNK, check_result_memory
-from .models import finish_model, has_head, plan_model, trained_snr_range
+from .models import DEPTH_ENSEMBLE, finish_model, has_head, plan_model, trained_snr_range
 from .photons import (AMBIENT_FRAMES, HEAD_FRAMES, PhotonDecision, decide_photon_rules, few_photons_warnings,
                       photon_levels, rule_warnings, snr_warnings)
 from .recordings import (Recording, check_frames, clipped_recording, guess_units, normalised_frames,
@@ -205,10 +205,13 @@ class UpscaleJob:
             out = iter_super_resolve(self.model, lr, batch_size=batch_size, precision=self.precision)
         if self._ambient_stream is not None:
             out = (no_return_where(hr, flags) for hr, flags in zip(out, self._ambient_stream(), strict=True))
-        return (ensemble_depth(hr, other) for hr, other in zip(out, self._ensemble_outputs(batch_size)))
+        if self.ensemble_model is None:
+            return out
+        return (ensemble_depth(hr, other) for hr, other in zip(out, self._ensemble_outputs(batch_size), strict=True))
 
     def _ensemble_outputs(self, batch_size: int | None) -> Iterator[np.ndarray | None]:
-        """The ensemble model's HR output frame by frame (None for each frame where there is none)."""
+        """The ensemble model's HR output frame by frame, from the recording's own frames whatever LR stream the
+        model is given (None for each frame where there is no ensemble model)."""
         if self.ensemble_model is None:
             return itertools.repeat(None)
         return iter_super_resolve(self.ensemble_model, self._ensemble_lr_stream(), batch_size=batch_size,
@@ -346,6 +349,10 @@ def _histogram_job(rec, gate, source, tag_notes, choice, planned, read: Reading,
     warnings += rule_warnings(photons, clip_negative=read.clip_negative)
     decision = decide_photon_rules(photons, levels, marks_no_return=model.has_no_return_head, frames=rec.frames)
     label = name
+    if ensemble_model is not None:
+        name = (f"{name}, its returns' depth averaged with {DEPTH_ENSEMBLE.model}'s ({levels.signal:.0f} signal "
+                f"photons per LR pixel at SNR {levels.snr:.3g}: {DEPTH_ENSEMBLE.min_signal:g} or more at "
+                f"{DEPTH_ENSEMBLE.min_snr:g} or more)")
     if decision.ambient_alpha is not None:
         name = f"{name}, no return where ambient alone (alpha {float(decision.ambient_alpha):g}{decision.ambient_why})"
     elif decision.ambient_why:

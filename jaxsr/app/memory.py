@@ -36,7 +36,8 @@ def upscale_memory(job, *, batch_size: int, in_memory: bool, looks: bool = False
     network on one tile (at most `DEFAULT_TILE` LR pixels a side) per frame of the batch; with a photon rule,
     three copies of the `AMBIENT_FRAMES` histogram frames its test holds; the HR frames of two batches (the one
     computed and the one drained; twice over with the keep rule or the confidence: depth and logit) and of a frame
-    converted; with the confidence, its window of `AMBIENT_FRAMES` histogram frames and a frame's features; and
+    converted; with the confidence, its window of `AMBIENT_FRAMES` histogram frames and a frame's features; with
+    a second network (`UpscaleJob.ensemble_model`), its histogram frames, tile, input and output batches too; and
     the whole result when it is held (`in_memory`: an .npz output or none; with the confidence three times: depth,
     confidence and depth_std) or drawn (`looks`: the video's panels or a point cloud per frame)."""
     rec, model = job.recording, job.model
@@ -48,10 +49,13 @@ def upscale_memory(job, *, batch_size: int, in_memory: bool, looks: bool = False
     keep = job.keep_returns is not None
     if job.ambient_alpha is not None or keep:  # the frames held, their stack and the padded sums of `ambient_only`
         need += 3 * AMBIENT_FRAMES * 4.0 * h * w * int(rec.shape[-1])
-    radius = model.architecture.input_radius(model.config)
     tile = min(h, DEFAULT_TILE) * min(w, DEFAULT_TILE)
-    need += (batch_size * tile * _feature_bytes(model, batch_size)
-             + 3 * (batch_size + 2 * radius) * 4.0 * h * w * len(model.channels))
+    for net in (model,) if job.ensemble_model is None else (model, job.ensemble_model):
+        radius = net.architecture.input_radius(net.config)
+        need += (batch_size * tile * _feature_bytes(net, batch_size)
+                 + 3 * (batch_size + 2 * radius) * 4.0 * h * w * len(net.channels))
+    if job.ensemble_model is not None:  # its own histogram stream and HR batches
+        need += HISTOGRAM_COPIES * HISTOGRAM_CHUNK * 4.0 * h * w * int(rec.shape[-1]) + (2 * batch_size + 1) * hr
     raw = keep or job.has_confidence
     need += (2 * batch_size + 1) * hr * (2 if raw else 1)  # raw: depth and logit
     if job.has_confidence:  # the confidence's window of histograms and its frame's features

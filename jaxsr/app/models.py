@@ -43,9 +43,10 @@ class DepthEnsemble(NamedTuple):
 # third-party indoor rooms better than tr4-ambient (by 0.1-2.0 dB on the held-out mean), tr4-ambient the test
 # scenes (by 0.5-0.8 dB) and a real building's edges (at 51 photons 34.90 dB, the paper's TR4 alone 32.76). Their
 # mean keeps most of each: +0.6 to +1.5 dB over tr4-ambient's depth held-out, +0.02 to +0.09 dB on the test scenes,
-# -0.34 dB on the real building. At 14 photons, or SNR 0.1, the paper's TR4 reads the centre of mass of dim pixels'
-# few photons, or of the ambient light, as depth and the mean loses 1.6-6.6 dB held-out; the bounds lie between
-# those levels (docs/results/photon-regimes.md, "Whose depth the returns take")
+# -0.34 dB on the real building. At 14 photons, or 100 photons and SNR 0.1, the paper's TR4 reads the centre of mass
+# of dim pixels' few photons, or of the ambient light, as depth and the mean loses 1.6-6.6 dB held-out (at 1000 and
+# SNR 0.1 it is level); the bounds lie between those levels (docs/results/photon-regimes.md, "Whose depth the
+# returns take")
 DEPTH_ENSEMBLE = DepthEnsemble("paper-tr4", min_signal=50.0, min_snr=0.5)
 AUTO_TRS = tuple(f"tr{k}" for k in range(5))  # what model="auto" picks among for depth frames
 # and for histograms and time tags: every bundled model the model table scores (photon models included)
@@ -136,9 +137,6 @@ def finish_model(choice: ModelChoice, planned: PlannedModel, kind: str, lr_head:
             and snr >= DEPTH_ENSEMBLE.min_snr):  # NaN levels (none measured) compare False
         ensemble_model = in_form(load_model(DEPTH_ENSEMBLE.model), choice.form, "form (--form)")
         check_precision(ensemble_model, choice.precision, "precision (--precision)")
-        description = (f"{description}, its returns' depth averaged with {DEPTH_ENSEMBLE.model}'s ({signal:.0f} signal "
-                       f"photons per LR pixel at SNR {snr:.2g}: {DEPTH_ENSEMBLE.min_signal:g} or more at "
-                       f"{DEPTH_ENSEMBLE.min_snr:g} or more)")
     model = in_form(model, choice.form, "form (--form)")
     check_precision(model, choice.precision, "precision (--precision)")
     return ChosenModel(model, name, description, ensemble_model)

@@ -2,6 +2,8 @@
 (over any gate, as the library's `super_resolve_histograms` does for the default gate), depth is refused with
 a message that says what it needs, and "default" picks the bundled model that fits the input."""
 
+import dataclasses
+
 import jax
 import numpy as np
 import pytest
@@ -23,6 +25,7 @@ from jaxsr.app import (
     photon_levels,
     prepare_upscale,
     upscale,
+    upscale_memory,
 )
 from jaxsr.app.job import ensemble_depth
 from jaxsr.app.models import finish_model, plan_model
@@ -498,12 +501,11 @@ def test_ensemble_depth_averages_the_returns_and_never_the_decision():
     (DEPTH_ENSEMBLE.min_signal * 0.9, 5.0, False), (1000.0, DEPTH_ENSEMBLE.min_snr * 0.9, False),
     (float("nan"), float("nan"), False)])
 def test_the_default_averages_two_networks_at_high_photon_levels(signal, snr, ensemble):
-    """model="default" for histograms: from `DEPTH_ENSEMBLE`'s signal and SNR up, its model too (said in the
-    description); below either, or unmeasured, the default model alone."""
+    """model="default" for histograms: from `DEPTH_ENSEMBLE`'s signal and SNR up, its model too; below either, or
+    unmeasured, the default model alone."""
     chosen = finish_model(ModelChoice(), plan_model(ModelChoice()), "histograms", lambda: None, signal, snr)
     assert chosen.name == DEFAULT_MODELS["histograms"]
     assert (chosen.ensemble_model is not None) == ensemble
-    assert (DEPTH_ENSEMBLE.model in chosen.description) == ensemble
     if ensemble:
         want, got = load_model(DEPTH_ENSEMBLE.model).config, chosen.ensemble_model
         assert (got.config.tr, got.config.inputs, got.has_no_return_head) == (want.tr, want.inputs, False)
@@ -516,19 +518,34 @@ def test_a_named_model_or_depth_frames_run_alone():
     assert finish_model(ModelChoice(), plan_model(ModelChoice()), "depth", lambda: None, 1000.0, 5.0).ensemble_model is None
 
 
-@pytest.mark.slow  # three runs of two TR4 networks: 15-30 s on 2 cores
-def test_bright_histograms_average_the_two_depths_where_the_default_outputs_a_return():
-    """A bright surface (hundreds of photons per pixel, SNR above 1): the default's output is its model's decision
-    with the mean of its and `DEPTH_ENSEMBLE.model`'s depths on the returns, as the two give them run by name."""
-    rng = np.random.default_rng(0)
+def _bright_counts():
+    """3 frames of 8 x 12 histograms: a surface of ~300 signal photons a pixel over the top rows, ambient light alone
+    below (SNR above 1)."""
     rate = np.full((3, 8, 12, 16), 4.0, np.float32)
-    rate[..., :6, 5] += 300.0  # a surface over the top rows; the rest ambient light alone
-    counts = rng.poisson(rate).astype(np.float32)
-    job = prepare_upscale(counts)
+    rate[..., :6, 5] += 300.0
+    return np.random.default_rng(0).poisson(rate).astype(np.float32)
+
+
+def test_bright_histograms_get_the_second_network_named_and_counted_in_memory():
+    """The job names the second network in its model line (not in the pictures' label) and its memory estimate
+    counts it."""
+    job = prepare_upscale(_bright_counts())
     assert job.ensemble_model is not None and DEPTH_ENSEMBLE.model in job.model_name
-    read = Reading(units="normalised")
-    result = upscale(counts, None, read=read).depth
-    own = upscale(counts, None, model=DEFAULT_MODELS["histograms"], read=read).depth
+    assert DEPTH_ENSEMBLE.model not in job.label
+    alone = dataclasses.replace(job, ensemble_model=None)
+    assert upscale_memory(job, batch_size=2, in_memory=True) > upscale_memory(alone, batch_size=2, in_memory=True)
+
+
+@pytest.mark.slow  # five runs of one or two TR4 networks: 20-40 s on 2 cores
+@pytest.mark.parametrize("keep_returns", ["auto", None])
+def test_bright_histograms_average_the_two_depths_where_the_default_outputs_a_return(keep_returns):
+    """A bright surface: the default's output is its model's decision with the mean of its and
+    `DEPTH_ENSEMBLE.model`'s depths on the returns, as the two give them run by name; with the confidence's decision
+    (keep_returns "auto") and with the head's alone (None, the streamed path without the confidence)."""
+    counts = _bright_counts()
+    read, rules = Reading(units="normalised"), PhotonRules(keep_returns=keep_returns)
+    result = upscale(counts, None, read=read, photons=rules).depth
+    own = upscale(counts, None, model=DEFAULT_MODELS["histograms"], read=read, photons=rules).depth
     other = upscale(counts, None, model=DEPTH_ENSEMBLE.model, read=read, photons=PhotonRules(ambient_alpha=None)).depth
     np.testing.assert_allclose(result, ensemble_depth(own, other), atol=1e-6)
     assert (result < 0.99).any() and (result >= 0.99).any()
