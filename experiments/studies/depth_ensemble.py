@@ -111,11 +111,6 @@ def score(groups: dict, grid, path: Path, frames: int, log=print) -> dict:
     return done
 
 
-def takes_mean(signal: float, snr: float) -> bool:
-    """Whether the default averages the two depths at a recording's measured levels (`DEPTH_ENSEMBLE`)."""
-    return signal >= DEPTH_ENSEMBLE.min_signal and snr >= DEPTH_ENSEMBLE.min_snr
-
-
 def report(done: dict, grid) -> str:
     """The table: per regime, the measured levels, each group's mean PSNR of each depth, and the default's pick."""
     rows = []
@@ -131,7 +126,7 @@ def report(done: dict, grid) -> str:
             mean = {d: float(np.mean([e[d] for e in entries])) for d in DEPTHS} if entries else None
             cells += ([f"{mean[d]:.2f}" for d in DEPTHS] + [f"{mean[MEAN] - mean[ALONE]:+.2f}"] if mean
                       else ["-"] * (len(DEPTHS) + 1))
-        picks = [takes_mean(e["signal"], e["snr"]) for e in levels]
+        picks = [DEPTH_ENSEMBLE.applies(e["signal"], e["snr"]) for e in levels]
         cells.append(MEAN if all(picks) else OWN if not any(picks) else f"{MEAN} in {sum(picks)} of {len(picks)}")
         rows.append(cells)
     columns = (["regime", "measured signal / SNR (median)"]

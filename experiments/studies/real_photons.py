@@ -249,12 +249,11 @@ def confidence_decided(model, frames: PhotonFrames, guard: float | tuple | None 
     return out
 
 
-def with_ensemble(output: np.ndarray, frames: PhotonFrames, apply: bool = True) -> np.ndarray:
-    """`output` with its returns' depth averaged with the paper's TR4's where the frames' photon levels
-    (`photon_levels` of their first frames) reach `DEPTH_ENSEMBLE`'s, as `jaxsr upscale`'s default gives them; else
+def with_ensemble(output: np.ndarray, frames: PhotonFrames, levels, apply: bool = True) -> np.ndarray:
+    """`output` with its returns' depth averaged with the paper's TR4's where the frames' photon levels (`levels`,
+    `photon_levels` of their first frames) reach `DEPTH_ENSEMBLE`'s, as `jaxsr upscale`'s default gives them; else
     (or not `apply`) itself."""
-    levels = photon_levels(iter(np.asarray(frames.counts)), frames.gate.bins)
-    if not (apply and levels.signal >= DEPTH_ENSEMBLE.min_signal and levels.snr >= DEPTH_ENSEMBLE.min_snr):
+    if not (apply and DEPTH_ENSEMBLE.applies(levels.signal, levels.snr)):
         return output
     model = jaxsr.load_model(DEPTH_ENSEMBLE.model)
     other = np.asarray(jaxsr.super_resolve(model, model_input(model, frames), form="model"))
@@ -521,6 +520,7 @@ def evaluate(recordings, models: dict, *, levels=LEVELS, max_frames: int = MAX_F
                 continue
             frames, _ = histogram_frames(video, rec.gate, rec.scale)
             lr = frames.depth
+            measured = photon_levels(iter(np.asarray(frames.counts)), frames.gate.bins)  # what the default decides on
             outputs = {"nearest": np.kron(lr, np.ones((1, FACTOR, FACTOR), np.float32)),
                        "bicubic": np.asarray(jaxsr.bicubic(lr, scale=FACTOR))}
             tv_idx = tv_frames_of(len(lr), tv_frames) if tv else np.zeros(0, int)
@@ -529,7 +529,7 @@ def evaluate(recordings, models: dict, *, levels=LEVELS, max_frames: int = MAX_F
             for label, model in models.items():
                 if label in (confidence or {}):
                     outputs[label] = with_ensemble(confidence_decided(model, frames, confidence[label]), frames,
-                                                   label in ensemble)
+                                                   measured, label in ensemble)
                     continue
                 if decision_of((ambient or {}).get(label, ("", 0.0)))[0] == "keep":
                     quiet = no_return_decision(frames.counts, jaxsr.Sensor(gate=jaxsr.Gate.spanning(35.0, frames.gate.bins)),
@@ -543,7 +543,6 @@ def evaluate(recordings, models: dict, *, levels=LEVELS, max_frames: int = MAX_F
                     outputs[label] = no_return_where(outputs[label], np.asarray(flags))
             scores = {m: masked_scores(sr, ref, valid, sky, edge, near, sky_beside) for m, sr in outputs.items()}
             photons_ref = float(frames.counts.sum(-1)[:, covered].mean()) if covered.any() else float("nan")
-            measured = photon_levels(iter(np.asarray(frames.counts)), frames.gate.bins)  # what the default decides on
             out["levels"].append({"level": float(level), "frames": len(lr), "photons_ref": photons_ref,
                                   "signal": measured.signal, "snr": measured.snr, "scores": scores,
                                   "tv_frames": tv_idx})
@@ -734,8 +733,8 @@ def picture(results, recordings, path) -> None:
 
 def raw(results, info, settings) -> dict:
     def level(e):
-        return {"level": e["level"], "frames": e["frames"], "photons_ref": e["photons_ref"], "signal": e["signal"],
-                "snr": e["snr"],
+        return {"level": e["level"], "frames": e["frames"], "photons_ref": e["photons_ref"],
+                **{k: e[k] if np.isfinite(e[k]) else None for k in ("signal", "snr")},  # NaN, inf: none seen
                 "tv_frames": np.asarray(e["tv_frames"]).tolist(),
                 "scores": {m: {k: [None if np.isnan(x) else x for x in np.round(np.asarray(v, float), 5).tolist()]
                                for k, v in s.items()}

@@ -38,6 +38,10 @@ class DepthEnsemble(NamedTuple):
     min_signal: float
     min_snr: float
 
+    def applies(self, signal: float, snr: float) -> bool:
+        """Whether a recording measuring `signal` photons at `snr` reaches both bounds (NaN, none measured: no)."""
+        return bool(signal >= self.min_signal and snr >= self.min_snr)
+
 
 # At 100 and 1000 photons and SNR 1.3 and 5 the two networks err in different places: the paper's TR4 places
 # third-party indoor rooms better than tr4-ambient (by 0.1-2.0 dB on the held-out mean), tr4-ambient the test
@@ -133,8 +137,7 @@ def finish_model(choice: ModelChoice, planned: PlannedModel, kind: str, lr_head:
         model = with_no_return_logit(model, choice.no_return_logit)
         description = f"{description} at no-return logit {float(choice.no_return_logit):g}"
     ensemble_model = None
-    if (choice.is_default and kind == "histograms" and signal >= DEPTH_ENSEMBLE.min_signal
-            and snr >= DEPTH_ENSEMBLE.min_snr):  # NaN levels (none measured) compare False
+    if choice.is_default and kind == "histograms" and DEPTH_ENSEMBLE.applies(signal, snr):
         ensemble_model = in_form(load_model(DEPTH_ENSEMBLE.model), choice.form, "form (--form)")
         check_precision(ensemble_model, choice.precision, "precision (--precision)")
     model = in_form(model, choice.form, "form (--form)")
