@@ -27,10 +27,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxsr.config import ModelConfig, Sensor
+from jaxsr.config import DepthScale, ModelConfig, Sensor
 from jaxsr.inference import (
     DEFAULT_BATCH_SIZE,
     Stream,
+    fill_holes,
     iter_centre_of_mass,
     super_resolve,
     super_resolve_histograms,
@@ -160,3 +161,14 @@ def test_matmul_peak(timed, benchmark, precision):
     timed(f, a, rounds=5)
     if benchmark.stats is not None:
         benchmark.extra_info["gflops_per_s"] = 2 * MATMUL**3 / benchmark.stats.stats.mean / 1e9
+
+
+@pytest.mark.parametrize("hole_lr_pixels", [1, 64])
+def test_fill_holes(timed, hole_lr_pixels):
+    """The depth of a quiet region that returns enclose (`fill_holes`, the last step of the default no-return
+    decision) on HR frames of the sensor's size with one hole: a lone LR pixel, or the largest hole (8 x 8 LR
+    pixels): frames per second, beside the network's above."""
+    hr = jax.random.uniform(jax.random.key(3), (FRAMES, *SENSOR.hr_shape), minval=0.05, maxval=0.5)
+    side = int(np.sqrt(hole_lr_pixels))
+    holes = jnp.zeros((FRAMES, *SENSOR.lr_shape), bool).at[:, 10:10 + side, 20:20 + side].set(True)
+    timed(jax.jit(lambda d, f: fill_holes(d, f, DepthScale())), hr, holes, items=FRAMES)

@@ -66,12 +66,13 @@ import jax
 import numpy as np
 
 import jaxsr
-from jaxsr.inference import iter_network_inputs, iter_super_resolve, lr_blocks, no_return_where
+from jaxsr.inference import filled_where_holes, iter_network_inputs, iter_super_resolve, lr_blocks, no_return_where
 from jaxsr.inference.confidence import (EVIDENCE_FRAMES, coefficients_for, confidence_frame, iter_count_windows,
                                         no_return_by_probability)
-from jaxsr.app import DEPTH_ENSEMBLE, photon_levels
+from jaxsr.app import DEPTH_ENSEMBLE, Reading, photon_levels
 from jaxsr.app.job import ensemble_depth
 from jaxsr.app.recordings import gate_frames
+from jaxsr.sensor import black_hole_pixels
 from jaxsr.sensor.timetags import TimeTags
 from _photon_benchmark import (NO_RETURN_AT, TV_TR, decision_of, load_models, no_return_decision,  # studies/
                                returns_kept)
@@ -258,6 +259,31 @@ def with_ensemble(output: np.ndarray, frames: PhotonFrames, levels, apply: bool 
     model = jaxsr.load_model(DEPTH_ENSEMBLE.model)
     other = np.asarray(jaxsr.super_resolve(model, model_input(model, frames), form="model"))
     return np.stack([ensemble_depth(o, d) for o, d in zip(output, other)])
+
+
+def with_holes_filled(output: np.ndarray, frames: PhotonFrames, guard: float | tuple | None) -> np.ndarray:
+    """`output` with the black holes (`jaxsr.sensor.black_hole_pixels` at the `guard`'s rate: quiet regions that
+    returns enclose, or lone quiet pixels, whose photons fall short of the ambient light around them) filled from
+    the depth around them (`jaxsr.inference.fill_holes`), as `jaxsr upscale`'s default decision ends; itself
+    without a guard."""
+    if guard is None:
+        return output
+    alpha = guard[1] if isinstance(guard, tuple) else guard
+    sensor = jaxsr.Sensor(gate=jaxsr.Gate.spanning(35.0, frames.gate.bins))
+    holes = np.asarray(black_hole_pixels(frames.counts, sensor, alpha=alpha))
+    return np.stack([filled_where_holes(o, f, frames.scale) for o, f in zip(output, holes)])
+
+
+def upscaled(frames: PhotonFrames, model: str = "default") -> np.ndarray:
+    """What a user gets: `jaxsr.upscale` of the frames' histograms with their gate given, `model` (a bundled name;
+    default the library's choice) and every other option the library's default (the depth span it fits, the
+    no-return decision, and for the default model the ensemble and the holes), in metres, put on the frames'
+    normalised scale (no return: 1.0) to be scored as the other methods are."""
+    g = frames.gate
+    read = Reading(kind="histograms", bins=g.bins, bin_width=float(g.bin_width), gate_start=float(g.start), units="m")
+    metres = np.asarray(jaxsr.upscale(np.asarray(frames.counts), None, model=model, read=read).depth)
+    normalised = (metres - float(frames.scale.offset)) / float(frames.scale.span)
+    return np.where(np.isfinite(metres), normalised, 1.0).astype(np.float32)
 
 
 def confidence_settings(given, beside_sky=()) -> dict:
@@ -483,7 +509,7 @@ def empty_edges(all_photons) -> np.ndarray:
 
 def evaluate(recordings, models: dict, *, levels=LEVELS, max_frames: int = MAX_FRAMES, tv_frames: int | None = None,
              tv: bool = True, seed: int = 0, picture_level: float = PICTURE_LEVEL, ambient=None, confidence=None,
-             ensemble=(), log=print) -> dict:
+             ensemble=(), upscale=None, log=print) -> dict:
     """Score nearest, bicubic, TV and `models` ({label: Model}) on each recording's photon video at every level
     against its all-photon reference. tv_frames: frames per level TV runs on (None: all). ambient: {label:
     alpha} for models whose output is also no return where `jaxsr.sensor.ambient_only` flags a pixel of the
@@ -491,8 +517,11 @@ def evaluate(recordings, models: dict, *, levels=LEVELS, max_frames: int = MAX_F
     where `jaxsr.sensor.no_return_shares` say so, or {label: ("keep", alpha)} for `_photon_benchmark.returns_kept`;
     confidence: {label: guard} for models with a no-return head whose no return is where the confidence's P(return)
     is below one half (`confidence_decided`; guard: None, or the photons' test's rate, as `jaxsr upscale` decides by
-    default at 0.001); ensemble: labels whose returns' depth is averaged with the paper's TR4's where the frames'
-    photon levels reach `jaxsr.app.DEPTH_ENSEMBLE`'s (`with_ensemble`, as `jaxsr upscale`'s default). Returns
+    default at 0.001, the black holes then filled from around them: `with_holes_filled`); ensemble: labels whose
+    returns' depth is averaged with the paper's TR4's where the frames' photon levels reach
+    `jaxsr.app.DEPTH_ENSEMBLE`'s (`with_ensemble`, as `jaxsr upscale`'s default); upscale:
+    {label: model} of methods that are `jaxsr.upscale` itself with that model ("default": the library's choice)
+    and the library's defaults (`upscaled`). Returns
     {name: {"reference", "noise", "levels": [{"level", "frames", "photons_ref", "scores": {method: {psnr, mae,
     no_return: (T,)}}, "tv_frames"}], "picture": {panel: (H, W)}}}."""
     results = {}
@@ -526,10 +555,14 @@ def evaluate(recordings, models: dict, *, levels=LEVELS, max_frames: int = MAX_F
             tv_idx = tv_frames_of(len(lr), tv_frames) if tv else np.zeros(0, int)
             if tv:
                 outputs["TV"] = tv_output(lr, tv_idx)
+            for label, name in upscale.items():
+                outputs[label] = upscaled(frames, name)
             for label, model in models.items():
                 if label in (confidence or {}):
-                    outputs[label] = with_ensemble(confidence_decided(model, frames, confidence[label]), frames,
-                                                   measured, label in ensemble)
+                    guard = confidence[label]
+                    decided = with_ensemble(confidence_decided(model, frames, guard), frames, measured,
+                                            label in ensemble)
+                    outputs[label] = with_holes_filled(decided, frames, guard)
                     continue
                 if decision_of((ambient or {}).get(label, ("", 0.0)))[0] == "keep":
                     quiet = no_return_decision(frames.counts, jaxsr.Sensor(gate=jaxsr.Gate.spanning(35.0, frames.gate.bins)),
@@ -788,6 +821,10 @@ def main(argv=None) -> None:
     parser.add_argument("--ensemble", action="append", default=[], metavar="NAME",
                         help="a --confidence NAME whose returns' depth is averaged with the paper's TR4's where the "
                         "photon levels reach jaxsr.app.DEPTH_ENSEMBLE's (jaxsr upscale's default); repeatable")
+    parser.add_argument("--upscale", action="append", default=[], metavar="NAME[=MODEL]",
+                        help="score jaxsr.upscale itself on the histograms, their gate given, MODEL (a bundled name; "
+                        "default the library's choice) and every other option the library's default (what a user "
+                        "gets: the depth span it fits, the decision, the ensemble, the holes), as NAME; repeatable")
     parser.add_argument("--picture-level", type=float, default=PICTURE_LEVEL,
                         help="photons of the pictured frame (default 2)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the photon permutations")
@@ -799,6 +836,7 @@ def main(argv=None) -> None:
     started = time.time()
     models, info, ambient = load_models(args.model, args.no_return_logit, args.ambient_alpha,
                                        args.no_return_shares, args.keep_returns)
+    upscale = {k: m or "default" for k, _, m in (u.partition("=") for u in args.upscale)}
     unknown = set(args.ensemble) - set(confidence_settings(args.confidence))
     if unknown:
         raise SystemExit(f"--ensemble {', '.join(sorted(unknown))}: give --confidence NAME first (the decision whose "
@@ -813,7 +851,8 @@ def main(argv=None) -> None:
         raise SystemExit(f"no recordings: none of {', '.join(s.file for s in SOURCES)} in {', '.join(args.data)}")
     results = evaluate(recordings, models, levels=args.levels, max_frames=args.frames, tv_frames=args.tv_frames,
                        tv=not args.no_tv, seed=args.seed, picture_level=args.picture_level, ambient=ambient,
-                       confidence=confidence_settings(args.confidence, args.beside_sky), ensemble=set(args.ensemble))
+                       confidence=confidence_settings(args.confidence, args.beside_sky), ensemble=set(args.ensemble),
+                       upscale=upscale)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     goals, all_met = goal_table(results)
@@ -835,6 +874,8 @@ def main(argv=None) -> None:
                + ("every frame" if args.tv_frames is None else f"{args.tv_frames} frames per level") + ". "
                if not args.no_tv else "TV not run. ")
             + f"Photon permutations seeded {args.seed}. Models: " + "; ".join(f"{k}: {v}" for k, v in info.items())
+            + "".join(f"; {k}: jaxsr.upscale with the gate given, model {m} and the library's defaults"
+                      for k, m in upscale.items())
             + ". The recordings are third-party and not part of the project (docs/own-sensor.md, 'Real recordings', "
             "says where to get them).\n\n"
             + goals + "\n" + tables(results, recordings)

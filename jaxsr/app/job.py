@@ -13,8 +13,8 @@ from typing import Callable, Iterator
 import numpy as np
 
 from ..config import TRAINED_RANGE_M, DepthScale, Gate, Optics, Sensor
-from ..inference import (DEFAULT_PRECISION, iter_ambient_only, iter_network_inputs, iter_quiet, iter_returns_kept,
-                         iter_super_resolve, lr_blocks, no_return_where, overrule_no_return)
+from ..inference import (DEFAULT_PRECISION, filled_where_holes, iter_ambient_only, iter_network_inputs, iter_quiet,
+                         iter_returns_kept, iter_super_resolve, lr_blocks, no_return_where, overrule_no_return)
 from ..inference.confidence import (EVIDENCE_FRAMES, NO_RETURN_AT, ConfidenceCoefficients, coefficients_for,
                                     confidence_frame, iter_count_windows, no_return_by_probability)
 from ..nn.model import Model
@@ -173,15 +173,16 @@ class UpscaleJob:
         windows = iter_count_windows(self._count_stream(), EVIDENCE_FRAMES)
         ensemble = self._ensemble_outputs(batch_size)
         for out, window in zip(raw, windows, strict=True):
+            flags = next(quiet) if quiet is not None else None
             depth, logit = (out[..., 0], out[..., 1]) if head else (out, None)
             p, sigma = confidence_frame(window, depth, self.confidence_coefficients, sensor, head_logit=logit,
                                         bins_per_unit=bins_per_unit)
             if self.photons.by_probability:  # where the photons show a return, its depth stays
                 hr = no_return_by_probability(depth, p, threshold)
-                if quiet is not None:
-                    hr = np.where(lr_blocks(next(quiet), self.scale_factor), hr, depth)
-            elif quiet is not None:
-                hr = overrule_no_return(out, next(quiet), threshold)
+                if flags is not None:
+                    hr = np.where(lr_blocks(flags.quiet, self.scale_factor), hr, depth)
+            elif flags is not None:
+                hr = overrule_no_return(out, flags.quiet, threshold)
             elif head:
                 hr = np.where(logit > np.float32(threshold), np.float32(1.0), depth)
             else:
@@ -189,6 +190,8 @@ class UpscaleJob:
             if ambient is not None:
                 hr = no_return_where(hr, next(ambient))
             hr = ensemble_depth(hr, next(ensemble))
+            if flags is not None:  # a black surface that returns enclose: the depth of the surfaces around it
+                hr = filled_where_holes(hr, flags.black, self.scale)
             std = np.where(hr < NO_RETURN_AT, sigma * np.float32(self.gate.bin_width), np.float32(np.nan))
             yield hr, p, std.astype(np.float32)
 
@@ -198,16 +201,21 @@ class UpscaleJob:
         if self.has_confidence and self.photons.by_probability:  # the decision needs the confidence
             return (hr for hr, _, _ in self.iter_outputs(batch_size=batch_size, lr_frames=lr_frames))
         lr = self.lr_frames() if lr_frames is None else lr_frames
-        if self._keep_stream is not None:
-            out = iter_returns_kept(self.model, lr, self._keep_stream(), batch_size=batch_size,
+        keep = self._keep_stream() if self._keep_stream is not None else None
+        if keep is not None:
+            keep, holes = itertools.tee(keep)
+            out = iter_returns_kept(self.model, lr, (q.quiet for q in keep), batch_size=batch_size,
                                     precision=self.precision)
         else:
             out = iter_super_resolve(self.model, lr, batch_size=batch_size, precision=self.precision)
         if self._ambient_stream is not None:
             out = (no_return_where(hr, flags) for hr, flags in zip(out, self._ambient_stream(), strict=True))
-        if self.ensemble_model is None:
+        if self.ensemble_model is not None:
+            out = (ensemble_depth(hr, other) for hr, other in zip(out, self._ensemble_outputs(batch_size),
+                                                                   strict=True))
+        if keep is None:
             return out
-        return (ensemble_depth(hr, other) for hr, other in zip(out, self._ensemble_outputs(batch_size), strict=True))
+        return (filled_where_holes(hr, q.black, self.scale) for hr, q in zip(out, holes, strict=True))
 
     def _ensemble_outputs(self, batch_size: int | None) -> Iterator[np.ndarray | None]:
         """The ensemble model's HR output frame by frame, from the recording's own frames whatever LR stream the
@@ -365,7 +373,8 @@ def _histogram_job(rec, gate, source, tag_notes, choice, planned, read: Reading,
         name = (f"{name}, {'that' if decision.by_probability else 'its'} no return kept only where the pixel's photons "
                 f"over {AMBIENT_FRAMES} frames, and those of the quiet pixels in the {pools} around it, pass for "
                 f"ambient alone (alpha {float(decision.keep_returns):g}) in a region that reaches the frame's edge or "
-                f"holds more than {HOLE_PIXELS} LR pixels")
+                f"holds more than {HOLE_PIXELS} LR pixels, a smaller one that is black taking the depth of the "
+                "surfaces around it")
 
     def flags(alpha, pixels):
         return lambda: iter_ambient_only(counts, sensor, alpha=alpha, pixels=pixels, frames=AMBIENT_FRAMES)
@@ -377,7 +386,8 @@ def _histogram_job(rec, gate, source, tag_notes, choice, planned, read: Reading,
         _ensemble_lr_stream=None if ensemble_model is None else (lambda: lr_stream(ensemble_model.channels)),
         _ambient_stream=None if decision.ambient_alpha is None else flags(decision.ambient_alpha, 3),
         # each pixel's own photons, then those of the quiet pixels around it (a dim wall's return shows in their
-        # pool), and no hole: a quiet region that returns enclose keeps the network's depth
+        # pool), and no hole: a quiet region that returns enclose keeps a return, the depth of the surfaces around it
+        # where it is black (its photons fewer than the ambient light around it), else the network's
         _keep_stream=None if decision.keep_returns is None else (
             lambda: iter_quiet(counts, sensor, alpha=decision.keep_returns, frames=AMBIENT_FRAMES)),
         _count_stream=lambda: iter(counts),

@@ -29,11 +29,13 @@ from .photons import (
     iter_network_inputs,
     iter_ambient_only,
     iter_quiet,
+    QuietFrame,
     no_return_where,
     overrule_no_return,
     lr_blocks,
     super_resolve_histograms,
 )
+from .holes import fill_holes, filled_where_holes, HOLE_FILL_ITERATIONS
 from .stream import Stream
 from .traced import apply_sequence, apply_histograms
 from .adaptive import (
@@ -81,6 +83,10 @@ __all__ = [
     "iter_network_inputs",
     "iter_ambient_only",
     "iter_quiet",
+    "QuietFrame",
+    "filled_where_holes",
+    "fill_holes",
+    "HOLE_FILL_ITERATIONS",
     "no_return_where",
     "overrule_no_return",
     "lr_blocks",

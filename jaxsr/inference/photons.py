@@ -5,8 +5,10 @@ frame by frame, and the decisions on no return (the photons' and a no-return hea
 from __future__ import annotations
 
 import functools
+import itertools
 from collections import deque
 from collections.abc import Iterable, Iterator
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -17,11 +19,12 @@ from ..config import MIN_LR_SIDE, Sensor
 from ..nn.inputs import network_inputs
 from ..nn.model import Model
 from ..sensor.peaks import (QUIET_POOLS, ambient_only, capped_for_sum, check_ambient_settings,
-                            check_false_alarm_rate, summed_histograms, without_holes)
+                            black_holes, check_false_alarm_rate, hole_pixels, summed_histograms, without_holes)
 from .forms import DEFAULT_FORM, DEFAULT_PRECISION, check_precision, in_form
 from .traced import refuse_tracing
 from .units import check_units, network_to_units
 from .frames import DEFAULT_BATCH_SIZE, DEFAULT_TILE, _require_model, default_batch_size, iter_super_resolve
+from .holes import filled_where_holes
 
 
 @functools.partial(jax.jit, static_argnames="inputs")
@@ -69,7 +72,16 @@ def iter_network_inputs(counts: Iterable, sensor: Sensor = Sensor(), inputs=("de
         yield from flush()
 
 
-_without_holes = jax.jit(without_holes)
+class QuietFrame(NamedTuple):
+    """One frame of the photons' no-return decision, each (h, w) bool: `quiet`, where no return may be output (the
+    photons pass for ambient light alone, in a region that reaches the frame's edge or is larger than a hole);
+    `holes`, the quiet pixels given back to a return (a quiet region that returns enclose, a lone quiet pixel);
+    `black`, those of the holes whose photons fall short of the ambient light around them (`black_holes`), whose
+    depth `fill_holes` takes from the surfaces around them."""
+
+    quiet: np.ndarray
+    holes: np.ndarray
+    black: np.ndarray
 
 
 @functools.partial(jax.jit, static_argnames=("sensor", "pixels", "frames", "pools"))
@@ -80,6 +92,46 @@ def _ambient_centre(window, alpha, sensor, pixels, frames, pools):
     return ambient_only(summed, sensor, alpha=alpha, pixels=pixels, frames=1, pools=pools)[0]
 
 
+@functools.partial(jax.jit, static_argnames=("sensor", "frames"))
+def _quiet_centre(window, alpha, sensor, frames):
+    """`iter_quiet`'s (quiet, holes, black) of the centre frame of a (frames, h, w, K) window, as `_ambient_centre`."""
+    summed = jnp.sum(capped_for_sum(window, summed_histograms(1, frames, QUIET_POOLS)), axis=0, keepdims=True)
+    flags = ambient_only(summed, sensor, alpha=alpha, pixels=1, frames=1, pools=QUIET_POOLS)
+    holes = hole_pixels(flags)
+    return without_holes(flags)[0], holes[0], black_holes(summed, holes, sensor, alpha=alpha)[0]
+
+
+def _iter_windows(counts: Iterable, sensor: Sensor, frames: int, name: str) -> Iterator[np.ndarray]:
+    """The (frames, h, w, K) window of histograms centred on each frame of a stream, frames beyond the sequence
+    zero, holding only `frames` frames at a time (frame t comes once frame t + frames // 2 has been read). Counts
+    as `iter_network_inputs` checks them."""
+    r = frames // 2
+    held = deque()  # frames t - r .. t + r of the next frame t (fewer at the start)
+    t = first = 0  # the next frame; the sequence frame held[0] is
+
+    def window(first):  # frame t's from `held`, which starts at sequence frame `first`; missing frames are zero
+        zero = np.zeros_like(held[0])
+        return np.stack([held[k - first] if 0 <= k - first < len(held) else zero for k in range(t - r, t + r + 1)])
+
+    for i, c in enumerate(counts):
+        c = np.asarray(c, np.float32)
+        if c.ndim != 3 or c.shape[-1] != sensor.bins or (held and c.shape != held[-1].shape):
+            want = f"{held[-1].shape}, as the frames before it" if held else f"(h, w, {sensor.bins}) photon counts"
+            raise ValueError(f"{name}: frame {i} has shape {c.shape}, expected {want}")
+        if not np.all(np.isfinite(c)) or np.any(c < 0):
+            raise ValueError(f"{name}: frame {i} has negative or non-finite counts")
+        held.append(c)
+        if i == t + r:
+            yield window(first)
+            t += 1
+            if len(held) > 2 * r:
+                held.popleft()
+                first += 1
+    while held and t <= first + len(held) - 1:  # the last r frames: the sequence ends before their windows do
+        yield window(first)
+        t += 1
+
+
 def iter_ambient_only(counts: Iterable, sensor: Sensor = Sensor(), *, alpha: float = 1e-3,
                       pixels: int = 3, frames: int = 9, pools: tuple = ()) -> Iterator[np.ndarray]:
     """`jaxsr.sensor.ambient_only` over a stream of histogram frames, frame by frame: (h, w) bool per frame, True
@@ -88,44 +140,23 @@ def iter_ambient_only(counts: Iterable, sensor: Sensor = Sensor(), *, alpha: flo
     to be seen). The same as `ambient_only` of the whole sequence, holding only `frames` frames at a time (frame
     t comes once frame t + frames // 2 has been read). Counts as `iter_network_inputs` checks them."""
     check_ambient_settings("iter_ambient_only", alpha, pixels, frames, pools)  # before the first frame is read
-    r = frames // 2
-    held = deque()  # frames t - r .. t + r of the next frame t to flag (fewer at the start)
-    t = first = 0  # the next frame to flag; the sequence frame held[0] is
-
-    def flag(first):  # frame t from `held`, which starts at sequence frame `first`; missing frames are zero
-        zero = np.zeros_like(held[0])
-        window = [held[k - first] if 0 <= k - first < len(held) else zero for k in range(t - r, t + r + 1)]
-        return np.asarray(_ambient_centre(jnp.asarray(np.stack(window)), alpha, sensor, pixels, frames,
-                                          tuple(pools)))
-
-    for i, c in enumerate(counts):
-        c = np.asarray(c, np.float32)
-        if c.ndim != 3 or c.shape[-1] != sensor.bins or (held and c.shape != held[-1].shape):
-            want = f"{held[-1].shape}, as the frames before it" if held else f"(h, w, {sensor.bins}) photon counts"
-            raise ValueError(f"iter_ambient_only: frame {i} has shape {c.shape}, expected {want}")
-        if not np.all(np.isfinite(c)) or np.any(c < 0):
-            raise ValueError(f"iter_ambient_only: frame {i} has negative or non-finite counts")
-        held.append(c)
-        if i == t + r:
-            yield flag(first)
-            t += 1
-            if len(held) > 2 * r:
-                held.popleft()
-                first += 1
-    while held and t <= first + len(held) - 1:  # the last r frames: the sequence ends before their windows do
-        yield flag(first)
-        t += 1
+    for window in _iter_windows(counts, sensor, frames, "iter_ambient_only"):
+        yield np.asarray(_ambient_centre(jnp.asarray(window), alpha, sensor, pixels, frames, tuple(pools)))
 
 
 def iter_quiet(counts: Iterable, sensor: Sensor = Sensor(), *, alpha: float = 1e-3,
-               frames: int = 9) -> Iterator[np.ndarray]:
-    """Where the photons say no return may be output, frame by frame ((h, w) bool): the pixel's own histograms over
-    `frames` frames and those of the quiet pixels pooled around it (`QUIET_POOLS`) pass for ambient light alone at
-    `alpha`, in a region of two pixels or more that reaches the frame's edge or is larger than a hole
-    (`without_holes`): `jaxsr.sensor.quiet_pixels` of the whole sequence, holding `frames` frames at a time. The
-    photons' part of `jaxsr upscale`'s no-return decision (`--keep-returns`)."""
-    for flags in iter_ambient_only(counts, sensor, alpha=alpha, pixels=1, frames=frames, pools=QUIET_POOLS):
-        yield np.asarray(_without_holes(flags))
+               frames: int = 9) -> Iterator[QuietFrame]:
+    """Where the photons say no return may be output, frame by frame (`QuietFrame`): `quiet`, where the pixel's own
+    histograms over `frames` frames and those of the quiet pixels pooled around it (`QUIET_POOLS`) pass for ambient
+    light alone at `alpha`, in a region of two pixels or more that reaches the frame's edge or is larger than a hole
+    (`jaxsr.sensor.quiet_pixels` of the whole sequence, holding `frames` frames at a time); `holes`, the quiet
+    pixels that returns enclose (`jaxsr.sensor.hole_pixels`); `black`, those of them whose photons fall short of
+    the ambient light around them at `alpha` (`jaxsr.sensor.black_holes`). The photons' part of `jaxsr upscale`'s
+    no-return decision (`--keep-returns`)."""
+    check_ambient_settings("iter_quiet", alpha, 1, frames, QUIET_POOLS)
+    for window in _iter_windows(counts, sensor, frames, "iter_quiet"):
+        quiet, holes, black = _quiet_centre(jnp.asarray(window), alpha, sensor, frames)
+        yield QuietFrame(np.asarray(quiet), np.asarray(holes), np.asarray(black))
 
 
 def check_keep_returns(keep_returns, ambient_alpha, has_head: bool, where: str = "") -> None:
@@ -170,7 +201,8 @@ def super_resolve_histograms(model: Model, counts, sensor: Sensor = Sensor(), *,
     keep_returns: for a model with a no-return head, a false-alarm rate: its no return is kept only where the
     photons pass for ambient light alone at it (`iter_quiet`: each LR pixel's own over 9 frames, the quiet pixels'
     pooled around it, no hole that returns enclose), elsewhere the network's depth (`overrule_no_return`; `jaxsr upscale
-    --keep-returns`); default None: the head decides. Not with ambient_alpha."""
+    --keep-returns`), and the black holes' depth filled from around them (`fill_holes`); default None: the head decides.
+    Not with ambient_alpha."""
     refuse_tracing((counts, intensity), "super_resolve_histograms",
                    "jaxsr.apply_histograms(model, counts, sensor)")
     _require_model(model, "super_resolve_histograms")
@@ -207,8 +239,10 @@ def super_resolve_histograms(model: Model, counts, sensor: Sensor = Sensor(), *,
     options = dict(batch_size=batch_size, conv3d_impl=conv3d_impl, tile=tile, precision=precision)
     if keep_returns is None:
         stream = iter_super_resolve(model, frames, **options)
-    else:
-        stream = iter_returns_kept(model, frames, iter_quiet(counts, sensor, alpha=keep_returns), **options)
+    else:  # the no return kept where the photons agree; the holes that returns enclose filled from around them
+        flags, holes = itertools.tee(iter_quiet(counts, sensor, alpha=keep_returns))
+        kept = iter_returns_kept(model, frames, (q.quiet for q in flags), **options)
+        stream = (filled_where_holes(hr, q.black, sensor.depth) for hr, q in zip(kept, holes, strict=True))
     for t, hr in enumerate(stream):
         out[t] = hr
     out = out if ambient_alpha is None else _no_return_where_ambient(out, counts, sensor, ambient_alpha)
@@ -243,9 +277,9 @@ def lr_blocks(flags, scale: int) -> np.ndarray:
 
 def iter_returns_kept(model: Model, frames: Iterable, quiet: Iterable, **options) -> Iterator[np.ndarray]:
     """`iter_super_resolve(model, frames, **options)` for a model with a no-return head, its no return kept only
-    where `quiet` ((h, w) bool per frame, such as `iter_quiet`'s: the photons pass for ambient light alone) says
-    so, elsewhere the network's depth (`overrule_no_return` at the model's
-    threshold): the keep_returns decision of `super_resolve_histograms` and `jaxsr upscale`, streamed."""
+    where `quiet` ((h, w) bool per frame, such as `iter_quiet`'s `QuietFrame.quiet`: the photons pass for ambient
+    light alone) says so, elsewhere the network's depth (`overrule_no_return` at the model's threshold): the
+    keep_returns decision of `super_resolve_histograms` and `jaxsr upscale`, streamed, before `fill_holes`."""
     raw = iter_super_resolve(model, frames, raw=True, **options)
     threshold = model.config.no_return_logit
     return (overrule_no_return(hr, q, threshold) for hr, q in zip(raw, quiet, strict=True))

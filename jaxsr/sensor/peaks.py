@@ -262,9 +262,10 @@ def check_false_alarm_rate(name: str, alpha) -> None:
 # the smallest that found the returns of dim indoor walls that single pixels miss (experiments/results/
 # quiet_pools.md) at the least cost to the sky beside returns
 QUIET_POOLS = (3, 5)
-# the largest region of quiet LR pixels that returns enclose and the network's depth fills (`without_holes`): the
-# black screens and furniture of indoor rooms are filled (up to 64 scored as any size on the held-out rooms,
-# experiments/results/quiet_pools.md), an opening of more than 8 x 8 LR pixels stays no return
+# the largest region of quiet LR pixels that returns enclose and that is given back to a return (`without_holes`,
+# its depth from around it: `jaxsr.inference.fill_holes`): the black screens and furniture of indoor rooms are
+# given back (up to 64 scored as any size on the held-out rooms, experiments/results/quiet_pools.md), an opening
+# of more than 8 x 8 LR pixels stays no return
 HOLE_PIXELS = 64
 
 
@@ -352,10 +353,11 @@ def without_holes(flags, max_pixels: int = HOLE_PIXELS):
     """No-return flags (..., h, w) bool, each kept only in a region (8-connected) of two LR pixels or more that
     reaches the frame's edge or holds more than `max_pixels` pixels. A flagged region that returns enclose on every
     side is more often a surface that sends back no photon (a black screen, a dark object, a real sensor's outlier
-    pixels) than an opening onto nothing within the gate; the network's depth fills it from its surroundings, as the
-    paper's network fills every pixel. Sky, and ground beyond the gate, reach the frame's edge and stay no return;
-    an enclosed opening larger than `max_pixels` (a window onto the sky) does too. A lone flagged pixel is filled
-    anywhere. Edges count as not flagged. jit-able with `max_pixels` static; no gradient."""
+    pixels) than an opening onto nothing within the gate; it is given back to a return (`hole_pixels`), a black one
+    taking the depth of the surfaces around it (`black_holes`, `jaxsr.inference.fill_holes`). Sky, and ground
+    beyond the gate, reach the frame's edge and stay no return; an enclosed opening larger than `max_pixels` (a
+    window onto the sky) does too. A lone flagged pixel is given back anywhere. Edges count as not flagged. jit-able
+    with `max_pixels` static; no gradient."""
     def one(f):
         h, w = f.shape
         label, size = regions(f)
@@ -366,6 +368,57 @@ def without_holes(flags, max_pixels: int = HOLE_PIXELS):
         return f & (n >= 2) & (reaches_edge[label] | (n > max_pixels))
 
     return _frame_by_frame("without_holes", flags, "max_pixels", max_pixels, 1, one)
+
+
+def hole_pixels(flags, max_pixels: int = HOLE_PIXELS):
+    """The flagged LR pixels (..., h, w) bool that `without_holes` gives back to a return: the quiet regions that
+    returns enclose (up to `max_pixels`) and the lone quiet pixels, whose depth `jaxsr.inference.fill_holes` takes
+    from around them. jit-able with `max_pixels` static; no gradient."""
+    f = jnp.asarray(flags, bool)
+    return f & ~without_holes(f, max_pixels)
+
+
+def black_holes(summed, holes, sensor: Sensor = Sensor(), *, alpha=1e-3):
+    """The holes whose surface sends back neither the laser's photons nor the ambient light: (..., h, w) bool.
+
+    Ambient light reaches the sensor from a surface in proportion to its reflectivity, at any distance, while its
+    return falls with the distance squared. A hole that returns enclose (`hole_pixels`) is either a far or dim
+    surface that reflects the ambient light as its neighbours do but returns too few of the laser's photons to
+    stand out, or a black one (a screen, dark furniture) that reflects neither. Only the second is the surface
+    around it continued (`jaxsr.inference.fill_holes`); a far surface behind a nearer frame is not. Each
+    8-connected region of `holes` is black where its photons N are fewer than the ambient light of the pixels
+    around it predicts, at false-alarm rate `alpha`: P(Poisson(lambda) <= N) < alpha, lambda = the region's
+    pixels times the mean of those pixels' ambient photons (`ambient_photons`). Without ambient light around (a
+    dark scene) nothing is black: the test cannot tell.
+
+    Args:
+      summed: (..., h, w, K) each pixel's histograms summed over the frames of its window (`window_sums`).
+      holes: (..., h, w) bool, the LR pixels `without_holes` gave back to a return.
+    Returns:
+      (..., h, w) bool, within `holes`. jit-able; no gradient.
+    """
+    check_false_alarm_rate("black_holes: alpha", alpha)
+    n = jnp.asarray(summed, jnp.float32)
+    f = jnp.asarray(holes, bool)
+    if n.ndim < 3 or n.shape[:-1] != f.shape or n.shape[-1] != sensor.bins:
+        raise ValueError(f"black_holes: summed must be (..., h, w, {sensor.bins}) histograms over holes' (..., h, w) "
+                         f"pixels, got {n.shape} and {f.shape}")
+    h, w = f.shape[-2:]
+    none = h * w
+
+    def one(counts, frame):
+        label, size = regions(frame)
+        photons = jnp.zeros(none + 1).at[label.ravel()].add(jnp.where(frame, counts.sum(-1), 0.0).ravel())
+        # each pixel around a region (a return: the regions are whole 8-connected components) counted for the
+        # region beside it (for the smallest label where it touches two)
+        around = jnp.where(frame, none, _around(label, none, jax.lax.min)).ravel()
+        ambient = jnp.zeros(none + 1).at[around].add(ambient_photons(counts, sensor).ravel())
+        pixels_around = jnp.zeros(none + 1).at[around].add(1.0)
+        expected = size * ambient / jnp.maximum(pixels_around, 1.0)
+        fewer = jax.scipy.special.gammaincc(photons + 1.0, expected)  # P(Poisson(expected) <= photons)
+        return frame & ((fewer < alpha) & (expected > 0))[label]
+
+    return jax.vmap(one)(n.reshape(-1, h, w, sensor.bins), f.reshape(-1, h, w)).reshape(f.shape)
 
 
 def _frame_by_frame(name: str, flags, size_name: str, size, least: int, one):
@@ -430,6 +483,17 @@ def quiet_pixels(counts, sensor: Sensor = Sensor(), *, alpha=1e-3, frames: int =
     (`without_holes`). `jaxsr.inference.iter_quiet` streams it. jit-able with `frames` static."""
     flags = ambient_only(counts, sensor, alpha=alpha, pixels=1, frames=frames, pools=QUIET_POOLS)
     return without_holes(flags)
+
+
+def black_hole_pixels(counts, sensor: Sensor = Sensor(), *, alpha=1e-3, frames: int = 9):
+    """The black holes of the default no-return decision over a whole sequence: (T, h, w) bool, the LR pixels that
+    `quiet_pixels` gives back to a return (`hole_pixels`) whose region's photons over `frames` frames fall short of
+    the ambient light around it at `alpha` (`black_holes`), whose depth `jaxsr.inference.fill_holes` takes from the
+    surfaces around them. `jaxsr.inference.iter_quiet` streams it (`QuietFrame.black`). jit-able with `frames`
+    static."""
+    flags = ambient_only(counts, sensor, alpha=alpha, pixels=1, frames=frames, pools=QUIET_POOLS)
+    n = capped_for_sum(jnp.asarray(counts, jnp.float32), summed_histograms(1, frames, QUIET_POOLS))
+    return black_holes(window_sums(n, frames), hole_pixels(flags), sensor, alpha=alpha)
 
 
 def summed_histograms(pixels: int, frames: int, pools: tuple = ()) -> int:

@@ -240,3 +240,24 @@ def test_found_sources_first_folder_holding_each_file(tmp_path):
     found = {s.name: f for s, f in real_photons.found_sources([a, b])}
     assert found["tower"] == a and found["face"] == b  # the first folder that holds it
     assert found["two_layer"] is None  # held by none: skipped by main
+
+
+@pytest.mark.slow  # a compile of tr4-ambient and of the library's job: 20-80 s on 2 cores
+def test_the_studys_default_decision_is_jaxsr_upscale_where_their_depth_spans_agree():
+    """`confidence_decided` + `with_ensemble` + `with_holes_filled` re-make `jaxsr.upscale`'s default decision on
+    the study's frames; where the span the study reads equals the one `jaxsr.upscale` fits (a 16-bin gate of 35 m
+    from 0), `upscaled` (the library itself) gives the same depth. A black patch amid the returns: its fill too."""
+    rng = np.random.default_rng(4)
+    gate = jaxsr.Gate.spanning(35.0, 16)
+    rates = np.full((9, 8, 12, 16), 0.5 / 16)
+    rates[:, :, :7, 5] += 4.0  # a surface at bin 5 ...
+    rates[:, 3:5, 2:4] = 0.0  # ... with a black patch that it encloses
+    counts = rng.poisson(rates).astype(np.float32)
+    scale = jaxsr.DepthScale.for_gate(gate)
+    frames = real_photons.PhotonFrames(counts, np.zeros(counts.shape[:3], np.float32), gate, scale)
+    levels = jaxsr.app.photon_levels(iter(counts), 16)
+    model = jaxsr.load_model("tr4-ambient")
+    study = real_photons.with_holes_filled(real_photons.with_ensemble(
+        real_photons.confidence_decided(model, frames, 1e-3), frames, levels), frames, 1e-3)
+    assert jaxsr.sensor.black_hole_pixels(counts, alpha=1e-3)[:, 3:5, 2:4].all()
+    np.testing.assert_allclose(np.clip(real_photons.upscaled(frames), 0, 1), np.clip(study, 0, 1), atol=1e-5)

@@ -29,7 +29,7 @@ from jaxsr.app import (
 )
 from jaxsr.app.job import ensemble_depth
 from jaxsr.app.models import finish_model, plan_model
-from jaxsr.inference import super_resolve_histograms
+from jaxsr.inference import fill_holes, super_resolve_histograms
 from jaxsr.io.checkpoint import load_model, save_model
 from jaxsr.nn import Model, init_model, with_no_return_logit
 from jaxsr.sensor import HOLE_PIXELS
@@ -416,22 +416,36 @@ def test_raw_output_streams_depth_and_logit_in_tiles_and_in_the_sequence_form(sk
 
 
 def test_a_black_patch_in_a_surface_keeps_depth_and_the_sky_stays_no_return(sky_everywhere):
-    """The default decision on a surface with a black patch (2 x 3 LR pixels sending back no photon, enclosed by
-    the surface) beside sky reaching the frame's edge: the head calls everything no return, the photons of the
-    patch and of the sky both pass for ambient light alone; the patch, a hole, keeps the network's depth (filled
-    from its surroundings), the sky stays no return."""
+    """The default decision on a surface with a patch (2 x 3 LR pixels returning no laser photon, enclosed by the
+    surface) beside sky reaching the frame's edge: the head calls everything no return, the photons of the patch
+    and of the sky both pass for ambient light alone; the patch, a hole, is a return and the sky stays no return.
+    A black patch (no photon at all amid the surface's ambient light) takes the depth of the surface around it
+    (`fill_holes`: harmonic in inverse depth, so filling it again changes nothing); a patch that gets the ambient
+    light as the surface does (a dim or far surface) keeps the network's depth."""
     rng = np.random.default_rng(5)
     counts = rng.poisson(2.0 / 16, (9, 10, 14, 16)).astype(np.float32)
     surface = np.zeros((10, 14), bool)
     surface[:, :8] = True
     surface[4:6, 3:6] = False  # the black patch
     counts[:, surface, 7] += rng.poisson(6.0, (9, int(surface.sum())))
+    lit = upscale(counts, None, model=sky_everywhere[1], read=Reading(units="normalised"))
+    counts[:, 4:6, 3:6] = 0.0  # black
     result = upscale(counts, None, model=sky_everywhere[1], read=Reading(units="normalised"))
     depth = np.asarray(result.depth)
     assert (depth[:, :, 9 * 4:] == 1.0).all()  # the sky, beyond the column beside the surface
     assert (depth[:, 4 * 4:6 * 4, 3 * 4:6 * 4] < 1.0).all()  # the patch
     assert (depth[:, :, :8 * 4] < 1.0).all()
     assert f"more than {HOLE_PIXELS} LR pixels" in result.model_description
+    patch = np.zeros((9, 10, 14), bool)
+    patch[:, 4:6, 3:6] = True
+    np.testing.assert_allclose(np.asarray(fill_holes(depth, patch, result.scale)), depth, rtol=0, atol=2e-6)
+    lit_depth = np.asarray(lit.depth)
+    assert (lit_depth[:, 4 * 4:6 * 4, 3 * 4:6 * 4] < 1.0).all()  # a return, the network's depth: not filled
+    assert np.abs(np.asarray(fill_holes(lit_depth, patch, lit.scale)) - lit_depth).max() > 1e-3
+    ring = depth[:, 4 * 4 - 1:6 * 4 + 1, 3 * 4 - 1:6 * 4 + 1].copy()
+    ring[:, 1:-1, 1:-1] = np.nan
+    inside = depth[:, 4 * 4:6 * 4, 3 * 4:6 * 4]  # the maximum principle: between the surface's depths around it
+    assert (inside >= np.nanmin(ring) - 1e-6).all() and (inside <= np.nanmax(ring) + 1e-6).all()
 
 
 def test_keep_returns_keeps_the_surface_a_head_calls_sky(sky_everywhere, half_sky, tmp_path, capsys):
@@ -440,7 +454,7 @@ def test_keep_returns_keeps_the_surface_a_head_calls_sky(sky_everywhere, half_sk
     the flags are `iter_quiet`'s (each pixel's own `ambient_only`, the quiet pixels' pools, no hole). Off
     (None, --keep-returns off), the head decides alone."""
     from jaxsr.cli import main
-    from jaxsr.sensor import ambient_only, quiet_pixels
+    from jaxsr.sensor import QUIET_POOLS, ambient_only, black_hole_pixels, hole_pixels, quiet_pixels
 
     model, path = sky_everywhere
     assert (upscale(half_sky, None, model=path, read=Reading(units="normalised"), photons=PhotonRules(keep_returns=None)).depth == 1.0).all()
@@ -450,6 +464,9 @@ def test_keep_returns_keeps_the_surface_a_head_calls_sky(sky_everywhere, half_sk
     assert own[:, :, :6].mean() < 0.01 and own[:, :, 6:].all()  # one surface pixel of a first frame passes
     quiet = np.asarray(quiet_pixels(half_sky, alpha=1e-3))
     assert not quiet[:, :, :6].any() and quiet[:, :, 6:].all()  # that lone pixel, a hole, is the surface's again
+    holes = np.asarray(hole_pixels(ambient_only(half_sky, alpha=1e-3, pixels=1, pools=QUIET_POOLS)))
+    assert holes[:, :, :6].sum() == 1 and not holes[:, :, 6:].any()  # ... with the surface's ambient light:
+    assert not np.asarray(black_hole_pixels(half_sky, alpha=1e-3)).any()  # not black, the network's depth
     hr_quiet = np.repeat(np.repeat(quiet, 4, axis=1), 4, axis=2)
     depth = super_resolve_histograms(with_no_return_logit(model, 1e6), half_sky)  # the depth under the head
     np.testing.assert_allclose(result.depth, np.clip(np.where(hr_quiet, 1.0, depth), 0, 1), atol=1e-6)

@@ -549,7 +549,7 @@ def test_beside_sky_adds_the_border_of_a_large_region_only():
             jaxsr.sensor.beside_sky(flags, bad)
 
 
-def test_iter_quiet_is_the_pooled_test_without_holes():
+def test_iter_quiet_is_the_pooled_test_without_holes_and_names_the_holes():
     counts = _dim_wall_and_sky(9, 0.4)
     counts[:, 9, 14] = 0.0  # a pixel that sends back no photon amid the sky: still a region with the sky
     counts[:, 2:4, 16:18] = np.random.default_rng(1).poisson(2.0 / K, (9, 2, 2, K))  # black, amid bright returns
@@ -557,8 +557,20 @@ def test_iter_quiet_is_the_pooled_test_without_holes():
     whole = jaxsr.sensor.without_holes(flags)
     assert np.asarray(flags)[:, 2:4, 16:18].all() and not np.asarray(whole)[:, 2:4, 16:18].any()  # a hole, filled
     assert np.asarray(whole)[:, 9, 14].all()
-    got = np.stack(list(jaxsr.inference.iter_quiet(iter(counts), CFG, alpha=1e-3)))
-    np.testing.assert_array_equal(got, np.asarray(whole))
+    got = list(jaxsr.inference.iter_quiet(iter(counts), CFG, alpha=1e-3))
+    np.testing.assert_array_equal(np.stack([q.quiet for q in got]), np.asarray(whole))
+    holes = np.stack([q.holes for q in got])
+    np.testing.assert_array_equal(holes, np.asarray(jaxsr.sensor.hole_pixels(flags)))
+    np.testing.assert_array_equal(holes, np.asarray(flags) & ~np.asarray(whole))  # the hole, and nothing quiet else
+    assert holes[:, 2:4, 16:18].all() and not holes[:, 9, 14].any()
+    black = np.stack([q.black for q in got])  # the hole holds ambient light as its neighbours do: not black
+    np.testing.assert_array_equal(black, np.asarray(jaxsr.sensor.black_hole_pixels(counts, CFG, alpha=1e-3)))
+    assert not black.any()
+    counts[:, 2:4, 16:18] = 0.0  # now black: no photon at all amid the returns' ambient light
+    got = list(jaxsr.inference.iter_quiet(iter(counts), CFG, alpha=1e-3))
+    black = np.stack([q.black for q in got])
+    assert black[:, 2:4, 16:18].all() and black.sum() == 4 * len(counts)
+    np.testing.assert_array_equal(black, np.asarray(jaxsr.sensor.black_hole_pixels(counts, CFG, alpha=1e-3)))
     np.testing.assert_array_equal(np.asarray(jaxsr.sensor.quiet_pixels(counts, CFG, alpha=1e-3)), np.asarray(whole))
 
 
