@@ -30,9 +30,10 @@ Methods, on the same photons:
   histograms: their 16 bins over the sensor's 35 m, the confidence's no-return decision: no return where P(return)
   < 0.5 and the pixel's own photons over 9 frames, and those of the quiet pixels pooled in the 3 x 3 and 5 x 5
   around it, pass for ambient light alone), on the photon counts of each scored frame's +-4 frames;
-- "tr4-ambient + keep 0.001": that model with the keep rule on its head's logit (`_photon_benchmark.returns_kept`,
-  `jaxsr upscale --keep-returns 0.001`), the default decision before the confidence's P(return); cached as
-  "default" before the other was scored (`OLD_NAMES`). Where both output depth the two are the same numbers.
+- "tr4-ambient + keep 0.001": that model with the keep rule on its head's logit, each pixel's own photons alone
+  (`_photon_benchmark.returns_kept`), the default decision before the confidence's P(return) and the pools (`jaxsr
+  upscale --keep-returns 0.001` now pools them too and fills black holes); cached as "default" before the other
+  was scored (`OLD_NAMES`). Where both output the network's depth the two are the same numbers.
 
 Scores per scene and regime: PSNR over all pixels (normalised depth clipped to [0, 1], no return = 1.0, as the
 photon benchmark scores it); true returns dropped: the share of HR pixels with a return whose 8 neighbours all

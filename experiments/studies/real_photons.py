@@ -555,7 +555,7 @@ def evaluate(recordings, models: dict, *, levels=LEVELS, max_frames: int = MAX_F
             tv_idx = tv_frames_of(len(lr), tv_frames) if tv else np.zeros(0, int)
             if tv:
                 outputs["TV"] = tv_output(lr, tv_idx)
-            for label, name in upscale.items():
+            for label, name in (upscale or {}).items():
                 outputs[label] = upscaled(frames, name)
             for label, model in models.items():
                 if label in (confidence or {}):

@@ -13,8 +13,9 @@ from typing import Callable, Iterator
 import numpy as np
 
 from ..config import TRAINED_RANGE_M, DepthScale, Gate, Optics, Sensor
-from ..inference import (DEFAULT_PRECISION, filled_where_holes, iter_ambient_only, iter_network_inputs, iter_quiet,
-                         iter_returns_kept, iter_super_resolve, lr_blocks, no_return_where, overrule_no_return)
+from ..inference import (DEFAULT_PRECISION, QuietFrame, filled_where_holes, iter_ambient_only, iter_network_inputs,
+                         iter_quiet, iter_returns_kept, iter_super_resolve, lr_blocks, no_return_where,
+                         overrule_no_return)
 from ..inference.confidence import (EVIDENCE_FRAMES, NO_RETURN_AT, ConfidenceCoefficients, coefficients_for,
                                     confidence_frame, iter_count_windows, no_return_by_probability)
 from ..nn.model import Model
@@ -66,12 +67,13 @@ class UpscaleJob:
     model_id: str = ""
     input_path: str | None = None  # the input where it was given as a path (never written over)
     ensemble_model: Model | None = None
-    # fresh streams of the network's input, and of the photon tests' (h, w) bool flags per frame (None: no test)
+    # fresh streams of the network's input, and of the photon tests' flags per frame ((h, w) bool; the keep rule's
+    # a QuietFrame) (None: no test)
     _lr_stream: Callable[[], Iterator[np.ndarray]] = dataclasses.field(default=None, repr=False, compare=False)
     _ambient_stream: Callable[[], Iterator[np.ndarray]] | None = dataclasses.field(default=None, repr=False,
                                                                                    compare=False)
-    _keep_stream: Callable[[], Iterator[np.ndarray]] | None = dataclasses.field(default=None, repr=False,
-                                                                                compare=False)
+    _keep_stream: Callable[[], Iterator[QuietFrame]] | None = dataclasses.field(default=None, repr=False,
+                                                                               compare=False)
     # a fresh stream of the ensemble model's input (None: no ensemble model)
     _ensemble_lr_stream: Callable[[], Iterator[np.ndarray]] | None = dataclasses.field(default=None, repr=False,
                                                                                     compare=False)

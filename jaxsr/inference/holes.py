@@ -5,9 +5,10 @@ decision keeps it a return where returns enclose it (`jaxsr.sensor.without_holes
 The network's guess drifts with the distance from the hole's edge (its receptive field ends); the surfaces around
 the hole say more. A plane's inverse depth is affine in the image, and an affine function is harmonic, so the hole
 is filled with the harmonic interpolation of the inverse depth around it: a hole in a wall, a floor or a tilted
-table is filled with that plane exactly, and a hole between two surfaces blends them smoothly. On the held-out
-rooms this takes the photon-less pixels of sun-room from the network's error to the surfaces' (docs/network.md,
-"The holes").
+table is filled with that plane (exactly for depth along the optical axis; the library's radial depth departs
+from it by about 3 mm over an 8 x 8 LR hole at the sensor's 30 degree field of view), and a hole between two
+surfaces blends them smoothly. Which holes are black, and so filled, `jaxsr.sensor.black_holes` says from their
+photons; the others (a far surface behind a nearer frame) keep the network's depth (docs/network.md, "The holes").
 """
 
 import functools
@@ -20,13 +21,13 @@ from ..spad import DepthScale
 
 __all__ = ["fill_holes", "filled_where_holes", "HOLE_FILL_ITERATIONS"]
 
-# conjugate gradient steps per frame: a hole of `jaxsr.sensor.HOLE_PIXELS` LR pixels is at most 32 HR pixels across
-# (8 x 8 LR) or 4 wide, and CG's error falls by about exp(-2 k / width) on the Laplacian; 256 steps leave it below
-# float32's precision for any hole up to 128 HR pixels across
+# conjugate gradient steps per frame: CG's error on the Laplacian falls with the hole's narrowest width (an 8 x 8 LR
+# hole of `jaxsr.sensor.HOLE_PIXELS` is 32 HR pixels across, a line of them 4 wide); 256 and 4000 steps give the
+# same fill on 8 x 8, 1 x 62 and 3 x 21 LR holes
 HOLE_FILL_ITERATIONS = 256
-# the nearest distance (in the depth scale's spans) whose inverse the fill takes: the network's 0 may be the gate's
-# start at 0 m, where the inverse depth would be infinite
-_NEAREST = 1e-3
+# the nearest distance (in the depth scale's spans, 0.35 m of 35 m) whose inverse the fill takes: the network's 0
+# may be the gate's start at 0 m, and one pixel around a hole at or below 0 would otherwise pull the whole fill to it
+_NEAREST = 1e-2
 
 
 def _neighbour_sum(x):
@@ -54,8 +55,9 @@ def _harmonic(values, hole, *, iterations: int):
 
 def fill_holes(hr, holes, scale: DepthScale = DepthScale(), *, iterations: int = HOLE_FILL_ITERATIONS):
     """HR normalised depth (..., H, W) with the HR pixels of each LR pixel in `holes` (..., h, w) bool, H = r h and
-    W = r w (the LR pixels that `without_holes` gave back to a return: a quiet region that returns enclose, or a lone
-    quiet pixel), replaced by the harmonic interpolation of the inverse depth around them (`scale`'s metres: a
+    W = r w (the default decision passes the black holes, `jaxsr.sensor.black_holes`: quiet regions that returns
+    enclose, or lone quiet pixels, that reflect less of the ambient light than the surfaces around them), replaced
+    by the harmonic interpolation of the inverse depth around them (`scale`'s metres: a
     plane is filled with that plane). Elsewhere `hr` unchanged, exactly. jit-able and differentiable in `hr`
     (`iterations` static; `scale` a concrete `DepthScale`); frames without a hole are returned as they are."""
     hr = jnp.asarray(hr, jnp.float32)
@@ -72,7 +74,7 @@ def fill_holes(hr, holes, scale: DepthScale = DepthScale(), *, iterations: int =
         raise TypeError(f"fill_holes: scale is a jaxsr.DepthScale, got {type(scale).__name__}")
     near = jnp.float32(scale.offset / scale.span)  # metres / span: distance = (near + n) span
     at_hr = jnp.repeat(jnp.repeat(holes, r, axis=-2), r, axis=-1)
-    inverse = 1.0 / jnp.maximum(near + hr, _NEAREST)
+    inverse = 1.0 / jnp.maximum(near + jnp.clip(hr, 0.0, 1.0), _NEAREST)  # unclipped network output: to the span
     frames = inverse.reshape(-1, big_h, big_w)
     filled = jax.vmap(functools.partial(_harmonic, iterations=iterations))(frames, at_hr.reshape(frames.shape))
     farthest = jnp.maximum(near + 1.0, _NEAREST)  # no return: a hole is filled no further

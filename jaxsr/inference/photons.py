@@ -4,11 +4,11 @@ frame by frame, and the decisions on no return (the photons' and a no-return hea
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import itertools
 from collections import deque
 from collections.abc import Iterable, Iterator
-from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -72,12 +72,14 @@ def iter_network_inputs(counts: Iterable, sensor: Sensor = Sensor(), inputs=("de
         yield from flush()
 
 
-class QuietFrame(NamedTuple):
+@dataclasses.dataclass(frozen=True)
+class QuietFrame:
     """One frame of the photons' no-return decision, each (h, w) bool: `quiet`, where no return may be output (the
     photons pass for ambient light alone, in a region that reaches the frame's edge or is larger than a hole);
     `holes`, the quiet pixels given back to a return (a quiet region that returns enclose, a lone quiet pixel);
     `black`, those of the holes whose photons fall short of the ambient light around them (`black_holes`), whose
-    depth `fill_holes` takes from the surfaces around them."""
+    depth `fill_holes` takes from the surfaces around them. Not a sequence: code that took a frame's flags as one
+    array is refused, not silently given three."""
 
     quiet: np.ndarray
     holes: np.ndarray

@@ -262,10 +262,10 @@ def check_false_alarm_rate(name: str, alpha) -> None:
 # the smallest that found the returns of dim indoor walls that single pixels miss (experiments/results/
 # quiet_pools.md) at the least cost to the sky beside returns
 QUIET_POOLS = (3, 5)
-# the largest region of quiet LR pixels that returns enclose and that is given back to a return (`without_holes`,
-# its depth from around it: `jaxsr.inference.fill_holes`): the black screens and furniture of indoor rooms are
-# given back (up to 64 scored as any size on the held-out rooms, experiments/results/quiet_pools.md), an opening
-# of more than 8 x 8 LR pixels stays no return
+# the largest region of quiet LR pixels that returns enclose and that is given back to a return (`without_holes`;
+# a black one takes the depth around it: `black_holes`, `jaxsr.inference.fill_holes`): the black screens and
+# furniture of indoor rooms are given back (up to 64 scored as any size on the held-out rooms,
+# experiments/results/quiet_pools.md), an opening of more than 8 x 8 LR pixels stays no return
 HOLE_PIXELS = 64
 
 
@@ -372,8 +372,9 @@ def without_holes(flags, max_pixels: int = HOLE_PIXELS):
 
 def hole_pixels(flags, max_pixels: int = HOLE_PIXELS):
     """The flagged LR pixels (..., h, w) bool that `without_holes` gives back to a return: the quiet regions that
-    returns enclose (up to `max_pixels`) and the lone quiet pixels, whose depth `jaxsr.inference.fill_holes` takes
-    from around them. jit-able with `max_pixels` static; no gradient."""
+    returns enclose (up to `max_pixels`) and the lone quiet pixels; those of them that are black (`black_holes`)
+    take the depth around them (`jaxsr.inference.fill_holes`), the others keep the network's. jit-able with
+    `max_pixels` static; no gradient."""
     f = jnp.asarray(flags, bool)
     return f & ~without_holes(f, max_pixels)
 

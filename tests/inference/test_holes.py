@@ -159,3 +159,15 @@ def test_black_holes_jit_frames_and_refusals():
         black_holes(a[..., :8], holes)
     with pytest.raises(ValueError, match=r"\(\.\.\., h, w, 16\)"):
         black_holes(a, holes[:6])
+
+
+def test_one_pixel_around_a_hole_at_or_behind_the_gate_start_pulls_only_its_side_of_the_fill():
+    """The network's output is unclipped: a pixel around the hole at -0.01 (behind the gate's start) counts as the
+    nearest distance the fill takes (0.35 m), not as an infinite inverse depth; in inverse depth a near pixel weighs
+    more, so the hole's side beside it comes nearer, the far side stays with the surface."""
+    hr = np.full((16, 16), np.float32(0.3))
+    holes = np.zeros((4, 4), bool)
+    holes[1:3, 1:3] = True
+    hr[3, 6] = -0.01  # on the hole's edge
+    got = np.asarray(fill_holes(hr, holes, SCALE))[4:12, 4:12]
+    assert got.min() > 0.01 and got.max() <= 0.3 + 1e-6 and got[-2:].min() > 0.2
