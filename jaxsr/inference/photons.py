@@ -19,7 +19,7 @@ from ..config import MIN_LR_SIDE, Sensor
 from ..nn.inputs import network_inputs
 from ..nn.model import Model
 from ..sensor.peaks import (QUIET_POOLS, ambient_only, capped_for_sum, check_ambient_settings,
-                            black_holes, check_false_alarm_rate, hole_pixels, summed_histograms, without_holes)
+                            black_holes, check_false_alarm_rate, summed_histograms, without_holes)
 from .forms import DEFAULT_FORM, DEFAULT_PRECISION, check_precision, in_form
 from .traced import refuse_tracing
 from .units import check_units, network_to_units
@@ -99,8 +99,9 @@ def _quiet_centre(window, alpha, sensor, frames):
     """`iter_quiet`'s (quiet, holes, black) of the centre frame of a (frames, h, w, K) window, as `_ambient_centre`."""
     summed = jnp.sum(capped_for_sum(window, summed_histograms(1, frames, QUIET_POOLS)), axis=0, keepdims=True)
     flags = ambient_only(summed, sensor, alpha=alpha, pixels=1, frames=1, pools=QUIET_POOLS)
-    holes = hole_pixels(flags)
-    return without_holes(flags)[0], holes[0], black_holes(summed, holes, sensor, alpha=alpha)[0]
+    quiet = without_holes(flags)
+    holes = flags & ~quiet  # `hole_pixels`, its regions labelled once
+    return quiet[0], holes[0], black_holes(summed, holes, sensor, alpha=alpha)[0]
 
 
 def _iter_windows(counts: Iterable, sensor: Sensor, frames: int, name: str) -> Iterator[np.ndarray]:

@@ -82,6 +82,7 @@ def test_depths_at_zero_behind_the_gate_start_and_far_beyond_stay_finite(edge):
     assert np.all(np.isfinite(np.asarray(grad)))
 
 
+@pytest.mark.slow  # compiles the fill and its gradient: 5-15 s on 2 cores
 def test_a_frame_that_is_all_hole_is_left_as_it_is():
     hr = np.linspace(0.1, 0.9, 64, dtype=np.float32).reshape(8, 8)
     np.testing.assert_array_equal(np.asarray(fill_holes(hr, np.ones((2, 2), bool), SCALE)), hr)
@@ -89,6 +90,7 @@ def test_a_frame_that_is_all_hole_is_left_as_it_is():
     np.testing.assert_array_equal(np.asarray(grad), 1.0)
 
 
+@pytest.mark.slow  # compiles the fill and its gradient: 5-15 s on 2 cores
 def test_jit_vmap_and_gradient():
     truth = jnp.asarray(np.stack([_plane(4, 6), _plane(4, 6) * 0.5]))
     holes = jnp.zeros((2, 4, 6), bool).at[:, 1:3, 2:4].set(True)

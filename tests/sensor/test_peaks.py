@@ -563,15 +563,20 @@ def test_iter_quiet_is_the_pooled_test_without_holes_and_names_the_holes():
     np.testing.assert_array_equal(holes, np.asarray(jaxsr.sensor.hole_pixels(flags)))
     np.testing.assert_array_equal(holes, np.asarray(flags) & ~np.asarray(whole))  # the hole, and nothing quiet else
     assert holes[:, 2:4, 16:18].all() and not holes[:, 9, 14].any()
-    black = np.stack([q.black for q in got])  # the hole holds ambient light as its neighbours do: not black
-    np.testing.assert_array_equal(black, np.asarray(jaxsr.sensor.black_hole_pixels(counts, CFG, alpha=1e-3)))
-    assert not black.any()
-    counts[:, 2:4, 16:18] = 0.0  # now black: no photon at all amid the returns' ambient light
-    got = list(jaxsr.inference.iter_quiet(iter(counts), CFG, alpha=1e-3))
-    black = np.stack([q.black for q in got])
-    assert black[:, 2:4, 16:18].all() and black.sum() == 4 * len(counts)
-    np.testing.assert_array_equal(black, np.asarray(jaxsr.sensor.black_hole_pixels(counts, CFG, alpha=1e-3)))
+    assert not np.stack([q.black for q in got]).any()  # the hole holds ambient light as its neighbours do
     np.testing.assert_array_equal(np.asarray(jaxsr.sensor.quiet_pixels(counts, CFG, alpha=1e-3)), np.asarray(whole))
+
+
+@pytest.mark.slow  # compiles the streamed and the whole-sequence test: 10-40 s on 2 cores
+def test_iter_quiet_names_the_black_holes_as_the_whole_sequence_does():
+    counts = _dim_wall_and_sky(9, 0.4)
+    counts[:, 2:4, 16:18] = np.random.default_rng(1).poisson(2.0 / K, (9, 2, 2, K))  # ambient as around: not black
+    for black_patch in (False, True):
+        if black_patch:
+            counts[:, 2:4, 16:18] = 0.0  # no photon at all amid the returns' ambient light
+        black = np.stack([q.black for q in jaxsr.inference.iter_quiet(iter(counts), CFG, alpha=1e-3)])
+        np.testing.assert_array_equal(black, np.asarray(jaxsr.sensor.black_hole_pixels(counts, CFG, alpha=1e-3)))
+        assert black.sum() == (4 * len(counts) if black_patch else 0) and black[:, 2:4, 16:18].all() == black_patch
 
 
 @pytest.mark.parametrize("pools", [(2,), (3, 4), [3, 5], (0,), (True,)])
