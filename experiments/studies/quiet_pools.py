@@ -40,8 +40,7 @@ from jaxsr.app.job import prepare_upscale
 from jaxsr.config import DepthScale, Sensor
 from jaxsr.inference import filled_where_holes, iter_super_resolve, lr_blocks
 from jaxsr.inference.holes import _harmonic  # the fill's solver, here on depth itself: the alternative measured
-from jaxsr.sensor import ambient_only, beside_sky, black_holes, hole_pixels, without_holes
-from jaxsr.sensor.peaks import capped_for_sum, summed_histograms, window_sums
+from jaxsr.sensor import ambient_only, beside_sky, black_hole_pixels, without_holes
 
 import _heldout_data  # beside this script
 from _photon_benchmark import benchmark_clips, regime_key, regime_label, shares  # noqa: E402
@@ -93,9 +92,8 @@ def decided(raw, p, counts, pools, max_hole, sky, fill=None, scale: DepthScale =
     out = np.where(lr_blocks(quiet, Sensor().scale) & (p < 0.5), np.float32(1.0), raw)
     if fill is None or max_hole is None:
         return out
-    # the black holes (`jaxsr.sensor.black_hole_pixels`, with these pools and this hole size)
-    summed = window_sums(capped_for_sum(jnp.asarray(counts), summed_histograms(1, 9, pools)), 9)
-    holes = np.asarray(black_holes(summed, hole_pixels(flags, max_hole), alpha=AUTO_KEEP_RETURNS))
+    holes = np.asarray(black_hole_pixels(jnp.asarray(counts), Sensor(), alpha=AUTO_KEEP_RETURNS, pools=pools,
+                                         max_pixels=max_hole))
     if fill == "inverse depth":
         return np.stack([filled_where_holes(o, h, scale) for o, h in zip(out, holes)])
     at_hr = lr_blocks(holes, Sensor().scale)

@@ -486,15 +486,17 @@ def quiet_pixels(counts, sensor: Sensor = Sensor(), *, alpha=1e-3, frames: int =
     return without_holes(flags)
 
 
-def black_hole_pixels(counts, sensor: Sensor = Sensor(), *, alpha=1e-3, frames: int = 9):
+def black_hole_pixels(counts, sensor: Sensor = Sensor(), *, alpha=1e-3, frames: int = 9, pools: tuple = QUIET_POOLS,
+                      max_pixels: int = HOLE_PIXELS):
     """The black holes of the default no-return decision over a whole sequence: (T, h, w) bool, the LR pixels that
     `quiet_pixels` gives back to a return (`hole_pixels`) whose region's photons over `frames` frames fall short of
     the ambient light around it at `alpha` (`black_holes`), whose depth `jaxsr.inference.fill_holes` takes from the
-    surfaces around them. `jaxsr.inference.iter_quiet` streams it (`QuietFrame.black`). jit-able with `frames`
-    static."""
-    flags = ambient_only(counts, sensor, alpha=alpha, pixels=1, frames=frames, pools=QUIET_POOLS)
-    n = capped_for_sum(jnp.asarray(counts, jnp.float32), summed_histograms(1, frames, QUIET_POOLS))
-    return black_holes(window_sums(n, frames), hole_pixels(flags), sensor, alpha=alpha)
+    surfaces around them. `jaxsr.inference.iter_quiet` streams it (`QuietFrame.black`); `pools` and `max_pixels`
+    (the largest hole) other than the default's are for measuring the decision. jit-able with `frames`, `pools` and
+    `max_pixels` static."""
+    flags = ambient_only(counts, sensor, alpha=alpha, pixels=1, frames=frames, pools=pools)
+    n = capped_for_sum(jnp.asarray(counts, jnp.float32), summed_histograms(1, frames, pools))
+    return black_holes(window_sums(n, frames), hole_pixels(flags, max_pixels), sensor, alpha=alpha)
 
 
 def summed_histograms(pixels: int, frames: int, pools: tuple = ()) -> int:
